@@ -1,0 +1,27 @@
+"""The ``letspi`` command line. Sub-commands live in sibling modules; imports of heavy modules
+happen inside the commands so ``letspi --help`` stays fast."""
+
+from __future__ import annotations
+
+import typer
+
+from letspi.cli import bench, data, demo
+
+app = typer.Typer(
+    name="letspi",
+    help="Safe highway trajectory planning with physics-informed LLMs (LetsPi).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.add_typer(data.app, name="data")
+app.add_typer(bench.app, name="bench")
+app.command("demo")(demo.demo)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

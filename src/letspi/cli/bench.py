@@ -1,0 +1,40 @@
+"""``letspi bench``: benchmarks that print measured numbers (and ratios to a reference run)."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="Benchmarks: print measured speed numbers.", no_args_is_help=True)
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
+
+
+def _emit(result: dict[str, float], as_json: bool, title: str) -> None:
+    if as_json:
+        typer.echo(json.dumps(result, indent=2))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    for k, v in result.items():
+        table.add_row(k, f"{v:,.4g}" if isinstance(v, float) else str(v))
+    Console().print(table)
+
+
+@app.command("data")
+def data_cmd(
+    minutes: Annotated[float, typer.Option(help="Simulated minutes to generate.")] = 10.0,
+    seed: int = 0,
+    n_load: Annotated[int, typer.Option(help="Scenarios in the load test.")] = 10_000,
+    as_json: JsonOpt = False,
+) -> None:
+    """Generation time, extraction scenarios/s for one recording, load time of 10,000 scenarios."""
+    from letspi.bench.data import bench_data
+
+    _emit(bench_data(minutes=minutes, seed=seed, n_load=n_load), as_json, "letspi bench data")

@@ -1,0 +1,20 @@
+"""Fixed quantities of the planning problem (paper §IV-B).
+
+Time indexing used everywhere in letspi: a scenario holds ``N_TOTAL`` frames; frame index
+``T0_INDEX`` is the planning instant t = 0 (the last history frame). History is
+``[0, T0_INDEX]`` inclusive (75 frames = 3 s), the future ``[T0_INDEX + 1, N_TOTAL)``
+(125 frames = 5 s).
+"""
+
+from typing import Final
+
+FRAME_RATE_HZ: Final = 25.0
+DT_S: Final = 1.0 / FRAME_RATE_HZ
+N_HISTORY: Final = 75
+N_FUTURE: Final = 125
+N_TOTAL: Final = N_HISTORY + N_FUTURE
+T0_INDEX: Final = N_HISTORY - 1
+HORIZON_S: Final = N_FUTURE * DT_S
+MAX_NEIGHBOURS: Final = 8
+NEIGHBOUR_RADIUS_M: Final = 100.0
+DEFAULT_STRIDE_FRAMES: Final = 20

@@ -1,0 +1,152 @@
+"""The LLM's reply: six social-force parameters, two goal-adjustment factors, a rationale.
+
+Ranges
+------
+``LLM_PARAM_RANGES`` is the single source of parameter ranges for the LLM side (prompt text,
+JSON schema, clamping). It mirrors the physics module's ``PARAM_RANGES``
+(``letspi.physics.params``), which did not exist when this was written; the two must be
+reconciled into one table (TODO for the lead, not a runtime import, so this module stays
+importable on its own).
+
+Wire format
+-----------
+Replies use short JSON keys (``WIRE_KEYS``): output tokens dominate latency on small
+machines (REFERENCE §8). The parser also accepts the long names and common variants
+(see ``letspi.llm.parse``). Two variants:
+
+* ``"physics"`` (memory-collection phase): a short rationale first, then the numbers. The
+  rationale comes first so a model that reasons does so before committing to numbers.
+* ``"fast"`` (fast-inference phase): numbers only.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Variant = Literal["physics", "fast"]
+VARIANTS: Final[tuple[Variant, ...]] = ("physics", "fast")
+
+#: Social-force parameter ranges (name -> (low, high)). Units: tau_s in s, all k in m/s^2.
+LLM_PARAM_RANGES: Final[dict[str, tuple[float, float]]] = {
+    "tau_s": (0.3, 3.0),
+    "k_np": (0.0, 60.0),
+    "k_nf": (0.0, 30.0),
+    "k_nl": (0.0, 20.0),
+    "k_boundary": (0.0, 5.0),
+    "k_cline": (0.0, 3.0),
+}
+#: Goal-adjustment factor ranges (paper §III-E).
+GOAL_FACTOR_RANGES: Final[dict[str, tuple[float, float]]] = {
+    "lon_factor": (0.0, 1.0),
+    "lane_factor": (-1.0, 1.0),
+}
+#: Every numeric field of a reply with its range, in wire order.
+FIELD_RANGES: Final[dict[str, tuple[float, float]]] = {**LLM_PARAM_RANGES, **GOAL_FACTOR_RANGES}
+NUMERIC_FIELDS: Final[tuple[str, ...]] = tuple(FIELD_RANGES)
+
+#: Canonical field name -> short JSON key used on the wire.
+WIRE_KEYS: Final[dict[str, str]] = {
+    "rationale": "why",
+    "tau_s": "tau",
+    "k_np": "k_np",
+    "k_nf": "k_nf",
+    "k_nl": "k_nl",
+    "k_boundary": "k_bd",
+    "k_cline": "k_cl",
+    "lon_factor": "lon",
+    "lane_factor": "lane",
+}
+
+#: Longest rationale the schema allows (characters); about 60 tokens.
+RATIONALE_MAX_CHARS: Final = 240
+
+#: Units and one-line meanings, used by the prompts.
+FIELD_DOCS: Final[dict[str, tuple[str, str]]] = {
+    "tau_s": ("s", "relaxation time: how fast the ego adapts to its desired velocity (small = eager)"),
+    "k_np": ("m/s^2", "repulsion from the preceding vehicle (same lane, ahead)"),
+    "k_nf": ("m/s^2", "repulsion from the following vehicle (same lane, behind)"),
+    "k_nl": ("m/s^2", "repulsion from lateral vehicles (adjacent lanes)"),
+    "k_boundary": ("m/s^2", "repulsion from road edges (not crossable)"),
+    "k_cline": ("m/s^2", "repulsion from crossable lane lines (keeps the ego centred in its lane)"),
+    "lon_factor": ("-", "goal distance: 0 = 20% farther, 0.4 = unchanged, 1 = 30% shorter"),
+    "lane_factor": ("-", "goal lane shift: -1 = one lane left, 0 = keep, +1 = one lane right"),
+}
+
+#: lon_factor that leaves the goal distance unchanged (scale 1.2 - 0.5 * f = 1).
+NEUTRAL_LON_FACTOR: Final = 0.4
+
+
+class PlannerReply(BaseModel):
+    """A validated reply, always within range. Build one from raw text with ``parse_reply``.
+
+    Populate by canonical name (``tau_s=...``) or wire key (``tau=...``); ``model_dump()``
+    gives canonical names, ``model_dump(by_alias=True)`` the wire keys.
+    """
+
+    model_config = ConfigDict(frozen=True, populate_by_name=True, extra="ignore")
+
+    tau_s: float = Field(alias="tau", ge=0.3, le=3.0)
+    k_np: float = Field(alias="k_np", ge=0.0, le=60.0)
+    k_nf: float = Field(alias="k_nf", ge=0.0, le=30.0)
+    k_nl: float = Field(alias="k_nl", ge=0.0, le=20.0)
+    k_boundary: float = Field(alias="k_bd", ge=0.0, le=5.0)
+    k_cline: float = Field(alias="k_cl", ge=0.0, le=3.0)
+    lon_factor: float = Field(alias="lon", ge=0.0, le=1.0)
+    lane_factor: float = Field(alias="lane", ge=-1.0, le=1.0)
+    rationale: str = Field(default="", alias="why")
+
+    def params(self) -> dict[str, float]:
+        """The six social-force parameters (canonical names)."""
+        return {k: float(getattr(self, k)) for k in LLM_PARAM_RANGES}
+
+    def goal_factors(self) -> tuple[float, float]:
+        """``(lon_factor, lane_factor)``."""
+        return self.lon_factor, self.lane_factor
+
+    def to_wire(self, variant: Variant = "physics", decimals: int = 2) -> dict[str, Any]:
+        """The reply as the model should write it (short keys, rounded); used for few-shot examples."""
+        out: dict[str, Any] = {}
+        if variant == "physics":
+            out[WIRE_KEYS["rationale"]] = self.rationale[:RATIONALE_MAX_CHARS]
+        for name in NUMERIC_FIELDS:
+            out[WIRE_KEYS[name]] = round(float(getattr(self, name)), decimals)
+        return out
+
+
+#: Fallback when every attempt failed: mid-range parameters from REFERENCE §4's starting ranges,
+#: neutral goal. TODO(lead): replace with the physics module's fitted defaults once they exist.
+DEFAULT_REPLY: Final = PlannerReply(
+    tau_s=1.0,
+    k_np=25.0,
+    k_nf=5.0,
+    k_nl=0.5,
+    k_boundary=1.0,
+    k_cline=0.5,
+    lon_factor=NEUTRAL_LON_FACTOR,
+    lane_factor=0.0,
+    rationale="default parameters (fallback)",
+)
+
+
+def reply_json_schema(variant: Variant = "physics") -> dict[str, Any]:
+    """JSON schema of the wire reply, for constrained decoding.
+
+    Property order is generation order under grammar-constrained decoding (llama.cpp follows it),
+    so the rationale comes first in the physics variant. ``minimum``/``maximum`` are advisory:
+    llama.cpp's grammar ignores them, so ``parse_reply`` clamps anyway.
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown reply variant {variant!r}; expected one of {VARIANTS}")
+    props: dict[str, Any] = {}
+    if variant == "physics":
+        props[WIRE_KEYS["rationale"]] = {"type": "string", "maxLength": RATIONALE_MAX_CHARS}
+    for name, (lo, hi) in FIELD_RANGES.items():
+        props[WIRE_KEYS[name]] = {"type": "number", "minimum": lo, "maximum": hi}
+    return {
+        "type": "object",
+        "properties": props,
+        "required": list(props),
+        "additionalProperties": False,
+    }

@@ -1,0 +1,1 @@
+"""letspi.scenario"""

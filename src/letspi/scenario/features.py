@@ -1,0 +1,62 @@
+"""Scenario features for memory matching (paper §III-E), from what is observable at t = 0.
+
+Columns of ``scenario_features`` (B, 6), in this order (``FEATURE_NAMES``):
+
+0. ``n_vehicles``: neighbours visible at t = 0 (count).
+1. ``ego_speed_mps``: ego speed at t = 0.
+2. ``lane_change``: 1.0 if the ego changes lane during its history or its lateral speed at
+   t = 0 exceeds ``LANE_CHANGE_LAT_SPEED_MPS`` (an intention the planner can see), else 0.0.
+   The paper does not say how it detects a lane change; the future is never used here.
+3. ``min_dist_m``: minimum centre distance to a visible neighbour at t = 0.
+4. ``mean_dist_m``: mean centre distance to visible neighbours at t = 0.
+5. ``mean_nbr_speed_mps``: mean speed of visible neighbours at t = 0.
+
+With no visible neighbour, distances are ``NEIGHBOUR_RADIUS_M`` (100 m: "nobody within range")
+and the mean neighbour speed is the ego's own speed, so such scenarios match each other.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+
+from letspi.constants import NEIGHBOUR_RADIUS_M, T0_INDEX
+from letspi.scenario.types import ScenarioBatch
+
+FEATURE_NAMES: Final[tuple[str, ...]] = (
+    "n_vehicles",
+    "ego_speed_mps",
+    "lane_change",
+    "min_dist_m",
+    "mean_dist_m",
+    "mean_nbr_speed_mps",
+)
+LANE_CHANGE_LAT_SPEED_MPS: Final = 0.5
+
+
+def scenario_features(batch: ScenarioBatch) -> np.ndarray:
+    """Matching features (B, 6) float64; see the module docstring for columns and units."""
+    t0 = T0_INDEX
+    ego_xy = batch.ego_xy_m[:, t0].astype(np.float64)
+    ego_v = batch.ego_vxy_mps[:, t0].astype(np.float64)
+    ego_speed = np.hypot(ego_v[:, 0], ego_v[:, 1])
+    visible = batch.nbr_valid[:, :, t0]
+    n_vis = visible.sum(axis=1)
+    nbr_xy = batch.nbr_xy_m[:, :, t0].astype(np.float64)
+    dist = np.hypot(nbr_xy[..., 0] - ego_xy[:, None, 0], nbr_xy[..., 1] - ego_xy[:, None, 1])
+    dist = np.where(visible, dist, np.nan)
+    nbr_v = batch.nbr_vxy_mps[:, :, t0].astype(np.float64)
+    nbr_speed = np.where(visible, np.hypot(nbr_v[..., 0], nbr_v[..., 1]), np.nan)
+    has = n_vis > 0
+    safe_n = np.maximum(n_vis, 1)
+    min_dist = np.where(has, np.nanmin(np.where(visible, dist, np.inf), axis=1), NEIGHBOUR_RADIUS_M)
+    mean_dist = np.where(has, np.nansum(dist, axis=1) / safe_n, NEIGHBOUR_RADIUS_M)
+    mean_speed = np.where(has, np.nansum(nbr_speed, axis=1) / safe_n, ego_speed)
+    hist_lanes = batch.ego_lane_id[:, : t0 + 1]
+    changed = np.any(hist_lanes != hist_lanes[:, :1], axis=1)
+    lane_change = changed | (np.abs(ego_v[:, 1]) > LANE_CHANGE_LAT_SPEED_MPS)
+    return np.stack(
+        [n_vis.astype(np.float64), ego_speed, lane_change.astype(np.float64), min_dist, mean_dist, mean_speed],
+        axis=1,
+    )

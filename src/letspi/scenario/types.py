@@ -1,0 +1,191 @@
+"""Planning scenarios as a struct of arrays (data only; behaviour lives in other modules).
+
+The ego frame (the one coordinate system every scenario array uses)
+-------------------------------------------------------------------
+* Origin: the ego's box centre at t = 0 (frame index ``T0_INDEX``). Fixed for the scenario.
+* x: the ego's direction of travel; y: to the *left* of travel. Right-handed, SI units.
+* From HighD image axes (x right, y down; see ``letspi.highd.schema``) with the ego centre
+  ``(cx0, cy0)`` at t = 0:
+
+  - driving direction 2 (lower carriageway, travels +x): ``x = cx - cx0``, ``y = -(cy - cy0)``
+  - driving direction 1 (upper carriageway, travels -x): ``x = -(cx - cx0)``, ``y = cy - cy0``
+
+  i.e. direction-1 scenarios are turned by 180 degrees (both axes mirrored), which keeps the
+  frame right-handed; velocities and accelerations transform with the same signs.
+* Lane markings of the ego's carriageway become horizontal lines ``y = marking_y_m``.
+  The outermost two are road edges (not crossable), the others crossable lane lines.
+
+Shapes: B scenarios, T = ``N_TOTAL`` (200) frames, N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
+M lane markings (padded with NaN to the widest scenario in the batch). Frame ``T0_INDEX`` (74)
+is t = 0; frames after it are the ground-truth future, for evaluation only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from letspi.constants import N_TOTAL, T0_INDEX
+
+SCHEMA_VERSION = 1
+
+VEHICLE_CLASS_CAR = 0
+VEHICLE_CLASS_TRUCK = 1
+VEHICLE_CLASS_NONE = -1
+VEHICLE_CLASS_NAMES = {VEHICLE_CLASS_CAR: "Car", VEHICLE_CLASS_TRUCK: "Truck"}
+
+
+@dataclass(frozen=True)
+class ScenarioBatch:
+    """B ego-centric planning scenarios. All arrays share the leading batch axis.
+
+    Meta (shape (B,)):
+        scenario_id: str, ``"r{recording:02d}_v{ego_id}_f{frame0}"``, unique per window.
+        recording_id, location_id, ego_id, frame0 (HighD frame number at t = 0): int32.
+        driving_direction: int8, 1 or 2 (HighD convention).
+        speed_limit_mps: float32, NaN when the road has none.
+        ego_class: int8 (``VEHICLE_CLASS_*``); ego_length_m, ego_width_m: float32.
+    Ego (T = 200 frames):
+        ego_xy_m (B, T, 2), ego_vxy_mps (B, T, 2), ego_axy_mps2 (B, T, 2): float32, ego frame.
+        ego_lane_id (B, T): int8, HighD laneId.
+    Neighbours (N = 8 slots, closest first by minimum centre distance over the window;
+    empty slots have id 0, class -1, size 0 and are never valid):
+        nbr_id (B, N) int32; nbr_class (B, N) int8; nbr_length_m, nbr_width_m (B, N) float32.
+        nbr_xy_m, nbr_vxy_mps (B, N, T, 2) float32 (NaN where not visible).
+        nbr_valid (B, N, T) bool: the vehicle is in the recording at that frame.
+        nbr_lane_id (B, N, T) int8 (0 where not visible).
+    Road (M markings, ascending y, i.e. from the right road edge to the left one):
+        marking_y_m (B, M) float32, NaN padded.
+        marking_is_edge (B, M) bool: road edge (True) or crossable lane line (False).
+        lane_ids (B, M - 1) int8: HighD laneId of the lane between marking k and k + 1
+            (0 for padding).
+    """
+
+    scenario_id: np.ndarray
+    recording_id: np.ndarray
+    location_id: np.ndarray
+    ego_id: np.ndarray
+    frame0: np.ndarray
+    driving_direction: np.ndarray
+    speed_limit_mps: np.ndarray
+    ego_class: np.ndarray
+    ego_length_m: np.ndarray
+    ego_width_m: np.ndarray
+    ego_xy_m: np.ndarray
+    ego_vxy_mps: np.ndarray
+    ego_axy_mps2: np.ndarray
+    ego_lane_id: np.ndarray
+    nbr_id: np.ndarray
+    nbr_class: np.ndarray
+    nbr_length_m: np.ndarray
+    nbr_width_m: np.ndarray
+    nbr_xy_m: np.ndarray
+    nbr_vxy_mps: np.ndarray
+    nbr_valid: np.ndarray
+    nbr_lane_id: np.ndarray
+    marking_y_m: np.ndarray
+    marking_is_edge: np.ndarray
+    lane_ids: np.ndarray
+
+    def __post_init__(self) -> None:
+        b = len(self.scenario_id)
+        for f in fields(self):
+            arr = getattr(self, f.name)
+            if not isinstance(arr, np.ndarray):
+                raise TypeError(f"ScenarioBatch.{f.name} must be a numpy array, got {type(arr).__name__}")
+            if arr.shape[:1] != (b,):
+                raise ValueError(f"ScenarioBatch.{f.name} has leading shape {arr.shape[:1]}, expected ({b},)")
+        if self.ego_xy_m.shape[1:] != (N_TOTAL, 2):
+            raise ValueError(f"ScenarioBatch.ego_xy_m must be (B, {N_TOTAL}, 2), got {self.ego_xy_m.shape}")
+
+    def __len__(self) -> int:
+        return len(self.scenario_id)
+
+    @property
+    def n_neighbours(self) -> int:
+        """Number of neighbour slots N."""
+        return int(self.nbr_id.shape[1])
+
+    def take(self, indices: np.ndarray | list[int] | slice) -> ScenarioBatch:
+        """A sub-batch (copying fancy indexing; a slice gives views)."""
+        return ScenarioBatch(**{f.name: getattr(self, f.name)[indices] for f in fields(self)})
+
+    def scenario(self, index: int) -> Scenario:
+        """One scenario as a ``Scenario`` view (arrays without the batch axis)."""
+        return Scenario(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+
+    # Convenience views at t = 0 (what a planner may see) -------------------------------------
+    @property
+    def ego_xy0_m(self) -> np.ndarray:
+        """Ego position at t = 0, (B, 2); zero by construction of the ego frame."""
+        return self.ego_xy_m[:, T0_INDEX]
+
+    @property
+    def ego_vxy0_mps(self) -> np.ndarray:
+        """Ego velocity at t = 0, (B, 2)."""
+        return self.ego_vxy_mps[:, T0_INDEX]
+
+    @property
+    def history_slice(self) -> slice:
+        return slice(0, T0_INDEX + 1)
+
+    @property
+    def future_slice(self) -> slice:
+        return slice(T0_INDEX + 1, N_TOTAL)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One scenario: the fields of ``ScenarioBatch`` without the batch axis (same units)."""
+
+    scenario_id: str
+    recording_id: int
+    location_id: int
+    ego_id: int
+    frame0: int
+    driving_direction: int
+    speed_limit_mps: float
+    ego_class: int
+    ego_length_m: float
+    ego_width_m: float
+    ego_xy_m: np.ndarray
+    ego_vxy_mps: np.ndarray
+    ego_axy_mps2: np.ndarray
+    ego_lane_id: np.ndarray
+    nbr_id: np.ndarray
+    nbr_class: np.ndarray
+    nbr_length_m: np.ndarray
+    nbr_width_m: np.ndarray
+    nbr_xy_m: np.ndarray
+    nbr_vxy_mps: np.ndarray
+    nbr_valid: np.ndarray
+    nbr_lane_id: np.ndarray
+    marking_y_m: np.ndarray
+    marking_is_edge: np.ndarray
+    lane_ids: np.ndarray
+
+    def as_batch(self) -> ScenarioBatch:
+        """A batch of one."""
+        return ScenarioBatch(**{f.name: np.asarray([getattr(self, f.name)]) for f in fields(self)})
+
+
+def concat_batches(batches: list[ScenarioBatch]) -> ScenarioBatch:
+    """Concatenate batches, padding the marking axis (M) to the widest batch."""
+    if not batches:
+        raise ValueError("concat_batches needs at least one batch")
+    m = max(b.marking_y_m.shape[1] for b in batches)
+    out: dict[str, np.ndarray] = {}
+    for f in fields(ScenarioBatch):
+        parts = []
+        for b in batches:
+            arr = getattr(b, f.name)
+            if f.name in ("marking_y_m", "marking_is_edge", "lane_ids"):
+                width = m if f.name != "lane_ids" else m - 1
+                pad = width - arr.shape[1]
+                if pad > 0:
+                    fill: object = np.nan if f.name == "marking_y_m" else (False if f.name == "marking_is_edge" else 0)
+                    arr = np.concatenate([arr, np.full((arr.shape[0], pad), fill, dtype=arr.dtype)], axis=1)
+            parts.append(arr)
+        out[f.name] = np.concatenate(parts, axis=0)
+    return ScenarioBatch(**out)
