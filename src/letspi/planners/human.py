@@ -1,0 +1,23 @@
+"""``human``: ground-truth replay, the reference row of every table.
+
+It reads the ego's recorded future, which no real planner may do; its metrics say how safe the
+human drivers in the data were (zero collisions on collision-free data is the harness's sanity check).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from letspi.planners.base import PlanBatch
+from letspi.scenario.types import ScenarioBatch
+
+
+@dataclass
+class HumanPlanner:
+    name: str = "human"
+    batch_size: int = 4096
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        fut = batch.future_slice
+        xy = batch.ego_xy_m[:, fut].astype("float64")
+        return PlanBatch(xy_m=xy, vxy_mps=batch.ego_vxy_mps[:, fut].astype("float64"), goals_xy_m=xy[:, -1].copy())
