@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from letspi.cli import bench, data, demo
+from letspi.cli import bench, data, demo, evaluate
 
 app = typer.Typer(
     name="letspi",
@@ -17,6 +17,7 @@ app = typer.Typer(
 app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
 app.command("demo")(demo.demo)
+app.command("evaluate")(evaluate.evaluate)
 
 
 def main() -> None:

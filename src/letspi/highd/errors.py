@@ -29,12 +29,17 @@ class HighDFormatError(ValueError):
         *,
         column: str | None = None,
         line: int | None = None,
+        row: int | None = None,
     ) -> None:
         self.path = Path(path)
         self.column = column
-        self.line = line
+        self.line = line if line is not None else row  # ``row=`` is accepted as an alias
         self.reason = reason
         super().__init__(self._format())
+
+    def __reduce__(self) -> tuple[object, ...]:
+        # keep the exception picklable (multiprocessing) despite the keyword-only fields
+        return (_rebuild, (self.path, self.reason, self.column, self.line))
 
     @property
     def row(self) -> int | None:
@@ -49,3 +54,7 @@ class HighDFormatError(ValueError):
         if location:
             prefix += ", ".join(location) + ": "
         return prefix + self.reason
+
+
+def _rebuild(path: Path, reason: str, column: str | None, line: int | None) -> HighDFormatError:
+    return HighDFormatError(path, reason, column=column, line=line)

@@ -1,0 +1,46 @@
+"""``letspi evaluate``: run planners on scenarios and write the paper-style table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from letspi.cli.common import console, progress_bar, user_errors
+
+
+def evaluate(
+    scenarios: Annotated[Path, typer.Option(help="Scenario Parquet file (from `letspi data scenarios`).")],
+    planner: Annotated[list[str], typer.Option(help="Planner name; repeat for several.")],
+    out: Annotated[Path, typer.Option(help="Output directory (rerunning resumes).")],
+    limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
+    sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
+    neighbours: Annotated[str, typer.Option(help="Neighbour prediction for physics planners: idm|cv.")] = "idm",
+) -> None:
+    """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts."""
+    import numpy as np
+
+    from letspi.evaluation.harness import evaluate as run_evaluation
+    from letspi.planners.factory import PlannerOptions, make_planner
+    from letspi.scenario.store import count_scenarios, load_scenarios
+
+    with user_errors():
+        n_total = count_scenarios(scenarios)
+        indices = None if limit is None else np.arange(min(limit, n_total))
+        batch = load_scenarios(scenarios, indices)
+        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours)
+        planners = [make_planner(name, options) for name in planner]
+        with progress_bar() as bar:
+
+            def factory(name: str, total: int):  # type: ignore[no-untyped-def]
+                task = bar.add_task(name, total=total)
+                return lambda k: bar.advance(task, k)
+
+            results = run_evaluation(
+                planners, batch, out, scenarios_file=str(scenarios), progress_factory=factory
+            )
+    from letspi.metrics.aggregate import render_markdown_table
+
+    typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+    console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/)")
