@@ -6,7 +6,8 @@ first frame and then every ``stride_frames`` frames. In each window:
 * the ego's states are transformed into the ego frame (see ``letspi.scenario.types``);
 * neighbours are the other vehicles **of the same driving direction** whose centre comes within
   ``NEIGHBOUR_RADIUS_M`` of the ego's centre at any frame of the window (both present); the
-  ``MAX_NEIGHBOURS`` closest by that minimum distance are kept, closest first (ties: lower id).
+  ``MAX_NEIGHBOURS`` closest by that minimum distance are kept, closest first (distances compared
+  at 1 mm resolution; ties: lower id).
   Opposite-carriageway traffic is separated by the median and never interacts, so it is left out.
   Note the selection looks at the whole 8 s window, like the paper; planners must only read
   neighbour states at frames ``<= T0_INDEX`` (``nbr_valid`` tells which slots have a history).
@@ -202,7 +203,8 @@ def extract_windows(
             uniq, inv = np.unique(cand_ids, return_inverse=True)
             min_d = np.full(len(uniq), np.inf)
             np.minimum.at(min_d, inv, dist[cand])
-            keep = uniq[np.lexsort((uniq, min_d))][:n]
+            # rank at 1 mm resolution so float noise from CSV round trips can't reorder ties
+            keep = uniq[np.lexsort((uniq, np.round(min_d, 3)))][:n]
         else:
             keep = np.zeros(0, dtype=np.int64)
 
