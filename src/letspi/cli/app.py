@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate
+from letspi.cli import bench, data, demo, evaluate, fit
 
 app = typer.Typer(
     name="letspi",
@@ -16,6 +16,7 @@ app = typer.Typer(
 )
 app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
+app.add_typer(fit.app, name="fit")
 app.command("demo")(demo.demo)
 app.command("evaluate")(evaluate.evaluate)
 

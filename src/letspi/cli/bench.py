@@ -38,3 +38,25 @@ def data_cmd(
     from letspi.bench.data import bench_data
 
     _emit(bench_data(minutes=minutes, seed=seed, n_load=n_load), as_json, "letspi bench data")
+
+
+@app.command("physics")
+def physics_cmd(
+    n: Annotated[int, typer.Option(help="Scenarios (x 8 neighbours x 125 steps).")] = 10_000,
+    n_reference: Annotated[int, typer.Option(help="Scenarios run through the plain Python loops.")] = 100,
+    seed: int = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio)."""
+    import contextlib
+    import io
+
+    from letspi.bench.metrics import bench_metrics
+    from letspi.bench.physics import bench_rollout
+
+    # the bench functions print progress lines of their own; keep stdout clean for --json
+    with contextlib.redirect_stdout(io.StringIO()):
+        rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference)
+        metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference)
+    result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()}}
+    _emit(result, as_json, "letspi bench physics")

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from letspi.metrics.aggregate import aggregate_metrics, render_markdown_table
+from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.evaluate import compute_metrics
 from letspi.planners.base import Planner
@@ -134,7 +134,7 @@ def evaluate(
     scenarios_file: str = "",
     config: MetricsConfig | None = None,
     progress_factory: Callable[[str, int], Callable[[int], None]] | None = None,
-) -> dict[str, dict[str, float]]:
+) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
     Returns ``{planner_name: aggregated metrics}`` (keys documented in ``letspi.metrics.aggregate``).
@@ -142,14 +142,14 @@ def evaluate(
     config = config or MetricsConfig()
     out_dir = Path(out_dir)
     _check_run_file(out_dir, scenarios_file, batch)
-    results: dict[str, dict[str, float]] = {}
+    results: dict[str, dict[str, AggValue]] = {}
     for planner in planners:
         progress = progress_factory(planner.name, len(batch)) if progress_factory else None
         frame = run_planner(planner, batch, out_dir, config, progress)
         results[planner.name] = aggregate_metrics(frame)
     # merge with planners evaluated earlier in the same directory, so the table is complete
     metrics_file = out_dir / "metrics.json"
-    merged: dict[str, dict[str, float]] = {}
+    merged: dict[str, dict[str, AggValue]] = {}
     if metrics_file.exists():
         merged = json.loads(metrics_file.read_text()).get("planners", {})
     merged.update(results)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from letspi.planners.base import Planner
@@ -16,7 +16,6 @@ class PlannerOptions:
 
     sf_params_file: Path | None = None
     neighbour_mode: str = "idm"
-    extra: dict[str, str] = field(default_factory=dict)
 
 
 def available_planners() -> tuple[str, ...]:
@@ -34,4 +33,20 @@ def make_planner(name: str, options: PlannerOptions | None = None) -> Planner:
         from letspi.planners.cv import ConstantVelocityPlanner
 
         return ConstantVelocityPlanner()
+    if name == "idm":
+        from letspi.physics.neighbours import NeighbourPredictionMode
+        from letspi.planners.idm import IdmPlanner
+
+        return IdmPlanner(neighbour_mode=NeighbourPredictionMode(options.neighbour_mode))
+    if name in ("sf", "sf-opt"):
+        from letspi.physics.neighbours import NeighbourPredictionMode
+        from letspi.planners.sf import SocialForcePlanner
+        from letspi.planners.sf_opt import SocialForceSearchPlanner
+        from letspi.planners.sf_params import load_sf_params
+
+        params, _ = load_sf_params(options.sf_params_file)
+        mode = NeighbourPredictionMode(options.neighbour_mode)
+        if name == "sf":
+            return SocialForcePlanner(params=params, neighbour_mode=mode)
+        return SocialForceSearchPlanner(params=params, neighbour_mode=mode)
     raise ValueError(f"unknown planner {name!r}; available: {', '.join(available_planners())}")

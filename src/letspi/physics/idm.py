@@ -1,0 +1,196 @@
+"""Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), batched.
+
+``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``
+with gap s (bumper to bumper) and approach rate dv = v - v_leader.
+
+Parameters (REFERENCE §6, Treiber's simulator values): cars T 1.5 s, s0 2 m, a 1.0 m/s^2,
+b 2.0 m/s^2, delta 4; trucks T 2.0 s, a 0.7 m/s^2.
+
+Safeguards (documented deviations from the textbook model):
+* the gap in the interaction term is floored at ``s0 / 2`` (1 m): finite when boxes touch or
+  overlap; below that the deceleration clip dominates anyway;
+* acceleration clipped to [-9, a_max] m/s^2 (-9 is emergency braking on dry asphalt; Treiber
+  clips at 16-18, which a real car cannot deliver);
+* speeds never become negative (velocity floored at 0 after the update);
+* the desired speed v0 is floored at 1 m/s (keeps ``(v / v0)^delta`` finite);
+* integration: semi-implicit Euler at the scenario's dt, as in the social force rollout.
+
+Desired speed (our choice, ``desired_speed_from_history``): the highest longitudinal speed the
+vehicle showed in its visible 3 s history, i.e. at least its current speed. A vehicle that has just
+braked behind a leader still wants its earlier speed; speed limits are not used because most HighD
+sections have none and drivers deviate from posted ones.
+
+Planner use (``rollout_idm_ego``): the ego drives longitudinally only and keeps its lateral position
+(no lane changes); its leader at each step is the closest valid neighbour ahead that is in the ego's
+lane (lateral centre offset < half a lane width, or boxes overlapping laterally), using the
+neighbours' predicted trajectories.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from letspi.constants import DT_S, T0_INDEX
+from letspi.physics.lanes import lane_width_m
+from letspi.physics.types import NeighbourPrediction, RolloutResult
+from letspi.scenario.types import VEHICLE_CLASS_TRUCK, ScenarioBatch
+
+IDM_MIN_ACCEL_MPS2 = -9.0
+MIN_DESIRED_SPEED_MPS = 1.0
+GAP_FLOOR_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class IdmParams:
+    """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s^2],
+    comfortable deceleration b [m/s^2], exponent delta [-]."""
+
+    time_headway_s: float = 1.5
+    min_gap_m: float = 2.0
+    max_accel_mps2: float = 1.0
+    comfort_decel_mps2: float = 2.0
+    delta: float = 4.0
+
+
+CAR_IDM = IdmParams()
+TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
+
+
+@dataclass(frozen=True)
+class IdmParamArrays:
+    """IDM parameters per vehicle, each broadcastable to the vehicle array shape."""
+
+    time_headway_s: np.ndarray
+    min_gap_m: np.ndarray
+    max_accel_mps2: np.ndarray
+    comfort_decel_mps2: np.ndarray
+    delta: np.ndarray
+
+    @classmethod
+    def for_classes(cls, vehicle_class: np.ndarray, car: IdmParams = CAR_IDM,
+                    truck: IdmParams = TRUCK_IDM) -> IdmParamArrays:
+        """Car or truck parameters by HighD class code (anything but a truck counts as a car)."""
+        is_truck = np.asarray(vehicle_class) == VEHICLE_CLASS_TRUCK
+
+        def pick(name: str) -> np.ndarray:
+            return np.where(is_truck, float(getattr(truck, name)), float(getattr(car, name)))
+
+        return cls(
+            time_headway_s=pick("time_headway_s"),
+            min_gap_m=pick("min_gap_m"),
+            max_accel_mps2=pick("max_accel_mps2"),
+            comfort_decel_mps2=pick("comfort_decel_mps2"),
+            delta=pick("delta"),
+        )
+
+
+def idm_acceleration(
+    speed_mps: np.ndarray,
+    desired_speed_mps: np.ndarray,
+    gap_m: np.ndarray,
+    leader_speed_mps: np.ndarray,
+    params: IdmParams | IdmParamArrays = CAR_IDM,
+) -> np.ndarray:
+    """IDM acceleration [m/s^2] with the module's safeguards; all inputs broadcast together.
+
+    gap_m: bumper-to-bumper gap to the leader, ``inf`` without a leader (then ``leader_speed_mps``
+    is ignored and may be NaN).
+    """
+    v = np.maximum(np.asarray(speed_mps, dtype=np.float64), 0.0)
+    v0 = np.maximum(np.asarray(desired_speed_mps, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
+    gap = np.asarray(gap_m, dtype=np.float64)
+    has_leader = np.isfinite(gap)
+    v_lead = np.where(has_leader, np.asarray(leader_speed_mps, dtype=np.float64), v)
+    a_max = np.asarray(params.max_accel_mps2, dtype=np.float64)
+    b = np.asarray(params.comfort_decel_mps2, dtype=np.float64)
+    s0 = np.asarray(params.min_gap_m, dtype=np.float64)
+    s_star = s0 + np.maximum(0.0, v * params.time_headway_s + v * (v - v_lead) / (2.0 * np.sqrt(a_max * b)))
+    s = np.maximum(np.where(has_leader, gap, 1.0), GAP_FLOOR_FRACTION * s0)
+    interaction = np.where(has_leader, (s_star / s) ** 2, 0.0)
+    acc = a_max * (1.0 - (v / v0) ** params.delta - interaction)
+    return np.clip(acc, IDM_MIN_ACCEL_MPS2, a_max)
+
+
+def desired_speed_from_history(speed_mps: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """Highest finite longitudinal speed over the history frames (last axis), floored at 1 m/s.
+
+    speed_mps (..., H); valid (..., H) bool or None. Returns (...,); 1 m/s where nothing is known.
+    """
+    v = np.asarray(speed_mps, dtype=np.float64)
+    ok = np.isfinite(v) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(v))
+    best = np.where(ok, v, -np.inf).max(axis=-1)
+    return np.maximum(np.where(np.isfinite(best), best, MIN_DESIRED_SPEED_MPS), MIN_DESIRED_SPEED_MPS)
+
+
+def step_speed(speed_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> np.ndarray:
+    """Semi-implicit Euler speed update with the no-reverse floor."""
+    return np.maximum(speed_mps + accel_mps2 * dt_s, 0.0)
+
+
+def rollout_idm_ego(
+    batch: ScenarioBatch,
+    neighbours: NeighbourPrediction,
+    *,
+    desired_speed_mps: np.ndarray | None = None,
+    params: IdmParams | IdmParamArrays | None = None,
+    dt_s: float = DT_S,
+) -> RolloutResult:
+    """Planner-level IDM: the ego follows its in-lane leader and keeps its lateral position.
+
+    neighbours: predicted neighbour trajectories (B, N, F, ...); F sets the horizon.
+    desired_speed_mps (B,): default ``desired_speed_from_history`` of the ego's history.
+    params: default car/truck values by ``batch.ego_class``.
+    Returns positions with constant y = y(t0) and zero lateral velocity/acceleration.
+    """
+    n = len(batch)
+    f = int(neighbours.xy_m.shape[2])
+    hist = batch.history_slice
+    v0 = (
+        desired_speed_from_history(batch.ego_vxy_mps[:, hist, 0])
+        if desired_speed_mps is None
+        else np.broadcast_to(np.asarray(desired_speed_mps, dtype=np.float64), (n,))
+    )
+    prm = IdmParamArrays.for_classes(batch.ego_class) if params is None else params
+    # neighbours at t = 0 (observed) then predicted: index k is the state at t = k dt
+    nxy = np.concatenate(
+        [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
+    )
+    nvx = np.concatenate(
+        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]],
+        axis=2,
+    )
+    nvalid = np.concatenate([batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid], axis=2)
+    nvalid = nvalid & np.isfinite(nxy).all(axis=-1) & np.isfinite(nvx)
+    half_len = 0.5 * (batch.ego_length_m.astype(np.float64)[:, None] + np.nan_to_num(batch.nbr_length_m))
+    half_wid = 0.5 * (batch.ego_width_m.astype(np.float64)[:, None] + np.nan_to_num(batch.nbr_width_m))
+    in_lane_dy = np.maximum(0.5 * lane_width_m(batch.marking_y_m)[:, None], half_wid)
+
+    x = np.nan_to_num(batch.ego_xy0_m[:, 0].astype(np.float64))
+    y = np.nan_to_num(batch.ego_xy0_m[:, 1].astype(np.float64))
+    v = np.maximum(np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64)), 0.0)
+    xs = np.empty((n, f))
+    vs = np.empty((n, f))
+    accs = np.empty((n, f))
+    for k in range(f):
+        dx = np.where(nvalid[:, :, k], nxy[:, :, k, 0], np.inf) - x[:, None]
+        dy = np.abs(np.where(nvalid[:, :, k], nxy[:, :, k, 1], np.inf) - y[:, None])
+        gap = np.where((dx > 0.0) & (dy < in_lane_dy), dx - half_len, np.inf)
+        lead = np.argmin(gap, axis=1)
+        lead_gap = np.take_along_axis(gap, lead[:, None], axis=1)[:, 0]
+        lead_v = np.take_along_axis(nvx[:, :, k], lead[:, None], axis=1)[:, 0]
+        acc = idm_acceleration(v, v0, lead_gap, lead_v, prm)
+        new_v = step_speed(v, acc, dt_s)
+        accs[:, k] = (new_v - v) / dt_s
+        v = new_v
+        x = x + v * dt_s
+        xs[:, k] = x
+        vs[:, k] = v
+    zeros = np.zeros((n, f))
+    return RolloutResult(
+        xy_m=np.stack([xs, np.broadcast_to(y[:, None], (n, f))], axis=-1),
+        vxy_mps=np.stack([vs, zeros], axis=-1),
+        axy_mps2=np.stack([accs, zeros], axis=-1),
+        dt_s=dt_s,
+    )

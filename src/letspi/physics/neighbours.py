@@ -1,0 +1,146 @@
+"""Neighbour trajectory prediction over the planning horizon (what the ego planner reacts to).
+
+Modes (``NeighbourPredictionMode``):
+
+* ``constant_velocity``: position at t = 0 plus velocity at t = 0 times t.
+* ``idm``: the paper's choice. Each neighbour follows its leader with IDM (``letspi.physics.idm``)
+  and keeps its lateral position. Its leader is fixed at t = 0: the closest vehicle ahead (by
+  centre x) in the same HighD lane at t = 0 among the visible neighbours and the ego, whose
+  future is predicted with constant velocity (the planner does not know its own plan yet).
+  Neighbours are simulated jointly, so a follower reacts to its leader's *predicted* braking.
+* ``ground_truth_oracle``: the recorded future. ORACLE: it leaks the future and is only for
+  upper-bound experiments; it keeps the recording's validity, including vehicles that enter later.
+
+Neighbours not visible at t = 0 (no state to start from) cannot be predicted by the predictive
+modes: their prediction is invalid for the whole horizon (xy, vxy set to 0).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+import numpy as np
+
+from letspi.constants import DT_S, N_FUTURE, T0_INDEX
+from letspi.physics.idm import IdmParamArrays, desired_speed_from_history, idm_acceleration, step_speed
+from letspi.physics.types import NeighbourPrediction
+from letspi.scenario.types import ScenarioBatch
+
+
+class NeighbourPredictionMode(StrEnum):
+    CONSTANT_VELOCITY = "constant_velocity"
+    IDM = "idm"
+    GROUND_TRUTH_ORACLE = "ground_truth_oracle"
+
+
+def _t0_state(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Neighbour xy, vxy at t = 0 (B, N, 2) float64 (0 where unknown) and visibility (B, N)."""
+    xy = batch.nbr_xy_m[:, :, T0_INDEX].astype(np.float64)
+    vxy = batch.nbr_vxy_mps[:, :, T0_INDEX].astype(np.float64)
+    ok = batch.nbr_valid[:, :, T0_INDEX] & np.isfinite(xy).all(axis=-1) & np.isfinite(vxy).all(axis=-1)
+    return np.where(ok[..., None], xy, 0.0), np.where(ok[..., None], vxy, 0.0), ok
+
+
+def predict_constant_velocity(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
+    """Constant-velocity prediction for t = dt .. n_steps dt; (B, N, F, 2), (B, N, F, 2), (B, N, F)."""
+    xy0, vxy0, ok = _t0_state(batch)
+    t = (np.arange(1, n_steps + 1) * dt_s)[None, None, :, None]
+    b, n = ok.shape
+    # in place: these arrays are large (B * N * F * 2) and temporaries cost page faults
+    xy = np.empty((b, n, n_steps, 2))
+    np.multiply(vxy0[:, :, None, :], t, out=xy)
+    xy += xy0[:, :, None, :]
+    vxy = np.empty_like(xy)
+    vxy[...] = vxy0[:, :, None, :]
+    valid = np.empty((b, n, n_steps), dtype=bool)
+    valid[...] = ok[:, :, None]
+    return NeighbourPrediction(xy_m=xy, vxy_mps=vxy, valid=valid)
+
+
+def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
+    """Leader of each neighbour at t = 0, (B, N) int: a neighbour slot, N for the ego, -1 for none.
+
+    Closest by centre x among vehicles ahead in the same HighD lane at t = 0 (visible ones only).
+    """
+    xy0, _, ok = _t0_state(batch)
+    b, n = ok.shape
+    lane = np.where(ok, batch.nbr_lane_id[:, :, T0_INDEX], -1).astype(np.int16)
+    cand_x = np.concatenate([xy0[:, :, 0], np.nan_to_num(batch.ego_xy0_m[:, :1].astype(np.float64))], axis=1)
+    cand_lane = np.concatenate([lane, batch.ego_lane_id[:, T0_INDEX : T0_INDEX + 1].astype(np.int16)], axis=1)
+    cand_ok = np.concatenate([ok, np.ones((b, 1), dtype=bool)], axis=1)
+    # (B, N followers, N + 1 candidates)
+    dx = cand_x[:, None, :] - xy0[:, :, 0][:, :, None]
+    eligible = (
+        cand_ok[:, None, :]
+        & ok[:, :, None]
+        & (cand_lane[:, None, :] == lane[:, :, None])
+        & (lane[:, :, None] > 0)
+        & (dx > 0.0)
+    )
+    eligible[:, np.arange(n), np.arange(n)] = False
+    dist = np.where(eligible, dx, np.inf)
+    leader = np.argmin(dist, axis=2)
+    return np.where(np.isfinite(dist.min(axis=2)), leader, -1)
+
+
+def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
+    """IDM prediction (see module docstring); shapes as ``predict_constant_velocity``."""
+    xy0, vxy0, ok = _t0_state(batch)
+    b, n = ok.shape
+    leader = idm_leaders(batch)
+    has_leader = leader >= 0
+    lead_idx = np.where(has_leader, leader, 0)
+    hist = batch.history_slice
+    v0 = desired_speed_from_history(batch.nbr_vxy_mps[:, :, hist, 0], batch.nbr_valid[:, :, hist])
+    prm = IdmParamArrays.for_classes(batch.nbr_class)
+    nbr_len = np.nan_to_num(batch.nbr_length_m.astype(np.float64))
+    cand_len = np.concatenate([nbr_len, batch.ego_length_m.astype(np.float64)[:, None]], axis=1)
+    half_len = 0.5 * (nbr_len + np.take_along_axis(cand_len, lead_idx, axis=1))
+    ego_x = np.nan_to_num(batch.ego_xy0_m[:, 0].astype(np.float64))
+    ego_v = np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64))
+
+    x = xy0[:, :, 0].copy()
+    v = np.maximum(vxy0[:, :, 0], 0.0)
+    xs = np.empty((b, n, n_steps))
+    vs = np.empty((b, n, n_steps))
+    for k in range(n_steps):
+        ego_xk = ego_x + ego_v * (k * dt_s)  # ego: constant velocity
+        cand_x = np.concatenate([x, ego_xk[:, None]], axis=1)
+        cand_v = np.concatenate([v, ego_v[:, None]], axis=1)
+        gap = np.where(has_leader, np.take_along_axis(cand_x, lead_idx, axis=1) - x - half_len, np.inf)
+        lead_v = np.take_along_axis(cand_v, lead_idx, axis=1)
+        acc = idm_acceleration(v, v0, gap, lead_v, prm)
+        v = step_speed(v, acc, dt_s)
+        x = x + v * dt_s
+        xs[:, :, k] = x
+        vs[:, :, k] = v
+    valid = np.broadcast_to(ok[:, :, None], (b, n, n_steps)).copy()
+    y = np.broadcast_to(xy0[:, :, None, 1], (b, n, n_steps))
+    xy = np.where(valid[..., None], np.stack([xs, y], axis=-1), 0.0)
+    vxy = np.where(valid[..., None], np.stack([vs, np.zeros_like(vs)], axis=-1), 0.0)
+    return NeighbourPrediction(xy_m=xy, vxy_mps=vxy, valid=valid)
+
+
+def ground_truth_oracle(batch: ScenarioBatch, n_steps: int = N_FUTURE) -> NeighbourPrediction:
+    """ORACLE: the recorded neighbour future (leaks the future; upper-bound experiments only)."""
+    sl = slice(T0_INDEX + 1, T0_INDEX + 1 + n_steps)
+    xy = batch.nbr_xy_m[:, :, sl].astype(np.float64)
+    vxy = batch.nbr_vxy_mps[:, :, sl].astype(np.float64)
+    valid = batch.nbr_valid[:, :, sl] & np.isfinite(xy).all(axis=-1) & np.isfinite(vxy).all(axis=-1)
+    if valid.shape[2] != n_steps:
+        raise ValueError(f"the batch holds {valid.shape[2]} future frames, {n_steps} requested")
+    return NeighbourPrediction(
+        xy_m=np.where(valid[..., None], xy, 0.0), vxy_mps=np.where(valid[..., None], vxy, 0.0), valid=valid
+    )
+
+
+def predict_neighbours(
+    batch: ScenarioBatch, mode: NeighbourPredictionMode | str, n_steps: int = N_FUTURE
+) -> NeighbourPrediction:
+    """Dispatch on ``mode``; returns (xy (B, N, F, 2), vxy (B, N, F, 2), valid (B, N, F))."""
+    mode = NeighbourPredictionMode(mode)
+    if mode is NeighbourPredictionMode.CONSTANT_VELOCITY:
+        return predict_constant_velocity(batch, n_steps)
+    if mode is NeighbourPredictionMode.IDM:
+        return predict_idm(batch, n_steps)
+    return ground_truth_oracle(batch, n_steps)

@@ -1,0 +1,81 @@
+"""Safety of candidate plans against *predicted* neighbours (what a planner may know at t = 0).
+
+Used by ``sf-opt`` to choose among candidates and later by LetsPi's reflection module. The
+evaluation harness, by contrast, scores the chosen plan against the ground-truth futures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from letspi.metrics._common import MetricInputs
+from letspi.metrics.collision import boxes_overlap
+from letspi.metrics.distance import distances
+from letspi.metrics.kinematics import off_road
+from letspi.metrics.ttc import ttc_1d
+from letspi.physics.types import NeighbourPrediction
+from letspi.scenario.types import ScenarioBatch
+
+
+@dataclass(frozen=True)
+class SafetyCheck:
+    """(B,) each. ``min_ttc_s`` is +inf without a closing leader; steps/slots are -1 for none."""
+
+    min_ttc_s: np.ndarray
+    min_ttc_step: np.ndarray
+    min_ttc_nbr: np.ndarray
+    min_box_gap_m: np.ndarray
+    min_gap_step: np.ndarray
+    min_gap_nbr: np.ndarray
+    collision: np.ndarray
+    off_road: np.ndarray
+
+    def safe(self, ttc_threshold_s: float, gap_threshold_m: float) -> np.ndarray:
+        """(B,) bool: no contact, on the road, TTC and box gap at or above the thresholds."""
+        return (
+            ~self.collision
+            & ~self.off_road
+            & (self.min_ttc_s >= ttc_threshold_s)
+            & (self.min_box_gap_m >= gap_threshold_m)
+        )
+
+
+def predicted_inputs(
+    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
+) -> MetricInputs:
+    """Metric inputs pairing a plan (B, F, 2) with predicted neighbour futures (B, N, F, 2)."""
+    nxy = np.asarray(neighbours.xy_m, dtype=np.float64)
+    return MetricInputs(
+        ego_xy_m=np.asarray(plan_xy_m, dtype=np.float64),
+        ego_vxy_mps=np.asarray(plan_vxy_mps, dtype=np.float64),
+        ego_length_m=batch.ego_length_m.astype(np.float64),
+        ego_width_m=batch.ego_width_m.astype(np.float64),
+        nbr_xy_m=nxy,
+        nbr_vxy_mps=np.asarray(neighbours.vxy_mps, dtype=np.float64),
+        nbr_valid=np.asarray(neighbours.valid, dtype=bool) & np.isfinite(nxy).all(axis=-1),
+        nbr_length_m=batch.nbr_length_m.astype(np.float64),
+        nbr_width_m=batch.nbr_width_m.astype(np.float64),
+    )
+
+
+def check_plans(
+    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
+) -> SafetyCheck:
+    """TTC, box gap, contact and road-edge checks of plans against predicted neighbours."""
+    inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours)
+    ttc = ttc_1d(inp)
+    dist = distances(inp)
+    contact = np.asarray(boxes_overlap(inp).any(axis=(1, 2)), dtype=bool)
+    leaves_road = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, batch.marking_y_m, batch.marking_is_edge)
+    return SafetyCheck(
+        min_ttc_s=ttc.min_ttc_s,
+        min_ttc_step=ttc.min_ttc_step,
+        min_ttc_nbr=ttc.min_ttc_nbr,
+        min_box_gap_m=dist.min_box_gap_m,
+        min_gap_step=dist.min_gap_step,
+        min_gap_nbr=dist.min_gap_nbr,
+        collision=contact,
+        off_road=leaves_road,
+    )

@@ -1,0 +1,97 @@
+"""``sf-opt``: per-scenario search over social-force parameters and goal adjustments.
+
+The reviewer's baseline for "is the LLM needed?": every scenario tries the same candidate set
+(repulsion strength multipliers × longitudinal goal factors × lane factors around the fitted
+parameters), simulates each against the *predicted* neighbours (never the ground truth), and keeps
+
+1. among candidates that are safe by the reflection thresholds (no contact, on the road,
+   TTC ≥ 1.5 s, box gap ≥ 2 m to the predicted neighbours), the one closest to the unadjusted
+   plan (cost: |lon − neutral| + lane-change penalty × |lane| + repulsion penalty);
+2. if none is safe, the one with the largest min(TTC, cap) and then box gap.
+
+All candidates of a batch are rolled out in one vectorised call (B × C scenarios).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, adjust_goals
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import SocialForceParams, SocialForceParamsBatch
+from letspi.physics.social_force import rollout_social_force
+from letspi.physics.types import NeighbourPrediction
+from letspi.planners.base import PlanBatch
+from letspi.planners.safety import check_plans
+from letspi.scenario.types import ScenarioBatch
+
+NEUTRAL_LON_FACTOR = 0.4  # 1.2 - 0.5 * 0.4 = 1.0: the predicted goal distance unchanged
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """Candidate grid; the product of the three axes is tried for every scenario."""
+
+    k_scale: tuple[float, ...] = (1.0, 1.6, 2.5)  # multiplies k_np, k_nf and k_nl together
+    lon_factor: tuple[float, ...] = (NEUTRAL_LON_FACTOR, 0.7, 1.0)
+    lane_factor: tuple[float, ...] = (0.0, -1.0, 1.0)
+    ttc_threshold_s: float = 1.5
+    gap_threshold_m: float = 2.0
+    ttc_cap_s: float = 10.0
+    lane_change_cost: float = 2.0
+    k_scale_cost: float = 0.2
+
+    def grid(self) -> np.ndarray:
+        """(C, 3) rows of (k_scale, lon_factor, lane_factor), the neutral candidate first."""
+        mesh = np.meshgrid(self.k_scale, self.lon_factor, self.lane_factor, indexing="ij")
+        return np.stack([m.reshape(-1) for m in mesh], axis=1)
+
+
+def _repeat_prediction(pred: NeighbourPrediction, c: int) -> NeighbourPrediction:
+    return NeighbourPrediction(*(np.repeat(np.asarray(a), c, axis=0) for a in pred))
+
+
+@dataclass
+class SocialForceSearchPlanner:
+    params: SocialForceParams
+    space: SearchSpace = field(default_factory=SearchSpace)
+    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    name: str = "sf-opt"
+    batch_size: int = 256
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        b = len(batch)
+        grid = self.space.grid()
+        c = len(grid)
+        goals = self.goal_predictor.predict_goals(batch).top  # (B, 2)
+        pred = predict_neighbours(batch, self.neighbour_mode)
+        rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
+        big = batch.take(rep)
+        k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
+        base = SocialForceParamsBatch.broadcast(self.params, b * c)
+        params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
+        cand_goals = adjust_goals(goals[rep], big.ego_xy0_m.astype(np.float64), lon, lane, big.marking_y_m)
+        big_pred = _repeat_prediction(pred, c)
+        roll = rollout_social_force(big, params.clamped(), cand_goals, big_pred)
+        check = check_plans(big, roll.xy_m, roll.vxy_mps, big_pred)
+        safe = check.safe(self.space.ttc_threshold_s, self.space.gap_threshold_m).reshape(b, c)
+        cost = (
+            np.abs(lon - NEUTRAL_LON_FACTOR)
+            + self.space.lane_change_cost * np.abs(lane)
+            + self.space.k_scale_cost * (k_scale - 1.0)
+        ).reshape(b, c)
+        # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
+        ttc = np.minimum(check.min_ttc_s, self.space.ttc_cap_s).reshape(b, c)
+        gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
+        unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
+        best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
+                        np.argmax(unsafe_score, axis=1))
+        rows = np.arange(b) * c + best
+        info = {
+            "k_scale": k_scale[rows], "lon_factor": lon[rows], "lane_factor": lane[rows],
+            "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
+        }
+        return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)

@@ -1,0 +1,56 @@
+"""The command line: commands run, print what they promise and fail with clear messages."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from letspi.cli.app import app
+from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.store import save_scenarios
+from letspi.scenario.types import concat_batches
+
+runner = CliRunner()
+
+
+def _scenario_file(tmp_path):
+    batch = concat_batches([
+        straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)]).as_batch()
+        for i in range(4)
+    ])
+    return save_scenarios(batch, tmp_path / "s.parquet")
+
+
+def test_evaluate_prints_the_table_and_writes_files(tmp_path):
+    path = _scenario_file(tmp_path)
+    out = tmp_path / "ev"
+    result = runner.invoke(app, ["evaluate", "--scenarios", str(path), "--planner", "human",
+                                 "--planner", "sf", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "| human |" in result.output and "| sf |" in result.output
+    metrics = json.loads((out / "metrics.json").read_text())["planners"]
+    assert metrics["sf"]["n"] == 4
+
+
+def test_evaluate_unknown_planner_is_a_clear_error(tmp_path):
+    path = _scenario_file(tmp_path)
+    result = runner.invoke(app, ["evaluate", "--scenarios", str(path), "--planner", "magic", "--out",
+                                 str(tmp_path / "ev")])
+    assert result.exit_code == 2
+    assert "unknown planner 'magic'" in result.output
+
+
+def test_scenarios_missing_directory_names_it(tmp_path):
+    result = runner.invoke(app, ["data", "scenarios", "--highd", str(tmp_path / "nowhere"), "--out",
+                                 str(tmp_path / "s.parquet")])
+    assert result.exit_code == 2
+    assert "nowhere" in result.output
+
+
+def test_info_json(tmp_path):
+    path = _scenario_file(tmp_path)
+    result = runner.invoke(app, ["data", "info", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    info = json.loads(result.output)
+    assert info["n_scenarios"] == 4 and info["schema_version"] == 1

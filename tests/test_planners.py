@@ -1,0 +1,114 @@
+"""Physical behaviour of the baseline planners on hand-built scenarios."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from letspi.metrics.evaluate import compute_metrics
+from letspi.physics.params import SocialForceParams
+from letspi.planners.factory import PlannerOptions, available_planners, make_planner
+from letspi.planners.fit_sf import fit_sf_params, split_by_vehicle
+from letspi.planners.sf import SocialForcePlanner
+from letspi.planners.sf_opt import SocialForceSearchPlanner
+from letspi.planners.sf_params import load_sf_params, save_sf_params
+from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.types import concat_batches
+
+
+def _closing_on_slower_leader():
+    # ego at 32 m/s, a 22 m/s leader 40 m ahead in the same lane: constant-speed goal runs into it
+    return straight_road_scenario(ego_speed_mps=32.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=22.0)]).as_batch()
+
+
+def test_fitted_sf_keeps_a_gap_while_absurd_parameters_collide():
+    batch = _closing_on_slower_leader()
+    fitted, _ = load_sf_params()
+    ok = SocialForcePlanner(params=fitted).plan(batch)
+    bad = SocialForcePlanner(params=SocialForceParams(k_np=0.0, k_nl=0.0)).plan(batch)
+    m_ok = compute_metrics(batch, ok.xy_m, ok.vxy_mps, ok.goals_xy_m)
+    m_bad = compute_metrics(batch, bad.xy_m, bad.vxy_mps, bad.goals_xy_m)
+    assert not m_ok.collision[0] and m_ok.min_box_gap_m[0] > 1.0
+    assert m_bad.collision[0]
+
+
+def test_sf_opt_finds_a_safe_candidate_where_the_neutral_plan_is_unsafe():
+    batch = _closing_on_slower_leader()
+    weak = SocialForceParams(k_np=2.0)
+    neutral = SocialForcePlanner(params=weak).plan(batch)
+    assert compute_metrics(batch, neutral.xy_m, neutral.vxy_mps).collision[0]
+    searched = SocialForceSearchPlanner(params=weak).plan(batch)
+    m = compute_metrics(batch, searched.xy_m, searched.vxy_mps, searched.goals_xy_m)
+    assert bool(searched.info["found_safe"][0])
+    assert not m.collision[0] and m.min_ttc_s[0] >= 1.5
+    # the choice is not the neutral candidate: stronger repulsion, a shorter goal or another lane
+    chosen = (searched.info["k_scale"][0], searched.info["lon_factor"][0], searched.info["lane_factor"][0])
+    assert chosen != (1.0, 0.4, 0.0)
+
+
+def test_sf_opt_keeps_the_neutral_plan_on_a_free_road():
+    batch = straight_road_scenario(ego_speed_mps=30.0).as_batch()
+    plan = SocialForceSearchPlanner(params=load_sf_params()[0]).plan(batch)
+    assert plan.info["k_scale"][0] == 1.0 and plan.info["lon_factor"][0] == 0.4 and plan.info["lane_factor"][0] == 0
+
+
+@pytest.mark.parametrize("name", available_planners())
+def test_every_baseline_plans_finite_trajectories(name):
+    batch = concat_batches([
+        _closing_on_slower_leader(),
+        straight_road_scenario(ego_speed_mps=0.0).as_batch(),  # standing still
+        straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(-3.0, 30.0)]).as_batch(),
+    ])
+    plan = make_planner(name).plan(batch)
+    assert plan.xy_m.shape == (3, 125, 2) and np.isfinite(plan.xy_m).all() and np.isfinite(plan.vxy_mps).all()
+
+
+def test_unknown_planner_lists_the_valid_ones():
+    with pytest.raises(ValueError, match="unknown planner 'magic'; available: human, cv, idm, sf, sf-opt"):
+        make_planner("magic")
+
+
+def test_sf_params_file_round_trip_and_errors(tmp_path):
+    p = SocialForceParams(tau_s=1.3, k_np=22.0)
+    path = save_sf_params(tmp_path / "p.json", p, {"data": "x"}, {"j": 1.0})
+    loaded, record = load_sf_params(path)
+    assert loaded == p and record["provenance"] == {"data": "x"}
+    make_planner("sf", PlannerOptions(sf_params_file=path))
+    (tmp_path / "bad.json").write_text('{"params": {"tau_s": 1}}')
+    with pytest.raises(ValueError, match=r"bad.json: not a valid SF parameter file \(missing parameter"):
+        load_sf_params(tmp_path / "bad.json")
+    with pytest.raises(FileNotFoundError, match="no such SF parameter file"):
+        load_sf_params(tmp_path / "none.json")
+
+
+def test_split_by_vehicle_never_shares_a_vehicle():
+    scen = [straight_road_scenario(scenario_id=f"s{i}").as_batch() for i in range(12)]
+    batch = concat_batches(scen)
+    batch.ego_id[:] = np.repeat(np.arange(4), 3)  # 4 vehicles x 3 windows
+    train, val = split_by_vehicle(batch, 0.5, seed=3)
+    assert set(batch.ego_id[train]).isdisjoint(set(batch.ego_id[val]))
+    assert len(train) + len(val) == 12
+
+
+def test_fit_is_deterministic_and_not_worse_than_its_start():
+    batch = concat_batches([_closing_on_slower_leader()] * 3 + [straight_road_scenario().as_batch()] * 3)
+    batch.ego_id[:] = np.arange(6)
+    a = fit_sf_params(batch, seed=1, max_evaluations=25)
+    b = fit_sf_params(batch, seed=1, max_evaluations=25)
+    assert a.params == b.params
+    assert a.train_objective <= a.start_objective + 1e-12
+
+
+def test_idm_planner_settles_a_lane_change_smoothly():
+    from letspi.constants import T0_INDEX
+    from letspi.planners.idm import IdmPlanner
+
+    s = straight_road_scenario(ego_speed_mps=30.0)
+    # mid-lane-change at t = 0: 0.8 m left of centre, moving left at 1.0 m/s
+    s.ego_xy_m[T0_INDEX, 1] = 0.8
+    s.ego_vxy_mps[T0_INDEX, 1] = 1.0
+    batch = s.as_batch()
+    plan = IdmPlanner().plan(batch)
+    m = compute_metrics(batch, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
+    assert plan.xy_m[0, -1, 1] == pytest.approx(3.75, abs=0.05)  # ends at the left lane's centre
+    assert m.peak_abs_acc_lat_mps2[0] < 4.0 and bool(m.success[0])
