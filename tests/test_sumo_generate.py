@@ -184,6 +184,26 @@ def test_accelerations_plausible(recording) -> None:  # type: ignore[no-untyped-
 
 
 @pytest.mark.sumo
+def test_default_traffic_has_close_interactions(recording) -> None:  # type: ignore[no-untyped-def]
+    """Heterogeneous drivers: short headways, closing speeds and lane speed differences.
+
+    SUMO's car-following models are anticipatory and collision-free, so 1-D TTC < 3 s does
+    not occur (the minimum is about 6-8 s); what the default demand does guarantee is close
+    following (HighD-like 0.6-1.0 s headways), vehicles closing in on slower ones and a
+    clear speed gradient across the lanes.
+    """
+    tr, tm = recording.tracks, recording.tracks_meta
+    thw = tr["thw"].to_numpy()
+    assert np.mean((thw > 0.0) & (thw < 1.0)) > 0.02  # rows tailgating at < 1 s
+    assert (tm["minTHW"].between(0.0, 0.8, inclusive="neither")).sum() >= 2
+    ttc = tm["minTTC"]
+    assert (ttc.between(0.0, 15.0, inclusive="neither")).sum() >= 2  # closing in on a slower leader
+    lane_speed = tr["xVelocity"].abs().groupby(tr["laneId"]).mean()
+    # Fastest (inner) minus slowest (outer) lane of the lower carriageway: HighD shows ~10 m/s.
+    assert lane_speed[6] - lane_speed[8] > 6.0
+
+
+@pytest.mark.sumo
 def test_deterministic_per_seed(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
     from letspi.sumo.generate import generate_recordings

@@ -4,9 +4,13 @@ Every vehicle gets its own SUMO ``vType`` so that dimensions and driver paramete
 vehicle to vehicle like in real data; all randomness comes from one ``numpy`` generator seeded by
 the caller, so a seed fully determines the demand (SUMO itself runs with sigma = 0).
 
-Car following is IDM with sigma 0 (Krauss' random dawdling gives unrealistic jerk at 25 Hz);
-lane changing is LC2013 (keep-right, no overtaking on the right, speed-gain overtaking of
-trucks). HighD only knows "Car" and "Truck": vans are simulated with van dimensions and dynamics
+Car following is SUMO's EIDM (IDM with the constant-acceleration heuristic, "coolness", and a
+jerk limit) with all its driver-error processes switched off (sigma, sigmaleader, sigmagap,
+sigmaerror = 0): deterministic and smooth (Krauss' random dawdling gives unrealistic jerk at
+25 Hz). Plain IDM over-reacts to a vehicle that changes in front of it; EIDM's heuristic lets
+followers absorb tight cut-ins with moderate braking. Lane changing is LC2013 (keep-right, no
+overtaking on the right) with per-driver eagerness, cooperativeness and assertiveness
+(``lcSigma`` stays 0). HighD only knows "Car" and "Truck": vans are simulated with van dimensions and dynamics
 but labelled "Car", exactly as HighD labels them.
 """
 
@@ -23,11 +27,12 @@ from letspi.sumo.network import EASTBOUND_EDGE, WESTBOUND_EDGE
 
 Kind = Literal["car", "van", "truck"]
 
-DEFAULT_FLOW_PER_LANE_VEH_PER_H = 600.0
-"""Default demand per lane and direction [veh/h]: 1,800 veh/h per direction on 3 lanes.
+DEFAULT_FLOW_PER_LANE_VEH_PER_H = 2200.0 / 3.0
+"""Default demand per lane and direction [veh/h]: 2,200 veh/h per direction on 3 lanes.
 
-Middle of the HighD range (about 1,000-2,500 veh/h per direction): dense enough for
-car-following interactions and truck overtaking, below capacity so no jams form."""
+Upper half of the HighD range (about 1,000-2,500 veh/h per direction): dense enough for
+frequent car following at short headways, cut-ins and truck overtaking, below capacity so no
+jams form."""
 
 
 @dataclass(frozen=True)
@@ -58,10 +63,15 @@ class VehicleSpec:
         depart_s: insertion time [s].
         length_m, width_m: dimensions [m].
         desired_speed_mps: desired speed [m/s] (= desiredMaxSpeed * speedFactor).
-        accel_mps2: IDM maximum acceleration a [m/s²].
-        decel_mps2: IDM comfortable deceleration b [m/s²].
-        headway_s: IDM desired time headway T [s].
-        min_gap_m: IDM jam distance s0 [m].
+        accel_mps2: (E)IDM maximum acceleration a [m/s²].
+        decel_mps2: (E)IDM comfortable deceleration b [m/s²].
+        headway_s: (E)IDM desired time headway T [s].
+        min_gap_m: (E)IDM jam distance s0 [m].
+        lc_speed_gain: LC2013 ``lcSpeedGain`` (eagerness to overtake for speed).
+        lc_keep_right: LC2013 ``lcKeepRight`` (eagerness to return to the right).
+        lc_cooperative: LC2013 ``lcCooperative`` (willingness to make room, < 1 = less).
+        lc_assertive: LC2013 ``lcAssertive`` (the required gaps are divided by this, > 1 =
+            smaller accepted gaps, i.e. tighter cut-ins).
     """
 
     vid: str
@@ -76,6 +86,10 @@ class VehicleSpec:
     decel_mps2: float
     headway_s: float
     min_gap_m: float
+    lc_speed_gain: float
+    lc_keep_right: float
+    lc_cooperative: float
+    lc_assertive: float
 
 
 def _lane_shares(n_lanes: int) -> np.ndarray:
@@ -99,7 +113,15 @@ def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, lo: float,
 
 
 def _sample_vehicle(rng: np.random.Generator, kind: Kind) -> dict[str, float]:
-    """Dimensions [m], desired speed [m/s] and IDM parameters for one vehicle of a class."""
+    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters for one vehicle of a class.
+
+    Drivers are heterogeneous on purpose: desired time headways from tailgating (0.6 s) to
+    cautious (1.6 s for cars, up to 2.1 s for trucks), varied acceleration/braking, a wide spread
+    of desired speeds (fast cars close in on slower ones) and lane-change styles from
+    cooperative to assertive (some accept about half the usual gaps: cut-ins). The ranges
+    follow what HighD shows: time headways of 0.6-1.0 s are common on the left lanes,
+    and speed differences of 10+ m/s between adjacent lanes occur.
+    """
     if kind == "truck":
         # Mix of articulated trucks (about 16.5 m) and rigid trucks / buses (about 10-12 m).
         if rng.random() < 0.7:
@@ -110,31 +132,44 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind) -> dict[str, float]:
             "length_m": length,
             "width_m": _clipped_normal(rng, 2.50, 0.04, 2.40, 2.60),
             # German trucks: 80 km/h limit, actually driven at about 85-90 km/h.
-            "desired_speed_mps": _clipped_normal(rng, 24.0, 0.9, 22.0, 26.5),
+            "desired_speed_mps": _clipped_normal(rng, 24.0, 1.0, 21.5, 26.5),
             "accel_mps2": _clipped_normal(rng, 0.6, 0.1, 0.4, 0.9),
-            "decel_mps2": 2.0,
-            "headway_s": _clipped_normal(rng, 1.7, 0.2, 1.3, 2.3),
-            "min_gap_m": 2.5,
+            "decel_mps2": _clipped_normal(rng, 2.2, 0.3, 1.8, 3.0),
+            "headway_s": _clipped_normal(rng, 1.55, 0.25, 1.2, 2.1),
+            "min_gap_m": float(rng.uniform(2.0, 3.0)),
+            "lc_speed_gain": float(rng.uniform(0.3, 1.0)),
+            "lc_keep_right": float(rng.uniform(1.0, 2.0)),
+            "lc_cooperative": float(rng.uniform(0.7, 1.0)),
+            "lc_assertive": float(rng.uniform(1.0, 1.5)),
         }
     if kind == "van":
         return {
             "length_m": _clipped_normal(rng, 5.6, 0.5, 4.8, 7.0),
             "width_m": _clipped_normal(rng, 2.0, 0.05, 1.9, 2.15),
-            "desired_speed_mps": _clipped_normal(rng, 31.0, 2.5, 25.0, 38.0),
-            "accel_mps2": _clipped_normal(rng, 1.1, 0.15, 0.8, 1.5),
-            "decel_mps2": 2.5,
-            "headway_s": _clipped_normal(rng, 1.4, 0.2, 1.0, 2.0),
-            "min_gap_m": 2.0,
+            "desired_speed_mps": _clipped_normal(rng, 32.0, 3.0, 25.0, 40.0),
+            "accel_mps2": _clipped_normal(rng, 1.3, 0.25, 0.8, 2.0),
+            "decel_mps2": _clipped_normal(rng, 2.8, 0.4, 2.0, 3.8),
+            "headway_s": _clipped_normal(rng, 1.1, 0.25, 0.65, 1.6),
+            "min_gap_m": float(rng.uniform(1.5, 2.5)),
+            "lc_speed_gain": float(rng.uniform(1.0, 3.0)),
+            "lc_keep_right": float(rng.uniform(0.5, 1.5)),
+            "lc_cooperative": float(rng.uniform(0.3, 1.0)),
+            "lc_assertive": float(rng.uniform(1.0, 2.0)),
         }
     return {
         "length_m": _clipped_normal(rng, 4.55, 0.35, 3.6, 5.3),
         "width_m": _clipped_normal(rng, 1.82, 0.07, 1.6, 2.0),
-        # Unrestricted autobahn: cars mostly 110-150 km/h.
-        "desired_speed_mps": _clipped_normal(rng, 35.0, 4.0, 26.0, 47.0),
-        "accel_mps2": _clipped_normal(rng, 1.4, 0.2, 1.0, 2.0),
-        "decel_mps2": 2.5,
-        "headway_s": _clipped_normal(rng, 1.3, 0.25, 0.8, 2.0),
-        "min_gap_m": 2.0,
+        # Unrestricted autobahn: cars mostly 110-160 km/h, some much faster.
+        "desired_speed_mps": _clipped_normal(rng, 36.5, 4.5, 26.0, 50.0),
+        "accel_mps2": _clipped_normal(rng, 1.8, 0.4, 1.0, 3.0),
+        "decel_mps2": _clipped_normal(rng, 3.0, 0.5, 2.0, 4.5),
+        "headway_s": _clipped_normal(rng, 1.0, 0.3, 0.6, 1.6),
+        "min_gap_m": float(rng.uniform(1.5, 2.5)),
+        "lc_speed_gain": float(rng.uniform(1.0, 4.0)),
+        "lc_keep_right": float(rng.uniform(0.5, 1.5)),
+        "lc_cooperative": float(rng.uniform(0.2, 1.0)),
+        # A third of the drivers are assertive (accept gaps down to a third to two thirds of the usual).
+        "lc_assertive": float(rng.uniform(1.5, 3.0)) if rng.random() < 0.35 else 1.0,
     }
 
 
@@ -187,12 +222,6 @@ def sample_demand(
 
 # SUMO's maxSpeed is the technical top speed; the desired speed is desiredMaxSpeed*speedFactor.
 _MAX_SPEED_MPS: dict[Kind, float] = {"car": 60.0, "van": 45.0, "truck": 28.0}
-# LC2013: trucks are less eager to overtake; everyone keeps right.
-_LC_PARAMS: dict[Kind, str] = {
-    "car": 'lcKeepRight="1.0" lcSpeedGain="1.0" lcCooperative="1.0" lcAssertive="1.0"',
-    "van": 'lcKeepRight="1.0" lcSpeedGain="0.9" lcCooperative="1.0" lcAssertive="1.0"',
-    "truck": 'lcKeepRight="1.5" lcSpeedGain="0.4" lcCooperative="1.0" lcAssertive="1.0"',
-}
 _VCLASS: dict[Kind, str] = {"car": "passenger", "van": "delivery", "truck": "truck"}
 
 
@@ -204,11 +233,14 @@ def write_routes(path: Path, specs: list[VehicleSpec]) -> None:
     for s in specs:
         desired = min(s.desired_speed_mps, _MAX_SPEED_MPS[s.kind])
         lines.append(
-            f'  <vType id={quoteattr("t" + s.vid)} vClass="{_VCLASS[s.kind]}" carFollowModel="IDM" '
-            f'sigma="0" delta="4" length="{s.length_m:.3f}" width="{s.width_m:.3f}" '
+            f'  <vType id={quoteattr("t" + s.vid)} vClass="{_VCLASS[s.kind]}" carFollowModel="EIDM" '
+            f'sigma="0" sigmaleader="0" sigmagap="0" sigmaerror="0" delta="4" '
+            f'length="{s.length_m:.3f}" width="{s.width_m:.3f}" '
             f'maxSpeed="{_MAX_SPEED_MPS[s.kind]:.2f}" desiredMaxSpeed="{desired:.4f}" speedFactor="1" '
             f'speedDev="0" accel="{s.accel_mps2:.3f}" decel="{s.decel_mps2:.3f}" emergencyDecel="9" '
-            f'tau="{s.headway_s:.3f}" minGap="{s.min_gap_m:.2f}" {_LC_PARAMS[s.kind]}/>'
+            f'tau="{s.headway_s:.3f}" minGap="{s.min_gap_m:.3f}" lcSpeedGain="{s.lc_speed_gain:.3f}" '
+            f'lcKeepRight="{s.lc_keep_right:.3f}" lcCooperative="{s.lc_cooperative:.3f}" '
+            f'lcAssertive="{s.lc_assertive:.3f}"/>'
         )
         lines.append(
             f'  <vehicle id={quoteattr(s.vid)} type={quoteattr("t" + s.vid)} route="r{s.edge}" '

@@ -11,7 +11,7 @@ enters the window, so it arrives at speed, in a lane chosen by the lane-change m
 car-following spacing.
 
 Determinism: a seed fixes the demand (numpy generator) and SUMO's seed; SUMO runs with sigma = 0
-and one thread, so equal seeds give identical files.
+(EIDM with its driver-error processes off) and one thread, so equal seeds give identical files.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ DEFAULT_WARMUP_S = 90.0  # > time for a truck (about 22 m/s) to cover approach +
 
 
 def default_flow_veh_per_h(lanes_per_direction: int) -> float:
-    """Default demand per direction [veh/h]: 600 veh/h per lane (1,800 on 3 lanes, 1,200 on 2)."""
+    """Default demand per direction [veh/h]: about 733 veh/h per lane (2,200 on 3 lanes, 1,467 on 2)."""
     return DEFAULT_FLOW_PER_LANE_VEH_PER_H * lanes_per_direction
 
 
@@ -142,8 +142,8 @@ def generate_recordings(
         minutes: recorded (simulated) minutes, after a 90 s warm-up.
         seed: random seed; equal seeds give identical recordings.
         lanes_per_direction: 2 or 3 lanes per carriageway.
-        flow_veh_per_h: demand per direction [veh/h]; default 600 veh/h per lane
-            (1,800 on 3 lanes), free flow with frequent interactions.
+        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
+            (2,200 on 3 lanes), free flow with frequent interactions.
         recording_minutes: split the run into consecutive recordings of this length
             (the last may be shorter); default one recording for the whole run. Vehicles
             crossing a split are cut, as in real recordings.

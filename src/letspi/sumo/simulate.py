@@ -78,7 +78,7 @@ def run_sumo(
         route_file: the route file with vTypes and vehicles.
         work_dir: directory for the FCD/log files (a temporary directory of the caller).
         end_s: simulation end time [s].
-        seed: SUMO's random seed (SUMO has no randomness left with sigma 0, set for safety).
+        seed: SUMO's random seed (no randomness is left with the sigmas at 0; set for safety).
         lane_change_duration_s: duration of a (non-sublane) lane change [s]; > 0 makes lane
             changes continuous instead of instantaneous jumps.
         x_range_m: keep only FCD rows with SUMO x in this range [m] (saves memory).
