@@ -112,3 +112,23 @@ def test_idm_planner_settles_a_lane_change_smoothly():
     m = compute_metrics(batch, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
     assert plan.xy_m[0, -1, 1] == pytest.approx(3.75, abs=0.05)  # ends at the left lane's centre
     assert m.peak_abs_acc_lat_mps2[0] < 4.0 and bool(m.success[0])
+
+
+def test_safety_check_sees_a_faster_car_closing_from_behind():
+    from letspi.physics.neighbours import predict_neighbours
+    from letspi.planners.cv import ConstantVelocityPlanner
+    from letspi.planners.safety import check_plans
+
+    # ego at 25 m/s, a 29 m/s car 30 m behind in the same lane; a side-by-side car in the next lane
+    batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[
+        VehicleSpec(x0_m=-30.0, speed_mps=29.0), VehicleSpec(x0_m=0.0, speed_mps=25.0, lane_offset=1)]).as_batch()
+    plan = ConstantVelocityPlanner().plan(batch)
+    check = check_plans(batch, plan.xy_m, plan.vxy_mps, predict_neighbours(batch, "constant_velocity"))
+    gap0 = 30.0 - 4.5
+    # closest at the horizon: (25.5 m - 4 m/s * 5 s) / 4 m/s = 1.375 s
+    assert check.min_rear_ttc_s[0] == pytest.approx((gap0 - 20.0) / 4.0, abs=1e-6)
+    assert check.min_rear_ttc_nbr[0] == 0 and check.min_rear_ttc_step[0] == 124
+    assert np.isinf(check.min_ttc_s[0]) and not check.collision[0]
+    # the adjacent-lane car is 1.95 m away box to box but not in the ego's path
+    assert check.min_box_gap_m[0] == pytest.approx(1.95, abs=1e-3)
+    assert check.min_path_gap_m[0] < gap0 and not check.safe(1.5, 2.0)[0]

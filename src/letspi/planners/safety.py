@@ -6,7 +6,7 @@ evaluation harness, by contrast, scores the chosen plan against the ground-truth
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,24 +21,37 @@ from letspi.scenario.types import ScenarioBatch
 
 @dataclass(frozen=True)
 class SafetyCheck:
-    """(B,) each. ``min_ttc_s`` is +inf without a closing leader; steps/slots are -1 for none."""
+    """(B,) each; steps/slots are -1 for none.
+
+    ``min_ttc_s``: 1-D TTC with the vehicle ahead in the ego's path (+inf if none closes in);
+    ``min_rear_ttc_s``: the same for a vehicle closing in from behind in the ego's path (a lane
+    change in front of a faster car shows up here, not in the front TTC).
+    ``min_path_gap_m``: smallest bumper-to-bumper gap to a vehicle in the ego's path (lateral box
+    overlap), ahead or behind: the "distance < 2 m" reading that does not flag ordinary
+    adjacent-lane passes (3.75 m lanes leave ~1.95 m between boxes side by side).
+    """
 
     min_ttc_s: np.ndarray
     min_ttc_step: np.ndarray
     min_ttc_nbr: np.ndarray
+    min_rear_ttc_s: np.ndarray
+    min_rear_ttc_step: np.ndarray
+    min_rear_ttc_nbr: np.ndarray
     min_box_gap_m: np.ndarray
     min_gap_step: np.ndarray
     min_gap_nbr: np.ndarray
+    min_path_gap_m: np.ndarray
     collision: np.ndarray
     off_road: np.ndarray
 
     def safe(self, ttc_threshold_s: float, gap_threshold_m: float) -> np.ndarray:
-        """(B,) bool: no contact, on the road, TTC and box gap at or above the thresholds."""
+        """(B,) bool: no contact, on the road, front and rear TTC and in-path gap above thresholds."""
         return (
             ~self.collision
             & ~self.off_road
             & (self.min_ttc_s >= ttc_threshold_s)
-            & (self.min_box_gap_m >= gap_threshold_m)
+            & (self.min_rear_ttc_s >= ttc_threshold_s)
+            & (self.min_path_gap_m >= gap_threshold_m)
         )
 
 
@@ -60,12 +73,26 @@ def predicted_inputs(
     )
 
 
+def _mirrored(inp: MetricInputs) -> MetricInputs:
+    """The same scene with x reversed, so the vehicle behind becomes the one "preceding"."""
+    flip = np.array([-1.0, 1.0])
+    return replace(inp, ego_xy_m=inp.ego_xy_m * flip, ego_vxy_mps=inp.ego_vxy_mps * flip,
+                   nbr_xy_m=inp.nbr_xy_m * flip, nbr_vxy_mps=inp.nbr_vxy_mps * flip)
+
+
+def _min_path_gap_m(inp: MetricInputs) -> np.ndarray:
+    lon_gap = np.abs(inp.dx_m) - inp.half_len_sum_m
+    in_path = inp.lateral_overlap & inp.nbr_valid
+    return np.where(in_path, lon_gap, np.inf).min(axis=(1, 2))
+
+
 def check_plans(
     batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
 ) -> SafetyCheck:
     """TTC, box gap, contact and road-edge checks of plans against predicted neighbours."""
     inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours)
     ttc = ttc_1d(inp)
+    rear = ttc_1d(_mirrored(inp))
     dist = distances(inp)
     contact = np.asarray(boxes_overlap(inp).any(axis=(1, 2)), dtype=bool)
     leaves_road = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, batch.marking_y_m, batch.marking_is_edge)
@@ -73,9 +100,13 @@ def check_plans(
         min_ttc_s=ttc.min_ttc_s,
         min_ttc_step=ttc.min_ttc_step,
         min_ttc_nbr=ttc.min_ttc_nbr,
+        min_rear_ttc_s=rear.min_ttc_s,
+        min_rear_ttc_step=rear.min_ttc_step,
+        min_rear_ttc_nbr=rear.min_ttc_nbr,
         min_box_gap_m=dist.min_box_gap_m,
         min_gap_step=dist.min_gap_step,
         min_gap_nbr=dist.min_gap_nbr,
+        min_path_gap_m=_min_path_gap_m(inp),
         collision=contact,
         off_road=leaves_road,
     )

@@ -5,8 +5,9 @@ The reviewer's baseline for "is the LLM needed?": every scenario tries the same 
 parameters), simulates each against the *predicted* neighbours (never the ground truth), and keeps
 
 1. among candidates that are safe by the reflection thresholds (no contact, on the road,
-   TTC ≥ 1.5 s, box gap ≥ 2 m to the predicted neighbours), the one closest to the unadjusted
-   plan (cost: |lon − neutral| + lane-change penalty × |lane| + repulsion penalty);
+   front and rear TTC ≥ 1.5 s, in-path gap ≥ 2 m to the predicted neighbours; see
+   ``letspi.planners.safety``), the one closest to the unadjusted plan (cost: |lon − neutral| +
+   lane-change penalty × |lane| + repulsion penalty);
 2. if none is safe, the one with the largest min(TTC, cap) and then box gap.
 
 All candidates of a batch are rolled out in one vectorised call (B × C scenarios).
@@ -84,7 +85,7 @@ class SocialForceSearchPlanner:
             + self.space.k_scale_cost * (k_scale - 1.0)
         ).reshape(b, c)
         # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
-        ttc = np.minimum(check.min_ttc_s, self.space.ttc_cap_s).reshape(b, c)
+        ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), self.space.ttc_cap_s).reshape(b, c)
         gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
         unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
         best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
