@@ -19,7 +19,7 @@ def _scenario_file(tmp_path):
         straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)]).as_batch()
         for i in range(4)
     ])
-    return save_scenarios(batch, tmp_path / "s.parquet")
+    return save_scenarios(batch, tmp_path / "s.arrow")
 
 
 def test_evaluate_prints_the_table_and_writes_files(tmp_path):
@@ -43,7 +43,7 @@ def test_evaluate_unknown_planner_is_a_clear_error(tmp_path):
 
 def test_scenarios_missing_directory_names_it(tmp_path):
     result = runner.invoke(app, ["data", "scenarios", "--highd", str(tmp_path / "nowhere"), "--out",
-                                 str(tmp_path / "s.parquet")])
+                                 str(tmp_path / "s.arrow")])
     assert result.exit_code == 2
     assert "nowhere" in result.output
 

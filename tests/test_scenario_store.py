@@ -18,9 +18,10 @@ def _batch() -> ScenarioBatch:
     return concat_batches([a, b])
 
 
-def test_round_trip_is_exact(tmp_path):
+@pytest.mark.parametrize("name", ["s.arrow", "s.parquet"])
+def test_round_trip_is_exact(tmp_path, name):
     batch = _batch()
-    path = save_scenarios(batch, tmp_path / "s.parquet")
+    path = save_scenarios(batch, tmp_path / name)
     back = load_scenarios(path)
     for f in fields(ScenarioBatch):
         want, got = getattr(batch, f.name), getattr(back, f.name)
@@ -45,11 +46,11 @@ def test_errors_name_the_file(tmp_path):
         load_scenarios(tmp_path / "missing.parquet")
     foreign = tmp_path / "foreign.parquet"
     pq.write_table(pa.table({"x": [1, 2]}), foreign)
-    with pytest.raises(ScenarioFileError, match="foreign.parquet: Parquet file without letspi metadata"):
+    with pytest.raises(ScenarioFileError, match="foreign.parquet: file without letspi metadata"):
         load_scenarios(foreign)
     garbage = tmp_path / "garbage.parquet"
     garbage.write_text("not parquet")
-    with pytest.raises(ScenarioFileError, match="garbage.parquet: not a Parquet"):
+    with pytest.raises(ScenarioFileError, match="garbage.parquet: not a letspi scenario file"):
         load_scenarios(garbage)
 
 

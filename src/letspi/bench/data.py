@@ -41,8 +41,8 @@ def bench_data(minutes: float = 10.0, seed: int = 0, n_load: int = 10_000) -> di
 
         reps = int(np.ceil(n_load / len(batch)))
         big = concat_batches([batch] * reps).take(np.arange(n_load))
-        path = save_scenarios(big, tmp_dir / "scenarios.parquet")
-        out["parquet_mb_per_10k"] = path.stat().st_size / 1e6 * 10_000 / n_load
+        path = save_scenarios(big, tmp_dir / "scenarios.arrow")
+        out["file_mb_per_10k"] = path.stat().st_size / 1e6 * 10_000 / n_load
         load_times = []
         for _ in range(3):
             t = time.perf_counter()

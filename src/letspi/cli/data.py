@@ -50,7 +50,7 @@ def generate(
 @app.command()
 def scenarios(
     highd: Annotated[Path, typer.Option(help="Directory with NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv.")],
-    out: Annotated[Path, typer.Option(help="Output Parquet file.")],
+    out: Annotated[Path, typer.Option(help="Output scenario file (Arrow IPC, zstd; .parquet suffix: Parquet).")],
     max: Annotated[int | None, typer.Option("--max", help="Sample at most N scenarios (paper: 10,000).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the random sample.")] = 0,
     stride: Annotated[int, typer.Option(min=1, help="Sliding-window stride [frames].")] = DEFAULT_STRIDE_FRAMES,
@@ -81,7 +81,7 @@ def scenarios(
 
 @app.command()
 def info(
-    scenarios_file: Annotated[Path, typer.Argument(help="A scenario Parquet file.")],
+    scenarios_file: Annotated[Path, typer.Argument(help="A scenario file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """Summarise a scenario file: counts, recordings, neighbours, provenance."""

@@ -28,7 +28,7 @@ def demo(
     from letspi.sumo.generate import generate_recordings
 
     highd_dir = out / "highd"
-    scenarios_file = out / "scenarios.parquet"
+    scenarios_file = out / "scenarios.arrow"
     with user_errors():
         if highd_dir.exists() and list_recording_ids(highd_dir):
             console.print(f"reusing recordings in {highd_dir}")

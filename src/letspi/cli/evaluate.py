@@ -11,7 +11,7 @@ from letspi.cli.common import console, progress_bar, user_errors
 
 
 def evaluate(
-    scenarios: Annotated[Path, typer.Option(help="Scenario Parquet file (from `letspi data scenarios`).")],
+    scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     planner: Annotated[list[str], typer.Option(help="Planner name; repeat for several.")],
     out: Annotated[Path, typer.Option(help="Output directory (rerunning resumes).")],
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,

@@ -14,7 +14,7 @@ app = typer.Typer(help="Fit baseline parameters offline.", no_args_is_help=True)
 
 @app.command("sf")
 def fit_sf(
-    scenarios: Annotated[Path, typer.Option(help="Scenario Parquet file to fit on (a training split is taken).")],
+    scenarios: Annotated[Path, typer.Option(help="Scenario file to fit on (a training split is taken).")],
     out: Annotated[Path, typer.Option(help="Output JSON with the parameters and their provenance.")],
     seed: Annotated[int, typer.Option(help="Seed of the by-vehicle split and subsampling.")] = 0,
     max_train: Annotated[int, typer.Option(help="At most this many training scenarios.")] = 2000,
