@@ -132,3 +132,12 @@ def test_safety_check_sees_a_faster_car_closing_from_behind():
     # the adjacent-lane car is 1.95 m away box to box but not in the ego's path
     assert check.min_box_gap_m[0] == pytest.approx(1.95, abs=1e-3)
     assert check.min_path_gap_m[0] < gap0 and not check.safe(1.5, 2.0)[0]
+
+
+def test_non_default_options_show_in_the_planner_name(tmp_path):
+    assert make_planner("sf").name == "sf"
+    assert make_planner("sf", PlannerOptions(neighbour_mode="constant_velocity")).name == "sf@constant_velocity"
+    path = save_sf_params(tmp_path / "my_fit.json", SocialForceParams(), {}, {})
+    assert make_planner("sf-opt", PlannerOptions(sf_params_file=path)).name == "sf-opt@my_fit"
+    with pytest.raises(ValueError, match="not a valid NeighbourPredictionMode"):
+        make_planner("idm", PlannerOptions(neighbour_mode="cv"))

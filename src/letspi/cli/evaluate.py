@@ -16,7 +16,11 @@ def evaluate(
     out: Annotated[Path, typer.Option(help="Output directory (rerunning resumes).")],
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction for physics planners: idm|cv.")] = "idm",
+    neighbours: Annotated[
+        str,
+        typer.Option(help="Neighbour prediction of idm/sf/sf-opt: idm, constant_velocity, or ground_truth_oracle "
+                          "(leaks the future: an upper bound, not a planner)."),
+    ] = "idm",
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts."""
     import numpy as np

@@ -23,8 +23,24 @@ def available_planners() -> tuple[str, ...]:
 
 
 def make_planner(name: str, options: PlannerOptions | None = None) -> Planner:
-    """Build the planner called ``name``; unknown names raise ``ValueError`` listing valid ones."""
+    """Build the planner called ``name``; unknown names raise ``ValueError`` listing valid ones.
+
+    Non-default options are appended to the planner's name (``sf@constant_velocity``,
+    ``sf@my_fit``), so results of different configurations never share a row or a resume key.
+    """
     options = options or PlannerOptions()
+    planner = _make(name, options)
+    suffix = []
+    if name in ("idm", "sf", "sf-opt") and options.neighbour_mode != "idm":
+        suffix.append(str(options.neighbour_mode))
+    if name in ("sf", "sf-opt") and options.sf_params_file is not None:
+        suffix.append(Path(options.sf_params_file).stem)
+    if suffix:
+        planner.name = "@".join([planner.name, *suffix])
+    return planner
+
+
+def _make(name: str, options: PlannerOptions) -> Planner:
     if name == "human":
         from letspi.planners.human import HumanPlanner
 
