@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate, fit
+from letspi.cli import bench, data, demo, evaluate, fit, viz
 
 app = typer.Typer(
     name="letspi",
@@ -19,6 +19,8 @@ app.add_typer(bench.app, name="bench")
 app.add_typer(fit.app, name="fit")
 app.command("demo")(demo.demo)
 app.command("evaluate")(evaluate.evaluate)
+app.command("plot")(viz.plot)
+app.command("report")(viz.report)
 
 
 def main() -> None:

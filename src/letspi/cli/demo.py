@@ -63,5 +63,9 @@ def demo(
             results = evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
                                progress_factory=factory)
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+    from letspi.viz.report import write_report
+
+    report = write_report(eval_dir)
     console.print(f"files: {highd_dir}/ (HighD CSV), {scenarios_file}, {eval_dir}/metrics.json, "
                   f"{eval_dir}/metrics.md, {eval_dir}/per_scenario/")
+    console.print(f"report: {report}")

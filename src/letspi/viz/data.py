@@ -1,0 +1,135 @@
+"""What the pictures draw, computed from a scenario and its plans (no Matplotlib here).
+
+* ``PlanTrack``: one planner's plan for one scenario (rows of a ``PlanBatch``).
+* ``neighbour_groups``: each neighbour slot's lane relation to the ego at t = 0 (colour group).
+* ``preceding_gap``: bumper-to-bumper gap to the vehicle ahead in the ego's lane, per frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from letspi.constants import DT_S, N_TOTAL, T0_INDEX
+from letspi.planners.base import PlanBatch
+from letspi.scenario.queries import OFF_ROAD, lane_index_of
+from letspi.scenario.types import Scenario
+
+SAME_LANE = "same lane"
+ADJACENT_LANE = "adjacent lane"
+OTHER_LANE = "other lane"
+
+
+@dataclass(frozen=True)
+class PlanTrack:
+    """One planner's plan for one scenario, ego frame.
+
+    Attributes:
+        name: planner name (legend label, gid suffix).
+        xy_m: (F, 2) planned ego centre at t = 1..F frames after t = 0 [m].
+        vxy_mps: (F, 2) planned velocity [m/s].
+        goal_xy_m: (2,) the goal the plan aimed at (possibly adjusted), NaN when none [m].
+    """
+
+    name: str
+    xy_m: np.ndarray
+    vxy_mps: np.ndarray
+    goal_xy_m: np.ndarray
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Times of the plan's points after t = 0 [s]: (k + 1) * dt."""
+        return (np.arange(len(self.xy_m)) + 1) * DT_S
+
+
+def plan_track(name: str, plan: PlanBatch, row: int = 0) -> PlanTrack:
+    """The ``row``-th scenario of ``plan`` as a ``PlanTrack`` (arrays copied as float64)."""
+    return PlanTrack(
+        name=name,
+        xy_m=np.asarray(plan.xy_m[row], dtype=np.float64),
+        vxy_mps=np.asarray(plan.vxy_mps[row], dtype=np.float64),
+        goal_xy_m=np.asarray(plan.goals_xy_m[row], dtype=np.float64),
+    )
+
+
+def plan_tracks(plans: Mapping[str, PlanBatch] | None, index: int, batch_size: int) -> list[PlanTrack]:
+    """Plans for scenario ``index`` of a batch of ``batch_size``.
+
+    Each ``PlanBatch`` holds either that scenario alone (B = 1) or the whole batch (B =
+    ``batch_size``, row ``index`` is used); anything else is a ``ValueError``.
+    """
+    out: list[PlanTrack] = []
+    for name, plan in (plans or {}).items():
+        b = plan.xy_m.shape[0]
+        if b == 1:
+            out.append(plan_track(name, plan, 0))
+        elif b == batch_size:
+            out.append(plan_track(name, plan, index))
+        else:
+            raise ValueError(f"plan {name!r} holds {b} scenarios; expected 1 or the batch size {batch_size}")
+    return out
+
+
+def times_s() -> np.ndarray:
+    """Time of every scenario frame relative to t = 0 [s], (N_TOTAL,)."""
+    return (np.arange(N_TOTAL) - T0_INDEX) * DT_S
+
+
+def _lane_index(scenario: Scenario, y_m: np.ndarray) -> np.ndarray:
+    y = np.asarray(y_m, dtype=np.float64)
+    return lane_index_of(np.asarray(scenario.marking_y_m, dtype=np.float64)[None, :], y[None, ...])[0]
+
+
+def neighbour_groups(scenario: Scenario) -> list[str | None]:
+    """Per neighbour slot: ``SAME_LANE``, ``ADJACENT_LANE``, ``OTHER_LANE`` (relative to the ego's
+    lane at t = 0, using the neighbour's lane at t = 0 or, if not visible then, its first visible
+    frame), or None for empty slots."""
+    ego_lane = int(_lane_index(scenario, np.array([scenario.ego_xy_m[T0_INDEX, 1]]))[0])
+    groups: list[str | None] = []
+    for j in range(len(scenario.nbr_id)):
+        valid = np.asarray(scenario.nbr_valid[j], dtype=bool)
+        if not valid.any():
+            groups.append(None)
+            continue
+        frame = T0_INDEX if valid[T0_INDEX] else int(np.flatnonzero(valid)[0])
+        lane = int(_lane_index(scenario, np.array([scenario.nbr_xy_m[j, frame, 1]]))[0])
+        if ego_lane == OFF_ROAD or lane == OFF_ROAD:
+            groups.append(OTHER_LANE)
+        elif lane == ego_lane:
+            groups.append(SAME_LANE)
+        elif abs(lane - ego_lane) == 1:
+            groups.append(ADJACENT_LANE)
+        else:
+            groups.append(OTHER_LANE)
+    return groups
+
+
+def preceding_gap(scenario: Scenario, ego_xy_m: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gap from the ego to the vehicle ahead in its lane at each given frame.
+
+    Args:
+        scenario: the scenario (neighbours' recorded positions are used, also in the future).
+        ego_xy_m: (K, 2) ego centre positions at ``frames``.
+        frames: (K,) scenario frame indices (0..N_TOTAL-1) of those positions.
+    Returns:
+        gap_m (K,): bumper-to-bumper distance along x, ``dx - (L_ego + L_nbr) / 2`` (negative =
+        overlapping in x), NaN where no visible neighbour is ahead in the ego's lane.
+        leader_slot (K,): the neighbour slot of that vehicle, -1 where none.
+    """
+    ego = np.asarray(ego_xy_m, dtype=np.float64)
+    frames = np.asarray(frames, dtype=np.int64)
+    nbr = np.asarray(scenario.nbr_xy_m, dtype=np.float64)[:, frames]  # (N, K, 2)
+    valid = np.asarray(scenario.nbr_valid, dtype=bool)[:, frames]
+    ego_lane = _lane_index(scenario, ego[:, 1])  # (K,)
+    nbr_lane = _lane_index(scenario, nbr[..., 1].T).T  # (N, K)
+    dx = nbr[..., 0] - ego[None, :, 0]
+    ahead = valid & (nbr_lane == ego_lane[None, :]) & (ego_lane[None, :] != OFF_ROAD) & (dx > 0)
+    key = np.where(ahead, dx, np.inf)
+    slot = np.argmin(key, axis=0)
+    k = np.arange(len(frames))
+    found = np.isfinite(key[slot, k])
+    half = 0.5 * (float(scenario.ego_length_m) + np.asarray(scenario.nbr_length_m, dtype=np.float64)[slot])
+    gap = np.where(found, key[slot, k] - half, np.nan)
+    return gap, np.where(found, slot, -1)

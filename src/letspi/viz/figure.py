@@ -1,0 +1,114 @@
+"""``plot_scenario``: the paper's Figs 4-5 for one scenario.
+
+Layout (top to bottom): the trajectory diagram across the full width (equal aspect); the
+time-space diagram and the gap to the preceding vehicle side by side; then, for LLM planners, one
+row per reflection iteration with the safety analysis report (left) and the LLM response (right).
+One legend for all roles sits at the bottom. Figures are plain ``matplotlib.figure.Figure``
+objects (no pyplot state); PNGs are written with Agg.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from letspi.physics.goals import KinematicGoalPredictor
+from letspi.planners.base import PlanBatch
+from letspi.scenario.types import ScenarioBatch
+from letspi.viz import style
+from letspi.viz.data import PlanTrack, plan_tracks
+from letspi.viz.llm_panel import IterationRecord, chars_per_line, draw_iteration, iterations_height_in
+from letspi.viz.time_space import draw_gap, draw_time_space
+from letspi.viz.trajectory import ADJUSTED_GOAL_TOL_M, draw_trajectory, role_legend_handles, x_range_m, y_range_m
+
+DEFAULT_WIDTH_IN = 15.0
+_TS_ROW_IN = 3.6
+_TRAJ_EXTRA_IN = 1.0  # axis labels and title around the equal-aspect road strip
+
+
+def predicted_goal(batch: ScenarioBatch, index: int) -> np.ndarray:
+    """The unadjusted goal of scenario ``index`` (``KinematicGoalPredictor``'s top goal), (2,)."""
+    return np.asarray(KinematicGoalPredictor().predict_goals(batch.take([index])).top[0], dtype=np.float64)
+
+
+def _has_adjusted(tracks: Sequence[PlanTrack], goal: np.ndarray | None) -> bool:
+    if goal is None or not np.all(np.isfinite(goal)):
+        return False
+    return any(np.all(np.isfinite(t.goal_xy_m)) and float(np.hypot(*(t.goal_xy_m - goal))) > ADJUSTED_GOAL_TOL_M
+               for t in tracks)
+
+
+def plot_scenario(
+    batch: ScenarioBatch,
+    index: int,
+    plans: Mapping[str, PlanBatch] | None = None,
+    iterations: Sequence[IterationRecord] | None = None,
+    out_png: Path | str | None = None,
+    *,
+    goal_xy_m: np.ndarray | None = None,
+    title: str | None = None,
+    width_in: float = DEFAULT_WIDTH_IN,
+) -> Figure:
+    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations).
+
+    Args:
+        batch: scenarios (ego frame).
+        index: which scenario of ``batch``.
+        plans: planner name -> ``PlanBatch`` holding that scenario alone (B = 1) or the whole
+            ``batch`` (row ``index`` is drawn). Drawn in the given order with ``style.PLAN_COLOURS``.
+        iterations: reflection iterations of an LLM planner; adds one text row per iteration.
+        out_png: if given, the figure is saved there (PNG, parent directories created).
+        goal_xy_m: the unadjusted goal (2,); default: ``KinematicGoalPredictor``'s goal. A plan whose
+            ``goals_xy_m`` differs from it is drawn with an adjusted goal.
+        title: figure title; default names the scenario and its recording.
+        width_in: figure width [in]; heights follow from the road's aspect and the text.
+    Returns:
+        The figure. Artists carry gids (see ``letspi.viz.trajectory`` / ``time_space`` /
+        ``llm_panel``); axes are labelled ``trajectory``, ``time_space``, ``gap``,
+        ``safety_report:<k>``, ``response:<k>`` (``Axes.get_label()``).
+    """
+    if not 0 <= index < len(batch):
+        raise IndexError(f"scenario index {index} outside 0..{len(batch) - 1}")
+    scenario = batch.scenario(index)
+    tracks = plan_tracks(plans, index, len(batch))
+    colours = [style.plan_colour(k) for k in range(len(tracks))]
+    goal = predicted_goal(batch, index) if goal_xy_m is None else np.asarray(goal_xy_m, dtype=np.float64)
+    records = sorted(iterations or [], key=lambda r: r.iteration)
+
+    xlo, xhi = x_range_m(scenario, tracks, goal)
+    ylo, yhi = y_range_m(scenario, tracks)
+    traj_h = (width_in - 1.0) * (yhi - ylo) / (xhi - xlo) + _TRAJ_EXTRA_IN
+    panel_w = width_in / 2.0 - 0.2
+    width_chars = chars_per_line(panel_w)
+    text_heights = iterations_height_in(records, width_chars)
+    heights = [traj_h, _TS_ROW_IN, *text_heights]
+    legend_h = 0.9
+    with style.letspi_style():
+        fig = Figure(figsize=(width_in, sum(heights) + legend_h + 0.5), layout="constrained")
+        grid = fig.add_gridspec(len(heights), 2, height_ratios=heights)
+        ax_traj = fig.add_subplot(grid[0, :], label="trajectory")
+        ax_ts = fig.add_subplot(grid[1, 0], label="time_space")
+        ax_gap = fig.add_subplot(grid[1, 1], label="gap", sharex=ax_ts)
+        draw_trajectory(ax_traj, scenario, tracks, goal, colours=colours)
+        draw_time_space(ax_ts, scenario, tracks, colours=colours)
+        draw_gap(ax_gap, scenario, tracks, colours=colours)
+        for row, record in enumerate(records, start=2):
+            ax_l = fig.add_subplot(grid[row, 0], label=f"safety_report:{record.iteration}")
+            ax_r = fig.add_subplot(grid[row, 1], label=f"response:{record.iteration}")
+            draw_iteration(ax_l, ax_r, record, width_chars, n_iterations=len(records))
+        handles = role_legend_handles([t.name for t in tracks], colours, with_goals=goal is not None,
+                                      adjusted=_has_adjusted(tracks, goal))
+        fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 6), frameon=False)
+        if title is None:
+            speed = float(np.hypot(*scenario.ego_vxy_mps[len(scenario.ego_vxy_mps) - 126]))
+            title = (f"Scenario {scenario.scenario_id} (recording {int(scenario.recording_id)}, ego "
+                     f"{int(scenario.ego_id)}, {speed * 3.6:.0f} km/h at t = 0)")
+        fig.suptitle(title, fontsize=style.BASE_FONT_SIZE + 3, fontweight="bold")
+        if out_png is not None:
+            path = Path(out_png)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(path, format="png")
+    return fig
