@@ -141,3 +141,14 @@ def test_non_default_options_show_in_the_planner_name(tmp_path):
     assert make_planner("sf-opt", PlannerOptions(sf_params_file=path)).name == "sf-opt@my_fit"
     with pytest.raises(ValueError, match="not a valid NeighbourPredictionMode"):
         make_planner("idm", PlannerOptions(neighbour_mode="cv"))
+
+
+def test_goal_source_option():
+    from letspi.learned.goal_model import LearnedGoalPredictor
+
+    assert isinstance(make_planner("sf").goal_predictor, LearnedGoalPredictor)  # type: ignore[attr-defined]
+    assert make_planner("sf", PlannerOptions(goals="kinematic")).name == "sf@kinematic-goals"
+    with pytest.raises(ValueError, match="unknown goal source 'psychic'"):
+        make_planner("sf", PlannerOptions(goals="psychic"))
+    with pytest.raises(ValueError, match="gnp uses its learned goal predictor"):
+        make_planner("gnp", PlannerOptions(goals="kinematic"))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate, fit, viz
+from letspi.cli import bench, data, demo, evaluate, fit, train, viz
 
 app = typer.Typer(
     name="letspi",
@@ -17,6 +17,7 @@ app = typer.Typer(
 app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
 app.add_typer(fit.app, name="fit")
+app.add_typer(train.app, name="train")
 app.command("demo")(demo.demo)
 app.command("evaluate")(evaluate.evaluate)
 app.command("plot")(viz.plot)

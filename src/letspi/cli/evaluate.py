@@ -21,6 +21,10 @@ def evaluate(
         typer.Option(help="Neighbour prediction of idm/sf/sf-opt: idm, constant_velocity, or ground_truth_oracle "
                           "(leaks the future: an upper bound, not a planner)."),
     ] = "idm",
+    goals: Annotated[
+        str, typer.Option(help="Goal source of sf/sf-opt: learned (shipped transformer), kinematic, or oracle "
+                               "(true endpoint: leaks the future).")
+    ] = "learned",
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts."""
     import numpy as np
@@ -33,7 +37,7 @@ def evaluate(
         n_total = count_scenarios(scenarios)
         indices = None if limit is None else np.arange(min(limit, n_total))
         batch = load_scenarios(scenarios, indices)
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours)
+        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals)
         planners = [make_planner(name, options) for name in planner]
         with progress_bar() as bar:
 

@@ -1,0 +1,120 @@
+"""``letspi train``: train the learned goal predictor and the GNP baseline (needs torch==2.13.0)."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from letspi.cli.common import console, progress_bar, user_errors
+
+app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
+                  no_args_is_help=True)
+
+ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario file(s) to train on "
+                                                  "(repeat the option for several; split by ego vehicle).")]
+OutOpt = Annotated[Path, typer.Option(help="Output model directory (weights.npz + manifest.json).")]
+SeedOpt = Annotated[int, typer.Option(help="Seed of the split, initialisation and batch order.")]
+ThreadsOpt = Annotated[int, typer.Option(help="torch CPU threads (1 keeps runs reproducible and polite).")]
+DataNoteOpt = Annotated[str | None, typer.Option(
+    help="Where the data came from, stored in the manifest (e.g. the `letspi data generate` seeds).")]
+
+
+def _require_torch() -> None:
+    try:
+        import torch  # noqa: F401
+    except ImportError as exc:
+        console.print("[red]error:[/red] training needs torch: pip install 'letspi[train]' (torch==2.13.0)")
+        raise typer.Exit(code=2) from exc
+
+
+def _command() -> str:
+    return "letspi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
+def _print_validation(validation: dict[str, Any]) -> None:
+    for name, values in validation.items():
+        if isinstance(values, dict):
+            shown = ", ".join(f"{k} {v:.3f}" for k, v in values.items() if isinstance(v, float) and k != "n")
+            console.print(f"  {name}: {shown}")
+
+
+@app.command("goals")
+def train_goals(
+    scenarios: ScenariosOpt,
+    out: OutOpt,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 40,
+    seed: SeedOpt = 0,
+    n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = 6,
+    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = None,
+    threads: ThreadsOpt = 1,
+    data_note: DataNoteOpt = None,
+) -> None:
+    """Train the transformer multi-goal predictor (winner-takes-all over K goals at the 5 s horizon)."""
+    _require_torch()
+    from letspi.learned.train.data import load_training_scenarios
+    from letspi.learned.train.goal_train import GoalTrainConfig, train_goal_model
+    from letspi.learned.weights import save_weights
+
+    with user_errors():
+        if epochs < 1:
+            raise ValueError("--epochs must be >= 1")
+        batch, infos = load_training_scenarios(scenarios)
+        cfg = GoalTrainConfig(epochs=epochs, seed=seed, n_goals=n_goals, max_train=max_train, threads=threads)
+        with progress_bar() as bar:
+            task = bar.add_task("training goals", total=epochs)
+            res = train_goal_model(batch, cfg, progress=lambda k: bar.advance(task, k),
+                                   manifest_extra={"data": {"scenario_files": infos, "note": data_note},
+                                                   "training": {"command": _command()}})
+        save_weights(out, res.arrays, res.manifest)
+    console.print(f"goal model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
+    _print_validation(res.manifest["validation"])
+
+
+@app.command("gnp")
+def train_gnp(
+    scenarios: ScenariosOpt,
+    out: OutOpt,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 8,
+    seed: SeedOpt = 0,
+    goal_weights: Annotated[Path | None, typer.Option(
+        help="Goal model directory for the rollout goals (default: $LETSPI_GOAL_WEIGHTS or the shipped one).")] = None,
+    sf_params: Annotated[Path | None, typer.Option(
+        help="Fixed SF parameters the weights scale (default: the shipped `sf` fit).")] = None,
+    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = 6000,
+    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
+    threads: ThreadsOpt = 1,
+    data_note: DataNoteOpt = None,
+) -> None:
+    """Train GNP: tau per scene and a repulsion weight per neighbour, end to end through the
+    differentiable social force rollout (predicted goals and predicted neighbours)."""
+    _require_torch()
+    from letspi.learned.goal_model import default_goal_predictor
+    from letspi.learned.train.data import load_training_scenarios
+    from letspi.learned.train.gnp_train import GnpTrainConfig, train_gnp_model
+    from letspi.learned.weights import save_weights
+    from letspi.planners.sf_params import load_sf_params
+
+    with user_errors():
+        if epochs < 1:
+            raise ValueError("--epochs must be >= 1")
+        if neighbours not in ("idm", "constant_velocity"):
+            raise ValueError("--neighbours must be idm or constant_velocity (never the recorded future)")
+        batch, infos = load_training_scenarios(scenarios)
+        base, _ = load_sf_params(sf_params)
+        goals = default_goal_predictor(goal_weights)
+        cfg = GnpTrainConfig(epochs=epochs, seed=seed, max_train=max_train, neighbour_mode=neighbours,
+                             threads=threads)
+        with progress_bar() as bar:
+            task = bar.add_task("training gnp", total=epochs + 1)
+            res = train_gnp_model(batch, cfg, base, goals, progress=lambda k: bar.advance(task, k),
+                                  manifest_extra={"data": {"scenario_files": infos, "note": data_note},
+                                                  "training": {"command": _command(),
+                                                               "goal_weights": str(goal_weights or "default"),
+                                                               "sf_params": str(sf_params or "shipped")}})
+        save_weights(out, res.arrays, res.manifest)
+    console.print(f"gnp model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
+    _print_validation(res.manifest["validation"])

@@ -1,0 +1,141 @@
+"""Scene -> fixed-size input tensors of the learned models (only what is known at t <= 0).
+
+Everything stays in the ego frame (origin: ego centre at t = 0, x forward, y left; see
+``letspi.scenario.types``). Agent slot 0 is the ego, slots 1..N the neighbour slots of the batch.
+
+``SceneFeatures`` (float64 arrays, B scenarios, A = 1 + N agents, H = ``N_HIST_STEPS`` = 15):
+
+* ``agent_hist`` (B, A, H, 5): per history step (every ``HIST_STRIDE`` = 5 frames = 0.2 s over the
+  last 2.8 s, ending at t = 0): ``x / 50 m``, ``y / 5 m``, ``vx / 30 m/s``, ``vy / 2 m/s``, valid (0/1).
+  Invalid samples are all zero.
+* ``agent_static`` (B, A, 6): ``length / 5 m``, ``width / 2 m``, is_truck, is_ego, and the agent's
+  lateral offset from its lane centre at t = 0 ``/ 2 m`` and signed lane index relative to the ego's
+  lane (``+1`` = one lane to the left), both 0 when unknown.
+* ``agent_mask`` (B, A) bool: the ego always; a neighbour when it is visible at t = 0 (a vehicle
+  that already left cannot act on the plan, and the neighbour predictors cannot start from it).
+* ``lane`` (B, 2 * ``MAX_MARKINGS`` + 4): for each marking slot (ascending y, NaN padding -> 0):
+  ``(marking_y - ego_y0) / 5 m`` and a kind code (+1 road edge, -1 lane line, 0 padding); then lane
+  width ``/ 4 m``, number of lanes left and right of the ego's lane ``/ 3``, speed limit ``/ 40 m/s``
+  (0 when unknown), and the kinematic anchor relative to constant velocity:
+  ``(anchor_x - vx0 * 5 s) / 10 m``, ``anchor_y / 5 m``.
+* ``anchor_xy`` (B, 2) [m]: the ``KinematicGoalPredictor`` goal (constant acceleration + lane-change
+  intention). The goal network predicts offsets from it, so an untrained offset is the kinematic goal.
+
+The scales keep every input of order 1 without data-dependent normalisation statistics, so the
+same features work for any data set (generated or real HighD).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from letspi.constants import HORIZON_S, T0_INDEX
+from letspi.physics.goals import KinematicGoalPredictor
+from letspi.physics.lanes import lane_centres_m, lane_index_of, lane_width_m
+from letspi.scenario.types import VEHICLE_CLASS_TRUCK, ScenarioBatch
+
+HIST_STRIDE: Final = 5
+N_HIST_STEPS: Final = 15
+HIST_FRAMES: Final = tuple(T0_INDEX - HIST_STRIDE * (N_HIST_STEPS - 1 - i) for i in range(N_HIST_STEPS))
+MAX_MARKINGS: Final = 8
+N_STEP_FEATURES: Final = 5
+N_STATIC_FEATURES: Final = 6
+N_LANE_FEATURES: Final = 2 * MAX_MARKINGS + 6
+
+SCALE_X_M: Final = 50.0
+SCALE_Y_M: Final = 5.0
+SCALE_VX_MPS: Final = 30.0
+SCALE_VY_MPS: Final = 2.0
+
+
+@dataclass(frozen=True)
+class SceneFeatures:
+    """Model inputs for B scenarios (shapes and units in the module docstring)."""
+
+    agent_hist: np.ndarray
+    agent_static: np.ndarray
+    agent_mask: np.ndarray
+    lane: np.ndarray
+    anchor_xy: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.agent_hist.shape[0])
+
+    def take(self, indices: np.ndarray | slice) -> SceneFeatures:
+        return SceneFeatures(self.agent_hist[indices], self.agent_static[indices], self.agent_mask[indices],
+                             self.lane[indices], self.anchor_xy[indices])
+
+    def agent_input(self) -> np.ndarray:
+        """Flattened per-agent input (B, A, H * 5 + 6): history then static features."""
+        b, a = self.agent_hist.shape[:2]
+        return np.concatenate([self.agent_hist.reshape(b, a, -1), self.agent_static], axis=2)
+
+
+def _lane_offset_and_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offset from the lane centre [m] and lane index for y (B,), NaN / -1 without lanes."""
+    centres = lane_centres_m(marking_y_m)
+    idx = lane_index_of(y_m, marking_y_m)
+    if centres.shape[1] == 0:
+        return np.full(y_m.shape, np.nan), idx
+    c = np.take_along_axis(centres, np.maximum(idx, 0)[:, None], axis=1)[:, 0]
+    return np.where(idx >= 0, y_m - c, np.nan), idx
+
+
+def scene_features(batch: ScenarioBatch) -> SceneFeatures:
+    """Build the model inputs of ``batch`` from frames <= ``T0_INDEX`` only (see module docstring)."""
+    b, n = len(batch), batch.n_neighbours
+    frames = list(HIST_FRAMES)
+    my = batch.marking_y_m.astype(np.float64)
+
+    # (B, A, H, 2) positions / velocities, ego first
+    xy = np.concatenate([batch.ego_xy_m[:, None, frames], batch.nbr_xy_m[:, :, frames]], axis=1).astype(np.float64)
+    vxy = np.concatenate([batch.ego_vxy_mps[:, None, frames], batch.nbr_vxy_mps[:, :, frames]],
+                         axis=1).astype(np.float64)
+    valid = np.concatenate([np.ones((b, 1, len(frames)), dtype=bool), batch.nbr_valid[:, :, frames]], axis=1)
+    valid &= np.isfinite(xy).all(axis=-1) & np.isfinite(vxy).all(axis=-1)
+    hist = np.stack([xy[..., 0] / SCALE_X_M, xy[..., 1] / SCALE_Y_M, vxy[..., 0] / SCALE_VX_MPS,
+                     vxy[..., 1] / SCALE_VY_MPS, np.ones_like(xy[..., 0])], axis=-1)
+    hist = np.where(valid[..., None], hist, 0.0)
+
+    mask = np.concatenate([np.ones((b, 1), dtype=bool), valid[:, 1:, -1]], axis=1)
+    length = np.concatenate([batch.ego_length_m[:, None], batch.nbr_length_m], axis=1).astype(np.float64)
+    width = np.concatenate([batch.ego_width_m[:, None], batch.nbr_width_m], axis=1).astype(np.float64)
+    cls = np.concatenate([batch.ego_class[:, None], batch.nbr_class], axis=1)
+    is_ego = np.zeros((b, 1 + n))
+    is_ego[:, 0] = 1.0
+
+    y0 = np.where(mask, xy[:, :, -1, 1], 0.0)  # (B, A) y at t = 0
+    _, ego_idx = _lane_offset_and_index(y0[:, 0], my)
+    offsets = np.empty((b, 1 + n))
+    rel_lane = np.empty((b, 1 + n))
+    for a in range(1 + n):
+        off, idx = _lane_offset_and_index(y0[:, a], my)
+        offsets[:, a] = off
+        rel_lane[:, a] = np.where((idx >= 0) & (ego_idx >= 0), idx - ego_idx, 0)
+    offsets = np.where(mask & np.isfinite(offsets), offsets / 2.0, 0.0)
+    rel_lane = np.where(mask, rel_lane, 0.0)
+    static = np.stack([np.nan_to_num(length) / 5.0, np.nan_to_num(width) / 2.0,
+                       (cls == VEHICLE_CLASS_TRUCK).astype(np.float64), is_ego, offsets, rel_lane], axis=-1)
+    static = np.where(mask[..., None], static, 0.0)
+
+    m = min(my.shape[1], MAX_MARKINGS)
+    lane = np.zeros((b, N_LANE_FEATURES))
+    known = np.isfinite(my[:, :m])
+    lane[:, :m] = np.where(known, (my[:, :m] - np.nan_to_num(xy[:, 0, -1, 1])[:, None]) / SCALE_Y_M, 0.0)
+    kind = np.where(batch.marking_is_edge[:, :m], 1.0, -1.0)
+    lane[:, MAX_MARKINGS : MAX_MARKINGS + m] = np.where(known, kind, 0.0)
+    n_lanes = np.maximum(known.sum(axis=1) - 1, 0)
+    lane[:, 2 * MAX_MARKINGS] = lane_width_m(my) / 4.0
+    has = ego_idx >= 0
+    lane[:, 2 * MAX_MARKINGS + 1] = np.where(has, (n_lanes - 1 - ego_idx) / 3.0, 0.0)
+    lane[:, 2 * MAX_MARKINGS + 2] = np.where(has, ego_idx / 3.0, 0.0)
+    limit = batch.speed_limit_mps.astype(np.float64)
+    lane[:, 2 * MAX_MARKINGS + 3] = np.where(np.isfinite(limit), limit / 40.0, 0.0)
+    anchor = KinematicGoalPredictor().predict_goals(batch).top
+    vx0 = np.nan_to_num(vxy[:, 0, -1, 0])
+    lane[:, 2 * MAX_MARKINGS + 4] = (anchor[:, 0] - vx0 * HORIZON_S) / 10.0
+    lane[:, 2 * MAX_MARKINGS + 5] = anchor[:, 1] / SCALE_Y_M
+    return SceneFeatures(agent_hist=hist, agent_static=static, agent_mask=mask, lane=lane, anchor_xy=anchor)

@@ -1,0 +1,217 @@
+"""GNP (Goal-based Neural Physics) baseline: a network sets social force parameters per scene.
+
+``GnpModel`` (NumPy inference of ``letspi.learned.train.modules.GnpNet``) reads the scene encoder's
+tokens (``letspi.learned.layers``) into
+
+* a relaxation time per scenario, ``tau = 0.3 + 2.7 s * sigmoid(.)`` in ``TAU_RANGE_S`` (B,) [s], and
+* a repulsion weight per neighbour slot, ``w_j = 1 + 3 * sigmoid(.)`` in (``WEIGHT_MIN``,
+  ``WEIGHT_MAX``) = (1, 4) (B, N) [dimensionless], 0 for absent neighbours. Why the floor at the
+  ``sf`` fit's strength: on calm generated traffic the trajectory loss rewards switching repulsion
+  off (measured: with weights in (0, 4) they fell to 0.05 on average, with (0.5, 4) they sat at the
+  floor, and in both cases the planner drove into a slower leader 40 m ahead), the same degeneracy
+  ``letspi.planners.fit_sf`` bounds its parameters against. GNP may be more cautious than ``sf``
+  per neighbour, never less.
+
+The weight multiplies the class strength of the fixed social force model (``k_np`` / ``k_nf`` /
+``k_nl`` of the shipped ``sf`` fit, stored in the GNP manifest): neighbour j pushes with
+``w_j * k_class * exp(-d_j / r_col)``. GNP learns one k per neighbour in (0, 100); a multiplicative
+weight keeps the class-dependent force directions of ``letspi.physics.social_force`` (a neighbour
+can change class during a rollout, e.g. preceding -> lateral, and the class strengths differ by
+~50x), and w = 1 everywhere is exactly the ``sf`` planner.
+
+``GnpPlanner`` (planner ``gnp``) rolls out with goals from the learned goal predictor and
+**predicted** neighbour motion (IDM by default). GNP's public code moves neighbours along their
+recorded future during the rollout; that leaks the future, so the oracle mode is refused here.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from letspi.constants import DT_S
+from letspi.learned.features import SceneFeatures, scene_features
+from letspi.learned.goal_model import default_goal_predictor
+from letspi.learned.layers import EncoderConfig, encode, linear, relu
+from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch, as_params_batch
+from letspi.physics.social_force import (
+    AX_MAX_MPS2,
+    AX_MIN_MPS2,
+    AY_MAX_MPS2,
+    SocialForceScene,
+    _goals,
+    _Kernel,
+    _max_speed,
+)
+from letspi.physics.types import RolloutResult
+from letspi.planners.base import PlanBatch
+from letspi.scenario.types import ScenarioBatch
+
+TAU_RANGE_S: Final = (0.3, 3.0)
+WEIGHT_MIN: Final = 1.0
+WEIGHT_MAX: Final = 4.0
+GNP_WEIGHTS_ENV: Final = "LETSPI_GNP_WEIGHTS"
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+@dataclass(frozen=True)
+class GnpModel:
+    """Scene -> (tau (B,) [s], neighbour weights (B, N)); ``base_params`` are the fixed SF parameters."""
+
+    weights: dict[str, np.ndarray]
+    config: EncoderConfig
+    base_params: SocialForceParams
+    manifest: dict[str, Any] | None = None
+
+    @classmethod
+    def from_dir(cls, path: Path | str) -> GnpModel:
+        arrays, manifest = load_weights(Path(path), expected_model="gnp")
+        try:
+            cfg = manifest["config"]
+            enc = EncoderConfig.from_dict(cfg["encoder"])
+            base = SocialForceParams.from_mapping(cfg["base_params"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise WeightsError(f"{path}: manifest config incomplete ({exc})") from exc
+        return cls(arrays, enc, base, manifest)
+
+    def predict(self, feats: SceneFeatures) -> tuple[np.ndarray, np.ndarray]:
+        """tau (B,) [s] and per-neighbour weights (B, N) (0 for absent neighbours)."""
+        w = self.weights
+        x = encode(w, self.config, feats)
+        lo, hi = TAU_RANGE_S
+        tau = lo + (hi - lo) * sigmoid(linear(w, "tau_h2", relu(linear(w, "tau_h1", x[:, 0])))[:, 0])
+        nbr = WEIGHT_MIN + (WEIGHT_MAX - WEIGHT_MIN) * sigmoid(
+            linear(w, "w_h2", relu(linear(w, "w_h1", x[:, 1:-1])))[..., 0])
+        return tau, nbr * feats.agent_mask[:, 1:]
+
+    def params_batch(self, tau_s: np.ndarray) -> SocialForceParamsBatch:
+        """The base parameters with the predicted tau, (B,) per field."""
+        p = SocialForceParamsBatch.broadcast(self.base_params, len(tau_s))
+        return SocialForceParamsBatch(**{**{n: getattr(p, n) for n in PARAM_NAMES}, "tau_s": np.asarray(tau_s)})
+
+
+class _WeightedKernel(_Kernel):
+    """The social force kernel with a repulsion weight per neighbour (N, B) multiplying its push."""
+
+    def __init__(self, *args: Any, nbr_weights: np.ndarray, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.nbr_w = nbr_weights
+
+    def neighbour_force(self, ex: np.ndarray, ey: np.ndarray, nx: np.ndarray,
+                        ny: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # same as the base kernel with mag -> w * mag (kept in step with letspi.physics.social_force)
+        dx = nx - ex
+        dy = ny - ey
+        ady = np.abs(dy)
+        gap_x = np.maximum(np.abs(dx) - self.half_len, 0.0)
+        gap_y = np.maximum(ady - self.half_wid, 0.0)
+        mag = np.exp(np.sqrt(gap_x * gap_x + gap_y * gap_y) * self.neg_inv_r_col) * self.nbr_w
+        inline = ady < self.inline_dy
+        lateral = (ady < self.lateral_dy) & ~inline
+        w_inline = mag * inline
+        pre = (w_inline * (dx > 0.0)).sum(axis=0)
+        fol = w_inline.sum(axis=0) - pre
+        lat = (mag * np.copysign(lateral, dy)).sum(axis=0)
+        return -self.k_np * pre, self.k_nf * fol, -self.k_nl * lat
+
+
+def rollout_weighted(
+    scene: SocialForceScene,
+    params: SocialForceParams | SocialForceParamsBatch,
+    goals_xy_m: np.ndarray,
+    nbr_weights: np.ndarray | None = None,
+    *,
+    dt_s: float = DT_S,
+    max_speed_mps: float | np.ndarray | None = None,
+) -> RolloutResult:
+    """``rollout_social_force_scene`` with per-neighbour repulsion weights ``nbr_weights`` (B, N).
+
+    Same integration, guards and clamps (semi-implicit Euler, acceleration clamps, no reversing);
+    ``nbr_weights=None`` means 1 everywhere (the plain social force model).
+    """
+    n = len(scene)
+    f = scene.n_steps
+    goals = _goals(goals_xy_m, n)
+    w = np.ones((n, scene.n_neighbours)) if nbr_weights is None else np.asarray(nbr_weights, dtype=np.float64)
+    if w.shape != (n, scene.n_neighbours):
+        raise ValueError(f"nbr_weights must be ({n}, {scene.n_neighbours}), got {w.shape}")
+    kernel = _WeightedKernel(scene, as_params_batch(params, n), goals, _max_speed(max_speed_mps, scene, goals, dt_s),
+                             dt_s, nbr_weights=np.ascontiguousarray(w.T))
+    ex = scene.ego_xy0_m[:, 0].copy()
+    ey = scene.ego_xy0_m[:, 1].copy()
+    vx = scene.ego_vxy0_mps[:, 0].copy()
+    vy = scene.ego_vxy0_mps[:, 1].copy()
+    out = np.empty((f, 6, n))
+    for k in range(f):
+        gx, gy = kernel.goal_force(ex, ey, vx, vy, (f - k) * dt_s)
+        pre, fol, lat = kernel.neighbour_force(ex, ey, scene.nbr_x_m[k], scene.nbr_y_m[k])
+        line, edge = kernel.lane_force(ey)
+        ax = np.clip(gx + pre + fol, AX_MIN_MPS2, AX_MAX_MPS2)
+        ay = np.clip(gy + lat + line + edge, -AY_MAX_MPS2, AY_MAX_MPS2)
+        new_vx = np.maximum(vx + ax * dt_s, 0.0)
+        vy = vy + ay * dt_s
+        out[k, 4] = (new_vx - vx) / dt_s
+        out[k, 5] = ay
+        vx = new_vx
+        ex = ex + vx * dt_s
+        ey = ey + vy * dt_s
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = ex, ey, vx, vy
+    res = out.transpose(2, 0, 1)
+    return RolloutResult(xy_m=np.ascontiguousarray(res[..., 0:2]), vxy_mps=np.ascontiguousarray(res[..., 2:4]),
+                         axy_mps2=np.ascontiguousarray(res[..., 4:6]), dt_s=dt_s)
+
+
+def load_gnp_model(path: Path | str | None = None) -> GnpModel:
+    """GNP model from ``path``, else ``$LETSPI_GNP_WEIGHTS``, else the shipped weights (``WeightsError``
+    when none loads: unlike goals there is no non-learned fallback for a learned baseline)."""
+    chosen = path if path is not None else os.environ.get(GNP_WEIGHTS_ENV) or shipped_weights_dir("gnp")
+    return GnpModel.from_dir(chosen)
+
+
+@dataclass
+class GnpPlanner:
+    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours.
+
+    ``info`` per scenario: the social force parameters used (tau varies) and the neighbour weights
+    (``nbr_weight`` (B, N)).
+    """
+
+    model: GnpModel
+    goal_predictor: GoalPredictor = field(default_factory=default_goal_predictor)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    name: str = "gnp"
+    batch_size: int = 1024
+
+    def __post_init__(self) -> None:
+        self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)
+        if self.neighbour_mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+            raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
+                             "not the recorded future")
+
+    @classmethod
+    def from_dir(cls, gnp_dir: Path | str | None = None, goal_dir: Path | str | None = None,
+                 neighbour_mode: NeighbourPredictionMode | str = NeighbourPredictionMode.IDM) -> GnpPlanner:
+        """Planner from model directories (default: environment overrides, then the shipped weights)."""
+        return cls(model=load_gnp_model(gnp_dir), goal_predictor=default_goal_predictor(goal_dir),
+                   neighbour_mode=NeighbourPredictionMode(neighbour_mode))
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        goals = self.goal_predictor.predict_goals(batch).top
+        neighbours = predict_neighbours(batch, self.neighbour_mode)
+        tau, weights = self.model.predict(scene_features(batch))
+        params = self.model.params_batch(tau)
+        scene = SocialForceScene.from_batch(batch, neighbours)
+        roll = rollout_weighted(scene, params, goals, weights)
+        info = {name: np.asarray(getattr(params, name), dtype=np.float64) for name in PARAM_NAMES}
+        info["nbr_weight"] = weights
+        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)

@@ -1,0 +1,202 @@
+"""End-to-end training of the GNP baseline through the differentiable social force rollout.
+
+For every training scenario the rollout inputs that do not depend on the network are computed once
+in NumPy, exactly as ``GnpPlanner`` does at inference: the goal (top goal of the goal predictor)
+and the **predicted** neighbour motion (IDM by default; the recorded neighbour future is never an
+input). The network (``GnpNet``) sets tau and the per-neighbour weights; ``rollout_torch`` plans
+125 steps; the loss compares the plan with the recorded ego future:
+
+    L = mean_t |p_t - p_t^human|                                     (ADE, m)
+        + collision_weight * mean_t sum_j overlap_x * overlap_y      (box overlap with the recorded
+                                                                      neighbours, m^2)
+
+The recorded neighbours appear only in the loss (supervision), never in the rollout. AdamW, the
+epoch with the lowest validation loss is kept; deterministic for a seed on CPU.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from letspi.constants import T0_INDEX
+from letspi.learned.features import scene_features
+from letspi.learned.gnp_model import GnpModel, rollout_weighted
+from letspi.learned.layers import EncoderConfig
+from letspi.learned.train.data import split
+from letspi.learned.train.modules import FeatureTensors, GnpNet, export_state
+from letspi.learned.train.torch_sf import TorchScene, rollout_torch
+from letspi.metrics._common import MetricInputs
+from letspi.metrics.collision import boxes_overlap
+from letspi.metrics.kinematics import ade_fde
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
+from letspi.physics.social_force import SocialForceScene
+from letspi.scenario.types import ScenarioBatch
+
+
+@dataclass(frozen=True)
+class GnpTrainConfig:
+    epochs: int = 8
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    collision_weight: float = 1.0
+    val_fraction: float = 0.15
+    max_train: int | None = 6000
+    max_val: int | None = 1000
+    neighbour_mode: str = "idm"
+    seed: int = 0
+    threads: int = 1
+    encoder: EncoderConfig = field(default_factory=lambda: EncoderConfig(d_model=32, n_heads=4, n_layers=1, d_ff=64))
+
+
+@dataclass(frozen=True)
+class GnpTrainResult:
+    arrays: dict[str, np.ndarray]
+    manifest: dict[str, Any]
+    train_loss: list[float]
+    val_loss: list[float]
+
+
+class _Data:
+    """Network-independent tensors of a set of scenarios (float32 for speed)."""
+
+    def __init__(self, batch: ScenarioBatch, goals_xy_m: np.ndarray, mode: NeighbourPredictionMode) -> None:
+        dt = torch.float32
+        self.batch = batch
+        self.goals_np = goals_xy_m
+        self.nbr = predict_neighbours(batch, mode)
+        self.scene_np = SocialForceScene.from_batch(batch, self.nbr)
+        self.scene = TorchScene.from_scene(self.scene_np, dt)
+        self.feats = FeatureTensors(scene_features(batch), dt)
+        self.goals = torch.as_tensor(goals_xy_m, dtype=dt)
+        fut = slice(T0_INDEX + 1, None)
+        self.truth = torch.as_tensor(np.nan_to_num(batch.ego_xy_m[:, fut].astype(np.float64)), dtype=dt)
+        gt_xy = batch.nbr_xy_m[:, :, fut].astype(np.float64)
+        ok = batch.nbr_valid[:, :, fut] & np.isfinite(gt_xy).all(axis=-1)
+        self.gt_nbr = torch.as_tensor(np.where(ok[..., None], gt_xy, 1e6), dtype=dt)  # (B, N, F, 2)
+        self.gt_ok = torch.as_tensor(ok, dtype=dt)
+        nl = np.nan_to_num(batch.nbr_length_m.astype(np.float64))
+        nw = np.nan_to_num(batch.nbr_width_m.astype(np.float64))
+        self.half_len = torch.as_tensor(0.5 * (batch.ego_length_m[:, None] + nl), dtype=dt)  # (B, N)
+        self.half_wid = torch.as_tensor(0.5 * (batch.ego_width_m[:, None] + nw), dtype=dt)
+
+    def __len__(self) -> int:
+        return len(self.batch)
+
+
+def _loss(net: GnpNet, d: _Data, idx: torch.Tensor, base: dict[str, float], collision_weight: float) -> torch.Tensor:
+    tau, w = net(d.feats.take(idx))
+    params = {k: torch.full_like(tau, v) for k, v in base.items()}
+    params["tau_s"] = tau
+    xy, _ = rollout_torch(d.scene.take(idx), params, d.goals[idx], w)
+    err = xy - d.truth[idx]
+    ade = torch.sqrt((err * err).sum(dim=-1) + 1e-6).mean(dim=1)
+    gx = torch.abs(d.gt_nbr[idx, :, :, 0] - xy[:, None, :, 0])  # (b, N, F)
+    gy = torch.abs(d.gt_nbr[idx, :, :, 1] - xy[:, None, :, 1])
+    ox = torch.relu(d.half_len[idx][..., None] - gx)
+    oy = torch.relu(d.half_wid[idx][..., None] - gy)
+    overlap = (ox * oy * d.gt_ok[idx]).sum(dim=1).mean(dim=1)
+    return (ade + collision_weight * overlap).mean()
+
+
+def _plan_metrics(d: _Data, xy: np.ndarray, vxy: np.ndarray) -> dict[str, float]:
+    truth = d.batch.ego_xy_m[:, d.batch.future_slice].astype(np.float64)
+    ade, fde = ade_fde(xy, truth)
+    collided = boxes_overlap(MetricInputs.from_batch(d.batch, xy, vxy)).any(axis=(1, 2))
+    return {"ade_m": float(np.nanmean(ade)), "fde_m": float(np.nanmean(fde)),
+            "collision_pct": 100.0 * float(collided.mean())}
+
+
+def train_gnp_model(
+    batch: ScenarioBatch,
+    cfg: GnpTrainConfig,
+    base_params: SocialForceParams,
+    goal_predictor: GoalPredictor,
+    *,
+    progress: Callable[[int], None] | None = None,
+    manifest_extra: dict[str, Any] | None = None,
+) -> GnpTrainResult:
+    """Train on the by-vehicle training split of ``batch`` (``progress(1)`` after the data
+    preparation and after every epoch); validation metrics for gnp and for plain sf (weights 1,
+    the base tau) with the same goals and neighbours."""
+    mode = NeighbourPredictionMode(cfg.neighbour_mode)
+    if mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+        raise ValueError("GNP trains with predicted neighbours, not the recorded future")
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    t_start = time.perf_counter()
+    train_idx, val_idx = split(batch, cfg.val_fraction, cfg.seed, cfg.max_train, cfg.max_val)
+    tb, vb = batch.take(train_idx), batch.take(val_idx)
+    dtr = _Data(tb, goal_predictor.predict_goals(tb).top, mode)
+    dva = _Data(vb, goal_predictor.predict_goals(vb).top, mode) if len(vb) else None
+    if progress is not None:
+        progress(1)
+    base = {k: float(getattr(base_params, k)) for k in PARAM_NAMES}
+
+    net = GnpNet(cfg.encoder, base_params.tau_s)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    train_hist, val_hist = [], []
+    best_state, best_val = copy.deepcopy(net.state_dict()), float("inf")
+    for _ in range(cfg.epochs):
+        net.train()
+        perm = torch.randperm(len(dtr), generator=gen)
+        total = 0.0
+        for s in range(0, len(perm), cfg.batch_size):
+            idx = perm[s : s + cfg.batch_size]
+            loss = _loss(net, dtr, idx, base, cfg.collision_weight)
+            opt.zero_grad()
+            loss.backward()  # type: ignore[no-untyped-call]
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
+            opt.step()
+            total += float(loss.detach()) * len(idx)
+        train_hist.append(total / max(len(dtr), 1))
+        if dva is not None:
+            net.eval()
+            with torch.no_grad():
+                vl = float(_loss(net, dva, torch.arange(len(dva)), base, cfg.collision_weight))
+        else:
+            vl = float("nan")
+        val_hist.append(vl)
+        if dva is None or vl < best_val:
+            best_val, best_state = vl, copy.deepcopy(net.state_dict())
+        if progress is not None:
+            progress(1)
+    net.load_state_dict(best_state)
+    seconds = time.perf_counter() - t_start
+    arrays = export_state(net)
+
+    config = {"encoder": cfg.encoder.as_dict(), "base_params": base_params.as_dict(),
+              "neighbour_mode": mode.value, "train": {k: v for k, v in asdict(cfg).items() if k != "encoder"}}
+    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": best_val}
+    if dva is not None:
+        model = GnpModel({k: v.astype(np.float64) for k, v in arrays.items()}, cfg.encoder, base_params)
+        tau, w = model.predict(scene_features(vb))
+        gnp = rollout_weighted(dva.scene_np, model.params_batch(tau), dva.goals_np, w)
+        sf = rollout_weighted(dva.scene_np, base_params, dva.goals_np, None)
+        validation["gnp"] = {**_plan_metrics(dva, gnp.xy_m, gnp.vxy_mps), "tau_mean_s": float(tau.mean()),
+                             "weight_mean": float(w[vb.nbr_valid[:, :, T0_INDEX]].mean())}
+        validation["sf"] = _plan_metrics(dva, sf.xy_m, sf.vxy_mps)
+    manifest: dict[str, Any] = {
+        "model": "gnp", "config": config, "validation": validation,
+        "data": {"n_train": len(train_idx), "n_val": len(val_idx),
+                 "split": f"by ego vehicle, {100 * (1 - cfg.val_fraction):.0f} % train, seed {cfg.seed}"},
+        "training": {"seconds": seconds, "epochs": cfg.epochs, "train_loss": train_hist, "val_loss": val_hist,
+                     "torch": torch.__version__, "n_parameters": int(sum(a.size for a in arrays.values()))},
+    }
+    if manifest_extra:
+        for key, value in manifest_extra.items():
+            if isinstance(value, dict) and isinstance(manifest.get(key), dict):
+                manifest[key] = {**manifest[key], **value}
+            else:
+                manifest[key] = value
+    return GnpTrainResult(arrays=arrays, manifest=manifest, train_loss=train_hist, val_loss=val_hist)

@@ -1,0 +1,161 @@
+"""Training of the transformer multi-goal predictor (winner-takes-all over K goals).
+
+Loss per scenario, with the recorded ego position at the 5 s horizon ``y`` and the winner
+``k* = argmin_k |g_k - y|`` (Huber with delta 1 m, in metres)::
+
+    L = huber(g_k* - y) + center_weight * huber(g_0 - y) + cls_weight * CE(logits, k*)
+
+Only the winning goal regresses, so the K heads specialise into modes (keep lane / change left /
+right, faster / slower); the classifier learns which mode is likely. Goal 0 is regressed on every
+scenario too: it becomes the central estimate, which the planners' top goal usually is (measured:
+without it the top-1 error was 7 % worse). AdamW with a one-cycle learning-rate schedule; the epoch
+with the lowest validation loss is kept. Deterministic for a seed on CPU (single thread by default).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from letspi.constants import HORIZON_S
+from letspi.learned.evaluate import goal_metrics, goal_truth
+from letspi.learned.features import scene_features
+from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.layers import EncoderConfig
+from letspi.learned.train.data import split
+from letspi.learned.train.modules import FeatureTensors, GoalNet, export_state
+from letspi.physics.goals import KinematicGoalPredictor
+from letspi.scenario.types import ScenarioBatch
+
+
+@dataclass(frozen=True)
+class GoalTrainConfig:
+    epochs: int = 40
+    batch_size: int = 128
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    n_goals: int = 6
+    cls_weight: float = 1.0
+    center_weight: float = 1.0
+    val_fraction: float = 0.15
+    max_train: int | None = None
+    seed: int = 0
+    threads: int = 1
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    arrays: dict[str, np.ndarray]
+    manifest: dict[str, Any]
+    train_loss: list[float]
+    val_loss: list[float]
+
+
+def wta_loss(goals: torch.Tensor, logits: torch.Tensor, truth: torch.Tensor,
+             cls_weight: float, center_weight: float = 0.0) -> torch.Tensor:
+    """Winner-takes-all loss: goals (B, K, 2) [m], logits (B, K), truth (B, 2) [m] -> scalar.
+
+    ``center_weight`` > 0 also regresses goal 0 on every scenario, making it the central (median)
+    estimate while the other heads specialise on the alternatives.
+    """
+    dist = torch.linalg.vector_norm(goals - truth[:, None, :], dim=-1)
+    best = dist.argmin(dim=1)
+    win = goals[torch.arange(len(goals)), best]
+    reg = F.huber_loss(win, truth, delta=1.0, reduction="none").sum(dim=-1)
+    if center_weight > 0.0:
+        reg = reg + center_weight * F.huber_loss(goals[:, 0], truth, delta=1.0, reduction="none").sum(dim=-1)
+    return (reg + cls_weight * F.cross_entropy(logits, best, reduction="none")).mean()
+
+
+def train_goal_model(
+    batch: ScenarioBatch,
+    cfg: GoalTrainConfig,
+    *,
+    progress: Callable[[int], None] | None = None,
+    manifest_extra: dict[str, Any] | None = None,
+) -> TrainResult:
+    """Train on the by-vehicle training split of ``batch``; validation metrics on the rest.
+
+    ``progress`` is called with 1 after every epoch.
+    """
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    t_start = time.perf_counter()
+    train_idx, val_idx = split(batch, cfg.val_fraction, cfg.seed, cfg.max_train)
+    feats = scene_features(batch)
+    truth_all = goal_truth(batch)
+    ft = FeatureTensors(feats.take(train_idx))
+    fv = FeatureTensors(feats.take(val_idx))
+    yt = torch.as_tensor(truth_all[train_idx], dtype=torch.float32)
+    yv = torch.as_tensor(truth_all[val_idx], dtype=torch.float32)
+
+    net = GoalNet(cfg.encoder, cfg.n_goals)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    steps_per_epoch = max(1, -(-len(train_idx) // cfg.batch_size))
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch,
+                                                pct_start=0.1)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    train_hist, val_hist = [], []
+    best_state, best_val = copy.deepcopy(net.state_dict()), float("inf")
+    for _ in range(cfg.epochs):
+        net.train()
+        perm = torch.randperm(len(train_idx), generator=gen)
+        total, count = 0.0, 0
+        for s in range(0, len(perm), cfg.batch_size):
+            idx = perm[s : s + cfg.batch_size]
+            goals, logits = net(ft.take(idx), HORIZON_S)
+            loss = wta_loss(goals, logits, yt[idx], cfg.cls_weight, cfg.center_weight)
+            opt.zero_grad()
+            loss.backward()  # type: ignore[no-untyped-call]
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
+            opt.step()
+            sched.step()
+            total += float(loss.detach()) * len(idx)
+            count += len(idx)
+        train_hist.append(total / max(count, 1))
+        net.eval()
+        with torch.no_grad():
+            vl = float("nan")
+            if len(val_idx):
+                vg, vlog = net(fv, HORIZON_S)
+                vl = float(wta_loss(vg, vlog, yv, cfg.cls_weight, cfg.center_weight))
+        val_hist.append(vl)
+        if len(val_idx) == 0 or vl < best_val:
+            best_val, best_state = vl, copy.deepcopy(net.state_dict())
+        if progress is not None:
+            progress(1)
+    net.load_state_dict(best_state)
+    seconds = time.perf_counter() - t_start
+    arrays = export_state(net)
+
+    config = {"encoder": cfg.encoder.as_dict(), "n_goals": cfg.n_goals, "horizon_s": HORIZON_S,
+              "train": {k: v for k, v in asdict(cfg).items() if k != "encoder"}}
+    manifest: dict[str, Any] = {"model": "goal", "config": config}
+    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": best_val}
+    if len(val_idx):
+        vb = batch.take(val_idx)
+        learned = LearnedGoalPredictor(weights={k: v.astype(np.float64) for k, v in arrays.items()},
+                                       config=cfg.encoder, n_goals=cfg.n_goals).predict_goals(vb)
+        validation["learned"] = goal_metrics(learned, truth_all[val_idx])
+        validation["kinematic"] = goal_metrics(KinematicGoalPredictor().predict_goals(vb), truth_all[val_idx])
+    manifest["validation"] = validation
+    manifest["data"] = {"n_train": len(train_idx), "n_val": len(val_idx),
+                        "split": f"by ego vehicle, {100 * (1 - cfg.val_fraction):.0f} % train, seed {cfg.seed}"}
+    manifest["training"] = {"seconds": seconds, "epochs": cfg.epochs, "train_loss": train_hist,
+                            "val_loss": val_hist, "torch": torch.__version__,
+                            "n_parameters": int(sum(a.size for a in arrays.values()))}
+    if manifest_extra:
+        for key, value in manifest_extra.items():
+            if isinstance(value, dict) and isinstance(manifest.get(key), dict):
+                manifest[key] = {**manifest[key], **value}
+            else:
+                manifest[key] = value
+    return TrainResult(arrays=arrays, manifest=manifest, train_loss=train_hist, val_loss=val_hist)

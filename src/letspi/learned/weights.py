@@ -1,0 +1,82 @@
+"""Weight files of the learned models: ``weights.npz`` (named float arrays) + ``manifest.json``.
+
+A model directory holds exactly these two files::
+
+    DIR/weights.npz     parameter name -> array (float32 on disk; inference casts to float64)
+    DIR/manifest.json   {"model": "goal" | "gnp", "format_version": 1, "config": {...},
+                         "data": {"scenario_files": [...], "seeds": [...], "n_train": ..., "n_val": ...},
+                         "validation": {...metrics...}, "training": {"command": ..., "seconds": ...}, ...}
+
+Parameter names follow the torch ``state_dict`` of ``letspi.learned.train.modules`` so that training
+and inference agree by construction; NumPy inference never imports torch.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT_VERSION = 1
+WEIGHTS_FILE = "weights.npz"
+MANIFEST_FILE = "manifest.json"
+
+
+class WeightsError(ValueError):
+    """A model directory is missing, incomplete or of the wrong kind."""
+
+
+def save_weights(out_dir: Path, arrays: dict[str, np.ndarray], manifest: dict[str, Any]) -> Path:
+    """Write ``arrays`` (float32) and ``manifest`` (plus ``format_version``) to ``out_dir``; returns it.
+
+    Both files are written to temporaries first and renamed, so a crash never leaves a half-written pair.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp_w = out / (WEIGHTS_FILE + ".tmp.npz")
+    np.savez_compressed(tmp_w, **{k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()})  # type: ignore[arg-type]
+    record = {"format_version": FORMAT_VERSION, **manifest}
+    tmp_m = out / (MANIFEST_FILE + ".tmp")
+    tmp_m.write_text(json.dumps(record, indent=2, allow_nan=True, default=_json_default) + "\n")
+    os.replace(tmp_w, out / WEIGHTS_FILE)
+    os.replace(tmp_m, out / MANIFEST_FILE)
+    return out
+
+
+def _json_default(obj: object) -> object:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def load_weights(model_dir: Path, expected_model: str | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Arrays (float64) and manifest from ``model_dir``; ``WeightsError`` when missing or mismatched."""
+    d = Path(model_dir)
+    wfile, mfile = d / WEIGHTS_FILE, d / MANIFEST_FILE
+    if not wfile.is_file() or not mfile.is_file():
+        raise WeightsError(f"{d}: no trained model here (expected {WEIGHTS_FILE} and {MANIFEST_FILE}; "
+                           "create them with `letspi train goals|gnp`)")
+    try:
+        manifest = json.loads(mfile.read_text())
+    except json.JSONDecodeError as exc:
+        raise WeightsError(f"{mfile}: invalid JSON ({exc})") from exc
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise WeightsError(f"{mfile}: format_version {manifest.get('format_version')!r}, expected {FORMAT_VERSION}")
+    if expected_model is not None and manifest.get("model") != expected_model:
+        raise WeightsError(f"{d}: holds a {manifest.get('model')!r} model, expected {expected_model!r}")
+    with np.load(wfile) as npz:
+        arrays = {k: npz[k].astype(np.float64) for k in npz.files}
+    return arrays, manifest
+
+
+def shipped_weights_dir(model: str) -> Path:
+    """Directory of the weights shipped in the package for ``model`` ("goal" or "gnp")."""
+    return Path(str(resources.files("letspi.data").joinpath("weights", model)))
