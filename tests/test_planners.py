@@ -7,7 +7,7 @@ import pytest
 
 from letspi.metrics.evaluate import compute_metrics
 from letspi.physics.params import SocialForceParams
-from letspi.planners.factory import PlannerOptions, available_planners, make_planner
+from letspi.planners.factory import BASELINE_PLANNERS, PlannerOptions, make_planner
 from letspi.planners.fit_sf import fit_sf_params, split_by_vehicle
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
@@ -52,7 +52,7 @@ def test_sf_opt_keeps_the_neutral_plan_on_a_free_road():
     assert plan.info["k_scale"][0] == 1.0 and plan.info["lon_factor"][0] == 0.4 and plan.info["lane_factor"][0] == 0
 
 
-@pytest.mark.parametrize("name", available_planners())
+@pytest.mark.parametrize("name", BASELINE_PLANNERS)
 def test_every_baseline_plans_finite_trajectories(name):
     batch = concat_batches([
         _closing_on_slower_leader(),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate, fit, train, viz
+from letspi.cli import bench, data, demo, evaluate, fit, llm, phases, train, viz
 
 app = typer.Typer(
     name="letspi",
@@ -18,8 +18,12 @@ app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
 app.add_typer(fit.app, name="fit")
 app.add_typer(train.app, name="train")
+app.add_typer(llm.app, name="llm")
 app.command("demo")(demo.demo)
 app.command("evaluate")(evaluate.evaluate)
+app.command("collect")(phases.collect)
+app.command("plan")(phases.plan)
+app.command("ablate")(phases.ablate)
 app.command("plot")(viz.plot)
 app.command("report")(viz.report)
 

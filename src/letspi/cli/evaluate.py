@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
+from letspi.planners.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 
 def evaluate(
@@ -25,20 +26,30 @@ def evaluate(
         str, typer.Option(help="Goal source of sf/sf-opt: learned (shipped transformer), kinematic, or oracle "
                                "(true endpoint: leaks the future).")
     ] = "learned",
+    llm: Annotated[str, typer.Option(help="Model of llm / letspi-memory (spec, e.g. llamacpp:smollm2-135m, "
+                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")] = DEFAULT_LLM,
+    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
+    memory: Annotated[Path | None, typer.Option(help="Memory bank (from `letspi collect`) for letspi-fast/fs.")] = None,
+    top_k: Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")] = 3,
+    max_iterations: Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")] = 3,
+    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = True,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts."""
     import numpy as np
 
     from letspi.evaluation.harness import evaluate as run_evaluation
-    from letspi.planners.factory import PlannerOptions, make_planner
+    from letspi.planners.factory import PlannerOptions, make_planners
     from letspi.scenario.store import count_scenarios, load_scenarios
 
     with user_errors():
         n_total = count_scenarios(scenarios)
         indices = None if limit is None else np.arange(min(limit, n_total))
         batch = load_scenarios(scenarios, indices)
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals)
-        planners = [make_planner(name, options) for name in planner]
+        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
+                                 fast_llm=fast_llm, memory=memory, top_k=top_k, max_iterations=max_iterations,
+                                 goal_adjustment=goal_adjustment, llm_cache=cache)
+        planners = make_planners(planner, options)
         with progress_bar() as bar:
 
             def factory(name: str, total: int):  # type: ignore[no-untyped-def]

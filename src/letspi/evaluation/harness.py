@@ -57,6 +57,11 @@ def _check_run_file(out_dir: Path, scenarios_file: str, batch: ScenarioBatch) ->
     run_file.write_text(json.dumps(record, indent=2))
 
 
+def planner_dir_name(name: str) -> str:
+    """A planner name as a directory name (model specs contain ':' and '/')."""
+    return "".join(c if c.isalnum() or c in "-_.@+" else "_" for c in name)
+
+
 def _done_ids(planner_dir: Path) -> set[str]:
     done: set[str] = set()
     for part in sorted(planner_dir.glob("part-*.parquet")):
@@ -94,7 +99,7 @@ def run_planner(
     progress: Callable[[int], None] | None = None,
 ) -> pd.DataFrame:
     """Plan and score every not-yet-done scenario with ``planner``; return all its per-scenario rows."""
-    planner_dir = out_dir / "per_scenario" / planner.name
+    planner_dir = out_dir / "per_scenario" / planner_dir_name(planner.name)
     done = _done_ids(planner_dir)
     todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
     if progress is not None and len(batch) - len(todo):
@@ -119,7 +124,7 @@ def run_planner(
 
 
 def load_planner_results(out_dir: Path, planner_name: str) -> pd.DataFrame:
-    parts = sorted((out_dir / "per_scenario" / planner_name).glob("part-*.parquet"))
+    parts = sorted((out_dir / "per_scenario" / planner_dir_name(planner_name)).glob("part-*.parquet"))
     if not parts:
         return pd.DataFrame()
     frame = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)

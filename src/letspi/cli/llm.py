@@ -1,0 +1,110 @@
+"""``letspi llm``: check LLM backends, list embedded models, benchmark them."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark.", no_args_is_help=True)
+
+_TINY_USER = (
+    "Free road: ego car at 30.0 m/s in the middle lane of 3, no neighbours, goal 150.0 m ahead in its lane. Answer:"
+)
+
+
+@app.command("check")
+def check(
+    spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b.")],
+    prompt: Annotated[
+        str, typer.Option(help="tiny | fast | physics (the last two on a close-leader scenario).")
+    ] = "tiny",
+    no_cache: Annotated[bool, typer.Option("--no-cache", help="Do not read or write the response cache.")] = False,
+    timeout: Annotated[float, typer.Option(help="Per-call timeout in seconds.")] = 120.0,
+    attempts: Annotated[int, typer.Option(help="Maximum calls (1 = no retry).")] = 3,
+    max_tokens: Annotated[int, typer.Option(help="Reply token limit.")] = 320,
+) -> None:
+    """Load SPEC, send one prompt, print latency, tokens and the parsed reply as JSON.
+
+    Exit code 0: the model gave a valid reply; 1: it fell back to defaults; 2: configuration error.
+    """
+    from letspi.llm.client import ParamAdvisor, RetryPolicy
+    from letspi.llm.prompts import system_prompt
+    from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
+
+    if prompt not in ("tiny", "fast", "physics"):
+        raise typer.BadParameter("prompt must be tiny, fast or physics")
+    try:
+        adv = ParamAdvisor(
+            spec,
+            cache=None if no_cache else "default",
+            retry=RetryPolicy(max_attempts=attempts, timeout_s=timeout),
+            settings=DecodingSettings(max_tokens=max_tokens),
+        )
+        if prompt == "tiny":
+            msgs = [message("system", system_prompt("fast")), message("user", _TINY_USER)]
+            variant = "fast"
+        else:
+            from letspi.llm.bench import bench_scenarios
+            from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
+
+            desc = bench_scenarios()["close_leader"]
+            msgs = render_fast_prompt(desc) if prompt == "fast" else render_physics_prompt(desc)
+            variant = prompt
+        advice = adv.advise(msgs, variant="fast" if variant == "fast" else "physics")
+    except LLMConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    except LLMError as exc:  # e.g. server unreachable on every attempt
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    out = advice.summary()
+    out["prompt"] = prompt
+    out["reply_text"] = advice.attempts[-1].text if advice.attempts else None
+    out["attempt_errors"] = [a.error for a in advice.attempts if not a.ok]
+    typer.echo(json.dumps(out, indent=2, ensure_ascii=False))
+    if advice.fallback:
+        raise typer.Exit(code=1)
+
+
+@app.command("models")
+def models(
+    locate: Annotated[bool, typer.Option(help="Also resolve each model's file (assembles Gemma once).")] = False,
+) -> None:
+    """List the embedded models (``llamacpp:NAME``) and the PyPI packages that provide them."""
+    from letspi.llm.models import EMBEDDED_MODELS
+    from letspi.llm.types import LLMConfigError
+
+    rows = []
+    for m in EMBEDDED_MODELS.values():
+        row: dict[str, str] = {"spec": f"llamacpp:{m.name}", "package": m.pip_package, "description": m.description}
+        if locate:
+            try:
+                row["path"] = str(m.locate())
+            except LLMConfigError as exc:
+                row["error"] = str(exc)
+        rows.append(row)
+    typer.echo(json.dumps(rows, indent=2))
+
+
+@app.command("bench")
+def bench(
+    model: Annotated[
+        list[str] | None, typer.Option("--model", help="Embedded model name (repeatable); default both.")
+    ] = None,
+    repeats: Annotated[int, typer.Option(help="Repetitions of each latency measurement (median).")] = 2,
+    behaviour: Annotated[bool, typer.Option(help="Also run the five-scenario behaviour check.")] = True,
+) -> None:
+    """Latency, tokens, prefix- and cache-hit speedups and behaviour of the embedded models (JSON)."""
+    from letspi.llm.bench import bench_models
+    from letspi.llm.types import LLMConfigError
+
+    try:
+        result = bench_models(
+            tuple(model) if model else ("smollm2-135m", "gemma3-270m"), repeats=repeats, behaviour=behaviour
+        )
+    except LLMConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    typer.echo(json.dumps(result, indent=2))

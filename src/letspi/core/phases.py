@@ -1,0 +1,225 @@
+"""LetsPi's two phases on top of the LLM engine (paper §III-E, Figure 1).
+
+* Memory collection: for each scenario, the physics-informed prompt → LLM proposal → simulate →
+  reflection (safety report → refined proposal, up to N times) → store the experience in the
+  memory bank (validated or not; retrieval uses validated ones only).
+* Fast inference: scenario features → top-k similar validated memories → the short fast prompt
+  with them as few-shot examples → one LLM call → simulate.
+
+``LlmProposer`` adapts a ``ParamAdvisor`` to ``reflect``'s proposer interface. The LLM chooses
+the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from letspi.core.matching import top_k
+from letspi.core.memory import Experience, MemoryBank
+from letspi.core.reflection import Proposal, ReflectionContext, ReflectionResult, reflect
+from letspi.core.thresholds import ReflectionThresholds
+from letspi.llm.client import Advice, ParamAdvisor
+from letspi.llm.describe import describe_scenario
+from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
+from letspi.llm.schema import PlannerReply, Variant
+from letspi.llm.types import Message
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import SocialForceParams
+from letspi.scenario.features import FEATURE_NAMES, scenario_features
+from letspi.scenario.types import ScenarioBatch
+
+PROMPT_VERSION = "v1"
+
+
+def messages_text(messages: Sequence[Message]) -> str:
+    """A readable transcript of a prompt (stored with experiences and shown by ``letspi plan``)."""
+    return "\n\n".join(f"[{m['role']}]\n{m['content']}" for m in messages)
+
+
+def proposal_from_advice(advice: Advice, messages: Sequence[Message], r_col_m: float) -> Proposal:
+    reply = advice.reply
+    params = SocialForceParams(**reply.params(), r_col_m=r_col_m)
+    return Proposal(
+        params=params,
+        lon_factor=reply.lon_factor,
+        lane_factor=reply.lane_factor,
+        rationale=reply.rationale,
+        prompt=messages_text(messages),
+        reply=advice.response.text if advice.response is not None else None,
+        clamped_fields=tuple(advice.clamped),
+        fallback=advice.fallback,
+        meta=advice.summary(),
+    )
+
+
+@dataclass
+class LlmProposer:
+    """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report."""
+
+    advisor: ParamAdvisor
+    r_col_m: float
+    memories: Sequence[MemoryExample] = ()
+
+    def __call__(self, ctx: ReflectionContext) -> Proposal:
+        scenario = ctx.scenario.scenario(0)
+        desc = describe_scenario(scenario, ctx.base_goal_xy_m)
+        if ctx.report is None or ctx.previous is None:
+            messages = render_physics_prompt(desc, memories=self.memories)
+        else:
+            messages = render_physics_prompt(
+                desc,
+                memories=self.memories,
+                safety_report=ctx.report.to_text(ctx.previous),
+                previous_reply=ctx.previous.reply or "",
+            )
+        return proposal_from_advice(self.advisor.advise(messages, variant="physics"), messages, self.r_col_m)
+
+
+def config_key(model_spec: str, thresholds: ReflectionThresholds, goal_adjustment: bool = True) -> str:
+    """Identifies a collection configuration: an experience is unique per (scenario, config key)."""
+    return f"{model_spec}|prompt-{PROMPT_VERSION}|{thresholds.key()}|ga-{int(goal_adjustment)}"
+
+
+@dataclass
+class MemoryPhase:
+    """Runs the memory-collection pipeline on one scenario at a time."""
+
+    advisor: ParamAdvisor
+    goal_predictor: GoalPredictor
+    r_col_m: float
+    thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goal_adjustment: bool = True
+
+    @property
+    def config_key(self) -> str:
+        return config_key(self.advisor.backend.spec, self.thresholds, self.goal_adjustment)
+
+    def run(self, scenario: ScenarioBatch) -> ReflectionResult:
+        """Reflection loop on a batch of one."""
+        base_goal = self.goal_predictor.predict_goals(scenario).top[0]
+        pred = predict_neighbours(scenario, self.neighbour_mode)
+        proposer = LlmProposer(self.advisor, self.r_col_m)
+        return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
+                       neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
+
+    def experience(self, scenario: ScenarioBatch, result: ReflectionResult) -> Experience:
+        features = tuple(float(v) for v in scenario_features(scenario)[0])
+        return Experience.from_reflection(result, features, config_key=self.config_key,
+                                          model=self.advisor.backend.spec)
+
+
+@dataclass(frozen=True)
+class CollectStats:
+    total: int
+    skipped: int
+    stored: int
+    validated: int
+    fallbacks: int
+    refinements: int
+    seconds: float
+
+
+def collect(
+    phase: MemoryPhase,
+    batch: ScenarioBatch,
+    bank: MemoryBank,
+    progress: Callable[[int], None] | None = None,
+) -> CollectStats:
+    """The memory collection phase over ``batch``; resumable: scenarios already in the bank under
+    this configuration are skipped, and each experience is committed as soon as it exists."""
+    import time
+
+    t0 = time.perf_counter()
+    key = phase.config_key
+    skipped = stored = validated = fallbacks = refinements = 0
+    for i in range(len(batch)):
+        sid = str(batch.scenario_id[i])
+        if bank.has(sid, key):
+            skipped += 1
+        else:
+            one = batch.take([i])
+            result = phase.run(one)
+            stored += int(bank.add(phase.experience(one, result)))
+            validated += int(result.validated)
+            fallbacks += sum(int(it.proposal.fallback) for it in result.iterations)
+            refinements += result.n_refinements
+        if progress is not None:
+            progress(1)
+    return CollectStats(len(batch), skipped, stored, validated, fallbacks, refinements, time.perf_counter() - t0)
+
+
+def _summary_of_features(features: Sequence[float]) -> str:
+    f = dict(zip(FEATURE_NAMES, features, strict=True))
+    return (
+        f"{int(f['n_vehicles'])} vehicles near, ego {f['ego_speed_mps']:.1f} m/s, "
+        f"{'changing lane' if f['lane_change'] > 0.5 else 'keeping lane'}, nearest {f['min_dist_m']:.1f} m, "
+        f"mean distance {f['mean_dist_m']:.1f} m, neighbours {f['mean_nbr_speed_mps']:.1f} m/s"
+    )
+
+
+def _outcome(metrics: dict[str, object]) -> str:
+    def num(key: str) -> str:
+        v = metrics.get(key)
+        try:
+            x = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return "n/a"
+        return "none" if not np.isfinite(x) else f"{x:.1f}"
+
+    return f"min TTC {num('min_ttc_s')} s, min in-path gap {num('min_path_gap_m')} m"
+
+
+def memory_example(exp: Experience) -> MemoryExample:
+    """A stored experience as a few-shot example for the fast prompt."""
+    p = exp.params
+    reply = PlannerReply(tau_s=p.tau_s, k_np=p.k_np, k_nf=p.k_nf, k_nl=p.k_nl, k_boundary=p.k_boundary,
+                         k_cline=p.k_cline, lon_factor=exp.lon_factor, lane_factor=exp.lane_factor,
+                         rationale=exp.rationale)
+    return MemoryExample(summary=_summary_of_features(exp.features), reply=reply, outcome=_outcome(exp.metrics_after))
+
+
+@dataclass
+class Retriever:
+    """Top-k validated memories by the (fixed) §III-E similarity, optionally from a fixed subset."""
+
+    bank: MemoryBank
+    k: int = 3
+    config_key: str | None = None
+    subset_ids: np.ndarray | None = None  # memory-size ablation: only these row ids
+
+    def retrieve(self, scenario: ScenarioBatch) -> list[tuple[Experience, float]]:
+        mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
+        ids, feats = mem.ids, mem.features
+        if self.subset_ids is not None:
+            keep = np.isin(ids, self.subset_ids)
+            ids, feats = ids[keep], feats[keep]
+        if len(ids) == 0 or self.k == 0:
+            return []
+        idx, sims = top_k(scenario_features(scenario), feats, min(self.k, len(ids)))
+        exps = self.bank.get([int(ids[j]) for j in idx[0]])
+        return list(zip(exps, [float(s) for s in sims[0]], strict=True))
+
+
+@dataclass
+class FastPhase:
+    """Fast inference: retrieval + fast prompt + one call of the (smaller) fast model."""
+
+    advisor: ParamAdvisor
+    goal_predictor: GoalPredictor
+    r_col_m: float
+    retriever: Retriever | None
+    static_examples: Sequence[MemoryExample] = ()  # the "FS" ablation: fixed examples, no retrieval
+    variant: Variant = "fast"
+
+    def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
+        retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
+        examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
+        desc = describe_scenario(scenario.scenario(0), base_goal_xy_m)
+        messages = render_fast_prompt(desc, memories=examples)
+        proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
+        return proposal, [(e.scenario_id, s) for e, s in retrieved]

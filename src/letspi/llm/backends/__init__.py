@@ -1,0 +1,12 @@
+"""Backends implementing ``letspi.llm.types.LLMBackend``.
+
+Importing this package imports no optional dependency: llama-cpp-python is imported when a
+``LlamaCppBackend`` is first used.
+"""
+
+from letspi.llm.backends.llamacpp import LlamaCppBackend
+from letspi.llm.backends.ollama import OllamaBackend
+from letspi.llm.backends.openai_compat import OpenAICompatBackend
+from letspi.llm.backends.scripted import ScriptedBackend, ScriptedStep
+
+__all__ = ["LlamaCppBackend", "OllamaBackend", "OpenAICompatBackend", "ScriptedBackend", "ScriptedStep"]

@@ -1,0 +1,266 @@
+"""``ParamAdvisor``: ask a backend for parameters, with cache, validation, retries and fallback.
+
+Control flow of ``ParamAdvisor.advise(messages)`` (up to ``RetryPolicy.max_attempts`` calls):
+
+1. Look the exact request up in the response cache; on a miss call the backend with the
+   per-call timeout and store the reply text.
+2. Transport error or timeout: wait (exponential backoff) and resend the same messages.
+3. Invalid reply (``ReplyParseError``): resend at once with the bad reply and a short
+   corrective user message appended (so the request, and its cache key, differ; no backoff
+   because the server is fine).
+4. After the last attempt: ``DEFAULT_REPLY`` with ``fallback=True`` and every attempt recorded.
+
+Never raised out of ``advise``: transport errors and invalid replies. Raised at once:
+``LLMConfigError`` (unknown backend, missing package or model, auth). Also raised: a
+``BackendUnavailableError`` when *every* attempt found the server unreachable, because a dead
+server would otherwise turn a whole run into silent fallbacks.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from letspi.llm.cache import CachedEntry, ResponseCache, cache_key
+from letspi.llm.parse import parse_reply, try_parse_json
+from letspi.llm.schema import DEFAULT_REPLY, WIRE_KEYS, PlannerReply, Variant, reply_json_schema
+from letspi.llm.spec import make_backend
+from letspi.llm.types import (
+    BackendUnavailableError,
+    DecodingSettings,
+    LLMBackend,
+    LLMResponse,
+    LLMTimeoutError,
+    LLMTransportError,
+    Message,
+    ReplyParseError,
+    message,
+)
+
+#: Bad replies are cut to this many characters when echoed back in a corrective message.
+_ECHO_CHARS = 600
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """How hard to try. ``max_attempts`` counts all calls (1 = no retry)."""
+
+    max_attempts: int = 3
+    backoff_s: float = 0.5
+    backoff_factor: float = 2.0
+    max_backoff_s: float = 8.0
+    timeout_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.max_attempts < 1:
+            raise ValueError("max_attempts must be >= 1")
+        if self.timeout_s <= 0:
+            raise ValueError("timeout_s must be > 0")
+
+    def delay(self, failures: int) -> float:
+        """Backoff before the next attempt after ``failures`` consecutive transport failures."""
+        return min(self.backoff_s * self.backoff_factor ** max(failures - 1, 0), self.max_backoff_s)
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable`` or
+    ``parse:<reason>`` (``no_json``, ``missing_keys``, ``bad_value``, ``non_finite``, ``bad_type``)."""
+
+    index: int
+    error_kind: str | None
+    error: str | None
+    latency_s: float
+    cached: bool = False
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+    text: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error_kind is None
+
+
+@dataclass(frozen=True)
+class Advice:
+    """The outcome of ``advise``: a valid reply (the model's or the fallback) and its history."""
+
+    reply: PlannerReply
+    fallback: bool
+    clamped: dict[str, float] = field(default_factory=dict)
+    attempts: tuple[Attempt, ...] = ()
+    response: LLMResponse | None = None
+    model_spec: str = ""
+
+    @property
+    def latency_s(self) -> float:
+        """Wall time spent in calls (cache hits cost their lookup time only)."""
+        return sum(a.latency_s for a in self.attempts)
+
+    @property
+    def prompt_tokens(self) -> int:
+        return sum(a.prompt_tokens for a in self.attempts)
+
+    @property
+    def completion_tokens(self) -> int:
+        return sum(a.completion_tokens for a in self.attempts)
+
+    @property
+    def cached(self) -> bool:
+        """True when every attempt was served from the cache."""
+        return bool(self.attempts) and all(a.cached for a in self.attempts)
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-ready record (for logs and memory banks)."""
+        return {
+            "model_spec": self.model_spec,
+            "reply": self.reply.model_dump(),
+            "fallback": self.fallback,
+            "clamped": dict(self.clamped),
+            "attempts": len(self.attempts),
+            "errors": [a.error_kind for a in self.attempts if not a.ok],
+            "latency_s": round(self.latency_s, 3),
+            "prompt_tokens": self.prompt_tokens,
+            "completion_tokens": self.completion_tokens,
+            "cached": self.cached,
+        }
+
+
+def corrective_message(error: ReplyParseError, variant: Variant) -> str:
+    """The short user message sent after an invalid reply."""
+    keys = [k for k in WIRE_KEYS.values() if variant == "physics" or k != WIRE_KEYS["rationale"]]
+    return (
+        f"Your reply was not valid ({error}). Reply again with only one JSON object with the keys "
+        f"{', '.join(keys)}; all numbers finite and inside the given ranges."
+    )
+
+
+CacheArg = ResponseCache | None | Literal["default"]
+
+
+class ParamAdvisor:
+    """Asks one backend for social-force parameters (see module docstring).
+
+    ``cache="default"`` uses ``ResponseCache()`` (``$LETSPI_CACHE_DIR``); ``cache=None`` turns it off.
+    ``use_schema=False`` sends no JSON schema (for servers without structured output).
+    ``sleep`` is injectable so tests do not wait for backoff.
+    """
+
+    def __init__(
+        self,
+        backend: LLMBackend | str,
+        *,
+        cache: CacheArg = "default",
+        retry: RetryPolicy | None = None,
+        settings: DecodingSettings | None = None,
+        use_schema: bool = True,
+        fallback_reply: PlannerReply = DEFAULT_REPLY,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.backend: LLMBackend = make_backend(backend) if isinstance(backend, str) else backend
+        self.cache: ResponseCache | None = ResponseCache() if cache == "default" else cache
+        self.retry = retry or RetryPolicy()
+        self.settings = settings or DecodingSettings()
+        self.use_schema = use_schema
+        self.fallback_reply = fallback_reply
+        self._sleep = sleep
+
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None) -> LLMResponse:
+        """One call through the cache (no validation, no retry)."""
+        key = cache_key(self.backend.spec, messages, self.settings, schema) if self.cache is not None else ""
+        if self.cache is not None:
+            t0 = time.perf_counter()
+            hit = self.cache.get(key)
+            if hit is not None:
+                return LLMResponse(
+                    text=hit.text,
+                    parsed=try_parse_json(hit.text),
+                    prompt_tokens=hit.prompt_tokens,
+                    completion_tokens=hit.completion_tokens,
+                    latency_s=time.perf_counter() - t0,
+                    model_spec=self.backend.spec,
+                    cached=True,
+                    extra={"original_latency_s": hit.latency_s},
+                )
+        resp = self.backend.complete(messages, schema=schema, settings=self.settings, timeout_s=self.retry.timeout_s)
+        if self.cache is not None:
+            self.cache.put(
+                key,
+                self.backend.spec,
+                CachedEntry(resp.text, resp.prompt_tokens, resp.completion_tokens, resp.latency_s),
+            )
+        return resp
+
+    def advise(self, messages: Sequence[Message], *, variant: Variant = "physics") -> Advice:
+        """Parameters for one prompt; never raises for a bad reply or a failed call."""
+        schema = reply_json_schema(variant) if self.use_schema else None
+        base = list(messages)
+        current = list(base)
+        attempts: list[Attempt] = []
+        transport_failures = 0
+        last_response: LLMResponse | None = None
+        for i in range(self.retry.max_attempts):
+            t0 = time.perf_counter()
+            try:
+                resp = self.complete(current, schema=schema)
+            except LLMTransportError as exc:
+                kind = (
+                    "unavailable"
+                    if isinstance(exc, BackendUnavailableError)
+                    else "timeout"
+                    if isinstance(exc, LLMTimeoutError)
+                    else "transport"
+                )
+                attempts.append(Attempt(i, kind, str(exc), time.perf_counter() - t0))
+                transport_failures += 1
+                if i + 1 < self.retry.max_attempts:
+                    self._sleep(self.retry.delay(transport_failures))
+                elif all(a.error_kind == "unavailable" for a in attempts):
+                    raise
+                continue
+            last_response = resp
+            try:
+                parsed = parse_reply(resp.text)
+            except ReplyParseError as exc:
+                attempts.append(
+                    Attempt(
+                        i,
+                        f"parse:{exc.reason}",
+                        str(exc),
+                        resp.latency_s,
+                        resp.cached,
+                        resp.prompt_tokens,
+                        resp.completion_tokens,
+                        resp.text,
+                    )
+                )
+                # Re-ask from the original prompt with only the latest bad reply echoed: short
+                # requests, and the static prefix stays cached.
+                current = [
+                    *base,
+                    message("assistant", resp.text[:_ECHO_CHARS]),
+                    message("user", corrective_message(exc, variant)),
+                ]
+                continue
+            attempts.append(
+                Attempt(
+                    i, None, None, resp.latency_s, resp.cached, resp.prompt_tokens, resp.completion_tokens, resp.text
+                )
+            )
+            return Advice(
+                reply=parsed.reply,
+                fallback=False,
+                clamped=parsed.clamped,
+                attempts=tuple(attempts),
+                response=resp,
+                model_spec=self.backend.spec,
+            )
+        return Advice(
+            reply=self.fallback_reply,
+            fallback=True,
+            attempts=tuple(attempts),
+            response=last_response,
+            model_spec=self.backend.spec,
+        )

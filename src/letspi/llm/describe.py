@@ -1,0 +1,398 @@
+"""Scenario -> compact text for the prompts (paper §III-C inputs E, N, G_f, L).
+
+``describe_scenario`` turns a ``letspi.scenario.types.Scenario`` (ego frame: x along travel,
+y to the left, origin at the ego at t = 0) plus a predicted goal into a ``ScenarioDescription``:
+plain numbers rounded for the prompt, and ``to_text()`` renders it. Numbers carry one decimal
+to keep prompts short (input tokens cost prefill time; REFERENCE §8).
+
+Lanes are named by their HighD lane id. The neighbour relation (``ahead``, ``behind``,
+``alongside``, prefixed ``left-``/``right-`` or ``2-left-``...) is computed from lane
+membership by the markings and longitudinal box overlap, not from HighD's id columns.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from letspi.constants import DT_S, T0_INDEX
+from letspi.scenario.types import VEHICLE_CLASS_NAMES, Scenario
+
+#: Same-lane TTC (s) or time gap (s) below which guidance calls a situation "closing".
+CLOSING_TTC_S: Final = 5.0
+SHORT_TIME_GAP_S: Final = 1.0
+#: Adjacent-lane vehicles within this longitudinal gap (m) count as "near" for guidance.
+LATERAL_NEAR_M: Final = 10.0
+
+
+def _f(v: float) -> str:
+    """One decimal, no negative zero."""
+    s = f"{v:.1f}"
+    return "0.0" if s == "-0.0" else s
+
+
+@dataclass(frozen=True)
+class LaneInfo:
+    """One lane of the ego's carriageway."""
+
+    lane_id: int
+    right_y: float
+    left_y: float
+    right_is_edge: bool
+    left_is_edge: bool
+
+    @property
+    def centre_y(self) -> float:
+        return 0.5 * (self.right_y + self.left_y)
+
+
+@dataclass(frozen=True)
+class TrackPoint:
+    """A sampled past position: time (s, negative), position (m), lane id."""
+
+    t: float
+    x: float
+    y: float
+    lane: int
+
+
+@dataclass(frozen=True)
+class NeighbourInfo:
+    """A neighbour visible at t = 0 (ego-frame position and velocity, relative quantities)."""
+
+    vehicle_id: int
+    vehicle_class: str
+    relation: str
+    lane: int
+    x: float
+    y: float
+    vx: float
+    vy: float
+    length: float
+    width: float
+    gap_m: float
+    ttc_s: float | None
+    history: tuple[TrackPoint, ...]
+    rel_vx: float
+    rel_vy: float
+
+    @property
+    def lane_offset(self) -> int:
+        """Lanes to the left of the ego (negative = right)."""
+        if self.relation.startswith(("left", "right")):
+            return 1 if self.relation.startswith("left") else -1
+        if self.relation[0].isdigit():
+            n = int(self.relation.split("-")[0])
+            return n if "-left-" in self.relation else -n
+        return 0
+
+
+@dataclass(frozen=True)
+class ScenarioDescription:
+    """Everything the prompts say about one scenario (ego frame, SI units)."""
+
+    scenario_id: str
+    location_id: int
+    speed_limit_mps: float | None
+    lanes: tuple[LaneInfo, ...]
+    ego_lane: int
+    ego_class: str
+    ego_length: float
+    ego_width: float
+    ego_history: tuple[TrackPoint, ...]
+    ego_x: float
+    ego_y: float
+    ego_vx: float
+    ego_vy: float
+    ego_ax: float
+    neighbours: tuple[NeighbourInfo, ...]
+    goal_x: float
+    goal_y: float
+    goal_lane: int
+    horizon_s: float
+
+    @property
+    def ego_speed(self) -> float:
+        return math.hypot(self.ego_vx, self.ego_vy)
+
+    def lane_left_of(self, lane_id: int) -> int | None:
+        """The lane to the left of ``lane_id`` (None at the left edge)."""
+        ids = [ln.lane_id for ln in self.lanes]  # ordered right to left
+        k = ids.index(lane_id) if lane_id in ids else -1
+        return ids[k + 1] if 0 <= k < len(ids) - 1 else None
+
+    def lane_right_of(self, lane_id: int) -> int | None:
+        """The lane to the right of ``lane_id`` (None at the right edge)."""
+        ids = [ln.lane_id for ln in self.lanes]
+        k = ids.index(lane_id) if lane_id in ids else -1
+        return ids[k - 1] if k > 0 else None
+
+    def leader(self) -> NeighbourInfo | None:
+        """The closest same-lane vehicle ahead."""
+        ahead = [n for n in self.neighbours if n.relation == "ahead"]
+        return min(ahead, key=lambda n: n.x) if ahead else None
+
+    def follower(self) -> NeighbourInfo | None:
+        """The closest same-lane vehicle behind."""
+        behind = [n for n in self.neighbours if n.relation == "behind"]
+        return max(behind, key=lambda n: n.x) if behind else None
+
+    # --- text ---------------------------------------------------------------------------
+    def summary_line(self) -> str:
+        """One line for few-shot examples and memory retrieval logs."""
+        lead = self.leader()
+        lead_txt = f"leader gap {_f(lead.gap_m)} m, rel vx {_f(lead.rel_vx)}" if lead else "no leader"
+        near = [n for n in self.neighbours if n is not lead][:1]  # sorted by distance
+        near_txt = "".join(f", nearest other: {o.relation} at {_f(math.hypot(o.x, o.y))} m" for o in near)
+        return (
+            f"{len(self.lanes)} lanes, ego lane {self.ego_lane}, speed {_f(self.ego_speed)} m/s, "
+            f"{len(self.neighbours)} neighbours, {lead_txt}{near_txt}"
+        )
+
+    def to_text(self, *, detail: str = "full") -> str:
+        """Render for a prompt. ``detail="brief"`` drops histories (fast prompt)."""
+        full = detail == "full"
+        out: list[str] = []
+        limit = "none" if self.speed_limit_mps is None else f"{_f(self.speed_limit_mps)} m/s"
+        out.append("## Scenario summary")
+        out.append(
+            f"Scenario {self.scenario_id}, location {self.location_id}: {len(self.lanes)} lanes in the "
+            f"ego's direction, speed limit {limit}."
+        )
+        lanes_l2r = list(reversed(self.lanes))
+        lane_txt = ", ".join(
+            f"{ln.lane_id} (y {_f(ln.right_y)}..{_f(ln.left_y)}, centre {_f(ln.centre_y)}"
+            + (", ego" if ln.lane_id == self.ego_lane else "")
+            + ")"
+            for ln in lanes_l2r
+        )
+        out.append(f"Lanes left to right: {lane_txt}.")
+        if full:
+            marks = []
+            for ln in lanes_l2r:
+                marks.append((ln.left_y, ln.left_is_edge))
+            marks.append((lanes_l2r[-1].right_y, lanes_l2r[-1].right_is_edge))
+            out.append(
+                "Markings: "
+                + ", ".join(f"y={_f(y)} {'edge (never cross)' if e else 'line (crossable)'}" for y, e in marks)
+                + "."
+            )
+        out.append(f"## Ego ({self.ego_class} {_f(self.ego_length)}x{_f(self.ego_width)} m)")
+        if full and self.ego_history:
+            out.append(
+                "History t: (x, y) lane: "
+                + "; ".join(f"{_f(p.t)} s: ({_f(p.x)}, {_f(p.y)}) {p.lane}" for p in self.ego_history)
+            )
+        out.append(
+            f"Now t=0: pos ({_f(self.ego_x)}, {_f(self.ego_y)}), vel ({_f(self.ego_vx)}, {_f(self.ego_vy)}) m/s, "
+            f"acc {_f(self.ego_ax)} m/s^2, lane {self.ego_lane}."
+        )
+        out.append(f"## Neighbours at t=0 ({len(self.neighbours)})")
+        if not self.neighbours:
+            out.append("None within range.")
+        for n in self.neighbours:
+            line = (
+                f"#{n.vehicle_id} {n.vehicle_class} {_f(n.length)} m, {n.relation}, lane {n.lane}: "
+                f"pos ({_f(n.x)}, {_f(n.y)}), vel ({_f(n.vx)}, {_f(n.vy)}), rel vel ({_f(n.rel_vx)}, {_f(n.rel_vy)})"
+            )
+            if n.relation in ("ahead", "behind", "alongside"):
+                line += f", gap {_f(n.gap_m)} m"
+                line += f", TTC {_f(n.ttc_s)} s" if n.ttc_s is not None else ", not closing"
+            if full and n.history:
+                line += "; past " + ", ".join(f"{_f(p.t)} s ({_f(p.x)}, {_f(p.y)})" for p in n.history)
+            out.append(line)
+        out.append("## Goal")
+        out.append(
+            f"Predicted goal at t={_f(self.horizon_s)} s: ({_f(self.goal_x)}, {_f(self.goal_y)}), "
+            f"lane {self.goal_lane}."
+        )
+        left = self.lane_left_of(self.goal_lane)
+        right = self.lane_right_of(self.goal_lane)
+        out.append(
+            f"Goal lane shift: lane=-1 -> lane {left if left is not None else 'none (do not go left)'}, "
+            f"lane=+1 -> lane {right if right is not None else 'none (do not go right)'}."
+        )
+        return "\n".join(out)
+
+
+def targeted_guidance(desc: ScenarioDescription) -> list[str]:
+    """Short scenario-specific hints for the fast prompt (paper §III-E, Fast Prompt)."""
+    hints: list[str] = []
+    lead = desc.leader()
+    if lead is not None:
+        time_gap = lead.gap_m / max(desc.ego_speed, 0.1)
+        if (lead.ttc_s is not None and lead.ttc_s < CLOSING_TTC_S) or time_gap < SHORT_TIME_GAP_S:
+            hints.append(
+                f"Closing on the preceding vehicle #{lead.vehicle_id} (gap {_f(lead.gap_m)} m"
+                + (f", TTC {_f(lead.ttc_s)} s" if lead.ttc_s is not None else "")
+                + "): raise k_np and shorten the goal (lon 0.6-1.0)."
+            )
+    fol = desc.follower()
+    if fol is not None and fol.ttc_s is not None and fol.ttc_s < CLOSING_TTC_S:
+        hints.append(
+            f"Vehicle #{fol.vehicle_id} closing from behind (TTC {_f(fol.ttc_s)} s): "
+            "raise k_nf, do not shorten the goal."
+        )
+    for n in desc.neighbours:
+        if abs(n.lane_offset) == 1 and abs(n.x) < LATERAL_NEAR_M + 0.5 * (desc.ego_length + n.length):
+            side = "left" if n.lane_offset > 0 else "right"
+            hints.append(f"Vehicle #{n.vehicle_id} beside on the {side}: raise k_nl and keep the lane (lane 0).")
+    if desc.lane_left_of(desc.ego_lane) is None:
+        hints.append("No lane to the left: lane must not be negative.")
+    if desc.lane_right_of(desc.ego_lane) is None:
+        hints.append("No lane to the right: lane must not be positive.")
+    if not hints or (len(hints) <= 2 and all(h.startswith("No lane") for h in hints)):
+        hints.append("No conflict: moderate parameters, keep the goal (lon about 0.4, lane 0).")
+    return hints
+
+
+# --- construction ---------------------------------------------------------------------------
+
+
+def _lanes(scn: Scenario) -> tuple[tuple[LaneInfo, ...], np.ndarray]:
+    ys = np.asarray(scn.marking_y_m, dtype=float)
+    ok = np.isfinite(ys)
+    ys = ys[ok]
+    edges = np.asarray(scn.marking_is_edge, dtype=bool)[ok]
+    ids = np.asarray(scn.lane_ids)[: max(len(ys) - 1, 0)]
+    lanes = tuple(
+        LaneInfo(int(ids[k]), float(ys[k]), float(ys[k + 1]), bool(edges[k]), bool(edges[k + 1]))
+        for k in range(len(ys) - 1)
+    )
+    if not lanes:
+        raise ValueError(f"scenario {scn.scenario_id}: needs at least two lane markings")
+    return lanes, ys
+
+
+def _lane_index(ys: np.ndarray, y: float) -> int:
+    """Index of the lane (0 = rightmost) containing y, clipped to the road."""
+    return int(np.clip(np.searchsorted(ys, y, side="right") - 1, 0, len(ys) - 2))
+
+
+def _relation(offset: int, dx: float, overlap_half: float) -> str:
+    lon = "alongside" if abs(dx) < overlap_half else ("ahead" if dx > 0 else "behind")
+    if offset == 0:
+        return lon
+    side = "left" if offset > 0 else "right"
+    return f"{side}-{lon}" if abs(offset) == 1 else f"{abs(offset)}-{side}-{lon}"
+
+
+def _sample_indices(step_s: float) -> list[int]:
+    """History frame indices every ``step_s`` before t = 0 (oldest first), excluding t = 0."""
+    out = []
+    k = 1
+    while True:
+        # ceil: at 25 Hz, 0.5 s is 12.5 frames; always take the older frame (consistent spacing)
+        idx = T0_INDEX - math.ceil(k * step_s / DT_S - 1e-9)
+        if idx < 0:
+            break
+        out.append(int(idx))
+        k += 1
+    return out[::-1]
+
+
+def describe_scenario(
+    scenario: Scenario,
+    goal_xy: tuple[float, float] | np.ndarray,
+    *,
+    history_step_s: float = 0.5,
+    neighbour_history_step_s: float = 1.0,
+    horizon_s: float = 5.0,
+) -> ScenarioDescription:
+    """Build the description of ``scenario`` at t = 0 with the predicted ``goal_xy`` (ego frame).
+
+    Uses only frames up to t = 0 (the future is for evaluation).
+    """
+    lanes, ys = _lanes(scenario)
+    lane_ids = [ln.lane_id for ln in lanes]
+    t0 = T0_INDEX
+    ego_xy = np.asarray(scenario.ego_xy_m, dtype=float)
+    ego_v = np.asarray(scenario.ego_vxy_mps, dtype=float)
+    ego_a = np.asarray(scenario.ego_axy_mps2, dtype=float)
+    ex, ey = float(ego_xy[t0, 0]), float(ego_xy[t0, 1])
+    evx, evy = float(ego_v[t0, 0]), float(ego_v[t0, 1])
+    ego_k = _lane_index(ys, ey)
+    ego_len, ego_wid = float(scenario.ego_length_m), float(scenario.ego_width_m)
+
+    def t_of(idx: int) -> float:
+        return (idx - t0) * DT_S
+
+    ego_hist = tuple(
+        TrackPoint(t_of(i), float(ego_xy[i, 0]), float(ego_xy[i, 1]), lane_ids[_lane_index(ys, float(ego_xy[i, 1]))])
+        for i in _sample_indices(history_step_s)
+        if np.all(np.isfinite(ego_xy[i]))
+    )
+
+    nbrs: list[NeighbourInfo] = []
+    valid = np.asarray(scenario.nbr_valid, dtype=bool)
+    nxy = np.asarray(scenario.nbr_xy_m, dtype=float)
+    nv = np.asarray(scenario.nbr_vxy_mps, dtype=float)
+    for j in range(valid.shape[0]):
+        if not valid[j, t0] or not np.all(np.isfinite(nxy[j, t0])):
+            continue
+        x, y = float(nxy[j, t0, 0]), float(nxy[j, t0, 1])
+        vx, vy = (float(nv[j, t0, 0]), float(nv[j, t0, 1])) if np.all(np.isfinite(nv[j, t0])) else (0.0, 0.0)
+        length, width = float(scenario.nbr_length_m[j]), float(scenario.nbr_width_m[j])
+        k = _lane_index(ys, y)
+        dx, dy = x - ex, y - ey
+        half = 0.5 * (ego_len + length)
+        rel = _relation(k - ego_k, dx, half)
+        gap = abs(dx) - half
+        closing = (evx - vx) if dx > 0 else (vx - evx)
+        ttc = gap / closing if (k == ego_k and gap > 0 and closing > 1e-6) else None
+        if k == ego_k and gap <= 0:
+            ttc = 0.0  # overlapping boxes in one lane: contact now
+        hist = tuple(
+            TrackPoint(
+                t_of(i), float(nxy[j, i, 0]), float(nxy[j, i, 1]), lane_ids[_lane_index(ys, float(nxy[j, i, 1]))]
+            )
+            for i in _sample_indices(neighbour_history_step_s)[-2:]  # short: the last two samples
+            if valid[j, i] and np.all(np.isfinite(nxy[j, i]))
+        )
+        cls = VEHICLE_CLASS_NAMES.get(int(scenario.nbr_class[j]), "vehicle").lower()
+        nbrs.append(
+            NeighbourInfo(
+                vehicle_id=int(scenario.nbr_id[j]),
+                vehicle_class=cls,
+                relation=rel,
+                lane=lane_ids[k],
+                x=dx,
+                y=dy,
+                vx=vx,
+                vy=vy,
+                length=length,
+                width=width,
+                gap_m=gap,
+                ttc_s=ttc,
+                history=hist,
+                rel_vx=vx - evx,
+                rel_vy=vy - evy,
+            )
+        )
+    nbrs.sort(key=lambda n: math.hypot(n.x, n.y))
+    gx, gy = float(goal_xy[0]), float(goal_xy[1])
+    limit = float(scenario.speed_limit_mps)
+    return ScenarioDescription(
+        scenario_id=str(scenario.scenario_id),
+        location_id=int(scenario.location_id),
+        speed_limit_mps=limit if math.isfinite(limit) and limit > 0 else None,
+        lanes=lanes,
+        ego_lane=lane_ids[ego_k],
+        ego_class=VEHICLE_CLASS_NAMES.get(int(scenario.ego_class), "vehicle").lower(),
+        ego_length=ego_len,
+        ego_width=ego_wid,
+        ego_history=ego_hist,
+        ego_x=ex,
+        ego_y=ey,
+        ego_vx=evx,
+        ego_vy=evy,
+        ego_ax=float(ego_a[t0, 0]) if np.isfinite(ego_a[t0, 0]) else 0.0,
+        neighbours=tuple(nbrs),
+        goal_x=gx,
+        goal_y=gy,
+        goal_lane=lane_ids[_lane_index(ys, gy)],
+        horizon_s=horizon_s,
+    )

@@ -1,0 +1,154 @@
+"""Prompt rendering (paper Fig. 2) from Jinja2 templates shipped in ``letspi/prompts/*.j2``.
+
+Layout, chosen so that prefix caches (llama.cpp, Ollama, vLLM) hit:
+
+* the **system** message is fully static per process: role, context, coordinate frame, inputs,
+  social force equations, parameter meanings/units/ranges, safety constraints, output format;
+* the **user** message carries what changes: the scenario (built by ``letspi.llm.describe``),
+  then the optional memory examples, then the optional safety report / refinement request.
+* A reflection round with ``previous_reply`` is a multi-turn continuation (system, user,
+  assistant = previous reply, user = safety report), so the whole first exchange is a reused
+  prefix.
+
+``render_physics_prompt`` is the memory-collection prompt (Fig. 2a); ``render_fast_prompt`` the
+fast-inference prompt (Fig. 2b): simplified base, one-paragraph social force summary, few-shot
+memories, brief scenario, targeted guidance, numbers-only output.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from typing import Any, Final
+
+import jinja2
+
+from letspi.constants import DT_S, HORIZON_S
+from letspi.llm.describe import ScenarioDescription, targeted_guidance
+from letspi.llm.schema import FIELD_DOCS, FIELD_RANGES, RATIONALE_MAX_CHARS, WIRE_KEYS, PlannerReply, Variant
+from letspi.llm.types import Message, message
+
+#: Safety thresholds quoted in the prompts (paper §III-E: TTC < 1.5 s or distance < 2.0 m is unsafe).
+TTC_MIN_S: Final = 1.5
+DIST_MIN_M: Final = 2.0
+
+
+@dataclass(frozen=True)
+class MemoryExample:
+    """One remembered, validated answer shown as a few-shot example.
+
+    ``summary``: one line about the scenario (e.g. ``ScenarioDescription.summary_line()``);
+    ``outcome``: optional safety result (e.g. ``"min TTC 4.2 s, min gap 9.0 m"``).
+    """
+
+    summary: str
+    reply: PlannerReply
+    outcome: str = ""
+
+    def answer(self, variant: Variant) -> str:
+        return json.dumps(self.reply.to_wire(variant), separators=(", ", ": "))
+
+
+def _load_template(name: str) -> str:
+    return resources.files("letspi").joinpath("prompts", name).read_text(encoding="utf-8")
+
+
+@lru_cache(maxsize=1)
+def prompt_environment() -> jinja2.Environment:
+    """The Jinja2 environment reading package templates (strict: a missing variable is an error)."""
+    return jinja2.Environment(
+        loader=jinja2.FunctionLoader(_load_template),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=False,
+        autoescape=False,  # plain-text prompts, not HTML
+    )
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def _static_context() -> dict[str, Any]:
+    params = [
+        {
+            "key": WIRE_KEYS[name],
+            "doc": FIELD_DOCS[name][1],
+            "unit": FIELD_DOCS[name][0],
+            "low": _fmt(lo),
+            "high": _fmt(hi),
+        }
+        for name, (lo, hi) in FIELD_RANGES.items()
+    ]
+    return {
+        "params": params,
+        "horizon_s": _fmt(HORIZON_S),
+        "dt_s": _fmt(DT_S),
+        "ttc_min_s": _fmt(TTC_MIN_S),
+        "dist_min_m": _fmt(DIST_MIN_M),
+        "rationale_max": RATIONALE_MAX_CHARS,
+    }
+
+
+def _render(name: str, **context: Any) -> str:
+    return prompt_environment().get_template(name).render(**context).strip()
+
+
+@lru_cache(maxsize=2)
+def system_prompt(variant: Variant = "physics") -> str:
+    """The static system message of a prompt variant (identical on every call: prefix cache)."""
+    return _render("physics_system.j2" if variant == "physics" else "fast_system.j2", **_static_context())
+
+
+def _memories(memories: Sequence[MemoryExample], variant: Variant) -> list[dict[str, str]]:
+    return [{"summary": m.summary, "outcome": m.outcome, "answer": m.answer(variant)} for m in memories]
+
+
+def render_physics_prompt(
+    scenario_description: ScenarioDescription,
+    *,
+    memories: Sequence[MemoryExample] = (),
+    safety_report: str | None = None,
+    previous_reply: str | None = None,
+) -> list[Message]:
+    """Messages of the physics-informed prompt (memory-collection phase).
+
+    With ``safety_report`` this is a reflection round: if ``previous_reply`` (the raw text the
+    model gave) is passed, the report is a follow-up turn after it; otherwise it is appended
+    to the single user message.
+    """
+    scenario_text = scenario_description.to_text(detail="full")
+    mems = _memories(memories, "physics")
+    system = message("system", system_prompt("physics"))
+    if safety_report is not None and previous_reply is not None:
+        first = _render("physics_user.j2", scenario_text=scenario_text, memories=mems, safety_report=None)
+        return [
+            system,
+            message("user", first),
+            message("assistant", previous_reply),
+            message("user", _render("refinement.j2", safety_report=safety_report)),
+        ]
+    user = _render("physics_user.j2", scenario_text=scenario_text, memories=mems, safety_report=safety_report)
+    return [system, message("user", user)]
+
+
+def render_fast_prompt(
+    scenario_description: ScenarioDescription,
+    *,
+    memories: Sequence[MemoryExample] = (),
+    guidance: Sequence[str] | None = None,
+) -> list[Message]:
+    """Messages of the fast prompt (fast-inference phase). ``guidance`` defaults to
+    ``targeted_guidance(scenario_description)``."""
+    hints = list(guidance) if guidance is not None else targeted_guidance(scenario_description)
+    user = _render(
+        "fast_user.j2",
+        scenario_text=scenario_description.to_text(detail="brief"),
+        memories=_memories(memories, "fast"),
+        guidance=hints,
+    )
+    return [message("system", system_prompt("fast")), message("user", user)]

@@ -1,0 +1,136 @@
+"""Core types of the LLM layer: messages, decoding settings, responses, errors, the backend protocol.
+
+Error taxonomy (what the caller does with it):
+
+* ``LLMConfigError`` and subclasses: the setup is wrong (unknown backend, malformed spec, missing
+  package or model, authentication). Raised immediately, never retried: a long run must not
+  silently turn every scenario into a fallback because of a typo.
+* ``LLMTransportError`` and subclasses: one call failed (HTTP 5xx, reset connection, timeout).
+  Retried with backoff; after the last attempt the advisor falls back to default parameters.
+* ``ReplyParseError``: the model answered but the reply is not a valid parameter set. Retried with
+  a corrective message, then the fallback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal, Protocol, TypedDict, runtime_checkable
+
+Role = Literal["system", "user", "assistant"]
+
+
+class Message(TypedDict):
+    """One chat message, in the shape every chat API accepts."""
+
+    role: Role
+    content: str
+
+
+def message(role: Role, content: str) -> Message:
+    """Build a ``Message`` (a typed shorthand)."""
+    return {"role": role, "content": content}
+
+
+@dataclass(frozen=True)
+class DecodingSettings:
+    """Sampling settings sent with every call; part of the cache key.
+
+    Temperature 0 and a fixed seed make replies reproducible (paper §IV: temperature 0).
+    ``max_tokens`` bounds the reply: output tokens dominate latency on small machines.
+    """
+
+    temperature: float = 0.0
+    seed: int = 0
+    max_tokens: int = 320
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class LLMResponse:
+    """What a backend returns for one call.
+
+    ``parsed`` is the reply's first JSON object if the text contains one (no validation of its
+    keys or values: that is ``letspi.llm.parse``'s job), else ``None``.
+    """
+
+    text: str
+    parsed: dict[str, Any] | None
+    prompt_tokens: int
+    completion_tokens: int
+    latency_s: float
+    model_spec: str
+    cached: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class LLMBackend(Protocol):
+    """A chat model: messages in, one ``LLMResponse`` out.
+
+    Implementations raise ``LLMConfigError`` for setup problems and ``LLMTransportError`` for
+    failures of one call; they never validate the reply's content.
+    """
+
+    @property
+    def spec(self) -> str:
+        """The canonical spec string (``llamacpp:gemma3-270m``, ``ollama:llama3.1:8b``, ...)."""
+        ...
+
+    def complete(
+        self,
+        messages: Sequence[Message],
+        *,
+        schema: dict[str, Any] | None,
+        settings: DecodingSettings,
+        timeout_s: float,
+    ) -> LLMResponse:
+        """Send ``messages``; constrain the reply to ``schema`` (a JSON schema) when not None."""
+        ...
+
+
+class LLMError(Exception):
+    """Base class of every error raised by ``letspi.llm``."""
+
+
+class LLMConfigError(LLMError):
+    """The configuration is wrong; retrying cannot help."""
+
+
+class UnknownBackendError(LLMConfigError):
+    """Malformed spec string or unknown backend name."""
+
+
+class MissingDependencyError(LLMConfigError):
+    """An optional package (llama-cpp-python, a model package) is not installed."""
+
+
+class ModelNotFoundError(LLMConfigError):
+    """The server or the local install does not have the requested model."""
+
+
+class LLMTransportError(LLMError):
+    """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable."""
+
+
+class LLMTimeoutError(LLMTransportError):
+    """One call exceeded its timeout."""
+
+
+class BackendUnavailableError(LLMTransportError):
+    """The server could not be reached at all (connection refused, DNS).
+
+    Retried like any transport error, but if *every* attempt of a call hit it the advisor raises
+    it instead of falling back: a dead server is a setup problem, not one bad reply.
+    """
+
+
+class ReplyParseError(LLMError, ValueError):
+    """The reply is not a valid parameter set. ``reason`` is a short machine-readable code."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail

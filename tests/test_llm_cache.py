@@ -1,0 +1,56 @@
+"""Response cache: keys, round trip, concurrent writers in two processes."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from pathlib import Path
+
+from letspi.llm.cache import CachedEntry, ResponseCache, cache_key
+from letspi.llm.types import DecodingSettings, message
+
+MSGS = [message("system", "s"), message("user", "u")]
+
+
+def test_key_depends_on_everything() -> None:
+    base = cache_key("llamacpp:x", MSGS, DecodingSettings(), {"type": "object"})
+    assert base == cache_key("llamacpp:x", list(MSGS), DecodingSettings(), {"type": "object"})
+    assert base != cache_key("llamacpp:y", MSGS, DecodingSettings(), {"type": "object"})
+    assert base != cache_key("llamacpp:x", [*MSGS, message("user", "more")], DecodingSettings(), {"type": "object"})
+    assert base != cache_key("llamacpp:x", MSGS, DecodingSettings(seed=1), {"type": "object"})
+    assert base != cache_key("llamacpp:x", MSGS, DecodingSettings(), None)
+
+
+def test_round_trip_and_persistence(tmp_path: Path) -> None:
+    path = tmp_path / "sub" / "c.sqlite"
+    c = ResponseCache(path)
+    assert c.get("k") is None
+    c.put("k", "spec", CachedEntry("héllo {}", 10, 5, 1.25))
+    c.put("k", "spec", CachedEntry("héllo {}", 10, 5, 1.25))  # duplicate write is harmless
+    c.close()
+    again = ResponseCache(path)
+    assert again.get("k") == CachedEntry("héllo {}", 10, 5, 1.25) and len(again) == 1
+    again.clear()
+    assert len(again) == 0
+
+
+def _writer(path: str, tag: str, n: int) -> None:
+    cache = ResponseCache(path)
+    for i in range(n):
+        cache.put(f"{tag}-{i}", "spec", CachedEntry(f"text {tag} {i}", i, i, 0.1))
+        cache.get(f"{tag}-{i // 2}")
+
+
+def test_concurrent_writers_two_processes(tmp_path: Path) -> None:
+    path = str(tmp_path / "shared.sqlite")
+    ResponseCache(path)  # create the table up front (WAL is set per connection anyway)
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_writer, args=(path, tag, 150)) for tag in ("a", "b")]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(timeout=120)
+        assert p.exitcode == 0
+    cache = ResponseCache(path)
+    assert len(cache) == 300
+    assert cache.get("a-149") == CachedEntry("text a 149", 149, 149, 0.1)
+    assert cache.get("b-0") is not None
