@@ -19,6 +19,7 @@ from letspi.core.bench import bench_retrieval
 from letspi.core.matching import top_k
 from letspi.core.memory import Experience, MemoryBank
 from letspi.core.reflection import Proposal, ReflectionContext, reflect
+from letspi.core.thresholds import ReflectionThresholds
 from letspi.physics.params import SocialForceParams
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.features import scenario_features
@@ -45,7 +46,7 @@ def test_round_trip_from_reflection(tmp_path: Path) -> None:
         return Proposal(SocialForceParams(k_np=k), lon_factor=lon, rationale=f"it{ctx.iteration}",
                         prompt=f"prompt {ctx.iteration}", reply=f"reply {ctx.iteration}")
 
-    res = reflect(sc, propose)
+    res = reflect(sc, propose, ReflectionThresholds(max_decel_mps2=None))
     assert res.validated and res.n_refinements >= 1
     exp = Experience.from_reflection(res, scenario_features(sc)[0], config_key="m1|v1", model="scripted")
     with MemoryBank.open(tmp_path / "mem.sqlite") as bank:

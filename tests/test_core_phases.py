@@ -18,8 +18,8 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
 
-def _reply(k_np: float, lon: float, why: str = "x") -> str:
-    return json.dumps({"why": why, "tau": 1.0, "k_np": k_np, "k_nf": 3, "k_nl": 0.5, "k_bd": 1.0, "k_cl": 0.5,
+def _reply(k_np: float, lon: float, why: str = "x", tau: float = 1.0) -> str:
+    return json.dumps({"why": why, "tau": tau, "k_np": k_np, "k_nf": 3, "k_nl": 0.5, "k_bd": 1.0, "k_cl": 0.5,
                        "lon": lon, "lane": 0})
 
 
@@ -39,7 +39,7 @@ def _phase(backend: ScriptedBackend, max_iterations: int = 3) -> MemoryPhase:
 
 
 def test_memory_phase_reflects_until_safe_and_the_refinement_prompt_carries_the_report():
-    backend = ScriptedBackend([_reply(2.0, 0.4, "first"), _reply(55.0, 1.0, "refined")])
+    backend = ScriptedBackend([_reply(2.0, 0.4, "first"), _reply(55.0, 0.6, "refined", tau=2.5)])
     planner = LetsPiMemoryPlanner(_phase(backend))
     batch = _unsafe()
     plan = planner.plan(batch)
@@ -64,7 +64,7 @@ def test_collect_is_resumable_and_fast_phase_retrieves_from_the_bank(tmp_path):
         straight_road_scenario(ego_speed_mps=28.0, scenario_id="free").as_batch(),
     ])
     with MemoryBank.open(tmp_path / "m.sqlite") as bank:
-        backend = ScriptedBackend(default=_reply(40.0, 0.8, "keep distance"))
+        backend = ScriptedBackend(default=_reply(40.0, 0.8, "keep distance", tau=2.5))
         stats = collect(_phase(backend), batch, bank)
         assert stats.stored == 2 and stats.skipped == 0 and bank.count() == 2
         again = collect(_phase(ScriptedBackend(default=_reply(40.0, 0.8))), batch, bank)

@@ -49,7 +49,7 @@ def _scripted(ctx: ReflectionContext) -> Proposal:
 
 
 def test_reflection_fires_and_refinement_passes_thresholds() -> None:
-    th = ReflectionThresholds()
+    th = ReflectionThresholds(max_decel_mps2=None)  # safety semantics only; braking: its own test
     res = reflect(_unsafe_scenario(), _scripted, th)
     assert not res.initial.safe
     assert res.initial.metrics["collision"] == 1.0 or res.initial.metrics["min_ttc_s"] < th.ttc_s
@@ -186,7 +186,7 @@ def test_report_is_vectorised_and_consistent_with_check_plans() -> None:
     plans = [_const_plan(s) for s in speeds]
     xy = np.concatenate([p[0] for p in plans])
     vxy = np.concatenate([p[1] for p in plans])
-    reps = safety_report(batch, xy, vxy, pred)
+    reps = safety_report(batch, xy, vxy, pred, ReflectionThresholds(max_decel_mps2=None))
     chk = check_plans(batch, xy, vxy, pred)
     assert [r.safe for r in reps] == list(chk.safe(1.5, 2.0))
     assert reps[1].safe and "SAFE" in reps[1].to_text()
@@ -213,3 +213,18 @@ def test_neutral_lon_factor_keeps_goal() -> None:
                              np.array([0.0]), goal, pred)
     np.testing.assert_allclose(plan.goals_xy_m, goal)
     assert plan.xy_m.shape == (1, F, 2)
+
+
+def test_harsh_braking_is_a_violation_with_a_tau_suggestion() -> None:
+    sc = straight_road_scenario(ego_speed_mps=30.0).as_batch()
+    xy, vxy = _const_plan(30.0)
+    vxy = vxy.copy()
+    vxy[0, 10:, 0] = 29.6  # a 0.4 m/s drop in one 0.04 s step: 10 m/s^2 > 8 at step 10
+    th = ReflectionThresholds()
+    rep = safety_report(sc, xy, vxy, _constant_velocity(sc), th)[0]
+    v = next(v for v in rep.violations if v.metric == "harsh_braking")
+    assert v.step == 10 and abs(v.value - 10.0) < 1e-6 and v.category == "dynamics"
+    text = rep.to_text()
+    assert "harsh braking" in text and "increase tau" in text
+    assert rep.metrics["max_decel_mps2"] == v.value
+    assert not safety_report(sc, xy, vxy, _constant_velocity(sc), ReflectionThresholds(max_decel_mps2=None))[0].violated

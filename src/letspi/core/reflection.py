@@ -44,11 +44,13 @@ NEUTRAL_LON_FACTOR = 0.4
 """Longitudinal factor that leaves the goal distance unchanged (1.2 - 0.5 * 0.4 = 1)."""
 NEUTRAL_LANE_FACTOR = 0.0
 
-MetricName = Literal["contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road"]
+MetricName = Literal["contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road", "harsh_braking"]
 Relative = Literal["front", "rear", "left", "right", "none"]
-Category = Literal["front", "rear", "side", "road"]
+Category = Literal["front", "rear", "side", "road", "dynamics"]
 
-METRIC_ORDER: tuple[MetricName, ...] = ("contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road")
+METRIC_ORDER: tuple[MetricName, ...] = (
+    "contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road", "harsh_braking",
+)
 _LABEL: dict[str, str] = {
     "contact": "contact",
     "front_ttc": "TTC",
@@ -56,9 +58,11 @@ _LABEL: dict[str, str] = {
     "in_path_gap": "in-path gap",
     "pet": "PET",
     "off_road": "off-road",
+    "harsh_braking": "braking",
 }
 _UNIT: dict[str, str] = {
     "contact": "m", "front_ttc": "s", "rear_ttc": "s", "in_path_gap": "m", "pet": "s", "off_road": "m",
+    "harsh_braking": "m/s^2",
 }
 
 
@@ -191,6 +195,8 @@ class Violation:
         """front / rear / side (left or right) / road: what the suggestion targets."""
         if self.metric == "off_road":
             return "road"
+        if self.metric == "harsh_braking":
+            return "dynamics"
         if self.relative in ("left", "right"):
             return "side"
         return "rear" if self.relative == "rear" else "front"
@@ -247,6 +253,8 @@ class SafetyReport:
             checks.append(f"PET >= {th.pet_s:g} s")
         if th.check_off_road:
             checks.append("stay on the road")
+        if th.max_decel_mps2 is not None:
+            checks.append(f"braking <= {th.max_decel_mps2:g} m/s^2")
         horizon = f"{self.n_steps * DT_S:.1f} s"
         head = f"Safety analysis of the planned {horizon} trajectory (thresholds: {', '.join(checks)})"
         if not self.violations:
@@ -303,6 +311,9 @@ def _violation_text(v: Violation, n_steps: int) -> str:
     cat = v.category if v.category != "side" else f"side ({v.relative})"
     if v.metric == "off_road":
         return f"{at}: the ego box extends {v.value:.2f} m beyond the road edge (off-road)."
+    if v.metric == "harsh_braking":
+        return (f"{at}: the ego brakes at {v.value:.1f} m/s^2 > {v.threshold:g} m/s^2 (harsh braking: not "
+                "drivable comfortably, invites rear-end conflicts).")
     if v.metric == "contact":
         return f"{at}, {_where(v)}: boxes overlap (contact, {cat} collision)."
     label, unit = _LABEL[v.metric], _UNIT[v.metric]
@@ -333,6 +344,10 @@ def _suggestions(violations: tuple[Violation, ...], proposal: Proposal | None) -
             out.setdefault(f"side-{v.relative}", f"Side conflict with {who} on the {v.relative}: increase "
                            f"k_nl{now('k_nl')} and move the goal away from it (lane_factor {away}"
                            f"{now('lane_factor')}).")
+        elif v.category == "dynamics":
+            out.setdefault("dynamics", f"Harsh braking: increase tau{now('tau_s')} for smoother speed changes "
+                           f"and do not shorten the goal so much (lon_factor towards {NEUTRAL_LON_FACTOR:g}"
+                           f"{now('lon_factor')}) unless a front conflict requires it.")
         else:
             out.setdefault("road", f"The plan leaves the road: increase k_boundary{now('k_boundary')} and bring "
                            f"lane_factor back towards 0{now('lane_factor')}.")
@@ -410,8 +425,16 @@ def safety_report(
         located["pet"] = (pet.min_pet_s, pet.min_pet_step, pet.min_pet_nbr, pet.min_pet_s < th.pet_s)
     if th.check_off_road:
         located["off_road"] = (off_val, off_step, np.full(b, -1), check.off_road)
+    # peak braking of the plan, from the t = 0 velocity on (B,)
+    vx = np.concatenate([batch.ego_vxy0_mps[:, None, 0].astype(np.float64), inp.ego_vxy_mps[..., 0]], axis=1)
+    braking = -np.diff(vx, axis=1) / DT_S  # (B, F), > 0 when slowing down
+    brake_step = np.nanargmax(np.where(np.isfinite(braking), braking, -np.inf), axis=1)
+    max_decel = braking[rows, brake_step]
+    if th.max_decel_mps2 is not None:
+        located["harsh_braking"] = (max_decel, brake_step, np.full(b, -1), max_decel > th.max_decel_mps2 + 1e-9)
     thresholds_of = {"contact": th.min_dist_m, "front_ttc": th.ttc_s, "rear_ttc": th.ttc_s,
-                     "in_path_gap": th.min_dist_m, "pet": th.pet_s or 0.0, "off_road": 0.0}
+                     "in_path_gap": th.min_dist_m, "pet": th.pet_s or 0.0, "off_road": 0.0,
+                     "harsh_braking": th.max_decel_mps2 or 0.0}
 
     ego_lane = lane_id_of(batch, inp.ego_xy_m[..., 1])  # (B, F)
     nbr_y = np.where(inp.nbr_valid, inp.nbr_xy_m[..., 1], np.nan)
@@ -462,7 +485,7 @@ def safety_report(
         reports.append(SafetyReport(
             scenario_id=str(batch.scenario_id[i]),
             violations=tuple(violations),
-            metrics=_metrics_row(check, i, pet_s, safe=not violations),
+            metrics={**_metrics_row(check, i, pet_s, safe=not violations), "max_decel_mps2": float(max_decel[i])},
             thresholds=th,
             n_steps=n_steps,
             pre_contact_metrics=_metrics_row(pre, i, pre_pet_s, safe=False) if contact[i] else None,

@@ -38,6 +38,10 @@ class ReflectionThresholds(BaseModel):
     pet_s: float | None = Field(default=None, gt=0)
     pet_cell_m: float = Field(default=0.5, gt=0)
     check_off_road: bool = True
+    # not in the paper: a plan braking harder than this is not "validated" either; 8 m/s^2 is the
+    # feasibility bound of the success metric (MetricsConfig.max_abs_acc_lon_mps2), so a validated
+    # experience is also a feasible one; None disables the check
+    max_decel_mps2: float | None = Field(default=8.0, gt=0)
     max_iterations: int = Field(default=3, ge=0)
 
     @classmethod
@@ -55,4 +59,5 @@ class ReflectionThresholds(BaseModel):
         """A short stable string for memory configuration keys (``ttc1.5-d2-petnone-it3``)."""
         pet = "none" if self.pet_s is None else f"{self.pet_s:g}"
         road = "" if self.check_off_road else "-noroad"
-        return f"ttc{self.ttc_s:g}-d{self.min_dist_m:g}-pet{pet}-it{self.max_iterations}{road}"
+        brake = "" if self.max_decel_mps2 is None else f"-b{self.max_decel_mps2:g}"
+        return f"ttc{self.ttc_s:g}-d{self.min_dist_m:g}-pet{pet}-it{self.max_iterations}{road}{brake}"
