@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from letspi.planners.factory import DEFAULT_LLM
+
 app = typer.Typer(help="Benchmarks: print measured speed numbers.", no_args_is_help=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
@@ -60,3 +62,31 @@ def physics_cmd(
         metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference)
     result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()}}
     _emit(result, as_json, "letspi bench physics")
+
+
+@app.command("llm")
+def llm_cmd(
+    model: Annotated[list[str] | None, typer.Option("--model", help="Embedded model (repeatable).")] = None,
+    repeats: Annotated[int, typer.Option(help="Repetitions per latency measurement (median).")] = 2,
+    phase_model: Annotated[str, typer.Option(help="Model spec of the per-phase latency run.")] = DEFAULT_LLM,
+    as_json: JsonOpt = False,
+) -> None:
+    """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
+    and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences."""
+    from letspi.core.bench import bench_phases, bench_retrieval
+    from letspi.llm.bench import bench_models
+
+    models = tuple(model) if model else ("smollm2-135m", "gemma3-270m")
+    result: dict[str, object] = {
+        "models": bench_models(models, repeats=repeats, behaviour=False),
+        "phases": bench_phases(phase_model),
+        "retrieval": bench_retrieval(),
+    }
+    if as_json:
+        typer.echo(json.dumps(result, indent=2, default=float))
+        return
+    from rich.console import Console
+    from rich.pretty import pprint
+
+    Console().rule("letspi bench llm")
+    pprint(result, expand_all=True)

@@ -100,6 +100,11 @@ def _llm_demo(batch, out: Path, scenarios_file: str, llm: str, n_collect: int, n
     rows = np.arange(n)
     collect_rows, eval_rows = rows[0::2][:n_collect], rows[1::2][:n_eval]
     memory = out / "memory.sqlite"
+    # the two sets as files, so ablations can run on exactly them (`letspi ablate --scenarios ...`)
+    from letspi.scenario.store import save_scenarios
+
+    save_scenarios(batch.take(collect_rows), out / "scenarios-llm-collect.arrow")
+    save_scenarios(batch.take(eval_rows), out / "scenarios-llm-eval.arrow")
     with user_errors():
         options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory)
         memory_planner, = make_planners(["letspi-memory"], options)

@@ -105,3 +105,41 @@ if __name__ == "__main__":  # pragma: no cover
     import json
 
     print(json.dumps(bench_retrieval(), indent=2))
+
+
+def bench_phases(model_spec: str = "llamacpp:smollm2-135m", n_scenarios: int = 3) -> dict[str, float]:
+    """Per-phase latency with a real model (response cache off): the memory-collection phase (prompt,
+    reflection loop, simulation) and the fast phase (retrieval + fast prompt + one call), medians
+    over ``n_scenarios`` hand-built scenarios [s]."""
+    from letspi.core.memory import MemoryBank
+    from letspi.core.phases import FastPhase, MemoryPhase, Retriever, collect
+    from letspi.physics.goals import KinematicGoalPredictor
+    from letspi.planners.factory import make_advisor
+    from letspi.scenario.build import VehicleSpec, straight_road_scenario
+    from letspi.scenario.types import concat_batches
+
+    scenes = [
+        straight_road_scenario(ego_speed_mps=30.0 + i, scenario_id=f"b{i}",
+                               neighbours=[VehicleSpec(x0_m=35.0 + 10 * i, speed_mps=24.0),
+                                           VehicleSpec(x0_m=-20.0, speed_mps=31.0, lane_offset=1)]).as_batch()
+        for i in range(n_scenarios)
+    ]
+    advisor = make_advisor(model_spec, use_cache=False)
+    goals = KinematicGoalPredictor()
+    phase = MemoryPhase(advisor, goals, r_col_m=5.0)
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        with MemoryBank.open(Path(tmp) / "m.sqlite") as bank:
+            t0 = time.perf_counter()
+            collect(phase, concat_batches(scenes), bank)
+            out["memory_phase_s_per_scenario"] = (time.perf_counter() - t0) / n_scenarios
+            fast = FastPhase(advisor, goals, 5.0, Retriever(bank, k=3, config_key=None))
+            times = []
+            for sc in scenes:
+                t0 = time.perf_counter()
+                fast.propose(sc, goals.predict_goals(sc).top[0])
+                times.append(time.perf_counter() - t0)
+            out["fast_phase_s_median"] = float(np.median(times))
+            out["memories_stored"] = float(bank.count(validated_only=False))
+    out["speedup_fast_vs_memory"] = out["memory_phase_s_per_scenario"] / out["fast_phase_s_median"]
+    return out
