@@ -54,3 +54,37 @@ def test_info_json(tmp_path):
     assert result.exit_code == 0, result.output
     info = json.loads(result.output)
     assert info["n_scenarios"] == 4 and info["schema_version"] == 1
+
+
+def test_plan_json_shows_parameters_rationale_and_iterations(tmp_path):
+    path = _scenario_file(tmp_path)
+    result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "1", "--planner", "letspi-memory",
+                                 "--llm", "scripted:default", "--json", "--show-prompt"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert out["scenario_id"] == "s1" and out["planner"].startswith("letspi-memory")
+    assert set(out["info"]) >= {"tau_s", "k_np", "lon_factor", "llm_latency_s", "fallback", "validated"}
+    assert out["iterations"][0]["prompt"].startswith("[system]") and "safety_report" in out["iterations"][0]
+    assert len(out["trajectory"]["every_1s_xy_m"]) == 5 and "min_ttc_s" in out["metrics"]
+
+
+def test_collect_then_fast_plan_shows_retrieved_memories(tmp_path):
+    path = _scenario_file(tmp_path)
+    mem = tmp_path / "m.sqlite"
+    args = ["collect", "--scenarios", str(path), "--memory", str(mem), "--llm", "scripted:default", "--no-cache"]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0, first.output
+    assert "4 new experiences" in " ".join(first.output.split())
+    again = " ".join(runner.invoke(app, args).output.split())  # rich wraps lines at the terminal width
+    assert "0 new experiences" in again and "4 already stored" in again
+    result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "0", "--planner", "letspi-fast",
+                                 "--fast-llm", "scripted:default", "--memory", str(mem), "--json"])
+    assert result.exit_code == 0, result.output
+    memories = json.loads(result.output)["retrieved_memories"]
+    assert memories and memories[0]["scenario_id"] == "s0"  # identical scenario ranks first
+
+
+def test_fast_planner_without_memory_is_a_clear_error(tmp_path):
+    path = _scenario_file(tmp_path)
+    result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "0", "--planner", "letspi-fast"])
+    assert result.exit_code == 2 and "needs a memory bank" in result.output
