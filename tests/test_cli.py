@@ -88,3 +88,13 @@ def test_fast_planner_without_memory_is_a_clear_error(tmp_path):
     path = _scenario_file(tmp_path)
     result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "0", "--planner", "letspi-fast"])
     assert result.exit_code == 2 and "needs a memory bank" in result.output
+
+
+def test_prompt_shows_both_prompts_and_the_fast_one_is_shorter(tmp_path):
+    path = _scenario_file(tmp_path)
+    physics = runner.invoke(app, ["prompt", "--scenarios", str(path), "--index", "0", "--goals", "kinematic"])
+    fast = runner.invoke(app, ["prompt", "--scenarios", str(path), "--index", "0", "--goals", "kinematic", "--fast"])
+    assert physics.exit_code == 0 and fast.exit_code == 0, physics.output + fast.output
+    assert physics.output.startswith("[system]") and "[user]" in physics.output
+    assert "k_np" in physics.output and "k_np" in fast.output
+    assert len(fast.output) < 0.7 * len(physics.output)

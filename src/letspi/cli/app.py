@@ -24,6 +24,7 @@ app.command("evaluate")(evaluate.evaluate)
 app.command("collect")(phases.collect)
 app.command("plan")(phases.plan)
 app.command("ablate")(phases.ablate)
+app.command("prompt")(phases.prompt)
 app.command("plot")(viz.plot)
 app.command("report")(viz.report)
 

@@ -181,3 +181,35 @@ def ablate(
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=pairs(combo), progress_factory=factory)
     typer.echo(render_markdown_table(results))
+
+
+def prompt(
+    scenarios: Annotated[Path, typer.Option(help="Scenario file.")],
+    index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
+    fast: Annotated[bool, typer.Option(help="The fast prompt (with memories from --memory) instead.")] = False,
+    memory: Annotated[Path | None, typer.Option(help="Memory bank for the fast prompt's examples.")] = None,
+    top_k: int = 3,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
+) -> None:
+    """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
+    memory-collection phase, or with --fast the short prompt of the fast-inference phase."""
+    from letspi.core.memory import MemoryBank
+    from letspi.core.phases import Retriever, memory_example, messages_text
+    from letspi.llm.describe import describe_scenario
+    from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
+    from letspi.planners.factory import make_goal_predictor
+    from letspi.scenario.store import load_scenarios
+
+    with user_errors():
+        batch = load_scenarios(scenarios, [index])
+        goal = make_goal_predictor(goals).predict_goals(batch).top[0]
+        desc = describe_scenario(batch.scenario(0), goal)
+        if not fast:
+            messages = render_physics_prompt(desc)
+        else:
+            examples = []
+            if memory is not None:
+                with MemoryBank.open(memory, readonly=True) as bank:
+                    examples = [memory_example(e) for e, _ in Retriever(bank, k=top_k).retrieve(batch)]
+            messages = render_fast_prompt(desc, memories=examples)
+    typer.echo(messages_text(messages))

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, user_errors
+from letspi.planners.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 
 def plot(
@@ -19,23 +20,34 @@ def plot(
     iterations: Annotated[Path | None, typer.Option(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction for physics planners: idm|cv.")] = "idm",
+    neighbours: Annotated[str, typer.Option(
+        help="Neighbour prediction of physics planners: idm, constant_velocity, ground_truth_oracle.")] = "idm",
+    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
+    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
+    memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
 ) -> None:
     """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
-    vehicle, and (with --iterations) the safety reports and LLM responses per reflection iteration."""
-    from letspi.planners.factory import PlannerOptions, make_planner
+    vehicle, and the safety reports and LLM responses per reflection iteration (of a
+    letspi-memory / llm planner, or from --iterations)."""
+    from letspi.planners.factory import PlannerOptions, make_planners
+    from letspi.planners.llm import LetsPiMemoryPlanner
     from letspi.scenario.store import load_scenarios
     from letspi.viz.figure import plot_scenario
-    from letspi.viz.llm_panel import load_iterations
+    from letspi.viz.llm_panel import load_iterations, panel_record
 
     with user_errors():
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
         batch = load_scenarios(scenarios, [index])
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours)
+        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, llm=llm, fast_llm=fast_llm,
+                                 memory=memory)
         names = list(planner) if planner else ["sf"]
-        plans = {name: make_planner(name, options).plan(batch) for name in names}
+        planners = make_planners(names, options)
+        plans = {p.name: p.plan(batch) for p in planners}
         records = load_iterations(iterations) if iterations is not None else None
+        for p in planners:
+            if records is None and isinstance(p, LetsPiMemoryPlanner) and p.last_iterations:
+                records = [panel_record(it) for it in p.last_iterations]
         plot_scenario(batch, 0, plans, records, out)
     console.print(f"scenario {batch.scenario_id[0]} -> {out}")
 

@@ -15,6 +15,7 @@ import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 from matplotlib.axes import Axes
 from matplotlib.text import Text
@@ -234,3 +235,12 @@ def iterations_height_in(records: Sequence[IterationRecord], width_chars: int) -
         left, right = panel_texts(r, width_chars)
         heights.append(max(text_height_in(left), text_height_in(right)))
     return heights
+
+
+def panel_record(iteration: Any) -> IterationRecord:
+    """A panel record from a ``letspi.core.reflection.IterationRecord`` (duck-typed: no import cycle)."""
+    prop = iteration.proposal
+    metrics = {k: float(v) for k, v in iteration.report.metrics.items()}
+    return IterationRecord(iteration=int(iteration.iteration), safety_report=iteration.report.to_text(prop),
+                           rationale=prop.rationale or "", params=dict(prop.params.as_dict()),
+                           lon_factor=float(prop.lon_factor), lane_factor=float(prop.lane_factor), metrics=metrics)
