@@ -85,3 +85,19 @@ def test_later_planners_join_the_table(tmp_path):
     on_disk = json.loads((tmp_path / "metrics.json").read_text())["planners"]
     assert set(on_disk) == {"human", "cv"}
     assert np.isfinite(on_disk["cv"]["min_dist_m"])
+
+
+def test_refuses_to_mix_configurations_of_one_planner(tmp_path):
+    @dataclass
+    class Configured:
+        config_key: str
+        name: str = "p"
+        batch_size: int = 8
+
+        def plan(self, batch: ScenarioBatch) -> PlanBatch:
+            return ConstantVelocityPlanner().plan(batch)
+
+    evaluate([Configured("a")], _batch(3), tmp_path)
+    evaluate([Configured("a")], _batch(3), tmp_path)  # same configuration: resumes
+    with pytest.raises(EvaluationDirError, match="with another configuration"):
+        evaluate([Configured("b")], _batch(3), tmp_path)

@@ -113,6 +113,7 @@ def _llm_demo(batch, out: Path, scenarios_file: str, llm: str, n_collect: int, n
             task = bar.add_task(f"memory collection ({llm})", total=len(collect_rows))
             stats = collect(phase, batch.take(collect_rows), bank, progress=lambda k: bar.advance(task, k))
         console.print(f"memory: {stats.stored} new, {stats.skipped} reused, {stats.validated} validated -> {memory}")
+        options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase.config_key)
         planners = make_planners(["human", "idm", "sf", "sf-opt", "gnp"], options)
         planners += [memory_planner, *make_planners(["letspi-fast"], options)]
         eval_dir = out / "evaluation-llm"

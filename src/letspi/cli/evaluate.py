@@ -31,6 +31,8 @@ def evaluate(
     fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
     memory: Annotated[Path | None, typer.Option(help="Memory bank (from `letspi collect`) for letspi-fast/fs.")] = None,
     top_k: Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")] = 3,
+    memory_key: Annotated[str | None, typer.Option(
+        help="Only memories collected under this configuration key (default: all in the bank).")] = None,
     max_iterations: Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")] = 3,
     goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = True,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
@@ -47,7 +49,8 @@ def evaluate(
         indices = None if limit is None else np.arange(min(limit, n_total))
         batch = load_scenarios(scenarios, indices)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
-                                 fast_llm=fast_llm, memory=memory, top_k=top_k, max_iterations=max_iterations,
+                                 fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
+                                 max_iterations=max_iterations,
                                  goal_adjustment=goal_adjustment, llm_cache=cache)
         planners = make_planners(planner, options)
         with progress_bar() as bar:

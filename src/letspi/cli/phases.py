@@ -137,6 +137,8 @@ def ablate(
     scenarios: Annotated[Path, typer.Option(help="Evaluation scenarios (held back from the memory).")],
     out: Annotated[Path, typer.Option(help="Evaluation directory; results go to OUT/ablations/KIND/.")],
     memory: Annotated[Path | None, typer.Option(help="Memory bank (needed by the fast-phase ablations).")] = None,
+    memory_key: Annotated[str | None, typer.Option(
+        help="Only memories collected under this configuration key (default: all in the bank).")] = None,
     limit: Annotated[int | None, typer.Option(help="Only the first N evaluation scenarios.")] = None,
     llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = DEFAULT_LLM,
     fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = DEFAULT_FAST_LLM,
@@ -171,7 +173,8 @@ def ablate(
             m = count_scenarios(collect_scenarios)
             collect_batch = load_scenarios(
                 collect_scenarios, None if collect_limit is None else np.arange(min(collect_limit, m)))
-        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k, llm_cache=cache)
+        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
+                                 llm_cache=cache)
         with progress_bar() as bar:
 
             def factory(name: str, total: int):  # type: ignore[no-untyped-def]

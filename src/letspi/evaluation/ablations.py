@@ -82,8 +82,8 @@ def _memory_size(batch: ScenarioBatch, abl_root: Path, options: PlannerOptions, 
     if options.memory is None:
         raise ValueError("memory-size ablation needs --memory (a bank from `letspi collect`)")
     with MemoryBank.open(options.memory, readonly=True) as bank:
-        total = bank.count()
-        subsets = {f: bank.sample_fraction(f, seed=0).ids for f in fractions}
+        total = bank.count(config_key=options.memory_key)
+        subsets = {f: bank.sample_fraction(f, seed=0, config_key=options.memory_key).ids for f in fractions}
     planners: list[Planner] = []
     for f in fractions:
         p = make_planners(["letspi-fast"], options)[0]

@@ -91,6 +91,27 @@ def _info_columns(info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return cols
 
 
+def planner_config_key(planner: Planner) -> str:
+    """What identifies a planner's results beyond its name (LLM planners: model, prompt version,
+    thresholds, memory; others: the name, which already carries non-default options)."""
+    return str(getattr(planner, "config_key", planner.name))
+
+
+def _check_planner_config(planner_dir: Path, planner: Planner) -> None:
+    key = planner_config_key(planner)
+    marker = planner_dir / "config.json"
+    if marker.exists():
+        old = json.loads(marker.read_text()).get("config_key")
+        if old != key:
+            raise EvaluationDirError(
+                f"{planner_dir} holds results of {planner.name!r} with another configuration ({old}); "
+                f"this run is {key}: use another --out or delete that directory"
+            )
+        return
+    planner_dir.mkdir(parents=True, exist_ok=True)
+    marker.write_text(json.dumps({"planner": planner.name, "config_key": key}, indent=2))
+
+
 def run_planner(
     planner: Planner,
     batch: ScenarioBatch,
@@ -100,6 +121,7 @@ def run_planner(
 ) -> pd.DataFrame:
     """Plan and score every not-yet-done scenario with ``planner``; return all its per-scenario rows."""
     planner_dir = out_dir / "per_scenario" / planner_dir_name(planner.name)
+    _check_planner_config(planner_dir, planner)
     done = _done_ids(planner_dir)
     todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
     if progress is not None and len(batch) - len(todo):

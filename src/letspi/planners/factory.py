@@ -26,6 +26,7 @@ class PlannerOptions:
     llm: str = DEFAULT_LLM  # memory-collection / single-shot model spec
     fast_llm: str = DEFAULT_FAST_LLM  # fast-inference model spec
     memory: Path | None = None  # memory bank (SQLite) for letspi-fast / letspi-fs
+    memory_key: str | None = None  # only memories collected under this configuration key (None: all)
     top_k: int = 3
     max_iterations: int = 3  # reflection refinements of letspi-memory (0 = "w/o reflection")
     goal_adjustment: bool = True  # False = "w/o goal adjustment" ablation
@@ -138,10 +139,11 @@ def _make_llm(name: str, options: PlannerOptions, advisors: _Advisors) -> Planne
     bank = MemoryBank.open(options.memory, readonly=True)
     advisor = advisors.get(options.fast_llm)
     if name == "letspi-fast":
-        fast = FastPhase(advisor, goals, sf_params.r_col_m, Retriever(bank, k=options.top_k))
+        fast = FastPhase(advisor, goals, sf_params.r_col_m,
+                         Retriever(bank, k=options.top_k, config_key=options.memory_key))
         return LetsPiFastPlanner(fast, neighbour_mode=mode, name=name)
     # letspi-fs: three static examples (the first three validated memories), no retrieval
-    static = [memory_example(e) for e in bank.get(bank.features_matrix().ids[:3])]
+    static = [memory_example(e) for e in bank.get(bank.features_matrix(config_key=options.memory_key).ids[:3])]
     return LetsPiFastPlanner(FastPhase(advisor, goals, sf_params.r_col_m, None, static_examples=static),
                              neighbour_mode=mode, name=name)
 

@@ -52,6 +52,10 @@ class LetsPiMemoryPlanner:
     batch_size: int = 1
     last_iterations: tuple[IterationRecord, ...] = ()
 
+    @property
+    def config_key(self) -> str:
+        return f"memory-phase|{self.phase.config_key}|goals-{type(self.phase.goal_predictor).__name__}"
+
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         if len(batch) != 1:
             raise ValueError(f"{self.name} plans one scenario per call, got {len(batch)}")
@@ -85,6 +89,14 @@ class LetsPiFastPlanner:
     batch_size: int = 1
     last_retrieved: tuple[tuple[str, float], ...] = ()
     last_proposal: Proposal | None = None
+
+    @property
+    def config_key(self) -> str:
+        r = self.phase.retriever
+        memory = "none" if r is None else (
+            f"k{r.k}|mem-{r.config_key or 'all'}|n{len(r.subset_ids) if r.subset_ids is not None else 'all'}")
+        return (f"fast-phase|{self.phase.advisor.backend.spec}|{memory}|static{len(self.phase.static_examples)}"
+                f"|goals-{type(self.phase.goal_predictor).__name__}")
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         if len(batch) != 1:
