@@ -338,3 +338,27 @@ def test_params_clamp_and_matrix_roundtrip() -> None:
     for name in PARAM_NAMES:
         lo, hi = PARAM_RANGES[name]
         assert lo <= getattr(DEFAULT_PARAMS, name) <= hi
+
+
+def test_neighbour_weights_scale_each_neighbours_repulsion() -> None:
+    from dataclasses import replace
+
+    from letspi.physics.params import SocialForceParams
+    from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
+
+    batch = straight_road_scenario(ego_speed_mps=32.0, neighbours=[
+        VehicleSpec(x0_m=40.0, speed_mps=22.0), VehicleSpec(x0_m=-15.0, speed_mps=34.0)]).as_batch()
+    scene = SocialForceScene.from_batch(batch, predict_constant_velocity(batch))
+    goals = np.array([[150.0, 0.0]])
+    p = SocialForceParams()
+    ones = rollout_social_force_scene(scene, p, goals, nbr_weights=np.ones((1, scene.n_neighbours)))
+    plain = rollout_social_force_scene(scene, p, goals)
+    np.testing.assert_array_equal(ones.xy_m, plain.xy_m)
+    zero = rollout_social_force_scene(scene, p, goals, nbr_weights=np.zeros((1, scene.n_neighbours)))
+    off = rollout_social_force_scene(scene, replace(p, k_np=0.0, k_nf=0.0, k_nl=0.0), goals)
+    np.testing.assert_allclose(zero.xy_m, off.xy_m, atol=1e-12)
+    doubled = rollout_social_force_scene(scene, p, goals, nbr_weights=np.full((1, scene.n_neighbours), 2.0))
+    stronger = rollout_social_force_scene(scene, replace(p, k_np=2 * p.k_np, k_nf=2 * p.k_nf, k_nl=2 * p.k_nl), goals)
+    np.testing.assert_allclose(doubled.xy_m, stronger.xy_m, atol=1e-9)
+    with pytest.raises(ValueError, match="nbr_weights must be"):
+        rollout_social_force_scene(scene, p, goals, nbr_weights=np.ones((2, 3)))

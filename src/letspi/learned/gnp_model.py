@@ -40,16 +40,8 @@ from letspi.learned.layers import EncoderConfig, encode, linear, relu
 from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch, as_params_batch
-from letspi.physics.social_force import (
-    AX_MAX_MPS2,
-    AX_MIN_MPS2,
-    AY_MAX_MPS2,
-    SocialForceScene,
-    _goals,
-    _Kernel,
-    _max_speed,
-)
+from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
+from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.physics.types import RolloutResult
 from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
@@ -100,31 +92,6 @@ class GnpModel:
         return SocialForceParamsBatch(**{**{n: getattr(p, n) for n in PARAM_NAMES}, "tau_s": np.asarray(tau_s)})
 
 
-class _WeightedKernel(_Kernel):
-    """The social force kernel with a repulsion weight per neighbour (N, B) multiplying its push."""
-
-    def __init__(self, *args: Any, nbr_weights: np.ndarray, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.nbr_w = nbr_weights
-
-    def neighbour_force(self, ex: np.ndarray, ey: np.ndarray, nx: np.ndarray,
-                        ny: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        # same as the base kernel with mag -> w * mag (kept in step with letspi.physics.social_force)
-        dx = nx - ex
-        dy = ny - ey
-        ady = np.abs(dy)
-        gap_x = np.maximum(np.abs(dx) - self.half_len, 0.0)
-        gap_y = np.maximum(ady - self.half_wid, 0.0)
-        mag = np.exp(np.sqrt(gap_x * gap_x + gap_y * gap_y) * self.neg_inv_r_col) * self.nbr_w
-        inline = ady < self.inline_dy
-        lateral = (ady < self.lateral_dy) & ~inline
-        w_inline = mag * inline
-        pre = (w_inline * (dx > 0.0)).sum(axis=0)
-        fol = w_inline.sum(axis=0) - pre
-        lat = (mag * np.copysign(lateral, dy)).sum(axis=0)
-        return -self.k_np * pre, self.k_nf * fol, -self.k_nl * lat
-
-
 def rollout_weighted(
     scene: SocialForceScene,
     params: SocialForceParams | SocialForceParamsBatch,
@@ -134,41 +101,11 @@ def rollout_weighted(
     dt_s: float = DT_S,
     max_speed_mps: float | np.ndarray | None = None,
 ) -> RolloutResult:
-    """``rollout_social_force_scene`` with per-neighbour repulsion weights ``nbr_weights`` (B, N).
-
-    Same integration, guards and clamps (semi-implicit Euler, acceleration clamps, no reversing);
-    ``nbr_weights=None`` means 1 everywhere (the plain social force model).
-    """
-    n = len(scene)
-    f = scene.n_steps
-    goals = _goals(goals_xy_m, n)
-    w = np.ones((n, scene.n_neighbours)) if nbr_weights is None else np.asarray(nbr_weights, dtype=np.float64)
-    if w.shape != (n, scene.n_neighbours):
-        raise ValueError(f"nbr_weights must be ({n}, {scene.n_neighbours}), got {w.shape}")
-    kernel = _WeightedKernel(scene, as_params_batch(params, n), goals, _max_speed(max_speed_mps, scene, goals, dt_s),
-                             dt_s, nbr_weights=np.ascontiguousarray(w.T))
-    ex = scene.ego_xy0_m[:, 0].copy()
-    ey = scene.ego_xy0_m[:, 1].copy()
-    vx = scene.ego_vxy0_mps[:, 0].copy()
-    vy = scene.ego_vxy0_mps[:, 1].copy()
-    out = np.empty((f, 6, n))
-    for k in range(f):
-        gx, gy = kernel.goal_force(ex, ey, vx, vy, (f - k) * dt_s)
-        pre, fol, lat = kernel.neighbour_force(ex, ey, scene.nbr_x_m[k], scene.nbr_y_m[k])
-        line, edge = kernel.lane_force(ey)
-        ax = np.clip(gx + pre + fol, AX_MIN_MPS2, AX_MAX_MPS2)
-        ay = np.clip(gy + lat + line + edge, -AY_MAX_MPS2, AY_MAX_MPS2)
-        new_vx = np.maximum(vx + ax * dt_s, 0.0)
-        vy = vy + ay * dt_s
-        out[k, 4] = (new_vx - vx) / dt_s
-        out[k, 5] = ay
-        vx = new_vx
-        ex = ex + vx * dt_s
-        ey = ey + vy * dt_s
-        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = ex, ey, vx, vy
-    res = out.transpose(2, 0, 1)
-    return RolloutResult(xy_m=np.ascontiguousarray(res[..., 0:2]), vxy_mps=np.ascontiguousarray(res[..., 2:4]),
-                         axy_mps2=np.ascontiguousarray(res[..., 4:6]), dt_s=dt_s)
+    """The social force rollout with per-neighbour repulsion weights ``nbr_weights`` (B, N)
+    (``None``: 1 everywhere, the plain model); a thin name for GNP's use of
+    ``rollout_social_force_scene(..., nbr_weights=...)``."""
+    return rollout_social_force_scene(scene, params, goals_xy_m, dt_s=dt_s, max_speed_mps=max_speed_mps,
+                                      nbr_weights=nbr_weights)
 
 
 def load_gnp_model(path: Path | str | None = None) -> GnpModel:

@@ -307,7 +307,7 @@ class _Kernel:
     """
 
     def __init__(self, scene: SocialForceScene, params: SocialForceParamsBatch, goals_xy_m: np.ndarray,
-                 max_speed_mps: np.ndarray, dt_s: float) -> None:
+                 max_speed_mps: np.ndarray, dt_s: float, nbr_weights: np.ndarray | None = None) -> None:
         self.goal_x = np.ascontiguousarray(goals_xy_m[:, 0], dtype=np.float64)
         self.goal_y = np.ascontiguousarray(goals_xy_m[:, 1], dtype=np.float64)
         horizon_s = scene.n_steps * dt_s
@@ -331,6 +331,7 @@ class _Kernel:
         cutoff = np.maximum(0.5 * lw - 0.5 * scene.ego_width_m, EDGE_MIN_CUTOFF_M)
         self.edge_cutoff = cutoff
         self.edge_shift = 1.0 / cutoff**3
+        self.nbr_weights = nbr_weights  # (N, B) repulsion multipliers (GNP) or None (all 1)
 
     def goal_force(self, ex: np.ndarray, ey: np.ndarray, vx: np.ndarray, vy: np.ndarray,
                    remaining_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -361,6 +362,8 @@ class _Kernel:
         mag = np.sqrt(gap_x, out=gap_x)  # box-to-box distance, then the repulsion magnitude in place
         mag *= self.neg_inv_r_col
         np.exp(mag, out=mag)
+        if self.nbr_weights is not None:
+            mag *= self.nbr_weights
         inline = ady < self.inline_dy
         lateral = ady < self.lateral_dy
         lateral &= ~inline
@@ -446,16 +449,25 @@ def rollout_social_force_scene(
     *,
     dt_s: float = DT_S,
     max_speed_mps: float | np.ndarray | None = None,
+    nbr_weights: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll the ego out for ``scene.n_steps`` steps of ``dt_s`` (semi-implicit Euler).
 
     params: one set for all scenarios or a batch (B,); goals_xy_m (B, 2) in the ego frame [m];
     max_speed_mps: cap on the desired speed v0, scalar or (B,); default ``default_max_speed_mps``.
+    nbr_weights: (B, N) multipliers of each neighbour's repulsion (GNP learns them); None = 1.
     """
     n = len(scene)
     f = scene.n_steps
     goals = _goals(goals_xy_m, n)
-    kernel = _Kernel(scene, as_params_batch(params, n), goals, _max_speed(max_speed_mps, scene, goals, dt_s), dt_s)
+    weights = None
+    if nbr_weights is not None:
+        w = np.asarray(nbr_weights, dtype=np.float64)
+        if w.shape != (n, scene.n_neighbours):
+            raise ValueError(f"nbr_weights must be ({n}, {scene.n_neighbours}), got {w.shape}")
+        weights = np.ascontiguousarray(w.T)
+    kernel = _Kernel(scene, as_params_batch(params, n), goals, _max_speed(max_speed_mps, scene, goals, dt_s), dt_s,
+                     nbr_weights=weights)
     ex = scene.ego_xy0_m[:, 0].copy()
     ey = scene.ego_xy0_m[:, 1].copy()
     vx = scene.ego_vxy0_mps[:, 0].copy()

@@ -16,7 +16,6 @@ epoch with the lowest validation loss is kept; deterministic for a seed on CPU.
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -30,6 +29,7 @@ from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.train.data import split
+from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
 from letspi.learned.train.modules import FeatureTensors, GnpNet, export_state
 from letspi.learned.train.torch_sf import TorchScene, rollout_torch
 from letspi.metrics._common import MetricInputs
@@ -56,14 +56,6 @@ class GnpTrainConfig:
     seed: int = 0
     threads: int = 1
     encoder: EncoderConfig = field(default_factory=lambda: EncoderConfig(d_model=32, n_heads=4, n_layers=1, d_ff=64))
-
-
-@dataclass(frozen=True)
-class GnpTrainResult:
-    arrays: dict[str, np.ndarray]
-    manifest: dict[str, Any]
-    train_loss: list[float]
-    val_loss: list[float]
 
 
 class _Data:
@@ -124,7 +116,7 @@ def train_gnp_model(
     *,
     progress: Callable[[int], None] | None = None,
     manifest_extra: dict[str, Any] | None = None,
-) -> GnpTrainResult:
+) -> TrainResult:
     """Train on the by-vehicle training split of ``batch`` (``progress(1)`` after the data
     preparation and after every epoch); validation metrics for gnp and for plain sf (weights 1,
     the base tau) with the same goals and neighbours."""
@@ -143,41 +135,21 @@ def train_gnp_model(
     base = {k: float(getattr(base_params, k)) for k in PARAM_NAMES}
 
     net = GnpNet(cfg.encoder, base_params.tau_s)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    train_hist, val_hist = [], []
-    best_state, best_val = copy.deepcopy(net.state_dict()), float("inf")
-    for _ in range(cfg.epochs):
-        net.train()
-        perm = torch.randperm(len(dtr), generator=gen)
-        total = 0.0
-        for s in range(0, len(perm), cfg.batch_size):
-            idx = perm[s : s + cfg.batch_size]
-            loss = _loss(net, dtr, idx, base, cfg.collision_weight)
-            opt.zero_grad()
-            loss.backward()  # type: ignore[no-untyped-call]
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
-            opt.step()
-            total += float(loss.detach()) * len(idx)
-        train_hist.append(total / max(len(dtr), 1))
-        if dva is not None:
-            net.eval()
-            with torch.no_grad():
-                vl = float(_loss(net, dva, torch.arange(len(dva)), base, cfg.collision_weight))
-        else:
-            vl = float("nan")
-        val_hist.append(vl)
-        if dva is None or vl < best_val:
-            best_val, best_state = vl, copy.deepcopy(net.state_dict())
-        if progress is not None:
-            progress(1)
-    net.load_state_dict(best_state)
+
+    def val_loss() -> float:
+        assert dva is not None
+        return float(_loss(net, dva, torch.arange(len(dva)), base, cfg.collision_weight))
+
+    history = fit(net, n_train=len(dtr), epochs=cfg.epochs, batch_size=cfg.batch_size, lr=cfg.lr,
+                  weight_decay=cfg.weight_decay, seed=cfg.seed,
+                  batch_loss=lambda idx: _loss(net, dtr, idx, base, cfg.collision_weight),
+                  val_loss=val_loss if dva is not None else None, progress=progress)
     seconds = time.perf_counter() - t_start
     arrays = export_state(net)
 
     config = {"encoder": cfg.encoder.as_dict(), "base_params": base_params.as_dict(),
               "neighbour_mode": mode.value, "train": {k: v for k, v in asdict(cfg).items() if k != "encoder"}}
-    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": best_val}
+    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": history.best_val}
     if dva is not None:
         model = GnpModel({k: v.astype(np.float64) for k, v in arrays.items()}, cfg.encoder, base_params)
         tau, w = model.predict(scene_features(vb))
@@ -188,15 +160,8 @@ def train_gnp_model(
         validation["sf"] = _plan_metrics(dva, sf.xy_m, sf.vxy_mps)
     manifest: dict[str, Any] = {
         "model": "gnp", "config": config, "validation": validation,
-        "data": {"n_train": len(train_idx), "n_val": len(val_idx),
-                 "split": f"by ego vehicle, {100 * (1 - cfg.val_fraction):.0f} % train, seed {cfg.seed}"},
-        "training": {"seconds": seconds, "epochs": cfg.epochs, "train_loss": train_hist, "val_loss": val_hist,
-                     "torch": torch.__version__, "n_parameters": int(sum(a.size for a in arrays.values()))},
+        "data": data_manifest(len(train_idx), len(val_idx), cfg.val_fraction, cfg.seed),
+        "training": training_manifest(seconds, cfg.epochs, history, arrays),
     }
-    if manifest_extra:
-        for key, value in manifest_extra.items():
-            if isinstance(value, dict) and isinstance(manifest.get(key), dict):
-                manifest[key] = {**manifest[key], **value}
-            else:
-                manifest[key] = value
-    return GnpTrainResult(arrays=arrays, manifest=manifest, train_loss=train_hist, val_loss=val_hist)
+    merge_manifest(manifest, manifest_extra)
+    return TrainResult(arrays=arrays, manifest=manifest, train_loss=history.train_loss, val_loss=history.val_loss)

@@ -14,7 +14,6 @@ with the lowest validation loss is kept. Deterministic for a seed on CPU (single
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -30,6 +29,7 @@ from letspi.learned.features import scene_features
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.train.data import split
+from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
 from letspi.learned.train.modules import FeatureTensors, GoalNet, export_state
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.scenario.types import ScenarioBatch
@@ -49,14 +49,6 @@ class GoalTrainConfig:
     seed: int = 0
     threads: int = 1
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
-
-
-@dataclass(frozen=True)
-class TrainResult:
-    arrays: dict[str, np.ndarray]
-    manifest: dict[str, Any]
-    train_loss: list[float]
-    val_loss: list[float]
 
 
 def wta_loss(goals: torch.Tensor, logits: torch.Tensor, truth: torch.Tensor,
@@ -98,48 +90,25 @@ def train_goal_model(
     yv = torch.as_tensor(truth_all[val_idx], dtype=torch.float32)
 
     net = GoalNet(cfg.encoder, cfg.n_goals)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    steps_per_epoch = max(1, -(-len(train_idx) // cfg.batch_size))
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch,
-                                                pct_start=0.1)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    train_hist, val_hist = [], []
-    best_state, best_val = copy.deepcopy(net.state_dict()), float("inf")
-    for _ in range(cfg.epochs):
-        net.train()
-        perm = torch.randperm(len(train_idx), generator=gen)
-        total, count = 0.0, 0
-        for s in range(0, len(perm), cfg.batch_size):
-            idx = perm[s : s + cfg.batch_size]
-            goals, logits = net(ft.take(idx), HORIZON_S)
-            loss = wta_loss(goals, logits, yt[idx], cfg.cls_weight, cfg.center_weight)
-            opt.zero_grad()
-            loss.backward()  # type: ignore[no-untyped-call]
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
-            opt.step()
-            sched.step()
-            total += float(loss.detach()) * len(idx)
-            count += len(idx)
-        train_hist.append(total / max(count, 1))
-        net.eval()
-        with torch.no_grad():
-            vl = float("nan")
-            if len(val_idx):
-                vg, vlog = net(fv, HORIZON_S)
-                vl = float(wta_loss(vg, vlog, yv, cfg.cls_weight, cfg.center_weight))
-        val_hist.append(vl)
-        if len(val_idx) == 0 or vl < best_val:
-            best_val, best_state = vl, copy.deepcopy(net.state_dict())
-        if progress is not None:
-            progress(1)
-    net.load_state_dict(best_state)
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        goals, logits = net(ft.take(idx), HORIZON_S)
+        return wta_loss(goals, logits, yt[idx], cfg.cls_weight, cfg.center_weight)
+
+    def val_loss() -> float:
+        vg, vlog = net(fv, HORIZON_S)
+        return float(wta_loss(vg, vlog, yv, cfg.cls_weight, cfg.center_weight))
+
+    history = fit(net, n_train=len(train_idx), epochs=cfg.epochs, batch_size=cfg.batch_size, lr=cfg.lr,
+                  weight_decay=cfg.weight_decay, seed=cfg.seed, batch_loss=batch_loss,
+                  val_loss=val_loss if len(val_idx) else None, one_cycle=True, progress=progress)
     seconds = time.perf_counter() - t_start
     arrays = export_state(net)
 
     config = {"encoder": cfg.encoder.as_dict(), "n_goals": cfg.n_goals, "horizon_s": HORIZON_S,
               "train": {k: v for k, v in asdict(cfg).items() if k != "encoder"}}
     manifest: dict[str, Any] = {"model": "goal", "config": config}
-    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": best_val}
+    validation: dict[str, Any] = {"n_val": len(val_idx), "best_val_loss": history.best_val}
     if len(val_idx):
         vb = batch.take(val_idx)
         learned = LearnedGoalPredictor(weights={k: v.astype(np.float64) for k, v in arrays.items()},
@@ -147,15 +116,7 @@ def train_goal_model(
         validation["learned"] = goal_metrics(learned, truth_all[val_idx])
         validation["kinematic"] = goal_metrics(KinematicGoalPredictor().predict_goals(vb), truth_all[val_idx])
     manifest["validation"] = validation
-    manifest["data"] = {"n_train": len(train_idx), "n_val": len(val_idx),
-                        "split": f"by ego vehicle, {100 * (1 - cfg.val_fraction):.0f} % train, seed {cfg.seed}"}
-    manifest["training"] = {"seconds": seconds, "epochs": cfg.epochs, "train_loss": train_hist,
-                            "val_loss": val_hist, "torch": torch.__version__,
-                            "n_parameters": int(sum(a.size for a in arrays.values()))}
-    if manifest_extra:
-        for key, value in manifest_extra.items():
-            if isinstance(value, dict) and isinstance(manifest.get(key), dict):
-                manifest[key] = {**manifest[key], **value}
-            else:
-                manifest[key] = value
-    return TrainResult(arrays=arrays, manifest=manifest, train_loss=train_hist, val_loss=val_hist)
+    manifest["data"] = data_manifest(len(train_idx), len(val_idx), cfg.val_fraction, cfg.seed)
+    manifest["training"] = training_manifest(seconds, cfg.epochs, history, arrays)
+    merge_manifest(manifest, manifest_extra)
+    return TrainResult(arrays=arrays, manifest=manifest, train_loss=history.train_loss, val_loss=history.val_loss)
