@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from letspi.core.bench import bench_retrieval
+from letspi.bench.retrieval import bench_retrieval
 from letspi.core.matching import top_k
 from letspi.core.memory import Experience, MemoryBank
 from letspi.core.reflection import Proposal, ReflectionContext, reflect

@@ -19,7 +19,7 @@ from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams, SocialForceParamsBatch
 from letspi.physics.types import NeighbourPrediction
-from letspi.planners.safety import check_plans
+from letspi.safety.plan_check import check_plans
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch
 

@@ -13,7 +13,9 @@ from letspi.evaluation.harness import evaluate
 from letspi.learned import goal_model
 from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import scene_features
-from letspi.learned.gnp_model import GnpModel, GnpPlanner
+from letspi.learned.gnp_model import GnpModel, load_gnp_model
+from letspi.learned.goal_model import default_goal_predictor
+from letspi.planners.gnp import GnpPlanner
 from letspi.learned.goal_model import LearnedGoalPredictor, default_goal_predictor
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
@@ -143,7 +145,7 @@ def test_goal_metrics_definition() -> None:
 
 def _gnp_planner(tmp_path: Path) -> GnpPlanner:
     if (shipped_weights_dir("gnp") / "weights.npz").is_file():
-        return GnpPlanner.from_dir()
+        return GnpPlanner(model=load_gnp_model(), goal_predictor=default_goal_predictor())
     _, _, gnp = _torch_models(2)
     from letspi.learned.train.modules import export_state
 

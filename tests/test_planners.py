@@ -7,7 +7,7 @@ import pytest
 
 from letspi.metrics.evaluate import compute_metrics
 from letspi.physics.params import SocialForceParams
-from letspi.planners.factory import BASELINE_PLANNERS, PlannerOptions, make_planner
+from letspi.registry.factory import BASELINE_PLANNERS, PlannerOptions, make_planner
 from letspi.planners.fit_sf import fit_sf_params, split_by_vehicle
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
@@ -117,7 +117,7 @@ def test_idm_planner_settles_a_lane_change_smoothly():
 def test_safety_check_sees_a_faster_car_closing_from_behind():
     from letspi.physics.neighbours import predict_neighbours
     from letspi.planners.cv import ConstantVelocityPlanner
-    from letspi.planners.safety import check_plans
+    from letspi.safety.plan_check import check_plans
 
     # ego at 25 m/s, a 29 m/s car 30 m behind in the same lane; a side-by-side car in the next lane
     batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[

@@ -8,16 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
+from letspi.highd.io import read_recordings
+from letspi.scenario.extract import extract_scenarios
+from letspi.scenario.store import load_scenarios, save_scenarios
+from letspi.scenario.types import concat_batches
+from letspi.sumo.generate import generate_recordings
+
 
 def bench_data(minutes: float = 10.0, seed: int = 0, n_load: int = 10_000) -> dict[str, float]:
     """Time SUMO generation of ``minutes`` simulated minutes, extraction of its first recording,
     and loading ``n_load`` scenarios from Parquet. Returns a flat dict of measurements."""
-    from letspi.highd.io import read_recordings, write_recording  # noqa: F401  (import cost not timed)
-    from letspi.scenario.extract import extract_scenarios
-    from letspi.scenario.store import load_scenarios, save_scenarios
-    from letspi.scenario.types import concat_batches
-    from letspi.sumo.generate import generate_recordings
-
     out: dict[str, float] = {"simulated_minutes": minutes}
     with tempfile.TemporaryDirectory(prefix="letspi-bench-") as tmp:
         tmp_dir = Path(tmp)

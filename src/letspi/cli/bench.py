@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from letspi.planners.factory import DEFAULT_LLM
+from letspi.registry.factory import DEFAULT_LLM
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.", no_args_is_help=True)
 
@@ -73,8 +73,8 @@ def llm_cmd(
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences."""
-    from letspi.core.bench import bench_phases, bench_retrieval
-    from letspi.llm.bench import bench_models
+    from letspi.bench.retrieval import bench_phases, bench_retrieval
+    from letspi.bench.llm import bench_models
 
     models = tuple(model) if model else ("smollm2-135m", "gemma3-270m")
     result: dict[str, object] = {

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.planners.factory import DEFAULT_LLM
+from letspi.registry.factory import DEFAULT_LLM
 
 
 def demo(
@@ -58,7 +58,7 @@ def demo(
 
         from letspi.evaluation.harness import evaluate
         from letspi.metrics.aggregate import render_markdown_table
-        from letspi.planners.factory import BASELINE_PLANNERS, make_planner
+        from letspi.registry.factory import BASELINE_PLANNERS, make_planner
 
         planners = [make_planner(name) for name in BASELINE_PLANNERS]
         eval_dir = out / "evaluation"
@@ -92,7 +92,7 @@ def _llm_demo(batch, out: Path, scenarios_file: str, llm: str, n_collect: int, n
     from letspi.core.phases import MemoryPhase, collect
     from letspi.evaluation.harness import evaluate
     from letspi.metrics.aggregate import render_markdown_table
-    from letspi.planners.factory import PlannerOptions, make_planners
+    from letspi.registry.factory import PlannerOptions, make_planners
     from letspi.viz.report import write_report
 
     # spread both sets over the recording: every other scenario of the first 2 x n rows

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.planners.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.registry.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 
 def evaluate(
@@ -41,7 +41,7 @@ def evaluate(
     import numpy as np
 
     from letspi.evaluation.harness import evaluate as run_evaluation
-    from letspi.planners.factory import PlannerOptions, make_planners
+    from letspi.registry.factory import PlannerOptions, make_planners
     from letspi.scenario.store import count_scenarios, load_scenarios
 
     with user_errors():

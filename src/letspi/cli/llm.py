@@ -46,7 +46,7 @@ def check(
             msgs = [message("system", system_prompt("fast")), message("user", _TINY_USER)]
             variant = "fast"
         else:
-            from letspi.llm.bench import bench_scenarios
+            from letspi.bench.llm import bench_scenarios
             from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
 
             desc = bench_scenarios()["close_leader"]
@@ -97,7 +97,7 @@ def bench(
     behaviour: Annotated[bool, typer.Option(help="Also run the five-scenario behaviour check.")] = True,
 ) -> None:
     """Latency, tokens, prefix- and cache-hit speedups and behaviour of the embedded models (JSON)."""
-    from letspi.llm.bench import bench_models
+    from letspi.bench.llm import bench_models
     from letspi.llm.types import LLMConfigError
 
     try:

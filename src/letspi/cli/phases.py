@@ -9,7 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.planners.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.registry.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 
 def collect(
@@ -31,7 +31,7 @@ def collect(
     from letspi.core.phases import MemoryPhase
     from letspi.core.phases import collect as run_collect
     from letspi.core.thresholds import ReflectionThresholds
-    from letspi.planners.factory import make_advisor, make_goal_predictor
+    from letspi.registry.factory import make_advisor, make_goal_predictor
     from letspi.planners.sf_params import load_sf_params
     from letspi.scenario.store import count_scenarios, load_scenarios
 
@@ -82,7 +82,7 @@ def plan(
     import numpy as np
 
     from letspi.metrics.evaluate import compute_metrics
-    from letspi.planners.factory import PlannerOptions, make_planner
+    from letspi.registry.factory import PlannerOptions, make_planner
     from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
     from letspi.scenario.store import load_scenarios
 
@@ -153,7 +153,7 @@ def ablate(
 
     from letspi.evaluation.ablations import run_ablation
     from letspi.metrics.aggregate import render_markdown_table
-    from letspi.planners.factory import PlannerOptions
+    from letspi.registry.factory import PlannerOptions
     from letspi.scenario.store import count_scenarios, load_scenarios
 
     def pairs(items: list[str] | None) -> list[tuple[str, str]]:
@@ -200,7 +200,7 @@ def prompt(
     from letspi.core.phases import Retriever, memory_example, messages_text
     from letspi.llm.describe import describe_scenario
     from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
-    from letspi.planners.factory import make_goal_predictor
+    from letspi.registry.factory import make_goal_predictor
     from letspi.scenario.store import load_scenarios
 
     with user_errors():

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, user_errors
-from letspi.planners.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.registry.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 
 def plot(
@@ -29,7 +29,7 @@ def plot(
     """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
     vehicle, and the safety reports and LLM responses per reflection iteration (of a
     letspi-memory / llm planner, or from --iterations)."""
-    from letspi.planners.factory import PlannerOptions, make_planners
+    from letspi.registry.factory import PlannerOptions, make_planners
     from letspi.planners.llm import LetsPiMemoryPlanner
     from letspi.scenario.store import load_scenarios
     from letspi.viz.figure import plot_scenario

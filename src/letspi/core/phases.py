@@ -12,6 +12,7 @@ the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -132,8 +133,6 @@ def collect(
 ) -> CollectStats:
     """The memory collection phase over ``batch``; resumable: scenarios already in the bank under
     this configuration are skipped, and each experience is committed as soon as it exists."""
-    import time
-
     t0 = time.perf_counter()
     key = phase.config_key
     skipped = stored = validated = fallbacks = refinements = 0

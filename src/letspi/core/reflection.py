@@ -2,7 +2,7 @@
 
 * ``simulate_proposal``: goal adjustment + social force rollout of proposed parameters (shared with planners).
 * ``safety_report``: surrogate safety measures of plans against the *predicted* neighbours
-  (``letspi.planners.safety.check_plans``; thresholds and their reading in ``letspi.core.thresholds``) and,
+  (``letspi.safety.plan_check.check_plans``; thresholds and their reading in ``letspi.core.thresholds``) and,
   per scenario, the violations with where they happen: time step and time, the neighbour (slot and
   vehicle id), its HighD lane and the ego's, front / rear / left / right. ``SafetyReport.to_text`` is the
   concise safety analysis report the refinement prompt includes, with targeted suggestions per category.
@@ -31,18 +31,21 @@ from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.kinematics import road_edges
 from letspi.metrics.pet import pet_grid
 from letspi.metrics.relative import relative_position
-from letspi.physics.goals import LANE_FACTOR_RANGE, LON_FACTOR_RANGE, KinematicGoalPredictor, adjust_goals
+from letspi.physics.goals import (
+    LANE_FACTOR_RANGE,
+    LON_FACTOR_RANGE,
+    NEUTRAL_LANE_FACTOR,
+    NEUTRAL_LON_FACTOR,
+    KinematicGoalPredictor,
+    adjust_goals,
+)
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
-from letspi.planners.safety import SafetyCheck, check_plans, predicted_inputs
+from letspi.safety.plan_check import SafetyCheck, check_plans, predicted_inputs
 from letspi.scenario.queries import lane_id_of
 from letspi.scenario.types import ScenarioBatch
-
-NEUTRAL_LON_FACTOR = 0.4
-"""Longitudinal factor that leaves the goal distance unchanged (1.2 - 0.5 * 0.4 = 1)."""
-NEUTRAL_LANE_FACTOR = 0.0
 
 MetricName = Literal["contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road", "harsh_braking"]
 Relative = Literal["front", "rear", "left", "right", "none"]

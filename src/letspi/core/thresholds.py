@@ -1,6 +1,6 @@
 """Safety thresholds of the reflection module (paper §III-E: TTC < 1.5 s or distance < 2.0 m is unsafe).
 
-Reading of the paper's "minimum distance < 2.0 m" (the same one ``letspi.planners.safety.SafetyCheck.safe``
+Reading of the paper's "minimum distance < 2.0 m" (the same one ``letspi.safety.plan_check.SafetyCheck.safe``
 and ``sf-opt`` use, so a plan the reflection accepts is one sf-opt would accept too):
 
 * ``min_dist_m`` applies to the **in-path gap**: the bumper-to-bumper distance to a vehicle whose box

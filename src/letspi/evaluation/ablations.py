@@ -23,7 +23,7 @@ from pathlib import Path
 from letspi.evaluation.harness import evaluate
 from letspi.metrics.aggregate import AggValue
 from letspi.planners.base import Planner
-from letspi.planners.factory import PlannerOptions, make_planners
+from letspi.registry.factory import PlannerOptions, make_planners
 from letspi.scenario.types import ScenarioBatch
 
 ABLATION_KINDS: tuple[str, ...] = ("reflection", "goal-adjustment", "few-shot", "memory-size", "llm-combinations")
@@ -104,7 +104,7 @@ def _llm_combinations(batch: ScenarioBatch, abl_root: Path, options: PlannerOpti
     from letspi.core.memory import MemoryBank
     from letspi.core.phases import MemoryPhase, collect
     from letspi.core.thresholds import ReflectionThresholds
-    from letspi.planners.factory import make_advisor, make_goal_predictor
+    from letspi.registry.factory import make_advisor, make_goal_predictor
     from letspi.planners.llm import LetsPiFastPlanner
     from letspi.planners.sf_params import load_sf_params
 

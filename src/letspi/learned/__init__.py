@@ -8,19 +8,17 @@ Public API:
 * ``default_goal_predictor(path=None) -> GoalPredictor``: the learned predictor (argument,
   ``$LETSPI_GOAL_WEIGHTS`` or the shipped weights), else ``KinematicGoalPredictor()``.
 * ``LearnedGoalPredictor.from_dir(path)``; ``GnpModel.from_dir(path)``; ``load_gnp_model(path=None)``.
-* ``GnpPlanner.from_dir(gnp_dir=None, goal_dir=None, neighbour_mode="idm")``: the ``gnp`` planner.
 * ``goal_metrics`` (minFDE@K, miss rate), ``scene_features``, ``save_weights`` / ``load_weights``.
 """
 
 from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import SceneFeatures, scene_features
-from letspi.learned.gnp_model import GnpModel, GnpPlanner, load_gnp_model, rollout_weighted
+from letspi.learned.gnp_model import GnpModel, load_gnp_model, rollout_weighted
 from letspi.learned.goal_model import LearnedGoalPredictor, default_goal_predictor
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
 
 __all__ = [
     "GnpModel",
-    "GnpPlanner",
     "LearnedGoalPredictor",
     "SceneFeatures",
     "WeightsError",

@@ -19,32 +19,26 @@ weight keeps the class-dependent force directions of ``letspi.physics.social_for
 can change class during a rollout, e.g. preceding -> lateral, and the class strengths differ by
 ~50x), and w = 1 everywhere is exactly the ``sf`` planner.
 
-``GnpPlanner`` (planner ``gnp``) rolls out with goals from the learned goal predictor and
-**predicted** neighbour motion (IDM by default). GNP's public code moves neighbours along their
-recorded future during the rollout; that leaks the future, so the oracle mode is refused here.
+The planner ``gnp`` (``letspi.planners.gnp``) rolls this model out with goals from the learned goal
+predictor and **predicted** neighbour motion.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 
 from letspi.constants import DT_S
-from letspi.learned.features import SceneFeatures, scene_features
-from letspi.learned.goal_model import default_goal_predictor
+from letspi.learned.features import SceneFeatures
 from letspi.learned.layers import EncoderConfig, encode, linear, relu
 from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
-from letspi.physics.goals import GoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.physics.types import RolloutResult
-from letspi.planners.base import PlanBatch
-from letspi.scenario.types import ScenarioBatch
 
 TAU_RANGE_S: Final = (0.3, 3.0)
 WEIGHT_MIN: Final = 1.0
@@ -113,42 +107,3 @@ def load_gnp_model(path: Path | str | None = None) -> GnpModel:
     when none loads: unlike goals there is no non-learned fallback for a learned baseline)."""
     chosen = path if path is not None else os.environ.get(GNP_WEIGHTS_ENV) or shipped_weights_dir("gnp")
     return GnpModel.from_dir(chosen)
-
-
-@dataclass
-class GnpPlanner:
-    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours.
-
-    ``info`` per scenario: the social force parameters used (tau varies) and the neighbour weights
-    (``nbr_weight`` (B, N)).
-    """
-
-    model: GnpModel
-    goal_predictor: GoalPredictor = field(default_factory=default_goal_predictor)
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-    name: str = "gnp"
-    batch_size: int = 1024
-
-    def __post_init__(self) -> None:
-        self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)
-        if self.neighbour_mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
-            raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
-                             "not the recorded future")
-
-    @classmethod
-    def from_dir(cls, gnp_dir: Path | str | None = None, goal_dir: Path | str | None = None,
-                 neighbour_mode: NeighbourPredictionMode | str = NeighbourPredictionMode.IDM) -> GnpPlanner:
-        """Planner from model directories (default: environment overrides, then the shipped weights)."""
-        return cls(model=load_gnp_model(gnp_dir), goal_predictor=default_goal_predictor(goal_dir),
-                   neighbour_mode=NeighbourPredictionMode(neighbour_mode))
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        goals = self.goal_predictor.predict_goals(batch).top
-        neighbours = predict_neighbours(batch, self.neighbour_mode)
-        tau, weights = self.model.predict(scene_features(batch))
-        params = self.model.params_batch(tau)
-        scene = SocialForceScene.from_batch(batch, neighbours)
-        roll = rollout_weighted(scene, params, goals, weights)
-        info = {name: np.asarray(getattr(params, name), dtype=np.float64) for name in PARAM_NAMES}
-        info["nbr_weight"] = weights
-        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)

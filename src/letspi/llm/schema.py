@@ -23,6 +23,7 @@ from typing import Any, Final, Literal
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field
 
+from letspi.physics.goals import NEUTRAL_LON_FACTOR
 from letspi.physics.params import PARAM_RANGES, SocialForceParams
 
 Variant = Literal["physics", "fast"]
@@ -69,8 +70,6 @@ FIELD_DOCS: Final[dict[str, tuple[str, str]]] = {
     "lane_factor": ("-", "goal lane shift: -1 = one lane left, 0 = keep, +1 = one lane right"),
 }
 
-#: lon_factor that leaves the goal distance unchanged (scale 1.2 - 0.5 * f = 1).
-NEUTRAL_LON_FACTOR: Final = 0.4
 
 
 def _param_field(name: str, wire: str) -> Any:

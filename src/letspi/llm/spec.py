@@ -18,6 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from letspi.llm.backends.llamacpp import LlamaCppBackend
+from letspi.llm.backends.ollama import OllamaBackend
+from letspi.llm.backends.openai_compat import OpenAICompatBackend
+from letspi.llm.backends.scripted import ScriptedBackend, default_reply_text
 from letspi.llm.types import LLMBackend, UnknownBackendError
 
 VALID_FORMS: Final = (
@@ -71,26 +75,18 @@ def parse_spec(spec: str) -> BackendSpec:
 
 
 def _llamacpp(s: BackendSpec, options: dict[str, Any]) -> LLMBackend:
-    from letspi.llm.backends.llamacpp import LlamaCppBackend
-
     return LlamaCppBackend(s.model, **options)
 
 
 def _ollama(s: BackendSpec, options: dict[str, Any]) -> LLMBackend:
-    from letspi.llm.backends.ollama import OllamaBackend
-
     return OllamaBackend(s.model, **options)
 
 
 def _openai(s: BackendSpec, options: dict[str, Any]) -> LLMBackend:
-    from letspi.llm.backends.openai_compat import OpenAICompatBackend
-
     return OpenAICompatBackend(s.model, base_url=s.base_url or options.pop("base_url", None), **options)
 
 
 def _scripted(s: BackendSpec, options: dict[str, Any]) -> LLMBackend:
-    from letspi.llm.backends.scripted import ScriptedBackend, default_reply_text
-
     return ScriptedBackend(default=default_reply_text(), name=s.model, **options)
 
 

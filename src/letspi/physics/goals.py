@@ -139,6 +139,9 @@ class OracleGoalPredictor:
 
 LON_FACTOR_RANGE = (0.0, 1.0)
 LANE_FACTOR_RANGE = (-1.0, 1.0)
+NEUTRAL_LON_FACTOR = 0.4
+"""Longitudinal factor that leaves the goal distance unchanged (1.2 - 0.5 * 0.4 = 1)."""
+NEUTRAL_LANE_FACTOR = 0.0
 
 
 def adjust_goals(

@@ -38,18 +38,8 @@ from letspi.physics.params import (
     SocialForceParamsBatch,
 )
 from letspi.physics.social_force import rollout_social_force
+from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.types import ScenarioBatch
-
-
-def split_by_vehicle(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (train, validation): whole ego vehicles (recording, id) go to one side."""
-    keys = batch.recording_id.astype(np.int64) * 10_000_000 + batch.ego_id.astype(np.int64)
-    uniq = np.unique(keys)
-    perm = np.random.default_rng(seed).permutation(len(uniq))
-    n_train = round(train_fraction * len(uniq))
-    train_keys = uniq[perm[:n_train]]
-    is_train = np.isin(keys, train_keys)
-    return np.flatnonzero(is_train), np.flatnonzero(~is_train)
 
 
 @dataclass(frozen=True)

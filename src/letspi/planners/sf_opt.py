@@ -6,7 +6,7 @@ parameters), simulates each against the *predicted* neighbours (never the ground
 
 1. among candidates that are safe by the reflection thresholds (no contact, on the road,
    front and rear TTC ≥ 1.5 s, in-path gap ≥ 2 m to the predicted neighbours; see
-   ``letspi.planners.safety``), the one closest to the unadjusted plan (cost: |lon − neutral| +
+   ``letspi.safety.plan_check``), the one closest to the unadjusted plan (cost: |lon − neutral| +
    lane-change penalty × |lane| + repulsion penalty);
 2. if none is safe, the one with the largest min(TTC, cap) and then box gap.
 
@@ -19,16 +19,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, adjust_goals
+from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams, SocialForceParamsBatch
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
-from letspi.planners.safety import check_plans
+from letspi.safety.plan_check import check_plans
 from letspi.scenario.types import ScenarioBatch
 
-NEUTRAL_LON_FACTOR = 0.4  # 1.2 - 0.5 * 0.4 = 1.0: the predicted goal distance unchanged
 
 
 @dataclass(frozen=True)

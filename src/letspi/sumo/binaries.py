@@ -6,13 +6,11 @@ import os
 import shutil
 from pathlib import Path
 
+import sumo  # the eclipse-sumo wheel's package (a dependency): its SUMO_HOME
+
 
 def sumo_home() -> Path:
     """SUMO_HOME of the installed ``eclipse-sumo`` wheel (importing ``sumo`` also sets the env var)."""
-    try:
-        import sumo  # the eclipse-sumo wheel's package
-    except ImportError as exc:  # pragma: no cover - dependency of the project
-        raise RuntimeError("eclipse-sumo is not installed (pip install eclipse-sumo)") from exc
     return Path(sumo.SUMO_HOME)
 
 

@@ -204,7 +204,7 @@ def _caption(row: pd.Series) -> str:
 def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame], n_worst: int,
                    planner_options: Any = None) -> tuple[list[PlannerSection], str | None]:
     """Worst scenarios of every planner, with embedded diagrams; also a section-level note."""
-    from letspi.planners.factory import make_planner
+    from letspi.registry.factory import make_planner
     from letspi.scenario.store import load_scenarios
     from letspi.viz.figure import plot_scenario
 

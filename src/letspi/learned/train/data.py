@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from letspi.planners.fit_sf import split_by_vehicle
+from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
 

@@ -21,6 +21,8 @@ from letspi.physics.social_force import (
     AX_MAX_MPS2,
     AX_MIN_MPS2,
     AY_MAX_MPS2,
+    CATCH_UP_MARGIN_MPS,
+    DEFAULT_MAX_SPEED_MPS,
     EDGE_MIN_CUTOFF_M,
     EDGE_MIN_DISTANCE_M,
     LANE_LINE_SIGMA_M,
@@ -91,8 +93,6 @@ def _edge_push(side: torch.Tensor, cutoff: torch.Tensor, shift: torch.Tensor) ->
 
 def default_max_speed(scene: TorchScene, goals: torch.Tensor, dt_s: float = DT_S) -> torch.Tensor:
     """Mirror of ``letspi.physics.social_force.default_max_speed_mps`` (B,)."""
-    from letspi.physics.social_force import CATCH_UP_MARGIN_MPS, DEFAULT_MAX_SPEED_MPS
-
     horizon_s = max(scene.n_steps * dt_s, dt_s)
     u = torch.clamp(goals[:, 0] - scene.ego_xy0_m[:, 0], min=0.0) / horizon_s
     fastest = torch.maximum(torch.clamp(scene.ego_vxy0_mps[:, 0], min=0.0), u)

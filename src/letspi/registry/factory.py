@@ -175,9 +175,13 @@ def _make(name: str, options: PlannerOptions) -> Planner:
             return SocialForcePlanner(params=params, neighbour_mode=mode, goal_predictor=goals)
         return SocialForceSearchPlanner(params=params, neighbour_mode=mode, goal_predictor=goals)
     if name == "gnp":
-        from letspi.learned.gnp_model import GnpPlanner
+        from letspi.physics.neighbours import NeighbourPredictionMode
+        from letspi.learned.gnp_model import load_gnp_model
+        from letspi.learned.goal_model import default_goal_predictor
+        from letspi.planners.gnp import GnpPlanner
 
         if options.goals != "learned":
             raise ValueError("gnp uses its learned goal predictor; --goals applies to sf and sf-opt only")
-        return GnpPlanner.from_dir(neighbour_mode=options.neighbour_mode)
+        return GnpPlanner(model=load_gnp_model(), goal_predictor=default_goal_predictor(),
+                          neighbour_mode=NeighbourPredictionMode(options.neighbour_mode))
     raise ValueError(f"unknown planner {name!r}; available: {', '.join(available_planners())}")

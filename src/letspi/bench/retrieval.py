@@ -114,7 +114,7 @@ def bench_phases(model_spec: str = "llamacpp:smollm2-135m", n_scenarios: int = 3
     from letspi.core.memory import MemoryBank
     from letspi.core.phases import FastPhase, MemoryPhase, Retriever, collect
     from letspi.physics.goals import KinematicGoalPredictor
-    from letspi.planners.factory import make_advisor
+    from letspi.registry.factory import make_advisor
     from letspi.scenario.build import VehicleSpec, straight_road_scenario
     from letspi.scenario.types import concat_batches
 

@@ -32,7 +32,7 @@ from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
-from letspi.llm.schema import NUMERIC_FIELDS, PlannerReply, Variant
+from letspi.llm.schema import NUMERIC_FIELDS, PlannerReply, Variant, reply_json_schema
 from letspi.llm.types import DecodingSettings, Message
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
@@ -84,8 +84,6 @@ def _latency(
 
 
 def _schema(variant: Variant) -> dict[str, Any]:
-    from letspi.llm.schema import reply_json_schema
-
     return reply_json_schema(variant)
 
 

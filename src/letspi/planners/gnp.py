@@ -1,0 +1,53 @@
+"""``gnp``: the Goal-based Neural Physics baseline as a planner (model in ``letspi.learned.gnp_model``).
+
+It rolls out with goals from the learned goal predictor and **predicted** neighbour motion (IDM by
+default). GNP's public code moves neighbours along their recorded future during the rollout; that
+leaks the future, so the oracle mode is refused here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from letspi.learned.features import scene_features
+from letspi.learned.gnp_model import GnpModel, rollout_weighted
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import PARAM_NAMES
+from letspi.physics.social_force import SocialForceScene
+from letspi.planners.base import PlanBatch
+from letspi.scenario.types import ScenarioBatch
+
+
+@dataclass
+class GnpPlanner:
+    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours.
+
+    ``info`` per scenario: the social force parameters used (tau varies) and the neighbour weights
+    (``nbr_weight`` (B, N)).
+    """
+
+    model: GnpModel
+    goal_predictor: GoalPredictor
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    name: str = "gnp"
+    batch_size: int = 1024
+
+    def __post_init__(self) -> None:
+        self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)
+        if self.neighbour_mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+            raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
+                             "not the recorded future")
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        goals = self.goal_predictor.predict_goals(batch).top
+        neighbours = predict_neighbours(batch, self.neighbour_mode)
+        tau, weights = self.model.predict(scene_features(batch))
+        params = self.model.params_batch(tau)
+        scene = SocialForceScene.from_batch(batch, neighbours)
+        roll = rollout_weighted(scene, params, goals, weights)
+        info = {name: np.asarray(getattr(params, name), dtype=np.float64) for name in PARAM_NAMES}
+        info["nbr_weight"] = weights
+        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)

@@ -1,0 +1,39 @@
+"""Train/test splits that keep one vehicle's overlapping windows on one side.
+
+Windows of one ego vehicle overlap (stride 20 frames, windows of 200): putting some in a training
+(or memory) set and others in the evaluation set leaks the evaluation scenarios' futures into training.
+Every split in letspi is therefore by ego vehicle (recording id, ego id) or by recording.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from letspi.scenario.types import ScenarioBatch
+
+
+def vehicle_keys(batch: ScenarioBatch) -> np.ndarray:
+    """(B,) int64 key of each scenario's ego vehicle: recording id and ego id combined."""
+    return batch.recording_id.astype(np.int64) * 10_000_000 + batch.ego_id.astype(np.int64)
+
+
+def split_by_vehicle(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (train, validation): whole ego vehicles (recording, id) go to one side."""
+    keys = vehicle_keys(batch)
+    uniq = np.unique(keys)
+    perm = np.random.default_rng(seed).permutation(len(uniq))
+    n_train = round(train_fraction * len(uniq))
+    train_keys = uniq[perm[:n_train]]
+    is_train = np.isin(keys, train_keys)
+    return np.flatnonzero(is_train), np.flatnonzero(~is_train)
+
+
+def split_by_recording(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (train, validation): whole recordings go to one side (needs at least two recordings)."""
+    uniq = np.unique(batch.recording_id)
+    if len(uniq) < 2:
+        raise ValueError(f"a split by recording needs at least 2 recordings, the scenarios come from {len(uniq)}")
+    perm = np.random.default_rng(seed).permutation(len(uniq))
+    n_train = min(max(round(train_fraction * len(uniq)), 1), len(uniq) - 1)
+    is_train = np.isin(batch.recording_id, uniq[perm[:n_train]])
+    return np.flatnonzero(is_train), np.flatnonzero(~is_train)
