@@ -16,7 +16,7 @@ runner = CliRunner()
 
 def _scenario_file(tmp_path):
     batch = concat_batches([
-        straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)]).as_batch()
+        straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)])
         for i in range(4)
     ])
     return save_scenarios(batch, tmp_path / "s.arrow")

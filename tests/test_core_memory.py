@@ -38,7 +38,7 @@ def _exp(i: int, config_key: str = "cfg", validated: bool = True) -> Experience:
 
 def test_round_trip_from_reflection(tmp_path: Path) -> None:
     sc = straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
-                                scenario_id="r01_v5_f100").as_batch()
+                                scenario_id="r01_v5_f100")
 
     def propose(ctx: ReflectionContext) -> Proposal:
         k = 3.0 if ctx.previous is None else ctx.previous.params.k_np * 2.5

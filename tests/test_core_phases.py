@@ -26,7 +26,7 @@ def _reply(k_np: float, lon: float, why: str = "x", tau: float = 1.0) -> str:
 def _unsafe():
     # ego 33 m/s, a 20 m/s leader 40 m ahead: weak repulsion drives into it
     return straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
-                                  scenario_id="unsafe").as_batch()
+                                  scenario_id="unsafe")
 
 
 def _advisor(backend: ScriptedBackend) -> ParamAdvisor:
@@ -61,7 +61,7 @@ def test_single_shot_is_reflection_with_zero_refinements():
 def test_collect_is_resumable_and_fast_phase_retrieves_from_the_bank(tmp_path):
     batch = concat_batches([
         _unsafe(),
-        straight_road_scenario(ego_speed_mps=28.0, scenario_id="free").as_batch(),
+        straight_road_scenario(ego_speed_mps=28.0, scenario_id="free"),
     ])
     with MemoryBank.open(tmp_path / "m.sqlite") as bank:
         backend = ScriptedBackend(default=_reply(40.0, 0.8, "keep distance", tau=2.5))
@@ -88,7 +88,7 @@ def test_ablation_presets_with_a_scripted_model(tmp_path, monkeypatch):
     from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
     from letspi.registry.factory import PlannerOptions
 
-    batch = concat_batches([_unsafe(), straight_road_scenario(scenario_id="free").as_batch()])
+    batch = concat_batches([_unsafe(), straight_road_scenario(scenario_id="free")])
     bank_path = tmp_path / "m.sqlite"
     with MemoryBank.open(bank_path) as bank:
         collect(_phase(ScriptedBackend(default=_reply(40.0, 0.8))), batch, bank)

@@ -17,7 +17,7 @@ from letspi.core.reflection import (
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import SocialForceParams, SocialForceParamsBatch
+from letspi.physics.params import SocialForceParams
 from letspi.physics.types import NeighbourPrediction
 from letspi.safety.plan_check import check_plans
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -32,7 +32,7 @@ def _unsafe_scenario() -> ScenarioBatch:
         ego_speed_mps=33.0,
         neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0), VehicleSpec(x0_m=-60.0, speed_mps=30.0, lane_offset=1)],
         scenario_id="unsafe_leader",
-    ).as_batch()
+    )
 
 
 def _scripted(ctx: ReflectionContext) -> Proposal:
@@ -68,7 +68,7 @@ def test_reflection_fires_and_refinement_passes_thresholds() -> None:
     # the recorded metrics are those of an independent re-simulation
     sc = _unsafe_scenario()
     pred = predict_neighbours(sc, NeighbourPredictionMode.IDM)
-    plan = simulate_proposal(sc, SocialForceParamsBatch.stack([res.final.proposal.params]),
+    plan = simulate_proposal(sc, SocialForceParams.stack([res.final.proposal.params]),
                              np.array([res.final.proposal.lon_factor]), np.array([res.final.proposal.lane_factor]),
                              KinematicGoalPredictor().predict_goals(sc).top, pred)
     chk = check_plans(sc, plan.xy_m, plan.vxy_mps, pred)
@@ -122,7 +122,7 @@ def test_report_names_front_neighbour_and_step() -> None:
     sc = straight_road_scenario(
         ego_speed_mps=30.0,
         neighbours=[VehicleSpec(x0_m=10.0, speed_mps=30.0, lane_offset=1), VehicleSpec(x0_m=60.0, speed_mps=20.0)],
-    ).as_batch()
+    )
     xy, vxy = _const_plan(30.0)
     pred = _constant_velocity(sc)
     th = ReflectionThresholds()
@@ -150,7 +150,7 @@ def test_report_rear_approach_and_side() -> None:
     sc = straight_road_scenario(
         ego_speed_mps=25.0,
         neighbours=[VehicleSpec(x0_m=-30.0, speed_mps=40.0), VehicleSpec(x0_m=0.0, speed_mps=25.0, lane_offset=-1)],
-    ).as_batch()
+    )
     xy, vxy = _const_plan(25.0)
     rep = safety_report(sc, xy, vxy, _constant_velocity(sc))[0]
     rear = next(v for v in rep.violations if v.metric == "rear_ttc")
@@ -170,7 +170,7 @@ def test_report_rear_approach_and_side() -> None:
     sc2 = straight_road_scenario(
         ego_speed_mps=25.0,
         neighbours=[VehicleSpec(x0_m=-90.0, speed_mps=25.0), VehicleSpec(x0_m=0.0, speed_mps=25.0, lane_offset=-1)],
-    ).as_batch()
+    )
     rep2 = safety_report(sc2, xy2, vxy, _constant_velocity(sc2))[0]
     side = next(v for v in rep2.violations if v.metric == "contact")
     assert side.nbr_slot == 1 and side.relative == "right" and side.category == "side"
@@ -179,7 +179,7 @@ def test_report_rear_approach_and_side() -> None:
 
 
 def test_report_is_vectorised_and_consistent_with_check_plans() -> None:
-    sc = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=60.0, speed_mps=20.0)]).as_batch()
+    sc = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=60.0, speed_mps=20.0)])
     batch = sc.take([0, 0, 0])
     pred = _constant_velocity(batch)
     speeds = [30.0, 20.0, 45.0]
@@ -194,7 +194,7 @@ def test_report_is_vectorised_and_consistent_with_check_plans() -> None:
 
 
 def test_pet_optional() -> None:
-    sc = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=20.0, speed_mps=30.0)]).as_batch()
+    sc = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=20.0, speed_mps=30.0)])
     xy, vxy = _const_plan(30.0)
     pred = _constant_velocity(sc)
     no_pet = safety_report(sc, xy, vxy, pred)[0]
@@ -209,14 +209,14 @@ def test_neutral_lon_factor_keeps_goal() -> None:
     sc = _unsafe_scenario()
     pred = predict_neighbours(sc, NeighbourPredictionMode.IDM)
     goal = np.array([[120.0, 0.0]])
-    plan = simulate_proposal(sc, SocialForceParamsBatch.stack([SocialForceParams()]), np.array([NEUTRAL_LON_FACTOR]),
+    plan = simulate_proposal(sc, SocialForceParams.stack([SocialForceParams()]), np.array([NEUTRAL_LON_FACTOR]),
                              np.array([0.0]), goal, pred)
     np.testing.assert_allclose(plan.goals_xy_m, goal)
     assert plan.xy_m.shape == (1, F, 2)
 
 
 def test_harsh_braking_is_a_violation_with_a_tau_suggestion() -> None:
-    sc = straight_road_scenario(ego_speed_mps=30.0).as_batch()
+    sc = straight_road_scenario(ego_speed_mps=30.0)
     xy, vxy = _const_plan(30.0)
     vxy = vxy.copy()
     vxy[0, 10:, 0] = 29.6  # a 0.4 m/s drop in one 0.04 s step: 10 m/s^2 > 8 at step 10

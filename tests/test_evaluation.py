@@ -20,7 +20,7 @@ PAPER_KEYS = ("n", "ttc_s", "cr_pct", "pet_s", "min_dist_m", "lt_pct", "sr_pct",
 
 def _batch(n: int = 6) -> ScenarioBatch:
     return concat_batches([
-        straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(20.0 + i, 28.0)]).as_batch()
+        straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(20.0 + i, 28.0)])
         for i in range(n)
     ])
 

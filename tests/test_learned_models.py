@@ -161,7 +161,7 @@ def test_gnp_planner_runs_in_the_evaluation_harness(tmp_path: Path) -> None:
                                                                VehicleSpec(x0_m=10.0, speed_mps=27.0, lane_offset=1)]),
         straight_road_scenario(ego_speed_mps=25.0),
     ]
-    batch = concat_batches([s.as_batch() for s in scenes])
+    batch = concat_batches([s for s in scenes])
     batch = concat_batches([batch.take([i]) for i in range(3)])
     from dataclasses import replace
 

@@ -27,7 +27,7 @@ def random_batch(rng: np.random.Generator, n: int) -> ScenarioBatch:
         sc = straight_road_scenario(ego_speed_mps=float(rng.uniform(15, 38)), ego_accel_mps2=float(rng.uniform(-2, 1)),
                                     neighbours=specs, n_lanes=n_lanes, ego_lane_index=ego_lane,
                                     scenario_id=f"rand{i}")
-        scenes.append(sc.as_batch())
+        scenes.append(sc)
     return concat_batches(scenes)
 
 

@@ -9,18 +9,18 @@ from test_learned_scenes import random_batch
 from letspi.learned.gnp_model import rollout_weighted
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import predict_neighbours
-from letspi.physics.params import PARAM_NAMES, PARAM_RANGES, SocialForceParamsBatch
+from letspi.physics.params import PARAM_NAMES, PARAM_RANGES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force
 
 torch = pytest.importorskip("torch")
 from letspi.learned.train.torch_sf import TorchScene, rollout_torch  # noqa: E402
 
 
-def random_params(rng: np.random.Generator, n: int) -> SocialForceParamsBatch:
-    return SocialForceParamsBatch(**{k: rng.uniform(*PARAM_RANGES[k], size=n) for k in PARAM_NAMES})
+def random_params(rng: np.random.Generator, n: int) -> SocialForceParams:
+    return SocialForceParams(**{k: rng.uniform(*PARAM_RANGES[k], size=n) for k in PARAM_NAMES})
 
 
-def _torch_roll(scene: SocialForceScene, params: SocialForceParamsBatch, goals: np.ndarray,
+def _torch_roll(scene: SocialForceScene, params: SocialForceParams, goals: np.ndarray,
                 weights: np.ndarray | None) -> np.ndarray:
     tp = {k: torch.as_tensor(getattr(params, k), dtype=torch.float64) for k in PARAM_NAMES}
     w = None if weights is None else torch.as_tensor(weights, dtype=torch.float64)

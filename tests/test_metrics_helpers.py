@@ -24,7 +24,7 @@ def constant_speed_plan(
 
 
 def make(neighbours: list[VehicleSpec], **kw: object) -> ScenarioBatch:
-    return straight_road_scenario(neighbours=neighbours, **kw).as_batch()  # type: ignore[arg-type]
+    return straight_road_scenario(neighbours=neighbours, **kw)  # type: ignore[arg-type]
 
 
 def inputs(batch: ScenarioBatch, xy: np.ndarray, v: np.ndarray) -> MetricInputs:

@@ -31,11 +31,11 @@ def _with_lateral_motion(vy_mps: float, y0_offset_m: float = 0.0, **kwargs) -> S
     sc = straight_road_scenario(**kwargs)
     t = (np.arange(N_TOTAL) - T0_INDEX) * DT_S
     xy = sc.ego_xy_m.copy()
-    xy[:, 1] = vy_mps * t
+    xy[0, :, 1] = vy_mps * t
     vxy = sc.ego_vxy_mps.copy()
-    vxy[:, 1] = vy_mps
+    vxy[0, :, 1] = vy_mps
     markings = (sc.marking_y_m - y0_offset_m).astype(np.float32)
-    return dataclasses.replace(sc, ego_xy_m=xy, ego_vxy_mps=vxy, marking_y_m=markings).as_batch()
+    return dataclasses.replace(sc, ego_xy_m=xy, ego_vxy_mps=vxy, marking_y_m=markings)
 
 
 def test_protocol_and_top_goal() -> None:
@@ -50,7 +50,7 @@ def test_protocol_and_top_goal() -> None:
 
 @pytest.mark.parametrize("speed", [0.0, 12.0, 33.3])
 def test_kinematic_constant_speed(speed: float) -> None:
-    batch = straight_road_scenario(ego_speed_mps=speed).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=speed)
     pred = KinematicGoalPredictor().predict_goals(batch)
     assert pred.goals_xy_m.shape == (1, 1, 2) and pred.probs.tolist() == [[1.0]]
     assert pred.top[0, 0] == pytest.approx(speed * 5.0, abs=1e-3)
@@ -60,10 +60,10 @@ def test_kinematic_constant_speed(speed: float) -> None:
 def test_kinematic_constant_acceleration_and_clip() -> None:
     batch = concat_batches(
         [
-            straight_road_scenario(ego_speed_mps=20.0, ego_accel_mps2=1.0).as_batch(),
-            straight_road_scenario(ego_speed_mps=30.0, ego_accel_mps2=3.5).as_batch(),  # clipped to +2
-            straight_road_scenario(ego_speed_mps=25.0, ego_accel_mps2=-3.0).as_batch(),  # stops after 8.3 s
-            straight_road_scenario(ego_speed_mps=8.0, ego_accel_mps2=-2.0).as_batch(),  # stops after 4 s
+            straight_road_scenario(ego_speed_mps=20.0, ego_accel_mps2=1.0),
+            straight_road_scenario(ego_speed_mps=30.0, ego_accel_mps2=3.5),  # clipped to +2
+            straight_road_scenario(ego_speed_mps=25.0, ego_accel_mps2=-3.0),  # stops after 8.3 s
+            straight_road_scenario(ego_speed_mps=8.0, ego_accel_mps2=-2.0),  # stops after 4 s
         ]
     )
     goals = KinematicGoalPredictor().predict_goals(batch).top[:, 0]
@@ -87,7 +87,7 @@ def test_kinematic_lane_change_intention() -> None:
 
 
 def test_oracle_goal_is_the_recorded_endpoint() -> None:
-    batch = straight_road_scenario(ego_speed_mps=27.0, ego_accel_mps2=-1.0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=27.0, ego_accel_mps2=-1.0)
     np.testing.assert_allclose(OracleGoalPredictor().predict_goals(batch).top, batch.ego_xy_m[:, -1], atol=0)
 
 

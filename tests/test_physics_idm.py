@@ -10,7 +10,7 @@ from letspi.physics.idm import (
     CAR_IDM,
     IDM_MIN_ACCEL_MPS2,
     TRUCK_IDM,
-    IdmParamArrays,
+    IdmParams,
     desired_speed_from_history,
     idm_acceleration,
     rollout_idm_ego,
@@ -47,7 +47,7 @@ def test_safeguards_keep_numbers_finite() -> None:
 
 
 def test_truck_parameters_by_class() -> None:
-    prm = IdmParamArrays.for_classes(np.array([VEHICLE_CLASS_CAR, VEHICLE_CLASS_TRUCK, -1]))
+    prm = IdmParams.for_classes(np.array([VEHICLE_CLASS_CAR, VEHICLE_CLASS_TRUCK, -1]))
     np.testing.assert_array_equal(prm.max_accel_mps2, [CAR_IDM.max_accel_mps2, TRUCK_IDM.max_accel_mps2, 1.0])
     np.testing.assert_array_equal(prm.time_headway_s, [1.5, 2.0, 1.5])
 
@@ -61,7 +61,7 @@ def test_desired_speed_from_history() -> None:
 
 def test_stops_behind_stopped_leader_near_s0() -> None:
     leader = VehicleSpec(x0_m=80.0, speed_mps=0.0)
-    batch = straight_road_scenario(ego_speed_mps=20.0, neighbours=[leader]).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=20.0, neighbours=[leader])
     n_steps = round(40.0 / DT_S)  # long enough to come to rest
     res = rollout_idm_ego(batch, predict_constant_velocity(batch, n_steps))
     gap = 80.0 - res.xy_m[0, :, 0] - 4.5
@@ -75,7 +75,7 @@ def test_stops_behind_stopped_leader_near_s0() -> None:
 
 def test_ego_keeps_lane_and_ignores_adjacent_cars() -> None:
     nbrs = [VehicleSpec(x0_m=15.0, speed_mps=10.0, lane_offset=1), VehicleSpec(x0_m=40.0, speed_mps=25.0)]
-    batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=nbrs).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=nbrs)
     res = rollout_idm_ego(batch, predict_constant_velocity(batch))
     assert np.all(res.xy_m[0, :, 1] == 0.0) and np.all(res.vxy_mps[0, :, 1] == 0.0)
     # the slow car in the adjacent lane is no leader: no braking towards 10 m/s
@@ -85,7 +85,7 @@ def test_ego_keeps_lane_and_ignores_adjacent_cars() -> None:
 
 
 def test_free_ego_accelerates_to_desired_speed() -> None:
-    batch = straight_road_scenario(ego_speed_mps=20.0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=20.0)
     res = rollout_idm_ego(batch, predict_constant_velocity(batch), desired_speed_mps=np.array([30.0]))
     v = res.vxy_mps[0, :, 0]
     assert np.all(np.diff(v) > 0) and v[-1] < 30.0

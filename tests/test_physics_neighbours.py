@@ -21,7 +21,7 @@ T = np.arange(1, N_FUTURE + 1) * DT_S
 
 
 def _batch(neighbours: list[VehicleSpec], ego_speed_mps: float = 30.0):
-    return straight_road_scenario(ego_speed_mps=ego_speed_mps, neighbours=neighbours).as_batch()
+    return straight_road_scenario(ego_speed_mps=ego_speed_mps, neighbours=neighbours)
 
 
 @pytest.mark.parametrize("mode", list(NeighbourPredictionMode))

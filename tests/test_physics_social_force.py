@@ -15,7 +15,6 @@ from letspi.physics.params import (
     PARAM_NAMES,
     PARAM_RANGES,
     SocialForceParams,
-    SocialForceParamsBatch,
 )
 from letspi.physics.reference import rollout_social_force_reference
 from letspi.physics.social_force import (
@@ -71,7 +70,7 @@ def _leader_scene(k_np: float, *, gap_m: float = 60.0, ego_speed_mps: float = 35
 
 @pytest.mark.parametrize(("ego_speed", "goal_x"), [(30.0, 150.0), (25.0, 150.0), (30.0, 130.0)])
 def test_free_road_reaches_goal(ego_speed: float, goal_x: float) -> None:
-    batch = straight_road_scenario(ego_speed_mps=ego_speed).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=ego_speed)
     res = _plan(batch, (goal_x, 0.0))
     assert res.xy_m.shape == (1, N_FUTURE, 2)
     assert np.linalg.norm(res.xy_m[0, -1] - [goal_x, 0.0]) < 1.0
@@ -79,7 +78,7 @@ def test_free_road_reaches_goal(ego_speed: float, goal_x: float) -> None:
 
 def test_on_schedule_free_road_is_steady() -> None:
     """A goal exactly at v * 5 s keeps the speed: no braking at the end of the plan."""
-    batch = straight_road_scenario(ego_speed_mps=30.0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0)
     res = _plan(batch, (150.0, 0.0))
     assert np.allclose(res.vxy_mps[0, :, 0], 30.0, atol=1e-9)
     assert np.abs(res.axy_mps2).max() < 1e-9
@@ -101,7 +100,7 @@ def test_one_dimensional_check(k_np: float, steady_gap_m: float | None, min_gap_
 
 def test_slower_leader_default_keeps_gap_absurd_collides() -> None:
     leader = VehicleSpec(x0_m=30.0, speed_mps=22.0)
-    batch = straight_road_scenario(ego_speed_mps=32.0, neighbours=[leader]).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=32.0, neighbours=[leader])
     goal = (160.0, 0.0)  # the goal ignores the leader
     lead_x = 30.0 + 22.0 * DT_S * np.arange(1, N_FUTURE + 1)
     safe = _plan(batch, goal)
@@ -117,7 +116,7 @@ def test_slower_leader_default_keeps_gap_absurd_collides() -> None:
 
 
 def _terms_for(neighbours: list[VehicleSpec], ego_y: float = 0.0, ego_lane_index: int = 1, goal_y: float | None = None):
-    batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=neighbours, ego_lane_index=ego_lane_index).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=neighbours, ego_lane_index=ego_lane_index)
     scene = SocialForceScene.from_batch(batch, predict_constant_velocity(batch))
     goal = np.array([[150.0, ego_y if goal_y is None else goal_y]])
     return social_force_terms(scene, DEFAULT_PARAMS, goal, np.array([[0.0, ego_y]]), np.array([[30.0, 0.0]]))
@@ -184,7 +183,7 @@ def test_clamped_total_within_limits() -> None:
 
 @pytest.mark.parametrize("ego_lane_index", [0, 1, 2])
 def test_lane_keeping_drift_small(ego_lane_index: int) -> None:
-    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=ego_lane_index).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=ego_lane_index)
     res = _plan(batch, (150.0, 0.0))
     assert np.abs(res.xy_m[0, :, 1]).max() < 0.3
 
@@ -194,7 +193,7 @@ def test_lane_keeping_with_neighbours_alongside() -> None:
         VehicleSpec(x0_m=0.0, speed_mps=30.0, lane_offset=1),
         VehicleSpec(x0_m=-20.0, speed_mps=30.0, lane_offset=-1),
     ]
-    batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=nbrs).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=nbrs)
     res = _plan(batch, (150.0, 0.0))
     # the car alongside on the left nudges the ego right (measured 0.46 m with the defaults)
     assert res.xy_m[0, :, 1].max() < 0.05
@@ -203,7 +202,7 @@ def test_lane_keeping_with_neighbours_alongside() -> None:
 
 @pytest.mark.parametrize(("ego_lane_index", "direction"), [(1, 1), (1, -1), (0, 1), (2, -1)])
 def test_lane_change_goes_through(ego_lane_index: int, direction: int) -> None:
-    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=ego_lane_index).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=ego_lane_index)
     target_y = direction * LANE_WIDTH_M
     res = _plan(batch, (150.0, target_y))
     assert abs(res.xy_m[0, -1, 1] - target_y) < 0.5
@@ -211,7 +210,7 @@ def test_lane_change_goes_through(ego_lane_index: int, direction: int) -> None:
 
 
 def test_goal_off_road_is_not_followed() -> None:
-    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0, ego_lane_index=0)
     res = _plan(batch, (150.0, -LANE_WIDTH_M))  # right of the right edge
     right_edge_y = -0.5 * LANE_WIDTH_M
     assert res.xy_m[0, :, 1].min() - 0.9 > right_edge_y  # the ego's side stays on the road
@@ -237,13 +236,13 @@ def test_degenerate_inputs_stay_finite() -> None:
             VehicleSpec(x0_m=2.0, speed_mps=0.0, lane_offset=1, y_offset_m=-1.9),  # overlaps laterally too
             VehicleSpec(x0_m=30.0, speed_mps=20.0, visible_from_index=150),  # not visible at t = 0
         ],
-    ).as_batch()
+    )
     for goal in [(0.0, 0.0), (-50.0, 0.0), (-10.0, 30.0), (1e-12, 0.0), (5000.0, 0.0)]:
         _assert_sane(_plan(batch, goal))
 
 
 def test_goal_behind_never_reverses() -> None:
-    batch = straight_road_scenario(ego_speed_mps=20.0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=20.0)
     res = _plan(batch, (-50.0, 0.0))
     _assert_sane(res)
     assert res.vxy_mps[0, -1, 0] < 0.5  # decays as exp(-t / tau) towards 0
@@ -252,7 +251,7 @@ def test_goal_behind_never_reverses() -> None:
 
 
 def test_nan_neighbours_and_markings() -> None:
-    batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[VehicleSpec(x0_m=20.0, speed_mps=20.0)]).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[VehicleSpec(x0_m=20.0, speed_mps=20.0)])
     pred = predict_constant_velocity(batch)
     nan_pred = pred._replace(xy_m=np.full_like(pred.xy_m, np.nan))  # valid flags lie, positions are NaN
     no_markings = np.full_like(batch.marking_y_m, np.nan)
@@ -274,7 +273,7 @@ def test_nan_neighbours_and_markings() -> None:
 
 
 def test_non_finite_goal_rejected() -> None:
-    batch = straight_road_scenario().as_batch()
+    batch = straight_road_scenario()
     with pytest.raises(ValueError, match="finite"):
         _plan(batch, (np.nan, 0.0))
 
@@ -296,7 +295,7 @@ def test_random_inputs_stay_finite_and_plausible(
 ) -> None:
     batch = straight_road_scenario(
         ego_speed_mps=ego_speed, neighbours=[VehicleSpec(x0_m=nbr_x, speed_mps=nbr_speed, lane_offset=lane_offset)]
-    ).as_batch()
+    )
     _assert_sane(_plan(batch, (goal_x, goal_y), SocialForceParams(k_np=k_np, tau_s=tau)))
 
 
@@ -316,7 +315,7 @@ def test_batched_matches_reference_loop() -> None:
     for a, b in ((fast.xy_m, slow.xy_m), (fast.vxy_mps, slow.vxy_mps), (fast.axy_mps2, slow.axy_mps2)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
     # the random scenarios do interact (otherwise the comparison proves little)
-    free = rollout_social_force_scene(scene, SocialForceParamsBatch.from_matrix(
+    free = rollout_social_force_scene(scene, SocialForceParams.from_matrix(
         np.where(np.isin(np.arange(7), [1, 2, 3]), 0.0, params.as_matrix())), goals)
     assert np.abs(free.xy_m - fast.xy_m).max() > 1.0
 
@@ -328,8 +327,8 @@ def test_params_clamp_and_matrix_roundtrip() -> None:
         lo, hi = PARAM_RANGES[name]
         assert lo <= getattr(c, name) <= hi
     assert c.k_nl == DEFAULT_PARAMS.k_nl
-    batch = SocialForceParamsBatch.stack([DEFAULT_PARAMS, wild])
-    again = SocialForceParamsBatch.from_matrix(batch.as_matrix())
+    batch = SocialForceParams.stack([DEFAULT_PARAMS, wild])
+    again = SocialForceParams.from_matrix(batch.as_matrix())
     assert again.row(0) == DEFAULT_PARAMS
     assert again.clamped().row(1) == c
     assert SocialForceParams.from_mapping({"k_np": 20}).k_np == 20.0
@@ -347,7 +346,7 @@ def test_neighbour_weights_scale_each_neighbours_repulsion() -> None:
     from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 
     batch = straight_road_scenario(ego_speed_mps=32.0, neighbours=[
-        VehicleSpec(x0_m=40.0, speed_mps=22.0), VehicleSpec(x0_m=-15.0, speed_mps=34.0)]).as_batch()
+        VehicleSpec(x0_m=40.0, speed_mps=22.0), VehicleSpec(x0_m=-15.0, speed_mps=34.0)])
     scene = SocialForceScene.from_batch(batch, predict_constant_velocity(batch))
     goals = np.array([[150.0, 0.0]])
     p = SocialForceParams()

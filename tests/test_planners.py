@@ -18,7 +18,7 @@ from letspi.scenario.types import concat_batches
 
 def _closing_on_slower_leader():
     # ego at 32 m/s, a 22 m/s leader 40 m ahead in the same lane: constant-speed goal runs into it
-    return straight_road_scenario(ego_speed_mps=32.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=22.0)]).as_batch()
+    return straight_road_scenario(ego_speed_mps=32.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=22.0)])
 
 
 def test_fitted_sf_keeps_a_gap_while_absurd_parameters_collide():
@@ -47,7 +47,7 @@ def test_sf_opt_finds_a_safe_candidate_where_the_neutral_plan_is_unsafe():
 
 
 def test_sf_opt_keeps_the_neutral_plan_on_a_free_road():
-    batch = straight_road_scenario(ego_speed_mps=30.0).as_batch()
+    batch = straight_road_scenario(ego_speed_mps=30.0)
     plan = SocialForceSearchPlanner(params=load_sf_params()[0]).plan(batch)
     assert plan.info["k_scale"][0] == 1.0 and plan.info["lon_factor"][0] == 0.4 and plan.info["lane_factor"][0] == 0
 
@@ -56,8 +56,8 @@ def test_sf_opt_keeps_the_neutral_plan_on_a_free_road():
 def test_every_baseline_plans_finite_trajectories(name):
     batch = concat_batches([
         _closing_on_slower_leader(),
-        straight_road_scenario(ego_speed_mps=0.0).as_batch(),  # standing still
-        straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(-3.0, 30.0)]).as_batch(),
+        straight_road_scenario(ego_speed_mps=0.0),  # standing still
+        straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(-3.0, 30.0)]),
     ])
     plan = make_planner(name).plan(batch)
     assert plan.xy_m.shape == (3, 125, 2) and np.isfinite(plan.xy_m).all() and np.isfinite(plan.vxy_mps).all()
@@ -82,7 +82,7 @@ def test_sf_params_file_round_trip_and_errors(tmp_path):
 
 
 def test_split_by_vehicle_never_shares_a_vehicle():
-    scen = [straight_road_scenario(scenario_id=f"s{i}").as_batch() for i in range(12)]
+    scen = [straight_road_scenario(scenario_id=f"s{i}") for i in range(12)]
     batch = concat_batches(scen)
     batch.ego_id[:] = np.repeat(np.arange(4), 3)  # 4 vehicles x 3 windows
     train, val = split_by_vehicle(batch, 0.5, seed=3)
@@ -91,7 +91,7 @@ def test_split_by_vehicle_never_shares_a_vehicle():
 
 
 def test_fit_is_deterministic_and_not_worse_than_its_start():
-    batch = concat_batches([_closing_on_slower_leader()] * 3 + [straight_road_scenario().as_batch()] * 3)
+    batch = concat_batches([_closing_on_slower_leader()] * 3 + [straight_road_scenario()] * 3)
     batch.ego_id[:] = np.arange(6)
     a = fit_sf_params(batch, seed=1, max_evaluations=25)
     b = fit_sf_params(batch, seed=1, max_evaluations=25)
@@ -105,9 +105,9 @@ def test_idm_planner_settles_a_lane_change_smoothly():
 
     s = straight_road_scenario(ego_speed_mps=30.0)
     # mid-lane-change at t = 0: 0.8 m left of centre, moving left at 1.0 m/s
-    s.ego_xy_m[T0_INDEX, 1] = 0.8
-    s.ego_vxy_mps[T0_INDEX, 1] = 1.0
-    batch = s.as_batch()
+    s.ego_xy_m[0, T0_INDEX, 1] = 0.8
+    s.ego_vxy_mps[0, T0_INDEX, 1] = 1.0
+    batch = s
     plan = IdmPlanner().plan(batch)
     m = compute_metrics(batch, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
     assert plan.xy_m[0, -1, 1] == pytest.approx(3.75, abs=0.05)  # ends at the left lane's centre
@@ -121,7 +121,7 @@ def test_safety_check_sees_a_faster_car_closing_from_behind():
 
     # ego at 25 m/s, a 29 m/s car 30 m behind in the same lane; a side-by-side car in the next lane
     batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[
-        VehicleSpec(x0_m=-30.0, speed_mps=29.0), VehicleSpec(x0_m=0.0, speed_mps=25.0, lane_offset=1)]).as_batch()
+        VehicleSpec(x0_m=-30.0, speed_mps=29.0), VehicleSpec(x0_m=0.0, speed_mps=25.0, lane_offset=1)])
     plan = ConstantVelocityPlanner().plan(batch)
     check = check_plans(batch, plan.xy_m, plan.vxy_mps, predict_neighbours(batch, "constant_velocity"))
     gap0 = 30.0 - 4.5

@@ -10,6 +10,9 @@ the left (lane 4, larger image y); car 32 has only 199 frames (no window).
 
 from __future__ import annotations
 
+from dataclasses import fields
+from types import SimpleNamespace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -81,7 +84,8 @@ def test_window_and_stride_counts(rec):
 def _scenario(batch, ego, start):
     idx = np.flatnonzero((batch.ego_id == ego) & (batch.frame0 == start + T0_INDEX))
     assert len(idx) == 1
-    return batch.scenario(int(idx[0]))
+    i = int(idx[0])
+    return SimpleNamespace(**{f.name: getattr(batch, f.name)[i] for f in fields(batch)})  # one row, batch axis dropped
 
 
 def test_direction2_ego_frame_and_neighbours(rec):

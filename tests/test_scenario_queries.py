@@ -23,7 +23,7 @@ def _busy():
             VehicleSpec(x0_m=-30.0, speed_mps=30.0, lane_offset=1),  # slot 4: left, far behind
             VehicleSpec(x0_m=10.0, speed_mps=20.0, lane_offset=-1),  # slot 5: right
         ],
-    ).as_batch()
+    )
 
 
 def test_lane_index_and_id_of_points():
@@ -35,8 +35,8 @@ def test_lane_index_and_id_of_points():
 
 
 def test_lane_index_ignores_nan_padding():
-    narrow = straight_road_scenario(n_lanes=2, ego_lane_index=0).as_batch()
-    wide = straight_road_scenario(n_lanes=3, ego_lane_index=0).as_batch()
+    narrow = straight_road_scenario(n_lanes=2, ego_lane_index=0)
+    wide = straight_road_scenario(n_lanes=3, ego_lane_index=0)
     both = concat_batches([narrow, wide])
     assert np.isnan(both.marking_y_m[0, -1])
     y = np.array([[2 * LANE_WIDTH_M], [2 * LANE_WIDTH_M]])
@@ -51,7 +51,7 @@ def test_neighbour_relations_at_t0(relation, slot):
 
 
 def test_neighbour_relation_missing_gives_minus_one():
-    b = straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(20.0, 30.0)]).as_batch()
+    b = straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(20.0, 30.0)])
     assert neighbour_at(b, T0_INDEX, "right").tolist() == [-1]
     assert neighbour_at(b, T0_INDEX, "following").tolist() == [-1]
     with pytest.raises(ValueError, match="relation must be one of"):
@@ -73,6 +73,6 @@ def test_features_known_values():
 
 def test_features_without_neighbours_and_hidden_ones():
     hidden = VehicleSpec(x0_m=10.0, speed_mps=30.0, visible_from_index=T0_INDEX + 5)
-    b = straight_road_scenario(ego_speed_mps=20.0, neighbours=[hidden]).as_batch()
+    b = straight_road_scenario(ego_speed_mps=20.0, neighbours=[hidden])
     f = scenario_features(b)[0]
     assert f.tolist() == [0.0, 20.0, 0.0, 100.0, 100.0, 20.0]

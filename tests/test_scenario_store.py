@@ -13,8 +13,8 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 
 
 def _batch() -> ScenarioBatch:
-    a = straight_road_scenario(neighbours=[VehicleSpec(20.0, 25.0)], scenario_id="a").as_batch()
-    b = straight_road_scenario(n_lanes=2, ego_lane_index=0, scenario_id="b").as_batch()
+    a = straight_road_scenario(neighbours=[VehicleSpec(20.0, 25.0)], scenario_id="a")
+    b = straight_road_scenario(n_lanes=2, ego_lane_index=0, scenario_id="b")
     return concat_batches([a, b])
 
 

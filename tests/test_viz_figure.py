@@ -28,7 +28,7 @@ def _batch():
     return straight_road_scenario(
         scenario_id="viz0",
         neighbours=[VehicleSpec(20.0, 30.0), VehicleSpec(-15.0, 32.0, lane_offset=1), VehicleSpec(5.0, 28.0, -1)],
-    ).as_batch()
+    )
 
 
 def _by_gid(fig, gid: str):
@@ -85,8 +85,8 @@ def test_full_batch_plans_use_the_row_and_bad_sizes_fail():
 
 def test_preceding_gap_and_groups():
     batch = _batch()
-    sc = batch.scenario(0)
-    gap, slot = preceding_gap(sc, sc.ego_xy_m, np.arange(N_TOTAL))
+    sc = batch.take([0])
+    gap, slot = preceding_gap(sc, sc.ego_xy_m[0], np.arange(N_TOTAL))
     # leader 20 m ahead at t = 0, 30 m/s like the ego: gap = 20 - (4.5 + 4.5) / 2 all along
     np.testing.assert_allclose(gap, 15.5, atol=1e-4)
     assert (slot == 0).all()

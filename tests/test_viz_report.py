@@ -31,7 +31,7 @@ def eval_dir(tmp_path_factory):
     root = tmp_path_factory.mktemp("viz_report")
     batch = concat_batches([
         straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(12.0 + 4 * i, 26.0),
-                                                               VehicleSpec(-10.0, 31.0, lane_offset=1)]).as_batch()
+                                                               VehicleSpec(-10.0, 31.0, lane_offset=1)])
         for i in range(3)
     ])
     scen = save_scenarios(batch, root / "scenarios.arrow")

@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 
 from letspi.constants import MAX_NEIGHBOURS  # noqa: E402
 from letspi.physics.neighbours import predict_constant_velocity  # noqa: E402
-from letspi.physics.params import DEFAULT_PARAMS, PARAM_NAMES, PARAM_RANGES, SocialForceParamsBatch  # noqa: E402
+from letspi.physics.params import DEFAULT_PARAMS, PARAM_NAMES, PARAM_RANGES, SocialForceParams  # noqa: E402
 from letspi.physics.reference import rollout_social_force_reference  # noqa: E402
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene  # noqa: E402
 from letspi.scenario.build import VehicleSpec, straight_road_scenario  # noqa: E402
@@ -51,19 +51,19 @@ def synthetic_batch(n_scenarios: int, seed: int = 0, n_distinct: int = 200) -> S
                 n_lanes=n_lanes,
                 ego_lane_index=ego_lane,
                 scenario_id=f"bench{i}",
-            ).as_batch()
+            )
         )
     distinct = concat_batches(parts)
     return distinct.take(rng.integers(0, len(distinct), n_scenarios))
 
 
-def random_params(n: int, rng: np.random.Generator) -> SocialForceParamsBatch:
+def random_params(n: int, rng: np.random.Generator) -> SocialForceParams:
     """Parameters drawn uniformly from the lower half of ``PARAM_RANGES`` (plausible values)."""
     cols = []
     for name in PARAM_NAMES:
         lo, hi = PARAM_RANGES[name]
         cols.append(rng.uniform(max(lo, 0.5 * float(getattr(DEFAULT_PARAMS, name))), 0.5 * (lo + hi), n))
-    return SocialForceParamsBatch.from_matrix(np.stack(cols, axis=1))
+    return SocialForceParams.from_matrix(np.stack(cols, axis=1))
 
 
 def bench_rollout(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 100) -> dict[str, float]:
@@ -92,7 +92,7 @@ def bench_rollout(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 1
     m = min(n_reference, n_scenarios)
     idx = np.arange(m)
     sub_scene = scene.take(idx)
-    sub_params = SocialForceParamsBatch.from_matrix(params.as_matrix()[idx])
+    sub_params = SocialForceParams.from_matrix(params.as_matrix()[idx])
     t0 = time.perf_counter()
     ref = rollout_social_force_reference(sub_scene, sub_params, goals[idx])
     t_loop = time.perf_counter() - t0

@@ -121,7 +121,7 @@ def bench_phases(model_spec: str = "llamacpp:smollm2-135m", n_scenarios: int = 3
     scenes = [
         straight_road_scenario(ego_speed_mps=30.0 + i, scenario_id=f"b{i}",
                                neighbours=[VehicleSpec(x0_m=35.0 + 10 * i, speed_mps=24.0),
-                                           VehicleSpec(x0_m=-20.0, speed_mps=31.0, lane_offset=1)]).as_batch()
+                                           VehicleSpec(x0_m=-20.0, speed_mps=31.0, lane_offset=1)])
         for i in range(n_scenarios)
     ]
     advisor = make_advisor(model_spec, use_cache=False)

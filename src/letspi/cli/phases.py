@@ -206,7 +206,7 @@ def prompt(
     with user_errors():
         batch = load_scenarios(scenarios, [index])
         goal = make_goal_predictor(goals).predict_goals(batch).top[0]
-        desc = describe_scenario(batch.scenario(0), goal)
+        desc = describe_scenario(batch, goal)
         if not fast:
             messages = render_physics_prompt(desc)
         else:

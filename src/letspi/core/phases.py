@@ -66,8 +66,7 @@ class LlmProposer:
     memories: Sequence[MemoryExample] = ()
 
     def __call__(self, ctx: ReflectionContext) -> Proposal:
-        scenario = ctx.scenario.scenario(0)
-        desc = describe_scenario(scenario, ctx.base_goal_xy_m)
+        desc = describe_scenario(ctx.scenario, ctx.base_goal_xy_m)
         if ctx.report is None or ctx.previous is None:
             messages = render_physics_prompt(desc, memories=self.memories)
         else:
@@ -218,7 +217,7 @@ class FastPhase:
     def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
         retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
         examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
-        desc = describe_scenario(scenario.scenario(0), base_goal_xy_m)
+        desc = describe_scenario(scenario, base_goal_xy_m)
         messages = render_fast_prompt(desc, memories=examples)
         proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
         return proposal, [(e.scenario_id, s) for e, s in retrieved]

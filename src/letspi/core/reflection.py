@@ -40,7 +40,7 @@ from letspi.physics.goals import (
     adjust_goals,
 )
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.safety.plan_check import SafetyCheck, check_plans, predicted_inputs
@@ -137,7 +137,7 @@ class SimulatedPlan(NamedTuple):
 
 def simulate_proposal(
     batch: ScenarioBatch,
-    params: SocialForceParamsBatch,
+    params: SocialForceParams,
     lon_factor: np.ndarray,
     lane_factor: np.ndarray,
     base_goals_xy_m: np.ndarray,
@@ -665,7 +665,7 @@ def reflect(
                 meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
                 proposal = replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
         plan = simulate_proposal(
-            scenario, SocialForceParamsBatch.stack([proposal.params]), np.array([proposal.lon_factor]),
+            scenario, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
             np.array([proposal.lane_factor]), base_goal[None], pred,
         )
         report = safety_report(scenario, plan.xy_m, plan.vxy_mps, pred, th)[0]

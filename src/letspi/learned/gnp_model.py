@@ -36,7 +36,7 @@ from letspi.constants import DT_S
 from letspi.learned.features import SceneFeatures
 from letspi.learned.layers import EncoderConfig, encode, linear, relu
 from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
-from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.physics.types import RolloutResult
 
@@ -80,15 +80,15 @@ class GnpModel:
             linear(w, "w_h2", relu(linear(w, "w_h1", x[:, 1:-1])))[..., 0])
         return tau, nbr * feats.agent_mask[:, 1:]
 
-    def params_batch(self, tau_s: np.ndarray) -> SocialForceParamsBatch:
+    def params_batch(self, tau_s: np.ndarray) -> SocialForceParams:
         """The base parameters with the predicted tau, (B,) per field."""
-        p = SocialForceParamsBatch.broadcast(self.base_params, len(tau_s))
-        return SocialForceParamsBatch(**{**{n: getattr(p, n) for n in PARAM_NAMES}, "tau_s": np.asarray(tau_s)})
+        p = self.base_params.broadcast(len(tau_s))
+        return SocialForceParams(**{**{n: getattr(p, n) for n in PARAM_NAMES}, "tau_s": np.asarray(tau_s)})
 
 
 def rollout_weighted(
     scene: SocialForceScene,
-    params: SocialForceParams | SocialForceParamsBatch,
+    params: SocialForceParams,
     goals_xy_m: np.ndarray,
     nbr_weights: np.ndarray | None = None,
     *,

@@ -1,6 +1,6 @@
 """Scenario -> compact text for the prompts (paper §III-C inputs E, N, G_f, L).
 
-``describe_scenario`` turns a ``letspi.scenario.types.Scenario`` (ego frame: x along travel,
+``describe_scenario`` turns one scenario of a ``letspi.scenario.types.ScenarioBatch`` (ego frame: x along travel,
 y to the left, origin at the ego at t = 0) plus a predicted goal into a ``ScenarioDescription``:
 plain numbers rounded for the prompt, and ``to_text()`` renders it. Numbers carry one decimal
 to keep prompts short (input tokens cost prefill time; REFERENCE §8).
@@ -19,7 +19,7 @@ from typing import Final
 import numpy as np
 
 from letspi.constants import DT_S, T0_INDEX
-from letspi.scenario.types import VEHICLE_CLASS_NAMES, Scenario
+from letspi.scenario.types import VEHICLE_CLASS_NAMES, ScenarioBatch
 
 #: Same-lane TTC (s) or time gap (s) below which guidance calls a situation "closing".
 CLOSING_TTC_S: Final = 5.0
@@ -252,18 +252,18 @@ def targeted_guidance(desc: ScenarioDescription) -> list[str]:
 # --- construction ---------------------------------------------------------------------------
 
 
-def _lanes(scn: Scenario) -> tuple[tuple[LaneInfo, ...], np.ndarray]:
-    ys = np.asarray(scn.marking_y_m, dtype=float)
+def _lanes(batch: ScenarioBatch, index: int) -> tuple[tuple[LaneInfo, ...], np.ndarray]:
+    ys = np.asarray(batch.marking_y_m[index], dtype=float)
     ok = np.isfinite(ys)
     ys = ys[ok]
-    edges = np.asarray(scn.marking_is_edge, dtype=bool)[ok]
-    ids = np.asarray(scn.lane_ids)[: max(len(ys) - 1, 0)]
+    edges = np.asarray(batch.marking_is_edge[index], dtype=bool)[ok]
+    ids = np.asarray(batch.lane_ids[index])[: max(len(ys) - 1, 0)]
     lanes = tuple(
         LaneInfo(int(ids[k]), float(ys[k]), float(ys[k + 1]), bool(edges[k]), bool(edges[k + 1]))
         for k in range(len(ys) - 1)
     )
     if not lanes:
-        raise ValueError(f"scenario {scn.scenario_id}: needs at least two lane markings")
+        raise ValueError(f"scenario {batch.scenario_id[index]}: needs at least two lane markings")
     return lanes, ys
 
 
@@ -295,27 +295,28 @@ def _sample_indices(step_s: float) -> list[int]:
 
 
 def describe_scenario(
-    scenario: Scenario,
+    batch: ScenarioBatch,
     goal_xy: tuple[float, float] | np.ndarray,
     *,
+    index: int = 0,
     history_step_s: float = 0.5,
     neighbour_history_step_s: float = 1.0,
     horizon_s: float = 5.0,
 ) -> ScenarioDescription:
-    """Build the description of ``scenario`` at t = 0 with the predicted ``goal_xy`` (ego frame).
+    """Build the description of scenario ``index`` of ``batch`` at t = 0 with the predicted ``goal_xy`` (ego frame).
 
     Uses only frames up to t = 0 (the future is for evaluation).
     """
-    lanes, ys = _lanes(scenario)
+    lanes, ys = _lanes(batch, index)
     lane_ids = [ln.lane_id for ln in lanes]
     t0 = T0_INDEX
-    ego_xy = np.asarray(scenario.ego_xy_m, dtype=float)
-    ego_v = np.asarray(scenario.ego_vxy_mps, dtype=float)
-    ego_a = np.asarray(scenario.ego_axy_mps2, dtype=float)
+    ego_xy = np.asarray(batch.ego_xy_m[index], dtype=float)
+    ego_v = np.asarray(batch.ego_vxy_mps[index], dtype=float)
+    ego_a = np.asarray(batch.ego_axy_mps2[index], dtype=float)
     ex, ey = float(ego_xy[t0, 0]), float(ego_xy[t0, 1])
     evx, evy = float(ego_v[t0, 0]), float(ego_v[t0, 1])
     ego_k = _lane_index(ys, ey)
-    ego_len, ego_wid = float(scenario.ego_length_m), float(scenario.ego_width_m)
+    ego_len, ego_wid = float(batch.ego_length_m[index]), float(batch.ego_width_m[index])
 
     def t_of(idx: int) -> float:
         return (idx - t0) * DT_S
@@ -327,15 +328,15 @@ def describe_scenario(
     )
 
     nbrs: list[NeighbourInfo] = []
-    valid = np.asarray(scenario.nbr_valid, dtype=bool)
-    nxy = np.asarray(scenario.nbr_xy_m, dtype=float)
-    nv = np.asarray(scenario.nbr_vxy_mps, dtype=float)
+    valid = np.asarray(batch.nbr_valid[index], dtype=bool)
+    nxy = np.asarray(batch.nbr_xy_m[index], dtype=float)
+    nv = np.asarray(batch.nbr_vxy_mps[index], dtype=float)
     for j in range(valid.shape[0]):
         if not valid[j, t0] or not np.all(np.isfinite(nxy[j, t0])):
             continue
         x, y = float(nxy[j, t0, 0]), float(nxy[j, t0, 1])
         vx, vy = (float(nv[j, t0, 0]), float(nv[j, t0, 1])) if np.all(np.isfinite(nv[j, t0])) else (0.0, 0.0)
-        length, width = float(scenario.nbr_length_m[j]), float(scenario.nbr_width_m[j])
+        length, width = float(batch.nbr_length_m[index][j]), float(batch.nbr_width_m[index][j])
         k = _lane_index(ys, y)
         dx, dy = x - ex, y - ey
         half = 0.5 * (ego_len + length)
@@ -352,10 +353,10 @@ def describe_scenario(
             for i in _sample_indices(neighbour_history_step_s)[-2:]  # short: the last two samples
             if valid[j, i] and np.all(np.isfinite(nxy[j, i]))
         )
-        cls = VEHICLE_CLASS_NAMES.get(int(scenario.nbr_class[j]), "vehicle").lower()
+        cls = VEHICLE_CLASS_NAMES.get(int(batch.nbr_class[index][j]), "vehicle").lower()
         nbrs.append(
             NeighbourInfo(
-                vehicle_id=int(scenario.nbr_id[j]),
+                vehicle_id=int(batch.nbr_id[index][j]),
                 vehicle_class=cls,
                 relation=rel,
                 lane=lane_ids[k],
@@ -374,14 +375,14 @@ def describe_scenario(
         )
     nbrs.sort(key=lambda n: math.hypot(n.x, n.y))
     gx, gy = float(goal_xy[0]), float(goal_xy[1])
-    limit = float(scenario.speed_limit_mps)
+    limit = float(batch.speed_limit_mps[index])
     return ScenarioDescription(
-        scenario_id=str(scenario.scenario_id),
-        location_id=int(scenario.location_id),
+        scenario_id=str(batch.scenario_id[index]),
+        location_id=int(batch.location_id[index]),
         speed_limit_mps=limit if math.isfinite(limit) and limit > 0 else None,
         lanes=lanes,
         ego_lane=lane_ids[ego_k],
-        ego_class=VEHICLE_CLASS_NAMES.get(int(scenario.ego_class), "vehicle").lower(),
+        ego_class=VEHICLE_CLASS_NAMES.get(int(batch.ego_class[index]), "vehicle").lower(),
         ego_length=ego_len,
         ego_width=ego_wid,
         ego_history=ego_hist,

@@ -20,7 +20,6 @@ from letspi.physics.params import (
     PARAM_NAMES,
     PARAM_RANGES,
     SocialForceParams,
-    SocialForceParamsBatch,
 )
 from letspi.physics.social_force import (
     SocialForceScene,
@@ -42,7 +41,6 @@ __all__ = [
     "OracleGoalPredictor",
     "RolloutResult",
     "SocialForceParams",
-    "SocialForceParamsBatch",
     "SocialForceScene",
     "adjust_goals",
     "predict_neighbours",

@@ -28,7 +28,7 @@ neighbours' predicted trajectories.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -45,45 +45,31 @@ GAP_FLOOR_FRACTION = 0.5
 @dataclass(frozen=True)
 class IdmParams:
     """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s^2],
-    comfortable deceleration b [m/s^2], exponent delta [-]."""
+    comfortable deceleration b [m/s^2], exponent delta [-].
 
-    time_headway_s: float = 1.5
-    min_gap_m: float = 2.0
-    max_accel_mps2: float = 1.0
-    comfort_decel_mps2: float = 2.0
-    delta: float = 4.0
+    Each field is a float (one driver) or an array broadcastable to the vehicle array shape (one
+    value per vehicle, e.g. from ``for_classes``); the IDM functions broadcast either.
+    """
+
+    time_headway_s: float | np.ndarray = 1.5
+    min_gap_m: float | np.ndarray = 2.0
+    max_accel_mps2: float | np.ndarray = 1.0
+    comfort_decel_mps2: float | np.ndarray = 2.0
+    delta: float | np.ndarray = 4.0
+
+    @classmethod
+    def for_classes(cls, vehicle_class: np.ndarray, car: IdmParams | None = None,
+                    truck: IdmParams | None = None) -> IdmParams:
+        """Per-vehicle car or truck parameters by HighD class code (anything but a truck counts as a car)."""
+        car, truck = car or CAR_IDM, truck or TRUCK_IDM
+        is_truck = np.asarray(vehicle_class) == VEHICLE_CLASS_TRUCK
+        return cls(**{f.name: np.where(is_truck, np.asarray(getattr(truck, f.name), dtype=np.float64),
+                                       np.asarray(getattr(car, f.name), dtype=np.float64))
+                      for f in fields(cls)})
 
 
 CAR_IDM = IdmParams()
 TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
-
-
-@dataclass(frozen=True)
-class IdmParamArrays:
-    """IDM parameters per vehicle, each broadcastable to the vehicle array shape."""
-
-    time_headway_s: np.ndarray
-    min_gap_m: np.ndarray
-    max_accel_mps2: np.ndarray
-    comfort_decel_mps2: np.ndarray
-    delta: np.ndarray
-
-    @classmethod
-    def for_classes(cls, vehicle_class: np.ndarray, car: IdmParams = CAR_IDM,
-                    truck: IdmParams = TRUCK_IDM) -> IdmParamArrays:
-        """Car or truck parameters by HighD class code (anything but a truck counts as a car)."""
-        is_truck = np.asarray(vehicle_class) == VEHICLE_CLASS_TRUCK
-
-        def pick(name: str) -> np.ndarray:
-            return np.where(is_truck, float(getattr(truck, name)), float(getattr(car, name)))
-
-        return cls(
-            time_headway_s=pick("time_headway_s"),
-            min_gap_m=pick("min_gap_m"),
-            max_accel_mps2=pick("max_accel_mps2"),
-            comfort_decel_mps2=pick("comfort_decel_mps2"),
-            delta=pick("delta"),
-        )
 
 
 def idm_acceleration(
@@ -91,7 +77,7 @@ def idm_acceleration(
     desired_speed_mps: np.ndarray,
     gap_m: np.ndarray,
     leader_speed_mps: np.ndarray,
-    params: IdmParams | IdmParamArrays = CAR_IDM,
+    params: IdmParams = CAR_IDM,
 ) -> np.ndarray:
     """IDM acceleration [m/s^2] with the module's safeguards; all inputs broadcast together.
 
@@ -134,7 +120,7 @@ def rollout_idm_ego(
     neighbours: NeighbourPrediction,
     *,
     desired_speed_mps: np.ndarray | None = None,
-    params: IdmParams | IdmParamArrays | None = None,
+    params: IdmParams | None = None,
     dt_s: float = DT_S,
 ) -> RolloutResult:
     """Planner-level IDM: the ego follows its in-lane leader and keeps its lateral position.
@@ -152,7 +138,7 @@ def rollout_idm_ego(
         if desired_speed_mps is None
         else np.broadcast_to(np.asarray(desired_speed_mps, dtype=np.float64), (n,))
     )
-    prm = IdmParamArrays.for_classes(batch.ego_class) if params is None else params
+    prm = IdmParams.for_classes(batch.ego_class) if params is None else params
     # neighbours at t = 0 (observed) then predicted: index k is the state at t = k dt
     nxy = np.concatenate(
         [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2

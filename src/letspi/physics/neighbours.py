@@ -22,7 +22,7 @@ from enum import StrEnum
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE, T0_INDEX
-from letspi.physics.idm import IdmParamArrays, desired_speed_from_history, idm_acceleration, step_speed
+from letspi.physics.idm import IdmParams, desired_speed_from_history, idm_acceleration, step_speed
 from letspi.physics.types import NeighbourPrediction
 from letspi.scenario.types import ScenarioBatch
 
@@ -92,7 +92,7 @@ def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_
     lead_idx = np.where(has_leader, leader, 0)
     hist = batch.history_slice
     v0 = desired_speed_from_history(batch.nbr_vxy_mps[:, :, hist, 0], batch.nbr_valid[:, :, hist])
-    prm = IdmParamArrays.for_classes(batch.nbr_class)
+    prm = IdmParams.for_classes(batch.nbr_class)
     nbr_len = np.nan_to_num(batch.nbr_length_m.astype(np.float64))
     cand_len = np.concatenate([nbr_len, batch.ego_length_m.astype(np.float64)[:, None]], axis=1)
     half_len = 0.5 * (nbr_len + np.take_along_axis(cand_len, lead_idx, axis=1))

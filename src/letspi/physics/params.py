@@ -1,4 +1,4 @@
-"""Social force parameters: one scenario (``SocialForceParams``) and a batch (``SocialForceParamsBatch``).
+"""Social force parameters (``SocialForceParams``: one scenario or a batch, the same type).
 
 Units (unit mass, so forces are accelerations):
 
@@ -22,13 +22,13 @@ starting ranges from REFERENCE §4 (guidance for prompts, not limits).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Final
 
 import numpy as np
 
 PARAM_NAMES: Final = ("tau_s", "k_np", "k_nf", "k_nl", "k_boundary", "k_cline", "r_col_m")
-"""Column order of the (B, 7) matrix form (``SocialForceParamsBatch.as_matrix``)."""
+"""Column order of the (B, 7) matrix form (``SocialForceParams.as_matrix``)."""
 
 PARAM_INDEX: Final = {name: i for i, name in enumerate(PARAM_NAMES)}
 
@@ -66,118 +66,126 @@ TYPICAL_RANGES: Final = {
 }
 
 
-@dataclass(frozen=True)
+FloatOrArray = float | np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class SocialForceParams:
-    """Parameters of one social force rollout (units in the module docstring)."""
+    """Social force parameters of one scenario or of a batch (units in the module docstring).
 
-    tau_s: float = 1.0
-    k_np: float = 25.0
-    k_nf: float = 5.0
-    k_nl: float = 0.5
-    k_boundary: float = 1.0
-    k_cline: float = 0.5
-    r_col_m: float = 10.0
+    Every field holds float64 values of one common shape: ``()`` for one parameter set (stored as
+    ``np.float64``, a ``float``) or ``(B,)`` for one set per scenario. ``broadcast``, ``stack`` and
+    ``from_matrix`` build batches, ``row`` takes one set out of a batch; equality compares values.
+    """
 
-    def clamped(self) -> SocialForceParams:
-        """A copy with every value clamped into ``PARAM_RANGES`` (non-finite -> default)."""
-        default = SocialForceParams()
-        out = {}
-        for name in PARAM_NAMES:
-            value = float(getattr(self, name))
-            if not np.isfinite(value):
-                value = float(getattr(default, name))
-            lo, hi = PARAM_RANGES[name]
-            out[name] = min(max(value, lo), hi)
-        return SocialForceParams(**out)
+    tau_s: FloatOrArray = 1.0
+    k_np: FloatOrArray = 25.0
+    k_nf: FloatOrArray = 5.0
+    k_nl: FloatOrArray = 0.5
+    k_boundary: FloatOrArray = 1.0
+    k_cline: FloatOrArray = 0.5
+    r_col_m: FloatOrArray = 10.0
 
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
+    def __post_init__(self) -> None:
+        values = {name: np.asarray(getattr(self, name), dtype=np.float64) for name in PARAM_NAMES}
+        shapes = {v.shape for v in values.values()}
+        if len(shapes) != 1 or len(next(iter(shapes))) > 1:
+            raise ValueError(f"SocialForceParams fields must share one shape, () or (B,), got {sorted(shapes)}")
+        for name, v in values.items():
+            object.__setattr__(self, name, v[()] if v.ndim == 0 else v)  # v[()] is an np.float64
 
-    def as_array(self) -> np.ndarray:
-        """The values in ``PARAM_NAMES`` order, (7,) float64."""
-        return np.array([getattr(self, name) for name in PARAM_NAMES], dtype=np.float64)
+    # shape ---------------------------------------------------------------------------------------
+    @property
+    def is_batch(self) -> bool:
+        """True for (B,) fields, False for one parameter set."""
+        return np.ndim(self.tau_s) == 1
 
+    def __len__(self) -> int:
+        if not self.is_batch:
+            raise TypeError("one parameter set has no length; use a batch (SocialForceParams.broadcast)")
+        return int(np.shape(self.tau_s)[0])
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, SocialForceParams):
+            return NotImplemented
+        return self.is_batch == other.is_batch and np.array_equal(self.as_array(), other.as_array(), equal_nan=True)
+
+    def __hash__(self) -> int:
+        return hash(self.as_array().tobytes())
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{n}={np.round(getattr(self, n), 4)!r}" for n in PARAM_NAMES)
+        return f"SocialForceParams({inner})"
+
+    # construction ----------------------------------------------------------------------------------
     @classmethod
     def from_mapping(cls, values: Mapping[str, float]) -> SocialForceParams:
-        """From a mapping with (a subset of) the parameter names; missing ones take defaults."""
+        """One set from a mapping with (a subset of) the parameter names; missing ones take defaults."""
         unknown = set(values) - set(PARAM_NAMES)
         if unknown:
             raise KeyError(f"unknown social force parameters: {sorted(unknown)}")
         return cls(**{k: float(v) for k, v in values.items()})
 
-
-DEFAULT_PARAMS: Final = SocialForceParams()
-
-
-@dataclass(frozen=True)
-class SocialForceParamsBatch:
-    """One parameter set per scenario: every field is a float64 array of shape (B,)."""
-
-    tau_s: np.ndarray
-    k_np: np.ndarray
-    k_nf: np.ndarray
-    k_nl: np.ndarray
-    k_boundary: np.ndarray
-    k_cline: np.ndarray
-    r_col_m: np.ndarray
-
-    def __post_init__(self) -> None:
-        shapes = {np.shape(getattr(self, f.name)) for f in fields(self)}
-        if len(shapes) != 1 or len(next(iter(shapes))) != 1:
-            raise ValueError(f"SocialForceParamsBatch fields must share one (B,) shape, got {shapes}")
-
-    def __len__(self) -> int:
-        return int(self.tau_s.shape[0])
+    def broadcast(self, n: int) -> SocialForceParams:
+        """These (single) parameters repeated for ``n`` scenarios."""
+        if self.is_batch:
+            raise TypeError("broadcast takes one parameter set, got a batch")
+        return SocialForceParams(**{name: np.full(n, float(getattr(self, name))) for name in PARAM_NAMES})
 
     @classmethod
-    def broadcast(cls, params: SocialForceParams, n: int) -> SocialForceParamsBatch:
-        """The same parameters for ``n`` scenarios."""
-        return cls(**{name: np.full(n, float(getattr(params, name))) for name in PARAM_NAMES})
+    def stack(cls, params: Sequence[SocialForceParams]) -> SocialForceParams:
+        """A batch with one row per (single) element of ``params``."""
+        return cls(**{name: np.array([float(getattr(p, name)) for p in params], dtype=np.float64)
+                      for name in PARAM_NAMES})
 
     @classmethod
-    def stack(cls, params: Sequence[SocialForceParams]) -> SocialForceParamsBatch:
-        """One row per element of ``params``."""
-        return cls(
-            **{name: np.array([getattr(p, name) for p in params], dtype=np.float64) for name in PARAM_NAMES}
-        )
-
-    @classmethod
-    def from_matrix(cls, matrix: np.ndarray) -> SocialForceParamsBatch:
-        """From a (B, 7) array with columns in ``PARAM_NAMES`` order."""
+    def from_matrix(cls, matrix: np.ndarray) -> SocialForceParams:
+        """A batch from a (B, 7) array with columns in ``PARAM_NAMES`` order."""
         m = np.asarray(matrix, dtype=np.float64)
         if m.ndim != 2 or m.shape[1] != len(PARAM_NAMES):
             raise ValueError(f"expected (B, {len(PARAM_NAMES)}) parameters, got {m.shape}")
         return cls(**{name: m[:, i].copy() for i, name in enumerate(PARAM_NAMES)})
 
-    def as_matrix(self) -> np.ndarray:
-        """(B, 7) float64, columns in ``PARAM_NAMES`` order."""
-        return np.stack([np.asarray(getattr(self, name), dtype=np.float64) for name in PARAM_NAMES], axis=1)
+    # views -------------------------------------------------------------------------------------------
+    def as_array(self) -> np.ndarray:
+        """Values in ``PARAM_NAMES`` order: (7,) for one set, (B, 7) for a batch (float64)."""
+        return np.stack([np.asarray(getattr(self, name), dtype=np.float64) for name in PARAM_NAMES], axis=-1)
 
-    def clamped(self) -> SocialForceParamsBatch:
-        """A copy clamped into ``PARAM_RANGES``; non-finite entries take the default value."""
+    def as_matrix(self) -> np.ndarray:
+        """(B, 7) float64 (a single set gives (1, 7))."""
+        return np.atleast_2d(self.as_array())
+
+    def as_dict(self) -> dict[str, float]:
+        """Name -> value of one parameter set."""
+        if self.is_batch:
+            raise TypeError("as_dict takes one parameter set; use row(i) on a batch")
+        return {name: float(getattr(self, name)) for name in PARAM_NAMES}
+
+    def row(self, index: int) -> SocialForceParams:
+        """The parameters of scenario ``index`` of a batch."""
+        return SocialForceParams(**{name: float(np.asarray(getattr(self, name))[index]) for name in PARAM_NAMES})
+
+    def clamped(self) -> SocialForceParams:
+        """A copy with every value clamped into ``PARAM_RANGES``; non-finite values take the default."""
         out = {}
         for name in PARAM_NAMES:
             v = np.asarray(getattr(self, name), dtype=np.float64)
-            v = np.where(np.isfinite(v), v, float(getattr(DEFAULT_PARAMS, name)))
+            v = np.where(np.isfinite(v), v, _DEFAULTS[name])
             lo, hi = PARAM_RANGES[name]
             out[name] = np.clip(v, lo, hi)
-        return SocialForceParamsBatch(**out)
-
-    def row(self, index: int) -> SocialForceParams:
-        """The parameters of scenario ``index``."""
-        return SocialForceParams(**{name: float(getattr(self, name)[index]) for name in PARAM_NAMES})
+        return SocialForceParams(**out)
 
 
-def as_params_batch(
-    params: SocialForceParams | SocialForceParamsBatch | Sequence[SocialForceParams], n: int
-) -> SocialForceParamsBatch:
+_DEFAULTS: Final = {f.name: float(f.default) for f in fields(SocialForceParams)}  # type: ignore[arg-type]
+DEFAULT_PARAMS: Final = SocialForceParams()
+
+
+def as_params_batch(params: SocialForceParams | Sequence[SocialForceParams], n: int) -> SocialForceParams:
     """Normalise any accepted parameter form to a batch of length ``n``."""
     if isinstance(params, SocialForceParams):
-        return SocialForceParamsBatch.broadcast(params, n)
-    if isinstance(params, SocialForceParamsBatch):
-        batch = params
+        batch = params if params.is_batch else params.broadcast(n)
     else:
-        batch = SocialForceParamsBatch.stack(list(params))
+        batch = SocialForceParams.stack(list(params))
     if len(batch) != n:
         raise ValueError(f"got parameters for {len(batch)} scenarios, expected {n}")
     return batch

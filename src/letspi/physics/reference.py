@@ -14,13 +14,13 @@ import numpy as np
 
 from letspi.constants import DT_S
 from letspi.physics import social_force as sf
-from letspi.physics.params import SocialForceParams, SocialForceParamsBatch, as_params_batch
+from letspi.physics.params import SocialForceParams, as_params_batch
 from letspi.physics.types import RolloutResult
 
 
 def rollout_social_force_reference(
     scene: sf.SocialForceScene,
-    params: SocialForceParams | SocialForceParamsBatch,
+    params: SocialForceParams,
     goals_xy_m: np.ndarray,
     *,
     dt_s: float = DT_S,

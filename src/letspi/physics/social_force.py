@@ -74,7 +74,7 @@ import numpy as np
 
 from letspi.constants import DT_S, T0_INDEX
 from letspi.physics.lanes import lane_width_m
-from letspi.physics.params import SocialForceParams, SocialForceParamsBatch, as_params_batch
+from letspi.physics.params import SocialForceParams, as_params_batch
 from letspi.physics.types import NeighbourPrediction, RolloutResult
 from letspi.scenario.types import ScenarioBatch
 
@@ -306,7 +306,7 @@ class _Kernel:
     allocates only (N, B)-sized temporaries.
     """
 
-    def __init__(self, scene: SocialForceScene, params: SocialForceParamsBatch, goals_xy_m: np.ndarray,
+    def __init__(self, scene: SocialForceScene, params: SocialForceParams, goals_xy_m: np.ndarray,
                  max_speed_mps: np.ndarray, dt_s: float, nbr_weights: np.ndarray | None = None) -> None:
         self.goal_x = np.ascontiguousarray(goals_xy_m[:, 0], dtype=np.float64)
         self.goal_y = np.ascontiguousarray(goals_xy_m[:, 1], dtype=np.float64)
@@ -408,7 +408,7 @@ def _goals(goals_xy_m: np.ndarray, n: int) -> np.ndarray:
 
 def social_force_terms(
     scene: SocialForceScene,
-    params: SocialForceParams | SocialForceParamsBatch,
+    params: SocialForceParams,
     goals_xy_m: np.ndarray,
     ego_xy_m: np.ndarray,
     ego_vxy_mps: np.ndarray,
@@ -444,7 +444,7 @@ def social_force_terms(
 
 def rollout_social_force_scene(
     scene: SocialForceScene,
-    params: SocialForceParams | SocialForceParamsBatch,
+    params: SocialForceParams,
     goals_xy_m: np.ndarray,
     *,
     dt_s: float = DT_S,
@@ -503,7 +503,7 @@ def rollout_social_force_scene(
 
 def rollout_social_force(
     batch: ScenarioBatch,
-    params: SocialForceParams | SocialForceParamsBatch,
+    params: SocialForceParams,
     goals_xy_m: np.ndarray,
     neighbours: NeighbourPrediction,
     *,

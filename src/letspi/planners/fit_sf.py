@@ -35,7 +35,6 @@ from letspi.physics.params import (
     PARAM_NAMES,
     TYPICAL_RANGES,
     SocialForceParams,
-    SocialForceParamsBatch,
 )
 from letspi.physics.social_force import rollout_social_force
 from letspi.scenario.split import split_by_vehicle
@@ -66,7 +65,7 @@ class _Objective:
 
     def scores(self, params: SocialForceParams) -> tuple[float, float, float]:
         b = self.batch
-        roll = rollout_social_force(b, SocialForceParamsBatch.broadcast(params, len(b)), self.goals, self.pred)
+        roll = rollout_social_force(b, params.broadcast(len(b)), self.goals, self.pred)
         ade, _ = ade_fde(roll.xy_m, self.truth)
         inp = MetricInputs.from_batch(b, roll.xy_m, roll.vxy_mps)
         collided = boxes_overlap(inp).any(axis=(1, 2))

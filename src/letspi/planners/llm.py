@@ -17,7 +17,7 @@ from letspi.core.memory import MemoryBank
 from letspi.core.phases import FastPhase, MemoryPhase
 from letspi.core.reflection import IterationRecord, Proposal, simulate_proposal
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import PARAM_NAMES, SocialForceParamsBatch
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
 
@@ -106,7 +106,7 @@ class LetsPiFastPlanner:
         proposal = proposal.normalised()
         self.last_retrieved, self.last_proposal = tuple(retrieved), proposal
         sim = simulate_proposal(
-            batch, SocialForceParamsBatch.stack([proposal.params]), np.array([proposal.lon_factor]),
+            batch, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
             np.array([proposal.lane_factor]), base_goal, predict_neighbours(batch, self.neighbour_mode),
         )
         info = _info(proposal, float(proposal.meta.get("latency_s", 0.0)),

@@ -9,7 +9,7 @@ import numpy as np
 
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import PARAM_NAMES, SocialForceParams, SocialForceParamsBatch
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
@@ -25,7 +25,7 @@ class SocialForcePlanner:
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         goals = self.goal_predictor.predict_goals(batch).top
-        params = SocialForceParamsBatch.broadcast(self.params, len(batch))
+        params = self.params.broadcast(len(batch))
         roll = rollout_social_force(batch, params, goals, predict_neighbours(batch, self.neighbour_mode))
         info = {name: np.full(len(batch), getattr(self.params, name)) for name in PARAM_NAMES}
         return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)

@@ -21,7 +21,7 @@ import numpy as np
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
-from letspi.physics.params import SocialForceParams, SocialForceParamsBatch
+from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
@@ -71,7 +71,7 @@ class SocialForceSearchPlanner:
         rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
         big = batch.take(rep)
         k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
-        base = SocialForceParamsBatch.broadcast(self.params, b * c)
+        base = self.params.broadcast(b * c)
         params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
         cand_goals = adjust_goals(goals[rep], big.ego_xy0_m.astype(np.float64), lon, lane, big.marking_y_m)
         big_pred = _repeat_prediction(pred, c)

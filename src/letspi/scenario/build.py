@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from letspi.constants import DT_S, MAX_NEIGHBOURS, N_TOTAL, T0_INDEX
-from letspi.scenario.types import VEHICLE_CLASS_CAR, VEHICLE_CLASS_NONE, Scenario
+from letspi.scenario.types import VEHICLE_CLASS_CAR, VEHICLE_CLASS_NONE, ScenarioBatch
 
 LANE_WIDTH_M = 3.75
 
@@ -61,8 +61,8 @@ def straight_road_scenario(
     ego_length_m: float = 4.5,
     ego_width_m: float = 1.8,
     scenario_id: str = "synthetic",
-) -> Scenario:
-    """A driving-direction-2 scenario on ``n_lanes`` lanes; ``ego_lane_index`` 0 = rightmost lane.
+) -> ScenarioBatch:
+    """A batch of one driving-direction-2 scenario on ``n_lanes`` lanes; ``ego_lane_index`` 0 = rightmost lane.
 
     The ego drives at the centre of its lane. Lane ids follow HighD for an ``n_lanes`` + ``n_lanes``
     road: the lower carriageway has ids ``n_lanes + 3 ... 2 * n_lanes + 2``, rightmost largest.
@@ -103,7 +103,7 @@ def straight_road_scenario(
         nbr_wid[j] = spec.width_m
     edge = np.zeros(n_lanes + 1, dtype=bool)
     edge[[0, -1]] = True
-    return Scenario(
+    return ScenarioBatch.from_single(
         scenario_id=scenario_id,
         recording_id=0,
         location_id=0,

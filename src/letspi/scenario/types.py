@@ -1,5 +1,7 @@
 """Planning scenarios as a struct of arrays (data only; behaviour lives in other modules).
 
+One type for one or many scenarios: a single scenario is a ``ScenarioBatch`` of one.
+
 The ego frame (the one coordinate system every scenario array uses)
 -------------------------------------------------------------------
 * Origin: the ego's box centre at t = 0 (frame index ``T0_INDEX``). Fixed for the scenario.
@@ -15,18 +17,18 @@ The ego frame (the one coordinate system every scenario array uses)
 * Lane markings of the ego's carriageway become horizontal lines ``y = marking_y_m``.
   The outermost two are road edges (not crossable), the others crossable lane lines.
 
-Shapes: B scenarios, T = ``N_TOTAL`` (200) frames, N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
+Shapes: B scenarios, T = ``N_TOTAL`` (200) frames (``N_HISTORY`` = 75 in a history-only view), N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
 M lane markings (padded with NaN to the widest scenario in the batch). Frame ``T0_INDEX`` (74)
 is t = 0; frames after it are the ground-truth future, for evaluation only.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from letspi.constants import N_TOTAL, T0_INDEX
+from letspi.constants import N_HISTORY, N_TOTAL, T0_INDEX
 
 SCHEMA_VERSION = 1
 
@@ -34,6 +36,10 @@ VEHICLE_CLASS_CAR = 0
 VEHICLE_CLASS_TRUCK = 1
 VEHICLE_CLASS_NONE = -1
 VEHICLE_CLASS_NAMES = {VEHICLE_CLASS_CAR: "Car", VEHICLE_CLASS_TRUCK: "Truck"}
+
+#: Per-frame fields: ``ego_*`` have the time axis at 1, ``nbr_*`` at 2.
+_TIME_FIELDS = ("ego_xy_m", "ego_vxy_mps", "ego_axy_mps2", "ego_lane_id", "nbr_xy_m", "nbr_vxy_mps", "nbr_valid",
+                "nbr_lane_id")
 
 
 @dataclass(frozen=True)
@@ -96,8 +102,20 @@ class ScenarioBatch:
                 raise TypeError(f"ScenarioBatch.{f.name} must be a numpy array, got {type(arr).__name__}")
             if arr.shape[:1] != (b,):
                 raise ValueError(f"ScenarioBatch.{f.name} has leading shape {arr.shape[:1]}, expected ({b},)")
-        if self.ego_xy_m.shape[1:] != (N_TOTAL, 2):
-            raise ValueError(f"ScenarioBatch.ego_xy_m must be (B, {N_TOTAL}, 2), got {self.ego_xy_m.shape}")
+        if self.ego_xy_m.shape[1:] not in ((N_TOTAL, 2), (N_HISTORY, 2)):
+            raise ValueError(f"ScenarioBatch.ego_xy_m must be (B, {N_TOTAL}, 2) or, history only, "
+                             f"(B, {N_HISTORY}, 2); got {self.ego_xy_m.shape}")
+        t = self.n_frames
+        for name in _TIME_FIELDS:
+            arr = getattr(self, name)
+            axis = 1 if name.startswith("ego_") else 2
+            if arr.shape[axis] != t:
+                raise ValueError(f"ScenarioBatch.{name} has {arr.shape[axis]} frames, ego_xy_m has {t}")
+
+    @classmethod
+    def from_single(cls, **values: object) -> ScenarioBatch:
+        """A batch of one from per-scenario values (arrays without the batch axis, scalars for meta)."""
+        return cls(**{f.name: np.asarray([values[f.name]]) for f in fields(cls)})
 
     def __len__(self) -> int:
         return len(self.scenario_id)
@@ -111,9 +129,27 @@ class ScenarioBatch:
         """A sub-batch (copying fancy indexing; a slice gives views)."""
         return ScenarioBatch(**{f.name: getattr(self, f.name)[indices] for f in fields(self)})
 
-    def scenario(self, index: int) -> Scenario:
-        """One scenario as a ``Scenario`` view (arrays without the batch axis)."""
-        return Scenario(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+    @property
+    def n_frames(self) -> int:
+        """Frames T per scenario: ``N_TOTAL`` (history and future) or ``N_HISTORY`` (history only)."""
+        return int(self.ego_xy_m.shape[1])
+
+    @property
+    def has_future(self) -> bool:
+        """Whether the recorded future (frames after ``T0_INDEX``) is in this batch."""
+        return self.n_frames > N_HISTORY
+
+    def history(self) -> ScenarioBatch:
+        """What a planner may see: the same scenarios with every per-frame array cut at t = 0.
+
+        Frames after ``T0_INDEX`` are absent (not blanked), so code that reads the future by mistake
+        fails loudly instead of planning with it.
+        """
+        if not self.has_future:
+            return self
+        cut = {name: (getattr(self, name)[:, :N_HISTORY] if name.startswith("ego_")
+                      else getattr(self, name)[:, :, :N_HISTORY]) for name in _TIME_FIELDS}
+        return replace(self, **cut)
 
     # Convenience views at t = 0 (what a planner may see) -------------------------------------
     @property
@@ -133,41 +169,6 @@ class ScenarioBatch:
     @property
     def future_slice(self) -> slice:
         return slice(T0_INDEX + 1, N_TOTAL)
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """One scenario: the fields of ``ScenarioBatch`` without the batch axis (same units)."""
-
-    scenario_id: str
-    recording_id: int
-    location_id: int
-    ego_id: int
-    frame0: int
-    driving_direction: int
-    speed_limit_mps: float
-    ego_class: int
-    ego_length_m: float
-    ego_width_m: float
-    ego_xy_m: np.ndarray
-    ego_vxy_mps: np.ndarray
-    ego_axy_mps2: np.ndarray
-    ego_lane_id: np.ndarray
-    nbr_id: np.ndarray
-    nbr_class: np.ndarray
-    nbr_length_m: np.ndarray
-    nbr_width_m: np.ndarray
-    nbr_xy_m: np.ndarray
-    nbr_vxy_mps: np.ndarray
-    nbr_valid: np.ndarray
-    nbr_lane_id: np.ndarray
-    marking_y_m: np.ndarray
-    marking_is_edge: np.ndarray
-    lane_ids: np.ndarray
-
-    def as_batch(self) -> ScenarioBatch:
-        """A batch of one."""
-        return ScenarioBatch(**{f.name: np.asarray([getattr(self, f.name)]) for f in fields(self)})
 
 
 def concat_batches(batches: list[ScenarioBatch]) -> ScenarioBatch:

@@ -15,7 +15,7 @@ import numpy as np
 from letspi.constants import DT_S, N_TOTAL, T0_INDEX
 from letspi.planners.base import PlanBatch
 from letspi.scenario.queries import OFF_ROAD, lane_index_of
-from letspi.scenario.types import Scenario
+from letspi.scenario.types import ScenarioBatch
 
 SAME_LANE = "same lane"
 ADJACENT_LANE = "adjacent lane"
@@ -77,24 +77,24 @@ def times_s() -> np.ndarray:
     return (np.arange(N_TOTAL) - T0_INDEX) * DT_S
 
 
-def _lane_index(scenario: Scenario, y_m: np.ndarray) -> np.ndarray:
+def _lane_index(scenario: ScenarioBatch, y_m: np.ndarray) -> np.ndarray:
     y = np.asarray(y_m, dtype=np.float64)
-    return lane_index_of(np.asarray(scenario.marking_y_m, dtype=np.float64)[None, :], y[None, ...])[0]
+    return lane_index_of(np.asarray(scenario.marking_y_m[0], dtype=np.float64)[None, :], y[None, ...])[0]
 
 
-def neighbour_groups(scenario: Scenario) -> list[str | None]:
+def neighbour_groups(scenario: ScenarioBatch) -> list[str | None]:
     """Per neighbour slot: ``SAME_LANE``, ``ADJACENT_LANE``, ``OTHER_LANE`` (relative to the ego's
     lane at t = 0, using the neighbour's lane at t = 0 or, if not visible then, its first visible
     frame), or None for empty slots."""
-    ego_lane = int(_lane_index(scenario, np.array([scenario.ego_xy_m[T0_INDEX, 1]]))[0])
+    ego_lane = int(_lane_index(scenario, np.array([scenario.ego_xy_m[0][T0_INDEX, 1]]))[0])
     groups: list[str | None] = []
-    for j in range(len(scenario.nbr_id)):
-        valid = np.asarray(scenario.nbr_valid[j], dtype=bool)
+    for j in range(len(scenario.nbr_id[0])):
+        valid = np.asarray(scenario.nbr_valid[0][j], dtype=bool)
         if not valid.any():
             groups.append(None)
             continue
         frame = T0_INDEX if valid[T0_INDEX] else int(np.flatnonzero(valid)[0])
-        lane = int(_lane_index(scenario, np.array([scenario.nbr_xy_m[j, frame, 1]]))[0])
+        lane = int(_lane_index(scenario, np.array([scenario.nbr_xy_m[0][j, frame, 1]]))[0])
         if ego_lane == OFF_ROAD or lane == OFF_ROAD:
             groups.append(OTHER_LANE)
         elif lane == ego_lane:
@@ -106,7 +106,7 @@ def neighbour_groups(scenario: Scenario) -> list[str | None]:
     return groups
 
 
-def preceding_gap(scenario: Scenario, ego_xy_m: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def preceding_gap(scenario: ScenarioBatch, ego_xy_m: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gap from the ego to the vehicle ahead in its lane at each given frame.
 
     Args:
@@ -120,8 +120,8 @@ def preceding_gap(scenario: Scenario, ego_xy_m: np.ndarray, frames: np.ndarray) 
     """
     ego = np.asarray(ego_xy_m, dtype=np.float64)
     frames = np.asarray(frames, dtype=np.int64)
-    nbr = np.asarray(scenario.nbr_xy_m, dtype=np.float64)[:, frames]  # (N, K, 2)
-    valid = np.asarray(scenario.nbr_valid, dtype=bool)[:, frames]
+    nbr = np.asarray(scenario.nbr_xy_m[0], dtype=np.float64)[:, frames]  # (N, K, 2)
+    valid = np.asarray(scenario.nbr_valid[0], dtype=bool)[:, frames]
     ego_lane = _lane_index(scenario, ego[:, 1])  # (K,)
     nbr_lane = _lane_index(scenario, nbr[..., 1].T).T  # (N, K)
     dx = nbr[..., 0] - ego[None, :, 0]
@@ -130,6 +130,6 @@ def preceding_gap(scenario: Scenario, ego_xy_m: np.ndarray, frames: np.ndarray) 
     slot = np.argmin(key, axis=0)
     k = np.arange(len(frames))
     found = np.isfinite(key[slot, k])
-    half = 0.5 * (float(scenario.ego_length_m) + np.asarray(scenario.nbr_length_m, dtype=np.float64)[slot])
+    half = 0.5 * (float(scenario.ego_length_m[0]) + np.asarray(scenario.nbr_length_m[0], dtype=np.float64)[slot])
     gap = np.where(found, key[slot, k] - half, np.nan)
     return gap, np.where(found, slot, -1)

@@ -72,7 +72,7 @@ def plot_scenario(
     """
     if not 0 <= index < len(batch):
         raise IndexError(f"scenario index {index} outside 0..{len(batch) - 1}")
-    scenario = batch.scenario(index)
+    scenario = batch.take([index])
     tracks = plan_tracks(plans, index, len(batch))
     colours = [style.plan_colour(k) for k in range(len(tracks))]
     goal = predicted_goal(batch, index) if goal_xy_m is None else np.asarray(goal_xy_m, dtype=np.float64)
@@ -103,9 +103,9 @@ def plot_scenario(
                                       adjusted=_has_adjusted(tracks, goal))
         fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 6), frameon=False)
         if title is None:
-            speed = float(np.hypot(*scenario.ego_vxy_mps[len(scenario.ego_vxy_mps) - 126]))
-            title = (f"Scenario {scenario.scenario_id} (recording {int(scenario.recording_id)}, ego "
-                     f"{int(scenario.ego_id)}, {speed * 3.6:.0f} km/h at t = 0)")
+            speed = float(np.hypot(*scenario.ego_vxy_mps[0][len(scenario.ego_vxy_mps[0]) - 126]))
+            title = (f"Scenario {scenario.scenario_id[0]} (recording {int(scenario.recording_id[0])}, ego "
+                     f"{int(scenario.ego_id[0])}, {speed * 3.6:.0f} km/h at t = 0)")
         fig.suptitle(title, fontsize=style.BASE_FONT_SIZE + 3, fontweight="bold")
         if out_png is not None:
             path = Path(out_png)

@@ -18,7 +18,7 @@ from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
 
 from letspi.constants import N_TOTAL, T0_INDEX
-from letspi.scenario.types import Scenario
+from letspi.scenario.types import ScenarioBatch
 from letspi.viz import style
 from letspi.viz.data import PlanTrack, neighbour_groups, preceding_gap, times_s
 from letspi.viz.trajectory import SECOND_MARKS, group_colour
@@ -29,7 +29,7 @@ NEIGHBOUR_MARGIN_M = 40.0
 
 def draw_time_space(
     ax: Axes,
-    scenario: Scenario,
+    scenario: ScenarioBatch,
     tracks: Sequence[PlanTrack],
     *,
     colours: Sequence[str] | None = None,
@@ -38,7 +38,7 @@ def draw_time_space(
     """Longitudinal position [m] over time [s] of the ego and the neighbours; returns lines by gid."""
     colours = list(colours) if colours is not None else [style.plan_colour(k) for k in range(len(tracks))]
     t = times_s()
-    ego = np.asarray(scenario.ego_xy_m, dtype=np.float64)
+    ego = np.asarray(scenario.ego_xy_m[0], dtype=np.float64)
     out: dict[str, Line2D] = {}
     ego_x = np.concatenate([ego[:, 0]] + [tr.xy_m[:, 0] for tr in tracks])
     ego_x = ego_x[np.isfinite(ego_x)]
@@ -46,9 +46,9 @@ def draw_time_space(
     for j, group in enumerate(neighbour_groups(scenario)):
         if group is None:
             continue
-        vid = int(scenario.nbr_id[j])
-        valid = np.asarray(scenario.nbr_valid[j], dtype=bool)
-        x = np.where(valid, np.asarray(scenario.nbr_xy_m[j, :, 0], dtype=np.float64), np.nan)
+        vid = int(scenario.nbr_id[0][j])
+        valid = np.asarray(scenario.nbr_valid[0][j], dtype=bool)
+        x = np.where(valid, np.asarray(scenario.nbr_xy_m[0][j, :, 0], dtype=np.float64), np.nan)
         if not np.any((x >= lo) & (x <= hi)):
             continue
         colour = group_colour(group)
@@ -84,7 +84,7 @@ def draw_time_space(
 
 def draw_gap(
     ax: Axes,
-    scenario: Scenario,
+    scenario: ScenarioBatch,
     tracks: Sequence[PlanTrack],
     *,
     colours: Sequence[str] | None = None,
@@ -93,7 +93,7 @@ def draw_gap(
     """Bumper-to-bumper gap [m] to the vehicle ahead in the ego's lane over time [s]."""
     colours = list(colours) if colours is not None else [style.plan_colour(k) for k in range(len(tracks))]
     t = times_s()
-    ego = np.asarray(scenario.ego_xy_m, dtype=np.float64)
+    ego = np.asarray(scenario.ego_xy_m[0], dtype=np.float64)
     out: dict[str, Line2D] = {}
     gap_truth, slot_truth = preceding_gap(scenario, ego, np.arange(N_TOTAL))
     future_min = _min_label(gap_truth[T0_INDEX + 1 :])

@@ -17,7 +17,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
 from letspi.constants import T0_INDEX
-from letspi.scenario.types import Scenario
+from letspi.scenario.types import ScenarioBatch
 from letspi.viz import style
 from letspi.viz.data import ADJACENT_LANE, SAME_LANE, PlanTrack, neighbour_groups
 
@@ -33,9 +33,9 @@ def group_colour(group: str | None) -> str:
     return GROUP_COLOURS.get(group or "", style.NBR_OTHER)
 
 
-def x_range_m(scenario: Scenario, tracks: Sequence[PlanTrack], goal_xy_m: np.ndarray | None) -> tuple[float, float]:
+def x_range_m(scenario: ScenarioBatch, tracks: Sequence[PlanTrack], goal_xy_m: np.ndarray | None) -> tuple[float, float]:
     """The relevant x range: the ego's past, ground truth, plans and goals, with a small margin."""
-    xs = [np.asarray(scenario.ego_xy_m[:, 0], dtype=np.float64)]
+    xs = [np.asarray(scenario.ego_xy_m[0][:, 0], dtype=np.float64)]
     xs += [t.xy_m[:, 0] for t in tracks]
     xs += [t.goal_xy_m[:1] for t in tracks]
     if goal_xy_m is not None:
@@ -47,11 +47,11 @@ def x_range_m(scenario: Scenario, tracks: Sequence[PlanTrack], goal_xy_m: np.nda
     return lo - 0.04 * span - 3.0, hi + 0.04 * span + 3.0
 
 
-def y_range_m(scenario: Scenario, tracks: Sequence[PlanTrack]) -> tuple[float, float]:
+def y_range_m(scenario: ScenarioBatch, tracks: Sequence[PlanTrack]) -> tuple[float, float]:
     """The road between its edges plus a margin (widened if a plan leaves the road)."""
-    marks = np.asarray(scenario.marking_y_m, dtype=np.float64)
+    marks = np.asarray(scenario.marking_y_m[0], dtype=np.float64)
     marks = marks[np.isfinite(marks)]
-    ys = [marks, np.asarray(scenario.ego_xy_m[:, 1], dtype=np.float64)] + [t.xy_m[:, 1] for t in tracks]
+    ys = [marks, np.asarray(scenario.ego_xy_m[0][:, 1], dtype=np.float64)] + [t.xy_m[:, 1] for t in tracks]
     ally = np.concatenate(ys)
     ally = ally[np.isfinite(ally)]
     lo, hi = (float(ally.min()), float(ally.max())) if ally.size else (-6.0, 6.0)
@@ -68,10 +68,10 @@ def _box(ax: Axes, xy: np.ndarray, vxy: np.ndarray, length: float, width: float,
     return rect
 
 
-def draw_road(ax: Axes, scenario: Scenario) -> list[Line2D]:
+def draw_road(ax: Axes, scenario: ScenarioBatch) -> list[Line2D]:
     """Road surface between the edges, dashed crossable lane lines, solid road edges."""
-    marks = np.asarray(scenario.marking_y_m, dtype=np.float64)
-    edges = np.asarray(scenario.marking_is_edge, dtype=bool)
+    marks = np.asarray(scenario.marking_y_m[0], dtype=np.float64)
+    edges = np.asarray(scenario.marking_is_edge[0], dtype=bool)
     ok = np.isfinite(marks)
     lines: list[Line2D] = []
     if ok.sum() >= 2:
@@ -92,7 +92,7 @@ def draw_road(ax: Axes, scenario: Scenario) -> list[Line2D]:
 
 def draw_trajectory(
     ax: Axes,
-    scenario: Scenario,
+    scenario: ScenarioBatch,
     tracks: Sequence[PlanTrack],
     goal_xy_m: np.ndarray | None = None,
     *,
@@ -123,9 +123,9 @@ def draw_trajectory(
     for j, group in enumerate(groups):
         if group is None:
             continue
-        vid = int(scenario.nbr_id[j])
-        xy = np.asarray(scenario.nbr_xy_m[j], dtype=np.float64)
-        valid = np.asarray(scenario.nbr_valid[j], dtype=bool)
+        vid = int(scenario.nbr_id[0][j])
+        xy = np.asarray(scenario.nbr_xy_m[0][j], dtype=np.float64)
+        valid = np.asarray(scenario.nbr_valid[0][j], dtype=bool)
         colour = group_colour(group)
         past = np.where(valid[: T0_INDEX + 1, None], xy[: T0_INDEX + 1], np.nan)
         future = np.where(valid[T0_INDEX:, None], xy[T0_INDEX:], np.nan)
@@ -134,29 +134,29 @@ def draw_trajectory(
                 gid=style.gid_nbr("future", vid))
         if valid[T0_INDEX]:
             box_xy = xy[T0_INDEX]
-            _box(ax, box_xy, np.asarray(scenario.nbr_vxy_mps[j, T0_INDEX], dtype=np.float64),
-                 float(scenario.nbr_length_m[j]), float(scenario.nbr_width_m[j]),
+            _box(ax, box_xy, np.asarray(scenario.nbr_vxy_mps[0][j, T0_INDEX], dtype=np.float64),
+                 float(scenario.nbr_length_m[0][j]), float(scenario.nbr_width_m[0][j]),
                  facecolor=colour, edgecolor="black", lw=0.8, alpha=0.9, zorder=5, gid=style.gid_nbr("box", vid))
         else:  # not on the road at t = 0: no box, no label (the time-space diagram names it)
             continue
         if xlo <= box_xy[0] <= xhi:
             ax.annotate(
-                f"{vid}", (float(box_xy[0]), float(box_xy[1]) + 0.5 * float(scenario.nbr_width_m[j])),
+                f"{vid}", (float(box_xy[0]), float(box_xy[1]) + 0.5 * float(scenario.nbr_width_m[0][j])),
                 xytext=(0, 2), textcoords="offset points", ha="center", va="bottom", fontsize=8,
                 color="black", zorder=8, gid=f"nbr_label:{vid}", annotation_clip=True,
             )
 
     # ego: past, ground truth, box at t = 0
-    ego = np.asarray(scenario.ego_xy_m, dtype=np.float64)
+    ego = np.asarray(scenario.ego_xy_m[0], dtype=np.float64)
     out["ego_past"] = ax.plot(ego[: T0_INDEX + 1, 0], ego[: T0_INDEX + 1, 1], color=style.EGO_PAST, lw=2.0,
                               zorder=6, gid="ego_past")[0]
     out["ego_truth"] = ax.plot(ego[T0_INDEX:, 0], ego[T0_INDEX:, 1], color=style.EGO_TRUTH, lw=1.8,
                                ls=style.TRUTH_STYLE, marker="o", ms=3.5, mfc="white",
                                markevery=(25, 25), zorder=6, gid="ego_truth")[0]
-    _box(ax, ego[T0_INDEX], np.asarray(scenario.ego_vxy_mps[T0_INDEX], dtype=np.float64),
-         float(scenario.ego_length_m), float(scenario.ego_width_m),
+    _box(ax, ego[T0_INDEX], np.asarray(scenario.ego_vxy_mps[0][T0_INDEX], dtype=np.float64),
+         float(scenario.ego_length_m[0]), float(scenario.ego_width_m[0]),
          facecolor="white", edgecolor="black", lw=1.4, zorder=7, gid="ego_box")
-    ax.annotate("ego", (float(ego[T0_INDEX, 0]), float(ego[T0_INDEX, 1]) - 0.5 * float(scenario.ego_width_m)),
+    ax.annotate("ego", (float(ego[T0_INDEX, 0]), float(ego[T0_INDEX, 1]) - 0.5 * float(scenario.ego_width_m[0])),
                 xytext=(0, -2), textcoords="offset points", ha="center", va="top", fontsize=8, fontweight="bold",
                 zorder=8)
 
