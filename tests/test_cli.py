@@ -6,6 +6,7 @@ import json
 
 from typer.testing import CliRunner
 
+from letspi.scenario.types import SCHEMA_VERSION
 from letspi.cli.app import app
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
@@ -53,7 +54,7 @@ def test_info_json(tmp_path):
     result = runner.invoke(app, ["data", "info", str(path), "--json"])
     assert result.exit_code == 0, result.output
     info = json.loads(result.output)
-    assert info["n_scenarios"] == 4 and info["schema_version"] == 1
+    assert info["n_scenarios"] == 4 and info["schema_version"] == SCHEMA_VERSION
 
 
 def test_plan_json_shows_parameters_rationale_and_iterations(tmp_path):

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from letspi.learned.features import N_HIST_STEPS, N_LANE_FEATURES, N_STATIC_FEATURES, N_STEP_FEATURES, scene_features
-from letspi.learned.train.data import FILE_RECORDING_OFFSET
-from letspi.planners.fit_sf import split_by_vehicle
+from letspi.scenario.split import split_by_recording, split_by_vehicle
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
@@ -59,13 +58,16 @@ def test_features_shapes_masks_and_no_future() -> None:
 def test_split_by_vehicle_has_no_leakage() -> None:
     rng = np.random.default_rng(1)
     batch = random_batch(rng, 60)
-    # several windows per vehicle, vehicles from two "files"
+    # several windows per vehicle; two "files" whose recordings share id 1 but not their content key
     ego = rng.integers(1, 15, size=len(batch)).astype(np.int32)
-    rec = np.where(np.arange(len(batch)) < 30, 1, 1 + FILE_RECORDING_OFFSET).astype(np.int32)
+    key = np.where(np.arange(len(batch)) < 30, "recA", "recB").astype(object)
     from dataclasses import replace
 
-    batch = replace(batch, ego_id=ego, recording_id=rec)
+    batch = replace(batch, ego_id=ego, recording_id=np.ones(len(batch), np.int32), recording_key=key)
     train, val = split_by_vehicle(batch, 0.7, seed=3)
     assert len(train) and len(val) and len(train) + len(val) == len(batch)
-    keys = [set(zip(batch.recording_id[i], batch.ego_id[i], strict=True)) for i in (train, val)]
+    keys = [set(zip(batch.recording_key[i], batch.ego_id[i], strict=True)) for i in (train, val)]
     assert not keys[0] & keys[1]
+    # vehicle 5 of file A and vehicle 5 of file B are different vehicles: both sides may hold one
+    by_rec = split_by_recording(batch, 0.5, seed=0)
+    assert {str(k) for k in batch.recording_key[by_rec[0]]} != {str(k) for k in batch.recording_key[by_rec[1]]}

@@ -9,7 +9,7 @@ import pytest
 
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import ScenarioFileError, count_scenarios, load_scenarios, save_scenarios
-from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi.scenario.types import SCHEMA_VERSION, ScenarioBatch, concat_batches
 
 
 def _batch() -> ScenarioBatch:
@@ -59,5 +59,5 @@ def test_schema_version_mismatch(tmp_path, monkeypatch):
 
     path = save_scenarios(_batch(), tmp_path / "s.parquet")
     monkeypatch.setattr(store, "SCHEMA_VERSION", 99)
-    with pytest.raises(ScenarioFileError, match="schema version 1, this letspi reads version 99"):
+    with pytest.raises(ScenarioFileError, match=f"schema version {SCHEMA_VERSION}, this letspi reads version 99"):
         store.load_scenarios(path)

@@ -67,8 +67,9 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
 
     lane_ids = np.broadcast_to(np.array([8, 7, 6], dtype=np.int8), (n, 3)).copy()
     batch = ScenarioBatch(
-        scenario_id=np.array([f"syn_{i}" for i in range(n)]),
+        scenario_id=np.array([f"syn_{i}" for i in range(n)], dtype=object),
         recording_id=np.zeros(n, np.int32),
+        recording_key=np.full(n, "synthetic", dtype=object),
         location_id=np.zeros(n, np.int32),
         ego_id=np.ones(n, np.int32),
         frame0=np.full(n, T0_INDEX + 1, np.int32),

@@ -106,6 +106,7 @@ def straight_road_scenario(
     return ScenarioBatch.from_single(
         scenario_id=scenario_id,
         recording_id=0,
+        recording_key="synthetic",
         location_id=0,
         ego_id=1,
         frame0=T0_INDEX + 1,

@@ -15,10 +15,12 @@ first frame and then every ``stride_frames`` frames. In each window:
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from letspi.constants import (
     DEFAULT_STRIDE_FRAMES,
@@ -132,6 +134,15 @@ class _RecordingArrays:
         return slice(int(self.frame_start[first - self.f_min]), int(self.frame_start[last - self.f_min + 1]))
 
 
+def recording_key(rec: Recording) -> str:
+    """A short content hash of a recording (its meta and every vehicle's meta row): the same
+    recording gives the same key wherever it is read from, another recording another key."""
+    h = hashlib.blake2b(digest_size=8)
+    h.update(repr(sorted((str(k), str(v)) for k, v in rec.meta.items())).encode())
+    h.update(pd.util.hash_pandas_object(rec.tracks_meta, index=False).to_numpy().tobytes())
+    return h.hexdigest()
+
+
 def _to_ego_frame(
     direction: int, cx: np.ndarray, cy: np.ndarray, cx0: float, cy0: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -175,6 +186,7 @@ def extract_windows(
     markings_m = max(markings_m, len(rec.upper_markings_y_m))
     out = _empty_batch_arrays(n_win, n, markings_m)
     speed_limit = float(rec.meta.get("speedLimit", -1.0))  # type: ignore[arg-type]
+    rec_key = recording_key(rec)
     location = int(rec.meta.get("locationId", 0))  # type: ignore[call-overload]
     for w in range(n_win):
         ego, start = int(ego_ids[w]), int(start_frames[w])
@@ -210,6 +222,7 @@ def extract_windows(
 
         out["scenario_id"][w] = f"r{rec.recording_id:02d}_v{ego}_f{start + T0_INDEX}"
         out["recording_id"][w] = rec.recording_id
+        out["recording_key"][w] = rec_key
         out["location_id"][w] = location
         out["ego_id"][w] = ego
         out["frame0"][w] = start + T0_INDEX
@@ -252,6 +265,7 @@ def _empty_batch_arrays(n_win: int, n: int, m: int) -> dict[str, np.ndarray]:
     return {
         "scenario_id": np.empty(n_win, dtype=object),
         "recording_id": np.zeros(n_win, np.int32),
+        "recording_key": np.empty(n_win, dtype=object),
         "location_id": np.zeros(n_win, np.int32),
         "ego_id": np.zeros(n_win, np.int32),
         "frame0": np.zeros(n_win, np.int32),

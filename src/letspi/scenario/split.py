@@ -13,13 +13,13 @@ from letspi.scenario.types import ScenarioBatch
 
 
 def vehicle_keys(batch: ScenarioBatch) -> np.ndarray:
-    """(B,) int64 key of each scenario's ego vehicle: recording id and ego id combined."""
-    return batch.recording_id.astype(np.int64) * 10_000_000 + batch.ego_id.astype(np.int64)
+    """(B,) str key of each scenario's ego vehicle: the recording's content key and the ego id."""
+    return np.array([f"{r}/{e}" for r, e in zip(batch.recording_key, batch.ego_id, strict=True)], dtype=object)
 
 
 def split_by_vehicle(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices (train, validation): whole ego vehicles (recording, id) go to one side."""
-    keys = vehicle_keys(batch)
+    keys = vehicle_keys(batch).astype(str)
     uniq = np.unique(keys)
     perm = np.random.default_rng(seed).permutation(len(uniq))
     n_train = round(train_fraction * len(uniq))
@@ -30,10 +30,10 @@ def split_by_vehicle(batch: ScenarioBatch, train_fraction: float, seed: int) -> 
 
 def split_by_recording(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices (train, validation): whole recordings go to one side (needs at least two recordings)."""
-    uniq = np.unique(batch.recording_id)
+    uniq = np.unique(batch.recording_key.astype(str))
     if len(uniq) < 2:
         raise ValueError(f"a split by recording needs at least 2 recordings, the scenarios come from {len(uniq)}")
     perm = np.random.default_rng(seed).permutation(len(uniq))
     n_train = min(max(round(train_fraction * len(uniq)), 1), len(uniq) - 1)
-    is_train = np.isin(batch.recording_id, uniq[perm[:n_train]])
+    is_train = np.isin(batch.recording_key.astype(str), uniq[perm[:n_train]])
     return np.flatnonzero(is_train), np.flatnonzero(~is_train)

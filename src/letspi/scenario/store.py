@@ -38,7 +38,7 @@ def save_scenarios(batch: ScenarioBatch, path: Path, extra_meta: dict[str, objec
     dtypes: dict[str, str] = {}
     for f in fields(ScenarioBatch):
         arr = getattr(batch, f.name)
-        if f.name == "scenario_id":
+        if arr.dtype == object:  # text columns (scenario_id, recording_key)
             columns[f.name] = pa.array([str(s) for s in arr], type=pa.string())
             continue
         inner = tuple(arr.shape[1:])
@@ -128,7 +128,7 @@ def load_scenarios(path: Path, indices: np.ndarray | list[int] | None = None) ->
         if f.name not in table.column_names:
             raise ScenarioFileError(f"{path}: missing column '{f.name}'")
         col = table.column(f.name).combine_chunks()
-        if f.name == "scenario_id":
+        if pa.types.is_string(col.type):
             out[f.name] = np.asarray(col.to_pylist(), dtype=object)
             continue
         inner = tuple(shapes[f.name])

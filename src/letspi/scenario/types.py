@@ -30,7 +30,8 @@ import numpy as np
 
 from letspi.constants import N_HISTORY, N_TOTAL, T0_INDEX
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""2: ``recording_key`` added (vehicle identity across datasets)."""
 
 VEHICLE_CLASS_CAR = 0
 VEHICLE_CLASS_TRUCK = 1
@@ -49,6 +50,8 @@ class ScenarioBatch:
     Meta (shape (B,)):
         scenario_id: str, ``"r{recording:02d}_v{ego_id}_f{frame0}"``, unique per window.
         recording_id, location_id, ego_id, frame0 (HighD frame number at t = 0): int32.
+        recording_key: str, a content hash of the source recording: recording ids repeat across
+            datasets (every generated run has recording 1), so a vehicle is (recording_key, ego_id).
         driving_direction: int8, 1 or 2 (HighD convention).
         speed_limit_mps: float32, NaN when the road has none.
         ego_class: int8 (``VEHICLE_CLASS_*``); ego_length_m, ego_width_m: float32.
@@ -70,6 +73,7 @@ class ScenarioBatch:
 
     scenario_id: np.ndarray
     recording_id: np.ndarray
+    recording_key: np.ndarray
     location_id: np.ndarray
     ego_id: np.ndarray
     frame0: np.ndarray
@@ -115,7 +119,10 @@ class ScenarioBatch:
     @classmethod
     def from_single(cls, **values: object) -> ScenarioBatch:
         """A batch of one from per-scenario values (arrays without the batch axis, scalars for meta)."""
-        return cls(**{f.name: np.asarray([values[f.name]]) for f in fields(cls)})
+        def one(value: object) -> np.ndarray:
+            return np.array([value], dtype=object) if isinstance(value, str) else np.asarray([value])
+
+        return cls(**{f.name: one(values[f.name]) for f in fields(cls)})
 
     def __len__(self) -> int:
         return len(self.scenario_id)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -13,20 +12,14 @@ from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
-FILE_RECORDING_OFFSET = 1000
-"""Recording ids of file i are shifted by ``i * FILE_RECORDING_OFFSET``: generated files all use
-recording 1, and without the shift ego ids of different files would merge into one "vehicle"."""
-
-
 def load_training_scenarios(paths: Sequence[Path]) -> tuple[ScenarioBatch, list[dict[str, Any]]]:
-    """All scenarios of ``paths`` in one batch (recording ids made distinct per file) and each file's
-    provenance record (for the manifest)."""
+    """All scenarios of ``paths`` in one batch and each file's provenance record (for the manifest).
+    Vehicles of different files stay apart through ``recording_key`` (see ``letspi.scenario.split``)."""
     if not paths:
         raise ValueError("no scenario file given")
     batches, infos = [], []
-    for i, p in enumerate(paths):
+    for p in paths:
         b = load_scenarios(Path(p))
-        b = replace(b, recording_id=(b.recording_id.astype(np.int64) + i * FILE_RECORDING_OFFSET).astype(np.int32))
         batches.append(b)
         meta = read_scenario_meta(Path(p))
         infos.append({"file": str(p), "n_scenarios": len(b), "provenance": meta.get("provenance")})
@@ -35,7 +28,7 @@ def load_training_scenarios(paths: Sequence[Path]) -> tuple[ScenarioBatch, list[
 
 def split(batch: ScenarioBatch, val_fraction: float, seed: int, max_train: int | None = None,
           max_val: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(train, validation) indices by ego vehicle (``letspi.planners.fit_sf.split_by_vehicle``),
+    """(train, validation) indices by ego vehicle (``letspi.scenario.split.split_by_vehicle``),
     optionally subsampled (deterministic for ``seed``)."""
     train, val = split_by_vehicle(batch, 1.0 - val_fraction, seed)
     rng = np.random.default_rng(seed + 1)
