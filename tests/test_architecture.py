@@ -13,6 +13,8 @@ from pathlib import Path
 import letspi
 
 HEAVY_OPTIONAL = ("torch", "transformers", "peft", "gguf", "llama_cpp", "libsumo", "traci", "sumolib", "ray")
+#: letspi packages whose modules import a heavy optional dependency (torch) at module level
+HEAVY_PACKAGES = ("letspi.learned.train", "letspi.finetune")
 SRC = Path(letspi.__file__).parent
 
 
@@ -31,7 +33,8 @@ def _function_level_imports() -> list[str]:
                 else:
                     continue
                 for name in names:
-                    if name.split(".")[0] not in HEAVY_OPTIONAL:
+                    heavy = name.split(".")[0] in HEAVY_OPTIONAL or name.startswith(HEAVY_PACKAGES)
+                    if not heavy:
                         found.append(f"{path.relative_to(SRC.parent)}:{node.lineno} imports {name} in {func.name}()")
     return found
 

@@ -17,19 +17,21 @@ import pytest
 
 from letspi.bench.retrieval import bench_retrieval
 from letspi.core.matching import top_k
-from letspi.core.memory import Experience, MemoryBank
+from letspi.core.memory import SCHEMA_VERSION, Experience, MemoryBank, MemoryBankError
 from letspi.core.reflection import Proposal, ReflectionContext, reflect
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.physics.params import SocialForceParams
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.features import scenario_features
+from letspi.scenario.identity import scenario_digests
 
 
-def _exp(i: int, config_key: str = "cfg", validated: bool = True) -> Experience:
+def _exp(i: int, config_key: str = "cfg", validated: bool = True, fallback: bool = False) -> Experience:
     f = (float(i % 9), 20.0 + i % 17, float(i % 2), 5.0 + i % 50, 30.0 + i % 40, 25.0)
     metrics = {"min_ttc_s": float("inf"), "min_path_gap_m": 10.0 + i, "collision": 0.0, "safe": 1.0}
     return Experience(
-        scenario_id=f"s{i}", config_key=config_key, features=f, params=SocialForceParams(k_np=20.0 + i % 7),
+        scenario_id=f"s{i}", scenario_digest=f"d{i}", recording_key="rec", recording_id=1, ego_id=i, frame0=100,
+        config_key=config_key, features=f, params=SocialForceParams(k_np=20.0 + i % 7), fallback=fallback,
         lon_factor=0.5, lane_factor=-0.25, metrics_before={**metrics, "min_ttc_s": 0.8}, metrics_after=metrics,
         iterations=[{"iteration": 0, "metrics": metrics}], model="test-model", prompt="p", reply="r",
         rationale="because", validated=validated,
@@ -48,7 +50,9 @@ def test_round_trip_from_reflection(tmp_path: Path) -> None:
 
     res = reflect(sc, propose, ReflectionThresholds(max_decel_mps2=None))
     assert res.validated and res.n_refinements >= 1
-    exp = Experience.from_reflection(res, scenario_features(sc)[0], config_key="m1|v1", model="scripted")
+    exp = Experience.from_reflection(res, sc, scenario_digest=str(scenario_digests(sc)[0]), config_key="m1",
+                                     model="scripted")
+    assert exp.features == tuple(scenario_features(sc)[0]) and exp.recording_key == "synthetic"
     with MemoryBank.open(tmp_path / "mem.sqlite") as bank:
         assert bank.add(exp)
         (got,) = bank.get(bank.features_matrix().ids)
@@ -69,11 +73,11 @@ def test_unique_conflict_count_and_wal(tmp_path: Path) -> None:
         assert not bank.add(_exp(1))
         assert bank.add_many([_exp(1), _exp(2), _exp(4)]) == 1
         assert bank.count(validated_only=False) == 5 and bank.count(config_key="cfg") == 3
-        assert bank.has("s1", "cfg") and not bank.has("s9", "cfg")
+        assert bank.has("d1", "cfg") and not bank.has("d9", "cfg")
         assert [e.scenario_id for e in bank.iter_experiences(batch_size=2)] == ["s1", "s2", "s3", "s1", "s4"]
     con = sqlite3.connect(path)
     assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-    assert con.execute("SELECT version FROM schema_version").fetchall() == [(1,)]
+    assert con.execute("SELECT version FROM schema_version").fetchall() == [(SCHEMA_VERSION,)]
     con.close()
 
 
@@ -131,14 +135,15 @@ def test_two_processes_write_concurrently(tmp_path: Path) -> None:
 
 _KILL_CHILD = """
 import sys
-from letspi.core.memory import Experience, MemoryBank
+from letspi.core.memory import SCHEMA_VERSION, Experience, MemoryBank, MemoryBankError
 from letspi.physics.params import SocialForceParams
 bank = MemoryBank.open(sys.argv[1])
 i = 0
 while True:
     m = {"min_ttc_s": 2.0, "safe": 1.0}
-    e = Experience(f"k{i}", "cfg", (1.0, 2.0, 0.0, 3.0, 4.0, 5.0), SocialForceParams(), 0.4, 0.0, m, m,
-                   [{"iteration": 0, "metrics": m, "pad": "x" * 2000}], "model", "prompt", "reply", "why", True)
+    e = Experience(f"k{i}", f"k{i}", "rec", 1, i, 100, "cfg", (1.0, 2.0, 0.0, 3.0, 4.0, 5.0), SocialForceParams(),
+                   0.4, 0.0, m, m, [{"iteration": 0, "metrics": m, "pad": "x" * 2000}], "model", "prompt", "reply",
+                   "why", True)
     bank.add(e)
     print(f"k{i}", flush=True)  # printed only after the commit returned
     i += 1
@@ -166,7 +171,32 @@ def test_kill_9_while_inserting_loses_no_committed_row(tmp_path: Path) -> None:
         stored = [e.scenario_id for e in bank.iter_experiences()]
         assert set(committed) <= set(stored) and len(stored) == len(set(stored))
         # a resumed run adds nothing twice
-        assert not bank.add(replace(_exp(0), scenario_id="k0"))
+        assert not bank.add(replace(_exp(0), scenario_id="k0", scenario_digest="k0"))
+
+
+def test_fallback_rows_are_replaced_real_rows_are_kept(tmp_path: Path) -> None:
+    with MemoryBank.open(tmp_path / "mem.sqlite") as bank:
+        assert bank.add(_exp(1, validated=False, fallback=True))
+        assert not bank.has("d1", "cfg") and bank.count() == 0
+        assert bank.add(_exp(1))  # the retry replaces the fallback
+        assert bank.has("d1", "cfg") and bank.count() == 1 and bank.count(validated_only=False) == 1
+        assert not bank.add(_exp(1, validated=False, fallback=True))  # never the other way round
+        assert not next(bank.iter_experiences()).fallback
+    with pytest.raises(ValueError, match="a fallback result cannot be validated"):
+        _exp(2, validated=True, fallback=True)
+    with pytest.raises(ValueError, match="s3: matching feature.*min_dist_m not finite"):
+        replace(_exp(3), features=(1.0, 2.0, 0.0, float("nan"), 4.0, 5.0))
+
+
+def test_old_schema_is_a_clear_error(tmp_path: Path) -> None:
+    path = tmp_path / "old.sqlite"
+    con = sqlite3.connect(path)
+    con.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+    con.execute("INSERT INTO schema_version VALUES (1)")
+    con.commit()
+    con.close()
+    with pytest.raises(MemoryBankError, match="old.sqlite: memory bank schema version 1, this letspi reads version 2"):
+        MemoryBank.open(path)
 
 
 @pytest.mark.parametrize("n", [2000])

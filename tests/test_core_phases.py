@@ -33,8 +33,8 @@ def _advisor(backend: ScriptedBackend) -> ParamAdvisor:
     return ParamAdvisor(backend, cache=None, sleep=lambda s: None)
 
 
-def _phase(backend: ScriptedBackend, max_iterations: int = 3) -> MemoryPhase:
-    return MemoryPhase(_advisor(backend), KinematicGoalPredictor(), r_col_m=10.0,
+def _phase(backend: ScriptedBackend, max_iterations: int = 3, key: str = "test") -> MemoryPhase:
+    return MemoryPhase(_advisor(backend), KinematicGoalPredictor(), r_col_m=10.0, config_key=key,
                        thresholds=ReflectionThresholds(max_iterations=max_iterations))
 
 
@@ -72,8 +72,9 @@ def test_collect_is_resumable_and_fast_phase_retrieves_from_the_bank(tmp_path):
 
         fast_backend = ScriptedBackend(default=json.dumps({"tau": 1.1, "k_np": 41, "k_nf": 3, "k_nl": 0.5,
                                                            "k_bd": 1, "k_cl": 0.5, "lon": 0.8, "lane": 0}))
+        # every hand-built scenario is ego 1 of recording "synthetic": allow the same vehicle here
         fast = LetsPiFastPlanner(FastPhase(_advisor(fast_backend), KinematicGoalPredictor(), 10.0,
-                                           Retriever(bank, k=2)))
+                                           Retriever(bank, k=2, allow_same_vehicle=True)))
         plan = fast.plan(_unsafe())
         assert fast.last_retrieved[0][0] == "unsafe"  # the identical scenario ranks first
         assert plan.info["n_retrieved"][0] == 2 and np.isfinite(plan.xy_m).all()
@@ -86,7 +87,7 @@ def test_collect_is_resumable_and_fast_phase_retrieves_from_the_bank(tmp_path):
 def test_ablation_presets_with_a_scripted_model(tmp_path, monkeypatch):
     """Every preset runs end to end (scripted backend via the spec string) and writes its files."""
     from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
-    from letspi.registry.factory import PlannerOptions
+    from letspi.registry.resolve import PlannerOptions
 
     batch = concat_batches([_unsafe(), straight_road_scenario(scenario_id="free")])
     bank_path = tmp_path / "m.sqlite"
@@ -105,3 +106,69 @@ def test_ablation_presets_with_a_scripted_model(tmp_path, monkeypatch):
     assert [p["n_memories"] for p in sizes["points"]][-1] == round(0.8 * sizes["n_total"])
     combos = json.loads((out / "ablations" / "llm_combinations.json").read_text())["combinations"]
     assert combos[0]["physics"] == "scripted:default"
+
+
+def test_a_backend_that_never_answers_leaves_no_experience_to_retrieve_and_is_retried(tmp_path):
+    """Defect of 0.1: prose-only replies were stored as *validated* memories carrying the fallback
+    parameters, retrieved as experience by the fast phase and never retried."""
+    batch = concat_batches([_unsafe(), straight_road_scenario(ego_speed_mps=28.0, scenario_id="free")])
+    with MemoryBank.open(tmp_path / "m.sqlite") as bank:
+        prose = ScriptedBackend(default="I cannot answer that.")
+        stats = collect(_phase(prose), batch, bank)
+        assert stats.stored == 2 and stats.validated == 0 and stats.fallback_results == 2
+        assert bank.count(validated_only=True) == 0 and bank.count(validated_only=False) == 2
+        rows = list(bank.iter_experiences())
+        assert all(e.fallback and not e.validated for e in rows)
+        retriever = Retriever(bank, k=3, allow_same_vehicle=True)
+        assert retriever.retrieve(batch.take([0])) == []
+        # resume retries the fallbacks; a real answer replaces them
+        good = ScriptedBackend(default=_reply(40.0, 0.8, "keep distance", tau=2.5))
+        again = collect(_phase(good), batch, bank)
+        assert again.skipped == 0 and again.stored == 2 and again.fallback_results == 0
+        assert bank.count(validated_only=False) == 2 and not any(e.fallback for e in bank.iter_experiences())
+        assert len(retriever.retrieve(batch.take([0]))) >= 1
+        # a finished result is never overwritten by a later fallback
+        third = collect(_phase(ScriptedBackend(default="no")), batch, bank)
+        assert third.skipped == 2 and third.stored == 0
+
+
+def test_a_nan_in_a_neighbour_track_does_not_break_collection_or_resume(tmp_path):
+    """Defect of 0.1: a NaN matching feature raised IntegrityError on the same scenario at every resume."""
+    sc = _unsafe()
+    sc.nbr_xy_m[0, 0, 74] = np.nan  # a gap in the leader's track at t = 0, still flagged valid
+    with MemoryBank.open(tmp_path / "m.sqlite") as bank:
+        backend = ScriptedBackend(default=_reply(40.0, 0.8, tau=2.5))
+        assert collect(_phase(backend), sc, bank).stored == 1
+        assert collect(_phase(backend), sc, bank).skipped == 1
+        (exp,) = bank.iter_experiences()
+        assert all(np.isfinite(exp.features)) and exp.features[0] == 0.0  # the leader counts as not visible
+
+
+def test_collection_keys_keep_configurations_and_datasets_apart(tmp_path):
+    batch = _unsafe()
+    with MemoryBank.open(tmp_path / "m.sqlite") as bank:
+        backend = ScriptedBackend(default=_reply(40.0, 0.8, tau=2.5))
+        assert collect(_phase(backend, key="A"), batch, bank).stored == 1
+        assert collect(_phase(backend, key="B"), batch, bank).stored == 1  # another configuration: new rows
+        regenerated = straight_road_scenario(ego_speed_mps=34.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
+                                             scenario_id="unsafe")  # same id, other content
+        assert collect(_phase(backend, key="A"), regenerated, bank).stored == 1
+        assert bank.count(validated_only=False) == 3
+
+
+def test_retrieval_leaves_out_the_query_vehicle_and_overlapping_windows(tmp_path):
+    from dataclasses import replace
+
+    def scene(ego: int, frame0: int, rec: str, sid: str):
+        return replace(straight_road_scenario(scenario_id=sid), ego_id=np.array([ego], np.int32),
+                       frame0=np.array([frame0], np.int32), recording_key=np.array([rec], dtype=object))
+
+    memories = concat_batches([scene(1, 1000, "r", "same-vehicle-later"), scene(2, 1050, "r", "other-overlapping"),
+                               scene(3, 5000, "r", "other-later"), scene(1, 1000, "q", "other-recording")])
+    with MemoryBank.open(tmp_path / "m.sqlite") as bank:
+        collect(_phase(ScriptedBackend(default=_reply(40.0, 0.8, tau=2.5))), memories, bank)
+        query = scene(1, 900, "r", "query")
+        got = {e.scenario_id for e, _ in Retriever(bank, k=10).retrieve(query)}
+        assert got == {"other-later", "other-recording"}
+        leaky = {e.scenario_id for e, _ in Retriever(bank, k=10, allow_same_vehicle=True).retrieve(query)}
+        assert leaky == {"same-vehicle-later", "other-overlapping", "other-later", "other-recording"}

@@ -10,13 +10,14 @@ import pytest
 from test_learned_scenes import random_batch
 
 from letspi.evaluation.harness import evaluate
-from letspi.learned import goal_model
 from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import scene_features
-from letspi.learned.gnp_model import GnpModel, load_gnp_model
-from letspi.learned.goal_model import default_goal_predictor
+from letspi.learned.gnp_model import GnpModel
+from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.planners.gnp import GnpPlanner
-from letspi.learned.goal_model import LearnedGoalPredictor, default_goal_predictor
+from letspi.registry.build import Builder, BuiltPlanner
+from letspi.registry.configs import GnpConfig, GoalsConfig, WeightsConfig
+from letspi.registry.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
 from letspi.physics.goals import GoalPrediction, KinematicGoalPredictor
@@ -90,12 +91,18 @@ def test_weight_files_round_trip_and_errors(tmp_path: Path) -> None:
     with pytest.raises(WeightsError):
         load_weights(tmp_path / "missing")
     # an explicitly requested model that does not load is an error, never a silent fallback
-    with pytest.raises(WeightsError):
-        default_goal_predictor(tmp_path / "missing")
+    with pytest.raises(WeightsError, match=f"{GOAL_WEIGHTS_ENV}="):
+        _ = Resolver(PlannerOptions(), env={GOAL_WEIGHTS_ENV: str(tmp_path / "missing")}).goals
+
+
+def _shipped_goals() -> LearnedGoalPredictor:
+    pred = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(), env={}).goals)
+    assert isinstance(pred, LearnedGoalPredictor)
+    return pred
 
 
 def test_goals_are_finite_sorted_and_on_the_road(tmp_path: Path) -> None:
-    pred = default_goal_predictor() if SHIPPED else LearnedGoalPredictor.from_dir(_saved_goal_model(tmp_path))
+    pred = _shipped_goals() if SHIPPED else LearnedGoalPredictor.from_dir(_saved_goal_model(tmp_path))
     assert isinstance(pred, LearnedGoalPredictor)
     batch = random_batch(np.random.default_rng(8), 40)
     out = pred.predict_goals(batch)
@@ -109,19 +116,23 @@ def test_goals_are_finite_sorted_and_on_the_road(tmp_path: Path) -> None:
     assert (out.goals_xy_m[..., 0] >= -1e-9).all()
 
 
-def test_default_goal_predictor_falls_back_without_shipped_weights(monkeypatch: pytest.MonkeyPatch,
-                                                                   tmp_path: Path) -> None:
-    monkeypatch.delenv(goal_model.GOAL_WEIGHTS_ENV, raising=False)
-    monkeypatch.setattr(goal_model, "shipped_weights_dir", lambda model: tmp_path / "nothing")
-    assert isinstance(default_goal_predictor(), KinematicGoalPredictor)
-    monkeypatch.setenv(goal_model.GOAL_WEIGHTS_ENV, str(_saved_goal_model(tmp_path)))
-    assert isinstance(default_goal_predictor(), LearnedGoalPredictor)
+def test_goal_source_falls_back_without_shipped_weights_and_says_so(monkeypatch: pytest.MonkeyPatch,
+                                                                     tmp_path: Path) -> None:
+    from letspi.registry import resolve
+
+    monkeypatch.setattr(resolve, "shipped_weights_dir", lambda model: tmp_path / "nothing")
+    fallback = Resolver(PlannerOptions(), env={}).goals
+    assert fallback.source == "kinematic" and "no usable shipped goal weights" in (fallback.fallback_reason or "")
+    assert isinstance(Builder(cache=None).goal_predictor(fallback), KinematicGoalPredictor)
+    d = _saved_goal_model(tmp_path)
+    chosen = Resolver(PlannerOptions(), env={GOAL_WEIGHTS_ENV: str(d)}).goals
+    assert chosen.source == "learned" and chosen.weights_dir == str(d)
+    assert isinstance(Builder(cache=None).goal_predictor(chosen), LearnedGoalPredictor)
 
 
 @pytest.mark.skipif(not SHIPPED, reason="no shipped weights")
 def test_shipped_models_load_with_manifests_and_beat_kinematic_goals() -> None:
-    pred = default_goal_predictor()
-    assert isinstance(pred, LearnedGoalPredictor)
+    pred = _shipped_goals()
     manifest = pred.manifest or {}
     for key in ("config", "data", "validation", "training"):
         assert key in manifest
@@ -145,7 +156,7 @@ def test_goal_metrics_definition() -> None:
 
 def _gnp_planner(tmp_path: Path) -> GnpPlanner:
     if (shipped_weights_dir("gnp") / "weights.npz").is_file():
-        return GnpPlanner(model=load_gnp_model(), goal_predictor=default_goal_predictor())
+        return GnpPlanner(model=GnpModel.from_dir(shipped_weights_dir("gnp")), goal_predictor=_shipped_goals())
     _, _, gnp = _torch_models(2)
     from letspi.learned.train.modules import export_state
 
@@ -167,7 +178,8 @@ def test_gnp_planner_runs_in_the_evaluation_harness(tmp_path: Path) -> None:
 
     batch = replace(batch, scenario_id=np.array(["a", "b", "c"], dtype=object))
     planner = _gnp_planner(tmp_path)
-    results = evaluate([planner], batch, tmp_path / "eval")
+    config = GnpConfig(goals=GoalsConfig(source="kinematic"), gnp=WeightsConfig(weights_sha256="test", weights_dir="."))
+    results = evaluate([BuiltPlanner("gnp", config, planner)], batch, tmp_path / "eval")
     assert "gnp" in results
     assert (tmp_path / "eval" / "metrics.md").read_text().count("gnp") >= 1
     plan = planner.plan(batch)

@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 
 from letspi.cli import viz as viz_cli
 from letspi.evaluation.harness import evaluate
-from letspi.planners.cv import ConstantVelocityPlanner
-from letspi.planners.human import HumanPlanner
+from letspi.registry.build import build_planners
+from letspi.registry.resolve import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import concat_batches
@@ -36,7 +36,7 @@ def eval_dir(tmp_path_factory):
     ])
     scen = save_scenarios(batch, root / "scenarios.arrow")
     out = root / "evaluation"
-    evaluate([HumanPlanner(), ConstantVelocityPlanner()], batch, out, scenarios_file=str(scen))
+    evaluate(build_planners(["human", "cv"], PlannerOptions()), batch, out, scenarios_file=str(scen))
     return out
 
 

@@ -20,7 +20,12 @@ import numpy as np
 
 from letspi.core.matching import top_k
 from letspi.core.memory import Experience, MemoryBank
+from letspi.core.phases import FastPhase, Retriever, collect
 from letspi.physics.params import SocialForceParams
+from letspi.registry.build import Builder
+from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.types import concat_batches
 
 
 def synthetic_features(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -39,7 +44,9 @@ def _experiences(features: np.ndarray, start: int) -> list[Experience]:
     metrics = {"min_ttc_s": float("inf"), "min_path_gap_m": 20.0, "safe": 1.0}
     return [
         Experience(
-            scenario_id=f"bench_{start + i}", config_key="bench", features=tuple(map(float, f)), params=params,
+            scenario_id=f"bench_{start + i}", scenario_digest=f"bench_{start + i}", recording_key="bench",
+            recording_id=1, ego_id=start + i, frame0=100, config_key="bench", features=tuple(map(float, f)),
+            params=params,
             lon_factor=0.4, lane_factor=0.0, metrics_before=metrics, metrics_after=metrics,
             iterations=[{"iteration": 0, "metrics": metrics}], model="bench", prompt=None, reply=None,
             rationale="synthetic", validated=True,
@@ -101,39 +108,26 @@ def bench_retrieval(
     return out
 
 
-if __name__ == "__main__":  # pragma: no cover
-    import json
-
-    print(json.dumps(bench_retrieval(), indent=2))
-
-
 def bench_phases(model_spec: str = "llamacpp:smollm2-135m", n_scenarios: int = 3) -> dict[str, float]:
     """Per-phase latency with a real model (response cache off): the memory-collection phase (prompt,
     reflection loop, simulation) and the fast phase (retrieval + fast prompt + one call), medians
     over ``n_scenarios`` hand-built scenarios [s]."""
-    from letspi.core.memory import MemoryBank
-    from letspi.core.phases import FastPhase, MemoryPhase, Retriever, collect
-    from letspi.physics.goals import KinematicGoalPredictor
-    from letspi.registry.factory import make_advisor
-    from letspi.scenario.build import VehicleSpec, straight_road_scenario
-    from letspi.scenario.types import concat_batches
-
     scenes = [
         straight_road_scenario(ego_speed_mps=30.0 + i, scenario_id=f"b{i}",
                                neighbours=[VehicleSpec(x0_m=35.0 + 10 * i, speed_mps=24.0),
                                            VehicleSpec(x0_m=-20.0, speed_mps=31.0, lane_offset=1)])
         for i in range(n_scenarios)
     ]
-    advisor = make_advisor(model_spec, use_cache=False)
-    goals = KinematicGoalPredictor()
-    phase = MemoryPhase(advisor, goals, r_col_m=5.0)
-    out: dict[str, float] = {}
+    options = PlannerOptions(llm=model_spec, goals="kinematic", llm_cache=False)
+    phase, load_s = Builder(cache=None).memory_phase(Resolver(options).memory_phase())
+    advisor, goals = phase.advisor, phase.goal_predictor
+    out: dict[str, float] = {"model_load_s": load_s}
     with tempfile.TemporaryDirectory() as tmp:
         with MemoryBank.open(Path(tmp) / "m.sqlite") as bank:
             t0 = time.perf_counter()
             collect(phase, concat_batches(scenes), bank)
             out["memory_phase_s_per_scenario"] = (time.perf_counter() - t0) / n_scenarios
-            fast = FastPhase(advisor, goals, 5.0, Retriever(bank, k=3, config_key=None))
+            fast = FastPhase(advisor, goals, phase.r_col_m, Retriever(bank, k=3, allow_same_vehicle=True))
             times = []
             for sc in scenes:
                 t0 = time.perf_counter()

@@ -2,30 +2,51 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from typing import Annotated
 
 import typer
+from rich.console import Console
+from rich.pretty import pprint
+from rich.table import Table
 
-from letspi.registry.factory import DEFAULT_LLM
+from letspi.bench.data import bench_data
+from letspi.bench.llm import bench_models
+from letspi.bench.metrics import bench_metrics
+from letspi.bench.physics import bench_rollout
+from letspi.bench.retrieval import bench_phases, bench_retrieval
+from letspi.registry.resolve import DEFAULT_LLM
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.", no_args_is_help=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
 
 
+def format_number(value: object) -> str:
+    """One format for every number: thousands separators, no exponents, 3 significant decimals."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    if isinstance(value, int) or (float(value).is_integer() and abs(value) >= 1000):
+        return f"{value:,.0f}"
+    v = float(value)
+    if abs(v) >= 100:
+        return f"{v:,.1f}"
+    if abs(v) >= 1:
+        return f"{v:,.3f}"
+    return f"{v:.3g}" if v != 0 else "0"
+
+
 def _emit(result: dict[str, float], as_json: bool, title: str) -> None:
     if as_json:
         typer.echo(json.dumps(result, indent=2))
         return
-    from rich.console import Console
-    from rich.table import Table
-
     table = Table(title=title)
     table.add_column("measure")
     table.add_column("value", justify="right")
     for k, v in result.items():
-        table.add_row(k, f"{v:,.4g}" if isinstance(v, float) else str(v))
+        table.add_row(k, format_number(v))
     Console().print(table)
 
 
@@ -37,8 +58,6 @@ def data_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Generation time, extraction scenarios/s for one recording, load time of 10,000 scenarios."""
-    from letspi.bench.data import bench_data
-
     _emit(bench_data(minutes=minutes, seed=seed, n_load=n_load), as_json, "letspi bench data")
 
 
@@ -50,12 +69,6 @@ def physics_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio)."""
-    import contextlib
-    import io
-
-    from letspi.bench.metrics import bench_metrics
-    from letspi.bench.physics import bench_rollout
-
     # the bench functions print progress lines of their own; keep stdout clean for --json
     with contextlib.redirect_stdout(io.StringIO()):
         rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference)
@@ -73,9 +86,6 @@ def llm_cmd(
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences."""
-    from letspi.bench.retrieval import bench_phases, bench_retrieval
-    from letspi.bench.llm import bench_models
-
     models = tuple(model) if model else ("smollm2-135m", "gemma3-270m")
     result: dict[str, object] = {
         "models": bench_models(models, repeats=repeats, behaviour=False),
@@ -85,8 +95,5 @@ def llm_cmd(
     if as_json:
         typer.echo(json.dumps(result, indent=2, default=float))
         return
-    from rich.console import Console
-    from rich.pretty import pprint
-
     Console().rule("letspi bench llm")
     pprint(result, expand_all=True)

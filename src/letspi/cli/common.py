@@ -1,22 +1,40 @@
-"""Shared CLI helpers: progress bars, clean error exits."""
+"""Shared CLI helpers: progress bars and the one error path of every command.
+
+Every anticipated failure ends in one or two lines on stderr that name the file, field or address
+and say what to do, with a non-zero exit code; ``--debug`` (or ``LETSPI_DEBUG=1``) shows the
+traceback instead. Exit codes: 2 bad input or setup (file, field, model, server, results key),
+1 an unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted.
+"""
 
 from __future__ import annotations
 
+import errno
+import os
+import sqlite3
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    TaskProgressColumn,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
 
+from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError
+
 console = Console(stderr=True)
+DEBUG_ENV = "LETSPI_DEBUG"
+
+
+def debug_enabled() -> bool:
+    return os.environ.get(DEBUG_ENV, "") not in ("", "0")
 
 
 def progress_bar() -> Progress:
@@ -24,6 +42,7 @@ def progress_bar() -> Progress:
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
+        TaskProgressColumn(),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
         console=console,
@@ -31,11 +50,46 @@ def progress_bar() -> Progress:
     )
 
 
+def _fail(message: str, hint: str | None, code: int) -> typer.Exit:
+    console.print(f"[red]error:[/red] {escape(message)}", highlight=False)
+    if hint:
+        console.print(escape(hint), highlight=False)
+    return typer.Exit(code=code)
+
+
 @contextmanager
 def user_errors() -> Iterator[None]:
-    """Turn expected input errors into a one-line message and exit code 2 (no traceback)."""
+    """Turn anticipated failures into one or two lines and an exit code (module docstring)."""
     try:
         yield
-    except (ValueError, FileNotFoundError) as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(code=2) from exc
+    except typer.Exit:
+        raise
+    except Exception as exc:
+        if debug_enabled():
+            raise
+        raise _classify(exc) from exc
+    except KeyboardInterrupt as exc:
+        if debug_enabled():
+            raise
+        raise _fail("interrupted", "Finished work is saved; rerun the same command to resume.", 130) from exc
+
+
+def _classify(exc: Exception) -> typer.Exit:
+    if isinstance(exc, BackendUnavailableError):
+        return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
+                     "(or fix the address) and rerun the same command to resume.", 2)
+    if isinstance(exc, LLMConfigError | LLMError):
+        return _fail(str(exc), None, 2)
+    if isinstance(exc, FileNotFoundError):
+        return _fail(str(exc), None, 2)
+    if isinstance(exc, PermissionError):
+        return _fail(f"{exc.filename or ''}: permission denied", "Choose an output location you can write to.", 2)
+    if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+        return _fail(f"{exc.filename or 'output'}: no space left on the device",
+                     "Free disk space and rerun the same command: finished work is kept.", 2)
+    if isinstance(exc, sqlite3.DatabaseError):
+        return _fail(f"database error: {exc}", "Is the --memory file a letspi memory bank (SQLite)?", 2)
+    if isinstance(exc, ValueError | KeyError | OSError):
+        return _fail(str(exc).strip("'\""), None, 2)
+    return _fail(f"internal error: {type(exc).__name__}: {exc}",
+                 f"This is a bug; rerun with --debug (or {DEBUG_ENV}=1) for the traceback and report it.", 1)

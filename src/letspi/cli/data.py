@@ -6,10 +6,15 @@ import json
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.constants import DEFAULT_STRIDE_FRAMES
+from letspi.constants import DEFAULT_STRIDE_FRAMES, T0_INDEX
+from letspi.highd.io import read_recordings
+from letspi.scenario.extract import enumerate_windows, extract_scenarios
+from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
+from letspi.sumo.generate import generate_recordings
 
 app = typer.Typer(help="HighD data: generate with SUMO, extract scenarios, inspect.", no_args_is_help=True)
 
@@ -32,8 +37,6 @@ def generate(
     flow: Annotated[float | None, typer.Option(help="Inflow per direction [veh/h]; default: generator's.")] = None,
 ) -> None:
     """Simulate a straight two-direction highway in SUMO and write HighD-format recordings."""
-    from letspi.sumo.generate import generate_recordings
-
     with user_errors(), progress_bar() as bar:
         task = bar.add_task("simulating", total=100.0)
         paths = generate_recordings(
@@ -57,10 +60,6 @@ def scenarios(
     recordings: Annotated[str | None, typer.Option(help="Comma-separated recording ids (default: all).")] = None,
 ) -> None:
     """Cut recordings into 8 s ego-centric scenarios (3 s history, 5 s future) and store them."""
-    from letspi.highd.io import read_recordings
-    from letspi.scenario.extract import enumerate_windows, extract_scenarios
-    from letspi.scenario.store import save_scenarios
-
     with user_errors():
         recs = read_recordings(highd, _parse_ids(recordings))
         total = len(enumerate_windows(recs, stride))
@@ -85,11 +84,6 @@ def info(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """Summarise a scenario file: counts, recordings, neighbours, provenance."""
-    import numpy as np
-
-    from letspi.constants import T0_INDEX
-    from letspi.scenario.store import load_scenarios, read_scenario_meta
-
     with user_errors():
         meta = read_scenario_meta(scenarios_file)
         batch = load_scenarios(scenarios_file)

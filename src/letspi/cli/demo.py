@@ -1,14 +1,31 @@
-"""``letspi demo``: the main job on the embedded default (generated data)."""
+"""``letspi demo``: the main job on the embedded default (generated data, embedded model)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.registry.factory import DEFAULT_LLM
+from letspi.cli.evaluate import progress_factory
+from letspi.core.memory import MemoryBank
+from letspi.core.phases import collect
+from letspi.evaluation.harness import evaluate
+from letspi.highd.io import list_recording_ids, read_recordings
+from letspi.metrics.aggregate import render_markdown_table
+from letspi.registry.build import Builder, BuiltPlanner, build_planners
+from letspi.registry.resolve import DEFAULT_LLM, PlannerOptions, Resolver
+from letspi.scenario.extract import extract_scenarios
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import split_by_vehicle
+from letspi.scenario.store import save_scenarios
+from letspi.scenario.types import ScenarioBatch
+from letspi.sumo.generate import generate_recordings
+from letspi.viz.report import write_report
+
+BASELINES: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
 
 
 def demo(
@@ -21,110 +38,78 @@ def demo(
     llm_eval: Annotated[int, typer.Option(help="Held-back scenarios for the LLM head-to-head table.")] = 8,
 ) -> None:
     """The main job: generate (or reuse) SUMO traffic as HighD files, extract planning scenarios,
-    evaluate the baselines (human, cv, idm, sf, sf-opt) and print the paper-style table.
+    evaluate the baselines (human, cv, idm, sf, sf-opt, gnp) and print the paper-style table.
 
     Then LetsPi itself: the memory collection phase (physics-informed prompt, reflection) with the
-    embedded model on ``llm_collect`` scenarios, and a head-to-head of baselines, letspi-memory
-    and letspi-fast on ``llm_eval`` other scenarios (LLM calls take seconds each on 2 cores).
+    embedded model on ``llm_collect`` scenarios, and a head-to-head of baselines, letspi-memory and
+    letspi-fast on ``llm_eval`` scenarios of *other ego vehicles* (a split by vehicle: overlapping
+    windows of one vehicle never land on both sides). LLM calls take seconds each on 2 cores.
 
-    The shipped ``sf`` parameters were fitted on traffic generated with seed 1; the demo's
-    default seed 0 keeps its scenarios held out from that fit. Rerunning reuses finished work.
+    The shipped ``sf`` parameters were fitted on traffic generated with seed 1; the demo's default
+    seed 0 keeps its scenarios held out from that fit. Rerunning reuses finished work.
     """
-    from letspi.highd.io import list_recording_ids, read_recordings
-    from letspi.scenario.extract import extract_scenarios
-    from letspi.scenario.store import save_scenarios
-    from letspi.sumo.generate import generate_recordings
-
     highd_dir = out / "highd"
     scenarios_file = out / "scenarios.arrow"
+    eval_dir = out / "evaluation"
     with user_errors():
         if highd_dir.exists() and list_recording_ids(highd_dir):
             console.print(f"reusing recordings in {highd_dir}")
         else:
             with progress_bar() as bar:
                 task = bar.add_task("simulating (SUMO)", total=100.0)
-                generate_recordings(
-                    highd_dir, minutes=minutes, seed=seed,
-                    progress=lambda f: bar.update(task, completed=100.0 * f),
-                )
+                generate_recordings(highd_dir, minutes=minutes, seed=seed,
+                                    progress=lambda f: bar.update(task, completed=100.0 * f))
         recs = read_recordings(highd_dir)
         with progress_bar() as bar:
-            task = bar.add_task("extracting scenarios", total=None)
-            batch = extract_scenarios(
-                recs, max_scenarios=max_scenarios, seed=seed, progress=lambda k: bar.advance(task, k)
-            )
+            task = bar.add_task("extracting scenarios", total=max_scenarios)
+            batch = extract_scenarios(recs, max_scenarios=max_scenarios, seed=seed,
+                                      progress=lambda k: bar.advance(task, k))
         save_scenarios(batch, scenarios_file, extra_meta={"provenance": {"source": str(highd_dir), "seed": seed}})
         console.print(f"[green]{len(batch)} scenarios[/green] from {len(recs)} recording(s) -> {scenarios_file}")
-
-        from letspi.evaluation.harness import evaluate
-        from letspi.metrics.aggregate import render_markdown_table
-        from letspi.registry.factory import BASELINE_PLANNERS, make_planner
-
-        planners = [make_planner(name) for name in BASELINE_PLANNERS]
-        eval_dir = out / "evaluation"
+        planners = build_planners(list(BASELINES), PlannerOptions())
         with progress_bar() as bar:
-
-            def factory(name: str, total: int):  # type: ignore[no-untyped-def]
-                task = bar.add_task(f"evaluating {name}", total=total)
-                return lambda k: bar.advance(task, k)
-
             results = evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
-                               progress_factory=factory)
-    typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
-    from letspi.viz.report import write_report
-
-    report = write_report(eval_dir)
-    llm_report = None
-    if llm_collect > 0 and llm_eval > 0:
-        llm_report = _llm_demo(batch, out, str(scenarios_file), llm, llm_collect, llm_eval)
-    console.print(f"files: {highd_dir}/ (HighD CSV), {scenarios_file}, {eval_dir}/metrics.json, "
-                  f"{eval_dir}/metrics.md, {eval_dir}/per_scenario/")
-    console.print(f"report: {report}")
-    if llm_report is not None:
-        console.print(f"LetsPi report: {llm_report}")
+                               progress_factory=progress_factory(bar))
+        typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+        report = write_report(eval_dir)
+        outputs = [f"{highd_dir}/ (HighD CSV)", str(scenarios_file), f"{eval_dir}/metrics.json, metrics.md, "
+                   "per_scenario/ (with the plans)", str(report)]
+        if llm_collect > 0 and llm_eval > 0:
+            outputs += _llm_demo(batch, out, llm, llm_collect, llm_eval)
+    console.print("files:\n  " + "\n  ".join(outputs))
 
 
-def _llm_demo(batch, out: Path, scenarios_file: str, llm: str, n_collect: int, n_eval: int) -> Path:  # type: ignore[no-untyped-def]
-    """Collect a small memory, then compare planners on disjoint held-back scenarios."""
-    import numpy as np
-
-    from letspi.core.memory import MemoryBank
-    from letspi.core.phases import MemoryPhase, collect
-    from letspi.evaluation.harness import evaluate
-    from letspi.metrics.aggregate import render_markdown_table
-    from letspi.registry.factory import PlannerOptions, make_planners
-    from letspi.viz.report import write_report
-
-    # spread both sets over the recording: every other scenario of the first 2 x n rows
-    n = min(len(batch), 2 * (n_collect + n_eval))
-    rows = np.arange(n)
-    collect_rows, eval_rows = rows[0::2][:n_collect], rows[1::2][:n_eval]
+def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval: int) -> list[str]:
+    """Collect a small memory on some ego vehicles, compare planners on other vehicles' scenarios."""
+    collect_rows, eval_rows = split_by_vehicle(batch, 0.5, seed=0)
+    rng = np.random.default_rng(0)
+    collect_rows = np.sort(rng.choice(collect_rows, min(n_collect, len(collect_rows)), replace=False))
+    eval_rows = np.sort(rng.choice(eval_rows, min(n_eval, len(eval_rows)), replace=False))
+    collect_file, eval_file = out / "scenarios-llm-collect.arrow", out / "scenarios-llm-eval.arrow"
+    save_scenarios(batch.take(collect_rows), collect_file)  # `letspi ablate --scenarios` can reuse both sets
+    save_scenarios(batch.take(eval_rows), eval_file)
     memory = out / "memory.sqlite"
-    # the two sets as files, so ablations can run on exactly them (`letspi ablate --scenarios ...`)
-    from letspi.scenario.store import save_scenarios
-
-    save_scenarios(batch.take(collect_rows), out / "scenarios-llm-collect.arrow")
-    save_scenarios(batch.take(eval_rows), out / "scenarios-llm-eval.arrow")
-    with user_errors():
-        options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory)
-        memory_planner, = make_planners(["letspi-memory"], options)
-        phase: MemoryPhase = memory_planner.phase  # type: ignore[attr-defined]
-        with MemoryBank.open(memory) as bank, progress_bar() as bar:
-            task = bar.add_task(f"memory collection ({llm})", total=len(collect_rows))
-            stats = collect(phase, batch.take(collect_rows), bank, progress=lambda k: bar.advance(task, k))
-        console.print(f"memory: {stats.stored} new, {stats.skipped} reused, {stats.validated} validated -> {memory}")
-        options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase.config_key)
-        planners = make_planners(["human", "idm", "sf", "sf-opt", "gnp"], options)
-        planners += [memory_planner, *make_planners(["letspi-fast"], options)]
-        eval_dir = out / "evaluation-llm"
-        with progress_bar() as bar:
-
-            def factory(name: str, total: int):  # type: ignore[no-untyped-def]
-                task = bar.add_task(f"evaluating {name}", total=total)
-                return lambda k: bar.advance(task, k)
-
-            results = evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=scenarios_file,
-                               progress_factory=factory)
-    typer.echo(f"\nLetsPi with {llm} on {len(eval_rows)} held-back scenarios (memory from {len(collect_rows)} others):")
+    builder = Builder()
+    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory)
+    phase_config = Resolver(options).memory_phase()
+    phase, _ = builder.memory_phase(phase_config)
+    to_collect = batch.take(collect_rows)
+    with MemoryBank.open(memory) as bank, progress_bar() as bar:
+        bank.record_dataset(dataset_digest(scenario_digests(to_collect)), str(collect_file), len(to_collect))
+        task = bar.add_task(f"memory collection ({llm})", total=len(collect_rows))
+        stats = collect(phase, to_collect, bank, progress=lambda k: bar.advance(task, k))
+    console.print(f"memory: {stats.stored} new ({stats.validated} validated, {stats.fallback_results} fell back), "
+                  f"{stats.skipped} reused -> {memory} (configuration {phase_config.key()})")
+    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key())
+    planners: list[BuiltPlanner] = build_planners(["human", "idm", "sf", "sf-opt", "gnp", "letspi-memory",
+                                                   "letspi-fast"], options, builder=builder)
+    eval_dir = out / "evaluation-llm"
+    with progress_bar() as bar:
+        results = evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=str(eval_file),
+                           progress_factory=progress_factory(bar))
+    typer.echo(f"\nLetsPi with {llm} on {len(eval_rows)} scenarios of held-back ego vehicles "
+               f"(memory from {len(collect_rows)} scenarios of other vehicles):")
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
-    return write_report(eval_dir)
+    report = write_report(eval_dir)
+    return [str(memory), str(collect_file), str(eval_file), f"{eval_dir}/metrics.json, metrics.md, per_scenario/",
+            str(report)]

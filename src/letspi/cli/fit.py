@@ -8,6 +8,9 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
+from letspi.planners.fit_sf import fit_sf_params
+from letspi.planners.sf_params import save_sf_params
+from letspi.scenario.store import load_scenarios, read_scenario_meta
 
 app = typer.Typer(help="Fit baseline parameters offline.", no_args_is_help=True)
 
@@ -22,10 +25,6 @@ def fit_sf(
     collision_weight: Annotated[float, typer.Option(help="Objective weight of the collision rate [m].")] = 50.0,
 ) -> None:
     """Fit the fixed social-force parameters of the `sf` baseline (ADE + weighted collisions)."""
-    from letspi.planners.fit_sf import fit_sf_params
-    from letspi.planners.sf_params import save_sf_params
-    from letspi.scenario.store import load_scenarios, read_scenario_meta
-
     with user_errors():
         batch = load_scenarios(scenarios)
         meta = read_scenario_meta(scenarios)

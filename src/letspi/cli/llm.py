@@ -7,6 +7,12 @@ from typing import Annotated
 
 import typer
 
+from letspi.bench.llm import bench_models, bench_scenarios
+from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.models import EMBEDDED_MODELS
+from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
+from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
+
 app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark.", no_args_is_help=True)
 
 _TINY_USER = (
@@ -29,10 +35,6 @@ def check(
 
     Exit code 0: the model gave a valid reply; 1: it fell back to defaults; 2: configuration error.
     """
-    from letspi.llm.client import ParamAdvisor, RetryPolicy
-    from letspi.llm.prompts import system_prompt
-    from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
-
     if prompt not in ("tiny", "fast", "physics"):
         raise typer.BadParameter("prompt must be tiny, fast or physics")
     try:
@@ -46,9 +48,6 @@ def check(
             msgs = [message("system", system_prompt("fast")), message("user", _TINY_USER)]
             variant = "fast"
         else:
-            from letspi.bench.llm import bench_scenarios
-            from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
-
             desc = bench_scenarios()["close_leader"]
             msgs = render_fast_prompt(desc) if prompt == "fast" else render_physics_prompt(desc)
             variant = prompt
@@ -73,9 +72,6 @@ def models(
     locate: Annotated[bool, typer.Option(help="Also resolve each model's file (assembles Gemma once).")] = False,
 ) -> None:
     """List the embedded models (``llamacpp:NAME``) and the PyPI packages that provide them."""
-    from letspi.llm.models import EMBEDDED_MODELS
-    from letspi.llm.types import LLMConfigError
-
     rows = []
     for m in EMBEDDED_MODELS.values():
         row: dict[str, str] = {"spec": f"llamacpp:{m.name}", "package": m.pip_package, "description": m.description}
@@ -97,9 +93,6 @@ def bench(
     behaviour: Annotated[bool, typer.Option(help="Also run the five-scenario behaviour check.")] = True,
 ) -> None:
     """Latency, tokens, prefix- and cache-hit speedups and behaviour of the embedded models (JSON)."""
-    from letspi.bench.llm import bench_models
-    from letspi.llm.types import LLMConfigError
-
     try:
         result = bench_models(
             tuple(model) if model else ("smollm2-135m", "gemma3-270m"), repeats=repeats, behaviour=behaviour

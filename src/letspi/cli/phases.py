@@ -1,15 +1,32 @@
-"""``letspi collect`` (memory collection phase) and ``letspi plan`` (one scenario, shown in full)."""
+"""``letspi collect`` (memory collection), ``letspi plan`` (one scenario in full), ``letspi ablate`` and
+``letspi prompt`` (the rendered prompt, no model call)."""
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
+from rich.pretty import pprint
 
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.registry.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.cli.evaluate import load_limited, progress_factory
+from letspi.core.memory import MemoryBank
+from letspi.core.phases import Retriever, memory_example, messages_text
+from letspi.core.phases import collect as run_collect
+from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+from letspi.llm.describe import describe_scenario
+from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
+from letspi.metrics.aggregate import render_markdown_table
+from letspi.metrics.evaluate import compute_metrics
+from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.registry.build import Builder, build_planners
+from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions, Resolver
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.store import load_scenarios
 
 
 def collect(
@@ -19,43 +36,40 @@ def collect(
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
     max_iterations: Annotated[int, typer.Option(help="Reflection refinements per scenario.")] = 3,
     goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
+    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
+    sf_params: Annotated[Path | None, typer.Option(help="SF parameters (r_col and the fallback).")] = None,
+    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = True,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
-    Resumable: rerun the same command after a crash; stored experiences are kept and skipped.
+    Experiences are keyed by the scenario's content and the collection configuration's key (printed),
+    so another configuration or dataset gets its own rows. Resumable: rerun the same command after a
+    crash; stored experiences are kept and skipped, fallbacks are retried.
     """
-    import numpy as np
-
-    from letspi.core.memory import MemoryBank
-    from letspi.core.phases import MemoryPhase
-    from letspi.core.phases import collect as run_collect
-    from letspi.core.thresholds import ReflectionThresholds
-    from letspi.registry.factory import make_advisor, make_goal_predictor
-    from letspi.planners.sf_params import load_sf_params
-    from letspi.scenario.store import count_scenarios, load_scenarios
-
     with user_errors():
-        n = count_scenarios(scenarios)
-        batch = load_scenarios(scenarios, None if limit is None else np.arange(min(limit, n)))
-        sf_params, _ = load_sf_params()
-        phase = MemoryPhase(make_advisor(llm, cache), make_goal_predictor(goals),
-                            sf_params.r_col_m, thresholds=ReflectionThresholds(max_iterations=max_iterations))
+        batch = load_limited(scenarios, limit)
+        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
+                                 max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache)
+        config = Resolver(options).memory_phase()
+        phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
         with MemoryBank.open(memory) as bank, progress_bar() as bar:
+            bank.record_dataset(dataset_digest(scenario_digests(batch)), str(scenarios), len(batch))
             task = bar.add_task("collecting", total=len(batch))
             stats = run_collect(phase, batch, bank, progress=lambda k: bar.advance(task, k))
-            total = bank.count(validated_only=False)
-            validated = bank.count()
+            total = bank.count(validated_only=False, config_key=config.key())
+            validated = bank.count(config_key=config.key())
+    console.print(f"configuration {config.key()} ({config.llm.spec}; model loaded in {load_s:.1f} s)")
     console.print(
-        f"{stats.stored} new experiences ({stats.validated} validated, {stats.refinements} refinements, "
-        f"{stats.fallbacks} fallback replies), {stats.skipped} already stored; bank {memory}: "
-        f"{total} experiences, {validated} validated"
-    )
+        f"{stats.stored} new experiences: {stats.validated} validated, {stats.fallback_results} fell back "
+        f"(stored flagged, never retrieved, retried on the next run), {stats.refinements} refinements, "
+        f"{stats.fallback_replies} fallback replies; {stats.cached_calls}/{stats.calls} model calls from the cache; "
+        f"{stats.skipped} already stored")
+    console.print(f"bank {memory}: {total} experiences of this configuration, {validated} validated "
+                  f"(use --memory-key {config.key()} to retrieve only these)")
 
 
 def _round(v: Any) -> Any:
-    import numpy as np
-
     if isinstance(v, float | np.floating):
         f = float(v)
         return round(f, 3) if np.isfinite(f) else str(f)
@@ -67,73 +81,83 @@ def _round(v: Any) -> Any:
 def plan(
     scenarios: Annotated[Path, typer.Option(help="Scenario file.")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
-    planner: Annotated[str, typer.Option(help="Planner name (llm, letspi-memory, letspi-fast, sf, ...).")] = "llm",
+    planner: Annotated[str, typer.Option(help="Planner kind (llm, letspi-memory, letspi-fast, sf, ...).")] = "llm",
     llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
     fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
     top_k: int = 3,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
 ) -> None:
     """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
     reflection iterations and retrieved memories."""
-    import time
-
-    import numpy as np
-
-    from letspi.metrics.evaluate import compute_metrics
-    from letspi.registry.factory import PlannerOptions, make_planner
-    from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
-    from letspi.scenario.store import load_scenarios
-
     with user_errors():
+        if index < 0:
+            raise ValueError(f"--index must be >= 0, got {index}")
         batch = load_scenarios(scenarios, [index])
-        p = make_planner(planner, PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k))
+        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k, goals=goals, llm_cache=cache)
+        built = build_planners([planner], options)[0]
+        p = built.planner
         t0 = time.perf_counter()
-        result = p.plan(batch)
+        result = p.plan(batch if p.reads_future else batch.history())
         elapsed = time.perf_counter() - t0
     metrics = compute_metrics(batch, result.xy_m, result.vxy_mps, result.goals_xy_m).to_frame().iloc[0].to_dict()
     xy = result.xy_m[0]
     out: dict[str, Any] = {
         "scenario_id": str(batch.scenario_id[0]),
-        "planner": p.name,
+        "planner": built.name,
+        "config_key": built.key,
         "inference_s": round(elapsed, 3),
+        "model_load_s": round(built.load_s, 3),
         "goal_xy_m": [round(float(v), 2) for v in result.goals_xy_m[0]],
         "trajectory": {
             "end_xy_m": [round(float(v), 2) for v in xy[-1]],
             "mean_speed_mps": round(float(np.hypot(*result.vxy_mps[0].T).mean()), 2),
             "every_1s_xy_m": [[round(float(a), 2), round(float(b), 2)] for a, b in xy[24::25]],
         },
-        "info": {k: _round(v[0]) for k, v in result.info.items()},
+        "info": {k: _round(v[0]) for k, v in result.info.items() if np.ndim(v) == 1},
         "metrics": {k: _round(v) for k, v in metrics.items()},
+        "rationale": None,
     }
     if isinstance(p, LetsPiMemoryPlanner):
         out["iterations"] = [
-            {"iteration": it.iteration, "safe": it.safe, "rationale": it.proposal.rationale,
+            {"iteration": it.iteration, "safe": it.safe, "rationale": it.proposal.rationale or None,
              "params": {k: round(v, 3) for k, v in it.proposal.params.as_dict().items()},
              "lon_factor": it.proposal.lon_factor, "lane_factor": it.proposal.lane_factor,
              "fallback": it.proposal.fallback, "safety_report": it.report.to_text(it.proposal),
              **({"prompt": it.proposal.prompt, "reply": it.proposal.reply} if show_prompt else {})}
             for it in p.last_iterations
         ]
-        out["rationale"] = p.last_iterations[-1].proposal.rationale if p.last_iterations else ""
+        if p.last_iterations:
+            final = p.last_iterations[-1].proposal
+            out["rationale"] = final.rationale or ("(fallback: no valid model answer)" if final.fallback else None)
     if isinstance(p, LetsPiFastPlanner):
         out["retrieved_memories"] = [{"scenario_id": sid, "similarity": round(s, 4)} for sid, s in p.last_retrieved]
         if p.last_proposal is not None:
-            out["rationale"] = p.last_proposal.rationale
+            out["rationale"] = p.last_proposal.rationale or None
             if show_prompt:
                 out["prompt"] = p.last_proposal.prompt
                 out["reply"] = p.last_proposal.reply
     if as_json:
         typer.echo(json.dumps(out, indent=2))
     else:
-        from rich.pretty import pprint
-
         pprint(out, expand_all=True)
 
 
+def _pairs(items: list[str] | None) -> list[tuple[str, str]]:
+    out_pairs = []
+    for item in items or []:
+        mem, sep, fast = item.partition(",")
+        if not sep or not mem or not fast:
+            raise typer.BadParameter(f"--combo must be MEMORY_SPEC,FAST_SPEC, got {item!r}")
+        out_pairs.append((mem.strip(), fast.strip()))
+    return out_pairs
+
+
 def ablate(
-    kind: Annotated[str, typer.Argument(help="reflection|goal-adjustment|few-shot|memory-size|llm-combinations")],
+    kind: Annotated[str, typer.Argument(help="|".join(ABLATION_KINDS))],
     scenarios: Annotated[Path, typer.Option(help="Evaluation scenarios (held back from the memory).")],
     out: Annotated[Path, typer.Option(help="Evaluation directory; results go to OUT/ablations/KIND/.")],
     memory: Annotated[Path | None, typer.Option(help="Memory bank (needed by the fast-phase ablations).")] = None,
@@ -149,40 +173,15 @@ def ablate(
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
-    import numpy as np
-
-    from letspi.evaluation.ablations import run_ablation
-    from letspi.metrics.aggregate import render_markdown_table
-    from letspi.registry.factory import PlannerOptions
-    from letspi.scenario.store import count_scenarios, load_scenarios
-
-    def pairs(items: list[str] | None) -> list[tuple[str, str]]:
-        out_pairs = []
-        for item in items or []:
-            mem, sep, fast = item.partition(",")
-            if not sep or not mem or not fast:
-                raise typer.BadParameter(f"--combo must be MEMORY_SPEC,FAST_SPEC, got {item!r}")
-            out_pairs.append((mem.strip(), fast.strip()))
-        return out_pairs
-
     with user_errors():
-        n = count_scenarios(scenarios)
-        batch = load_scenarios(scenarios, None if limit is None else np.arange(min(limit, n)))
-        collect_batch = None
-        if collect_scenarios is not None:
-            m = count_scenarios(collect_scenarios)
-            collect_batch = load_scenarios(
-                collect_scenarios, None if collect_limit is None else np.arange(min(collect_limit, m)))
+        batch = load_limited(scenarios, limit)
+        collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
         options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  llm_cache=cache)
         with progress_bar() as bar:
-
-            def factory(name: str, total: int):  # type: ignore[no-untyped-def]
-                task = bar.add_task(name, total=total)
-                return lambda k: bar.advance(task, k)
-
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
-                                   collect_batch=collect_batch, combinations=pairs(combo), progress_factory=factory)
+                                   collect_batch=collect_batch, combinations=_pairs(combo),
+                                   progress_factory=progress_factory(bar))
     typer.echo(render_markdown_table(results))
 
 
@@ -196,16 +195,10 @@ def prompt(
 ) -> None:
     """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
     memory-collection phase, or with --fast the short prompt of the fast-inference phase."""
-    from letspi.core.memory import MemoryBank
-    from letspi.core.phases import Retriever, memory_example, messages_text
-    from letspi.llm.describe import describe_scenario
-    from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
-    from letspi.registry.factory import make_goal_predictor
-    from letspi.scenario.store import load_scenarios
-
     with user_errors():
         batch = load_scenarios(scenarios, [index])
-        goal = make_goal_predictor(goals).predict_goals(batch).top[0]
+        builder = Builder(cache=None)
+        goal = builder.goal_predictor(Resolver(PlannerOptions(goals=goals)).goals).predict_goals(batch.history()).top[0]
         desc = describe_scenario(batch, goal)
         if not fast:
             messages = render_physics_prompt(desc)

@@ -10,6 +10,11 @@ from typing import Annotated, Any
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
+from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.weights import save_weights
+from letspi.planners.sf_params import load_sf_params
+from letspi.registry.build import Builder
+from letspi.registry.resolve import PlannerOptions, Resolver
 
 app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
                   no_args_is_help=True)
@@ -57,7 +62,6 @@ def train_goals(
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
     from letspi.learned.train.goal_train import GoalTrainConfig, train_goal_model
-    from letspi.learned.weights import save_weights
 
     with user_errors():
         if epochs < 1:
@@ -92,11 +96,8 @@ def train_gnp(
     """Train GNP: tau per scene and a repulsion weight per neighbour, end to end through the
     differentiable social force rollout (predicted goals and predicted neighbours)."""
     _require_torch()
-    from letspi.learned.goal_model import default_goal_predictor
     from letspi.learned.train.data import load_training_scenarios
     from letspi.learned.train.gnp_train import GnpTrainConfig, train_gnp_model
-    from letspi.learned.weights import save_weights
-    from letspi.planners.sf_params import load_sf_params
 
     with user_errors():
         if epochs < 1:
@@ -105,7 +106,8 @@ def train_gnp(
             raise ValueError("--neighbours must be idm or constant_velocity (never the recorded future)")
         batch, infos = load_training_scenarios(scenarios)
         base, _ = load_sf_params(sf_params)
-        goals = default_goal_predictor(goal_weights)
+        goals = (LearnedGoalPredictor.from_dir(goal_weights) if goal_weights is not None
+                 else Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals))
         cfg = GnpTrainConfig(epochs=epochs, seed=seed, max_train=max_train, neighbour_mode=neighbours,
                              threads=threads)
         with progress_bar() as bar:

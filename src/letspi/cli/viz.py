@@ -8,15 +8,21 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, user_errors
-from letspi.registry.factory import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.planners.llm import LetsPiMemoryPlanner
+from letspi.registry.build import build_planners
+from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
+from letspi.scenario.store import load_scenarios
+from letspi.viz.figure import plot_scenario
+from letspi.viz.llm_panel import load_iterations, panel_record
+from letspi.viz.report import write_report
 
 
 def plot(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file (0-based).")],
     out: Annotated[Path, typer.Option(help="Output PNG file.")],
-    planner: Annotated[list[str] | None, typer.Option(help="Planner to draw; repeat for several (default: sf).")]
-    = None,
+    planner: Annotated[list[str] | None, typer.Option(help="Planner KIND or LABEL=KIND to draw; repeat for "
+                                                            "several (default: sf).")] = None,
     iterations: Annotated[Path | None, typer.Option(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
@@ -29,23 +35,17 @@ def plot(
     """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
     vehicle, and the safety reports and LLM responses per reflection iteration (of a
     letspi-memory / llm planner, or from --iterations)."""
-    from letspi.registry.factory import PlannerOptions, make_planners
-    from letspi.planners.llm import LetsPiMemoryPlanner
-    from letspi.scenario.store import load_scenarios
-    from letspi.viz.figure import plot_scenario
-    from letspi.viz.llm_panel import load_iterations, panel_record
-
     with user_errors():
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
         batch = load_scenarios(scenarios, [index])
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, llm=llm, fast_llm=fast_llm,
                                  memory=memory)
-        names = list(planner) if planner else ["sf"]
-        planners = make_planners(names, options)
-        plans = {p.name: p.plan(batch) for p in planners}
+        built = build_planners(list(planner) if planner else ["sf"], options)
+        plans = {b.name: b.planner.plan(batch if b.planner.reads_future else batch.history()) for b in built}
         records = load_iterations(iterations) if iterations is not None else None
-        for p in planners:
+        for b in built:
+            p = b.planner
             if records is None and isinstance(p, LetsPiMemoryPlanner) and p.last_iterations:
                 records = [panel_record(it) for it in p.last_iterations]
         plot_scenario(batch, 0, plans, records, out)
@@ -56,12 +56,10 @@ def report(
     directory: Annotated[Path, typer.Argument(help="Evaluation directory (from `letspi evaluate`).")],
     out: Annotated[Path | None, typer.Option(help="Output HTML file (default: DIR/report.html).")] = None,
     worst: Annotated[int, typer.Option(help="Worst scenarios shown per planner.")] = 3,
-    diagrams: Annotated[bool, typer.Option(help="Re-plan and draw the worst scenarios.")] = True,
+    diagrams: Annotated[bool, typer.Option(help="Draw the worst scenarios with their stored plans.")] = True,
 ) -> None:
     """Write a self-contained HTML report of an evaluation directory (metrics table, distributions,
-    worst scenarios with diagrams, ablation plots when DIR/ablations/ has them) and print its path."""
-    from letspi.viz.report import write_report
-
+    worst scenarios with diagrams of the stored plans, ablation plots when DIR/ablations/ has them)."""
     with user_errors():
         path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
     typer.echo(str(path))

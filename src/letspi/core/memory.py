@@ -2,10 +2,18 @@
 
 Storage decisions
 -----------------
-* One table ``experiences``; ``UNIQUE(scenario_id, config_key)`` makes a resumed run idempotent:
-  ``add`` uses ``INSERT ... ON CONFLICT DO NOTHING`` and returns whether the row is new.
-  ``config_key`` is the caller's string naming everything that changes the answer (model, prompt
-  version, thresholds, ...), so several configurations can share one file without mixing.
+* One table ``experiences``, unique per ``(scenario_digest, config_key)``: the scenario's content
+  digest (``letspi.scenario.identity``; ids repeat across regenerated data) and the content key of the
+  collection configuration (``letspi.registry.configs.MemoryPhaseConfig.key()``: model and weights,
+  decoding, prompt text, goals, neighbours, sf parameters, thresholds, iterations, goal adjustment).
+  Several configurations and datasets share one file without mixing.
+* **Fallbacks are never experience.** A result whose final proposal is a fallback (the model gave
+  no valid answer, or the server failed) is stored with ``fallback = 1`` and ``validated = 0``, is
+  never retrieved, does not count as done (``has``), and is replaced when a resumed run retries it
+  (``add`` updates a fallback row; a real row is never overwritten).
+* Vehicle identity (``recording_key``, ``ego_id``, ``frame0``) is stored so retrieval can leave out
+  memories of the query's own vehicle in an overlapping window (``MemoryFeatures``).
+* ``datasets``: every dataset (digest, path, size) collected from, for provenance.
 * WAL journal: readers never block the writer and vice versa (``letspi evaluate`` may read while
   ``collect`` writes). One writer per process, short transactions (one statement per ``add``, one
   ``BEGIN IMMEDIATE`` transaction per ``add_many``); a ``busy_timeout`` lets writers of other processes
@@ -23,7 +31,7 @@ Storage decisions
   and turned back into floats when metrics are read (``decode_metrics``).
 * ``created_at``: ISO-8601 UTC with milliseconds. A ``schema_version`` table guards future migrations.
 * ``sample_fraction``: a reproducible subset for the memory-size ablation as a list of row ids (a
-  filter, not a copy): rows ordered by a hash of (seed, scenario_id, config_key), the first
+  filter, not a copy): rows ordered by a hash of (seed, scenario_digest, config_key), the first
   round(fraction x count) kept. Subsets of one seed are nested (10 % is inside 50 %) and do not depend
   on insertion order.
 """
@@ -45,17 +53,20 @@ import numpy as np
 
 from letspi.core.reflection import ReflectionResult
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
-from letspi.scenario.features import FEATURE_NAMES
+from letspi.scenario.features import FEATURE_NAMES, scenario_features
+from letspi.scenario.types import ScenarioBatch
 
-SCHEMA_VERSION: Final = 1
+SCHEMA_VERSION: Final = 2
+"""2: scenario digest, fallback flag, vehicle identity, datasets table (1 is refused: re-collect)."""
 Synchronous = Literal["FULL", "NORMAL"]
 
 _FEATURE_COLS: Final = tuple(FEATURE_NAMES)
 _PARAM_COLS: Final = tuple(PARAM_NAMES)
+_IDENTITY_COLS: Final = ("scenario_id", "scenario_digest", "recording_key", "recording_id", "ego_id", "frame0")
 _DATA_COLS: Final = (
-    "scenario_id", "config_key", *_FEATURE_COLS, *_PARAM_COLS, "lon_factor", "lane_factor",
+    *_IDENTITY_COLS, "config_key", *_FEATURE_COLS, *_PARAM_COLS, "lon_factor", "lane_factor",
     "metrics_before", "metrics_after", "n_iterations", "iterations", "model", "prompt", "reply", "rationale",
-    "validated", "created_at",
+    "validated", "fallback", "created_at",
 )
 _SELECT_COLS: Final = ("id", *_DATA_COLS)
 
@@ -64,6 +75,11 @@ CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS experiences (
     id INTEGER PRIMARY KEY,
     scenario_id TEXT NOT NULL,
+    scenario_digest TEXT NOT NULL,
+    recording_key TEXT NOT NULL,
+    recording_id INTEGER NOT NULL,
+    ego_id INTEGER NOT NULL,
+    frame0 INTEGER NOT NULL,
     config_key TEXT NOT NULL,
     {", ".join(f"{c} REAL NOT NULL" for c in _FEATURE_COLS)},
     {", ".join(f"{c} REAL NOT NULL" for c in _PARAM_COLS)},
@@ -78,10 +94,18 @@ CREATE TABLE IF NOT EXISTS experiences (
     reply TEXT,
     rationale TEXT NOT NULL,
     validated INTEGER NOT NULL CHECK (validated IN (0, 1)),
+    fallback INTEGER NOT NULL CHECK (fallback IN (0, 1)),
     created_at TEXT NOT NULL,
-    UNIQUE (scenario_id, config_key)
+    UNIQUE (scenario_digest, config_key),
+    CHECK (NOT (validated = 1 AND fallback = 1))
 );
-CREATE INDEX IF NOT EXISTS experiences_config ON experiences (config_key, validated);
+CREATE INDEX IF NOT EXISTS experiences_config ON experiences (config_key, validated, fallback);
+CREATE TABLE IF NOT EXISTS datasets (
+    digest TEXT PRIMARY KEY,
+    path TEXT NOT NULL,
+    n_scenarios INTEGER NOT NULL,
+    first_seen TEXT NOT NULL
+);
 """
 
 
@@ -139,15 +163,24 @@ def _decode_iterations(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 class Experience:
     """One stored experience.
 
-    features: the 6 matching features in ``FEATURE_NAMES`` order (units there).
+    scenario_digest / recording_key / recording_id / ego_id / frame0: which scenario and vehicle
+        (``letspi.scenario``); the digest identifies the content, the rest the vehicle and time.
+    features: the 6 matching features in ``FEATURE_NAMES`` order (units there); all finite.
     params, lon_factor, lane_factor: the final (validated) proposal.
     metrics_before / metrics_after: ``SafetyReport.metrics`` of the first and the final iteration.
     iterations: ``IterationRecord.to_dict()`` of every iteration (prompts, replies, metrics, reports).
-    model / prompt / reply / rationale: of the final iteration. validated: the final plan is safe.
+    model / prompt / reply / rationale: of the final iteration.
+    validated: the final plan is safe and came from the model. fallback: the final proposal is a
+        fallback (never validated, never retrieved, retried on resume).
     id / created_at: set by the bank (None before insertion; ignored by equality).
     """
 
     scenario_id: str
+    scenario_digest: str
+    recording_key: str
+    recording_id: int
+    ego_id: int
+    frame0: int
     config_key: str
     features: tuple[float, ...]
     params: SocialForceParams
@@ -161,12 +194,19 @@ class Experience:
     reply: str | None
     rationale: str
     validated: bool
+    fallback: bool = False
     id: int | None = field(default=None, compare=False)
     created_at: str | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if len(self.features) != len(_FEATURE_COLS):
             raise ValueError(f"expected {len(_FEATURE_COLS)} features, got {len(self.features)}")
+        bad = [n for n, f in zip(_FEATURE_COLS, self.features, strict=True) if not math.isfinite(f)]
+        if bad:
+            raise ValueError(f"scenario {self.scenario_id}: matching feature(s) {', '.join(bad)} not finite "
+                             f"({dict(zip(_FEATURE_COLS, self.features, strict=True))})")
+        if self.validated and self.fallback:
+            raise ValueError(f"scenario {self.scenario_id}: a fallback result cannot be validated")
 
     @property
     def n_iterations(self) -> int:
@@ -174,12 +214,19 @@ class Experience:
 
     @classmethod
     def from_reflection(
-        cls, result: ReflectionResult, features: Sequence[float] | np.ndarray, *, config_key: str, model: str
+        cls, result: ReflectionResult, scenario: ScenarioBatch, *, scenario_digest: str, config_key: str, model: str
     ) -> Experience:
-        """The experience of a reflection run (the final iteration's proposal; every iteration recorded)."""
+        """The experience of a reflection run on ``scenario`` (a batch of one): the final iteration's
+        proposal, every iteration recorded; a final fallback proposal is flagged and not validated."""
         final = result.final.proposal
+        features = scenario_features(scenario)[0]
         return cls(
             scenario_id=result.scenario_id,
+            scenario_digest=scenario_digest,
+            recording_key=str(scenario.recording_key[0]),
+            recording_id=int(scenario.recording_id[0]),
+            ego_id=int(scenario.ego_id[0]),
+            frame0=int(scenario.frame0[0]),
             config_key=config_key,
             features=tuple(float(f) for f in np.asarray(features, dtype=np.float64).reshape(-1)),
             params=final.params,
@@ -192,27 +239,38 @@ class Experience:
             prompt=final.prompt,
             reply=final.reply,
             rationale=final.rationale,
-            validated=result.validated,
+            validated=result.validated and not final.fallback,
+            fallback=final.fallback,
         )
 
 
 @dataclass(frozen=True)
 class MemoryFeatures:
-    """ids (M,) int64 row ids and features (M, 6) float64 (``FEATURE_NAMES`` order), ascending id."""
+    """Retrieval view of M rows, ascending id: ids (M,) int64, features (M, 6) float64 (``FEATURE_NAMES``
+    order), and the vehicle of each memory: recording_key (M,) str, ego_id (M,) int64, frame0 (M,) int64."""
 
     ids: np.ndarray
     features: np.ndarray
+    recording_key: np.ndarray
+    ego_id: np.ndarray
+    frame0: np.ndarray
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
 
+    def take(self, mask_or_index: np.ndarray) -> MemoryFeatures:
+        return MemoryFeatures(*(a[mask_or_index] for a in (self.ids, self.features, self.recording_key,
+                                                             self.ego_id, self.frame0)))
+
 
 def _row_values(exp: Experience, created_at: str) -> tuple[Any, ...]:
     return (
-        exp.scenario_id, exp.config_key, *(float(f) for f in exp.features),
+        exp.scenario_id, exp.scenario_digest, exp.recording_key, int(exp.recording_id), int(exp.ego_id),
+        int(exp.frame0), exp.config_key, *(float(f) for f in exp.features),
         *(float(getattr(exp.params, p)) for p in _PARAM_COLS), float(exp.lon_factor), float(exp.lane_factor),
         dumps(exp.metrics_before), dumps(exp.metrics_after), exp.n_iterations, dumps(exp.iterations),
-        exp.model, exp.prompt, exp.reply, exp.rationale, int(bool(exp.validated)), created_at,
+        exp.model, exp.prompt, exp.reply, exp.rationale, int(bool(exp.validated)), int(bool(exp.fallback)),
+        created_at,
     )
 
 
@@ -220,6 +278,11 @@ def _from_row(row: Sequence[Any]) -> Experience:
     r = dict(zip(_SELECT_COLS, row, strict=True))
     return Experience(
         scenario_id=r["scenario_id"],
+        scenario_digest=r["scenario_digest"],
+        recording_key=r["recording_key"],
+        recording_id=int(r["recording_id"]),
+        ego_id=int(r["ego_id"]),
+        frame0=int(r["frame0"]),
         config_key=r["config_key"],
         features=tuple(float(r[c]) for c in _FEATURE_COLS),
         params=SocialForceParams(**{p: float(r[p]) for p in _PARAM_COLS}),
@@ -233,6 +296,7 @@ def _from_row(row: Sequence[Any]) -> Experience:
         reply=r["reply"],
         rationale=r["rationale"],
         validated=bool(r["validated"]),
+        fallback=bool(r["fallback"]),
         id=int(r["id"]),
         created_at=r["created_at"],
     )
@@ -242,8 +306,8 @@ def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
-def _sample_rank(seed: int, scenario_id: str, config_key: str) -> bytes:
-    return hashlib.blake2b(f"{seed}\x1f{scenario_id}\x1f{config_key}".encode(), digest_size=8).digest()
+def _sample_rank(seed: int, scenario_digest: str, config_key: str) -> bytes:
+    return hashlib.blake2b(f"{seed}\x1f{scenario_digest}\x1f{config_key}".encode(), digest_size=8).digest()
 
 
 # --------------------------------------------------------------------------------------------
@@ -254,11 +318,15 @@ def _sample_rank(seed: int, scenario_id: str, config_key: str) -> bytes:
 def _where(validated_only: bool, config_key: str | None) -> tuple[str, tuple[Any, ...]]:
     clauses, args = [], []
     if validated_only:
-        clauses.append("validated = 1")
+        clauses.append("validated = 1 AND fallback = 0")
     if config_key is not None:
         clauses.append("config_key = ?")
         args.append(config_key)
     return (" WHERE " + " AND ".join(clauses)) if clauses else "", tuple(args)
+
+
+class MemoryBankError(ValueError):
+    """A memory bank file that cannot be used (wrong schema version, not a bank)."""
 
 
 class MemoryBank:
@@ -303,7 +371,8 @@ class MemoryBank:
                 conn.execute("COMMIT")
             version = conn.execute("SELECT max(version) FROM schema_version").fetchone()[0]
             if version != SCHEMA_VERSION:
-                raise RuntimeError(f"{p}: memory schema version {version}, this letspi reads {SCHEMA_VERSION}")
+                raise MemoryBankError(f"{p}: memory bank schema version {version}, this letspi reads version "
+                                      f"{SCHEMA_VERSION}; collect a new bank (`letspi collect --memory NEW.sqlite`)")
         except BaseException:
             conn.close()
             raise
@@ -323,10 +392,21 @@ class MemoryBank:
 
     # writing ---------------------------------------------------------------------------------
     def add(self, experience: Experience) -> bool:
-        """Insert one experience in its own (committed) transaction; False if (scenario_id, config_key) exists."""
+        """Insert one experience in its own (committed) transaction. A row of the same scenario and
+        configuration is kept, unless it is a fallback (then the new result replaces it: a retry).
+        Returns whether the bank changed."""
         cur = self._conn.execute(self._insert_sql(), _row_values(experience, _now()))
         self._own_writes += 1
         return cur.rowcount == 1
+
+    def record_dataset(self, digest: str, path: str, n_scenarios: int) -> None:
+        """Note a dataset the bank collected from (first sighting kept)."""
+        self._conn.execute("INSERT OR IGNORE INTO datasets VALUES (?, ?, ?, ?)", (digest, path, n_scenarios, _now()))
+        self._own_writes += 1
+
+    def datasets(self) -> list[dict[str, Any]]:
+        rows = self._conn.execute("SELECT digest, path, n_scenarios, first_seen FROM datasets ORDER BY first_seen")
+        return [{"digest": r[0], "path": r[1], "n_scenarios": r[2], "first_seen": r[3]} for r in rows]
 
     def add_many(self, experiences: Iterable[Experience]) -> int:
         """Insert many in one transaction (all or nothing); returns how many were new."""
@@ -348,14 +428,36 @@ class MemoryBank:
     def _insert_sql() -> str:
         cols = ", ".join(_DATA_COLS)
         marks = ", ".join("?" for _ in _DATA_COLS)
-        return f"INSERT INTO experiences ({cols}) VALUES ({marks}) ON CONFLICT (scenario_id, config_key) DO NOTHING"
+        updates = ", ".join(f"{c} = excluded.{c}" for c in _DATA_COLS)
+        return (f"INSERT INTO experiences ({cols}) VALUES ({marks}) ON CONFLICT (scenario_digest, config_key) "
+                f"DO UPDATE SET {updates} WHERE experiences.fallback = 1")
 
     # reading ---------------------------------------------------------------------------------
-    def has(self, scenario_id: str, config_key: str) -> bool:
+    def has(self, scenario_digest: str, config_key: str) -> bool:
+        """Whether a real (non-fallback) result for this scenario content and configuration exists."""
         row = self._conn.execute(
-            "SELECT 1 FROM experiences WHERE scenario_id = ? AND config_key = ?", (scenario_id, config_key)
+            "SELECT 1 FROM experiences WHERE scenario_digest = ? AND config_key = ? AND fallback = 0",
+            (scenario_digest, config_key),
         ).fetchone()
         return row is not None
+
+    def done_digests(self, config_key: str) -> set[str]:
+        """Digests of every scenario with a real (non-fallback) result under ``config_key``."""
+        rows = self._conn.execute(
+            "SELECT scenario_digest FROM experiences WHERE config_key = ? AND fallback = 0", (config_key,))
+        return {str(r[0]) for r in rows}
+
+    def snapshot(self, config_key: str | None = None) -> tuple[np.ndarray, str]:
+        """Row ids (ascending) of every retrievable memory (validated, not fallback; of ``config_key`` or
+        all) and a SHA-256 over (id, scenario digest, configuration) of those rows: the identity of
+        what a fast planner built now can retrieve."""
+        where, args = _where(True, config_key)
+        rows = self._conn.execute(
+            f"SELECT id, scenario_digest, config_key FROM experiences{where} ORDER BY id", args).fetchall()
+        h = hashlib.sha256()
+        for rid, digest, key in rows:
+            h.update(f"{rid}:{digest}:{key}\n".encode())
+        return np.array([r[0] for r in rows], dtype=np.int64), h.hexdigest()
 
     def count(self, validated_only: bool = True, config_key: str | None = None) -> int:
         where, args = _where(validated_only, config_key)
@@ -374,10 +476,16 @@ class MemoryBank:
             return hit[1]
         where, args = _where(validated_only, config_key)
         rows = self._conn.execute(
-            f"SELECT id, {', '.join(_FEATURE_COLS)} FROM experiences{where} ORDER BY id", args
+            f"SELECT id, {', '.join(_FEATURE_COLS)}, ego_id, frame0, recording_key FROM experiences{where} ORDER BY id",
+            args,
         ).fetchall()
-        arr = np.array(rows, dtype=np.float64).reshape(-1, 1 + len(_FEATURE_COLS))
-        feats = MemoryFeatures(ids=arr[:, 0].astype(np.int64), features=np.ascontiguousarray(arr[:, 1:]))
+        n_num = 1 + len(_FEATURE_COLS) + 2
+        arr = np.array([r[:n_num] for r in rows], dtype=np.float64).reshape(-1, n_num)
+        feats = MemoryFeatures(
+            ids=arr[:, 0].astype(np.int64), features=np.ascontiguousarray(arr[:, 1:-2]),
+            recording_key=np.array([r[-1] for r in rows], dtype=object), ego_id=arr[:, -2].astype(np.int64),
+            frame0=arr[:, -1].astype(np.int64),
+        )
         self._cache[key] = (version, feats)
         return feats
 
@@ -400,10 +508,10 @@ class MemoryBank:
             raise KeyError(f"no experiences with ids {missing[:10]}")
         return [found[i] for i in wanted]
 
-    def get_by_scenario(self, scenario_id: str, config_key: str) -> Experience | None:
+    def get_by_scenario(self, scenario_digest: str, config_key: str) -> Experience | None:
         row = self._conn.execute(
-            f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE scenario_id = ? AND config_key = ?",
-            (scenario_id, config_key),
+            f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE scenario_digest = ? AND config_key = ?",
+            (scenario_digest, config_key),
         ).fetchone()
         return None if row is None else _from_row(row)
 
@@ -433,7 +541,7 @@ class MemoryBank:
         if not 0.0 <= fraction <= 1.0:
             raise ValueError(f"fraction must be in [0, 1], got {fraction}")
         where, args = _where(validated_only, config_key)
-        rows = self._conn.execute(f"SELECT id, scenario_id, config_key FROM experiences{where}", args).fetchall()
+        rows = self._conn.execute(f"SELECT id, scenario_digest, config_key FROM experiences{where}", args).fetchall()
         ranked = sorted(rows, key=lambda r: (_sample_rank(seed, r[1], r[2]), r[0]))
         n = round(fraction * len(rows))
         ids = np.array(sorted(r[0] for r in ranked[:n]), dtype=np.int64)
@@ -463,10 +571,9 @@ class MemorySubset:
         return self.count()
 
     def features_matrix(self) -> MemoryFeatures:
-        """ids (M,) and features (M, 6) of the subset, ascending id."""
+        """The retrieval view of the subset, ascending id."""
         full = self.bank.features_matrix(validated_only=False)
-        pos = np.searchsorted(full.ids, self.ids)
-        return MemoryFeatures(ids=self.ids.copy(), features=full.features[pos])
+        return full.take(np.searchsorted(full.ids, self.ids))
 
     def get(self, ids: Sequence[int] | np.ndarray) -> list[Experience]:
         return self.bank.get(ids)

@@ -2,7 +2,8 @@
 
 * Memory collection: for each scenario, the physics-informed prompt → LLM proposal → simulate →
   reflection (safety report → refined proposal, up to N times) → store the experience in the
-  memory bank (validated or not; retrieval uses validated ones only).
+  memory bank (validated or not; retrieval uses validated ones only). A result whose final proposal
+  is a fallback is stored flagged, never retrieved, and retried when the run is resumed.
 * Fast inference: scenario features → top-k similar validated memories → the short fast prompt
   with them as few-shot examples → one LLM call → simulate.
 
@@ -18,22 +19,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from letspi.constants import N_TOTAL
 from letspi.core.matching import top_k
-from letspi.core.memory import Experience, MemoryBank
+from letspi.core.memory import Experience, MemoryBank, MemoryFeatures
 from letspi.core.reflection import Proposal, ReflectionContext, ReflectionResult, reflect
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
-from letspi.llm.schema import PlannerReply, Variant
+from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
 from letspi.llm.types import Message
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.scenario.features import FEATURE_NAMES, scenario_features
+from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
-
-PROMPT_VERSION = "v1"
 
 
 def messages_text(messages: Sequence[Message]) -> str:
@@ -79,25 +80,22 @@ class LlmProposer:
         return proposal_from_advice(self.advisor.advise(messages, variant="physics"), messages, self.r_col_m)
 
 
-def config_key(model_spec: str, thresholds: ReflectionThresholds, goal_adjustment: bool = True) -> str:
-    """Identifies a collection configuration: an experience is unique per (scenario, config key)."""
-    return f"{model_spec}|prompt-{PROMPT_VERSION}|{thresholds.key()}|ga-{int(goal_adjustment)}"
-
-
 @dataclass
 class MemoryPhase:
-    """Runs the memory-collection pipeline on one scenario at a time."""
+    """Runs the memory-collection pipeline on one scenario at a time.
+
+    ``config_key`` identifies everything that changes its answers (the content key of the
+    configuration it was built from, ``letspi.registry.configs.MemoryPhaseConfig.key()``); its
+    experiences are stored under it.
+    """
 
     advisor: ParamAdvisor
     goal_predictor: GoalPredictor
     r_col_m: float
+    config_key: str
     thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     goal_adjustment: bool = True
-
-    @property
-    def config_key(self) -> str:
-        return config_key(self.advisor.backend.spec, self.thresholds, self.goal_adjustment)
 
     def run(self, scenario: ScenarioBatch) -> ReflectionResult:
         """Reflection loop on a batch of one."""
@@ -107,20 +105,26 @@ class MemoryPhase:
         return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
                        neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
 
-    def experience(self, scenario: ScenarioBatch, result: ReflectionResult) -> Experience:
-        features = tuple(float(v) for v in scenario_features(scenario)[0])
-        return Experience.from_reflection(result, features, config_key=self.config_key,
-                                          model=self.advisor.backend.spec)
+    def experience(self, scenario: ScenarioBatch, result: ReflectionResult, scenario_digest: str) -> Experience:
+        return Experience.from_reflection(result, scenario, scenario_digest=scenario_digest,
+                                          config_key=self.config_key, model=self.advisor.backend.spec)
 
 
 @dataclass(frozen=True)
 class CollectStats:
+    """Counts of one collection run. ``fallback_results``: scenarios whose final answer was a
+    fallback (stored flagged, retried on resume); ``fallback_replies``: fallback proposals over all
+    iterations; ``cached_calls`` / ``calls``: LLM calls served by the response cache / made."""
+
     total: int
     skipped: int
     stored: int
     validated: int
-    fallbacks: int
+    fallback_results: int
+    fallback_replies: int
     refinements: int
+    calls: int
+    cached_calls: int
     seconds: float
 
 
@@ -130,25 +134,34 @@ def collect(
     bank: MemoryBank,
     progress: Callable[[int], None] | None = None,
 ) -> CollectStats:
-    """The memory collection phase over ``batch``; resumable: scenarios already in the bank under
-    this configuration are skipped, and each experience is committed as soon as it exists."""
+    """The memory collection phase over ``batch``; resumable: scenarios with a real (non-fallback)
+    result under this configuration are skipped, and each experience is committed as soon as it
+    exists. A backend that cannot be reached raises ``BackendUnavailableError`` (nothing is stored
+    for that scenario); rerunning resumes."""
     t0 = time.perf_counter()
     key = phase.config_key
-    skipped = stored = validated = fallbacks = refinements = 0
+    digests = scenario_digests(batch)
+    done = bank.done_digests(key)
+    skipped = stored = validated = fallback_results = fallback_replies = refinements = calls = cached = 0
     for i in range(len(batch)):
-        sid = str(batch.scenario_id[i])
-        if bank.has(sid, key):
+        if digests[i] in done:
             skipped += 1
         else:
             one = batch.take([i])
             result = phase.run(one)
-            stored += int(bank.add(phase.experience(one, result)))
-            validated += int(result.validated)
-            fallbacks += sum(int(it.proposal.fallback) for it in result.iterations)
+            exp = phase.experience(one, result, str(digests[i]))
+            stored += int(bank.add(exp))
+            validated += int(exp.validated)
+            fallback_results += int(exp.fallback)
+            fallback_replies += sum(int(it.proposal.fallback) for it in result.iterations)
             refinements += result.n_refinements
+            for it in result.iterations:
+                calls += int(it.proposal.meta.get("attempts", 0))
+                cached += int(it.proposal.meta.get("cached_attempts", 0))
         if progress is not None:
             progress(1)
-    return CollectStats(len(batch), skipped, stored, validated, fallbacks, refinements, time.perf_counter() - t0)
+    return CollectStats(len(batch), skipped, stored, validated, fallback_results, fallback_replies, refinements,
+                        calls, cached, time.perf_counter() - t0)
 
 
 def _summary_of_features(features: Sequence[float]) -> str:
@@ -174,32 +187,47 @@ def _outcome(metrics: dict[str, object]) -> str:
 
 def memory_example(exp: Experience) -> MemoryExample:
     """A stored experience as a few-shot example for the fast prompt."""
-    p = exp.params
-    reply = PlannerReply(tau_s=p.tau_s, k_np=p.k_np, k_nf=p.k_nf, k_nl=p.k_nl, k_boundary=p.k_boundary,
-                         k_cline=p.k_cline, lon_factor=exp.lon_factor, lane_factor=exp.lane_factor,
-                         rationale=exp.rationale)
+    values = {k: v for k, v in exp.params.as_dict().items() if k in LLM_PARAM_RANGES}
+    reply = PlannerReply(**values, lon_factor=exp.lon_factor, lane_factor=exp.lane_factor, rationale=exp.rationale)
     return MemoryExample(summary=_summary_of_features(exp.features), reply=reply, outcome=_outcome(exp.metrics_after))
 
 
 @dataclass
 class Retriever:
-    """Top-k validated memories by the (fixed) §III-E similarity, optionally from a fixed subset."""
+    """Top-k validated memories by the (fixed) §III-E similarity.
+
+    config_key: only memories of this collection configuration (None: any).
+    allowed_ids: only these row ids (the snapshot a fast planner was built with, or the
+        memory-size ablation's subset); None: every retrievable row.
+    allow_same_vehicle: False (default) leaves out memories of the query's own ego vehicle and
+        every memory whose window overlaps the query's in the same recording: their history is
+        the query's future, or shares it. True keeps them (a leak; labelled in configurations).
+    """
 
     bank: MemoryBank
     k: int = 3
     config_key: str | None = None
-    subset_ids: np.ndarray | None = None  # memory-size ablation: only these row ids
+    allowed_ids: np.ndarray | None = None
+    allow_same_vehicle: bool = False
+
+    def candidates(self, scenario: ScenarioBatch) -> MemoryFeatures:
+        """The memories this query may retrieve (before ranking)."""
+        mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
+        if self.allowed_ids is not None:
+            mem = mem.take(np.isin(mem.ids, self.allowed_ids))
+        if not self.allow_same_vehicle and len(mem):
+            same_recording = mem.recording_key == scenario.recording_key[0]
+            same_vehicle = same_recording & (mem.ego_id == int(scenario.ego_id[0]))
+            overlapping = same_recording & (np.abs(mem.frame0 - int(scenario.frame0[0])) < N_TOTAL)
+            mem = mem.take(~(same_vehicle | overlapping))
+        return mem
 
     def retrieve(self, scenario: ScenarioBatch) -> list[tuple[Experience, float]]:
-        mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
-        ids, feats = mem.ids, mem.features
-        if self.subset_ids is not None:
-            keep = np.isin(ids, self.subset_ids)
-            ids, feats = ids[keep], feats[keep]
-        if len(ids) == 0 or self.k == 0:
+        mem = self.candidates(scenario)
+        if len(mem) == 0 or self.k == 0:
             return []
-        idx, sims = top_k(scenario_features(scenario), feats, min(self.k, len(ids)))
-        exps = self.bank.get([int(ids[j]) for j in idx[0]])
+        idx, sims = top_k(scenario_features(scenario), mem.features, min(self.k, len(mem)))
+        exps = self.bank.get([int(mem.ids[j]) for j in idx[0]])
         return list(zip(exps, [float(s) for s in sims[0]], strict=True))
 
 

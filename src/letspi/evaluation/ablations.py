@@ -3,7 +3,8 @@
 ``DIR/ablations/<kind>/`` holds ``metrics.json`` / ``metrics.md`` / per-scenario results like any
 evaluation; the memory-size and LLM-combination presets also write
 ``DIR/ablations/memory_size.json`` and ``DIR/ablations/llm_combinations.json`` (shapes in
-``letspi.viz.report``), which ``letspi report DIR`` plots.
+``letspi.viz.report``), which ``letspi report DIR`` plots. Every row is built from its own
+configuration (``letspi.registry``), so its key says exactly what it ran.
 
 Kinds:
     reflection       letspi-memory with and without reflection (0 refinements)
@@ -16,25 +17,22 @@ Kinds:
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
-from letspi.evaluation.harness import evaluate
+from letspi.core.memory import MemoryBank
+from letspi.core.phases import collect
+from letspi.evaluation.harness import ProgressFactory, evaluate
+from letspi.fsutil import atomic_write_text
 from letspi.metrics.aggregate import AggValue
-from letspi.planners.base import Planner
-from letspi.registry.factory import PlannerOptions, make_planners
+from letspi.registry.build import Builder, BuiltPlanner
+from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.types import ScenarioBatch
 
 ABLATION_KINDS: tuple[str, ...] = ("reflection", "goal-adjustment", "few-shot", "memory-size", "llm-combinations")
 MEMORY_FRACTIONS: tuple[float, ...] = (0.0, 0.01, 0.1, 0.5, 0.8)
-
-ProgressFactory = Callable[[str, int], Callable[[int], None]]
-
-
-def _renamed(planner: Planner, name: str) -> Planner:
-    planner.name = name
-    return planner
 
 
 def run_ablation(
@@ -48,84 +46,70 @@ def run_ablation(
     combinations: Sequence[tuple[str, str]] = (),
     fractions: Sequence[float] = MEMORY_FRACTIONS,
     progress_factory: ProgressFactory | None = None,
+    builder: Builder | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Run one ablation preset; returns ``{row name: aggregated metrics}``."""
     if kind not in ABLATION_KINDS:
         raise ValueError(f"unknown ablation {kind!r}; available: {', '.join(ABLATION_KINDS)}")
+    builder = builder or Builder(cache="default" if options.llm_cache else None)
     abl_root = Path(out_dir) / "ablations"
     target = abl_root / kind
 
-    def run(planners: list[Planner]) -> dict[str, dict[str, AggValue]]:
-        return evaluate(planners, batch, target, scenarios_file=scenarios_file, progress_factory=progress_factory)
+    def run(planners: list[BuiltPlanner]) -> dict[str, dict[str, AggValue]]:
+        out = evaluate(planners, batch, target, scenarios_file=scenarios_file, progress_factory=progress_factory)
+        return {p.name: out[p.name] for p in planners}
+
+    def built(kind_: str, name: str, opts: PlannerOptions = options) -> BuiltPlanner:
+        return builder.planner(Resolver(opts).planner(kind_), name=name)
 
     if kind == "reflection":
-        full = make_planners(["letspi-memory"], options)[0]
-        none = make_planners(["letspi-memory"], replace(options, max_iterations=0))[0]
-        return run([_renamed(full, "LetsPi_M"), _renamed(none, "LetsPi_M w/o Ref")])
+        return run([built("letspi-memory", "LetsPi_M"),
+                    built("letspi-memory", "LetsPi_M w/o Ref", replace(options, max_iterations=0))])
     if kind == "goal-adjustment":
-        full = make_planners(["letspi-memory"], options)[0]
-        no_ga = make_planners(["letspi-memory"], replace(options, goal_adjustment=False))[0]
-        return run([_renamed(full, "LetsPi_M"), _renamed(no_ga, "LetsPi_M w/o GA")])
+        return run([built("letspi-memory", "LetsPi_M"),
+                    built("letspi-memory", "LetsPi_M w/o GA", replace(options, goal_adjustment=False))])
     if kind == "few-shot":
-        fast, fs = make_planners(["letspi-fast", "letspi-fs"], options)
-        return run([_renamed(fast, "LetsPi_F"), _renamed(fs, "FS (3 static examples)")])
+        return run([built("letspi-fast", "LetsPi_F"), built("letspi-fs", "FS (3 static examples)")])
     if kind == "memory-size":
-        return _memory_size(batch, abl_root, options, fractions, run)
-    return _llm_combinations(batch, abl_root, options, collect_batch, combinations, run)
+        return _memory_size(options, fractions, abl_root, built, run)
+    return _llm_combinations(options, collect_batch, combinations, abl_root, builder, built, run)
 
 
-def _memory_size(batch: ScenarioBatch, abl_root: Path, options: PlannerOptions, fractions: Sequence[float],
-                 run: Callable[[list[Planner]], dict[str, dict[str, AggValue]]]) -> dict[str, dict[str, AggValue]]:
-    from letspi.core.memory import MemoryBank
-    from letspi.planners.llm import LetsPiFastPlanner
-
+def _memory_size(options: PlannerOptions, fractions: Sequence[float], abl_root: Path, built: Any,
+                 run: Any) -> dict[str, dict[str, AggValue]]:
     if options.memory is None:
         raise ValueError("memory-size ablation needs --memory (a bank from `letspi collect`)")
+    planners = [built("letspi-fast", f"LetsPi_F mem {100 * f:g}%", replace(options, memory_fraction=f))
+                for f in fractions]
+    results = run(planners)
     with MemoryBank.open(options.memory, readonly=True) as bank:
         total = bank.count(config_key=options.memory_key)
-        subsets = {f: bank.sample_fraction(f, seed=0, config_key=options.memory_key).ids for f in fractions}
-    planners: list[Planner] = []
-    for f in fractions:
-        p = make_planners(["letspi-fast"], options)[0]
-        assert isinstance(p, LetsPiFastPlanner) and p.phase.retriever is not None
-        p.phase.retriever.subset_ids = subsets[f]
-        planners.append(_renamed(p, f"LetsPi_F mem {100 * f:g}%"))
-    results = run(planners)
-    points = [{"memory_size": 100.0 * f, "n_memories": len(subsets[f]), "metrics": results[p.name]}
-              for f, p in zip(fractions, planners, strict=True)]
-    (abl_root / "memory_size.json").write_text(json.dumps({"total": 100, "n_total": total, "points": points},
-                                                          indent=2))
+        sizes = [len(bank.sample_fraction(f, seed=options.memory_seed, config_key=options.memory_key))
+                 for f in fractions]
+    points = [{"memory_size": 100.0 * f, "n_memories": n, "metrics": results[p.name]}
+              for f, n, p in zip(fractions, sizes, planners, strict=True)]
+    atomic_write_text(abl_root / "memory_size.json",
+                      json.dumps({"total": 100, "n_total": total, "points": points}, indent=2, default=float))
     return results
 
 
-def _llm_combinations(batch: ScenarioBatch, abl_root: Path, options: PlannerOptions,
-                      collect_batch: ScenarioBatch | None, combinations: Sequence[tuple[str, str]],
-                      run: Callable[[list[Planner]], dict[str, dict[str, AggValue]]]) -> dict[str, dict[str, AggValue]]:
-    from letspi.core.memory import MemoryBank
-    from letspi.core.phases import MemoryPhase, collect
-    from letspi.core.thresholds import ReflectionThresholds
-    from letspi.registry.factory import make_advisor, make_goal_predictor
-    from letspi.planners.llm import LetsPiFastPlanner
-    from letspi.planners.sf_params import load_sf_params
-
+def _llm_combinations(options: PlannerOptions, collect_batch: ScenarioBatch | None,
+                      combinations: Sequence[tuple[str, str]], abl_root: Path, builder: Builder, built: Any,
+                      run: Any) -> dict[str, dict[str, AggValue]]:
     if options.memory is None or collect_batch is None or not combinations:
         raise ValueError("llm-combinations needs --memory, collection scenarios and at least one --combo")
-    r_col = load_sf_params(options.sf_params_file)[0].r_col_m
-    planners: list[Planner] = []
+    planners: list[BuiltPlanner] = []
     rows = []
     for mem_spec, fast_spec in combinations:
-        phase = MemoryPhase(make_advisor(mem_spec, options.llm_cache, options.sf_params_file),
-                            make_goal_predictor(options.goals), r_col,
-                            thresholds=ReflectionThresholds(max_iterations=options.max_iterations))
+        phase_config = Resolver(replace(options, llm=mem_spec)).memory_phase()
+        phase, _ = builder.memory_phase(phase_config)
         with MemoryBank.open(options.memory) as bank:
             collect(phase, collect_batch, bank)  # resumable: done scenarios are skipped
-        p = make_planners(["letspi-fast"], replace(options, fast_llm=fast_spec))[0]
-        assert isinstance(p, LetsPiFastPlanner) and p.phase.retriever is not None
-        p.phase.retriever.config_key = phase.config_key
         name = f"memory {mem_spec} + fast {fast_spec}"
-        planners.append(_renamed(p, name))
-        rows.append({"name": name, "physics": mem_spec, "fast": fast_spec})
+        fast_options = replace(options, fast_llm=fast_spec, memory_key=phase_config.key())
+        planners.append(built("letspi-fast", name, fast_options))
+        rows.append({"name": name, "physics": mem_spec, "fast": fast_spec, "collection_key": phase_config.key()})
     results = run(planners)
     combos = [{**row, "metrics": results[row["name"]]} for row in rows]
-    (abl_root / "llm_combinations.json").write_text(json.dumps({"combinations": combos}, indent=2))
+    atomic_write_text(abl_root / "llm_combinations.json", json.dumps({"combinations": combos}, indent=2, default=float))
     return results

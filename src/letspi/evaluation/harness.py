@@ -1,82 +1,144 @@
-"""Run planners over scenarios, time them, compute metrics, and resume interrupted runs.
+"""Run planners over scenarios, time them, score them, store their plans, and resume interrupted runs.
 
 Layout of an evaluation directory::
 
-    DIR/run.json                         scenarios file, its size and fingerprint (resume guard)
-    DIR/per_scenario/<planner>/part-NNNNN.parquet   per-scenario metrics + plan info, in chunks
-    DIR/metrics.json                     {"planners": {name: aggregated metrics}}
-    DIR/metrics.md                       the paper-style table
+    DIR/run.json                        what the results are keyed by: dataset digest, metrics
+                                        configuration, evaluation mode, letspi version
+    DIR/per_scenario/<name>/config.json the planner's full configuration and its content key
+    DIR/per_scenario/<name>/part-*.parquet  per-scenario metrics, timing, plan info and the plan
+                                        itself (ego xy / velocity, float32), one file per chunk
+    DIR/metrics.json                    {"planners": {name: aggregated metrics}, "run": ...}
+    DIR/metrics.md                      the paper-style table
 
-Each chunk is written atomically after it is planned and scored, so a crash loses at most the
-chunk in flight; rerunning skips scenarios whose ids are already in a part file.
+Keys: a directory holds one dataset (the digest of its scenarios' contents, ``letspi.scenario.identity``)
+under one metrics configuration and mode; another is refused, naming what differs. Each planner name
+holds one planner configuration (``letspi.registry.configs``); another configuration under the same
+name is refused with the differing fields (label variants ``LABEL=KIND``). Rows are keyed by
+scenario digest, so a resumed run skips exactly the scenarios already scored.
+
+Crash safety: every file is written to a temporary, fsynced and renamed (``letspi.fsutil``); part
+files have unique names. A killed run loses at most the chunk in flight; rerunning completes it and
+gives the same results as an uninterrupted run.
+
+Planner contract: planners that do not read the future (``reads_future`` False) get the
+history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
+
+Timing: ``inference_s`` is the wall time of ``plan`` per scenario. For LLM planners the table's
+inference time averages only rows whose model calls really ran (``info_llm_cached`` False); cached
+rows are counted apart (``inference_cached_n``) with the latency recorded when their replies were
+made (``llm_original_latency_s``); model loading is ``model_load_s``, outside every row.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 import time
+import uuid
 from collections.abc import Callable, Sequence
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Any, Final
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
+from letspi.constants import N_FUTURE
+from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.evaluate import compute_metrics
-from letspi.planners.base import Planner
+from letspi.registry.build import BuiltPlanner
+from letspi.registry.configs import diff, key_of
+from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
+
+RUN_FORMAT: Final = 2
+EVALUATION_MODES: Final = ("open-loop",)
+PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
+ProgressFactory = Callable[[str, int], Callable[[int], None]]
 
 
 class EvaluationDirError(ValueError):
-    """The output directory belongs to a different evaluation (other scenarios)."""
+    """The output directory holds results of another dataset, metrics configuration, mode or planner
+    configuration (the message names what differs)."""
 
 
-def _fingerprint(batch: ScenarioBatch) -> str:
-    h = hashlib.sha256()
-    for sid in batch.scenario_id:
-        h.update(str(sid).encode())
-        h.update(b"\0")
-    return h.hexdigest()[:16]
-
-
-def _check_run_file(out_dir: Path, scenarios_file: str, batch: ScenarioBatch) -> None:
-    run_file = out_dir / "run.json"
-    record = {"scenarios_file": scenarios_file, "n_scenarios": len(batch), "fingerprint": _fingerprint(batch)}
-    if run_file.exists():
-        old = json.loads(run_file.read_text())
-        if old.get("fingerprint") != record["fingerprint"]:
-            raise EvaluationDirError(
-                f"{out_dir} holds results for other scenarios ({old.get('scenarios_file')}, "
-                f"{old.get('n_scenarios')} scenarios); use another --out or delete it"
-            )
-        return
-    out_dir.mkdir(parents=True, exist_ok=True)
-    run_file.write_text(json.dumps(record, indent=2))
+def letspi_version() -> str:
+    try:
+        return version("letspi")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
 
 
 def planner_dir_name(name: str) -> str:
-    """A planner name as a directory name (model specs contain ':' and '/')."""
+    """A planner label as a directory name (labels may contain ':' and '/')."""
     return "".join(c if c.isalnum() or c in "-_.@+" else "_" for c in name)
 
 
-def _done_ids(planner_dir: Path) -> set[str]:
-    done: set[str] = set()
-    for part in sorted(planner_dir.glob("part-*.parquet")):
-        done.update(pd.read_parquet(part, columns=["scenario_id"])["scenario_id"].astype(str))
-    return done
+# ------------------------------------------------------------------------------------------------
+# Keys
+# ------------------------------------------------------------------------------------------------
 
 
-def _write_part(planner_dir: Path, frame: pd.DataFrame) -> Path:
-    planner_dir.mkdir(parents=True, exist_ok=True)
-    index = len(list(planner_dir.glob("part-*.parquet")))
-    path = planner_dir / f"part-{index:05d}.parquet"
-    tmp = path.with_name(path.name + ".tmp")
-    frame.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
-    return path
+def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, config: MetricsConfig,
+               mode: str) -> dict[str, Any]:
+    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields."""
+    identity = {
+        "format": RUN_FORMAT,
+        "mode": mode,
+        "dataset_digest": dataset_digest(digests),
+        "metrics_config": config.model_dump(mode="json"),
+    }
+    return {
+        "identity": identity,
+        "key": key_of(identity),
+        "dataset": {"file": scenarios_file, "n_scenarios": len(batch)},
+        "letspi_version": letspi_version(),
+    }
+
+
+def _check_run_file(out_dir: Path, record: dict[str, Any]) -> None:
+    run_file = out_dir / "run.json"
+    if run_file.exists():
+        old = json.loads(run_file.read_text())
+        old_identity: dict[str, Any] = old.get("identity") or {"format": old.get("format", 1)}
+        if old_identity != record["identity"]:
+            changes = diff(old_identity, record["identity"])
+            what = "; ".join(changes)
+            new_digest = record["identity"]["dataset_digest"]
+            if "dataset_digest" in old_identity and old_identity["dataset_digest"] != new_digest:
+                was, now = old.get("dataset", {}), record["dataset"]
+                what = (f"other scenarios: the directory holds {was.get('n_scenarios')} scenarios from "
+                        f"{was.get('file') or '?'}, this run {now['n_scenarios']} from {now['file'] or '?'} "
+                        f"(dataset digest {old_identity.get('dataset_digest')} vs "
+                        f"{record['identity']['dataset_digest']}); " + what)
+            raise EvaluationDirError(f"{out_dir} holds results keyed differently ({what}); "
+                                     "use another --out or delete it")
+        return
+    atomic_write_text(run_file, json.dumps(record, indent=2) + "\n")
+
+
+def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> None:
+    marker = planner_dir / "config.json"
+    record: dict[str, Any] = {"name": built.name, "kind": built.config.kind, "key": built.key,
+              "identity": built.config.identity(), "config": built.config.record()}
+    if marker.exists():
+        old = json.loads(marker.read_text())
+        if old.get("key") != built.key:
+            changes = diff(old.get("identity") or {}, record["identity"])
+            raise EvaluationDirError(
+                f"{planner_dir} holds results of {built.name!r} with another configuration "
+                f"(key {old.get('key')} vs {built.key}: {'; '.join(changes) or 'older letspi format'}); "
+                f"use another --out, or give this configuration its own label (--planner LABEL={built.config.kind})")
+        return
+    atomic_write_text(marker, json.dumps(record, indent=2) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------
+# Parts
+# ------------------------------------------------------------------------------------------------
 
 
 def _info_columns(info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -91,95 +153,173 @@ def _info_columns(info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return cols
 
 
-def planner_config_key(planner: Planner) -> str:
-    """What identifies a planner's results beyond its name (LLM planners: model, prompt version,
-    thresholds, memory; others: the name, which already carries non-default options)."""
-    return str(getattr(planner, "config_key", planner.name))
+def _fixed_list(arr: np.ndarray) -> pa.FixedSizeListArray:
+    flat = np.ascontiguousarray(arr, dtype=np.float32).reshape(len(arr), -1)
+    return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
 
 
-def _check_planner_config(planner_dir: Path, planner: Planner) -> None:
-    key = planner_config_key(planner)
-    marker = planner_dir / "config.json"
-    if marker.exists():
-        old = json.loads(marker.read_text()).get("config_key")
-        if old != key:
-            raise EvaluationDirError(
-                f"{planner_dir} holds results of {planner.name!r} with another configuration ({old}); "
-                f"this run is {key}: use another --out or delete that directory"
-            )
-        return
-    planner_dir.mkdir(parents=True, exist_ok=True)
-    marker.write_text(json.dumps({"planner": planner.name, "config_key": key}, indent=2))
+def _write_part(planner_dir: Path, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray,
+                goals: np.ndarray) -> Path:
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    for name, arr in zip(PLAN_COLUMNS, (plan_xy, plan_vxy, goals), strict=True):
+        table = table.append_column(name, _fixed_list(arr))
+    path = planner_dir / f"part-{uuid.uuid4().hex[:16]}.parquet"
+    return atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+
+
+def _parts(planner_dir: Path) -> list[Path]:
+    return sorted(planner_dir.glob("part-*.parquet"))
+
+
+def _done_digests(planner_dir: Path) -> set[str]:
+    done: set[str] = set()
+    for part in _parts(planner_dir):
+        done.update(pq.read_table(part, columns=["scenario_digest"]).column(0).to_pylist())
+    return done
+
+
+def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool = False) -> pd.DataFrame:
+    """All stored rows of one planner, in dataset order (``row``), one per scenario digest.
+
+    ``with_plans`` keeps the plan columns (``plan_xy_m`` etc. as flat float32 arrays per row).
+    """
+    parts = _parts(Path(out_dir) / "per_scenario" / planner_dir_name(planner_name))
+    if not parts:
+        return pd.DataFrame()
+    frames = []
+    for p in parts:
+        names = pq.read_schema(p).names
+        cols = names if with_plans else [c for c in names if c not in PLAN_COLUMNS]
+        frames.append(pq.read_table(p, columns=cols).to_pandas())
+    frame = pd.concat(frames, ignore_index=True).drop_duplicates("scenario_digest", keep="first")
+    return frame.sort_values("row", kind="stable").reset_index(drop=True)
+
+
+def load_plans(out_dir: Path, planner_name: str) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Stored plans of one planner: scenario id -> (xy (F, 2), vxy (F, 2), goal (2,)) float64."""
+    frame = load_planner_results(out_dir, planner_name, with_plans=True)
+    out = {}
+    for row in frame.itertuples(index=False):
+        xy = np.asarray(row.plan_xy_m, dtype=np.float64).reshape(N_FUTURE, 2)
+        vxy = np.asarray(row.plan_vxy_mps, dtype=np.float64).reshape(N_FUTURE, 2)
+        out[str(row.scenario_id)] = (xy, vxy, np.asarray(row.plan_goal_xy_m, dtype=np.float64))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Running
+# ------------------------------------------------------------------------------------------------
 
 
 def run_planner(
-    planner: Planner,
+    built: BuiltPlanner,
     batch: ScenarioBatch,
+    digests: np.ndarray,
     out_dir: Path,
     config: MetricsConfig,
     progress: Callable[[int], None] | None = None,
 ) -> pd.DataFrame:
-    """Plan and score every not-yet-done scenario with ``planner``; return all its per-scenario rows."""
-    planner_dir = out_dir / "per_scenario" / planner_dir_name(planner.name)
-    _check_planner_config(planner_dir, planner)
-    done = _done_ids(planner_dir)
-    todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
+    """Plan and score every scenario of ``batch`` not yet stored for ``built``; return all its rows."""
+    planner = built.planner
+    planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
+    planner_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(planner_dir)
+    _check_planner_config(planner_dir, built)
+    done = _done_digests(planner_dir)
+    todo = np.flatnonzero([d not in done for d in digests])
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo))
     step = max(1, int(planner.batch_size))
     for start in range(0, len(todo), step):
         idx = todo[start : start + step]
         sub = batch.take(idx)
+        seen = sub if planner.reads_future else sub.history()
         t0 = time.perf_counter()
-        plan = planner.plan(sub)
+        plan = planner.plan(seen)
         elapsed_s = time.perf_counter() - t0
         metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
         frame = metrics.to_frame()
         frame.insert(0, "scenario_id", [str(s) for s in sub.scenario_id])
+        frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
+        frame.insert(2, "row", idx.astype(np.int64))
         frame["inference_s"] = elapsed_s / len(idx)
         for name, col in _info_columns(plan.info).items():
             frame[name] = col
-        _write_part(planner_dir, frame)
+        _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
         if progress is not None:
             progress(len(idx))
-    return load_planner_results(out_dir, planner.name)
+    frame = load_planner_results(out_dir, built.name)
+    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True)
 
 
-def load_planner_results(out_dir: Path, planner_name: str) -> pd.DataFrame:
-    parts = sorted((out_dir / "per_scenario" / planner_dir_name(planner_name)).glob("part-*.parquet"))
-    if not parts:
-        return pd.DataFrame()
-    frame = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
-    return frame.drop_duplicates("scenario_id", keep="first")
+def _cached(frame: pd.DataFrame) -> np.ndarray:
+    return (np.asarray(frame["info_llm_cached"], dtype=bool) if "info_llm_cached" in frame
+            else np.zeros(len(frame), dtype=bool))
+
+
+def live_inference_s(frame: pd.DataFrame) -> np.ndarray:
+    """Per-scenario planning times [s] of the rows whose model calls really ran (all rows of planners
+    without a model)."""
+    t = np.asarray(frame["inference_s"], dtype=np.float64) if len(frame) else np.zeros(0)
+    return t[~_cached(frame)]
+
+
+def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
+    """Honest inference time of one planner's rows (rules in the module docstring)."""
+    cached = _cached(frame)
+    live = live_inference_s(frame)
+    out: dict[str, AggValue] = {
+        "inference_s": float(live.mean()) if len(live) else None,
+        "inference_n": len(live),
+        "inference_cached_n": int(cached.sum()),
+        "inference_p50_s": float(np.percentile(live, 50)) if len(live) else None,
+        "inference_p95_s": float(np.percentile(live, 95)) if len(live) else None,
+        "model_load_s": round(float(load_s), 3),
+    }
+    if "info_llm_original_latency_s" in frame:
+        orig = np.asarray(frame["info_llm_original_latency_s"], dtype=np.float64)
+        out["llm_original_latency_s"] = float(orig.mean()) if len(orig) else None
+        out["llm_calls_per_scenario"] = float(np.asarray(frame["info_llm_calls"], dtype=np.float64).mean())
+    if "info_fallback" in frame:
+        out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
+    return out
 
 
 def evaluate(
-    planners: Sequence[Planner],
+    planners: Sequence[BuiltPlanner],
     batch: ScenarioBatch,
     out_dir: Path,
     *,
     scenarios_file: str = "",
     config: MetricsConfig | None = None,
-    progress_factory: Callable[[str, int], Callable[[int], None]] | None = None,
+    mode: str = "open-loop",
+    progress_factory: ProgressFactory | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
-    Returns ``{planner_name: aggregated metrics}`` (keys documented in ``letspi.metrics.aggregate``).
+    Returns ``{planner_name: aggregated metrics}`` (keys: ``letspi.metrics.aggregate`` and
+    ``timing_summary``) for every planner stored in the directory (earlier runs included).
     """
+    if mode not in EVALUATION_MODES:
+        raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
     config = config or MetricsConfig()
     out_dir = Path(out_dir)
-    _check_run_file(out_dir, scenarios_file, batch)
+    digests = scenario_digests(batch)
+    record = run_record(batch, digests, scenarios_file, config, mode)
+    _check_run_file(out_dir, record)
     results: dict[str, dict[str, AggValue]] = {}
-    for planner in planners:
-        progress = progress_factory(planner.name, len(batch)) if progress_factory else None
-        frame = run_planner(planner, batch, out_dir, config, progress)
-        results[planner.name] = aggregate_metrics(frame)
-    # merge with planners evaluated earlier in the same directory, so the table is complete
+    for built in planners:
+        progress = progress_factory(built.name, len(batch)) if progress_factory else None
+        frame = run_planner(built, batch, digests, out_dir, config, progress)
+        timing = timing_summary(frame, built.load_s)
+        agg = aggregate_metrics(frame, inference_time_s=live_inference_s(frame), config=config)
+        results[built.name] = {**agg, **timing, "config_key": built.key}  # type: ignore[dict-item]
     metrics_file = out_dir / "metrics.json"
     merged: dict[str, dict[str, AggValue]] = {}
     if metrics_file.exists():
         merged = json.loads(metrics_file.read_text()).get("planners", {})
     merged.update(results)
-    metrics_file.write_text(json.dumps({"planners": merged}, indent=2, allow_nan=False, default=float))
-    (out_dir / "metrics.md").write_text(render_markdown_table(merged) + "\n")
+    payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
+    atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
+    atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
     return merged

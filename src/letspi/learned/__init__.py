@@ -5,16 +5,15 @@ training lives in ``letspi.learned.train`` and needs torch (``pip install 'letsp
 
 Public API:
 
-* ``default_goal_predictor(path=None) -> GoalPredictor``: the learned predictor (argument,
-  ``$LETSPI_GOAL_WEIGHTS`` or the shipped weights), else ``KinematicGoalPredictor()``.
-* ``LearnedGoalPredictor.from_dir(path)``; ``GnpModel.from_dir(path)``; ``load_gnp_model(path=None)``.
+* ``LearnedGoalPredictor.from_dir(path)``; ``GnpModel.from_dir(path)`` (which directory, shipped or
+  ``$LETSPI_GOAL_WEIGHTS`` / ``$LETSPI_GNP_WEIGHTS``, is decided by ``letspi.registry.resolve``).
 * ``goal_metrics`` (minFDE@K, miss rate), ``scene_features``, ``save_weights`` / ``load_weights``.
 """
 
 from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import SceneFeatures, scene_features
-from letspi.learned.gnp_model import GnpModel, load_gnp_model, rollout_weighted
-from letspi.learned.goal_model import LearnedGoalPredictor, default_goal_predictor
+from letspi.learned.gnp_model import GnpModel, rollout_weighted
+from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
 
 __all__ = [
@@ -22,10 +21,8 @@ __all__ = [
     "LearnedGoalPredictor",
     "SceneFeatures",
     "WeightsError",
-    "default_goal_predictor",
     "goal_metrics",
     "goal_truth",
-    "load_gnp_model",
     "load_weights",
     "rollout_weighted",
     "save_weights",

@@ -25,7 +25,6 @@ predictor and **predicted** neighbour motion.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -35,7 +34,7 @@ import numpy as np
 from letspi.constants import DT_S
 from letspi.learned.features import SceneFeatures
 from letspi.learned.layers import EncoderConfig, encode, linear, relu
-from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
+from letspi.learned.weights import WeightsError, load_weights
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.physics.types import RolloutResult
@@ -43,7 +42,6 @@ from letspi.physics.types import RolloutResult
 TAU_RANGE_S: Final = (0.3, 3.0)
 WEIGHT_MIN: Final = 1.0
 WEIGHT_MAX: Final = 4.0
-GNP_WEIGHTS_ENV: Final = "LETSPI_GNP_WEIGHTS"
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -100,10 +98,3 @@ def rollout_weighted(
     ``rollout_social_force_scene(..., nbr_weights=...)``."""
     return rollout_social_force_scene(scene, params, goals_xy_m, dt_s=dt_s, max_speed_mps=max_speed_mps,
                                       nbr_weights=nbr_weights)
-
-
-def load_gnp_model(path: Path | str | None = None) -> GnpModel:
-    """GNP model from ``path``, else ``$LETSPI_GNP_WEIGHTS``, else the shipped weights (``WeightsError``
-    when none loads: unlike goals there is no non-learned fallback for a learned baseline)."""
-    chosen = path if path is not None else os.environ.get(GNP_WEIGHTS_ENV) or shipped_weights_dir("gnp")
-    return GnpModel.from_dir(chosen)

@@ -15,8 +15,6 @@ the softmax of the logits.
 
 from __future__ import annotations
 
-import functools
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,15 +24,13 @@ import numpy as np
 from letspi.constants import HORIZON_S
 from letspi.learned.features import SceneFeatures, scene_features
 from letspi.learned.layers import EncoderConfig, encode, linear, relu
-from letspi.learned.weights import WeightsError, load_weights, shipped_weights_dir
-from letspi.physics.goals import GoalPrediction, GoalPredictor, KinematicGoalPredictor
+from letspi.learned.weights import WeightsError, load_weights
+from letspi.physics.goals import GoalPrediction
 from letspi.physics.lanes import outer_lane_centres_m
 from letspi.scenario.types import ScenarioBatch
 
 GOAL_SCALE_X_M = 10.0
 GOAL_SCALE_Y_M = 2.0
-GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
-"""Environment variable naming a goal model directory to use instead of the shipped one."""
 
 
 def softmax(logits: np.ndarray) -> np.ndarray:
@@ -98,24 +94,3 @@ class LearnedGoalPredictor:
         has = np.isfinite(lo) & np.isfinite(hi)
         gy = np.where(has[:, None], np.clip(gy, np.where(has, lo, 0.0)[:, None], np.where(has, hi, 0.0)[:, None]), gy)
         return GoalPrediction(goals_xy_m=np.stack([gx, gy], axis=-1), probs=probs)
-
-
-@functools.lru_cache(maxsize=4)
-def _load_cached(path: str) -> LearnedGoalPredictor:
-    return LearnedGoalPredictor.from_dir(path)
-
-
-def default_goal_predictor(path: Path | str | None = None) -> GoalPredictor:
-    """The learned predictor from ``path``, else ``$LETSPI_GOAL_WEIGHTS``, else the shipped weights.
-
-    Falls back to ``KinematicGoalPredictor()`` only when the *shipped* weights are absent or unusable
-    (the light install); an explicitly requested model (argument or environment) that does not load
-    raises ``WeightsError`` instead of silently planning with another predictor.
-    """
-    chosen = path if path is not None else os.environ.get(GOAL_WEIGHTS_ENV) or None
-    if chosen is not None:
-        return _load_cached(str(chosen))
-    try:
-        return _load_cached(str(shipped_weights_dir("goal")))
-    except (WeightsError, OSError, ValueError):
-        return KinematicGoalPredictor()

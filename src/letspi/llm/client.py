@@ -77,6 +77,7 @@ class Attempt:
     prompt_tokens: int = 0
     completion_tokens: int = 0
     text: str | None = None
+    original_latency_s: float | None = None  # a cache hit: the latency of the call that made the entry
 
     @property
     def ok(self) -> bool:
@@ -112,6 +113,17 @@ class Advice:
         """True when every attempt was served from the cache."""
         return bool(self.attempts) and all(a.cached for a in self.attempts)
 
+    @property
+    def uncached_latency_s(self) -> float:
+        """Wall time of the attempts that really called the model (what inference costs now)."""
+        return sum(a.latency_s for a in self.attempts if not a.cached)
+
+    @property
+    def original_latency_s(self) -> float:
+        """What every attempt cost when it was first made (cache hits: their recorded latency)."""
+        return sum(a.original_latency_s if a.cached and a.original_latency_s is not None else a.latency_s
+                   for a in self.attempts)
+
     def summary(self) -> dict[str, Any]:
         """A JSON-ready record (for logs and memory banks)."""
         return {
@@ -122,9 +134,12 @@ class Advice:
             "attempts": len(self.attempts),
             "errors": [a.error_kind for a in self.attempts if not a.ok],
             "latency_s": round(self.latency_s, 3),
+            "uncached_latency_s": round(self.uncached_latency_s, 3),
+            "original_latency_s": round(self.original_latency_s, 3),
             "prompt_tokens": self.prompt_tokens,
             "completion_tokens": self.completion_tokens,
             "cached": self.cached,
+            "cached_attempts": sum(int(a.cached) for a in self.attempts),
         }
 
 
@@ -234,6 +249,7 @@ class ParamAdvisor:
                         resp.prompt_tokens,
                         resp.completion_tokens,
                         resp.text,
+                        resp.extra.get("original_latency_s") if resp.cached else None,
                     )
                 )
                 # Re-ask from the original prompt with only the latest bad reply echoed: short
@@ -246,7 +262,8 @@ class ParamAdvisor:
                 continue
             attempts.append(
                 Attempt(
-                    i, None, None, resp.latency_s, resp.cached, resp.prompt_tokens, resp.completion_tokens, resp.text
+                    i, None, None, resp.latency_s, resp.cached, resp.prompt_tokens, resp.completion_tokens, resp.text,
+                    resp.extra.get("original_latency_s") if resp.cached else None,
                 )
             )
             return Advice(

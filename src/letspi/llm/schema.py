@@ -161,6 +161,5 @@ def fallback_reply_from_params(
     params: SocialForceParams, rationale: str = "fallback: fitted sf parameters"
 ) -> PlannerReply:
     """A neutral-goal reply carrying ``params`` (letspi's fallback when the LLM gives no valid answer)."""
-    return PlannerReply(tau_s=params.tau_s, k_np=params.k_np, k_nf=params.k_nf, k_nl=params.k_nl,
-                        k_boundary=params.k_boundary, k_cline=params.k_cline, lon_factor=NEUTRAL_LON_FACTOR,
-                        lane_factor=0.0, rationale=rationale)
+    values = {k: v for k, v in params.as_dict().items() if k in LLM_PARAM_RANGES}
+    return PlannerReply(**values, lon_factor=NEUTRAL_LON_FACTOR, lane_factor=0.0, rationale=rationale)

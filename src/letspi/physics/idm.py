@@ -34,6 +34,7 @@ import numpy as np
 
 from letspi.constants import DT_S, T0_INDEX
 from letspi.physics.lanes import lane_width_m
+from letspi.physics.params import FloatOrArray
 from letspi.physics.types import NeighbourPrediction, RolloutResult
 from letspi.scenario.types import VEHICLE_CLASS_TRUCK, ScenarioBatch
 
@@ -51,11 +52,11 @@ class IdmParams:
     value per vehicle, e.g. from ``for_classes``); the IDM functions broadcast either.
     """
 
-    time_headway_s: float | np.ndarray = 1.5
-    min_gap_m: float | np.ndarray = 2.0
-    max_accel_mps2: float | np.ndarray = 1.0
-    comfort_decel_mps2: float | np.ndarray = 2.0
-    delta: float | np.ndarray = 4.0
+    time_headway_s: FloatOrArray = 1.5
+    min_gap_m: FloatOrArray = 2.0
+    max_accel_mps2: FloatOrArray = 1.0
+    comfort_decel_mps2: FloatOrArray = 2.0
+    delta: FloatOrArray = 4.0
 
     @classmethod
     def for_classes(cls, vehicle_class: np.ndarray, car: IdmParams | None = None,

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import Final
+from typing import Any, Final, TypeAlias
 
 import numpy as np
 
@@ -66,7 +66,9 @@ TYPICAL_RANGES: Final = {
 }
 
 
-FloatOrArray = float | np.ndarray
+#: float (one parameter set) or a (B,) float64 array (a batch); ``Any`` for the type checker because
+#: arithmetic on either works the same and callers index batches explicitly.
+FloatOrArray: TypeAlias = Any
 
 
 @dataclass(frozen=True, eq=False)

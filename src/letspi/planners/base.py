@@ -1,8 +1,10 @@
 """The planner interface: scenarios in, planned ego futures out.
 
-A planner sees a ``ScenarioBatch`` and must only read what is known at t = 0: frames
-``<= T0_INDEX`` of every array (and static road/vehicle attributes). The ``human`` planner is the
-one declared exception (ground-truth replay, the reference row of every table).
+A planner sees what is known at t = 0: the harness passes non-oracle planners a history-only view
+(``ScenarioBatch.history()``: every per-frame array ends at ``T0_INDEX``, the future is absent, not
+blanked). Planners that read the recorded future declare ``reads_future = True`` and get the full
+batch: the ``human`` replay (the reference row of every table) and the labelled oracle modes (oracle
+goals, ground-truth neighbour replay), which are upper bounds, not planners.
 The harness (``letspi.evaluation.harness``) times ``plan`` calls; planners don't time themselves.
 """
 
@@ -51,10 +53,11 @@ class Planner(Protocol):
 
     ``batch_size`` says how many scenarios the harness should pass per call: large for vectorised
     physics planners, 1 for planners whose cost is per scenario (LLMs), so per-scenario
-    inference time is measured honestly.
+    inference time is measured honestly. ``reads_future``: see the module docstring.
     """
 
     name: str
     batch_size: int
+    reads_future: bool
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch: ...

@@ -15,6 +15,7 @@ from letspi.scenario.types import ScenarioBatch
 class ConstantVelocityPlanner:
     name: str = "cv"
     batch_size: int = 4096
+    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         p0 = batch.ego_xy0_m.astype(np.float64)  # (B, 2)

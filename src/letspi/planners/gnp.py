@@ -34,6 +34,7 @@ class GnpPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "gnp"
     batch_size: int = 1024
+    reads_future: bool = False
 
     def __post_init__(self) -> None:
         self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)

@@ -16,6 +16,7 @@ from letspi.scenario.types import ScenarioBatch
 class HumanPlanner:
     name: str = "human"
     batch_size: int = 4096
+    reads_future: bool = True
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         fut = batch.future_slice

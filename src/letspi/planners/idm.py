@@ -51,6 +51,7 @@ class IdmPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "idm"
     batch_size: int = 4096
+    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         roll = rollout_idm_ego(batch, predict_neighbours(batch, self.neighbour_mode))

@@ -22,6 +22,7 @@ class SocialForcePlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf"
     batch_size: int = 4096
+    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         goals = self.goal_predictor.predict_goals(batch).top

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
@@ -29,10 +30,10 @@ from letspi.safety.plan_check import check_plans
 from letspi.scenario.types import ScenarioBatch
 
 
-
-@dataclass(frozen=True)
-class SearchSpace:
+class SearchSpace(BaseModel):
     """Candidate grid; the product of the three axes is tried for every scenario."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     k_scale: tuple[float, ...] = (1.0, 1.6, 2.5)  # multiplies k_np, k_nf and k_nl together
     lon_factor: tuple[float, ...] = (NEUTRAL_LON_FACTOR, 0.7, 1.0)
@@ -61,6 +62,7 @@ class SocialForceSearchPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf-opt"
     batch_size: int = 256
+    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         b = len(batch)

@@ -12,7 +12,10 @@ Columns of ``scenario_features`` (B, 6), in this order (``FEATURE_NAMES``):
 5. ``mean_nbr_speed_mps``: mean speed of visible neighbours at t = 0.
 
 With no visible neighbour, distances are ``NEIGHBOUR_RADIUS_M`` (100 m: "nobody within range")
-and the mean neighbour speed is the ego's own speed, so such scenarios match each other.
+and the mean neighbour speed is the ego's own speed, so such scenarios match each other. A
+neighbour flagged valid at t = 0 whose position or velocity is not finite (a gap in its track)
+counts as not visible; a non-finite ego speed counts as 0. So every feature is finite (the memory
+bank refuses non-finite features).
 """
 
 from __future__ import annotations
@@ -38,10 +41,12 @@ LANE_CHANGE_LAT_SPEED_MPS: Final = 0.5
 def scenario_features(batch: ScenarioBatch) -> np.ndarray:
     """Matching features (B, 6) float64; see the module docstring for columns and units."""
     t0 = T0_INDEX
-    ego_xy = batch.ego_xy_m[:, t0].astype(np.float64)
+    ego_xy = np.nan_to_num(batch.ego_xy_m[:, t0].astype(np.float64))  # the origin by construction
     ego_v = batch.ego_vxy_mps[:, t0].astype(np.float64)
-    ego_speed = np.hypot(ego_v[:, 0], ego_v[:, 1])
-    visible = batch.nbr_valid[:, :, t0]
+    ego_speed = np.nan_to_num(np.hypot(ego_v[:, 0], ego_v[:, 1]), nan=0.0, posinf=0.0)
+    nbr_xy_t0 = batch.nbr_xy_m[:, :, t0]
+    nbr_v_t0 = batch.nbr_vxy_mps[:, :, t0]
+    visible = batch.nbr_valid[:, :, t0] & np.isfinite(nbr_xy_t0).all(axis=-1) & np.isfinite(nbr_v_t0).all(axis=-1)
     n_vis = visible.sum(axis=1)
     nbr_xy = batch.nbr_xy_m[:, :, t0].astype(np.float64)
     dist = np.hypot(nbr_xy[..., 0] - ego_xy[:, None, 0], nbr_xy[..., 1] - ego_xy[:, None, 1])
@@ -55,7 +60,7 @@ def scenario_features(batch: ScenarioBatch) -> np.ndarray:
     mean_speed = np.where(has, np.nansum(nbr_speed, axis=1) / safe_n, ego_speed)
     hist_lanes = batch.ego_lane_id[:, : t0 + 1]
     changed = np.any(hist_lanes != hist_lanes[:, :1], axis=1)
-    lane_change = changed | (np.abs(ego_v[:, 1]) > LANE_CHANGE_LAT_SPEED_MPS)
+    lane_change = changed | (np.abs(np.nan_to_num(ego_v[:, 1])) > LANE_CHANGE_LAT_SPEED_MPS)
     return np.stack(
         [n_vis.astype(np.float64), ego_speed, lane_change.astype(np.float64), min_dist, mean_dist, mean_speed],
         axis=1,

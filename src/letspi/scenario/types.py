@@ -17,7 +17,8 @@ The ego frame (the one coordinate system every scenario array uses)
 * Lane markings of the ego's carriageway become horizontal lines ``y = marking_y_m``.
   The outermost two are road edges (not crossable), the others crossable lane lines.
 
-Shapes: B scenarios, T = ``N_TOTAL`` (200) frames (``N_HISTORY`` = 75 in a history-only view), N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
+Shapes: B scenarios, T = ``N_TOTAL`` (200) frames (``N_HISTORY`` = 75 in a history-only view),
+N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
 M lane markings (padded with NaN to the widest scenario in the batch). Frame ``T0_INDEX`` (74)
 is t = 0; frames after it are the ground-truth future, for evaluation only.
 """

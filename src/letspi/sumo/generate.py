@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from letspi.highd.derive import build_recording
+from letspi.highd.io import write_recording
 from letspi.sumo.convert import ImageTracks, clip_to_window, fcd_to_image
 from letspi.sumo.demand import DEFAULT_FLOW_PER_LANE_VEH_PER_H, DemandConfig, sample_demand, write_routes
 from letspi.sumo.network import HighwayGeometry, HighwayNetwork, build_network
@@ -157,9 +159,6 @@ def generate_recordings(
     frame when its whole box is inside. Direction 1 drives towards -x on the upper lanes,
     direction 2 towards +x on the lower lanes. No speed limit (speedLimit -1).
     """
-    from letspi.highd.derive import build_recording
-    from letspi.highd.io import write_recording
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = progress or (lambda _f: None)

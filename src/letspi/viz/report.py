@@ -9,9 +9,10 @@ Reads the layout written by ``letspi.evaluation.harness`` (``metrics.json``, ``p
    ``MetricsConfig.ttc_cap_s``; no closing leader counts as the cap), minimum box gap and minimum
    PET (finite values only), with the mean marked.
 3. Worst scenarios per planner: the ``n_worst`` scenarios ranked by collision first, then lowest
-   minimum TTC, then smallest gap; each re-planned with ``make_planner`` (same name, default
-   options) and drawn with ``plot_scenario``. Planners the factory does not know (e.g. LLM
-   planners) are drawn without a plan, with a note.
+   minimum TTC, then smallest gap; each drawn with ``plot_scenario`` from the plan the evaluation
+   stored (never re-planned: the picture shows exactly what was scored). The scene comes from the
+   scenarios file named in ``run.json``; a scenario whose content digest no longer matches is listed
+   with a note instead of a wrong picture.
 4. Ablations, from ``DIR/ablations/``:
 
    ``memory_size.json``::
@@ -45,10 +46,16 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from letspi.constants import N_FUTURE
 from letspi.evaluation.harness import load_planner_results
+from letspi.fsutil import atomic_write_text
 from letspi.metrics.aggregate import TABLE_COLUMNS
 from letspi.metrics.config import MetricsConfig
+from letspi.planners.base import PlanBatch
+from letspi.scenario.identity import scenario_digests
+from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.viz import style
+from letspi.viz.figure import plot_scenario
 
 #: extra columns of the report's metrics table (after the paper columns)
 EXTRA_COLUMNS: tuple[tuple[str, str], ...] = (("↑ min gap (m)", "min_box_gap_m"), ("n", "n"))
@@ -119,7 +126,7 @@ def _scenarios_file(eval_dir: Path) -> Path | None:
     run = eval_dir / "run.json"
     if not run.exists():
         return None
-    name = json.loads(run.read_text()).get("scenarios_file") or ""
+    name = json.loads(run.read_text()).get("dataset", {}).get("file") or ""
     if not name:
         return None
     for candidate in (Path(name), eval_dir / name, eval_dir.parent / Path(name).name):
@@ -201,48 +208,44 @@ def _caption(row: pd.Series) -> str:
     return " · ".join(p.replace("inf", "∞") for p in parts)
 
 
-def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame], n_worst: int,
-                   planner_options: Any = None) -> tuple[list[PlannerSection], str | None]:
-    """Worst scenarios of every planner, with embedded diagrams; also a section-level note."""
-    from letspi.registry.factory import make_planner
-    from letspi.scenario.store import load_scenarios
-    from letspi.viz.figure import plot_scenario
-
+def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame],
+                   n_worst: int) -> tuple[list[PlannerSection], str | None]:
+    """Worst scenarios of every planner, drawn from the stored plans; also a section-level note."""
     scen_file = _scenarios_file(eval_dir)
-    batch = None
-    note = None
     if scen_file is None:
         note = "The scenarios file named in run.json was not found: worst scenarios are listed without diagrams."
-    else:
-        batch = load_scenarios(scen_file)
-    index_of = {str(s): i for i, s in enumerate(batch.scenario_id)} if batch is not None else {}
+        return [_listed(name, frame, n_worst) for name, frame in frames.items()], note
+    n_file = count_scenarios(scen_file)
     sections: list[PlannerSection] = []
     for name, frame in frames.items():
         sec = PlannerSection(name=name, anchor=f"worst-{slug(name)}")
         rows = worst_rows(frame, n_worst)
-        present = [str(s) for s in rows["scenario_id"] if str(s) in index_of] if len(rows) else []
-        plans = None
-        if batch is not None and present:
-            sub = batch.take([index_of[s] for s in present])
-            try:
-                plans = make_planner(name, planner_options).plan(sub)
-            except ValueError as exc:
-                sec.note = f"Not re-planned ({exc}); the diagrams show the scenario without this plan."
-        else:
-            sub = None
+        stored = load_planner_results(eval_dir, name, with_plans=True).set_index("scenario_digest")
         for _, row in rows.iterrows():
             sid = str(row["scenario_id"])
             item = WorstScenario(anchor=f"{sec.anchor}-{slug(sid)}", scenario_id=sid, caption=_caption(row))
-            if sub is not None and sid in present:
-                k = present.index(sid)
-                fig = plot_scenario(sub, k, {name: plans} if plans is not None else None,
-                                    title=f"{name}: scenario {sid}", width_in=13.0)
+            pos = int(row["row"])
+            sub = load_scenarios(scen_file, [pos]) if pos < n_file else None
+            if sub is None or str(scenario_digests(sub)[0]) != str(row["scenario_digest"]):
+                item.note = f"scenario not found unchanged in {scen_file}: listed without a diagram"
+            else:
+                rec = stored.loc[str(row["scenario_digest"])]
+                plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
+                                 vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
+                                 goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))
+                fig = plot_scenario(sub, 0, {name: plan}, title=f"{name}: scenario {sid}", width_in=13.0)
                 item.image = figure_to_data_uri(fig, dpi=90)
-            elif batch is not None:
-                item.note = "scenario not in the scenarios file"
             sec.scenarios.append(item)
         sections.append(sec)
-    return sections, note
+    return sections, None
+
+
+def _listed(name: str, frame: pd.DataFrame, n_worst: int) -> PlannerSection:
+    sec = PlannerSection(name=name, anchor=f"worst-{slug(name)}")
+    for _, row in worst_rows(frame, n_worst).iterrows():
+        sid = str(row["scenario_id"])
+        sec.scenarios.append(WorstScenario(f"{sec.anchor}-{slug(sid)}", sid, _caption(row)))
+    return sec
 
 
 # ---------------------------------------------------------------------------------------- ablations
@@ -347,7 +350,6 @@ def write_report(
     *,
     n_worst: int = 3,
     with_diagrams: bool = True,
-    planner_options: Any = None,
     config: MetricsConfig | None = None,
 ) -> Path:
     """Write the HTML report of ``eval_dir`` and return its path.
@@ -356,8 +358,7 @@ def write_report(
         eval_dir: an evaluation directory (``letspi.evaluation.harness`` layout).
         out_html: output file; default ``eval_dir/report.html``.
         n_worst: worst scenarios shown per planner.
-        with_diagrams: re-plan and draw the worst scenarios (False: list them only; faster).
-        planner_options: ``PlannerOptions`` for re-planning (default options when None).
+        with_diagrams: draw the worst scenarios with their stored plans (False: list them only; faster).
         config: metrics configuration (for the TTC cap of the distributions).
     """
     eval_dir = Path(eval_dir)
@@ -375,14 +376,9 @@ def write_report(
     worst_note = None
     if frames:
         if with_diagrams:
-            worst, worst_note = worst_sections(eval_dir, frames, n_worst, planner_options)
+            worst, worst_note = worst_sections(eval_dir, frames, n_worst)
         else:
-            for name, frame in frames.items():
-                sec = PlannerSection(name=name, anchor=f"worst-{slug(name)}")
-                for _, row in worst_rows(frame, n_worst).iterrows():
-                    sid = str(row["scenario_id"])
-                    sec.scenarios.append(WorstScenario(f"{sec.anchor}-{slug(sid)}", sid, _caption(row)))
-                worst.append(sec)
+            worst = [_listed(name, frame, n_worst) for name, frame in frames.items()]
     worst_anchor = {sec.name: sec.anchor for sec in worst}
     for table_row in table_rows:
         table_row["anchor"] = worst_anchor.get(str(table_row["name"]))
@@ -409,6 +405,4 @@ def write_report(
         n_worst=n_worst,
         ablations=ablations,
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(page, encoding="utf-8")
-    return out
+    return atomic_write_text(out, page)

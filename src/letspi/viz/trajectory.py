@@ -33,7 +33,8 @@ def group_colour(group: str | None) -> str:
     return GROUP_COLOURS.get(group or "", style.NBR_OTHER)
 
 
-def x_range_m(scenario: ScenarioBatch, tracks: Sequence[PlanTrack], goal_xy_m: np.ndarray | None) -> tuple[float, float]:
+def x_range_m(scenario: ScenarioBatch, tracks: Sequence[PlanTrack],
+              goal_xy_m: np.ndarray | None) -> tuple[float, float]:
     """The relevant x range: the ego's past, ground truth, plans and goals, with a small margin."""
     xs = [np.asarray(scenario.ego_xy_m[0][:, 0], dtype=np.float64)]
     xs += [t.xy_m[:, 0] for t in tracks]

@@ -12,6 +12,7 @@ from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
+
 def load_training_scenarios(paths: Sequence[Path]) -> tuple[ScenarioBatch, list[dict[str, Any]]]:
     """All scenarios of ``paths`` in one batch and each file's provenance record (for the manifest).
     Vehicles of different files stay apart through ``recording_key`` (see ``letspi.scenario.split``)."""

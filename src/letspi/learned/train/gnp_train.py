@@ -134,7 +134,7 @@ def train_gnp_model(
         progress(1)
     base = {k: float(getattr(base_params, k)) for k in PARAM_NAMES}
 
-    net = GnpNet(cfg.encoder, base_params.tau_s)
+    net = GnpNet(cfg.encoder, float(base_params.tau_s))
 
     def val_loss() -> float:
         assert dva is not None

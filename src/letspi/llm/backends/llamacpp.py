@@ -140,6 +140,10 @@ class LlamaCppBackend:
     def spec(self) -> str:
         return f"llamacpp:{self.model}"
 
+    def load(self) -> None:
+        """Load the model now (otherwise the first call does): callers time loading apart from inference."""
+        shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads)
+
     def complete(
         self,
         messages: Sequence[Message],
