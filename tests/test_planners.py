@@ -160,3 +160,37 @@ def test_goal_source_option():
         make_planner("sf", PlannerOptions(goals="psychic"))
     with pytest.raises(ValueError, match="gnp uses its learned goal predictor"):
         make_planner("gnp", PlannerOptions(goals="kinematic"))
+
+
+NON_ORACLE = ("cv", "idm", "sf", "sf-opt", "gnp", "llm", "letspi-memory")
+
+
+@pytest.mark.parametrize("kind", NON_ORACLE)
+def test_non_oracle_planners_never_read_the_future(kind):
+    """Blanking every frame after t = 0 (or cutting them off) leaves every non-oracle plan unchanged."""
+    from dataclasses import replace
+
+    batch = concat_batches([_closing_on_slower_leader(), straight_road_scenario(
+        ego_speed_mps=27.0, neighbours=[VehicleSpec(-15.0, 31.0), VehicleSpec(10.0, 26.0, lane_offset=1)])])
+    future = slice(75, None)
+    blanked = replace(batch, **{name: getattr(batch, name).copy() for name in
+                                ("ego_xy_m", "ego_vxy_mps", "ego_axy_mps2", "nbr_xy_m", "nbr_vxy_mps")})
+    for name in ("ego_xy_m", "ego_vxy_mps", "ego_axy_mps2"):
+        getattr(blanked, name)[:, future] = np.nan
+    for name in ("nbr_xy_m", "nbr_vxy_mps"):
+        getattr(blanked, name)[:, :, future] = np.nan
+    options = PlannerOptions(llm="scripted:default", llm_cache=False)
+    planner = build_planners([kind], options)[0].planner
+    assert not planner.reads_future
+    if planner.batch_size == 1:  # LLM planners: one scenario per call
+        batch, blanked = batch.take([0]), blanked.take([0])
+    plans = [planner.plan(b) for b in (batch, blanked, batch.history())]
+    for other in plans[1:]:
+        np.testing.assert_array_equal(plans[0].xy_m, other.xy_m)
+        np.testing.assert_array_equal(plans[0].goals_xy_m, other.goals_xy_m)
+
+
+def test_oracle_options_are_declared():
+    assert build_planners(["human"], PlannerOptions())[0].planner.reads_future
+    assert build_planners(["sf"], PlannerOptions(goals="oracle"))[0].planner.reads_future
+    assert build_planners(["idm"], PlannerOptions(neighbour_mode="ground_truth_oracle"))[0].planner.reads_future

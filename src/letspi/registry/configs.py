@@ -237,18 +237,20 @@ class IdmConfig(Config):
     neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
 
 
-class SfConfig(Config):
+class _SocialForcePlannerFields(Config):
+    """What every fixed-parameter social force planner is built from."""
+
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goals: GoalsConfig
+    sf_params: SfParamsConfig
+
+
+class SfConfig(_SocialForcePlannerFields):
     kind: Literal["sf"] = "sf"
-    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-    goals: GoalsConfig
-    sf_params: SfParamsConfig
 
 
-class SfOptConfig(Config):
+class SfOptConfig(_SocialForcePlannerFields):
     kind: Literal["sf-opt"] = "sf-opt"
-    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-    goals: GoalsConfig
-    sf_params: SfParamsConfig
     search: SearchSpace = Field(default_factory=SearchSpace)
 
 
