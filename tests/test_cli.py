@@ -6,11 +6,10 @@ import json
 
 from typer.testing import CliRunner
 
-from letspi.scenario.types import SCHEMA_VERSION
 from letspi.cli.app import app
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
-from letspi.scenario.types import concat_batches
+from letspi.scenario.types import SCHEMA_VERSION, concat_batches
 
 runner = CliRunner()
 

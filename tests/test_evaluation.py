@@ -90,6 +90,7 @@ def test_stored_plans_are_the_plans_that_were_scored(tmp_path: Path) -> None:
     for i, sid in enumerate(batch.scenario_id):
         xy, vxy, goal = plans[str(sid)]
         np.testing.assert_allclose(xy, direct.xy_m[i], atol=1e-4)  # float32 storage
+        np.testing.assert_allclose(vxy, direct.vxy_mps[i], atol=1e-4)
         np.testing.assert_allclose(goal, direct.goals_xy_m[i], atol=1e-4)
 
 

@@ -14,15 +14,15 @@ from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.goal_model import LearnedGoalPredictor
-from letspi.planners.gnp import GnpPlanner
-from letspi.registry.build import Builder, BuiltPlanner
-from letspi.registry.configs import GnpConfig, GoalsConfig, WeightsConfig
-from letspi.registry.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
 from letspi.physics.goals import GoalPrediction, KinematicGoalPredictor
 from letspi.physics.lanes import outer_lane_centres_m
 from letspi.physics.params import SocialForceParams
+from letspi.planners.gnp import GnpPlanner
+from letspi.registry.build import Builder, BuiltPlanner
+from letspi.registry.configs import GnpConfig, GoalsConfig, WeightsConfig
+from letspi.registry.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 

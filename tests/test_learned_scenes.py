@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from letspi.learned.features import N_HIST_STEPS, N_LANE_FEATURES, N_STATIC_FEATURES, N_STEP_FEATURES, scene_features
-from letspi.scenario.split import split_by_recording, split_by_vehicle
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.split import split_by_recording, split_by_vehicle
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
 

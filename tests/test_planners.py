@@ -17,7 +17,6 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.types import concat_batches
 
-
 BASELINE_PLANNERS = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
 
 
