@@ -1,19 +1,44 @@
-"""The ``letspi`` command line. Sub-commands live in sibling modules; imports of heavy modules
-happen inside the commands so ``letspi --help`` stays fast."""
+"""The ``letspi`` command line. Sub-commands live in sibling modules."""
 
 from __future__ import annotations
+
+import os
+from typing import Annotated
 
 import typer
 
 from letspi.cli import bench, data, demo, evaluate, fit, llm, phases, train, viz
+from letspi.cli.common import DEBUG_ENV
+from letspi.evaluation.harness import letspi_version
 
-app = typer.Typer(
-    name="letspi",
-    help="Safe highway trajectory planning with physics-informed LLMs (LetsPi).",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
+
+def _typer(help_text: str) -> typer.Typer:
+    # plain help (no rich markup): "[train]" in "pip install 'letspi[train]'" stays text
+    return typer.Typer(help=help_text, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+                       rich_markup_mode=None)
+
+
+app = _typer("Safe highway trajectory planning with physics-informed LLMs (LetsPi).")
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"letspi {letspi_version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_options(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                          help="Print the version and exit.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help=f"Show tracebacks instead of one-line errors "
+                                                        f"(also {DEBUG_ENV}=1).")] = False,
+) -> None:
+    """Safe highway trajectory planning with physics-informed LLMs (LetsPi)."""
+    if debug:
+        os.environ[DEBUG_ENV] = "1"
+
+
 app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
 app.add_typer(fit.app, name="fit")

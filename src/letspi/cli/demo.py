@@ -17,7 +17,7 @@ from letspi.highd.io import list_recording_ids, read_recordings
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.registry.build import Builder, BuiltPlanner, build_planners
 from letspi.registry.resolve import DEFAULT_LLM, PlannerOptions, Resolver
-from letspi.scenario.extract import extract_scenarios
+from letspi.scenario.extract import count_windows, extract_scenarios
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import save_scenarios
@@ -61,7 +61,7 @@ def demo(
                                     progress=lambda f: bar.update(task, completed=100.0 * f))
         recs = read_recordings(highd_dir)
         with progress_bar() as bar:
-            task = bar.add_task("extracting scenarios", total=max_scenarios)
+            task = bar.add_task("extracting scenarios", total=min(max_scenarios, count_windows(recs)))
             batch = extract_scenarios(recs, max_scenarios=max_scenarios, seed=seed,
                                       progress=lambda k: bar.advance(task, k))
         save_scenarios(batch, scenarios_file, extra_meta={"provenance": {"source": str(highd_dir), "seed": seed}})

@@ -16,7 +16,7 @@ from letspi.planners.sf_params import load_sf_params
 from letspi.registry.build import Builder
 from letspi.registry.resolve import PlannerOptions, Resolver
 
-app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
+app = typer.Typer(rich_markup_mode=None, help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
                   no_args_is_help=True)
 
 ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario file(s) to train on "
@@ -32,7 +32,7 @@ def _require_torch() -> None:
     try:
         import torch  # noqa: F401
     except ImportError as exc:
-        console.print("[red]error:[/red] training needs torch: pip install 'letspi[train]' (torch==2.13.0)")
+        console.print("[red]error:[/red] training needs torch: pip install 'letspi\\[train]' (torch==2.13.0)")
         raise typer.Exit(code=2) from exc
 
 
