@@ -124,10 +124,60 @@ def test_nested_objects_merged() -> None:
     assert r.reply.lon_factor == 0.2 and r.reply.lane_factor == 1 and r.reply.k_np == 30
 
 
-def test_first_object_with_known_keys_wins_and_trailing_comma_repair() -> None:
+def test_last_complete_object_wins_and_trailing_comma_repair() -> None:
     text = 'Format: {"example": 1}. Answer: ' + dumps(GOOD) + " or " + dumps({**GOOD, "k_np": 2})
-    assert parse_reply(text).reply.k_np == 30
+    assert parse_reply(text).reply.k_np == 2
     assert parse_reply(dumps(GOOD)[:-1] + ",}").reply.k_np == 30
+
+
+def test_restated_old_answer_before_the_new_one() -> None:
+    old = {**GOOD, "k_np": 12, "why": "previous"}
+    new = {**GOOD, "k_np": 45, "lon": 0.9, "why": "refined"}
+    for text in (
+        f"My previous answer was {dumps(old)}. The refined answer is:\n{dumps(new)}",
+        f"```json\n{dumps(old)}\n```\nUpdated:\n```json\n{dumps(new)}\n```",
+        f"<think>{dumps(new)}</think>Before: {dumps(old)} After: {dumps(new)} (done)",
+    ):
+        r = parse_reply(text).reply
+        assert (r.k_np, r.lon_factor, r.rationale) == (45, 0.9, "refined")
+
+
+def test_a_later_partial_object_does_not_replace_a_complete_answer() -> None:
+    text = f"{dumps(GOOD)}\nNote that {dumps({'k_np': 99})} would be too aggressive."
+    assert parse_reply(text).reply.k_np == 30
+    # with no complete object, the most complete one is reported as missing keys
+    with pytest.raises(ReplyParseError) as e:
+        parse_reply('{"k_np": 1} and {"tau": 1, "k_np": 2, "k_nf": 3}')
+    assert e.value.reason == "missing_keys" and "tau_s" not in e.value.detail and "k_nl" in e.value.detail
+
+
+def test_a_last_complete_but_invalid_answer_is_not_replaced_by_an_earlier_one() -> None:
+    text = dumps(GOOD) + " then " + dumps(GOOD).replace('"k_np": 30', '"k_np": NaN')
+    with pytest.raises(ReplyParseError) as e:
+        parse_reply(text)
+    assert e.value.reason == "non_finite"
+
+
+def test_trailing_comma_in_the_last_answer_only() -> None:
+    text = dumps({**GOOD, "k_np": 12}) + " now: " + dumps({**GOOD, "k_np": 44})[:-1] + ",}"
+    assert parse_reply(text).reply.k_np == 44
+    # a repair never touches an object that decodes as is (the comma here is inside a string)
+    text = dumps({**GOOD, "why": "gap, ]"})
+    assert parse_reply(text).reply.rationale == "gap, ]"
+
+
+def test_nested_objects_are_part_of_their_outer_object() -> None:
+    # the inner objects are not candidates of their own: the merged outer object is the answer
+    text = dumps({"params": {k: GOOD[k] for k in ("tau", "k_np", "k_nf", "k_nl", "k_bd", "k_cl")},
+                  "goal": {"lon": 0.1, "lane": 1}})
+    r = parse_reply(text).reply
+    assert (r.k_np, r.lon_factor, r.lane_factor) == (30, 0.1, 1)
+
+
+def test_duplicate_keys_take_the_last_value() -> None:
+    text = dumps(GOOD)[:-1] + ', "k_np": 7}'
+    assert parse_reply(text).reply.k_np == 7
+    assert parse_reply(dumps({**GOOD, "k_np": 5, "K-NP": 8})).reply.k_np == 8
 
 
 def test_no_json_and_non_object() -> None:

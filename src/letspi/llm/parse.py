@@ -5,13 +5,30 @@ Policy (documented here, tested in ``tests/test_llm_parse.py``):
 * ``<think>...</think>`` blocks are removed; a stray ``</think>`` drops everything before it
   (some chat templates open the block themselves); an unterminated ``<think>`` drops everything
   after it (unfinished reasoning is not an answer).
-* Code fences and prose around the JSON are ignored: the parser scans for JSON objects and takes
-  the first one that holds at least one known key (else the first object, which then fails as
-  ``missing_keys``). One level of nesting is merged (``{"params": {...}, "goal": {...}}``).
-  Trailing commas are repaired as a last resort.
+* Code fences and prose around the JSON are ignored. The parser collects the reply's top-level
+  JSON objects in text order (an object nested in a decoded object is part of it, not a
+  candidate of its own; where an outer object does not decode, objects inside it are candidates)
+  and chooses, in this order:
+
+  1. the **last complete** candidate: one holding all eight numeric fields (directly or merged
+     from one nesting level, ``{"params": {...}, "goal": {...}}``). Models that restate or quote
+     an earlier answer ("previously I said {...}; refined: {...}") put their final answer last,
+     and a reflection round echoes the previous reply before the new one;
+  2. else the candidate with the most known fields (ties: the last), which then fails as
+     ``missing_keys`` naming what is missing;
+  3. else (objects without any known key, e.g. a format example) the last object, which fails as
+     ``missing_keys``; no object at all is ``no_json``.
+
+  The choice depends on completeness only, never on the values: a last complete object with an
+  invalid value (NaN, a word) makes the reply invalid even if an earlier one was valid, so the
+  advisor re-asks instead of silently using a superseded answer.
+  A trailing comma before ``}`` or ``]`` is repaired where the original text does not decode
+  (``{"tau": 1,}``).
 * Keys: the short wire keys, the long names and common variants are accepted, case and
   punctuation insensitive (``tau``, ``tau_s``, ``k_boundary``, ``k_bd``, ``lon_factor``...).
-  Unknown keys are ignored (reported in ``ignored_keys``).
+  Unknown keys are ignored (reported in ``ignored_keys``). A field given twice in one object
+  (a duplicate key, or two aliases) takes its last value, as JSON parsers do; a field given
+  directly wins over the same field in a nested object.
 * Values: JSON numbers or numeric strings (``"12.5"``). Booleans, null, lists, NaN and infinities
   are rejected.
 * **Missing numeric keys make the reply invalid** (``missing_keys``) rather than being filled
@@ -30,7 +47,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -95,22 +112,64 @@ def _known_keys(obj: Mapping[str, Any]) -> int:
     return sum(1 for k in obj if isinstance(k, str) and canonical_key(k) is not None)
 
 
-def _scan_objects(text: str) -> list[dict[str, Any]]:
-    """Every JSON object that decodes starting at some ``{`` (outermost first), in text order."""
-    found: list[dict[str, Any]] = []
+#: A top-level JSON object found in the reply: (start, end) offsets in the scanned text and the object.
+_Found = tuple[int, int, dict[str, Any]]
+
+
+def _scan_objects(text: str) -> list[_Found]:
+    """Top-level JSON objects in text order: after an object decodes, scanning resumes at its end."""
+    found: list[_Found] = []
     pos = text.find("{")
     while pos >= 0:
         try:
-            obj, _end = _DECODER.raw_decode(text, pos)
+            obj, end = _DECODER.raw_decode(text, pos)
         except (ValueError, RecursionError):
             # JSONDecodeError, over-long ints, absurd nesting: not an object here.
-            obj = None
+            obj, end = None, pos + 1
         if isinstance(obj, dict):
-            found.append(obj)
-            if _known_keys(obj) or any(isinstance(v, dict) and _known_keys(v) for v in obj.values()):
-                break  # good enough: stop scanning
-        pos = text.find("{", pos + 1)
+            found.append((pos, end, obj))
+        else:
+            end = pos + 1
+        pos = text.find("{", end)
     return found
+
+
+def _scan_with_repair(text: str) -> list[_Found]:
+    """``_scan_objects`` plus the objects that decode once trailing commas are removed.
+
+    An object of the repaired text replaces the original objects it contains, unless it spans
+    exactly one of them (then the original, unrepaired object is kept: the regex may have
+    touched a string value).
+    """
+    found = _scan_objects(text)
+    removed = {m.start() for m in _TRAILING_COMMA_RE.finditer(text)}
+    if not removed:
+        return found
+    kept = [i for i in range(len(text)) if i not in removed]  # repaired index -> original index
+    repaired = "".join(text[i] for i in kept)
+    merged: list[_Found] = []
+    covered: set[int] = set()  # indices into ``found`` inside some repaired object
+    for r_start, r_end, obj in _scan_objects(repaired):
+        start, end = kept[r_start], kept[r_end - 1] + 1
+        inside = [k for k, (s, e, _) in enumerate(found) if start <= s and e <= end]
+        covered.update(inside)
+        same = [found[k] for k in inside if found[k][:2] == (start, end)]
+        merged.append(same[0] if same else (start, end, obj))
+    merged.extend(f for k, f in enumerate(found) if k not in covered)
+    return sorted(merged, key=lambda f: f[0])
+
+
+def choose_object(objects: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
+    """The candidate the policy picks (module docstring): the last complete one, else the one with
+    the most numeric then known fields (ties: the last), else the last object; None if none."""
+    if not objects:
+        return None
+    scored: list[tuple[int, int, Mapping[str, Any]]] = []
+    for obj in objects:
+        values, _ = _flatten(obj)
+        scored.append((sum(1 for name in NUMERIC_FIELDS if name in values), len(values), obj))
+    top = max(score[:2] for score in scored)  # (numeric fields, known fields); complete first
+    return [obj for n, known, obj in scored if (n, known) == top or n == len(NUMERIC_FIELDS)][-1]
 
 
 def extract_json_object(text: str) -> dict[str, Any]:
@@ -118,14 +177,10 @@ def extract_json_object(text: str) -> dict[str, Any]:
     if not isinstance(text, str):
         raise ReplyParseError("bad_type", f"reply must be text, got {type(text).__name__}")
     body = strip_reasoning(text[:MAX_REPLY_CHARS])
-    for candidate in (body, _TRAILING_COMMA_RE.sub(r"\1", body)):
-        objects = _scan_objects(candidate)
-        for obj in objects:
-            if _known_keys(obj) or any(isinstance(v, dict) and _known_keys(v) for v in obj.values()):
-                return obj
-        if objects:
-            return objects[0]
-    raise ReplyParseError("no_json", "no JSON object found in the reply")
+    chosen = choose_object([obj for _, _, obj in _scan_with_repair(body)])
+    if chosen is None:
+        raise ReplyParseError("no_json", "no JSON object found in the reply")
+    return dict(chosen)
 
 
 def _to_float(name: str, value: Any) -> float:
@@ -162,27 +217,28 @@ def _rationale_text(value: Any) -> str:
 
 
 def _flatten(obj: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """Canonical name -> raw value, merging one level of nested objects; plus ignored keys."""
-    values: dict[str, Any] = {}
+    """Canonical name -> raw value, merging one level of nested objects; plus ignored keys.
+
+    A field given directly wins over one in a nested object; among direct keys (or among nested
+    objects) the last occurrence of a field wins, as for duplicate keys in JSON itself.
+    """
+    direct: dict[str, Any] = {}
+    from_nested: dict[str, Any] = {}
     ignored: list[str] = []
-    nested: list[Mapping[str, Any]] = []
     for key, value in obj.items():
         name = canonical_key(key) if isinstance(key, str) else None
-        if name is None:
-            if isinstance(value, dict) and _known_keys(value):
-                nested.append(value)
-            else:
-                ignored.append(str(key))
-        elif name not in values:  # first occurrence wins
-            values[name] = value
-    for sub in nested:
-        for key, value in sub.items():
-            name = canonical_key(key)
-            if name is None:
-                ignored.append(str(key))
-            elif name not in values:
-                values[name] = value
-    return values, ignored
+        if name is not None:
+            direct[name] = value
+        elif isinstance(value, dict) and _known_keys(value):
+            for sub_key, sub_value in value.items():
+                sub_name = canonical_key(sub_key) if isinstance(sub_key, str) else None
+                if sub_name is None:
+                    ignored.append(str(sub_key))
+                else:
+                    from_nested[sub_name] = sub_value
+        else:
+            ignored.append(str(key))
+    return {**from_nested, **direct}, ignored
 
 
 def validate_reply(obj: Mapping[str, Any]) -> ParsedReply:

@@ -52,8 +52,8 @@ class DecodingSettings:
 class LLMResponse:
     """What a backend returns for one call.
 
-    ``parsed`` is the reply's first JSON object if the text contains one (no validation of its
-    keys or values: that is ``letspi.llm.parse``'s job), else ``None``.
+    ``parsed`` is the reply's JSON object as ``letspi.llm.parse`` chooses it (the last complete
+    one; no validation of its values: that is ``parse_reply``'s job), else ``None``.
     """
 
     text: str
