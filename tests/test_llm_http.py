@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from letspi.llm.backends.ollama import OllamaBackend
-from letspi.llm.backends.openai_compat import OpenAICompatBackend
+from letspi.llm.backends.openai_compat import DEMOTE_AFTER_NO_JSON, OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.schema import reply_json_schema
 from letspi.llm.types import (
@@ -253,6 +253,16 @@ def test_openai_errors(serve: Callable[[Route], FakeServer]) -> None:
         OpenAICompatBackend("long", base_url=url).complete(MSGS, schema=reply_json_schema(), settings=s, timeout_s=2)
 
 
+def _modes(srv: FakeServer, since: int = 0) -> list[str]:
+    """The response_format mode of each request the server saw (from request ``since`` on)."""
+    out = []
+    for _, body in srv.requests[since:]:
+        rf = body.get("response_format", {})
+        out.append("json_schema" if rf.get("type") == "json_schema" else
+                   "json_object_schema" if "schema" in rf else "json_object")
+    return out
+
+
 def test_openai_auto_mode_moves_on_when_schema_is_ignored(serve: Callable[[Route], FakeServer]) -> None:
     def route(path: str, body: dict[str, Any], n: int) -> tuple[int, Any]:
         rf = body.get("response_format", {})
@@ -261,9 +271,62 @@ def test_openai_auto_mode_moves_on_when_schema_is_ignored(serve: Callable[[Route
 
     srv = serve(route)
     be = OpenAICompatBackend("m", base_url=srv.url + "/v1")
-    a = ParamAdvisor(be, cache=None).advise(MSGS)
-    assert not a.fallback and be.format_mode == "json_object_schema" and len(srv.requests) == 2
+    adv = ParamAdvisor(be, cache=None)
+    for k in range(DEMOTE_AFTER_NO_JSON):
+        a = adv.advise(MSGS)
+        assert not a.fallback and a.response is not None
+        assert a.response.extra["format_mode"] == "json_object_schema"
+        # each request tries the established mode first, then the next one for that request only
+        assert _modes(srv, 2 * k) == ["json_schema", "json_object_schema"]
+        assert be.format_mode == ("json_schema" if k + 1 < DEMOTE_AFTER_NO_JSON else "json_object_schema")
+    n = len(srv.requests)
+    assert not adv.advise(MSGS).fallback
+    assert _modes(srv, n) == ["json_object_schema"]  # demoted for good after consecutive evidence
     fixed = OpenAICompatBackend("m", base_url=srv.url + "/v1", format_mode="json_object")
     assert ParamAdvisor(fixed, cache=None, retry=RetryPolicy(max_attempts=1)).advise(MSGS).fallback
     with pytest.raises(LLMConfigError):
         OpenAICompatBackend("m", format_mode="xml")
+
+
+def test_openai_one_reply_without_json_does_not_demote(serve: Callable[[Route], FakeServer]) -> None:
+    # the first reply is prose (a model slip), every later one is JSON: the mode must not change
+    def route(path: str, body: dict[str, Any], n: int) -> tuple[int, Any]:
+        return 200, openai_ok("Let me think about this." if n == 1 else json.dumps(GOOD))
+
+    srv = serve(route)
+    be = OpenAICompatBackend("m", base_url=srv.url + "/v1")
+    adv = ParamAdvisor(be, cache=None)
+    first = adv.advise(MSGS)
+    assert not first.fallback and _modes(srv) == ["json_schema", "json_object_schema"]
+    assert be.format_mode == "json_schema"
+    for _ in range(4):
+        assert not adv.advise(MSGS).fallback
+    assert _modes(srv, 2) == ["json_schema"] * 4
+
+
+def test_openai_streak_of_no_json_is_reset_by_a_json_reply(serve: Callable[[Route], FakeServer]) -> None:
+    # json_schema fails on requests 1, 3 (2 of every 3 would not be consecutive): never demoted
+    calls = {"n": 0}
+
+    def route(path: str, body: dict[str, Any], n: int) -> tuple[int, Any]:
+        if body.get("response_format", {}).get("type") != "json_schema":
+            return 200, openai_ok(json.dumps(GOOD))
+        calls["n"] += 1
+        return 200, openai_ok("prose" if calls["n"] % 2 else json.dumps(GOOD))
+
+    srv = serve(route)
+    be = OpenAICompatBackend("m", base_url=srv.url + "/v1")
+    adv = ParamAdvisor(be, cache=None)
+    for _ in range(8):
+        assert not adv.advise(MSGS).fallback
+    assert be.format_mode == "json_schema"
+
+
+def test_openai_model_without_json_in_any_mode_does_not_demote(serve: Callable[[Route], FakeServer]) -> None:
+    srv = serve(lambda p, b, n: (200, openai_ok("I cannot answer that.")))
+    be = OpenAICompatBackend("m", base_url=srv.url + "/v1")
+    adv = ParamAdvisor(be, cache=None, retry=RetryPolicy(max_attempts=1))
+    for _ in range(DEMOTE_AFTER_NO_JSON + 1):
+        assert adv.advise(MSGS).fallback
+    assert be.format_mode == "json_schema"  # the model failed, not the response format
+    assert _modes(srv, len(srv.requests) - 3) == ["json_schema", "json_object_schema", "json_object"]

@@ -8,16 +8,27 @@ do not need one).
 Structured output: servers disagree on ``response_format``. We try, in order,
 ``{"type": "json_schema", ...}`` (OpenAI, vLLM, LM Studio, llama.cpp server),
 ``{"type": "json_object", "schema": ...}`` (llama-cpp-python's server) and plain
-``{"type": "json_object"}``, moving on when the server rejects the request with an error that
-names the response format (400/422; llama-cpp-python's server answers 500 with a validation
-error), and remember what worked for the rest of the backend's life. In this ``"auto"`` mode a
-reply that contains no JSON object at all also moves on to the next mode (resending at once),
-for servers that ignore a format they do not know. ``format_mode=...`` fixes the mode.
+``{"type": "json_object"}``. In the default ``"auto"`` mode the backend moves to the next mode:
+
+* **for good**, when the server rejects the request with an error that names the response
+  format (400/422; llama-cpp-python's server answers 500 with a validation error): the server
+  said it does not take that format;
+* **for this request only**, when the server accepts the format but the reply holds no JSON
+  object (a server that ignores a format it does not know, or one bad reply): the request is
+  resent at once with the next mode. Later requests use the established mode again;
+* **for good after** ``DEMOTE_AFTER_NO_JSON`` (3) **consecutive** requests of that kind, i.e.
+  each time the established mode gave no JSON *and* a simpler mode did. A reply with JSON in the
+  established mode resets the count; a request for which no mode gave JSON does not count
+  (the model failed, not the format).
+
+So one bad reply never changes how later requests are sent. ``format_mode=...`` fixes the mode.
+The mode actually used for a request is in ``LLMResponse.extra["format_mode"]``.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Sequence
 from typing import Any, Final
@@ -38,6 +49,9 @@ from letspi.llm.types import (
 DEFAULT_OPENAI_BASE_URL: Final = "https://api.openai.com/v1"
 FORMAT_MODES: Final = ("json_schema", "json_object_schema", "json_object")
 _FORMAT_WORDS: Final = ("response_format", "json_schema", "schema", "json_object")
+#: Consecutive requests answered without JSON in the established mode (and with JSON in a
+#: simpler one) after which auto mode switches to the simpler mode for good.
+DEMOTE_AFTER_NO_JSON: Final = 3
 
 
 def _response_format(mode: str, schema: dict[str, Any]) -> dict[str, Any]:
@@ -69,8 +83,10 @@ class OpenAICompatBackend:
         self._api_key = api_key if api_key is not None else os.environ.get("OPENAI_API_KEY")
         self._client = client or httpx.Client()
         self._auto = format_mode == "auto"
-        # index into FORMAT_MODES of the mode in use (auto: the first one not yet rejected)
+        # index into FORMAT_MODES of the established mode (auto: the first one not yet rejected)
         self._mode_index = 0 if self._auto else FORMAT_MODES.index(format_mode)
+        self._no_json_streak = 0  # see module docstring
+        self._lock = threading.Lock()  # guards the two fields above (requests may run in threads)
 
     @property
     def spec(self) -> str:
@@ -78,7 +94,7 @@ class OpenAICompatBackend:
 
     @property
     def format_mode(self) -> str:
-        """The structured-output mode in use (changes after a server rejects one)."""
+        """The established structured-output mode (see module docstring for when it changes)."""
         return FORMAT_MODES[self._mode_index]
 
     def complete(
@@ -92,6 +108,10 @@ class OpenAICompatBackend:
         url = f"{self.base_url}/chat/completions"
         headers = {"Authorization": f"Bearer {self._api_key}"} if self._api_key else None
         t0 = time.perf_counter()
+        with self._lock:
+            established = self._mode_index
+        mode = established
+        skipped_no_json = False  # this request moved past a mode whose reply had no JSON
         while True:
             payload: dict[str, Any] = {
                 "model": self.model,
@@ -102,7 +122,7 @@ class OpenAICompatBackend:
                 "stream": False,
             }
             if schema is not None:
-                payload["response_format"] = _response_format(self.format_mode, schema)
+                payload["response_format"] = _response_format(FORMAT_MODES[mode], schema)
             resp = post_json(
                 self._client,
                 url,
@@ -111,16 +131,21 @@ class OpenAICompatBackend:
                 headers=headers,
                 unreachable_hint="Is the OpenAI-compatible server running at that address?",
             )
-            can_downgrade = self._auto and schema is not None and self._mode_index < len(FORMAT_MODES) - 1
+            can_downgrade = self._auto and schema is not None and mode < len(FORMAT_MODES) - 1
             if can_downgrade and resp.status_code in (400, 422, 500):
                 msg = error_text(resp).lower()
                 if any(word in msg for word in _FORMAT_WORDS):
-                    self._mode_index += 1  # this server does not take that response_format: downgrade
+                    mode += 1  # the server does not take that response_format: for good
+                    with self._lock:
+                        self._mode_index = max(self._mode_index, mode)
                     continue
             if can_downgrade and resp.status_code == 200 and self._reply_has_no_json(resp):
-                self._mode_index += 1  # accepted but ignored (no JSON came back): try the next mode
+                mode += 1  # accepted but no JSON came back: the next mode, for this request only
+                skipped_no_json = True
                 continue
             break
+        if self._auto and schema is not None and resp.status_code == 200:
+            self._count_no_json(established, mode, skipped_no_json, self._reply_has_no_json(resp))
         latency = time.perf_counter() - t0
         self._raise_for_status(resp, url)
         try:
@@ -138,8 +163,21 @@ class OpenAICompatBackend:
             completion_tokens=int(usage.get("completion_tokens") or 0),
             latency_s=latency,
             model_spec=self.spec,
-            extra={"format_mode": self.format_mode if schema is not None else None},
+            extra={"format_mode": FORMAT_MODES[mode] if schema is not None else None},
         )
+
+    def _count_no_json(self, established: int, used: int, skipped: bool, final_has_no_json: bool) -> None:
+        """Track consecutive no-JSON replies in the established mode; demote after enough of them."""
+        with self._lock:
+            if self._mode_index != established:
+                return  # another request changed the mode meanwhile: its evidence is newer
+            if not skipped:
+                self._no_json_streak = 0  # the established mode gave JSON (or nothing simpler to try)
+            elif not final_has_no_json:  # no JSON in the established mode, JSON in a simpler one
+                self._no_json_streak += 1
+                if self._no_json_streak >= DEMOTE_AFTER_NO_JSON:
+                    self._mode_index = used
+                    self._no_json_streak = 0
 
     @staticmethod
     def _reply_has_no_json(resp: httpx.Response) -> bool:
