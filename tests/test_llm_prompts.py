@@ -145,3 +145,25 @@ def test_fast_prompt() -> None:
     assert len(msgs[0]["content"]) < len(system_prompt("physics")) / 2
     plain = render_fast_prompt(d, guidance=[])
     assert "## Guidance" not in plain[1]["content"] and "Example" not in plain[1]["content"]
+
+
+def test_units_come_from_the_physics_module() -> None:
+    from letspi.llm.schema import FIELD_DOCS, LLM_PARAM_RANGES
+    from letspi.physics.params import PARAM_UNITS
+
+    assert PARAM_UNITS["k_boundary"] == "m^3/s^2" and PARAM_UNITS["k_cline"] == "m^2/s^2"
+    for name in LLM_PARAM_RANGES:
+        assert FIELD_DOCS[name][0] == PARAM_UNITS[name], name
+    physics = system_prompt("physics")
+    lines = {line.split(":")[0]: line for line in physics.splitlines() if line.startswith("- ")}
+    for name in LLM_PARAM_RANGES:
+        assert f"({PARAM_UNITS[name]}, " in lines[f"- {WIRE_KEYS[name]}"], name
+    # the lane-marking equations state the same units, never m/s^2 for k_bd or k_cl
+    assert "k_bd in m^3/s^2" in physics and "k_cl in m^2/s^2" in physics
+    fast = system_prompt("fast")
+    for name in LLM_PARAM_RANGES:
+        lo, hi = LLM_PARAM_RANGES[name]
+        assert f"{WIRE_KEYS[name]} {lo:g} to {hi:g} {PARAM_UNITS[name]}" in fast, name
+    for line in physics.splitlines():
+        if "k_bd" in line or "k_cl" in line:
+            assert "m/s^2" not in line, line

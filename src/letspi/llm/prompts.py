@@ -30,6 +30,7 @@ from letspi.constants import DT_S, HORIZON_S
 from letspi.llm.describe import ScenarioDescription, targeted_guidance
 from letspi.llm.schema import FIELD_DOCS, FIELD_RANGES, RATIONALE_MAX_CHARS, WIRE_KEYS, PlannerReply, Variant
 from letspi.llm.types import Message, message
+from letspi.physics.social_force import LANE_LINE_SIGMA_M
 
 #: Safety thresholds quoted in the prompts (paper §III-E: TTC < 1.5 s or distance < 2.0 m is unsafe).
 TTC_MIN_S: Final = 1.5
@@ -86,6 +87,9 @@ def _static_context() -> dict[str, Any]:
     ]
     return {
         "params": params,
+        # wire key -> unit, for the equations in the templates (units from PARAM_UNITS, one source)
+        "units": {WIRE_KEYS[name]: FIELD_DOCS[name][0] for name in FIELD_RANGES},
+        "lane_sigma_m": _fmt(LANE_LINE_SIGMA_M),
         "horizon_s": _fmt(HORIZON_S),
         "dt_s": _fmt(DT_S),
         "ttc_min_s": _fmt(TTC_MIN_S),

@@ -24,12 +24,12 @@ from typing import Any, Final, Literal
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR
-from letspi.physics.params import PARAM_RANGES, SocialForceParams
+from letspi.physics.params import PARAM_RANGES, PARAM_UNITS, SocialForceParams
 
 Variant = Literal["physics", "fast"]
 VARIANTS: Final[tuple[Variant, ...]] = ("physics", "fast")
 
-#: Social-force parameter ranges (name -> (low, high)). Units: tau_s in s, all k in m/s^2.
+#: Social-force parameter ranges (name -> (low, high)); units in ``FIELD_UNITS`` (from ``PARAM_UNITS``).
 LLM_PARAM_RANGES: Final[dict[str, tuple[float, float]]] = {
     name: PARAM_RANGES[name] for name in ("tau_s", "k_np", "k_nf", "k_nl", "k_boundary", "k_cline")
 }
@@ -58,18 +58,28 @@ WIRE_KEYS: Final[dict[str, str]] = {
 #: Longest rationale the schema allows (characters); about 60 tokens.
 RATIONALE_MAX_CHARS: Final = 240
 
-#: Units and one-line meanings, used by the prompts.
-FIELD_DOCS: Final[dict[str, tuple[str, str]]] = {
-    "tau_s": ("s", "relaxation time: how fast the ego adapts to its desired velocity (small = eager)"),
-    "k_np": ("m/s^2", "repulsion from the preceding vehicle (same lane, ahead)"),
-    "k_nf": ("m/s^2", "repulsion from the following vehicle (same lane, behind)"),
-    "k_nl": ("m/s^2", "repulsion from lateral vehicles (adjacent lanes)"),
-    "k_boundary": ("m/s^2", "repulsion from road edges (not crossable)"),
-    "k_cline": ("m/s^2", "repulsion from crossable lane lines (keeps the ego centred in its lane)"),
-    "lon_factor": ("-", "goal distance: 0 = 20% farther, 0.4 = unchanged, 1 = 30% shorter"),
-    "lane_factor": ("-", "goal lane shift: -1 = one lane left, 0 = keep, +1 = one lane right"),
+#: Unit of every numeric field: the physics module's ``PARAM_UNITS`` (one source: the prompts and
+#: ``FIELD_DOCS`` take units from here), ``-`` for the dimensionless goal factors.
+FIELD_UNITS: Final[dict[str, str]] = {
+    **{name: PARAM_UNITS[name] for name in LLM_PARAM_RANGES},
+    **{name: "-" for name in GOAL_FACTOR_RANGES},
 }
 
+_FIELD_MEANINGS: Final[dict[str, str]] = {
+    "tau_s": "relaxation time: how fast the ego adapts to its desired velocity (small = eager)",
+    "k_np": "repulsion from the preceding vehicle (same lane, ahead)",
+    "k_nf": "repulsion from the following vehicle (same lane, behind)",
+    "k_nl": "repulsion from lateral vehicles (adjacent lanes)",
+    "k_boundary": "strength of the road-edge potential (edges are not crossable)",
+    "k_cline": "height of the lane-line potential (keeps the ego centred in its lane)",
+    "lon_factor": "goal distance: 0 = 20% farther, 0.4 = unchanged, 1 = 30% shorter",
+    "lane_factor": "goal lane shift: -1 = one lane left, 0 = keep, +1 = one lane right",
+}
+
+#: Unit and one-line meaning of every numeric field, used by the prompts.
+FIELD_DOCS: Final[dict[str, tuple[str, str]]] = {
+    name: (FIELD_UNITS[name], _FIELD_MEANINGS[name]) for name in FIELD_RANGES
+}
 
 
 def _param_field(name: str, wire: str) -> Any:
