@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import pickle
+import random
 from pathlib import Path
 
 import pytest
@@ -13,9 +15,11 @@ from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.schema import DEFAULT_REPLY
 from letspi.llm.types import (
     BackendUnavailableError,
+    LLMTimeoutError,
     LLMTransportError,
     Message,
     ModelNotFoundError,
+    ServerBusyError,
     message,
 )
 
@@ -30,7 +34,7 @@ def advisor(
     adv = ParamAdvisor(
         backend,
         cache=cache,
-        retry=RetryPolicy(max_attempts=attempts, backoff_s=0.5, timeout_s=5.0),
+        retry=RetryPolicy(max_attempts=attempts, backoff_s=0.5, timeout_s=5.0, jitter=0.0),
         sleep=sleeps.append,
     )
     return adv, sleeps
@@ -157,3 +161,62 @@ def test_default_cache_location_env(tmp_path: Path, monkeypatch: pytest.MonkeyPa
 def test_spec_string_backend() -> None:
     a = ParamAdvisor("scripted:default", cache=None).advise(MSGS)
     assert not a.fallback and a.reply.params() == DEFAULT_REPLY.params()
+
+
+def test_backoff_has_jitter_within_bounds() -> None:
+    seen: set[tuple[float, ...]] = set()
+    for seed in range(5):
+        sleeps: list[float] = []
+        be = ScriptedBackend([LLMTransportError("HTTP 500")] * 3 + [json.dumps(GOOD)])
+        adv = ParamAdvisor(
+            be, cache=None, retry=RetryPolicy(max_attempts=4, backoff_s=0.5, jitter=0.5),
+            sleep=sleeps.append, rng=random.Random(seed),
+        )
+        assert not adv.advise(MSGS).fallback
+        assert len(sleeps) == 3
+        for s, full in zip(sleeps, (0.5, 1.0, 2.0), strict=True):
+            assert full * 0.5 <= s <= full  # equal jitter: half fixed, half random
+        seen.add(tuple(sleeps))
+    assert len(seen) == 5  # different draws: clients do not retry in lockstep
+
+
+def test_retry_after_is_a_floor_for_that_request() -> None:
+    be = ScriptedBackend(
+        [
+            ServerBusyError("HTTP 429", status=429, retry_after_s=3.0),  # server wait > backoff
+            ServerBusyError("HTTP 503", status=503, retry_after_s=0.1),  # backoff > server wait
+            json.dumps(GOOD),
+        ]
+    )
+    adv, sleeps = advisor(be, attempts=3)
+    a = adv.advise(MSGS)
+    assert not a.fallback and [x.error_kind for x in a.attempts] == ["busy", "busy", None]
+    assert sleeps == [3.0, 1.0]  # max(backoff 0.5, 3.0), then max(backoff 1.0, 0.1)
+    assert RetryPolicy(jitter=0.0).wait_s(1, 2.5) == 2.5 and RetryPolicy(jitter=0.0).wait_s(1, None) == 0.5
+
+
+def test_retry_after_longer_than_the_policy_stops_instead_of_falling_back() -> None:
+    be = ScriptedBackend([ServerBusyError("HTTP 429: quota", status=429, retry_after_s=3600.0), json.dumps(GOOD)])
+    adv, sleeps = advisor(be)
+    with pytest.raises(ServerBusyError) as e:
+        adv.advise(MSGS)
+    assert "3600 s" in str(e.value) and "120 s" in str(e.value) and e.value.retry_after_s == 3600.0
+    assert sleeps == [] and be.remaining == 1
+
+
+def test_transport_errors_keep_status_and_retry_after_when_pickled() -> None:
+    for err in (
+        ServerBusyError("busy", status=503, retry_after_s=2.0),
+        LLMTransportError("HTTP 500", status=500),
+        LLMTimeoutError("slow"),
+        BackendUnavailableError("down"),
+    ):
+        back = pickle.loads(pickle.dumps(err))
+        assert type(back) is type(err) and str(back) == str(err)
+        assert (back.status, back.retry_after_s) == (err.status, err.retry_after_s)
+
+
+def test_retry_policy_validation() -> None:
+    for bad in ({"jitter": 1.5}, {"jitter": -0.1}, {"max_retry_after_s": -1.0}, {"backoff_s": -1.0}):
+        with pytest.raises(ValueError):
+            RetryPolicy(**bad)  # type: ignore[arg-type]

@@ -7,11 +7,13 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
+from email.utils import formatdate
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 import pytest
 
+from letspi.llm.backends._http import parse_retry_after
 from letspi.llm.backends.ollama import OllamaBackend
 from letspi.llm.backends.openai_compat import DEMOTE_AFTER_NO_JSON, OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
@@ -23,30 +25,37 @@ from letspi.llm.types import (
     LLMTimeoutError,
     LLMTransportError,
     ModelNotFoundError,
+    ServerBusyError,
     message,
 )
 
 GOOD = {"why": "ok", "tau": 1.1, "k_np": 20, "k_nf": 3, "k_nl": 1, "k_bd": 1, "k_cl": 0.5, "lon": 0.5, "lane": 0}
 MSGS = [message("system", "static"), message("user", "scenario")]
-Route = Callable[[str, dict[str, Any], int], tuple[int, Any]]
+Route = Callable[[str, dict[str, Any], int], tuple[Any, ...]]
 
 
 class FakeServer:
-    """A ThreadingHTTPServer on 127.0.0.1 whose POST handler is ``route(path, body, n) -> (status, json)``."""
+    """A ThreadingHTTPServer on 127.0.0.1 whose POST handler is
+    ``route(path, body, n) -> (status, json)`` or ``(status, json, headers)``.
+    ``arrivals`` holds the ``time.monotonic()`` of each request's arrival."""
 
     def __init__(self, route: Route) -> None:
         self.requests: list[tuple[str, dict[str, Any]]] = []
+        self.arrivals: list[float] = []
         outer = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self) -> None:
+                outer.arrivals.append(time.monotonic())
                 body = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))) or b"{}")
                 outer.requests.append((self.path, body))
-                status, payload = route(self.path, body, len(outer.requests))
+                status, payload, *rest = route(self.path, body, len(outer.requests))
                 data = json.dumps(payload).encode()
                 self.send_response(status)
                 self.send_header("Content-Type", "application/json")
                 self.send_header("Content-Length", str(len(data)))
+                for key, value in (rest[0] if rest else {}).items():
+                    self.send_header(key, value)
                 self.end_headers()
                 self.wfile.write(data)
 
@@ -330,3 +339,72 @@ def test_openai_model_without_json_in_any_mode_does_not_demote(serve: Callable[[
         assert adv.advise(MSGS).fallback
     assert be.format_mode == "json_schema"  # the model failed, not the response format
     assert _modes(srv, len(srv.requests) - 3) == ["json_schema", "json_object_schema", "json_object"]
+
+
+# --- Retry-After ---------------------------------------------------------------------------------
+
+
+def busy_then_ok(status: int, retry_after: str, ok: Callable[[], Any]) -> Route:
+    """First request: ``status`` with ``Retry-After: retry_after``; later requests: ``ok()``."""
+
+    def route(path: str, body: dict[str, Any], n: int) -> tuple[Any, ...]:
+        if n == 1:
+            return status, {"error": {"message": "slow down"}}, {"Retry-After": retry_after}
+        return 200, ok()
+
+    return route
+
+
+def test_parse_retry_after() -> None:
+    assert parse_retry_after("1") == 1.0 and parse_retry_after(" 120 ") == 120.0 and parse_retry_after("0.5") == 0.5
+    now = 1_700_000_000.0
+    assert parse_retry_after(formatdate(now + 30, usegmt=True), now=now) == pytest.approx(30.0)
+    assert parse_retry_after(formatdate(now - 30, usegmt=True), now=now) == 0.0  # in the past: no wait
+    for junk in (None, "", "soon", "-1", "1 s", "Thu, 99 Foo 2024"):
+        assert parse_retry_after(junk) is None, junk
+    assert parse_retry_after("9" * 400) == float("inf")  # absurd: treated as "too long" by the advisor
+
+
+@pytest.mark.parametrize("status", [429, 503])
+def test_openai_retry_after_seconds_sets_the_wait(serve: Callable[[Route], FakeServer], status: int) -> None:
+    srv = serve(busy_then_ok(status, "1", lambda: openai_ok(json.dumps(GOOD))))
+    sleeps: list[float] = []
+    adv = ParamAdvisor(
+        OpenAICompatBackend("m", base_url=srv.url + "/v1"),
+        cache=None,
+        retry=RetryPolicy(backoff_s=0.01),
+        sleep=sleeps.append,
+    )
+    a = adv.advise(MSGS)
+    assert not a.fallback and [x.error_kind for x in a.attempts] == ["busy", None]
+    assert a.attempts[0].error is not None and "Retry-After: 1 s" in a.attempts[0].error
+    assert sleeps == [1.0]  # max(backoff <= 0.01 s, Retry-After 1 s)
+
+
+def test_ollama_retry_after_http_date_sets_the_wait(serve: Callable[[Route], FakeServer]) -> None:
+    date = formatdate(time.time() + 3, usegmt=True)  # whole seconds: 2 < wait <= 3
+    ok = {"message": {"role": "assistant", "content": json.dumps(GOOD)}, "done": True}
+    srv = serve(busy_then_ok(429, date, lambda: ok))
+    sleeps: list[float] = []
+    adv = ParamAdvisor(
+        OllamaBackend("m", base_url=srv.url), cache=None, retry=RetryPolicy(backoff_s=0.01), sleep=sleeps.append
+    )
+    a = adv.advise(MSGS)
+    assert not a.fallback and a.attempts[0].error_kind == "busy"
+    assert len(sleeps) == 1 and 1.0 < sleeps[0] <= 3.0
+
+
+def test_openai_429_retry_after_waits_in_real_time(serve: Callable[[Route], FakeServer]) -> None:
+    srv = serve(busy_then_ok(429, "1", lambda: openai_ok(json.dumps(GOOD))))
+    be = OpenAICompatBackend("m", base_url=srv.url + "/v1")
+    a = ParamAdvisor(be, cache=None, retry=RetryPolicy(backoff_s=0.01)).advise(MSGS)  # the real time.sleep
+    assert not a.fallback and len(srv.arrivals) == 2
+    assert srv.arrivals[1] - srv.arrivals[0] >= 1.0
+
+
+def test_retry_after_beyond_the_policy_stops_with_a_clear_error(serve: Callable[[Route], FakeServer]) -> None:
+    srv = serve(busy_then_ok(429, "3600", lambda: openai_ok(json.dumps(GOOD))))
+    adv = ParamAdvisor(OpenAICompatBackend("m", base_url=srv.url + "/v1"), cache=None, sleep=lambda s: None)
+    with pytest.raises(ServerBusyError) as e:
+        adv.advise(MSGS)
+    assert "HTTP 429" in str(e.value) and "3600 s" in str(e.value) and len(srv.requests) == 1

@@ -46,6 +46,7 @@ from letspi.llm.types import (
     MissingDependencyError,
     ModelNotFoundError,
     ReplyParseError,
+    ServerBusyError,
     UnknownBackendError,
     message,
 )
@@ -77,6 +78,7 @@ __all__ = [
     "ResponseCache",
     "RetryPolicy",
     "ScenarioDescription",
+    "ServerBusyError",
     "UnknownBackendError",
     "Variant",
     "default_cache_dir",

@@ -4,7 +4,10 @@ Control flow of ``ParamAdvisor.advise(messages)`` (up to ``RetryPolicy.max_attem
 
 1. Look the exact request up in the response cache; on a miss call the backend with the
    per-call timeout and store the reply text.
-2. Transport error or timeout: wait (exponential backoff) and resend the same messages.
+2. Transport error or timeout: wait and resend the same messages. The wait is exponential
+   backoff with jitter (``RetryPolicy.wait_s``), and never shorter than the server's
+   ``Retry-After`` (HTTP 429/503 carry it in ``LLMTransportError.retry_after_s``):
+   ``max(backoff * (1 - jitter * U[0, 1)), retry_after)``. Only this request waits.
 3. Invalid reply (``ReplyParseError``): resend at once with the bad reply and a short
    corrective user message appended (so the request, and its cache key, differ; no backoff
    because the server is fine).
@@ -13,11 +16,14 @@ Control flow of ``ParamAdvisor.advise(messages)`` (up to ``RetryPolicy.max_attem
 Never raised out of ``advise``: transport errors and invalid replies. Raised at once:
 ``LLMConfigError`` (unknown backend, missing package or model, auth). Also raised: a
 ``BackendUnavailableError`` when *every* attempt found the server unreachable, because a dead
-server would otherwise turn a whole run into silent fallbacks.
+server would otherwise turn a whole run into silent fallbacks; and a ``ServerBusyError`` when
+the server asks (``Retry-After``) for a longer wait than ``RetryPolicy.max_retry_after_s``
+(a rate limit that long would otherwise do the same).
 """
 
 from __future__ import annotations
 
+import random
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -36,6 +42,7 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     ReplyParseError,
+    ServerBusyError,
     message,
 )
 
@@ -45,12 +52,21 @@ _ECHO_CHARS = 600
 
 @dataclass(frozen=True)
 class RetryPolicy:
-    """How hard to try. ``max_attempts`` counts all calls (1 = no retry)."""
+    """How hard to try. ``max_attempts`` counts all calls (1 = no retry).
+
+    After the n-th consecutive transport failure of a request the advisor waits
+    ``max(delay(n) * (1 - jitter * u), retry_after)`` with ``u`` uniform in [0, 1) (``wait_s``):
+    exponential backoff, randomised so that many clients do not retry in lockstep, and never
+    sooner than the server's ``Retry-After``. A ``Retry-After`` above ``max_retry_after_s`` stops
+    the run (``ServerBusyError``) instead of stalling or falling back.
+    """
 
     max_attempts: int = 3
     backoff_s: float = 0.5
     backoff_factor: float = 2.0
     max_backoff_s: float = 8.0
+    jitter: float = 0.5
+    max_retry_after_s: float = 120.0
     timeout_s: float = 120.0
 
     def __post_init__(self) -> None:
@@ -58,16 +74,26 @@ class RetryPolicy:
             raise ValueError("max_attempts must be >= 1")
         if self.timeout_s <= 0:
             raise ValueError("timeout_s must be > 0")
+        if not 0.0 <= self.jitter <= 1.0:
+            raise ValueError("jitter must be in [0, 1]")
+        if self.backoff_s < 0 or self.max_backoff_s < 0 or self.max_retry_after_s < 0:
+            raise ValueError("backoff_s, max_backoff_s and max_retry_after_s must be >= 0")
 
     def delay(self, failures: int) -> float:
-        """Backoff before the next attempt after ``failures`` consecutive transport failures."""
+        """Backoff (before jitter) before the next attempt after ``failures`` consecutive transport failures."""
         return min(self.backoff_s * self.backoff_factor ** max(failures - 1, 0), self.max_backoff_s)
+
+    def wait_s(self, failures: int, retry_after_s: float | None = None, u: float = 0.0) -> float:
+        """The wait before the next attempt: jittered backoff, at least ``retry_after_s``."""
+        backoff = self.delay(failures) * (1.0 - self.jitter * min(max(u, 0.0), 1.0))
+        return max(backoff, retry_after_s or 0.0)
 
 
 @dataclass(frozen=True)
 class Attempt:
-    """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable`` or
-    ``parse:<reason>`` (``no_json``, ``missing_keys``, ``bad_value``, ``non_finite``, ``bad_type``)."""
+    """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable``,
+    ``busy`` (HTTP 429/503) or ``parse:<reason>`` (``no_json``, ``missing_keys``, ``bad_value``,
+    ``non_finite``, ``bad_type``)."""
 
     index: int
     error_kind: str | None
@@ -155,12 +181,22 @@ def corrective_message(error: ReplyParseError, variant: Variant) -> str:
 CacheArg = ResponseCache | None | Literal["default"]
 
 
+def _transport_kind(exc: LLMTransportError) -> str:
+    if isinstance(exc, BackendUnavailableError):
+        return "unavailable"
+    if isinstance(exc, LLMTimeoutError):
+        return "timeout"
+    if isinstance(exc, ServerBusyError):
+        return "busy"
+    return "transport"
+
+
 class ParamAdvisor:
     """Asks one backend for social-force parameters (see module docstring).
 
     ``cache="default"`` uses ``ResponseCache()`` (``$LETSPI_CACHE_DIR``); ``cache=None`` turns it off.
     ``use_schema=False`` sends no JSON schema (for servers without structured output).
-    ``sleep`` is injectable so tests do not wait for backoff.
+    ``sleep`` is injectable so tests do not wait for backoff; ``rng`` draws the backoff jitter.
     """
 
     def __init__(
@@ -173,6 +209,7 @@ class ParamAdvisor:
         use_schema: bool = True,
         fallback_reply: PlannerReply = DEFAULT_REPLY,
         sleep: Callable[[float], None] = time.sleep,
+        rng: random.Random | None = None,
     ) -> None:
         self.backend: LLMBackend = make_backend(backend) if isinstance(backend, str) else backend
         self.cache: ResponseCache | None = ResponseCache() if cache == "default" else cache
@@ -181,6 +218,7 @@ class ParamAdvisor:
         self.use_schema = use_schema
         self.fallback_reply = fallback_reply
         self._sleep = sleep
+        self._rng = rng or random.Random()
 
     def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None) -> LLMResponse:
         """One call through the cache (no validation, no retry)."""
@@ -221,17 +259,19 @@ class ParamAdvisor:
             try:
                 resp = self.complete(current, schema=schema)
             except LLMTransportError as exc:
-                kind = (
-                    "unavailable"
-                    if isinstance(exc, BackendUnavailableError)
-                    else "timeout"
-                    if isinstance(exc, LLMTimeoutError)
-                    else "transport"
-                )
-                attempts.append(Attempt(i, kind, str(exc), time.perf_counter() - t0))
+                attempts.append(Attempt(i, _transport_kind(exc), str(exc), time.perf_counter() - t0))
                 transport_failures += 1
+                retry_after = exc.retry_after_s
+                if retry_after is not None and not retry_after <= self.retry.max_retry_after_s:
+                    raise ServerBusyError(
+                        f"{exc}; the server asks to wait {retry_after:.0f} s, longer than the "
+                        f"{self.retry.max_retry_after_s:g} s letspi waits per request: stopping instead of "
+                        "falling back (run again later; finished results are kept)",
+                        status=exc.status,
+                        retry_after_s=retry_after,
+                    ) from exc
                 if i + 1 < self.retry.max_attempts:
-                    self._sleep(self.retry.delay(transport_failures))
+                    self._sleep(self.retry.wait_s(transport_failures, retry_after, self._rng.random()))
                 elif all(a.error_kind == "unavailable" for a in attempts):
                     raise
                 continue

@@ -5,8 +5,12 @@ Error taxonomy (what the caller does with it):
 * ``LLMConfigError`` and subclasses: the setup is wrong (unknown backend, malformed spec, missing
   package or model, authentication). Raised immediately, never retried: a long run must not
   silently turn every scenario into a fallback because of a typo.
-* ``LLMTransportError`` and subclasses: one call failed (HTTP 5xx, reset connection, timeout).
-  Retried with backoff; after the last attempt the advisor falls back to default parameters.
+* ``LLMTransportError`` and subclasses: one call failed (HTTP 5xx, reset connection, timeout,
+  HTTP 429/503 ``ServerBusyError``). Retried with exponential backoff and jitter, never sooner
+  than the server's ``Retry-After``; after the last attempt the advisor falls back to default
+  parameters. Two stop the run instead (raised out of ``ParamAdvisor.advise``): a
+  ``BackendUnavailableError`` on every attempt (dead server), and a ``ServerBusyError`` whose
+  ``Retry-After`` exceeds the policy's ``max_retry_after_s``.
 * ``ReplyParseError``: the model answered but the reply is not a valid parameter set. Retried with
   a corrective message, then the fallback.
 """
@@ -112,11 +116,39 @@ class ModelNotFoundError(LLMConfigError):
 
 
 class LLMTransportError(LLMError):
-    """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable."""
+    """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable.
+
+    ``status`` is the HTTP status when the server answered; ``retry_after_s`` the delay the
+    server asked for in a ``Retry-After`` header (seconds, parsed from seconds or an HTTP date),
+    which the advisor honours before that request's next attempt.
+    """
+
+    def __init__(self, message: str, *, status: int | None = None, retry_after_s: float | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.retry_after_s = retry_after_s
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # picklable (worker processes) despite the keyword-only fields
+        return (_rebuild_transport_error, (type(self), str(self), self.status, self.retry_after_s))
+
+
+def _rebuild_transport_error(
+    cls: type[LLMTransportError], message: str, status: int | None, retry_after_s: float | None
+) -> LLMTransportError:
+    return cls(message, status=status, retry_after_s=retry_after_s)
 
 
 class LLMTimeoutError(LLMTransportError):
     """One call exceeded its timeout."""
+
+
+class ServerBusyError(LLMTransportError):
+    """HTTP 429 (rate limited) or 503 (overloaded, loading): the server is up but asks us to wait.
+
+    Retried after ``max(backoff, retry_after_s)``. If the server asks for a longer wait than
+    ``RetryPolicy.max_retry_after_s`` the advisor raises this error instead of falling back.
+    """
 
 
 class BackendUnavailableError(LLMTransportError):

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import math
+import re
+import time
+from datetime import UTC
+from email.utils import parsedate_to_datetime
 from typing import Any
 
 import httpx
 
-from letspi.llm.types import BackendUnavailableError, LLMTimeoutError, LLMTransportError
+from letspi.llm.types import BackendUnavailableError, LLMTimeoutError, LLMTransportError, ServerBusyError
+
+_SECONDS_RE = re.compile(r"\s*\d+(?:\.\d+)?\s*")
 
 
 def post_json(
@@ -43,3 +50,41 @@ def error_text(resp: httpx.Response) -> str:
             err = err.get("message", err)
         return str(err)[:500]
     return str(body)[:500]
+
+
+def parse_retry_after(value: str | None, *, now: float | None = None) -> float | None:
+    """Seconds to wait from a ``Retry-After`` header (delay-seconds or an HTTP date), or None.
+
+    A date in the past gives 0; a malformed value gives None (no server guidance).
+    """
+    if value is None:
+        return None
+    if _SECONDS_RE.fullmatch(value):
+        seconds = float(value)
+        return seconds if math.isfinite(seconds) else math.inf
+    try:
+        when = parsedate_to_datetime(value.strip())
+    except (TypeError, ValueError, IndexError, OverflowError):
+        return None
+    if when is None:  # pragma: no cover - older Pythons returned None for junk
+        return None
+    if when.tzinfo is None:  # RFC 9110 dates are GMT
+        when = when.replace(tzinfo=UTC)
+    try:
+        target = when.timestamp()
+    except (OverflowError, OSError, ValueError):
+        return None
+    return max(target - (time.time() if now is None else now), 0.0)
+
+
+def raise_for_server_error(resp: httpx.Response, url: str) -> None:
+    """Raise the retryable error for HTTP 429 and 5xx (``ServerBusyError`` for 429/503), carrying
+    the server's ``Retry-After``; other statuses are the caller's."""
+    code = resp.status_code
+    if code != 429 and code < 500:
+        return
+    retry_after = parse_retry_after(resp.headers.get("Retry-After"))
+    hint = f" (Retry-After: {retry_after:.3g} s)" if retry_after is not None else ""
+    cls = ServerBusyError if code in (429, 503) else LLMTransportError
+    what = "rate limited" if code == 429 else "server busy" if code == 503 else "server error"
+    raise cls(f"{url}: HTTP {code} ({what}): {error_text(resp)}{hint}", status=code, retry_after_s=retry_after)

@@ -14,7 +14,7 @@ from typing import Any
 
 import httpx
 
-from letspi.llm.backends._http import error_text, post_json
+from letspi.llm.backends._http import error_text, post_json, raise_for_server_error
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -88,10 +88,11 @@ class OllamaBackend:
                     f"run `ollama pull {self.model}`"
                 )
             raise LLMConfigError(f"{url} returned 404 ({msg}); is {self.base_url} an Ollama server?")
-        if resp.status_code >= 500 or resp.status_code == 429:
-            raise LLMTransportError(f"{url} returned HTTP {resp.status_code}: {error_text(resp)}")
+        raise_for_server_error(resp, url)  # 429 and 5xx, with the server's Retry-After
         if resp.status_code >= 400:  # concerns this request (e.g. too long), not the setup
-            raise LLMTransportError(f"{url} rejected the request (HTTP {resp.status_code}): {error_text(resp)}")
+            raise LLMTransportError(
+                f"{url} rejected the request (HTTP {resp.status_code}): {error_text(resp)}", status=resp.status_code
+            )
         try:
             body = resp.json()
             text = body["message"]["content"]

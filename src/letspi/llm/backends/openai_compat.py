@@ -35,7 +35,7 @@ from typing import Any, Final
 
 import httpx
 
-from letspi.llm.backends._http import error_text, post_json
+from letspi.llm.backends._http import error_text, post_json, raise_for_server_error
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -198,8 +198,7 @@ class OpenAICompatBackend:
             if "model" in msg.lower():
                 raise ModelNotFoundError(f"{url}: model {self.model!r} not found ({msg})")
             raise LLMConfigError(f"{url}: HTTP 404 ({msg}); does the base URL end in /v1?")
-        if code == 429 or code >= 500:
-            raise LLMTransportError(f"{url}: HTTP {code}: {msg}")
+        raise_for_server_error(resp, url)  # 429 and 5xx, with the server's Retry-After
         # Other 4xx (e.g. prompt longer than the context) concern this request, not the setup:
         # treat as a failed call so a long run falls back instead of stopping.
-        raise LLMTransportError(f"{url}: request rejected (HTTP {code}): {msg}")
+        raise LLMTransportError(f"{url}: request rejected (HTTP {code}): {msg}", status=code)
