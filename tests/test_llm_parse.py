@@ -6,7 +6,8 @@ import json
 import math
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from fuzz_settings import fuzz
+from hypothesis import given
 from hypothesis import strategies as st
 
 from letspi.llm.parse import ParsedReply, extract_json_object, parse_reply, strip_reasoning
@@ -230,13 +231,13 @@ def _check(text: str) -> None:
         assert math.isfinite(v) and lo <= v <= hi
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@fuzz(1500)
 @given(st.text(max_size=300))
 def test_fuzz_random_text(text: str) -> None:
     _check(text)
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@fuzz(1500)
 @given(
     _json_objects, st.text(max_size=30), st.text(max_size=30), st.sampled_from(["", "<think>", "</think>", "```json\n"])
 )
@@ -248,7 +249,7 @@ def test_fuzz_json_objects_with_noise(obj: dict, before: str, after: str, tag: s
     _check(before + tag + body + after)
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@fuzz(1500)
 @given(st.data())
 def test_fuzz_mutated_good_replies(data: st.DataObject) -> None:
     text = dumps(GOOD)
