@@ -451,3 +451,65 @@ def test_not_utf8(rec_dir: Path) -> None:
     path.write_bytes(path.read_bytes()[:5000] + b"\xff\xfe" + path.read_bytes()[5000:])
     err = _read_error(rec_dir)
     assert err.path.name == "01_tracks.csv" and "UTF-8" in str(err)
+
+
+# ------------------------------------------------------------------------------------------
+# value and cross-file checks (more cases in test_highd_io_fuzz.py)
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "line", "column", "value", "message"),
+    [
+        ("01_tracks.csv", 2, "precedingId", "99999999999999999999",
+         "01_tracks.csv: column 'precedingId', line 2: not an integer ('99999999999999999999')"),
+        ("01_tracks.csv", 2, "width", "-4.5",
+         "01_tracks.csv: column 'width', line 2: vehicle 1: width must be positive, got -4.5"),
+        ("01_tracksMeta.csv", 3, "height", "0",
+         "01_tracksMeta.csv: column 'height', line 3: vehicle 2: height must be positive, got 0"),
+        ("01_tracksMeta.csv", 4, "height", "2.2",
+         "01_tracksMeta.csv: column 'height', line 4: vehicle 3: height is 2.2 but 01_tracks.csv has 2.5"),
+        ("01_tracks.csv", 20, "width", "5.5",
+         "01_tracks.csv: column 'width', line 20: vehicle 1: width 5.5 differs from 4.5 in 01_tracksMeta.csv"),
+        ("01_tracks.csv", 30, "laneId", "99",
+         "01_tracks.csv: column 'laneId', line 30: laneId 99 does not exist on this road (lanes 1..9 from 8 markings)"),
+        ("01_tracks.csv", 30, "laneId", "3",
+         "01_tracks.csv: column 'laneId', line 30: "
+         "vehicle 1 (drivingDirection 2) is in lane 3 of the upper carriageway"),
+        ("01_tracks.csv", 30, "precedingId", "55",
+         "01_tracks.csv: column 'precedingId', line 30: "
+         "precedingId 55 is neither 0 nor a vehicle of 01_tracksMeta.csv"),
+        ("01_tracks.csv", 30, "followingId", "1",
+         "01_tracks.csv: column 'followingId', line 30: vehicle 1 is its own followingId"),
+        ("01_recordingMeta.csv", 2, "numVehicles", "9",
+         "01_recordingMeta.csv: column 'numVehicles', line 2: numVehicles is 9 but 01_tracksMeta.csv has 8 vehicles"),
+        ("01_recordingMeta.csv", 2, "lowerLaneMarkings", "24.00;inf",
+         "01_recordingMeta.csv: column 'lowerLaneMarkings', line 2: markings must be finite numbers ('24.00;inf')"),
+        ("01_recordingMeta.csv", 2, "lowerLaneMarkings", "24.00",
+         "01_recordingMeta.csv: column 'lowerLaneMarkings', line 2: needs at least 2 markings (the road edges), got 1"),
+        ("01_recordingMeta.csv", 2, "speedLimit", "-5",
+         "01_recordingMeta.csv: column 'speedLimit', line 2: speedLimit must be -1 (none) or positive, got -5"),
+    ],
+)
+def test_value_and_consistency_errors(
+    rec_dir: Path, name: str, line: int, column: str, value: str, message: str
+) -> None:
+    _set_field(rec_dir / name, line, column, value)
+    assert str(_read_error(rec_dir)) == message
+
+
+def test_frames_start_at_one(rec_dir: Path) -> None:
+    _set_field(rec_dir / "01_tracksMeta.csv", 2, "initialFrame", "0")
+    _set_field(rec_dir / "01_tracksMeta.csv", 2, "numFrames", "51")
+    assert str(_read_error(rec_dir)) == (
+        "01_tracksMeta.csv: column 'initialFrame', line 2: vehicle 1: frames start at 1, got initialFrame 0"
+    )
+
+
+def test_invalid_lane_in_memory_writes_nothing(tmp_path: Path, rec: Recording) -> None:
+    tracks = rec.tracks.copy()
+    tracks.loc[7, "laneId"] = 120  # would wrap around in the int8 lane arrays of scenarios
+    with pytest.raises(HighDFormatError) as info:
+        write_recording(replace(rec, tracks=tracks), tmp_path)
+    assert (info.value.path.name, info.value.column, info.value.line) == ("01_tracks.csv", "laneId", 9)
+    assert list(tmp_path.iterdir()) == []

@@ -13,7 +13,7 @@ import os
 import re
 import tempfile
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -25,8 +25,6 @@ import pyarrow.csv as pa_csv
 
 from letspi.highd.errors import HighDFormatError
 from letspi.highd.schema import (
-    DRIVING_DIRECTION_LOWER,
-    DRIVING_DIRECTION_UPPER,
     RECORDING_META_COLUMNS,
     RECORDING_META_INT_COLUMNS,
     RECORDING_META_STR_COLUMNS,
@@ -35,12 +33,19 @@ from letspi.highd.schema import (
     TRACKS_META_COLUMNS,
     TRACKS_META_INT_COLUMNS,
     TRACKS_META_STR_COLUMNS,
-    VEHICLE_CLASSES,
     recording_meta_file,
     tracks_file,
     tracks_meta_file,
 )
-from letspi.highd.types import Recording, parse_markings
+from letspi.highd.types import Recording
+from letspi.highd.validate import (
+    LineOf,
+    markings_of,
+    validate_counts,
+    validate_recording_meta,
+    validate_tracks,
+    validate_tracks_meta,
+)
 
 __all__ = [
     "FLOAT_DECIMALS",
@@ -80,8 +85,7 @@ _TRACKS = _TableSpec(TRACKS_COLUMNS, TRACKS_INT_COLUMNS, frozenset())
 _TRACKS_META = _TableSpec(TRACKS_META_COLUMNS, TRACKS_META_INT_COLUMNS, TRACKS_META_STR_COLUMNS)
 _RECORDING_META = _TableSpec(RECORDING_META_COLUMNS, RECORDING_META_INT_COLUMNS, RECORDING_META_STR_COLUMNS)
 
-# Maps a 0-based data-row position to the 1-based CSV line number (header = line 1).
-_LineOf = Callable[[int], int]
+_LineOf = LineOf
 
 
 def _in_memory_line(row: int) -> int:
@@ -195,7 +199,10 @@ def _locate_parse_error(path: Path, header: list[str], spec: _TableSpec, cause: 
     if isinstance(cause, UnicodeDecodeError):
         raise HighDFormatError(path, f"not UTF-8 text ({cause.reason} at byte {cause.start})") from cause
     data_lines = _data_lines(path, len(header))  # raises on a wrong field count
-    frame = pd.read_csv(path, index_col=False, engine="c", low_memory=False)
+    try:
+        frame = pd.read_csv(path, index_col=False, engine="c", low_memory=False)
+    except (ValueError, OverflowError):  # e.g. an integer beyond uint64: compare as text instead
+        frame = pd.read_csv(path, index_col=False, engine="c", low_memory=False, dtype=str, keep_default_na=True)
     best: tuple[int, str] | None = None
     for col in spec.columns:
         bad = _bad_rows(frame, col, spec)
@@ -231,7 +238,7 @@ def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, _LineOf]:
             warnings.simplefilter("ignore", RuntimeWarning)
             # no usecols: it would hide rows with surplus fields from the parser's checks
             frame = pd.read_csv(path, dtype=spec.dtypes(), index_col=False, engine="c")
-    except (ValueError, pd.errors.ParserWarning) as exc:  # ParserError subclasses ValueError
+    except (ValueError, OverflowError, pd.errors.ParserWarning) as exc:  # ParserError subclasses ValueError
         _locate_parse_error(path, header, spec, exc)
         raise  # unreachable: the slow path always raises
     frame = frame[list(spec.columns)]
@@ -256,116 +263,8 @@ def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, _LineOf]:
 
 
 # --------------------------------------------------------------------------------------------
-# semantic validation (shared by read and write)
+# ordering (semantic validation lives in letspi.highd.validate)
 # --------------------------------------------------------------------------------------------
-
-
-def _validate_recording_meta(meta: pd.DataFrame, recording_id: int, path: Path, line_of: _LineOf) -> None:
-    if len(meta) != 1:
-        raise HighDFormatError(path, f"expected exactly one data row, found {len(meta)}", line=line_of(1))
-    row = meta.iloc[0]
-    if int(row["id"]) != recording_id:
-        raise HighDFormatError(
-            path,
-            f"id {int(row['id'])} does not match the file name ({recording_id:02d})",
-            column="id",
-            line=line_of(0),
-        )
-    if int(row["frameRate"]) <= 0:
-        raise HighDFormatError(path, "frameRate must be positive", column="frameRate", line=line_of(0))
-    for col in ("upperLaneMarkings", "lowerLaneMarkings"):
-        try:
-            parse_markings(str(row[col]))
-        except ValueError as exc:
-            raise HighDFormatError(
-                path, f"not a ';'-separated list of numbers ({row[col]!r})", column=col, line=line_of(0)
-            ) from exc
-
-
-def _validate_tracks_meta(tm: pd.DataFrame, path: Path, line_of: _LineOf) -> None:
-    ids = tm["id"].to_numpy()
-    dup = pd.Series(ids).duplicated().to_numpy()
-    if dup.any():
-        k = int(np.argmax(dup))
-        raise HighDFormatError(path, f"duplicated vehicle id {ids[k]}", column="id", line=line_of(k))
-    bad = ~tm["class"].isin(VEHICLE_CLASSES).to_numpy()
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise HighDFormatError(
-            path,
-            f"unknown class {tm['class'].iloc[k]!r} (expected one of {list(VEHICLE_CLASSES)})",
-            column="class",
-            line=line_of(k),
-        )
-    direction = tm["drivingDirection"].to_numpy()
-    bad = (direction != DRIVING_DIRECTION_UPPER) & (direction != DRIVING_DIRECTION_LOWER)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise HighDFormatError(
-            path,
-            f"drivingDirection must be 1 or 2, got {direction[k]}",
-            column="drivingDirection",
-            line=line_of(k),
-        )
-    first, last, n = (tm[c].to_numpy() for c in ("initialFrame", "finalFrame", "numFrames"))
-    bad = n != last - first + 1
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise HighDFormatError(
-            path,
-            f"vehicle {ids[k]}: numFrames {n[k]} != finalFrame - initialFrame + 1 = {last[k] - first[k] + 1}",
-            column="numFrames",
-            line=line_of(k),
-        )
-
-
-def _validate_tracks(
-    tracks: pd.DataFrame,
-    tm: pd.DataFrame,
-    path: Path,
-    meta_path: Path,
-    line_of: _LineOf,
-    meta_line_of: _LineOf,
-) -> None:
-    """Check tracks (already sorted by (id, frame)) against tracksMeta. Vectorised."""
-    ids = tracks["id"].to_numpy()
-    frames = tracks["frame"].to_numpy()
-    meta_ids = tm["id"].to_numpy()
-    unknown = ~np.isin(ids, meta_ids)
-    if unknown.any():
-        k = int(np.argmax(unknown))
-        raise HighDFormatError(path, f"vehicle id {ids[k]} is not in {meta_path.name}", column="id", line=line_of(k))
-    same = ids[1:] == ids[:-1]
-    step = np.diff(frames)
-    bad = same & (step != 1)
-    if bad.any():
-        k = int(np.argmax(bad)) + 1
-        what = "repeats" if step[k - 1] == 0 else f"follows frame {frames[k - 1]}"
-        raise HighDFormatError(
-            path,
-            f"frame {frames[k]} of vehicle {ids[k]} {what} (frames per vehicle must be consecutive)",
-            column="frame",
-            line=line_of(k),
-        )
-    starts = np.flatnonzero(np.r_[True, ~same])
-    ends = np.r_[starts[1:], len(ids)] - 1
-    observed = pd.DataFrame(
-        {"initialFrame": frames[starts], "finalFrame": frames[ends], "numFrames": ends - starts + 1},
-        index=ids[starts],
-    )
-    # reindex on meta ids: a meta vehicle without any track row gets NaN and fails below
-    observed = observed.reindex(meta_ids)
-    for col in ("initialFrame", "finalFrame", "numFrames"):
-        expected = tm[col].to_numpy()
-        got = observed[col].to_numpy(dtype=np.float64)
-        bad = ~(got == expected)
-        if bad.any():
-            k = int(np.argmax(bad))
-            if np.isnan(got[k]):
-                reason = f"vehicle {meta_ids[k]} has no rows in {path.name}"
-            else:
-                reason = f"vehicle {meta_ids[k]}: {col} is {expected[k]} but {path.name} has {int(got[k])}"
-            raise HighDFormatError(meta_path, reason, column=col, line=meta_line_of(k))
 
 
 def _sort_tracks(tracks: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray | None]:
@@ -415,12 +314,14 @@ def read_recording(directory: Path, recording_id: int) -> Recording:
     tr_path = directory / tracks_file(recording_id)
 
     rm, rm_line = _read_table(rm_path, _RECORDING_META)
-    _validate_recording_meta(rm, recording_id, rm_path, rm_line)
+    validate_recording_meta(rm, recording_id, rm_path, rm_line)
+    markings = markings_of(rm_path, rm, rm_line)
     tm, tm_line = _read_table(tm_path, _TRACKS_META)
-    _validate_tracks_meta(tm, tm_path, tm_line)
+    validate_tracks_meta(tm, tm_path, tm_line)
     tracks, tr_line = _read_table(tr_path, _TRACKS)
     tracks, order = _sort_tracks(tracks)
-    _validate_tracks(tracks, tm, tr_path, tm_path, _composed(tr_line, order), tm_line)
+    validate_tracks(tracks, tm, markings, tr_path, tm_path, _composed(tr_line, order), tm_line)
+    validate_counts(rm, tm, rm_path, rm_line, tm_path)
 
     meta = {col: _scalar(rm[col].iloc[0], col) for col in RECORDING_META_COLUMNS}
     return Recording(recording_id=recording_id, meta=meta, tracks_meta=tm, tracks=tracks)
@@ -484,13 +385,15 @@ def _prepare(rec: Recording, directory: Path) -> tuple[list[Path], list[pd.DataF
     if missing:
         raise HighDFormatError(rm_path, "missing column", column=missing[0])
     rm = _coerce_table(pd.DataFrame([{c: rec.meta[c] for c in RECORDING_META_COLUMNS}]), _RECORDING_META, rm_path)
-    _validate_recording_meta(rm, rid, rm_path, _in_memory_line)
+    validate_recording_meta(rm, rid, rm_path, _in_memory_line)
+    markings = markings_of(rm_path, rm, _in_memory_line)
     tm = _coerce_table(rec.tracks_meta, _TRACKS_META, tm_path)
-    _validate_tracks_meta(tm, tm_path, _in_memory_line)
+    validate_tracks_meta(tm, tm_path, _in_memory_line)
     tracks = _coerce_table(rec.tracks, _TRACKS, tr_path)
     tracks, _ = _sort_tracks(tracks)
     # line numbers refer to the sorted rows, i.e. to the file as it would be written
-    _validate_tracks(tracks, tm, tr_path, tm_path, _in_memory_line, _in_memory_line)
+    validate_tracks(tracks, tm, markings, tr_path, tm_path, _in_memory_line, _in_memory_line)
+    validate_counts(rm, tm, rm_path, _in_memory_line, tm_path)
     return [rm_path, tm_path, tr_path], [rm, tm, tracks]
 
 
