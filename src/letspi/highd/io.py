@@ -123,6 +123,8 @@ def _read_header(path: Path) -> list[str]:
             first = fh.readline()
     except UnicodeDecodeError as exc:
         raise HighDFormatError(path, "not UTF-8 text", line=1) from exc
+    except OSError as exc:  # permissions, I/O errors
+        raise HighDFormatError(path, f"cannot read the file ({exc.strerror or exc})") from exc
     header = first.rstrip("\r\n")
     if not header.strip():
         raise HighDFormatError(path, "empty file (no header)")
