@@ -54,3 +54,37 @@ def test_concurrent_writers_two_processes(tmp_path: Path) -> None:
     assert len(cache) == 300
     assert cache.get("a-149") == CachedEntry("text a 149", 149, 149, 0.1)
     assert cache.get("b-0") is not None
+
+
+def test_unusable_cache_is_one_clear_error(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import pytest
+
+    from letspi.llm.client import ParamAdvisor
+    from letspi.llm.types import LLMConfigError, ResponseCacheError
+
+    garbage = tmp_path / "llm_cache.sqlite"
+    garbage.write_bytes(b"this is not an SQLite database" * 100)
+    with pytest.raises(ResponseCacheError) as info:
+        ResponseCache(garbage)
+    assert str(info.value).startswith(f"{garbage}: the LLM response cache cannot be used")
+    assert "delete the file" in str(info.value) and isinstance(info.value, LLMConfigError)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    monkeypatch.setenv("LETSPI_CACHE_DIR", str(blocker / "sub"))  # a directory inside a file
+    with pytest.raises(ResponseCacheError, match="LETSPI_CACHE_DIR"):
+        ParamAdvisor("scripted:default")
+
+
+def test_cache_damaged_while_open_is_a_clear_error(tmp_path: Path) -> None:
+    import pytest
+
+    from letspi.llm.types import ResponseCacheError
+
+    cache = ResponseCache(tmp_path / "c.sqlite")
+    cache.put("k", "spec", CachedEntry("t", 1, 2, 0.1))
+    cache.close()
+    (tmp_path / "c.sqlite").write_bytes(b"\x00" * 4096)
+    for name in ("c.sqlite-wal", "c.sqlite-shm"):
+        (tmp_path / name).unlink(missing_ok=True)
+    with pytest.raises(ResponseCacheError):
+        cache.get("k")

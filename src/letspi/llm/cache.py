@@ -6,6 +6,8 @@ successful transport results are stored (parse failures included: the retry re-a
 different messages, hence a different key, so a rerun replays the same sequence).
 
 Location: ``$LETSPI_CACHE_DIR/llm_cache.sqlite``, default ``~/.cache/letspi/llm_cache.sqlite``.
+A cache that cannot be opened, read or written (corrupted file, full disk, unwritable directory)
+raises ``ResponseCacheError`` naming the file, never a raw sqlite3 error.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from letspi.llm.types import DecodingSettings, Message
+from letspi.llm.types import DecodingSettings, Message, ResponseCacheError
 
 #: Bump when the key recipe or the stored columns change meaning.
 CACHE_FORMAT_VERSION: Final = 1
@@ -85,34 +87,49 @@ class ResponseCache:
         self.path = Path(path) if path is not None else default_cache_dir() / CACHE_FILENAME
         self.busy_timeout_s = busy_timeout_s
         self._local = threading.local()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise self._error(exc) from None
         self._connect()  # create the table now so configuration errors surface early
+
+    def _error(self, exc: BaseException) -> ResponseCacheError:
+        return ResponseCacheError(
+            f"{self.path}: the LLM response cache cannot be used ({exc}); delete the file (it only "
+            "caches replies), free disk space, or point LETSPI_CACHE_DIR elsewhere"
+        )
 
     def _connect(self) -> sqlite3.Connection:
         conn: sqlite3.Connection | None = getattr(self._local, "conn", None)
         if conn is None:
-            conn = sqlite3.connect(self.path, timeout=self.busy_timeout_s, isolation_level=None)
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")  # durable enough for a cache, much faster
-            conn.execute(_SCHEMA_SQL)
+            try:
+                conn = sqlite3.connect(self.path, timeout=self.busy_timeout_s, isolation_level=None)
+                conn.execute("PRAGMA journal_mode=WAL")
+                conn.execute("PRAGMA synchronous=NORMAL")  # durable enough for a cache, much faster
+                conn.execute(_SCHEMA_SQL)
+            except (sqlite3.Error, OSError) as exc:
+                raise self._error(exc) from None
             self._local.conn = conn
         return conn
 
+    def _execute(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
+        try:
+            return self._connect().execute(sql, params)
+        except (sqlite3.Error, OSError) as exc:
+            raise self._error(exc) from None
+
     def get(self, key: str) -> CachedEntry | None:
-        row = (
-            self._connect()
-            .execute(
-                "SELECT text, prompt_tokens, completion_tokens, latency_s FROM responses WHERE key = ?",
-                (key,),
-            )
-            .fetchone()
-        )
+        sql = "SELECT text, prompt_tokens, completion_tokens, latency_s FROM responses WHERE key = ?"
+        try:
+            row = self._execute(sql, (key,)).fetchone()
+        except sqlite3.Error as exc:
+            raise self._error(exc) from None
         if row is None:
             return None
         return CachedEntry(text=row[0], prompt_tokens=row[1], completion_tokens=row[2], latency_s=row[3])
 
     def put(self, key: str, model_spec: str, entry: CachedEntry) -> None:
-        self._connect().execute(
+        self._execute(
             "INSERT OR REPLACE INTO responses VALUES (?, ?, ?, ?, ?, ?, ?)",
             (
                 key,
@@ -126,10 +143,10 @@ class ResponseCache:
         )
 
     def __len__(self) -> int:
-        return int(self._connect().execute("SELECT COUNT(*) FROM responses").fetchone()[0])
+        return int(self._execute("SELECT COUNT(*) FROM responses").fetchone()[0])
 
     def clear(self) -> None:
-        self._connect().execute("DELETE FROM responses")
+        self._execute("DELETE FROM responses")
 
     def close(self) -> None:
         """Close this thread's connection (other threads' connections close when collected)."""

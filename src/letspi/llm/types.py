@@ -115,6 +115,11 @@ class ModelNotFoundError(LLMConfigError):
     """The server or the local install does not have the requested model."""
 
 
+class ResponseCacheError(LLMConfigError):
+    """The response cache file cannot be opened, read or written (corrupted file, full disk,
+    unwritable directory). The message names the file and what to do."""
+
+
 class LLMTransportError(LLMError):
     """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable.
 
