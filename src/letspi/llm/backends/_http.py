@@ -84,7 +84,7 @@ def raise_for_server_error(resp: httpx.Response, url: str) -> None:
     if code != 429 and code < 500:
         return
     retry_after = parse_retry_after(resp.headers.get("Retry-After"))
-    hint = f" (Retry-After: {retry_after:.3g} s)" if retry_after is not None else ""
+    hint = f" (Retry-After: {retry_after:g} s)" if retry_after is not None else ""
     cls = ServerBusyError if code in (429, 503) else LLMTransportError
     what = "rate limited" if code == 429 else "server busy" if code == 503 else "server error"
     raise cls(f"{url}: HTTP {code} ({what}): {error_text(resp)}{hint}", status=code, retry_after_s=retry_after)
