@@ -59,5 +59,6 @@ def test_schema_version_mismatch(tmp_path, monkeypatch):
 
     path = save_scenarios(_batch(), tmp_path / "s.parquet")
     monkeypatch.setattr(store, "SCHEMA_VERSION", 99)
-    with pytest.raises(ScenarioFileError, match=f"scenario schema version {SCHEMA_VERSION} found, this letspi reads version 99"):
+    expected = f"scenario schema version {SCHEMA_VERSION} found, this letspi reads version 99"
+    with pytest.raises(ScenarioFileError, match=expected):
         store.load_scenarios(path)
