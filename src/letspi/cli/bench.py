@@ -19,7 +19,8 @@ from letspi.bench.physics import bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.registry.resolve import DEFAULT_LLM
 
-app = typer.Typer(rich_markup_mode=None, help="Benchmarks: print measured speed numbers.", no_args_is_help=True)
+app = typer.Typer(help="Benchmarks: print measured speed numbers.",
+                  no_args_is_help=True, rich_markup_mode=None)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
 

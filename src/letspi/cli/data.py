@@ -16,7 +16,8 @@ from letspi.scenario.extract import enumerate_windows, extract_scenarios
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
 from letspi.sumo.generate import generate_recordings
 
-app = typer.Typer(rich_markup_mode=None, help="HighD data: generate with SUMO, extract scenarios, inspect.", no_args_is_help=True)
+app = typer.Typer(help="HighD data: generate with SUMO, extract scenarios, inspect.",
+                  no_args_is_help=True, rich_markup_mode=None)
 
 
 def _parse_ids(text: str | None) -> list[int] | None:

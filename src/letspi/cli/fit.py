@@ -12,7 +12,8 @@ from letspi.planners.fit_sf import fit_sf_params
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 
-app = typer.Typer(rich_markup_mode=None, help="Fit baseline parameters offline.", no_args_is_help=True)
+app = typer.Typer(help="Fit baseline parameters offline.",
+                  no_args_is_help=True, rich_markup_mode=None)
 
 
 @app.command("sf")

@@ -13,7 +13,8 @@ from letspi.llm.models import EMBEDDED_MODELS
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
 from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
 
-app = typer.Typer(rich_markup_mode=None, help="LLM backends: check a spec, list embedded models, benchmark.", no_args_is_help=True)
+app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark.",
+                  no_args_is_help=True, rich_markup_mode=None)
 
 _TINY_USER = (
     "Free road: ego car at 30.0 m/s in the middle lane of 3, no neighbours, goal 150.0 m ahead in its lane. Answer:"
