@@ -16,8 +16,8 @@ from letspi.planners.sf_params import load_sf_params
 from letspi.registry.build import Builder
 from letspi.registry.resolve import PlannerOptions, Resolver
 
-app = typer.Typer(rich_markup_mode=None, help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
-                  no_args_is_help=True)
+app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
+                  no_args_is_help=True, rich_markup_mode=None)
 
 ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario file(s) to train on "
                                                   "(repeat the option for several; split by ego vehicle).")]
