@@ -15,17 +15,21 @@ from letspi.closedloop.pool import ClosedLoopWorkerError
 from letspi.closedloop.result import ClosedLoopChunk, chunk_metrics, scored_batch
 from letspi.closedloop.run import run_closed_loop
 from letspi.closedloop.spec import PlannerSpec, build_planner
+from letspi.closedloop.store import ClosedLoopStore, ClosedLoopStoreError, run_closed_loop_to_dir
 
 __all__ = [
     "CLOSED_LOOP_MODES",
     "ClosedLoopChunk",
     "ClosedLoopConfig",
     "ClosedLoopMode",
+    "ClosedLoopStore",
+    "ClosedLoopStoreError",
     "ClosedLoopWorkerError",
     "DriverModelConfig",
     "PlannerSpec",
     "build_planner",
     "chunk_metrics",
     "run_closed_loop",
+    "run_closed_loop_to_dir",
     "scored_batch",
 ]

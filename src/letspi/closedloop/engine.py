@@ -147,6 +147,7 @@ def simulate_group(
 ) -> ClosedLoopChunk:
     """Simulate K scenarios of one lane layout together (module doc). ``indices`` are 0..K-1."""
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     widths = set(layout_keys(batch.marking_y_m))
     if len(widths) != 1:
         raise ValueError(f"simulate_group needs one lane layout, got {len(widths)}")
@@ -316,6 +317,7 @@ def simulate_group(
         sumo_nbr_collisions=nbr_collisions,
         plan_s=np.full(g.k, plan_s / g.k),
         sim_s=np.full(g.k, (elapsed - plan_s) / g.k),
+        cpu_s=np.full(g.k, (time.process_time() - cpu_start) / g.k),
         plan_info=info,
     )
 

@@ -35,6 +35,8 @@ class ClosedLoopChunk:
         sumo_nbr_collisions: (K,) SUMO collision reports (pairs x frames) among the neighbours.
         plan_s: (K,) planner wall time per scenario [s] (batched calls split evenly).
         sim_s: (K,) the rest of the chunk's wall time (SUMO, bookkeeping) per scenario [s].
+        cpu_s: (K,) CPU time of the simulating process per scenario [s] (planner included; on a
+            shared machine it is the load-independent cost).
     """
 
     indices: np.ndarray
@@ -56,6 +58,7 @@ class ClosedLoopChunk:
     sumo_nbr_collisions: np.ndarray
     plan_s: np.ndarray
     sim_s: np.ndarray
+    cpu_s: np.ndarray
     plan_info: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
