@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_closedloop_support import BrakePlanner, RecordingPlanner, SwervePlanner, generated_batch
+from test_closedloop_support import BrakePlanner, RecordingPlanner, SwervePlanner, WildPlanner, generated_batch
 
 from letspi.closedloop import (
     ClosedLoopChunk,
@@ -218,6 +218,17 @@ def test_sumo_collisions_agree_with_the_metric_code(traffic: ScenarioBatch) -> N
                 np.testing.assert_array_equal(chunk_metrics(traffic, ch).collision, ch.sumo_collision)
             else:
                 assert (flags_m == flags_s).mean() >= 0.9
+
+
+def test_unusable_plans_are_flagged_and_the_ego_keeps_its_velocity(traffic: ScenarioBatch) -> None:
+    sub = traffic.take(np.arange(3))
+    ch = _run(WildPlanner(), sub, REACTIVE)
+    assert ch.plan_nonfinite.tolist() == [True, True, False]
+    v0 = sub.ego_vxy_mps[:2, T0_INDEX].astype(float)
+    np.testing.assert_allclose(ch.ego_vxy_mps[:2], np.broadcast_to(v0[:, None], (2, 125, 2)), atol=1e-4)
+    assert np.isfinite(ch.ego_xy_m).all()
+    metrics = chunk_metrics(sub, ch)
+    assert metrics.finite.all()  # what the ego did is scored; the flag says it was not the plan
 
 
 def test_libsumo_and_pyarrow_share_a_process(tmp_path: Path, traffic: ScenarioBatch) -> None:

@@ -91,3 +91,20 @@ class FailingPlanner:
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         raise RuntimeError("planner bug for the test")
+
+
+@dataclass
+class WildPlanner:
+    """Constant velocity, except: NaN plans for the first scenario, plans 1 km to the left for the second."""
+
+    name: str = "wild"
+    batch_size: int = 4096
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        v0 = batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64)
+        t = np.arange(1, N_FUTURE + 1) * DT_S
+        xy = v0[:, None, :] * t[None, :, None]
+        xy[0] = np.nan
+        if len(batch) > 1:
+            xy[1, :, 1] = 1000.0
+        return PlanBatch(xy, np.repeat(v0[:, None, :], N_FUTURE, axis=1), xy[:, -1].copy())

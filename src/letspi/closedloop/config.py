@@ -27,6 +27,8 @@ class ClosedLoopMode(StrEnum):
 
 CLOSED_LOOP_MODES: tuple[str, ...] = tuple(m.value for m in ClosedLoopMode)
 DEFAULT_REPLAN_S = 1.0
+#: Plans further than this beyond a road edge are not followed (the ego keeps its velocity instead).
+OFF_ROAD_MARGIN_M = 15.0
 
 
 @dataclass(frozen=True)

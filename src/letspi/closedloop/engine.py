@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from letspi.closedloop.config import ClosedLoopConfig, ClosedLoopMode
+from letspi.closedloop.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig, ClosedLoopMode
 from letspi.closedloop.drivers import estimate_driver_params
 from letspi.closedloop.network import VTYPE_ID, SlotNetwork, layout_keys
 from letspi.closedloop.replan import FuturePolicy, SimulatedStates, lane_ids_from_y, replanning_batch
@@ -169,6 +169,7 @@ def simulate_group(
     plan_s = 0.0
     lengths = g.length.tolist()
     widths_v = g.width.tolist()
+    road_y = np.stack([np.nanmin(batch.marking_y_m, axis=1), np.nanmax(batch.marking_y_m, axis=1)], axis=1)
 
     for f in range(N_TOTAL):
         # --- who is driven how in this frame -----------------------------------------------
@@ -285,6 +286,8 @@ def simulate_group(
             n_use = stop - f
             use_xy, use_vxy = xy[:, :n_use], vxy[:, :n_use]
             bad = ~(np.isfinite(use_xy).all(axis=(1, 2)) & np.isfinite(use_vxy).all(axis=(1, 2)))
+            with np.errstate(invalid="ignore"):
+                bad |= ~_inside(use_xy, road_y, config).all(axis=1)
             if bad.any():
                 nonfinite |= bad
                 v0 = g.rec_vxy[g.ego_rows[bad], f]
@@ -349,6 +352,14 @@ def _release(api: Any, g: _Group, f: int, config: ClosedLoopConfig) -> None:
         api.vehicle.setSpeedMode(vid, SPEED_MODE_ALL_CHECKS)
         api.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_DEFAULT)
         g.released[r] = True
+
+
+def _inside(xy: np.ndarray, road_y: np.ndarray, config: ClosedLoopConfig) -> np.ndarray:
+    """(K, S) whether planned positions (K, S, 2) lie in the simulated area: on the road's length and
+    within ``OFF_ROAD_MARGIN_M`` of its edges (further out SUMO cannot place a vehicle sensibly)."""
+    x_ok = (xy[..., 0] > -config.road_behind_m + 50.0) & (xy[..., 0] < config.road_ahead_m - 50.0)
+    y_ok = (xy[..., 1] > road_y[:, :1] - OFF_ROAD_MARGIN_M) & (xy[..., 1] < road_y[:, 1:] + OFF_ROAD_MARGIN_M)
+    return np.asarray(x_ok & y_ok)
 
 
 def _check_plan(plan: PlanBatch, k: int, n_future: int, planner: Planner) -> None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.closedloop.config import ClosedLoopConfig
+from letspi.closedloop.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig
 from letspi.sumo.binaries import sumo_binary
 
 LayoutKey = tuple[float, ...]
@@ -130,7 +130,7 @@ def _check_lanes(net_file: Path, widths: LayoutKey, n_slots: int, spacing_m: flo
 def build_slot_network(directory: Path, widths: LayoutKey, n_slots: int, config: ClosedLoopConfig) -> SlotNetwork:
     """Write and netconvert a network of ``n_slots`` parallel roads with lanes ``widths``."""
     road_width = sum(widths)
-    if config.slot_spacing_m < road_width + 20.0:
+    if config.slot_spacing_m < road_width + 2 * OFF_ROAD_MARGIN_M + 10.0:
         raise ValueError(f"slot_spacing_m {config.slot_spacing_m} m is too small for a {road_width:.1f} m road")
     tag = f"{widths}|{n_slots}|{config.road_behind_m}|{config.road_ahead_m}|{config.slot_spacing_m}|{config.driver}"
     stem = "net-" + hashlib.sha256(tag.encode()).hexdigest()[:16]

@@ -29,8 +29,9 @@ class ClosedLoopChunk:
         replan_step: (R,) frames after t = 0 at which plans were made (0, 25, ... for 1 s).
         plan_xy_m: (K, R, F, 2) every plan, in the same frame; plan_goal_xy_m: (K, R, 2).
         plan_info: per-replan planner extras, each (K, R) (1-D ``PlanBatch.info`` entries).
-        plan_nonfinite: (K,) a plan had non-finite values where the ego needed them (the ego then
-            kept its velocity for those frames).
+        plan_nonfinite: (K,) a plan had non-finite values, or left the simulated area (more than
+            15 m beyond a road edge), where the ego needed it; the ego then kept its velocity until
+            the next replan.
         sumo_contact: (K, N, F) SUMO reported a collision between the ego and that neighbour.
         sumo_nbr_collisions: (K,) SUMO collision reports (pairs x frames) among the neighbours.
         plan_s: (K,) planner wall time per scenario [s] (batched calls split evenly).
