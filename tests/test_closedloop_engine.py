@@ -231,6 +231,16 @@ def test_unusable_plans_are_flagged_and_the_ego_keeps_its_velocity(traffic: Scen
     assert metrics.finite.all()  # what the ego did is scored; the flag says it was not the plan
 
 
+def test_traci_backend_gives_the_libsumo_result(traffic: ScenarioBatch) -> None:
+    """The socket backend (needed for sumo-gui) drives a SUMO subprocess through the same code."""
+    sub = traffic.take(np.arange(3))
+    fast = _run(PlannerSpec("idm"), sub, REACTIVE)
+    slow = _run(PlannerSpec("idm"), sub, REACTIVE, config=ClosedLoopConfig(sumo_backend="traci"))
+    np.testing.assert_allclose(slow.ego_xy_m, fast.ego_xy_m, atol=1e-9)
+    np.testing.assert_array_equal(slow.nbr_valid, fast.nbr_valid)
+    np.testing.assert_allclose(slow.nbr_xy_m[slow.nbr_valid], fast.nbr_xy_m[fast.nbr_valid], atol=1e-9)
+
+
 def test_libsumo_and_pyarrow_share_a_process(tmp_path: Path, traffic: ScenarioBatch) -> None:
     ch = _run(PlannerSpec("cv"), traffic.take(np.arange(2)), LOG)  # libsumo is loaded in this process now
     frame = pd.DataFrame({"scenario_id": ch.scenario_id.astype(str), "x": ch.ego_xy_m[:, -1, 0]})
