@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from test_closedloop_support import FailingPlanner, generated_batch
 
+from letspi.bench.closed_loop import bench_closed_loop
 from letspi.closedloop import (
     ClosedLoopChunk,
     ClosedLoopConfig,
@@ -166,3 +167,14 @@ def test_a_killed_run_resumes_without_duplicates(tmp_path: Path, traffic: Scenar
     assert len(frame) == len(traffic) and frame["scenario_id"].is_unique
     kept = frame.set_index("scenario_id").loc[before["scenario_id"], "min_ttc_s"].to_numpy()
     np.testing.assert_array_equal(kept, before["min_ttc_s"].to_numpy())
+
+
+@pytest.mark.slow
+def test_bench_reports_throughput_and_speedup(tmp_path: Path, traffic: ScenarioBatch) -> None:
+    scen = tmp_path / "scenarios.arrow"
+    save_scenarios(traffic.take(np.arange(8)), scen)
+    out = bench_closed_loop(scenarios=scen, n=8, planner="idm", workers=2, chunk_size=4, n_reload=4)
+    for key in ("in_process_scenarios_per_s", "workers_1_scenarios_per_s", "workers_2_scenarios_per_s",
+                "speedup_2_workers_over_1", "lockstep_speedup_vs_reload_per_scenario", "sumo_load_ms"):
+        assert isinstance(out[key], float) and out[key] > 0, key
+    assert 0.0 <= out["collision_flags_agree_pct"] <= 100.0 and out["collisions_metric"] <= 8

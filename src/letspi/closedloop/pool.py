@@ -35,8 +35,6 @@ class ClosedLoopWorkerError(RuntimeError):
 
 def _worker_main(conn: Connection, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
     """Entry point of a worker process: build once, then simulate chunks until told to stop."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # one core per worker
     try:
         worker = ChunkWorker(planner_spec, config)
     except BaseException:
