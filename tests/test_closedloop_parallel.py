@@ -125,7 +125,6 @@ def _wait_for_parts(out: Path, proc: subprocess.Popen[str], n: int, timeout_s: f
     raise AssertionError("no chunk was written in time")
 
 
-@pytest.mark.slow
 def test_a_killed_worker_is_replaced_and_no_scenario_is_lost_or_duplicated(
     tmp_path: Path, traffic: ScenarioBatch
 ) -> None:
@@ -147,7 +146,6 @@ def test_a_killed_worker_is_replaced_and_no_scenario_is_lost_or_duplicated(
     assert set(frame["scenario_id"]) == {str(s) for s in traffic.scenario_id}
 
 
-@pytest.mark.slow
 def test_a_killed_run_resumes_without_duplicates(tmp_path: Path, traffic: ScenarioBatch) -> None:
     out = tmp_path / "run"
     proc = _start_run(tmp_path, traffic, out, workers=2)
