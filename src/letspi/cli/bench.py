@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -12,6 +13,7 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
+from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
 from letspi.bench.metrics import bench_metrics
@@ -98,3 +100,23 @@ def llm_cmd(
         return
     Console().rule("letspi bench llm")
     pprint(result, expand_all=True)
+
+
+@app.command("closed-loop")
+def closed_loop_cmd(
+    scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
+    n: Annotated[int, typer.Option(help="Scenarios per measurement.")] = 256,
+    planner: Annotated[str, typer.Option(help="Planner name.")] = "sf",
+    mode: Annotated[str, typer.Option(help="closed-loop-log or closed-loop-reactive.")] = "closed-loop-log",
+    replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
+    workers: Annotated[int, typer.Option(help="Worker processes compared with 1 worker (>= 2).")] = 2,
+    chunk_size: Annotated[int, typer.Option(help="Scenarios simulated together in one SUMO network.")] = 32,
+    minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
+    seed: int = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Closed-loop throughput in-process and per worker, the N-worker speed-up over 1 worker (same run),
+    lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags."""
+    result = bench_closed_loop(scenarios=scenarios, n=n, planner=planner, mode=mode, replan_s=replan_s,
+                               workers=workers, chunk_size=chunk_size, minutes=minutes, seed=seed)
+    _emit(result, as_json, "letspi bench closed-loop")  # type: ignore[arg-type]

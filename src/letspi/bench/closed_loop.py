@@ -1,0 +1,122 @@
+"""``letspi bench closed-loop``: closed-loop throughput per worker and the multi-worker speed-up.
+
+Everything is measured in one process run, on the same scenarios:
+
+* in-process (``workers=0``): scenarios/s, split into planner time and simulation time, CPU time,
+  SUMO (re)load and network build times;
+* lockstep vs one SUMO load per scenario (``chunk_size=1``): why scenarios share a network;
+* ``workers=1`` and ``workers=N`` processes: wall time (worker start-up included) and the speed-up,
+  plus the busy throughput of a worker (its chunks' own wall time, start-up excluded);
+* collision flags of SUMO and of the metric code on these scenarios.
+
+The machine's 1-minute load average is reported before and after: on a shared machine the
+wall-clock numbers (and the speed-up) depend on it; ``*_cpu_s_*`` does not.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from letspi.closedloop import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
+from letspi.closedloop.run import effective_config
+from letspi.closedloop.worker import ChunkWorker, make_tasks
+from letspi.highd.io import read_recordings
+from letspi.scenario.extract import extract_scenarios
+from letspi.scenario.store import load_scenarios
+from letspi.scenario.types import ScenarioBatch
+from letspi.sumo.generate import generate_recordings
+
+
+def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -> ScenarioBatch:
+    """The first ``n`` scenarios of a file, or of ``minutes`` of freshly generated traffic."""
+    if scenarios is not None:
+        batch = load_scenarios(scenarios)
+    else:
+        with tempfile.TemporaryDirectory(prefix="letspi-bench-cl-") as tmp:
+            generate_recordings(Path(tmp), minutes=minutes, seed=seed)
+            batch = extract_scenarios(read_recordings(Path(tmp)))
+    if len(batch) < n:
+        raise ValueError(f"only {len(batch)} scenarios available, {n} requested (generate more minutes)")
+    return batch.take(np.arange(n))
+
+
+def _timed_run(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, workers: int,
+               config: ClosedLoopConfig) -> tuple[float, ClosedLoopChunk]:
+    t0 = time.perf_counter()
+    chunks = list(run_closed_loop(spec, batch, mode, replan_s=replan_s, workers=workers, config=config))
+    return time.perf_counter() - t0, ClosedLoopChunk.concat(chunks)
+
+
+def bench_closed_loop(
+    scenarios: Path | None = None,
+    n: int = 256,
+    planner: str = "sf",
+    mode: str = "closed-loop-log",
+    replan_s: float = 1.0,
+    workers: int = 2,
+    chunk_size: int = 32,
+    n_reload: int = 32,
+    minutes: float = 3.0,
+    seed: int = 0,
+) -> dict[str, float | str]:
+    """Measure closed-loop throughput (see module doc); returns a flat dict of numbers."""
+    if workers < 2:
+        raise ValueError("workers must be >= 2 (the speed-up is measured against 1 worker)")
+    batch = bench_scenarios(scenarios, n, minutes, seed)
+    spec = PlannerSpec.of(planner)
+    config = ClosedLoopConfig(chunk_size=chunk_size)
+    out: dict[str, float | str] = {
+        "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),
+        "chunk_size": float(chunk_size), "cpu_count": float(os.cpu_count() or 1),
+        "load_avg_1min_start": os.getloadavg()[0],
+    }  # fmt: skip
+
+    # in-process, with the worker object itself to read SUMO's load and build times
+    cfg = effective_config(spec, mode, replan_s, config)
+    worker = ChunkWorker(spec, cfg)
+    try:
+        tasks = make_tasks(batch, cfg)
+        worker.run(make_tasks(batch.take(np.arange(min(4, n))), cfg)[0])  # warm-up: planner, network, SUMO
+        loads0, load_s0 = worker.session.loads, worker.session.load_s
+        t0, c0 = time.perf_counter(), time.process_time()
+        local = ClosedLoopChunk.concat([worker.run(task) for task in tasks])
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        out["in_process_scenarios_per_s"] = n / wall
+        out["in_process_plan_ms_per_scenario"] = 1e3 * float(local.plan_s.sum()) / n
+        out["in_process_sim_ms_per_scenario"] = 1e3 * float(local.sim_s.sum()) / n
+        out["in_process_cpu_ms_per_scenario"] = 1e3 * cpu / n
+        out["sumo_load_ms"] = 1e3 * (worker.session.load_s - load_s0) / max(1, worker.session.loads - loads0)
+        out["network_build_ms"] = 1e3 * worker.session.networks.build_s / max(1, worker.session.networks.builds)
+    finally:
+        worker.close()
+
+    # one SUMO load and a batch-of-one planner call per scenario, on a subset
+    m = min(n_reload, n)
+    sub = batch.take(np.arange(m))
+    wall_lock, _ = _timed_run(spec, sub, mode, replan_s, 0, config)
+    wall_one, _ = _timed_run(spec, sub, mode, replan_s, 0, ClosedLoopConfig(chunk_size=1))
+    out["reload_per_scenario_scenarios_per_s"] = m / wall_one
+    out["lockstep_speedup_vs_reload_per_scenario"] = wall_one / wall_lock
+
+    wall_1, one = _timed_run(spec, batch, mode, replan_s, 1, config)
+    wall_n, many = _timed_run(spec, batch, mode, replan_s, workers, config)
+    out["workers_1_wall_s"] = wall_1
+    out["workers_1_scenarios_per_s"] = n / wall_1
+    out["workers_1_busy_scenarios_per_s"] = n / float(one.plan_s.sum() + one.sim_s.sum())
+    out[f"workers_{workers}_wall_s"] = wall_n
+    out[f"workers_{workers}_scenarios_per_s"] = n / wall_n
+    out[f"workers_{workers}_busy_scenarios_per_s_per_worker"] = n / float(many.plan_s.sum() + many.sim_s.sum())
+    out[f"speedup_{workers}_workers_over_1"] = wall_1 / wall_n
+    out["cpu_ms_per_scenario_in_workers"] = 1e3 * float(many.cpu_s.sum()) / n
+
+    metrics = chunk_metrics(batch, local)
+    out["collisions_metric"] = float(metrics.collision.sum())
+    out["collisions_sumo"] = float(local.sumo_collision.sum())
+    out["collision_flags_agree_pct"] = 100.0 * float(np.mean(metrics.collision == local.sumo_collision))
+    out["load_avg_1min_end"] = os.getloadavg()[0]
+    return out
