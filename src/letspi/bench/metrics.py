@@ -171,12 +171,16 @@ def _reference_pet(inp: MetricInputs, b: int, cell_m: float = 0.5, dt_s: float =
         for f in range(len(xs)):
             if not ok[f]:
                 continue
-            i0, i1 = math.floor((xs[f] - length / 2) / cell_m), math.ceil((xs[f] + length / 2) / cell_m) - 1
-            j0, j1 = math.floor((ys[f] - width / 2) / cell_m), math.ceil((ys[f] + width / 2) / cell_m) - 1
-            for i in range(i0, i1 + 1):
-                for j in range(j0, j1 + 1):
-                    first_last = cells.setdefault((i, j), [f, f])
-                    first_last[1] = f
+            # a box occupies the cells whose centre ((i + 1/2) c, (j + 1/2) c) it covers strictly
+            lo_x, hi_x = xs[f] - length / 2, xs[f] + length / 2
+            lo_y, hi_y = ys[f] - width / 2, ys[f] + width / 2
+            for i in range(math.floor(lo_x / cell_m) - 1, math.ceil(hi_x / cell_m) + 1):
+                if not lo_x < (i + 0.5) * cell_m < hi_x:
+                    continue
+                for j in range(math.floor(lo_y / cell_m) - 1, math.ceil(hi_y / cell_m) + 1):
+                    if lo_y < (j + 0.5) * cell_m < hi_y:
+                        first_last = cells.setdefault((i, j), [f, f])
+                        first_last[1] = f
         return cells
 
     n_f = inp.ego_xy_m.shape[1]
