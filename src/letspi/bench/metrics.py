@@ -268,8 +268,8 @@ def bench_metrics(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 1
     res["pet_speedup"] = res["pet_sps"] / res["pet_loop_sps"]
     print(f"compute_metrics (all metrics): {res['full_sps']:,.0f} scenarios/s on {n_scenarios:,}")
     print(
-        f"TTC front/rear + 2-D TTC + distances: vectorised {res['core_sps']:,.0f}/s, loop {res['core_loop_sps']:,.0f}/s "
-        f"(on {nr}), x{res['core_speedup']:,.0f}"
+        f"TTC front/rear + 2-D TTC + distances: vectorised {res['core_sps']:,.0f}/s, "
+        f"loop {res['core_loop_sps']:,.0f}/s (on {nr}), x{res['core_speedup']:,.0f}"
     )
     print(
         f"grid PET: vectorised {res['pet_sps']:,.0f}/s, dict-grid loop {res['pet_loop_sps']:,.1f}/s "
