@@ -18,6 +18,7 @@ from letspi.metrics import (
     compute_metrics,
     human_future,
     recorded_config,
+    reference_markdown,
     render_markdown_table,
 )
 from letspi.metrics.collision import collisions
@@ -52,6 +53,12 @@ def test_registry_names_are_unique_and_drive_the_frame() -> None:
         for a in m.aggregates:
             if isinstance(a.threshold, str) and a.how != "pct_equal":
                 assert a.threshold in MetricsConfig.model_fields, a.key
+
+
+def test_generated_reference_is_well_formed_markdown() -> None:
+    rows = [line for line in reference_markdown().splitlines() if line.startswith("|")]
+    assert len(rows) == len(METRICS) + len(aggregate_keys()) + 4  # plus two header rows per table
+    assert all(line.count("|") == 5 for line in rows)  # 4 cells: no stray '|' in a doc
 
 
 def test_aggregate_keys_are_exactly_the_documented_ones() -> None:
@@ -105,6 +112,9 @@ def test_aggregate_refuses_mismatched_or_mixed_configs() -> None:
     with pytest.raises(ValueError, match="records no metrics configuration"):
         aggregate_metrics(_frame().drop(columns=list(CONFIG_COLUMNS)))
     assert aggregate_metrics(_frame().drop(columns=list(CONFIG_COLUMNS)), config=MetricsConfig())["n"] == 1
+    partly = pd.concat([_frame(), _frame().drop(columns=list(CONFIG_COLUMNS))], ignore_index=True)
+    with pytest.raises(ValueError, match="1 of 2 rows record no metrics configuration"):
+        aggregate_metrics(partly)
 
 
 def test_pet_capped_mean_beside_the_finite_mean() -> None:

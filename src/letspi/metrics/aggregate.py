@@ -105,6 +105,11 @@ def recorded_config(frame: pd.DataFrame) -> MetricsConfig | None:
     column = CONFIG_COLUMNS[1]
     if column not in frame or not len(frame):
         return None
+    if frame[column].isna().any():
+        raise ValueError(
+            f"{int(frame[column].isna().sum())} of {len(frame)} rows record no metrics configuration "
+            "(computed by an older letspi?): recompute them"
+        )
     texts = pd.unique(frame[column].astype(str))
     configs = [MetricsConfig.from_json(t) for t in texts]
     for other in configs[1:]:

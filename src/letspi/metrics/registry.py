@@ -16,7 +16,7 @@ _n counts); "*_step" columns index the future axis (0..F-1, time (step + 1) dt a
 "*_nbr" columns the neighbour slots 0..N-1 of the batch; both are -1 when there is no such event.
 +inf marks "no conflict" (TTC, PET); aggregates never emit NaN or inf.
 
-Run ``python -m letspi.metrics.registry`` to print the reference (markdown).
+``print(letspi.metrics.reference_markdown())`` prints the reference (markdown).
 """
 
 from __future__ import annotations
@@ -189,12 +189,12 @@ METRICS: tuple[Metric, ...] = (
            (Agg("ade_m", "finite_mean"),)),
     Metric("fde_m", "m", "float64", "final displacement error to the human future", "route.fde_m",
            (Agg("fde_m", "finite_mean"),)),
-    Metric("peak_abs_acc_lon_mps2", "m/s^2", "float64", "peak |longitudinal acceleration| (``kinematics``)",
+    Metric("peak_abs_acc_lon_mps2", "m/s^2", "float64", "peak absolute longitudinal acceleration (``kinematics``)",
            "kin.peak_abs_acc_lon_mps2", (Agg("peak_abs_acc_lon_mps2", "finite_mean", "mean of the peaks"),)),
-    Metric("peak_abs_acc_lat_mps2", "m/s^2", "float64", "peak |lateral acceleration|",
+    Metric("peak_abs_acc_lat_mps2", "m/s^2", "float64", "peak absolute lateral acceleration",
            "kin.peak_abs_acc_lat_mps2", (Agg("peak_abs_acc_lat_mps2", "finite_mean", "mean of the peaks"),)),
-    Metric("peak_abs_acc_mps2", "m/s^2", "float64", "peak |acceleration| (norm)", "kin.peak_abs_acc_mps2"),
-    Metric("peak_abs_jerk_mps3", "m/s^3", "float64", "peak |jerk| (norm)", "kin.peak_abs_jerk_mps3",
+    Metric("peak_abs_acc_mps2", "m/s^2", "float64", "peak norm of the acceleration", "kin.peak_abs_acc_mps2"),
+    Metric("peak_abs_jerk_mps3", "m/s^3", "float64", "peak norm of the jerk", "kin.peak_abs_jerk_mps3",
            (Agg("peak_abs_jerk_mps3", "finite_mean", "mean of the peaks"),)),
     Metric("n_lane_changes", "count", "int64", "lane changes of the planned centre from the t = 0 lane",
            "route.n_lane_changes", (
@@ -269,7 +269,3 @@ def reference_markdown() -> str:
     lines.append("| `metrics_config_key` | | | ``MetricsConfig.key()`` of the configuration aggregated with |")
     lines += [f"| `{f}` | | | the ``MetricsConfig.{f}`` applied |" for f in MetricsConfig.AGGREGATE_FIELDS]
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":
-    print(reference_markdown())
