@@ -85,6 +85,7 @@ def test_aggregate_applies_its_config_to_raw_values() -> None:
     df = _frame()  # min TTC 3 s, computed with the default config (low TTC < 2 s)
     assert df["min_ttc_s"].iloc[0] == pytest.approx(3.0, abs=1e-4) and not df["low_ttc"].iloc[0]
     assert aggregate_metrics(df)["lt_pct"] == 0.0
+    assert aggregate_metrics(df, config=MetricsConfig(low_ttc_s=5.0))["lt_pct"] == 100.0
     five = MetricsConfig(low_ttc_s=5.0, ttc_cap_s=2.0, drac_high_mps2=0.5)
     agg = aggregate_metrics(df, config=five)
     assert agg["lt_pct"] == 100.0 and agg["ttc_s"] == 2.0 and agg["drac_high_pct"] == 100.0
@@ -92,12 +93,12 @@ def test_aggregate_applies_its_config_to_raw_values() -> None:
 
 
 def test_aggregate_uses_the_recorded_config_not_defaults() -> None:
-    cfg = MetricsConfig(low_ttc_s=5.0)
-    df = _frame(cfg)
-    assert df["metrics_config_key"].iloc[0] == cfg.key()
-    assert recorded_config(df) == cfg
+    cfg = MetricsConfig(low_ttc_s=5.0, ttc_cap_s=2.0)
+    df = _frame(cfg)  # min TTC 3 s
     agg = aggregate_metrics(df)  # no config passed: the recorded one, not MetricsConfig()
-    assert agg["lt_pct"] == 100.0 and agg["metrics_config_key"] == cfg.key()
+    assert agg["ttc_s"] == 2.0 and agg["lt_pct"] == 100.0
+    assert agg["metrics_config_key"] == cfg.key() == df["metrics_config_key"].iloc[0]
+    assert recorded_config(df) == cfg
 
 
 def test_aggregate_refuses_mismatched_or_mixed_configs() -> None:
