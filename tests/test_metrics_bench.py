@@ -7,7 +7,7 @@ import numpy as np
 from letspi.bench.metrics import _reference_core, bench_metrics, synthetic_batch
 from letspi.metrics._common import MetricInputs
 from letspi.metrics.distance import distances
-from letspi.metrics.ttc import ttc_1d
+from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d
 
 
@@ -16,6 +16,7 @@ def test_vectorised_matches_loop_reference() -> None:
     inp = MetricInputs.from_batch(batch, xy, v)
     got = {
         "min_ttc_s": ttc_1d(inp).min_ttc_s,
+        "min_rear_ttc_s": rear_ttc_1d(inp).min_ttc_s,
         "min_ttc2d_s": ttc_2d(inp).min_ttc2d_s,
         "min_centre_dist_m": distances(inp).min_centre_dist_m,
         "min_box_gap_m": distances(inp).min_box_gap_m,
@@ -24,6 +25,7 @@ def test_vectorised_matches_loop_reference() -> None:
     for key, arr in got.items():
         np.testing.assert_allclose(arr, [r[key] for r in refs], rtol=1e-9, atol=1e-9, err_msg=key)
     assert np.isfinite(got["min_ttc_s"]).sum() > 5 and np.isinf(got["min_ttc_s"]).sum() > 0
+    assert np.isfinite(got["min_rear_ttc_s"]).sum() > 5 and np.isinf(got["min_rear_ttc_s"]).sum() > 0
 
 
 def test_bench_runs_small() -> None:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from test_metrics_helpers import T_FUT, constant_speed_plan, make
 
+from letspi.constants import T0_INDEX
 from letspi.metrics import (
     MetricsConfig,
     aggregate_metrics,
@@ -61,19 +62,80 @@ def test_success_false_for_colliding_plan_and_argmin_fields() -> None:
     assert m.min_gap_nbr[0] == 1 and m.min_box_gap_m[0] == 0.0 and m.min_gap_step[0] == 100
 
 
-def test_success_goal_tolerance_and_non_finite() -> None:
+def test_self_goal_tolerance_and_non_finite() -> None:
     b = make(SAFE)
     xy, v = constant_speed_plan(30.0)
     goal = xy[:, -1] + np.array([[4.0, 0.9]])
-    assert compute_metrics(b, xy, v, goals_xy_m=goal).success[0]
+    assert compute_metrics(b, xy, v, goals_xy_m=goal).success_self[0]
     far = xy[:, -1] + np.array([[6.0, 0.0]])
-    assert not compute_metrics(b, xy, v, goals_xy_m=far).goal_reached[0]
+    m_far = compute_metrics(b, xy, v, goals_xy_m=far)
+    assert not m_far.goal_reached[0] and not m_far.success_self[0]
+    assert m_far.success[0]  # the headline SR does not depend on the planner's own goal
     cfg = MetricsConfig(goal_tol_lon_m=7.0)
-    assert compute_metrics(b, xy, v, goals_xy_m=far, config=cfg).success[0]
+    assert compute_metrics(b, xy, v, goals_xy_m=far, config=cfg).success_self[0]
     bad = xy.copy()
     bad[0, 10, 0] = np.nan
     m = compute_metrics(b, bad, v, goals_xy_m=goal)
-    assert not m.finite[0] and not m.success[0]
+    assert not m.finite[0] and not m.success[0] and not m.success_self[0]
+
+
+def _shortened_plan(fraction_short: float) -> tuple[np.ndarray, np.ndarray]:
+    """From 30 m/s at t = 0, constant braking so that 5 s progress is (1 - fraction_short) x 150 m."""
+    t_end = T_FUT[-1]
+    decel = 2.0 * fraction_short * 30.0 * t_end / t_end**2
+    x = 30.0 * T_FUT - 0.5 * decel * T_FUT**2
+    return np.stack([x, np.zeros_like(x)], -1)[None], np.stack([30.0 - decel * T_FUT, np.zeros_like(x)], -1)[None]
+
+
+# the human keeps its lane at 30 m/s (150 m in 5 s) behind a leader 40 m ahead at the same speed
+FOLLOWING = [VehicleSpec(x0_m=40.0, speed_mps=30.0)]
+
+
+def test_sr_human_future_passes() -> None:
+    b = make(FOLLOWING)
+    hxy, hv = human_future(b)
+    human = compute_metrics(b, hxy, hv, goals_xy_m=hxy[:, -1])
+    assert human.success[0] and human.reference_reached[0] and human.success_self[0]
+
+
+def test_sr_plan_stopping_30_percent_short_fails() -> None:
+    # braking at 3.6 m/s^2 (feasible) ends 105 m on instead of 150 m: SR fails although the planner
+    # reached its own (shortened) goal; 5 % short (7.5 m) is within the 10 % (15 m) tolerance
+    b = make(FOLLOWING)
+    xy, v = _shortened_plan(0.30)
+    assert xy[0, -1, 0] == pytest.approx(105.0)
+    short = compute_metrics(b, xy, v, goals_xy_m=xy[:, -1])
+    assert not short.success[0]
+    assert short.feasible[0] and not short.collision[0] and short.success_self[0]
+    assert not short.reference_reached[0]
+    assert compute_metrics(b, *_shortened_plan(0.05)).success[0]
+
+
+def test_sr_plan_ending_one_lane_off_fails() -> None:
+    # a cosine lane change to the left over 3 s (peak a_lat 2.1 m/s^2, nothing in the way), with the
+    # planner's own goal there
+    b = make(FOLLOWING)
+    u = np.clip((T_FUT - 1.0) / 3.0, 0.0, 1.0)
+    y = 3.75 * 0.5 * (1.0 - np.cos(np.pi * u))
+    lxy, lv = constant_speed_plan(30.0, y_m=y)
+    lv[0, :, 1] = 3.75 * 0.5 * np.pi / 3.0 * np.sin(np.pi * u)
+    lane = compute_metrics(b, lxy, lv, goals_xy_m=lxy[:, -1])
+    assert lane.feasible[0] and not lane.collision[0] and not lane.off_road[0] and lane.goal_reached[0]
+    assert not lane.success[0]
+    assert lane.success_self[0] and not lane.reference_reached[0]
+    agg = aggregate_metrics(lane)
+    assert agg["sr_pct"] == 0.0 and agg["sr_self_pct"] == 100.0
+
+
+def test_reference_lane_accepts_a_human_ending_on_a_marking() -> None:
+    # the human ends mid lane change just across the marking at y = 1.875 m (y = 1.95 m, left lane):
+    # a plan ending 0.4 m right of it (in the ego's lane) passes by the lateral tolerance, 0.6 m does not
+    b = make([])
+    b.ego_xy_m[0, T0_INDEX + 1 :, 1] = np.linspace(0.0, 1.95, 125)
+    for dy, ok in ((0.4, True), (0.6, False)):
+        xy, v = constant_speed_plan(30.0, y_m=np.linspace(0.0, 1.95 - dy, 125))
+        v[0, :, 1] = (1.95 - dy) / (124 * 0.04)
+        assert compute_metrics(b, xy, v).reference_reached[0] == ok
 
 
 def test_kinematics_ade_fde_acceleration_jerk() -> None:
@@ -157,7 +219,9 @@ def test_render_markdown_table() -> None:
     agg = aggregate_metrics(compute_metrics(b, xy, v), inference_time_s=0.1)
     md = render_markdown_table({"human": agg, "other": {**agg, "pet_s": None}})
     lines = md.splitlines()
-    assert lines[0].startswith("| Model | ↑ TTC (s) | ↓ CR (%) | ↑ PET (s) | ↑ minD (m) | ↓ LT (%) | ↑ SR (%)")
-    assert lines[2].startswith("| human | 10.00 | 0.00 |") and "| 0.10 |" in lines[2]
+    assert lines[0].startswith(
+        "| Model | ↑ TTC (s) | ↓ CR (%) | ↓ CR at fault (%) | ↑ PET (s) | ↑ minD (m) | ↓ LT (%) | ↑ SR (%)"
+    )
+    assert lines[2].startswith("| human | 10.00 | 0.00 | 0.00 |") and "| 0.10 |" in lines[2]
     assert len(lines[3].split("|")) == len(TABLE_COLUMNS) + 3 and "n/a" in lines[3]
     assert "TTC 0/1" in md

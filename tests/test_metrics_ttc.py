@@ -7,7 +7,7 @@ import pytest
 from test_metrics_helpers import constant_speed_plan, inputs, make
 
 from letspi.metrics.drac import drac
-from letspi.metrics.ttc import ttc_1d, ttc_from_gap
+from letspi.metrics.ttc import rear_ttc_1d, ttc_1d, ttc_from_gap
 from letspi.metrics.ttc2d import box_ttc_2d, ttc_2d
 from letspi.scenario.build import VehicleSpec
 
@@ -104,3 +104,28 @@ def test_drac_no_closing_is_zero_and_overlap_inf() -> None:
     assert r.max_drac_mps2[0] == 0.0 and r.max_drac_step[0] == -1
     b2 = make([VehicleSpec(x0_m=3.0, speed_mps=30.0)])
     assert np.isinf(drac(inputs(b2, xy, v)).max_drac_mps2[0])
+
+
+def test_rear_ttc_follower_closing_hand_computed() -> None:
+    # slot 0: faster car 40 m behind bumper to bumper (centre -44.5 m) at 35 m/s in the ego's lane;
+    # slot 1: faster car in the right lane (not following); ego plan 30 m/s.
+    b = make([VehicleSpec(x0_m=-44.5, speed_mps=35.0), VehicleSpec(x0_m=-10.0, speed_mps=40.0, lane_offset=-1)])
+    xy, v = constant_speed_plan(30.0)
+    inp = inputs(b, xy, v)
+    r = rear_ttc_1d(inp)
+    # step f at t = (f + 1) * 0.04: gap = 40 - 5 t, TTC = gap / 5; minimum at the last step (gap 15 m)
+    assert r.ttc_s[0, 0] == pytest.approx((40.0 - 0.2) / 5.0, abs=1e-4)
+    assert r.preceding.nbr[0, 0] == 0
+    assert (r.min_ttc_s[0], r.min_ttc_step[0], r.min_ttc_nbr[0]) == (pytest.approx(3.0, abs=1e-4), 124, 0)
+    assert np.isinf(ttc_1d(inp).min_ttc_s[0])  # nothing ahead: the front TTC cannot see it
+
+
+def test_rear_ttc_lane_change_in_front_of_faster_car() -> None:
+    # faster car in the left lane 44.5 m behind (centre): once the ego is in the left lane (step 50)
+    # it follows the ego; gap 40 m - 10 m/s * t (19.6 m at t = 2.04 s: TTC 1.96 s)
+    b = make([VehicleSpec(x0_m=-44.5, speed_mps=40.0, lane_offset=1)])
+    y = np.where(np.arange(125) >= 50, 3.75, 0.0)
+    xy, v = constant_speed_plan(30.0, y_m=y)
+    r = rear_ttc_1d(inputs(b, xy, v))
+    assert np.isinf(r.ttc_s[0, :50]).all()
+    assert r.ttc_s[0, 50] == pytest.approx(1.96, abs=1e-4)

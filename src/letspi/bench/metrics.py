@@ -23,7 +23,7 @@ from letspi.metrics.config import MetricsConfig
 from letspi.metrics.distance import distances
 from letspi.metrics.evaluate import compute_metrics
 from letspi.metrics.pet import pet_grid
-from letspi.metrics.ttc import ttc_1d
+from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d
 from letspi.scenario.types import VEHICLE_CLASS_CAR, VEHICLE_CLASS_TRUCK, ScenarioBatch
 
@@ -119,13 +119,15 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
 
 
 def _reference_core(inp: MetricInputs, b: int) -> dict[str, float]:
-    """min 1-D TTC, min 2-D TTC, min centre distance and min box gap of scenario b, by loops."""
+    """min front and rear 1-D TTC, min 2-D TTC, min centre distance and min box gap of scenario b, by loops."""
     ex, ey = inp.ego_xy_m[b, :, 0], inp.ego_xy_m[b, :, 1]
     evx, evy = inp.ego_vxy_mps[b, :, 0], inp.ego_vxy_mps[b, :, 1]
     n_nbr, n_f = inp.nbr_valid.shape[1:]
-    out = {"min_ttc_s": math.inf, "min_ttc2d_s": math.inf, "min_centre_dist_m": math.inf, "min_box_gap_m": math.inf}
+    out = {"min_ttc_s": math.inf, "min_rear_ttc_s": math.inf, "min_ttc2d_s": math.inf,
+           "min_centre_dist_m": math.inf, "min_box_gap_m": math.inf}
     for f in range(n_f):
         best_dx, lead = math.inf, -1
+        best_back, follower = math.inf, -1
         for k in range(n_nbr):
             if not inp.nbr_valid[b, k, f]:
                 continue
@@ -138,6 +140,8 @@ def _reference_core(inp: MetricInputs, b: int) -> dict[str, float]:
             out["min_box_gap_m"] = min(out["min_box_gap_m"], gap)
             if abs(dy) < hy and 0 < dx < best_dx:
                 best_dx, lead = dx, k
+            if abs(dy) < hy and 0 < -dx < best_back:
+                best_back, follower = -dx, k
             rvx = float(inp.nbr_vxy_mps[b, k, f, 0] - evx[f])
             rvy = float(inp.nbr_vxy_mps[b, k, f, 1] - evy[f])
             out["min_ttc2d_s"] = min(out["min_ttc2d_s"], _reference_ttc2d(dx, dy, rvx, rvy, hx, hy))
@@ -146,6 +150,11 @@ def _reference_core(inp: MetricInputs, b: int) -> dict[str, float]:
             dv = float(evx[f] - inp.nbr_vxy_mps[b, lead, f, 0])
             ttc = 0.0 if s <= 0 else (s / dv if dv > 0 else math.inf)
             out["min_ttc_s"] = min(out["min_ttc_s"], ttc)
+        if follower >= 0:
+            s = best_back - 0.5 * float(inp.ego_length_m[b] + inp.nbr_length_m[b, follower])
+            dv = float(inp.nbr_vxy_mps[b, follower, f, 0] - evx[f])
+            ttc = 0.0 if s <= 0 else (s / dv if dv > 0 else math.inf)
+            out["min_rear_ttc_s"] = min(out["min_rear_ttc_s"], ttc)
     return out
 
 
@@ -172,12 +181,16 @@ def _reference_pet(inp: MetricInputs, b: int, cell_m: float = 0.5, dt_s: float =
         for f in range(len(xs)):
             if not ok[f]:
                 continue
-            i0, i1 = math.floor((xs[f] - length / 2) / cell_m), math.ceil((xs[f] + length / 2) / cell_m) - 1
-            j0, j1 = math.floor((ys[f] - width / 2) / cell_m), math.ceil((ys[f] + width / 2) / cell_m) - 1
-            for i in range(i0, i1 + 1):
-                for j in range(j0, j1 + 1):
-                    first_last = cells.setdefault((i, j), [f, f])
-                    first_last[1] = f
+            # a box occupies the cells whose centre ((i + 1/2) c, (j + 1/2) c) it covers strictly
+            lo_x, hi_x = xs[f] - length / 2, xs[f] + length / 2
+            lo_y, hi_y = ys[f] - width / 2, ys[f] + width / 2
+            for i in range(math.floor(lo_x / cell_m) - 1, math.ceil(hi_x / cell_m) + 1):
+                if not lo_x < (i + 0.5) * cell_m < hi_x:
+                    continue
+                for j in range(math.floor(lo_y / cell_m) - 1, math.ceil(hi_y / cell_m) + 1):
+                    if lo_y < (j + 0.5) * cell_m < hi_y:
+                        first_last = cells.setdefault((i, j), [f, f])
+                        first_last[1] = f
         return cells
 
     n_f = inp.ego_xy_m.shape[1]
@@ -218,8 +231,8 @@ def _time(fn: Any, repeat: int = 1) -> float:
 def bench_metrics(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 100) -> dict[str, float]:
     """Time vectorised vs loop metrics; returns and prints scenarios/s and speed-ups.
 
-    Keys: n_scenarios, full_sps (all of ``compute_metrics``), core_sps (vectorised 1-D TTC, 2-D TTC,
-    distances), core_loop_sps (``_reference_core`` on ``n_reference`` scenarios), core_speedup,
+    Keys: n_scenarios, full_sps (all of ``compute_metrics``), core_sps (vectorised front and rear
+    1-D TTC, 2-D TTC, distances), core_loop_sps (``_reference_core`` on ``n_reference`` scenarios), core_speedup,
     pet_sps, pet_loop_sps, pet_speedup.
     """
     batch, plan_xy, plan_vxy, goals = synthetic_batch(n_scenarios, seed)
@@ -230,7 +243,7 @@ def bench_metrics(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 1
         for start in range(0, n_scenarios, cfg.chunk_size):
             sl = slice(start, start + cfg.chunk_size)
             inp = MetricInputs.from_batch(batch.take(sl), plan_xy[sl], plan_vxy[sl])
-            ttc_1d(inp), ttc_2d(inp), distances(inp)
+            ttc_1d(inp), rear_ttc_1d(inp), ttc_2d(inp), distances(inp)
 
     def pet() -> None:
         for start in range(0, n_scenarios, cfg.chunk_size):
@@ -256,8 +269,8 @@ def bench_metrics(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 1
     res["pet_speedup"] = res["pet_sps"] / res["pet_loop_sps"]
     print(f"compute_metrics (all metrics): {res['full_sps']:,.0f} scenarios/s on {n_scenarios:,}")
     print(
-        f"TTC + 2-D TTC + distances: vectorised {res['core_sps']:,.0f}/s, loop {res['core_loop_sps']:,.0f}/s "
-        f"(on {nr}), x{res['core_speedup']:,.0f}"
+        f"TTC front/rear + 2-D TTC + distances: vectorised {res['core_sps']:,.0f}/s, "
+        f"loop {res['core_loop_sps']:,.0f}/s (on {nr}), x{res['core_speedup']:,.0f}"
     )
     print(
         f"grid PET: vectorised {res['pet_sps']:,.0f}/s, dict-grid loop {res['pet_loop_sps']:,.1f}/s "

@@ -28,6 +28,7 @@ class MetricInputs:
     ego_length_m, ego_width_m: (B,).
     nbr_xy_m, nbr_vxy_mps: (B, N, F, 2) ground-truth neighbour futures (NaN where invalid).
     nbr_valid: (B, N, F) bool. nbr_length_m, nbr_width_m: (B, N).
+    N is free: the batch's neighbour slots, plus any appended with ``with_neighbours``.
     """
 
     ego_xy_m: np.ndarray
@@ -63,6 +64,34 @@ class MetricInputs:
             nbr_valid=batch.nbr_valid[:, :, fs] & np.isfinite(nbr_xy).all(axis=-1),
             nbr_length_m=batch.nbr_length_m.astype(np.float64),
             nbr_width_m=batch.nbr_width_m.astype(np.float64),
+        )
+
+    def with_neighbours(
+        self,
+        xy_m: np.ndarray,
+        vxy_mps: np.ndarray,
+        valid: np.ndarray,
+        length_m: np.ndarray,
+        width_m: np.ndarray,
+    ) -> MetricInputs:
+        """These inputs with K more neighbour slots appended (slots N..N+K-1 of the result).
+
+        xy_m, vxy_mps: (B, K, F, 2); valid: (B, K, F) bool; length_m, width_m: (B, K). For vehicles
+        the planner does not see but the plan must be checked against (context vehicles): every
+        metric works for any N, and "*_nbr" results index the combined slots.
+        """
+        xy = np.asarray(xy_m, dtype=np.float64)
+        ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
+        return MetricInputs(
+            ego_xy_m=self.ego_xy_m,
+            ego_vxy_mps=self.ego_vxy_mps,
+            ego_length_m=self.ego_length_m,
+            ego_width_m=self.ego_width_m,
+            nbr_xy_m=np.concatenate([self.nbr_xy_m, xy], axis=1),
+            nbr_vxy_mps=np.concatenate([self.nbr_vxy_mps, np.asarray(vxy_mps, dtype=np.float64)], axis=1),
+            nbr_valid=np.concatenate([self.nbr_valid, ok], axis=1),
+            nbr_length_m=np.concatenate([self.nbr_length_m, np.asarray(length_m, dtype=np.float64)], axis=1),
+            nbr_width_m=np.concatenate([self.nbr_width_m, np.asarray(width_m, dtype=np.float64)], axis=1),
         )
 
     def take(self, index: slice | np.ndarray) -> MetricInputs:

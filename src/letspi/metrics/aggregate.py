@@ -1,40 +1,20 @@
 """Aggregation of per-scenario metrics into the paper's Table III, and its markdown rendering.
 
-Contract of the aggregated dict (also the schema of ``metrics.json``); values are float, int, or
-None (None = no scenario had a finite value; NaN and inf are never emitted):
+Every key of the aggregated dict (the schema of ``metrics.json``) comes from the registry
+(``letspi.metrics.registry.METRICS``); the reference below is generated from it, so it cannot
+drift from the code. Values are float, int, str or None (None = no scenario had a finite value;
+NaN and inf are never emitted).
 
-Paper columns
-    n             int  number of scenarios aggregated.
-    ttc_s         s    mean over ALL n scenarios of min(minimum 1-D TTC, ``ttc_cap_s``) (10 s by
-                       default): a scenario with no closing leader (+inf) or a harmless TTC above
-                       the cap counts as the cap, so no inf is averaged, none is dropped, and a few
-                       near-zero closing speeds (TTC of hundreds of seconds) can't swamp the mean.
-                       ``ttc_finite_n`` counts scenarios with a finite minimum, ``ttc_capped_n``
-                       those at or above the cap; ``ttc_finite_mean_s`` is the uncapped mean
-                       over the finite ones.
-    cr_pct        %    share of scenarios with a box-overlap collision (``collision``).
-    pet_s         s    mean of the finite per-scenario minimum grid PET; count in ``pet_finite_n``.
-    min_dist_m    m    mean of the per-scenario minimum **centre-to-centre** distance (the paper's
-                       minD magnitude, 13-18 m); scenarios without any neighbour are left out
-                       (count ``min_dist_finite_n``). See ``min_box_gap_m`` for the clearance.
-    lt_pct        %    share of all n scenarios whose minimum TTC is below ``low_ttc_s`` (2 s);
-                       +inf counts as not low.
-    sr_pct        %    share of scenarios with ``success`` (``letspi.metrics.success``).
-    inference_s   s    mean planning time per scenario: from ``inference_time_s`` if given, else
-                       from an ``inference_s`` column of the frame, else None.
-Extras
-    ttc_finite_n, pet_finite_n, min_dist_finite_n, ttc2d_finite_n, min_box_gap_finite_n  int
-    ttc2d_s       s    mean of the finite minimum 2-D TTC.
-    drac_mps2     m/s^2 mean of the finite per-scenario maximum DRAC (0 when never closing;
-                       colliding scenarios have inf and are counted in ``drac_inf_n``).
-    drac_high_pct %    share with maximum DRAC > 3 m/s^2 (SUMO's threshold; inf included).
-    min_box_gap_m m    mean of the per-scenario minimum box-to-box distance (0 = contact).
-    cr2m_pct      %    share with the "distance < 2 m" collision variant (``collision_2m``).
-    ade_m, fde_m  m    mean displacement errors to the human future (finite values only).
-    peak_abs_acc_lon_mps2, peak_abs_acc_lat_mps2 m/s^2, peak_abs_jerk_mps3 m/s^3: means of the
-                       per-scenario peaks (finite values only).
-    lane_changes_mean  mean number of lane changes; lane_change_pct % with at least one.
-    off_road_pct, feasible_pct, goal_reached_pct  %  shares of the success criteria.
+Configuration. Threshold decisions are taken here, on the raw per-scenario values, with the
+``MetricsConfig`` in effect: ``lt_pct`` / ``rear_lt_pct`` (``low_ttc_s``), the capped TTC and PET
+means (``ttc_cap_s``, ``pet_cap_s``) and ``drac_high_pct`` (``drac_high_mps2``). The config in
+effect is the one passed, else the one recorded in the frame (``compute_metrics`` writes
+``metrics_config`` beside the metrics), never a silent default. Everything else was decided per
+scenario by ``compute_metrics``; a passed config whose per-scenario fields differ from the
+recorded one is refused (the values would not mean what the config says), as is a frame mixing
+configurations that differ in them. The result records ``metrics_config_key`` (the key of the
+config in effect) and the four thresholds it applied.
+
 """
 
 from __future__ import annotations
@@ -46,18 +26,34 @@ import pandas as pd
 
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.evaluate import ScenarioMetrics
+from letspi.metrics.registry import CONFIG_COLUMNS, METRICS, Agg, reference_markdown
 
-AggValue = float | int | None
+__doc__ = (__doc__ or "") + reference_markdown()
 
-#: paper column label -> (key, higher is better)
+AggValue = float | int | str | None
+
+#: headline table: the paper's Table III columns, then CR at fault; (label, key)
 TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
     ("↑ TTC (s)", "ttc_s"),
     ("↓ CR (%)", "cr_pct"),
+    ("↓ CR at fault (%)", "cr_at_fault_pct"),
     ("↑ PET (s)", "pet_s"),
     ("↑ minD (m)", "min_dist_m"),
     ("↓ LT (%)", "lt_pct"),
     ("↑ SR (%)", "sr_pct"),
     ("↓ Inference (s)", "inference_s"),
+)
+
+#: safety detail table under the headline: front and rear TTC side by side, collisions by kind
+DETAIL_COLUMNS: tuple[tuple[str, str], ...] = (
+    ("↑ TTC front (s)", "ttc_s"),
+    ("↑ TTC rear (s)", "rear_ttc_s"),
+    ("↓ LT rear (%)", "rear_lt_pct"),
+    ("↓ CR front (%)", "cr_front_pct"),
+    ("↓ CR side (%)", "cr_side_pct"),
+    ("↓ CR rear (%)", "cr_rear_pct"),
+    ("↑ PET capped (s)", "pet_capped_s"),
+    ("↑ SR own goal (%)", "sr_self_pct"),
 )
 
 
@@ -69,9 +65,82 @@ def finite_mean(values: np.ndarray | pd.Series) -> tuple[float | None, int]:
     return (float(v[ok].mean()) if n else None), n
 
 
-def _pct(flags: np.ndarray | pd.Series) -> float | None:
-    f = np.asarray(flags, dtype=bool)
-    return float(100.0 * f.mean()) if f.size else None
+def _pct(flags: np.ndarray) -> float | None:
+    return float(100.0 * np.asarray(flags, dtype=bool).mean()) if flags.size else None
+
+
+def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
+    """One aggregation of one (n,) column (``registry.HOW_DOC``)."""
+    t = agg.threshold_value(config)
+    if agg.how == "pct_equal":
+        return _pct(values.astype(str) == str(t))
+    if agg.how == "pct":
+        return _pct(values.astype(bool))
+    v = values.astype(np.float64)
+    if agg.how == "finite_mean":
+        return finite_mean(v)[0]
+    if agg.how == "finite_n":
+        return finite_mean(v)[1]
+    if agg.how == "inf_n":
+        return int(np.isinf(v).sum())
+    assert isinstance(t, float | int), agg
+    if agg.how == "capped_mean":  # NaN, like +inf, counts as the cap
+        return float(np.fmin(v, t).mean()) if v.size else None
+    if agg.how == "n_at_or_above":
+        return int((v >= t).sum())
+    if agg.how == "pct_below":
+        return _pct(v < t)
+    if agg.how == "pct_above":
+        return _pct(v > t)
+    raise ValueError(f"unknown aggregation {agg.how!r}")
+
+
+def recorded_config(frame: pd.DataFrame) -> MetricsConfig | None:
+    """The ``MetricsConfig`` recorded in a per-scenario frame, None for a frame without one.
+
+    Raises ValueError if the rows were computed with configurations that differ in a
+    per-scenario field (a mix of different metrics); rows that differ only in aggregate or
+    reflection thresholds yield the first row's config.
+    """
+    column = CONFIG_COLUMNS[1]
+    if column not in frame or not len(frame):
+        return None
+    if frame[column].isna().any():
+        raise ValueError(
+            f"{int(frame[column].isna().sum())} of {len(frame)} rows record no metrics configuration "
+            "(computed by an older letspi?): recompute them"
+        )
+    texts = pd.unique(frame[column].astype(str))
+    configs = [MetricsConfig.from_json(t) for t in texts]
+    for other in configs[1:]:
+        diff = configs[0].per_scenario_differences(other)
+        if diff:
+            raise ValueError(
+                f"the frame mixes metrics computed with different configurations ({diff}); "
+                "aggregate each configuration on its own"
+            )
+    return configs[0]
+
+
+def _config_in_effect(df: pd.DataFrame, config: MetricsConfig | None) -> MetricsConfig:
+    recorded = recorded_config(df)
+    if config is None:
+        if recorded is None:
+            if len(df):
+                raise ValueError(
+                    "the frame records no metrics configuration (no 'metrics_config' column): pass "
+                    "config=, the MetricsConfig compute_metrics used"
+                )
+            return MetricsConfig()
+        return recorded
+    if recorded is not None:
+        diff = recorded.per_scenario_differences(config)
+        if diff:
+            raise ValueError(
+                f"these metrics were computed with another configuration; per-scenario fields differ "
+                f"(recorded, given): {diff}"
+            )
+    return config
 
 
 def aggregate_metrics(
@@ -81,78 +150,104 @@ def aggregate_metrics(
 ) -> dict[str, AggValue]:
     """Aggregate per-scenario metrics into the contract above (module doc).
 
-    inference_time_s: per-scenario planning times [s] (their mean is reported) or one number;
-    when None, a per-scenario ``inference_s`` column of a DataFrame input is used if present.
-    ``config`` supplies ``ttc_cap_s``; ``low_ttc`` was already decided by ``compute_metrics``.
+    metrics: ``compute_metrics``' result or its frame (extra columns such as ``scenario_id`` are
+    ignored). inference_time_s: planning times [s] (any number of them, e.g. only the uncached
+    rows; their finite mean is reported) or one number; when None, an ``inference_s`` column of
+    the frame is used if present, else None.
+    config: thresholds to apply (module doc); None = the config recorded with the metrics.
     """
-    config = config or MetricsConfig()
-    df = metrics.to_frame() if isinstance(metrics, ScenarioMetrics) else metrics
-    out: dict[str, AggValue] = {"n": len(df)}
-    min_ttc = np.asarray(df["min_ttc_s"], dtype=np.float64)
-    out["ttc_s"] = float(np.minimum(min_ttc, config.ttc_cap_s).mean()) if len(min_ttc) else None
-    out["ttc_finite_mean_s"], out["ttc_finite_n"] = finite_mean(min_ttc)
-    out["ttc_capped_n"] = int((min_ttc >= config.ttc_cap_s).sum())
-    out["cr_pct"] = _pct(df["collision"])
-    out["pet_s"], out["pet_finite_n"] = finite_mean(df["min_pet_s"])
-    out["min_dist_m"], out["min_dist_finite_n"] = finite_mean(df["min_centre_dist_m"])
-    out["lt_pct"] = _pct(df["low_ttc"])
-    out["sr_pct"] = _pct(df["success"])
-    if inference_time_s is None and "inference_s" in df:
-        inference_time_s = np.asarray(df["inference_s"], dtype=np.float64)
-    if inference_time_s is None:
-        out["inference_s"] = None
+    if isinstance(metrics, ScenarioMetrics):
+        df = metrics.to_frame()
+        config = config if config is not None else metrics.config
     else:
-        out["inference_s"], _ = finite_mean(np.atleast_1d(np.asarray(inference_time_s, dtype=np.float64)))
-    out["ttc2d_s"], out["ttc2d_finite_n"] = finite_mean(df["min_ttc2d_s"])
-    drac = np.asarray(df["max_drac_mps2"], dtype=np.float64)
-    out["drac_mps2"], _ = finite_mean(drac)
-    out["drac_inf_n"] = int(np.isinf(drac).sum())
-    out["drac_high_pct"] = _pct(drac > 3.0)
-    out["min_box_gap_m"], out["min_box_gap_finite_n"] = finite_mean(df["min_box_gap_m"])
-    out["cr2m_pct"] = _pct(df["collision_2m"])
-    out["ade_m"], _ = finite_mean(df["ade_m"])
-    out["fde_m"], _ = finite_mean(df["fde_m"])
-    for key in ("peak_abs_acc_lon_mps2", "peak_abs_acc_lat_mps2", "peak_abs_jerk_mps3"):
-        out[key], _ = finite_mean(df[key])
-    lc = np.asarray(df["n_lane_changes"], dtype=np.float64)
-    out["lane_changes_mean"], _ = finite_mean(lc)
-    out["lane_change_pct"] = _pct(lc > 0)
-    out["off_road_pct"] = _pct(df["off_road"])
-    out["feasible_pct"] = _pct(df["feasible"])
-    out["goal_reached_pct"] = _pct(df["goal_reached"])
+        df = metrics
+    cfg = _config_in_effect(df, config)
+    out: dict[str, AggValue] = {"n": len(df)}
+    for m in METRICS:
+        if m.name == "inference_s" and inference_time_s is not None:
+            values = np.atleast_1d(np.asarray(inference_time_s, dtype=np.float64))  # any length
+        elif m.name in df:
+            values = df[m.name].to_numpy()
+        elif m.source is None:  # a caller-supplied column that is absent
+            out.update({a.key: None for a in m.aggregates})
+            continue
+        else:
+            raise KeyError(f"per-scenario column {m.name!r} missing: not a compute_metrics frame of this version")
+        for a in m.aggregates:
+            out[a.key] = _apply(a, values, cfg)
+    out["metrics_config_key"] = cfg.key()
+    for field in MetricsConfig.AGGREGATE_FIELDS:
+        out[field] = float(getattr(cfg, field))
     return out
 
 
 def _fmt(value: AggValue, digits: int) -> str:
     if value is None:
         return "n/a"
+    if isinstance(value, str):
+        return value
     if isinstance(value, int | np.integer) and not isinstance(value, bool):
         return str(value)
     return f"{float(value):.{digits}f}"
 
 
-def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2) -> str:
-    """Paper-style markdown table (one row per planner) from ``{planner: aggregate_metrics(...)}``.
-
-    A note under the table gives, per planner, how many scenarios had a finite TTC / PET, so
-    infinite values are never silently dropped.
-    """
-    header = "| Model | " + " | ".join(label for label, _ in TABLE_COLUMNS) + " |"
-    rule = "|---|" + "---:|" * len(TABLE_COLUMNS)
-    lines = [header, rule]
+def _table(
+    results: Mapping[str, Mapping[str, AggValue]], columns: tuple[tuple[str, str], ...], digits: int
+) -> list[str]:
+    lines = ["| Model | " + " | ".join(label for label, _ in columns) + " |", "|---|" + "---:|" * len(columns)]
     for name, agg in results.items():
-        cells = [_fmt(agg.get(key), digits) for _, key in TABLE_COLUMNS]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    notes = [
+        lines.append(f"| {name} | " + " | ".join(_fmt(agg.get(key), digits) for _, key in columns) + " |")
+    return lines
+
+
+def _num(agg: Mapping[str, AggValue], key: str, default: float) -> str:
+    value = agg.get(key)
+    return f"{float(value):g}" if isinstance(value, int | float) else f"{default:g}"
+
+
+def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2) -> str:
+    """Paper-style markdown tables (one row per planner) from ``{planner: aggregate_metrics(...)}``.
+
+    The headline table holds the paper's columns plus CR at fault; a safety detail table follows
+    (front and rear TTC, collisions by kind, capped PET, SR against the planner's own goal), then
+    notes: how each column is computed, with the thresholds recorded in the results, and per
+    planner how many scenarios had a finite TTC / PET, so infinite values are never silently dropped.
+    """
+    first: Mapping[str, AggValue] = next(iter(results.values()), {})
+    default = MetricsConfig()
+    cap = _num(first, "ttc_cap_s", default.ttc_cap_s)
+    low = _num(first, "low_ttc_s", default.low_ttc_s)
+    pet_cap = _num(first, "pet_cap_s", default.pet_cap_s)
+    key = first.get("metrics_config_key", default.key())
+    sr_tol = (
+        f"within {100 * default.sr_progress_tol_rel:g} %, at least {default.sr_progress_tol_m:g} m"
+        if key == default.key()
+        else f"tolerances of metrics configuration {key}"
+    )
+    lines = _table(results, TABLE_COLUMNS, digits)
+    lines += ["", "Safety detail:", "", *_table(results, DETAIL_COLUMNS, digits), "", "Notes:"]
+    lines += [
+        f"- TTC: mean over all scenarios of min(minimum 1-D TTC, {cap} s); a scenario without a closing "
+        f"vehicle counts as {cap} s. Rear TTC: the same for the vehicle behind in the ego's path. "
+        f"LT: minimum TTC below {low} s.",
+        "- CR: share of scenarios with box contact (all contacts, the paper's column). CR at fault: only "
+        "contacts the ego caused (front; side when the ego moved laterally; rear after braking harder "
+        "than allowed).",
+        f"- PET: mean over the scenarios with a finite PET (no shared grid cell = no conflict); PET "
+        f"capped: mean over all scenarios of min(PET, {pet_cap} s).",
+        f"- minD: centre-to-centre distance. SR: feasible, on the road, no contact, and ending in the "
+        f"recorded human's final lane with the human's progress ({sr_tol}); SR own goal: the same "
+        f"against each planner's own goal.",
+    ]
+    counts = "; ".join(
         f"{name}: TTC {agg.get('ttc_finite_n', 'n/a')}/{agg.get('n', 'n/a')}, "
         f"PET {agg.get('pet_finite_n', 'n/a')}/{agg.get('n', 'n/a')}"
         for name, agg in results.items()
-    ]
-    lines.append("")
-    lines.append(
-        "TTC: mean over all scenarios of min(TTC, cap), no closing leader counting as the cap "
-        "(finite minimum TTC / total, and PET: mean over scenarios with a finite PET, finite/total: "
-        + "; ".join(notes)
-        + "). minD is the centre-to-centre distance."
     )
+    lines.append(f"- Scenarios with a finite value (finite/total): {counts}.")
+    keys = {str(agg.get("metrics_config_key")) for agg in results.values()}
+    if len(keys) > 1:
+        lines.append(
+            f"- Warning: the rows were aggregated with different metrics configurations ({', '.join(sorted(keys))})."
+        )
     return "\n".join(lines) + "\n"

@@ -28,7 +28,8 @@ from letspi.metrics.distance import box_gap
 
 @dataclass(frozen=True)
 class CollisionResult:
-    """(B,) each: flags, and the first step / neighbour slot of the event (-1 when none)."""
+    """(B,) each: flags, and the first step / neighbour slot of the event (-1 when none);
+    ``overlap`` (B, N, F): the box overlap per pair and step (input of ``letspi.metrics.fault``)."""
 
     collision: np.ndarray
     collision_step: np.ndarray
@@ -36,6 +37,7 @@ class CollisionResult:
     collision_2m: np.ndarray
     collision_2m_step: np.ndarray
     collision_2m_nbr: np.ndarray
+    overlap: np.ndarray
 
 
 def boxes_overlap(inp: MetricInputs) -> np.ndarray:
@@ -69,8 +71,9 @@ def collisions(
     inp: MetricInputs, threshold_m: float = 2.0, mode: Collision2mMode = "longitudinal_gap"
 ) -> CollisionResult:
     """Primary box-overlap collision and the 2 m variant, with the first step and neighbour."""
-    c, c_step, c_nbr = _first_event(boxes_overlap(inp))
-    n, n_step, n_nbr = _first_event(near_collision(inp, threshold_m, mode) | boxes_overlap(inp))
+    overlap = boxes_overlap(inp)
+    c, c_step, c_nbr = _first_event(overlap)
+    n, n_step, n_nbr = _first_event(near_collision(inp, threshold_m, mode) | overlap)
     return CollisionResult(
         collision=c,
         collision_step=c_step,
@@ -78,4 +81,5 @@ def collisions(
         collision_2m=n,
         collision_2m_step=n_step,
         collision_2m_nbr=n_nbr,
+        overlap=overlap,
     )

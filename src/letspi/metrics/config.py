@@ -1,8 +1,24 @@
-"""Thresholds and tolerances of every metric in one pydantic model (``MetricsConfig``)."""
+"""Thresholds and tolerances of every metric in one frozen pydantic model (``MetricsConfig``).
+
+Which fields matter where (``MetricsConfig.AGGREGATE_FIELDS`` etc.):
+
+* **per-scenario** fields decide values that ``compute_metrics`` stores per scenario (collision
+  variant, PET cells, success tolerances, at-fault rules, ``dt_s``);
+* **aggregate** fields (``low_ttc_s``, ``ttc_cap_s``, ``pet_cap_s``, ``drac_high_mps2``) are applied
+  by ``aggregate_metrics`` to the raw per-scenario values, so one run can be re-aggregated with
+  other thresholds;
+* **reflection** fields are read by the reflection module only and change no metric value;
+* ``chunk_size`` is engineering: it changes memory use, never a value, and is left out of the key.
+
+``key()`` is a content hash of every field but ``chunk_size``: it identifies the configuration in
+per-scenario frames and in ``metrics.json``.
+"""
 
 from __future__ import annotations
 
-from typing import Literal
+import hashlib
+import json
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -14,27 +30,46 @@ Collision2mMode = Literal["longitudinal_gap", "centre_distance", "box_gap"]
 class MetricsConfig(BaseModel):
     """Settings of ``compute_metrics`` and ``aggregate_metrics``. SI units throughout.
 
-    Evaluation thresholds (paper Table III):
+    Evaluation thresholds (paper Table III), applied by ``aggregate_metrics``:
         low_ttc_s: a scenario is "low TTC" (LT) when its minimum 1-D TTC is below this [s].
         ttc_cap_s: the table's TTC averages min(TTC, ttc_cap_s) over all scenarios [s].
+        pet_cap_s: ``pet_capped_s`` averages min(PET, pet_cap_s) over all scenarios [s]; default
+            5 s = the horizon, the largest PET a 5 s window can measure.
+        drac_high_mps2: ``drac_high_pct`` counts maximum DRAC above this [m/s^2] (SUMO: 3).
+    Per-scenario:
         collision_2m_m / collision_2m_mode: the paper's "distance < 2.0 m" collision variant
             (``collision_2m``); see ``letspi.metrics.collision`` for the three readings.
+        pet_cell_m: PET grid cell size [m] (0.5-1 m is the usual range; at most 1 m so every
+            vehicle covers at least one cell centre across its width).
+        Success (``letspi.metrics.success``): max_abs_acc_lon_mps2, max_abs_acc_lat_mps2,
+            off_road_tol_m, success_requires_no_collision_2m; against the recorded human endpoint
+            sr_progress_tol_rel, sr_progress_tol_m, sr_lat_tol_m; against the planner's own goal
+            (``success_self``) goal_tol_lon_m, goal_tol_lat_m.
+        At fault (``letspi.metrics.fault``): fault_reaction_time_s, fault_comfort_decel_mps2.
+        dt_s: time step of the future [s].
     Reflection thresholds (paper §III, reflection module; kept here so the reflection module and
     the evaluation read one source, but independent of the evaluation thresholds above):
         reflection_ttc_s (1.5 s), reflection_min_dist_m (2.0 m; which distance it applies to is
         the reflection module's choice, see ``letspi.metrics.collision`` for the trade-offs),
         reflection_pet_s (None = PET not used by reflection).
-    PET: pet_cell_m, the grid cell size [m] (0.5-1 m is the usual range).
-    Success (see ``letspi.metrics.success``): max_abs_acc_lon_mps2, max_abs_acc_lat_mps2,
-        goal_tol_lon_m, goal_tol_lat_m, off_road_tol_m, success_requires_no_collision_2m.
-    Engineering: dt_s (time step of the future), chunk_size (scenarios per vectorised chunk,
-        bounds memory: the (B, N, F) temporaries are chunk_size x 8 x 125 float64).
+    Engineering: chunk_size (scenarios per vectorised chunk, bounds memory: the (B, N, F)
+        temporaries are chunk_size x N x F float64).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
+    #: applied by aggregate_metrics to raw per-scenario values
+    AGGREGATE_FIELDS: ClassVar[tuple[str, ...]] = ("low_ttc_s", "ttc_cap_s", "pet_cap_s", "drac_high_mps2")
+    #: read by the reflection module only
+    REFLECTION_FIELDS: ClassVar[tuple[str, ...]] = ("reflection_ttc_s", "reflection_min_dist_m", "reflection_pet_s")
+    #: change no value (left out of ``key()``)
+    ENGINEERING_FIELDS: ClassVar[tuple[str, ...]] = ("chunk_size",)
+
     low_ttc_s: float = Field(default=2.0, gt=0)
     ttc_cap_s: float = Field(default=10.0, gt=0)
+    pet_cap_s: float = Field(default=5.0, gt=0)
+    drac_high_mps2: float = Field(default=3.0, gt=0)
+
     collision_2m_m: float = Field(default=2.0, ge=0)
     collision_2m_mode: Collision2mMode = "longitudinal_gap"
 
@@ -42,14 +77,50 @@ class MetricsConfig(BaseModel):
     reflection_min_dist_m: float = Field(default=2.0, ge=0)
     reflection_pet_s: float | None = None
 
-    pet_cell_m: float = Field(default=0.5, gt=0)
+    pet_cell_m: float = Field(default=0.5, gt=0, le=1.0)
 
     max_abs_acc_lon_mps2: float = Field(default=8.0, gt=0)
     max_abs_acc_lat_mps2: float = Field(default=4.0, gt=0)
-    goal_tol_lon_m: float = Field(default=5.0, ge=0)
-    goal_tol_lat_m: float = Field(default=1.0, ge=0)
     off_road_tol_m: float = Field(default=0.0, ge=0)
     success_requires_no_collision_2m: bool = False
+    sr_progress_tol_rel: float = Field(default=0.10, ge=0)
+    sr_progress_tol_m: float = Field(default=5.0, ge=0)
+    sr_lat_tol_m: float = Field(default=0.5, ge=0)
+    goal_tol_lon_m: float = Field(default=5.0, ge=0)
+    goal_tol_lat_m: float = Field(default=1.0, ge=0)
+
+    fault_reaction_time_s: float = Field(default=1.0, ge=0)
+    fault_comfort_decel_mps2: float = Field(default=3.0, gt=0)
 
     dt_s: float = Field(default=DT_S, gt=0)
     chunk_size: int = Field(default=1024, ge=1)
+
+    def recorded(self) -> dict[str, Any]:
+        """Every field that can change a value (all but ``ENGINEERING_FIELDS``), JSON-ready."""
+        return self.model_dump(mode="json", exclude=set(self.ENGINEERING_FIELDS))
+
+    def to_json(self) -> str:
+        """Canonical JSON of ``recorded()`` (sorted keys, no spaces): stable across runs."""
+        return json.dumps(self.recorded(), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_json(cls, text: str) -> MetricsConfig:
+        """Inverse of ``to_json`` (``chunk_size`` takes its default)."""
+        return cls(**json.loads(text))
+
+    def key(self) -> str:
+        """Content hash (16 hex digits of SHA-256 of ``to_json()``); equal configs, equal keys."""
+        return hashlib.sha256(self.to_json().encode()).hexdigest()[:16]
+
+    def per_scenario_fields(self) -> tuple[str, ...]:
+        """Fields that change per-scenario values (neither aggregate, reflection nor engineering)."""
+        skip = {*self.AGGREGATE_FIELDS, *self.REFLECTION_FIELDS, *self.ENGINEERING_FIELDS}
+        return tuple(name for name in type(self).model_fields if name not in skip)
+
+    def per_scenario_differences(self, other: MetricsConfig) -> dict[str, tuple[Any, Any]]:
+        """{field: (self's value, other's value)} for per-scenario fields that differ."""
+        return {
+            name: (getattr(self, name), getattr(other, name))
+            for name in self.per_scenario_fields()
+            if getattr(self, name) != getattr(other, name)
+        }

@@ -1,16 +1,22 @@
 """``compute_metrics``: every per-scenario metric of a batch of planned ego trajectories.
 
-The result is a ``ScenarioMetrics`` of (B,) arrays with stable names; units are in the names
-(_s seconds, _m metres, _mps2 m/s^2, _mps3 m/s^3). "*_step" fields index the future axis
-(0..F-1, time (step + 1) * dt after t = 0) and "*_nbr" fields the neighbour slots of the batch;
-both are -1 when there is no such event. Definitions live in the modules:
-``ttc`` (1-D TTC, preceding vehicle), ``ttc2d``, ``pet``, ``drac``, ``distance``, ``collision``,
-``kinematics``, ``success``. Infinite values are kept (+inf = no conflict); ``aggregate`` handles them.
+The result is a ``ScenarioMetrics``: one (B,) array per column of the registry
+(``letspi.metrics.registry.METRICS``: names, units, dtypes and docs live there, once) and the
+``MetricsConfig`` used. Definitions live in the modules: ``ttc`` (front and rear 1-D TTC),
+``ttc2d``, ``pet``, ``drac``, ``distance``, ``collision``, ``fault``, ``kinematics``, ``success``.
+Infinite values are kept (+inf = no conflict); ``aggregate`` handles them.
+
+Metrics are computed against the ground truth of the batch given: the neighbours' recorded
+futures and, for ADE/FDE and the success reference, the recorded ego future. Any number N of
+neighbour slots works (the batch's N, or more via ``MetricInputs.with_neighbours``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from operator import attrgetter
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -21,88 +27,84 @@ from letspi.metrics.collision import collisions
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.distance import distances
 from letspi.metrics.drac import drac
+from letspi.metrics.fault import at_fault_collisions
 from letspi.metrics.kinematics import ade_fde, count_lane_changes, finite_difference_kinematics, off_road
 from letspi.metrics.pet import pet_grid
+from letspi.metrics.registry import CONFIG_COLUMNS, computed_metrics
 from letspi.metrics.success import success
-from letspi.metrics.ttc import ttc_1d
+from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d
 from letspi.scenario.types import ScenarioBatch
 
 
 @dataclass(frozen=True)
-class ScenarioMetrics:
-    """Per-scenario metrics, every field (B,).
+class _Route:
+    """(B,) per-scenario results that are plain arrays (registry group ``route``)."""
 
-    Safety (vs the neighbours' ground-truth futures):
-        min_ttc_s [s], min_ttc_step, min_ttc_nbr: minimum 1-D TTC with the preceding vehicle.
-        low_ttc: min_ttc_s < config.low_ttc_s (2 s).
-        min_ttc2d_s [s], min_ttc2d_step, min_ttc2d_nbr: minimum 2-D box TTC over all neighbours.
-        min_pet_s [s], min_pet_step, min_pet_nbr: minimum grid PET (+inf undefined); the step is
-            when the second vehicle enters the conflict cell.
-        max_drac_mps2 [m/s^2], max_drac_step, max_drac_nbr: maximum DRAC (0 never closing, inf overlap).
-        min_centre_dist_m [m], min_centre_dist_step, min_centre_dist_nbr: minimum centre distance.
-        min_box_gap_m [m], min_gap_step, min_gap_nbr: minimum box-to-box distance (0 = contact).
-        collision, collision_step, collision_nbr: box overlap (first step / neighbour).
-        collision_2m, collision_2m_step, collision_2m_nbr: the paper's "< 2 m" variant.
-    Quality (vs the human ground truth and the road):
-        ade_m, fde_m [m]; peak_abs_acc_lon_mps2, peak_abs_acc_lat_mps2, peak_abs_acc_mps2 [m/s^2];
-        peak_abs_jerk_mps3 [m/s^3]; n_lane_changes; off_road.
-    Success: success and its criteria finite, feasible, goal_reached.
-    Rows are in batch order (no scenario id column: the caller holds ``batch.scenario_id``).
-    """
-
-    min_ttc_s: np.ndarray
-    min_ttc_step: np.ndarray
-    min_ttc_nbr: np.ndarray
-    low_ttc: np.ndarray
-    min_ttc2d_s: np.ndarray
-    min_ttc2d_step: np.ndarray
-    min_ttc2d_nbr: np.ndarray
-    min_pet_s: np.ndarray
-    min_pet_step: np.ndarray
-    min_pet_nbr: np.ndarray
-    max_drac_mps2: np.ndarray
-    max_drac_step: np.ndarray
-    max_drac_nbr: np.ndarray
-    min_centre_dist_m: np.ndarray
-    min_centre_dist_step: np.ndarray
-    min_centre_dist_nbr: np.ndarray
-    min_box_gap_m: np.ndarray
-    min_gap_step: np.ndarray
-    min_gap_nbr: np.ndarray
-    collision: np.ndarray
-    collision_step: np.ndarray
-    collision_nbr: np.ndarray
-    collision_2m: np.ndarray
-    collision_2m_step: np.ndarray
-    collision_2m_nbr: np.ndarray
     ade_m: np.ndarray
     fde_m: np.ndarray
-    peak_abs_acc_lon_mps2: np.ndarray
-    peak_abs_acc_lat_mps2: np.ndarray
-    peak_abs_acc_mps2: np.ndarray
-    peak_abs_jerk_mps3: np.ndarray
     n_lane_changes: np.ndarray
     off_road: np.ndarray
-    finite: np.ndarray
-    feasible: np.ndarray
-    goal_reached: np.ndarray
-    success: np.ndarray
+    low_ttc: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ScenarioMetrics:
+    """Per-scenario metrics of B scenarios and the configuration they were computed with.
+
+    columns: one (B,) array per computed registry metric (``registry.computed_metrics()``, in that
+    order, with the registry's dtype). Columns read as attributes (``m.min_ttc_s``) or items
+    (``m["min_ttc_s"]``). Rows are in batch order (no scenario id: the caller holds
+    ``batch.scenario_id``).
+    """
+
+    columns: Mapping[str, np.ndarray]
+    config: MetricsConfig
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("__") or name in ("columns", "config"):
+            raise AttributeError(name)
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise AttributeError(f"{type(self).__name__} has no metric {name!r}") from None
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.columns)
 
     def __len__(self) -> int:
-        return len(self.min_ttc_s)
+        return len(next(iter(self.columns.values()))) if self.columns else 0
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per scenario (batch order), one column per field (same names and units).
+        """One row per scenario (batch order): every metric column, then ``metrics_config_key`` and
+        ``metrics_config`` (the configuration as canonical JSON), so a stored frame says how it
+        was computed and ``aggregate_metrics`` can check it.
 
         Scenario ids are not included (callers add ``batch.scenario_id`` as they need).
         """
-        return pd.DataFrame({f.name: getattr(self, f.name) for f in fields(self)})
+        b = len(self)
+        frame = pd.DataFrame(dict(self.columns))
+        key, text = CONFIG_COLUMNS
+        frame[key] = [self.config.key()] * b
+        frame[text] = [self.config.to_json()] * b
+        return frame
 
     @classmethod
     def concat(cls, parts: list[ScenarioMetrics]) -> ScenarioMetrics:
-        """Concatenate along the scenario axis."""
-        return cls(**{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)})
+        """Concatenate along the scenario axis (all parts must share one configuration)."""
+        if not parts:
+            raise ValueError("nothing to concatenate")
+        keys = {p.config.key() for p in parts}
+        if len(keys) > 1:
+            raise ValueError(f"cannot concatenate metrics computed with different configurations {sorted(keys)}")
+        names = list(parts[0].columns)
+        return cls({k: np.concatenate([p.columns[k] for p in parts]) for k in names}, parts[0].config)
+
+
+_NUMPY_DTYPES: Mapping[str, Any] = {"float64": np.float64, "int64": np.int64, "bool": np.bool_, "str": object}
 
 
 def _compute_chunk(
@@ -112,12 +114,10 @@ def _compute_chunk(
     config: MetricsConfig,
 ) -> ScenarioMetrics:
     ttc = ttc_1d(inp)
-    t2 = ttc_2d(inp)
-    pet = pet_grid(inp, cell_m=config.pet_cell_m, dt_s=config.dt_s)
     dr = drac(inp, ttc.preceding)
-    dist = distances(inp)
     coll = collisions(inp, threshold_m=config.collision_2m_m, mode=config.collision_2m_mode)
-    ade, fde = ade_fde(inp.ego_xy_m, batch.ego_xy_m[:, batch.future_slice].astype(np.float64))
+    truth_xy = batch.ego_xy_m[:, batch.future_slice].astype(np.float64)
+    ade, fde = ade_fde(inp.ego_xy_m, truth_xy)
     kin = finite_difference_kinematics(
         inp.ego_vxy_mps,
         batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64),
@@ -125,58 +125,56 @@ def _compute_chunk(
         dt_s=config.dt_s,
     )
     marks = batch.marking_y_m.astype(np.float64)
-    lane_changes = count_lane_changes(batch.ego_xy_m[:, T0_INDEX, 1].astype(np.float64), inp.ego_xy_m[..., 1], marks)
+    y0 = batch.ego_xy_m[:, T0_INDEX, 1].astype(np.float64)
     offr = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, marks, batch.marking_is_edge, config.off_road_tol_m)
-    ok = success(
-        inp.ego_xy_m,
-        inp.ego_vxy_mps,
-        kin.peak_abs_acc_lon_mps2,
-        kin.peak_abs_acc_lat_mps2,
-        offr,
-        coll.collision,
-        coll.collision_2m,
-        goals_xy_m,
-        config,
-    )
-    return ScenarioMetrics(
-        min_ttc_s=ttc.min_ttc_s,
-        min_ttc_step=ttc.min_ttc_step,
-        min_ttc_nbr=ttc.min_ttc_nbr,
-        low_ttc=ttc.min_ttc_s < config.low_ttc_s,
-        min_ttc2d_s=t2.min_ttc2d_s,
-        min_ttc2d_step=t2.min_ttc2d_step,
-        min_ttc2d_nbr=t2.min_ttc2d_nbr,
-        min_pet_s=pet.min_pet_s,
-        min_pet_step=pet.min_pet_step,
-        min_pet_nbr=pet.min_pet_nbr,
-        max_drac_mps2=dr.max_drac_mps2,
-        max_drac_step=dr.max_drac_step,
-        max_drac_nbr=dr.max_drac_nbr,
-        min_centre_dist_m=dist.min_centre_dist_m,
-        min_centre_dist_step=dist.min_centre_dist_step,
-        min_centre_dist_nbr=dist.min_centre_dist_nbr,
-        min_box_gap_m=dist.min_box_gap_m,
-        min_gap_step=dist.min_gap_step,
-        min_gap_nbr=dist.min_gap_nbr,
-        collision=coll.collision,
-        collision_step=coll.collision_step,
-        collision_nbr=coll.collision_nbr,
-        collision_2m=coll.collision_2m,
-        collision_2m_step=coll.collision_2m_step,
-        collision_2m_nbr=coll.collision_2m_nbr,
-        ade_m=ade,
-        fde_m=fde,
-        peak_abs_acc_lon_mps2=kin.peak_abs_acc_lon_mps2,
-        peak_abs_acc_lat_mps2=kin.peak_abs_acc_lat_mps2,
-        peak_abs_acc_mps2=kin.peak_abs_acc_mps2,
-        peak_abs_jerk_mps3=kin.peak_abs_jerk_mps3,
-        n_lane_changes=lane_changes,
-        off_road=offr,
-        finite=ok.finite,
-        feasible=ok.feasible,
-        goal_reached=ok.goal_reached,
-        success=ok.success,
-    )
+    groups: dict[str, Any] = {
+        "ttc": ttc,
+        "rear": rear_ttc_1d(inp),
+        "ttc2d": ttc_2d(inp),
+        "pet": pet_grid(inp, cell_m=config.pet_cell_m, dt_s=config.dt_s),
+        "drac": dr,
+        "dist": distances(inp),
+        "coll": coll,
+        "fault": at_fault_collisions(
+            inp,
+            coll.overlap,
+            coll.collision_step,
+            coll.collision_nbr,
+            kin.acc_mps2[..., 0],
+            dr.drac_mps2,
+            ttc.preceding.nbr,
+            reaction_time_s=config.fault_reaction_time_s,
+            comfort_decel_mps2=config.fault_comfort_decel_mps2,
+            dt_s=config.dt_s,
+        ),
+        "kin": kin,
+        "route": _Route(
+            ade_m=ade,
+            fde_m=fde,
+            n_lane_changes=count_lane_changes(y0, inp.ego_xy_m[..., 1], marks),
+            off_road=offr,
+            low_ttc=ttc.min_ttc_s < config.low_ttc_s,
+        ),
+        "ok": success(
+            inp.ego_xy_m,
+            inp.ego_vxy_mps,
+            kin.peak_abs_acc_lon_mps2,
+            kin.peak_abs_acc_lat_mps2,
+            offr,
+            coll.collision,
+            coll.collision_2m,
+            goals_xy_m,
+            config,
+            human_end_xy_m=truth_xy[:, -1],
+            start_x_m=batch.ego_xy_m[:, T0_INDEX, 0].astype(np.float64),
+            marking_y_m=marks,
+        ),
+    }
+    columns: dict[str, np.ndarray] = {}
+    for m in computed_metrics():
+        group, attr = str(m.source).split(".", 1)
+        columns[m.name] = np.asarray(attrgetter(attr)(groups[group]), dtype=_NUMPY_DTYPES[m.dtype])
+    return ScenarioMetrics(columns, config)
 
 
 def compute_metrics(
@@ -189,8 +187,10 @@ def compute_metrics(
     """All per-scenario metrics of planned ego futures against the batch's ground truth.
 
     batch: B scenarios. ego_future_xy_m, ego_future_vxy_mps: (B, F, 2) planned box centres [m]
-    and velocities [m/s] in the ego frame for the F = 125 future frames. goals_xy_m: (B, 2) goal
-    [m] for the success test, or None to skip the goal criterion. Processed in chunks of
+    and velocities [m/s] in the ego frame for the F = 125 future frames. goals_xy_m: (B, 2) the
+    planner's own goal [m] for ``goal_reached`` / ``success_self``, or None (that criterion then
+    holds); ``success`` is judged against the recorded human endpoint either way. config: None
+    means ``MetricsConfig()`` (recorded in the result). Processed in chunks of
     ``config.chunk_size`` scenarios (vectorised within a chunk) to bound memory.
     """
     cfg = config if config is not None else MetricsConfig()

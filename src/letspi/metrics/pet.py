@@ -1,21 +1,36 @@
 """Post-encroachment time by the grid method (Allen et al. 1978; REFERENCE §5).
 
 Definition (per ego-neighbour pair). Space is cut into square cells of ``cell_m`` (default 0.5 m)
-aligned with the ego frame (cell (i, j) = [i c, (i+1) c) x [j c, (j+1) c)). A box occupies every
-cell its interior intersects. For a cell occupied by both vehicles within the F future steps,
-with occupancy intervals [a1, b1] (first vehicle) and [a2, b2] (second), the cell's PET is
-t_enter(second) - t_exit(first) = a2 - b1, and 0 when the occupancies overlap in time.
+aligned with the ego frame (cell (i, j) = [i c, (i+1) c) x [j c, (j+1) c), centre
+((i + 1/2) c, (j + 1/2) c)). **A box occupies a cell when it covers the cell's centre** (strictly:
+a box edge through the centre does not occupy it). For a cell occupied by both vehicles within
+the F future steps, with occupancy intervals [a1, b1] (first vehicle) and [a2, b2] (second), the
+cell's PET is t_enter(second) - t_exit(first) = a2 - b1, and 0 when the occupancies overlap in time.
 PET of the pair = min over shared cells; PET of the scenario = min over neighbours.
+
+Why the centre rule. The earlier rule (a box occupies every cell its interior merely touches)
+let two disjoint boxes occupy the same cell at the same time: two cars side by side 0.3 m apart
+both reach into the 0.5 m cell between them and got PET 0 s although they never touch. With the
+centre rule a cell stands for one point of the road (its centre), so PET is the point-wise PET
+of Allen's definition sampled on the cell centres: two vehicles occupy a cell at the same frame
+only if both boxes cover that point, i.e. only on real contact; side-by-side driving without
+lateral encroachment shares no cell (PET undefined); a vehicle that really drives over road the
+other used gets the time between the two, as before. The centre rule keeps each occupancy a
+rectangle of cells (per-axis index ranges), which the algorithm below needs; an area-fraction
+rule would not (corner cells). Each box edge is quantised by at most half a cell, so PET carries
+a quantisation of about cell / speed (0.02 s at 25 m/s, 0.5 m cells) plus the frame period dt
+(occupancy is sampled at frames). ``cell_m`` must not exceed the smallest vehicle dimension
+(config: at most 1 m), otherwise a box could cover no centre along an axis.
 
 Encounters included: **every valid neighbour whose swept cells share at least one cell with the
 ego's swept cells within the 5 s horizon, in either order** (the ego first, e.g. a follower in
 the target lane entering where the ego was, or the neighbour first, e.g. the ego following a
 leader or cutting in behind it). For same-lane following this is the bumper-to-bumper time gap
-(plus up to one cell of quantisation). Occupancy before t = 0 is not used (history excluded),
-so a leader further ahead than the ego travels in 5 s gives no encounter.
+(plus up to one frame and one cell of quantisation). Occupancy before t = 0 is not used (history
+excluded), so a leader further ahead than the ego travels in 5 s gives no encounter.
 Undefined PET (no shared cell) is **+inf** (like TTC with no conflict); ``aggregate`` averages
-only finite values and reports their count. Time resolution is the frame period dt, so a
-non-zero PET is at least dt.
+the finite values (``pet_s``) and, beside it, min(PET, cap) over all scenarios (``pet_capped_s``).
+Time resolution is the frame period dt, so a non-zero PET is at least dt.
 
 Algorithm (vectorised, no loop over scenarios). Equivalent form: PET = dt * min |f1 - f2| over
 frame pairs (ego at f1, neighbour at f2) whose boxes share a cell; this equals the per-cell
@@ -38,7 +53,7 @@ import numpy as np
 from letspi.constants import DT_S
 from letspi.metrics._common import MetricInputs
 
-_CLIP = 1 << 30  # |cell index| bound for real positions (5e8 m at 0.5 m cells)
+_CLIP = 1 << 30  # |cell index| bound; boxes beyond (5e8 m at 0.5 m cells) count as absent
 _NONE = 1 << 31  # sentinel: "covers no cell" (lo index +_NONE, hi index -_NONE)
 _NO_FRAME = 1 << 20  # sentinel frame index / frame distance
 
@@ -58,17 +73,17 @@ class PETResult:
 
 
 def _cell_range(lo_m: np.ndarray, hi_m: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the first and last cell that the open interval (lo, hi) intersects (int64).
+    """Indices of the first and last cell whose centre lies strictly inside (lo, hi) (int64).
 
-    Non-finite input gives an empty range (+_NONE, -_NONE).
+    Cell i has its centre at (i + 1/2) c, so the range is i0 = floor(lo / c - 1/2) + 1 ..
+    i1 = ceil(hi / c - 1/2) - 1. Non-finite input, or an interval that covers no centre, gives
+    the empty range (+_NONE, -_NONE) (so that "ranges intersect" tests stay correct).
     """
     with np.errstate(invalid="ignore"):
-        i0 = np.floor(lo_m / cell_m)
-        i1 = np.ceil(hi_m / cell_m) - 1.0
-    ok = np.isfinite(i0) & np.isfinite(i1)
-    i0 = np.where(ok, np.clip(np.nan_to_num(i0), -_CLIP, _CLIP), _NONE).astype(np.int64)
-    i1 = np.where(ok, np.clip(np.nan_to_num(i1), -_CLIP, _CLIP), -_NONE).astype(np.int64)
-    return i0, i1
+        i0 = np.floor(lo_m / cell_m - 0.5) + 1.0
+        i1 = np.ceil(hi_m / cell_m - 0.5) - 1.0
+    ok = (i0 <= i1) & (np.abs(i0) <= _CLIP) & (np.abs(i1) <= _CLIP)  # False for NaN / inf
+    return np.where(ok, i0, _NONE).astype(np.int64), np.where(ok, i1, -_NONE).astype(np.int64)
 
 
 def _batched_searchsorted(a: np.ndarray, v: np.ndarray, side: str) -> np.ndarray:

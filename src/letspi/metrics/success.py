@@ -1,15 +1,32 @@
 """Success of a plan (paper "SR", not defined precisely there; REFERENCE §5).
 
-A plan succeeds when all of these hold (tolerances in ``MetricsConfig``):
+A plan succeeds (``success``) when all of these hold (tolerances in ``MetricsConfig``):
 
 1. finite: every planned position and velocity is a finite number;
 2. feasible: peak |a_lon| <= ``max_abs_acc_lon_mps2`` (8 m/s^2: about the braking limit of a car)
    and peak |a_lat| <= ``max_abs_acc_lat_mps2`` (4 m/s^2: well above highway lane-change levels),
    from ``letspi.metrics.kinematics`` (including the step from the t = 0 state);
 3. on the road: ``off_road`` is False;
-4. goal reached: the final planned centre is within ``goal_tol_lon_m`` (5 m) along x and
-   ``goal_tol_lat_m`` (1 m) along y of the goal; when no goal is given this test is skipped;
+4. reference reached (``reference_reached``): the plan ends where the recorded human driver
+   ended, judged the same way for every planner:
+   * lane: the final planned centre is in the lane of the human's final centre (lane index from
+     the markings), or within ``sr_lat_tol_m`` (0.5 m) of it laterally (a human that ends on a
+     marking, mid lane change, then accepts both lanes it straddles to within half a metre);
+   * progress: the longitudinal progress from the t = 0 position, x_plan(5 s) - x(0), is within
+     max(``sr_progress_tol_m``, ``sr_progress_tol_rel`` x |x_human(5 s) - x(0)|) of the human's
+     (5 m, 10 %). At highway speed (30 m/s, 150 m in 5 s) that is +-15 m: a mean speed within
+     3 m/s of the human's, an endpoint within half a second of travel. A plan that stops 30 %
+     short (45 m) fails, so does one that ends a lane off. The 5 m floor (about a car length)
+     keeps slow traffic from demanding sub-metre agreement.
 5. no collision: no box overlap (and, if ``success_requires_no_collision_2m``, no 2 m variant).
+
+The goal a planner chose for itself is *not* the reference: human, constant velocity and IDM
+return their own endpoint as "goal" and would pass by construction, and a planner that shortens
+its goal would still "succeed". The self-goal test is kept apart: ``goal_reached`` (final centre
+within ``goal_tol_lon_m`` = 5 m along x and ``goal_tol_lat_m`` = 1 m along y of the planner's
+goal; True when no goal is given) and ``success_self`` (criteria 1, 2, 3, 5 and ``goal_reached``).
+The human reference is the batch's ground-truth ego future: metrics are always computed against
+the ground truth of the batch given.
 """
 
 from __future__ import annotations
@@ -19,18 +36,44 @@ from dataclasses import dataclass
 import numpy as np
 
 from letspi.metrics.config import MetricsConfig
+from letspi.metrics.kinematics import lane_index
 
 
 @dataclass(frozen=True)
 class SuccessResult:
-    """(B,) bool each: the five criteria and their conjunction ``success``."""
+    """(B,) bool each: the criteria and their conjunctions ``success`` and ``success_self``."""
 
     finite: np.ndarray
     feasible: np.ndarray
     on_road: np.ndarray
+    reference_reached: np.ndarray
     goal_reached: np.ndarray
     no_collision: np.ndarray
     success: np.ndarray
+    success_self: np.ndarray
+
+
+def reference_reached(
+    plan_end_xy_m: np.ndarray,
+    human_end_xy_m: np.ndarray,
+    start_x_m: np.ndarray,
+    marking_y_m: np.ndarray,
+    config: MetricsConfig,
+) -> np.ndarray:
+    """(B,) bool: the plan ends in the human's final lane with the human's progress (module doc).
+
+    plan_end_xy_m, human_end_xy_m: (B, 2) final centres; start_x_m: (B,) ego x at t = 0;
+    marking_y_m: (B, M) lane markings (ascending, NaN padded). NaN plans give False.
+    """
+    plan_lane = lane_index(plan_end_xy_m[:, 1:2], marking_y_m)[:, 0]
+    human_lane = lane_index(human_end_xy_m[:, 1:2], marking_y_m)[:, 0]
+    lat_ok = (plan_lane == human_lane) & np.isfinite(plan_end_xy_m[:, 1])
+    lat_ok |= np.abs(plan_end_xy_m[:, 1] - human_end_xy_m[:, 1]) <= config.sr_lat_tol_m
+    human_progress = human_end_xy_m[:, 0] - start_x_m
+    tol = np.maximum(config.sr_progress_tol_m, config.sr_progress_tol_rel * np.abs(human_progress))
+    lon_ok = np.abs(plan_end_xy_m[:, 0] - human_end_xy_m[:, 0]) <= tol  # False for NaN
+    out: np.ndarray = lat_ok & lon_ok
+    return out
 
 
 def success(
@@ -43,8 +86,16 @@ def success(
     collision_2m: np.ndarray,
     goals_xy_m: np.ndarray | None,
     config: MetricsConfig,
+    *,
+    human_end_xy_m: np.ndarray,
+    start_x_m: np.ndarray,
+    marking_y_m: np.ndarray,
 ) -> SuccessResult:
-    """Evaluate the success criteria (module doc). Arrays are (B, F, 2) plans and (B,) flags/peaks."""
+    """Evaluate the success criteria (module doc).
+
+    plan_xy_m, plan_vxy_mps: (B, F, 2); peaks and flags (B,); goals_xy_m: (B, 2) or None;
+    human_end_xy_m: (B, 2) recorded final ego centre; start_x_m: (B,); marking_y_m: (B, M).
+    """
     b = plan_xy_m.shape[0]
     finite = np.isfinite(plan_xy_m).all(axis=(1, 2)) & np.isfinite(plan_vxy_mps).all(axis=(1, 2))
     # NaN peaks compare False, so a non-finite plan is never feasible
@@ -56,15 +107,19 @@ def success(
     else:
         err = np.abs(plan_xy_m[:, -1] - np.asarray(goals_xy_m, dtype=np.float64))
         goal = (err[:, 0] <= config.goal_tol_lon_m) & (err[:, 1] <= config.goal_tol_lat_m)
+    ref = reference_reached(plan_xy_m[:, -1], human_end_xy_m, start_x_m, marking_y_m, config)
     no_coll = ~collision
     if config.success_requires_no_collision_2m:
         no_coll = no_coll & ~collision_2m
     on_road = ~off_road
+    common = finite & feasible & on_road & no_coll
     return SuccessResult(
         finite=finite,
         feasible=feasible,
         on_road=on_road,
+        reference_reached=ref,
         goal_reached=goal,
         no_collision=no_coll,
-        success=finite & feasible & on_road & goal & no_coll,
+        success=common & ref,
+        success_self=common & goal,
     )

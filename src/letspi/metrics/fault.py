@@ -1,0 +1,159 @@
+"""At-fault collisions: who caused a contact between the planned ego and a replayed neighbour.
+
+Neighbours are replayed from the recording: they do not react to the plan. As nuPlan does for
+replayed ("non-reactive") agents, a contact the ego could not have avoided is not charged to it.
+Every colliding ego-neighbour pair is classified once, at its first contact step s (the step at
+which the boxes first overlap; REFERENCE §10):
+
+* **side**: the boxes came together laterally: they did not overlap laterally at some step
+  within ``fault_reaction_time_s`` (1 s) before s (including the step just before contact, a
+  pure side swipe). At fault when the ego did at least half of the lateral closing: from the last
+  step without lateral overlap to s, the ego's lateral displacement towards the neighbour is at
+  least the neighbour's towards the ego (an ego lane change into a car; an ego cutting in less
+  than 1 s ahead of a follower that then hits it). A neighbour that swerves or cuts in into a
+  straight-driving ego within that second is not the ego's fault: a driver needs about a second
+  to react (SUMO's action step lengths span 0.2-1.0 s).
+* **front**: otherwise, if the neighbour's centre was ahead of the ego's just before contact: the
+  ego ran into a vehicle ahead that had been in its path for at least the reaction time. At fault
+  (nuPlan: active front and stopped-track collisions are at fault).
+* **rear**: otherwise: the replayed follower ran into the ego. Not at fault, unless the ego braked
+  harder than allowed before the contact: at some step f <= s its deceleration -a_x(f) exceeded
+  max(``fault_comfort_decel_mps2``, the largest need so far), where the need at a step is the
+  larger of the ego's DRAC towards its own preceding vehicle (the deceleration that avoids hitting
+  it, ``letspi.metrics.drac``) and the deceleration of that preceding vehicle. So braking up to
+  3 m/s^2 (the comfort bound: SUMO's DRAC threshold, about 0.3 g, which a follower keeping a
+  reasonable headway absorbs) is always allowed, harder braking only when a leader braked as
+  hard or the closing situation required it; once such a need arose, braking up to it stays
+  allowed for the rest of the plan. Brake-checking a follower without cause is at fault.
+
+Steps before t = 0 are not examined (the inputs hold the future only): a contact within the first
+second whose lateral approach began before t = 0 is judged longitudinally. Decelerations are
+finite differences of the planned velocities from the t = 0 state (``kinematics``); neighbour
+decelerations are differences of their recorded velocities (the first step copies the second).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from letspi.metrics._common import MetricInputs
+
+#: collision kinds, indexed by the codes in ``FaultResult.pair_kind``
+KINDS: tuple[str, ...] = ("none", "front", "side", "rear")
+NONE, FRONT, SIDE, REAR = range(4)
+
+
+@dataclass(frozen=True)
+class FaultResult:
+    """Per pair (B, N): pair_kind (int8 code into ``KINDS``), pair_at_fault (bool), pair_contact_step
+    (first contact step, -1 none). Per scenario (B,): collision_kind (str, kind of the first collision:
+    the pair of ``collision_step`` / ``collision_nbr``; "none" without contact), collision_at_fault
+    (any pair at fault), collision_fault_step / collision_fault_nbr (the first at-fault contact,
+    -1 none)."""
+
+    pair_kind: np.ndarray
+    pair_at_fault: np.ndarray
+    pair_contact_step: np.ndarray
+    collision_kind: np.ndarray
+    collision_at_fault: np.ndarray
+    collision_fault_step: np.ndarray
+    collision_fault_nbr: np.ndarray
+
+
+def _unjustified_braking(
+    inp: MetricInputs,
+    b_idx: np.ndarray,
+    contact_step: np.ndarray,
+    ego_acc_lon_mps2: np.ndarray,
+    drac_mps2: np.ndarray,
+    preceding_nbr: np.ndarray,
+    comfort_decel_mps2: float,
+    dt_s: float,
+) -> np.ndarray:
+    """(Q,) bool: the ego of scenario b_idx[q] braked harder than allowed at some step <= contact_step[q]."""
+    f = ego_acc_lon_mps2.shape[1]
+    decel = -ego_acc_lon_mps2[b_idx]  # (Q, F)
+    vx = inp.nbr_vxy_mps[b_idx, :, :, 0]  # (Q, N, F)
+    acc = np.diff(vx, axis=2, prepend=np.nan) / dt_s
+    if f > 1:
+        acc[..., 0] = acc[..., 1]
+    prec = preceding_nbr[b_idx]  # (Q, F)
+    lead_acc = np.take_along_axis(acc, np.maximum(prec, 0)[:, None, :], axis=1)[:, 0]
+    lead_decel = np.where(prec >= 0, np.nan_to_num(-lead_acc, nan=0.0), 0.0)
+    need = np.maximum(np.nan_to_num(drac_mps2[b_idx], nan=0.0), lead_decel)
+    allowed = np.maximum(comfort_decel_mps2, np.maximum.accumulate(need, axis=1))
+    before = np.arange(f)[None, :] <= contact_step[:, None]
+    out: np.ndarray = ((decel > allowed) & before).any(axis=1)
+    return out
+
+
+def at_fault_collisions(
+    inp: MetricInputs,
+    overlap: np.ndarray,
+    first_step: np.ndarray,
+    first_nbr: np.ndarray,
+    ego_acc_lon_mps2: np.ndarray,
+    drac_mps2: np.ndarray,
+    preceding_nbr: np.ndarray,
+    *,
+    reaction_time_s: float = 1.0,
+    comfort_decel_mps2: float = 3.0,
+    dt_s: float = 0.04,
+) -> FaultResult:
+    """Classify every colliding pair and flag the ego's fault (rules: module doc).
+
+    overlap: (B, N, F) box overlap (``collision.boxes_overlap``); first_step, first_nbr: (B,) the
+    scenario's first collision (``CollisionResult.collision_step`` / ``collision_nbr``);
+    ego_acc_lon_mps2: (B, F) planned longitudinal acceleration (``KinematicsResult.acc_mps2[..., 0]``);
+    drac_mps2, preceding_nbr: (B, F) the ego's DRAC and preceding slot per step (``drac``, ``ttc``).
+    """
+    b, n, f = overlap.shape
+    pair_kind = np.zeros((b, n), dtype=np.int8)
+    pair_fault = np.zeros((b, n), dtype=bool)
+    pair_step = np.full((b, n), -1, dtype=np.int64)
+    bi, ni = np.nonzero(overlap.any(axis=2))
+    if bi.size:
+        s = overlap[bi, ni].argmax(axis=1)  # (P,) first contact step
+        frames = np.arange(f)[None, :]
+        apart = inp.nbr_valid[bi, ni] & ~inp.lateral_overlap[bi, ni]  # (P, F); invalid steps: unknown
+        onset = np.where(apart & (frames < s[:, None]), frames, -1).max(axis=1)  # last step apart laterally
+        window = max(round(reaction_time_s / dt_s), 1)
+        lateral = (onset >= 0) & (s - onset <= window)
+        o = np.maximum(onset, 0)
+        sgn = np.sign(inp.dy_m[bi, ni, o])
+        ego_y = inp.ego_xy_m[bi, :, 1]
+        nbr_y = inp.nbr_xy_m[bi, ni, :, 1]
+        rows = np.arange(bi.size)
+        ego_in = sgn * (ego_y[rows, s] - ego_y[rows, o])
+        nbr_in = -sgn * (nbr_y[rows, s] - nbr_y[rows, o])
+        dx_before = inp.dx_m[bi, ni, np.maximum(s - 1, 0)]
+        ahead = np.where(np.isfinite(dx_before), dx_before, inp.dx_m[bi, ni, s]) > 0
+        kind = np.where(lateral, SIDE, np.where(ahead, FRONT, REAR)).astype(np.int8)
+        fault = np.where(lateral, ego_in >= nbr_in, kind == FRONT)
+        rear = np.flatnonzero(kind == REAR)
+        if rear.size:
+            fault[rear] = _unjustified_braking(
+                inp, bi[rear], s[rear], ego_acc_lon_mps2, drac_mps2, preceding_nbr, comfort_decel_mps2, dt_s
+            )
+        pair_kind[bi, ni] = kind
+        pair_fault[bi, ni] = fault
+        pair_step[bi, ni] = s
+
+    rows_b = np.arange(b)
+    has = first_nbr >= 0
+    first_kind = np.where(has, pair_kind[rows_b, np.maximum(first_nbr, 0)], NONE)
+    # first at-fault contact: smallest step, then lowest slot
+    order = np.where(pair_fault, pair_step * max(n, 1) + np.arange(n)[None, :], np.iinfo(np.int64).max)
+    k = order.argmin(axis=1) if n else np.zeros(b, dtype=np.int64)
+    any_fault: np.ndarray = np.asarray(pair_fault.any(axis=1))
+    return FaultResult(
+        pair_kind=pair_kind,
+        pair_at_fault=pair_fault,
+        pair_contact_step=pair_step,
+        collision_kind=np.asarray(KINDS, dtype=object)[first_kind],
+        collision_at_fault=any_fault,
+        collision_fault_step=np.where(any_fault, pair_step[rows_b, k] if n else -1, -1),
+        collision_fault_nbr=np.where(any_fault, k, -1),
+    )
