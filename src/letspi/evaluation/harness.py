@@ -89,7 +89,7 @@ def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, c
         "format": RUN_FORMAT,
         "mode": mode,
         "dataset_digest": dataset_digest(digests),
-        "metrics_config": config.model_dump(mode="json"),
+        "metrics_config": config.recorded(),
     }
     return {
         "identity": identity,
