@@ -64,7 +64,7 @@ def write_events(events: pd.DataFrame, directory: Path, recording_id: int) -> Pa
         raise ValueError(f"events are missing columns {missing}")
     out = events[list(EVENTS_COLUMNS)].sort_values(["frame", "id"], kind="stable")
     path = Path(directory) / events_file(recording_id)
-    out.to_csv(path, index=False, float_format="%.6g")
+    out.to_csv(path, index=False, float_format="%.6f")
     return path
 
 
