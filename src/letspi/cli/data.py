@@ -86,6 +86,32 @@ def generate(
                   "warm-up and any re-simulation)")
 
 
+@app.command("ssm-check")
+def ssm_check_command(
+    minutes: Annotated[float, typer.Option(help="Simulated minutes of the one recording compared.")] = 5.0,
+    seed: Annotated[int, typer.Option(help="Random seed of the traffic.")] = 0,
+    criticality: Annotated[str, typer.Option(help="Traffic preset: calm, highd, stress.")] = "highd",
+    settings: Annotated[list[str] | None, typer.Option("--set", help="Override a traffic knob, KEY=VALUE.")] = None,
+    keep: Annotated[Path | None, typer.Option(help="Also write the recording and SUMO's SSM XML here.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+) -> None:
+    """Compare the recordings' TTC with SUMO's SSM device (TTC per frame and per-vehicle minimum)."""
+    from letspi.sumo.config import traffic_preset, with_overrides
+    from letspi.sumo.ssm import ssm_check
+
+    with user_errors():
+        cfg = with_overrides(traffic_preset(criticality), _parse_settings(settings))
+        with progress_bar() as bar:
+            task = bar.add_task("simulating with SSM devices", total=100.0)
+            result = ssm_check(minutes=minutes, seed=seed, traffic=cfg, keep_dir=keep,
+                               progress=lambda f: bar.update(task, completed=100.0 * f))
+    if as_json:
+        typer.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        for k, v in result.to_dict().items():
+            typer.echo(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
+
+
 @app.command()
 def scenarios(
     highd: Annotated[Path, typer.Option(help="Directory with NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv.")],

@@ -69,6 +69,7 @@ class SimulatedRecordings:
     Attributes:
         network: the road (markings, transform). Its ``net_file`` is deleted after the run.
         chunks: one ``(states, vehicles)`` pair per recording, see :func:`clip_to_window`.
+        first_steps: simulation step of frame 1 of each recording (frame = step - first + 1).
         events: one table per recording: the events in HighD frames, with ``id``/``other_id``
             still SUMO ids (``sumo_id``/``other_sumo_id``) and SUMO lane indices.
         collisions: collisions SUMO reported in the accepted run (always empty).
@@ -82,6 +83,7 @@ class SimulatedRecordings:
 
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
+    first_steps: list[int] = field(default_factory=list)
     events: list[pd.DataFrame] = field(default_factory=list)
     collisions: list[Collision] = field(default_factory=list)
     sim_wall_time_s: float = 0.0
@@ -116,7 +118,7 @@ def _event_table(records: list[EventRecord], first_step: int, n_steps: int) -> p
 
 def _simulate_once(
     tmp: Path, *, seed: int, network: HighwayNetwork, flow: float, traffic: TrafficConfig,
-    end_s: float, warmup_s: float, progress: Callable[[float], None],
+    end_s: float, warmup_s: float, progress: Callable[[float], None], ssm_file: Path | None = None,
 ) -> tuple[list[VehicleSpec], ImageTracks, SimulationResult]:
     # Two independent streams: adding events does not change the drawn demand.
     rng_demand = np.random.default_rng(seed)
@@ -137,7 +139,7 @@ def _simulate_once(
     needs_hook = traffic.events.any_enabled or traffic.drivers.lane_change_perception
     sim = run_sumo(network.net_file, routes, tmp, end_s=end_s, seed=seed,
                    x_range_m=(x0 - _X_MARGIN_M, x0 + network.geometry.window_m + _X_MARGIN_M),
-                   make_hook=make_hook if needs_hook else None, progress=progress)
+                   make_hook=make_hook if needs_hook else None, ssm_file=ssm_file, progress=progress)
     return specs, fcd_to_image(sim.fcd, specs, network), sim
 
 
@@ -151,9 +153,14 @@ def simulate_recordings(
     warmup_s: float = DEFAULT_WARMUP_S,
     geometry: HighwayGeometry | None = None,
     traffic: TrafficConfig | None = None,
+    ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`."""
+    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`.
+
+    ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
+    output remains; see :mod:`letspi.sumo.ssm`).
+    """
     if minutes <= 0:
         raise ValueError(f"minutes must be > 0, got {minutes}")
     if lanes_per_direction not in (2, 3):
@@ -192,7 +199,8 @@ def simulate_recordings(
                 report(0.9 * (lo + (hi - lo) * f))
 
             _, tracks, sim = _simulate_once(tmp, seed=sub_seed, network=network, flow=flow, traffic=cfg,
-                                            end_s=end_s, warmup_s=warmup_s, progress=attempt_progress)
+                                            end_s=end_s, warmup_s=warmup_s, progress=attempt_progress,
+                                            ssm_file=ssm_file)
             records, collisions = sim.events, sim.collisions
             result.sim_wall_time_s += sim.wall_time_s
             result.sim_cpu_time_s += sim.cpu_time_s
@@ -202,6 +210,7 @@ def simulate_recordings(
             n_overlap = sum(len(o) for o in overlaps)
             if not collisions and n_overlap == 0:
                 result.chunks = chunks
+                result.first_steps = list(starts)
                 result.events = [_event_table(records, s, min(chunk_steps, first_step + record_steps - s))
                                  for s in starts]
                 result.attempt = attempt

@@ -128,8 +128,9 @@ def run_sumo(
             ``records`` list (the event injector). ``on_step(t)`` is called whenever SUMO's
             current time t (that of the next step to run; the vehicles are in the state of the
             step t - 0.04 s) has reached ``next_wakeup()``; commands given then act in step t.
-        ssm_file: if given, every vehicle carries SUMO's SSM device (TTC, DRAC, PET) writing
-            into this file.
+        ssm_file: if given, every vehicle carries SUMO's SSM device writing into this file: TTC,
+            DRAC and PET with their time lines (``trajectories``) for every encounter whose TTC
+            falls below 5 s, DRAC exceeds 3 m/s² or PET falls below 2 s, within 100 m.
         progress: called with the fraction of simulated time done, in [0, 1].
     """
     sim = import_libsumo()
@@ -156,7 +157,8 @@ def run_sumo(
     ]
     if ssm_file is not None:
         cmd += ["--device.ssm.probability", "1", "--device.ssm.file", str(ssm_file),
-                "--device.ssm.measures", "TTC DRAC PET", "--device.ssm.range", "100"]
+                "--device.ssm.measures", "TTC DRAC PET", "--device.ssm.thresholds", "5.0 3.0 2.0",
+                "--device.ssm.range", "100", "--device.ssm.trajectories", "true"]
     report = progress or (lambda _f: None)
     started = time.perf_counter()
     cpu_started = time.process_time()
