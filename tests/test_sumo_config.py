@@ -32,12 +32,12 @@ def test_presets_are_instances_and_ordered_by_criticality() -> None:
 
 
 def test_overrides_parse_each_type_and_leave_the_preset_alone() -> None:
-    cfg = with_overrides(HIGHD, {"events.cut_in_per_min": "4", "drivers.reaction_time_s": "0.3,1.2",
+    cfg = with_overrides(HIGHD, {"events.cut_in_per_min": "9", "drivers.reaction_time_s": "0.3,1.2",
                                  "drivers.lane_change_perception": "false", "layout.kind": "on_ramp",
                                  "max_attempts": "2"})
-    assert cfg.events.cut_in_per_min == 4.0 and cfg.drivers.reaction_time_s == (0.3, 1.2)
+    assert cfg.events.cut_in_per_min == 9.0 and cfg.drivers.reaction_time_s == (0.3, 1.2)
     assert cfg.drivers.lane_change_perception is False and cfg.layout.kind == "on_ramp" and cfg.max_attempts == 2
-    assert HIGHD.events.cut_in_per_min != 4.0  # frozen preset untouched
+    assert HIGHD.events.cut_in_per_min != 9.0  # frozen preset untouched
     # every key listed is settable with its own current value
     for key in setting_keys():
         obj: object = HIGHD

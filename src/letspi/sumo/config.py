@@ -134,14 +134,14 @@ class EventConfig:
     hard_brake_hold_s: tuple[float, float] = (1.0, 4.0)
     hard_brake_min_speed_mps: float = 12.0
     hard_brake_max_headway_s: float = 1.0
-    cut_in_per_min: float = 3.0
+    cut_in_per_min: float = 4.0
     cut_in_gap_m: tuple[float, float] = (8.0, 60.0)
-    cut_in_closing_mps: tuple[float, float] = (2.0, 10.0)
-    cut_in_ttc_s: tuple[float, float] = (0.8, 3.5)
+    cut_in_closing_mps: tuple[float, float] = (1.5, 12.0)
+    cut_in_ttc_s: tuple[float, float] = (0.5, 4.0)
     truck_pullout_per_min: float = 1.0
     truck_pullout_gap_m: tuple[float, float] = (15.0, 80.0)
-    truck_pullout_closing_mps: tuple[float, float] = (5.0, 15.0)
-    truck_pullout_ttc_s: tuple[float, float] = (1.0, 4.0)
+    truck_pullout_closing_mps: tuple[float, float] = (4.0, 16.0)
+    truck_pullout_ttc_s: tuple[float, float] = (0.8, 4.5)
     follower_reaction: bool = True
     follower_brake_ratio: tuple[float, float] = (0.5, 0.9)
     follower_jerk_mps3: float = 12.0
@@ -252,9 +252,9 @@ STRESS = TrafficConfig(
     name="stress",
     drivers=DriverConfig(car_headway_s=(0.85, 0.3), assertive_share=0.5, assertive_range=(2.0, 5.0),
                          impatient_share=0.25),
-    events=EventConfig(hard_brake_per_min=5.0, cut_in_per_min=5.0, truck_pullout_per_min=1.5,
+    events=EventConfig(hard_brake_per_min=5.0, cut_in_per_min=7.0, truck_pullout_per_min=2.0,
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
-                       cut_in_ttc_s=(0.6, 3.0)),
+                       cut_in_ttc_s=(0.4, 3.0)),
 )
 _PRESETS: Mapping[str, TrafficConfig] = {"calm": CALM, "highd": HIGHD, "stress": STRESS}
 

@@ -212,7 +212,9 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig)
     # Reaction time on the simulation grid; the desired headway never undercuts it (SUMO:
     # tau below the reaction time causes very hard braking or collisions).
     lo, hi = drivers.reaction_time_s
-    reaction = max(_STEP_S, round(float(rng.uniform(lo, hi)) / _STEP_S) * _STEP_S)
+    # No draw for a fixed reaction time: the calm preset then draws exactly the v0.1 demand.
+    drawn = float(rng.uniform(lo, hi)) if hi > lo else lo
+    reaction = max(_STEP_S, round(drawn / _STEP_S + 1e-9) * _STEP_S)  # 0.5 / 0.04 is 12.4999...
     params["reaction_time_s"] = reaction
     params["epsilon_acc_mps2"] = drivers.epsilon_acc_mps2
     params["headway_s"] = max(float(params["headway_s"]), reaction)

@@ -43,7 +43,7 @@ _SPEED_MODE_NO_DECEL_BOUND = 27  # 31 minus bit 2 (regard maximum deceleration)
 _LANE_CENTRED_M = 0.2  # a vehicle further from its lane centre is (still) changing lanes
 _RETRY_S = 0.5  # no candidate now: look again after this
 _GIVE_UP_S = 20.0
-_ZONE_M = (15.0, 200.0)  # event start zone: distance of the actor's front past the window entry [m]
+_ZONE_M = (10.0, 260.0)  # event start zone: distance of the actor's front past the window entry [m]
 _MAX_INITIAL_DRAC_MPS2 = 5.0  # forced lane changes never need more braking than this at once
 _MIN_GAP_AHEAD_M = 20.0  # room in front of a lane changer on its target lane
 _STEADY_ACCEL_MPS2 = -1.0  # vehicles braking harder than this are not drawn into a new event
@@ -173,6 +173,9 @@ class EventInjector:
     records: list[EventRecord] = field(default_factory=list)
     perceived_lane_changes: int = 0
     _due: dict[str, float] = field(default_factory=dict)
+    # When the pending event of a kind was meant to start: the next one is drawn from there, so
+    # waiting for a suitable vehicle does not lower the configured rate.
+    _intended: dict[str, float] = field(default_factory=dict)
     _pending: list[_Pending] = field(default_factory=list)
     _busy_until: dict[str, float] = field(default_factory=dict)
     _last_lane: dict[str, int] = field(default_factory=dict)
@@ -236,9 +239,9 @@ class EventInjector:
         snap = self._snapshot()
         for first_due, kind in due:
             if snap is not None and self._start(kind, t, snap):
-                self._schedule(kind, t)
-            elif t - first_due > _GIVE_UP_S:
-                self._schedule(kind, t)
+                self._schedule(kind, self._intended.pop(kind, first_due))
+            elif t - self._intended.setdefault(kind, first_due) > _GIVE_UP_S:
+                self._schedule(kind, self._intended.pop(kind))
             else:
                 self._due[kind] = t + _RETRY_S
         if scan:
