@@ -150,6 +150,8 @@ def test_events_file_round_trip_and_profile(tmp_path: Path) -> None:
     assert read_events(tmp_path, 2) is None
     p = profile_directory(tmp_path)
     assert p.events_by_kind == {"hard_brake": 1}
+    assert p.event_vehicle_share == pytest.approx(2 / 5)  # vehicles 1 and 2 of 5
+    assert np.isnan(p.low_ttc_event_share)  # nobody below 3 s
     json.dumps(p.to_dict())  # JSON-ready
 
 

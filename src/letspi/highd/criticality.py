@@ -78,6 +78,10 @@ class CriticalityProfile:
         contact_pairs: distinct vehicle pairs whose boxes overlap at least once.
         contact_frames: (pair, frame) overlaps in total.
         events_by_kind: scripted events per kind (empty when no events files).
+        event_vehicle_share: share of vehicles that act in or react to a scripted event
+            (``id`` or ``other_id`` of an events file).
+        low_ttc_event_share: of the vehicles with 0 <= minTTC < 3 s, the share that are such
+            event vehicles (the rest comes from the traffic itself); NaN when there are none.
     """
 
     n_recordings: int
@@ -94,6 +98,8 @@ class CriticalityProfile:
     contact_pairs: int
     contact_frames: int
     events_by_kind: dict[str, int] = field(default_factory=dict)
+    event_vehicle_share: float = 0.0
+    low_ttc_event_share: float = float("nan")
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready dict (lane keys become strings)."""
@@ -174,11 +180,17 @@ def criticality_profile(recordings: Sequence[Recording],
         frames += len(overlaps)
         pairs += len(overlaps[["id_a", "id_b"]].drop_duplicates())
     by_kind: dict[str, int] = {}
-    for ev in events or []:
+    involved = np.zeros(n, dtype=bool)
+    rec_of_row = np.repeat(np.arange(len(recordings)), [len(r.tracks_meta) for r in recordings])
+    for k, ev in enumerate(events or []):
         if ev is None:
             continue
-        for kind, c in ev["kind"].value_counts().items():
+        for kind, c in zip(*np.unique(ev["kind"].to_numpy(str), return_counts=True), strict=True):
             by_kind[str(kind)] = by_kind.get(str(kind), 0) + int(c)
+        ids = np.union1d(ev["id"].to_numpy(), ev["other_id"].to_numpy())
+        involved |= (rec_of_row == k) & np.isin(per_vehicle["id"].to_numpy(), ids)
+    ttc = per_vehicle["minTTC"].to_numpy(np.float64)
+    low = (ttc >= 0.0) & (ttc < 3.0)
     lc = per_vehicle["numLaneChanges"].to_numpy()
     return CriticalityProfile(
         n_recordings=len(recordings),
@@ -195,6 +207,8 @@ def criticality_profile(recordings: Sequence[Recording],
         contact_pairs=pairs,
         contact_frames=frames,
         events_by_kind=dict(sorted(by_kind.items())),
+        event_vehicle_share=float(involved.mean()) if n else 0.0,
+        low_ttc_event_share=float(involved[low].mean()) if low.any() else float("nan"),
     )
 
 
@@ -241,6 +255,9 @@ def profile_table(profiles: dict[str, CriticalityProfile]) -> str:
     kinds = sorted({k for p in ps for k in p.events_by_kind})
     for kind in kinds:
         rows.append((f"events: {kind}", [str(p.events_by_kind.get(kind, 0)) for p in ps]))
+    rows.append(("vehicles in a scripted event", [_pct(p.event_vehicle_share) for p in ps]))
+    rows.append(("minTTC < 3 s vehicles that are in an event",
+                 ["-" if np.isnan(p.low_ttc_event_share) else _pct(p.low_ttc_event_share) for p in ps]))
     header = "| | " + " | ".join(names) + " |"
     rule = "|---|" + "---:|" * len(names)
     return "\n".join([header, rule, *(f"| {label} | " + " | ".join(vals) + " |" for label, vals in rows)])
