@@ -120,9 +120,11 @@ def test_presets_differ_measurably(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("layout", ["on_ramp", "lane_drop"])
 def test_layouts_record_the_main_carriageway_only(tmp_path: Path, layout: str) -> None:
-    _generate(tmp_path, minutes=1.0, seed=2, layout__kind=layout, events__hard_brake_per_min="0",
-              events__cut_in_per_min="0", events__truck_pullout_per_min="0")
+    _generate(tmp_path, minutes=1.5, seed=2, layout__kind=layout, events__hard_brake_per_min="0",
+              events__cut_in_per_min="8", events__truck_pullout_per_min="0")
     rec = read_recording(tmp_path, 1)
+    events = read_events(tmp_path, 1)
+    assert events is not None and (events["kind"] == "cut_in").sum() >= 1  # lane indices mapped on every edge
     tr = rec.tracks
     assert len(rec.upper_markings_y_m) == 4 and len(rec.lower_markings_y_m) == 4  # 3 main lanes each
     assert set(tr["laneId"].unique()) <= {2, 3, 4, 6, 7, 8}

@@ -78,6 +78,8 @@ def generate(
     console.print(f"wrote {len(report.paths)} recording(s) to {out} ({cfg.name}, {cfg.layout.kind}): "
                   f"{report.events_written} scripted events, {report.perceived_lane_changes} followers with "
                   f"lane-change perception")
+    if report.failed_events:
+        console.print(f"{report.failed_events} forced lane change(s) SUMO did not carry out (not written)")
     if report.rejected:
         console.print("re-simulated after contact: " + "; ".join(report.rejected))
     console.print(f"speed: {report.simulated_minutes:g} simulated min in {report.wall_time_s:.1f} s wall = "

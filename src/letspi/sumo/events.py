@@ -476,7 +476,10 @@ class EventInjector:
         actor, follower = snap.ids[i], snap.ids[f]
         veh = self.sim.vehicle
         veh.setLaneChangeMode(actor, LC_MODE_FORCED)
-        veh.changeLane(actor, j, LANE_CHANGE_S + 1.0)
+        # Main-lane indices count from the rightmost main lane; SUMO's from the edge's rightmost
+        # lane, which is the auxiliary lane where the layout has one.
+        offset = int(veh.getLaneIndex(actor)) - int(snap.lane[i])
+        veh.changeLane(actor, j + offset, LANE_CHANGE_S + 1.0)
         t0 = t
         self._pending.append(_Pending(t0 + LANE_CHANGE_S + 1.0, "restore_lc", actor, len(self.records)))
         reaction = self.vehicles[follower].reaction_s if cfg.follower_reaction else 0.0

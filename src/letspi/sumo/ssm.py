@@ -88,6 +88,8 @@ class SsmComparison:
         frames_only_ssm: the reverse.
         frames_only_ssm_other_lane: of those, frames where the two vehicles have different HighD
             laneIds (SUMO already/still counts a lane changer on both lanes).
+        frames_only_ssm_above_threshold: of those, frames where the recording has a TTC for the
+            same leader but at or above the threshold (both near it).
         vehicles_below_3s_recording: vehicles with 0 <= minTTC < 3 s in tracksMeta.
         vehicles_below_3s_ssm: vehicles whose SUMO minimum over their recorded frames is < 3 s.
         vehicles_below_3s_both: in both sets.
@@ -103,6 +105,7 @@ class SsmComparison:
     frames_only_recording: int
     frames_only_ssm: int
     frames_only_ssm_other_lane: int
+    frames_only_ssm_above_threshold: int
     vehicles_below_3s_recording: int
     vehicles_below_3s_ssm: int
     vehicles_below_3s_both: int
@@ -123,8 +126,9 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
     s = s.merge(present, on=["id", "frame"]).merge(present.rename(columns={"id": "leader_id"}),
                                                      on=["leader_id", "frame"])
     s = s[s["ttc_s"] < thr]
-    ours = tracks.loc[(tracks["ttc"] > 0) & (tracks["ttc"] < thr), ["id", "frame", "precedingId", "ttc"]]
-    ours = ours.rename(columns={"precedingId": "leader_id"})
+    ours_all = tracks.loc[tracks["ttc"] > 0, ["id", "frame", "precedingId", "ttc"]]
+    ours_all = ours_all.rename(columns={"precedingId": "leader_id"})
+    ours = ours_all[ours_all["ttc"] < thr]
     both = ours.merge(s[["id", "frame", "leader_id", "ttc_s"]], on=["id", "frame", "leader_id"])
     diff = np.abs(both["ttc"].to_numpy() - both["ttc_s"].to_numpy())
     keys_ours = set(zip(ours["id"], ours["frame"], strict=True))
@@ -135,6 +139,7 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
     only_ssm = only_ssm.drop_duplicates(["id", "frame"])
     other_lane = int(np.sum(lane.loc[list(zip(only_ssm["id"], only_ssm["frame"], strict=True))].to_numpy()
                             != lane.loc[list(zip(only_ssm["leader_id"], only_ssm["frame"], strict=True))].to_numpy()))
+    above = len(only_ssm.merge(ours_all[ours_all["ttc"] >= thr], on=["id", "frame", "leader_id"]))
 
     meta = tracks_meta.set_index("id")["minTTC"]
     rec_low = set(meta.index[(meta >= 0) & (meta < 3.0)])
@@ -152,6 +157,7 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
         frames_only_recording=len(keys_ours - keys_both),
         frames_only_ssm=len(keys_ssm - keys_both),
         frames_only_ssm_other_lane=other_lane,
+        frames_only_ssm_above_threshold=above,
         vehicles_below_3s_recording=len(rec_low),
         vehicles_below_3s_ssm=len(ssm_low),
         vehicles_below_3s_both=len(common),
@@ -191,6 +197,7 @@ def ssm_check(*, minutes: float, seed: int, traffic: TrafficConfig, lanes_per_di
             keep.mkdir(parents=True, exist_ok=True)
             write_recording(rec, keep)
             shutil.copy(ssm_file, keep / "01_ssm.xml")
+            vehicles[["id", "sumo_id"]].to_csv(keep / "01_sumo_ids.csv", index=False)
         id_of = dict(zip(vehicles["sumo_id"], vehicles["id"], strict=True))
         return compare_ttc(rec.tracks, rec.tracks_meta, id_of, ssm, sim.first_steps[0], float(minutes))
     finally:
