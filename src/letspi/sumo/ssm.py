@@ -16,7 +16,8 @@ restricts SUMO's TTC time lines to the frames in which both vehicles are recorde
 Known reasons for differences (SUMO's SSM documentation and this package's conversion):
 SUMO treats a vehicle changing lanes as on both lanes (its leaders and followers change at the
 start of the manoeuvre), HighD assigns a lane by the box centre, so around lane changes one side
-has a TTC the other lacks; SUMO's speeds are the step's speeds, the recording's are central
+has a TTC the other lacks; the device tracks every vehicle ahead within its range, HighD only
+the nearest (``precedingId``); SUMO's speeds are the step's speeds, the recording's are central
 differences of positions (half a step apart, so they differ by about a·0.02 s); the recording's
 lateral lane-change profile is re-timed (only lanes matter here, and they switch at the same
 time); the device writes only encounters whose TTC falls below its threshold (5 s here) and
@@ -90,6 +91,9 @@ class SsmComparison:
             laneIds (SUMO already/still counts a lane changer on both lanes).
         frames_only_ssm_above_threshold: of those, frames where the recording has a TTC for the
             same leader but at or above the threshold (both near it).
+        frames_only_ssm_not_preceding: of those, frames in the same laneId where the recording's
+            preceding vehicle is another one (the device also tracks vehicles further ahead;
+            HighD's TTC is with the nearest).
         vehicles_below_3s_recording: vehicles with 0 <= minTTC < 3 s in tracksMeta.
         vehicles_below_3s_ssm: vehicles whose SUMO minimum over their recorded frames is < 3 s.
         vehicles_below_3s_both: in both sets.
@@ -106,6 +110,7 @@ class SsmComparison:
     frames_only_ssm: int
     frames_only_ssm_other_lane: int
     frames_only_ssm_above_threshold: int
+    frames_only_ssm_not_preceding: int
     vehicles_below_3s_recording: int
     vehicles_below_3s_ssm: int
     vehicles_below_3s_both: int
@@ -137,8 +142,12 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
     lane = tracks.set_index(["id", "frame"])["laneId"]
     only_ssm = s[[k not in keys_both for k in zip(s["id"], s["frame"], strict=True)]]
     only_ssm = only_ssm.drop_duplicates(["id", "frame"])
-    other_lane = int(np.sum(lane.loc[list(zip(only_ssm["id"], only_ssm["frame"], strict=True))].to_numpy()
-                            != lane.loc[list(zip(only_ssm["leader_id"], only_ssm["frame"], strict=True))].to_numpy()))
+    follower_keys = list(zip(only_ssm["id"], only_ssm["frame"], strict=True))
+    differs = (lane.loc[follower_keys].to_numpy()
+               != lane.loc[list(zip(only_ssm["leader_id"], only_ssm["frame"], strict=True))].to_numpy())
+    other_lane = int(np.sum(differs))
+    preceding = tracks.set_index(["id", "frame"])["precedingId"].loc[follower_keys].to_numpy()
+    not_preceding = int(np.sum(~differs & (preceding != only_ssm["leader_id"].to_numpy())))
     above = len(only_ssm.merge(ours_all[ours_all["ttc"] >= thr], on=["id", "frame", "leader_id"]))
 
     meta = tracks_meta.set_index("id")["minTTC"]
@@ -158,6 +167,7 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
         frames_only_ssm=len(keys_ssm - keys_both),
         frames_only_ssm_other_lane=other_lane,
         frames_only_ssm_above_threshold=above,
+        frames_only_ssm_not_preceding=not_preceding,
         vehicles_below_3s_recording=len(rec_low),
         vehicles_below_3s_ssm=len(ssm_low),
         vehicles_below_3s_both=len(common),
