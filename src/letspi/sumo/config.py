@@ -15,6 +15,7 @@ import dataclasses
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Literal
 
 Layout = Literal["straight", "on_ramp", "lane_drop"]
@@ -256,7 +257,7 @@ STRESS = TrafficConfig(
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
                        cut_in_ttc_s=(0.4, 3.0)),
 )
-_PRESETS: Mapping[str, TrafficConfig] = {"calm": CALM, "highd": HIGHD, "stress": STRESS}
+_PRESETS: Mapping[str, TrafficConfig] = MappingProxyType({"calm": CALM, "highd": HIGHD, "stress": STRESS})
 
 
 def traffic_preset(name: str) -> TrafficConfig:
