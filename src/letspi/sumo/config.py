@@ -99,7 +99,8 @@ class EventConfig:
         hard_brake_decel_mps2: range of the commanded deceleration [m/s²].
         hard_brake_duration_s: range of the braking duration [s].
         hard_brake_hold_s: range of the time the lower speed is kept before driving on [s].
-        hard_brake_min_speed_mps: the leader never brakes below this speed [m/s].
+        hard_brake_min_speed_mps: the leader never brakes below this speed [m/s] (only leaders
+            fast enough for the drawn deceleration and duration are chosen).
         hard_brake_max_headway_s: the leader's follower must be within this time gap [s].
         cut_in_per_min: forced cut-ins per minute (a car changes into a short gap in front of a
             faster follower; ``changeLane`` with laneChangeMode 256, which still avoids

@@ -388,10 +388,16 @@ class EventInjector:
 
     def _start_hard_brake(self, t: float, snap: _Snapshot) -> bool:
         cfg = self.config
+        # The braking is drawn first; only a leader fast enough to brake that long at that rate
+        # without going below the minimum speed is chosen.
+        decel = float(self.rng.uniform(*cfg.hard_brake_decel_mps2))
+        duration = round(float(self.rng.uniform(*cfg.hard_brake_duration_s)) / STEP_S) * STEP_S  # whole steps
+        hold = float(self.rng.uniform(*cfg.hard_brake_hold_s))
+        ratio = float(self.rng.uniform(*cfg.follower_brake_ratio))
         candidates: list[tuple[int, int, float]] = []
         for row in np.flatnonzero(snap.in_zone & snap.centred):
             i = int(row)
-            if snap.speed[i] < cfg.hard_brake_min_speed_mps + 3.0 or not self._free(snap, i, t):
+            if snap.speed[i] - decel * duration < cfg.hard_brake_min_speed_mps or not self._free(snap, i, t):
                 continue
             f, _, _ = self._lane_neighbours(snap, i, int(snap.lane[i]))
             if f < 0 or not snap.centred[f] or not self._free(snap, f, t) or not snap.in_window[f]:
@@ -400,19 +406,11 @@ class EventInjector:
             if snap.speed[f] <= 0 or gap / snap.speed[f] > cfg.hard_brake_max_headway_s:
                 continue
             candidates.append((i, f, float(gap)))
-        if not candidates:
+        if not candidates or duration < STEP_S:
             return False
         i, f, gap = candidates[int(self.rng.integers(len(candidates)))]
         actor, follower = snap.ids[i], snap.ids[f]
         v0 = float(snap.speed[i])
-        decel = float(self.rng.uniform(*cfg.hard_brake_decel_mps2))
-        duration = float(self.rng.uniform(*cfg.hard_brake_duration_s))
-        hold = float(self.rng.uniform(*cfg.hard_brake_hold_s))
-        ratio = float(self.rng.uniform(*cfg.follower_brake_ratio))
-        target = max(v0 - decel * duration, cfg.hard_brake_min_speed_mps)
-        duration = round((v0 - target) / decel / STEP_S) * STEP_S  # whole steps at the drawn deceleration
-        if duration < STEP_S:
-            return False
         target = v0 - decel * duration
         veh = self.sim.vehicle
         veh.setSpeedMode(actor, _SPEED_MODE_NO_DECEL_BOUND)
