@@ -136,7 +136,7 @@ class EventConfig:
     hard_brake_hold_s: tuple[float, float] = (1.0, 4.0)
     hard_brake_min_speed_mps: float = 12.0
     hard_brake_max_headway_s: float = 1.0
-    cut_in_per_min: float = 4.0
+    cut_in_per_min: float = 5.0
     cut_in_gap_m: tuple[float, float] = (8.0, 60.0)
     cut_in_closing_mps: tuple[float, float] = (1.5, 12.0)
     cut_in_ttc_s: tuple[float, float] = (0.5, 4.0)
