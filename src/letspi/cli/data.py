@@ -1,4 +1,4 @@
-"""``letspi data``: generate HighD-format traffic with SUMO and extract planning scenarios."""
+"""``letspi data``: generate HighD-format traffic with SUMO, extract planning scenarios, inspect both."""
 
 from __future__ import annotations
 
@@ -11,10 +11,13 @@ import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.constants import DEFAULT_STRIDE_FRAMES, T0_INDEX
+from letspi.highd.criticality import profile_directory, profile_table
 from letspi.highd.io import read_recordings
 from letspi.scenario.extract import enumerate_windows, extract_scenarios
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.config import traffic_preset, with_overrides
+from letspi.sumo.generate import generate_highd
+from letspi.sumo.ssm import ssm_check
 
 app = typer.Typer(help="HighD data: generate with SUMO, extract scenarios, inspect.",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -29,26 +32,89 @@ def _parse_ids(text: str | None) -> list[int] | None:
         raise typer.BadParameter(f"recording ids must be comma-separated integers, got {text!r}") from exc
 
 
+def _parse_settings(items: list[str] | None) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"--set expects KEY=VALUE (e.g. events.cut_in_per_min=2), got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
 @app.command()
 def generate(
-    out: Annotated[Path, typer.Option(help="Directory for the NN_*.csv HighD files.")],
+    out: Annotated[Path, typer.Option(help="Directory for the NN_*.csv HighD files (and NN_events.csv).")],
     minutes: Annotated[float, typer.Option(help="Simulated minutes of recording (after warm-up).")] = 3.0,
     seed: Annotated[int, typer.Option(help="Random seed: same seed, same traffic.")] = 0,
     lanes_per_direction: Annotated[int, typer.Option(min=2, max=3, help="2 or 3 lanes per direction.")] = 3,
     flow: Annotated[float | None, typer.Option(help="Inflow per direction [veh/h]; default: generator's.")] = None,
+    recording_minutes: Annotated[
+        float | None, typer.Option(help="Split into recordings of this many minutes (default: one).")] = None,
+    criticality: Annotated[
+        str, typer.Option(help="Traffic preset: calm (no scripted events), highd (default), stress.")] = "highd",
+    layout: Annotated[
+        str | None, typer.Option(help="Road layout: straight, on_ramp, lane_drop (= --set layout.kind=...).")] = None,
+    settings: Annotated[list[str] | None, typer.Option(
+        "--set", help="Override one traffic knob, KEY=VALUE (repeatable), e.g. events.cut_in_per_min=2 "
+                      "or drivers.reaction_time_s=0.3,1.2; --show-config lists them.")] = None,
+    show_config: Annotated[bool, typer.Option(help="Print the resolved traffic configuration and exit.")] = False,
 ) -> None:
-    """Simulate a straight two-direction highway in SUMO and write HighD-format recordings."""
-    with user_errors(), progress_bar() as bar:
-        task = bar.add_task("simulating", total=100.0)
-        paths = generate_recordings(
-            out,
-            minutes=minutes,
-            seed=seed,
-            lanes_per_direction=lanes_per_direction,
-            flow_veh_per_h=flow,
-            progress=lambda frac: bar.update(task, completed=100.0 * frac),
-        )
-    console.print(f"wrote {len(paths)} recording(s) to {out}")
+    """Simulate a two-direction highway in SUMO and write HighD-format recordings (+ events files)."""
+    with user_errors():
+        overrides = _parse_settings(settings)
+        if layout is not None:
+            overrides["layout.kind"] = layout
+        cfg = with_overrides(traffic_preset(criticality), overrides)
+        if show_config:
+            typer.echo(json.dumps(cfg.to_dict(), indent=2))
+            return
+        with progress_bar() as bar:
+            task = bar.add_task("simulating", total=100.0)
+            report = generate_highd(
+                out,
+                minutes=minutes,
+                seed=seed,
+                lanes_per_direction=lanes_per_direction,
+                flow_veh_per_h=flow,
+                recording_minutes=recording_minutes,
+                traffic=cfg,
+                progress=lambda frac: bar.update(task, completed=100.0 * frac),
+            )
+    console.print(f"wrote {len(report.paths)} recording(s) to {out} ({cfg.name}, {cfg.layout.kind}): "
+                  f"{report.events_written} scripted events, {report.perceived_lane_changes} followers with "
+                  f"lane-change perception")
+    if report.failed_events:
+        console.print(f"{report.failed_events} forced lane change(s) SUMO did not carry out (not written)")
+    if report.rejected:
+        console.print("re-simulated after contact: " + "; ".join(report.rejected))
+    console.print(f"speed: {report.simulated_minutes:g} simulated min in {report.wall_time_s:.1f} s wall = "
+                  f"{report.sim_minutes_per_wall_s:.3f} sim-min per wall s (SUMO stepping "
+                  f"{report.sumo_wall_time_s:.1f} s wall, {report.sumo_cpu_time_s:.1f} s CPU; includes the 90 s "
+                  "warm-up and any re-simulation)")
+
+
+@app.command("ssm-check")
+def ssm_check_command(
+    minutes: Annotated[float, typer.Option(help="Simulated minutes of the one recording compared.")] = 5.0,
+    seed: Annotated[int, typer.Option(help="Random seed of the traffic.")] = 0,
+    criticality: Annotated[str, typer.Option(help="Traffic preset: calm, highd, stress.")] = "highd",
+    settings: Annotated[list[str] | None, typer.Option("--set", help="Override a traffic knob, KEY=VALUE.")] = None,
+    keep: Annotated[Path | None, typer.Option(help="Also write the recording and SUMO's SSM XML here.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+) -> None:
+    """Compare the recordings' TTC with SUMO's SSM device (TTC per frame and per-vehicle minimum)."""
+    with user_errors():
+        cfg = with_overrides(traffic_preset(criticality), _parse_settings(settings))
+        with progress_bar() as bar:
+            task = bar.add_task("simulating with SSM devices", total=100.0)
+            result = ssm_check(minutes=minutes, seed=seed, traffic=cfg, keep_dir=keep,
+                               progress=lambda f: bar.update(task, completed=100.0 * f))
+    if as_json:
+        typer.echo(json.dumps(result.to_dict(), indent=2))
+    else:
+        for k, v in result.to_dict().items():
+            typer.echo(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
 
 
 @app.command()
@@ -81,13 +147,48 @@ def scenarios(
 
 @app.command()
 def info(
-    scenarios_file: Annotated[Path, typer.Argument(help="A scenario file.")],
+    paths: Annotated[list[Path], typer.Argument(help="A scenario file, or one or more HighD directories.")],
+    criticality: Annotated[bool, typer.Option(
+        "--criticality", help="HighD directories: per-vehicle minTTC/minTHW/minDHW shares, DRAC, lane changes, "
+                              "flow per lane, trucks, contacts, events (several directories side by side).")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
-    """Summarise a scenario file: counts, recordings, neighbours, provenance."""
+    """Summarise a scenario file, or the criticality profile of HighD directories."""
     with user_errors():
-        meta = read_scenario_meta(scenarios_file)
-        batch = load_scenarios(scenarios_file)
+        dirs = [p for p in paths if p.is_dir()]
+        if dirs:
+            if len(dirs) != len(paths):
+                raise ValueError("give either one scenario file or HighD directories, not both")
+            _info_highd(dirs, criticality=criticality, as_json=as_json)
+            return
+        if criticality:
+            raise ValueError("--criticality needs HighD directories (NN_tracks.csv, ...), not a scenario file")
+        if len(paths) != 1:
+            raise ValueError(f"one scenario file at a time, got {len(paths)}")
+        _info_scenarios(paths[0], as_json=as_json)
+
+
+def _info_highd(dirs: list[Path], *, criticality: bool, as_json: bool) -> None:
+    profiles = {str(d): profile_directory(d) for d in dirs}
+    if not criticality:
+        summary = {name: {"recordings": p.n_recordings, "recorded_minutes": p.recorded_minutes,
+                          "vehicles": p.n_vehicles, "truck_share": p.truck_share, "events_by_kind": p.events_by_kind}
+                   for name, p in profiles.items()}
+        if as_json:
+            typer.echo(json.dumps(summary, indent=2))
+        else:
+            for name, values in summary.items():
+                typer.echo(f"{name}: " + ", ".join(f"{k} {v}" for k, v in values.items()))
+        return
+    if as_json:
+        typer.echo(json.dumps({name: p.to_dict() for name, p in profiles.items()}, indent=2))
+    else:
+        typer.echo(profile_table(profiles))
+
+
+def _info_scenarios(scenarios_file: Path, *, as_json: bool) -> None:
+    meta = read_scenario_meta(scenarios_file)
+    batch = load_scenarios(scenarios_file)
     visible = batch.nbr_valid[:, :, T0_INDEX].sum(axis=1)
     lane_changes = np.any(batch.ego_lane_id != batch.ego_lane_id[:, :1], axis=1)
     summary = {

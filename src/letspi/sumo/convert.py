@@ -27,7 +27,7 @@ import pandas as pd
 
 from letspi.highd.schema import DRIVING_DIRECTION_LOWER, DRIVING_DIRECTION_UPPER
 from letspi.sumo.demand import VehicleSpec
-from letspi.sumo.network import EASTBOUND_EDGE, HighwayNetwork
+from letspi.sumo.network import HighwayNetwork
 from letspi.sumo.simulate import STEP_S
 
 STATE_COLUMNS = ("frame", "id", "x", "y", "width", "height",
@@ -116,7 +116,7 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
         "sumo_id": [s.vid for s in specs],
         "length": [s.length_m for s in specs],
         "vwidth": [s.width_m for s in specs],
-        "east": [s.edge == EASTBOUND_EDGE for s in specs],
+        "east": [s.east for s in specs],
         "class": ["Truck" if s.kind == "truck" else "Car" for s in specs],  # vans -> "Car"
     })
     df = fcd.rename(columns={"id": "sumo_id"}).merge(spec_table, on="sumo_id", how="left",
@@ -131,9 +131,10 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
     last = np.r_[vehicle[1:] != vehicle[:-1], True]
     east = df["east"].to_numpy(bool)
     length = df["length"].to_numpy(np.float64)
-    n_lanes = len(network.east_centres_y_m)
-    centres = np.where(east[:, None], network.east_centres_y_m[None, :n_lanes],
-                       network.west_centres_y_m[None, :n_lanes])
+    # Lanes a vehicle can rest on (main and auxiliary), so that merges from an acceleration
+    # lane are smoothed like any lane change.
+    centres = np.where(east[:, None], network.smoothing_centres(True)[None, :],
+                       network.smoothing_centres(False)[None, :])
 
     fx = df["x"].to_numpy(np.float64)
     fy = smooth_lane_changes(t, df["y"].to_numpy(np.float64), vehicle, centres)
@@ -173,12 +174,15 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
     return ImageTracks(data=data)
 
 
-def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int,
-                   window_m: float) -> tuple[pd.DataFrame, pd.DataFrame]:
+def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int, window_m: float,
+                   upper_y_m: tuple[float, float] | None = None,
+                   lower_y_m: tuple[float, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Cut one recording out of the image tracks.
 
-    A vehicle is recorded in the frames where its whole box lies in ``[0, window_m]`` along x
-    and the step is in ``[first_step, first_step + n_steps)``; only its first contiguous run of
+    A vehicle is recorded in the frames where its whole box lies in ``[0, window_m]`` along x,
+    its box centre lies on its main carriageway (image y within ``upper_y_m`` for direction 1,
+    ``lower_y_m`` for direction 2, when given: ramps and auxiliary lanes are not recorded) and
+    the step is in ``[first_step, first_step + n_steps)``; only its first contiguous run of
     such frames is kept, and runs of a single frame are dropped. Frames start at 1; vehicle ids
     start at 1, ordered by first frame, then driving direction, then x.
 
@@ -189,6 +193,12 @@ def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int,
     d = tracks.data
     inside = ((d["step"] >= first_step) & (d["step"] < first_step + n_steps)
               & (d["x"] >= 0.0) & (d["x"] + d["width"] <= window_m))
+    if upper_y_m is not None and lower_y_m is not None:
+        cy = d["y"] + 0.5 * d["height"]
+        upper = d["drivingDirection"] == DRIVING_DIRECTION_UPPER
+        band_lo = np.where(upper, upper_y_m[0], lower_y_m[0])
+        band_hi = np.where(upper, upper_y_m[1], lower_y_m[1])
+        inside &= (cy >= band_lo) & (cy <= band_hi)
     d = d.loc[inside.to_numpy()]
     if d.empty:
         return (pd.DataFrame(columns=list(STATE_COLUMNS)),

@@ -12,21 +12,27 @@ followers absorb tight cut-ins with moderate braking. Lane changing is LC2013 (k
 overtaking on the right) with per-driver eagerness, cooperativeness and assertiveness
 (``lcSigma`` stays 0). HighD only knows "Car" and "Truck": vans are simulated with van dimensions and dynamics
 but labelled "Car", exactly as HighD labels them.
+
+Per-driver reaction time, headways, assertive and impatient drivers follow a
+:class:`~letspi.sumo.config.DriverConfig`; the reaction time is EIDM's ``treaction`` (SUMO's docs
+say EIDM must not be combined with ``actionStepLength``) and ``tau`` is at least the reaction time.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from letspi.sumo.network import EASTBOUND_EDGE, WESTBOUND_EDGE
+from letspi.sumo.config import DriverConfig
+from letspi.sumo.network import Entry
 
 Kind = Literal["car", "van", "truck"]
 
+_STEP_S = 0.04  # simulation step: reaction times are multiples of it
 DEFAULT_FLOW_PER_LANE_VEH_PER_H = 2200.0 / 3.0
 """Default demand per lane and direction [veh/h]: 2,200 veh/h per direction on 3 lanes.
 
@@ -44,11 +50,13 @@ class DemandConfig:
         van_share: fraction of vans (labelled "Car" in HighD files).
         min_headway_s: minimum time headway [s] between insertions on one lane; the rest of the
             headway is exponential (shifted-exponential arrivals, a standard free-flow model).
+        drivers: per-driver behaviour (reaction time, headways, assertive/impatient shares).
     """
 
     truck_share: float = 0.15
     van_share: float = 0.08
     min_headway_s: float = 1.2
+    drivers: DriverConfig = field(default_factory=DriverConfig)
 
 
 @dataclass(frozen=True)
@@ -58,7 +66,8 @@ class VehicleSpec:
     Attributes:
         vid: SUMO vehicle id.
         kind: "car", "van" or "truck".
-        edge: SUMO edge ("E" eastbound = HighD direction 2, "W" = direction 1).
+        route: SUMO route id.
+        east: eastbound (HighD direction 2) or westbound (direction 1).
         lane: SUMO lane index at insertion (0 = rightmost).
         depart_s: insertion time [s].
         length_m, width_m: dimensions [m].
@@ -72,11 +81,16 @@ class VehicleSpec:
         lc_cooperative: LC2013 ``lcCooperative`` (willingness to make room, < 1 = less).
         lc_assertive: LC2013 ``lcAssertive`` (the required gaps are divided by this, > 1 =
             smaller accepted gaps, i.e. tighter cut-ins).
+        reaction_time_s: the driver's reaction time [s] (EIDM ``treaction``).
+        epsilon_acc_mps2: EIDM ``epsilonacc`` [m/s²] (see ``DriverConfig``).
+        lc_lookahead_s: LC2013 ``lcSpeedGainLookahead`` [s] (0 = SUMO's default).
+        impatient: drawn as an impatient driver.
     """
 
     vid: str
     kind: Kind
-    edge: str
+    route: str
+    east: bool
     lane: int
     depart_s: float
     length_m: float
@@ -90,21 +104,31 @@ class VehicleSpec:
     lc_keep_right: float
     lc_cooperative: float
     lc_assertive: float
+    reaction_time_s: float = 0.5
+    lc_lookahead_s: float = 0.0
+    impatient: bool = False
+    epsilon_acc_mps2: float = 1.0
+
+
+_LANE_SHARES: dict[int, tuple[float, ...]] = {
+    1: (1.0,), 2: (0.55, 0.45), 3: (0.36, 0.38, 0.26), 4: (0.26, 0.28, 0.27, 0.19),
+}
 
 
 def _lane_shares(n_lanes: int) -> np.ndarray:
     """Share of the flow entering on each SUMO lane (index 0 = rightmost)."""
-    if n_lanes == 2:
-        return np.array([0.55, 0.45])
-    if n_lanes == 3:
-        return np.array([0.36, 0.38, 0.26])
-    raise ValueError(f"lanes_per_direction must be 2 or 3, got {n_lanes}")
+    if n_lanes not in _LANE_SHARES:
+        raise ValueError(f"insertion on {n_lanes} lanes is not supported (1-4)")
+    return np.asarray(_LANE_SHARES[n_lanes])
 
 
 def _truck_lane_shares(n_lanes: int) -> np.ndarray:
     """Where trucks enter: mostly the right lane, some in the next one (overtaking trucks)."""
     shares = np.zeros(n_lanes)
-    shares[0], shares[1] = 0.88, 0.12
+    if n_lanes == 1:
+        shares[0] = 1.0
+    else:
+        shares[0], shares[1] = 0.88, 0.12
     return shares
 
 
@@ -112,7 +136,7 @@ def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, lo: float,
     return float(np.clip(rng.normal(mean, sd), lo, hi))
 
 
-def _sample_vehicle(rng: np.random.Generator, kind: Kind) -> dict[str, float]:
+def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig) -> dict[str, float | bool]:
     """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters for one vehicle of a class.
 
     Drivers are heterogeneous on purpose: desired time headways from tailgating (0.6 s) to
@@ -122,13 +146,14 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind) -> dict[str, float]:
     follow what HighD shows: time headways of 0.6-1.0 s are common on the left lanes,
     and speed differences of 10+ m/s between adjacent lanes occur.
     """
+    lo_hw = drivers.min_headway_s
     if kind == "truck":
         # Mix of articulated trucks (about 16.5 m) and rigid trucks / buses (about 10-12 m).
         if rng.random() < 0.7:
             length = _clipped_normal(rng, 16.3, 0.6, 14.5, 18.75)
         else:
             length = _clipped_normal(rng, 10.5, 1.3, 8.0, 13.0)
-        return {
+        params: dict[str, float | bool] = {
             "length_m": length,
             "width_m": _clipped_normal(rng, 2.50, 0.04, 2.40, 2.60),
             # German trucks: 80 km/h limit, actually driven at about 85-90 km/h.
@@ -142,65 +167,88 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind) -> dict[str, float]:
             "lc_cooperative": float(rng.uniform(0.7, 1.0)),
             "lc_assertive": float(rng.uniform(1.0, 1.5)),
         }
-    if kind == "van":
-        return {
+    elif kind == "van":
+        params = {
             "length_m": _clipped_normal(rng, 5.6, 0.5, 4.8, 7.0),
             "width_m": _clipped_normal(rng, 2.0, 0.05, 1.9, 2.15),
             "desired_speed_mps": _clipped_normal(rng, 32.0, 3.0, 25.0, 40.0),
             "accel_mps2": _clipped_normal(rng, 1.3, 0.25, 0.8, 2.0),
             "decel_mps2": _clipped_normal(rng, 2.8, 0.4, 2.0, 3.8),
-            "headway_s": _clipped_normal(rng, 1.1, 0.25, 0.65, 1.6),
+            "headway_s": _clipped_normal(rng, 1.1, 0.25, max(lo_hw, 0.65), 1.6),
             "min_gap_m": float(rng.uniform(1.5, 2.5)),
             "lc_speed_gain": float(rng.uniform(1.0, 3.0)),
             "lc_keep_right": float(rng.uniform(0.5, 1.5)),
             "lc_cooperative": float(rng.uniform(0.3, 1.0)),
             "lc_assertive": float(rng.uniform(1.0, 2.0)),
         }
-    return {
-        "length_m": _clipped_normal(rng, 4.55, 0.35, 3.6, 5.3),
-        "width_m": _clipped_normal(rng, 1.82, 0.07, 1.6, 2.0),
-        # Unrestricted autobahn: cars mostly 110-160 km/h, some much faster.
-        "desired_speed_mps": _clipped_normal(rng, 36.5, 4.5, 26.0, 50.0),
-        "accel_mps2": _clipped_normal(rng, 1.8, 0.4, 1.0, 3.0),
-        "decel_mps2": _clipped_normal(rng, 3.0, 0.5, 2.0, 4.5),
-        "headway_s": _clipped_normal(rng, 1.0, 0.3, 0.6, 1.6),
-        "min_gap_m": float(rng.uniform(1.5, 2.5)),
-        "lc_speed_gain": float(rng.uniform(1.0, 4.0)),
-        "lc_keep_right": float(rng.uniform(0.5, 1.5)),
-        "lc_cooperative": float(rng.uniform(0.2, 1.0)),
-        # A third of the drivers are assertive (accept gaps down to a third to two thirds of the usual).
-        "lc_assertive": float(rng.uniform(1.5, 3.0)) if rng.random() < 0.35 else 1.0,
-    }
+    else:
+        mean_hw, sd_hw = drivers.car_headway_s
+        params = {
+            "length_m": _clipped_normal(rng, 4.55, 0.35, 3.6, 5.3),
+            "width_m": _clipped_normal(rng, 1.82, 0.07, 1.6, 2.0),
+            # Unrestricted autobahn: cars mostly 110-160 km/h, some much faster.
+            "desired_speed_mps": _clipped_normal(rng, 36.5, 4.5, 26.0, 50.0),
+            "accel_mps2": _clipped_normal(rng, 1.8, 0.4, 1.0, 3.0),
+            "decel_mps2": _clipped_normal(rng, 3.0, 0.5, 2.0, 4.5),
+            "headway_s": _clipped_normal(rng, mean_hw, sd_hw, lo_hw, max(lo_hw, 1.6)),
+            "min_gap_m": float(rng.uniform(1.5, 2.5)),
+            "lc_speed_gain": float(rng.uniform(1.0, 4.0)),
+            "lc_keep_right": float(rng.uniform(0.5, 1.5)),
+            "lc_cooperative": float(rng.uniform(0.2, 1.0)),
+            "lc_assertive": (float(rng.uniform(*drivers.assertive_range))
+                             if rng.random() < drivers.assertive_share else 1.0),
+        }
+        if drivers.impatient_share > 0 and rng.random() < drivers.impatient_share:
+            params.update(
+                impatient=True,
+                desired_speed_mps=min(50.0, float(params["desired_speed_mps"]) * 1.1),
+                headway_s=lo_hw,
+                lc_speed_gain=float(params["lc_speed_gain"]) * 2.0,
+                lc_keep_right=0.3,
+                lc_cooperative=0.1,
+                lc_assertive=max(float(params["lc_assertive"]), drivers.assertive_range[0]),
+                lc_lookahead_s=2.0,
+            )
+    # Reaction time on the simulation grid; the desired headway never undercuts it (SUMO:
+    # tau below the reaction time causes very hard braking or collisions).
+    lo, hi = drivers.reaction_time_s
+    # No draw for a fixed reaction time: the calm preset then draws exactly the v0.1 demand.
+    drawn = float(rng.uniform(lo, hi)) if hi > lo else lo
+    reaction = max(_STEP_S, round(drawn / _STEP_S + 1e-9) * _STEP_S)  # 0.5 / 0.04 is 12.4999...
+    params["reaction_time_s"] = reaction
+    params["epsilon_acc_mps2"] = drivers.epsilon_acc_mps2
+    params["headway_s"] = max(float(params["headway_s"]), reaction)
+    return params
 
 
 def sample_demand(
     rng: np.random.Generator,
     *,
-    lanes_per_direction: int,
+    entries: list[Entry],
     flow_veh_per_h: float,
     end_s: float,
     config: DemandConfig | None = None,
 ) -> list[VehicleSpec]:
-    """Draw all vehicles for both directions, sorted by departure time.
+    """Draw all vehicles for all entries, sorted by departure time.
 
     Args:
         rng: seeded generator (the only source of randomness).
-        lanes_per_direction: 2 or 3.
+        entries: where traffic is inserted (route, direction, lanes, share of the flow).
         flow_veh_per_h: demand per direction [veh/h].
         end_s: no insertions at or after this time [s].
-        config: class shares and headway model.
+        config: class shares, headway model and drivers.
 
     Returns:
         Vehicle specs ordered by (depart_s, vid).
     """
     cfg = config or DemandConfig()
-    lane_shares = _lane_shares(lanes_per_direction)
-    truck_lanes = _truck_lane_shares(lanes_per_direction)
     specs: list[VehicleSpec] = []
     counter = 0
-    for edge in (EASTBOUND_EDGE, WESTBOUND_EDGE):
-        for lane in range(lanes_per_direction):
-            rate_per_s = flow_veh_per_h * lane_shares[lane] / 3600.0
+    for entry in entries:
+        lane_shares = _lane_shares(entry.n_lanes)
+        truck_lanes = _truck_lane_shares(entry.n_lanes)
+        for lane in range(entry.n_lanes):
+            rate_per_s = flow_veh_per_h * entry.flow_share * lane_shares[lane] / 3600.0
             if rate_per_s <= 0.0:
                 continue
             # Bayes: P(truck | lane) = P(lane | truck) P(truck) / P(lane).
@@ -211,9 +259,10 @@ def sample_demand(
             while t < end_s:
                 u = rng.random()
                 kind: Kind = "truck" if u < p_truck else ("van" if u < p_truck + p_van else "car")
-                params = _sample_vehicle(rng, kind)
-                specs.append(VehicleSpec(vid=f"{edge}{counter}", kind=kind, edge=edge, lane=lane,
-                                         depart_s=round(t, 2), **params))
+                params = _sample_vehicle(rng, kind, cfg.drivers)
+                prefix = "E" if entry.east else "W"
+                specs.append(VehicleSpec(vid=f"{prefix}{counter}", kind=kind, route=entry.route, east=entry.east,
+                                         lane=lane, depart_s=round(t, 2), **params))  # type: ignore[arg-type]
                 counter += 1
                 t += cfg.min_headway_s + float(rng.exponential(mean_extra))
     specs.sort(key=lambda s: (s.depart_s, s.vid))
@@ -225,25 +274,31 @@ _MAX_SPEED_MPS: dict[Kind, float] = {"car": 60.0, "van": 45.0, "truck": 28.0}
 _VCLASS: dict[Kind, str] = {"car": "passenger", "van": "delivery", "truck": "truck"}
 
 
-def write_routes(path: Path, specs: list[VehicleSpec]) -> None:
-    """Write the SUMO route file: one vType per vehicle, one route per direction."""
-    lines = ["<routes>",
-             f'  <route id="r{EASTBOUND_EDGE}" edges="{EASTBOUND_EDGE}"/>',
-             f'  <route id="r{WESTBOUND_EDGE}" edges="{WESTBOUND_EDGE}"/>']
+def write_routes(path: Path, specs: list[VehicleSpec], routes: dict[str, list[str]],
+                 lc_strategic: float | None = None) -> None:
+    """Write the SUMO route file: one vType per vehicle, the given routes (id -> edges).
+
+    ``lc_strategic`` (if given) is every driver's LC2013 ``lcStrategic``.
+    """
+    strategic = f'lcStrategic="{lc_strategic:g}" ' if lc_strategic is not None else ""
+    lines = ["<routes>"]
+    lines += [f'  <route id={quoteattr(rid)} edges={quoteattr(" ".join(edges))}/>' for rid, edges in routes.items()]
     for s in specs:
         desired = min(s.desired_speed_mps, _MAX_SPEED_MPS[s.kind])
+        lookahead = f'lcSpeedGainLookahead="{s.lc_lookahead_s:.2f}" ' if s.lc_lookahead_s > 0 else ""
         lines.append(
             f'  <vType id={quoteattr("t" + s.vid)} vClass="{_VCLASS[s.kind]}" carFollowModel="EIDM" '
             f'sigma="0" sigmaleader="0" sigmagap="0" sigmaerror="0" delta="4" '
+            f'treaction="{s.reaction_time_s:.2f}" epsilonacc="{s.epsilon_acc_mps2:g}" '
             f'length="{s.length_m:.3f}" width="{s.width_m:.3f}" '
             f'maxSpeed="{_MAX_SPEED_MPS[s.kind]:.2f}" desiredMaxSpeed="{desired:.4f}" speedFactor="1" '
             f'speedDev="0" accel="{s.accel_mps2:.3f}" decel="{s.decel_mps2:.3f}" emergencyDecel="9" '
             f'tau="{s.headway_s:.3f}" minGap="{s.min_gap_m:.3f}" lcSpeedGain="{s.lc_speed_gain:.3f}" '
             f'lcKeepRight="{s.lc_keep_right:.3f}" lcCooperative="{s.lc_cooperative:.3f}" '
-            f'lcAssertive="{s.lc_assertive:.3f}"/>'
+            f'lcAssertive="{s.lc_assertive:.3f}" {lookahead}{strategic}/>'
         )
         lines.append(
-            f'  <vehicle id={quoteattr(s.vid)} type={quoteattr("t" + s.vid)} route="r{s.edge}" '
+            f'  <vehicle id={quoteattr(s.vid)} type={quoteattr("t" + s.vid)} route={quoteattr(s.route)} '
             f'depart="{s.depart_s:.2f}" departLane="{s.lane}" departPos="base" departSpeed="max"/>'
         )
     lines.append("</routes>")

@@ -1,37 +1,51 @@
-"""Generate HighD-format recordings of a straight two-direction highway with SUMO.
+"""Generate HighD-format recordings of a two-direction highway with SUMO.
 
-Pipeline: :mod:`network` (netconvert, plain XML) -> :mod:`demand` (seeded vehicles) ->
-:mod:`simulate` (SUMO CLI, FCD at 25 Hz) -> :mod:`convert` (image axes, 420 m window) ->
+Pipeline: :mod:`network` (netconvert, plain XML, layout) -> :mod:`demand` (seeded vehicles and
+drivers) -> :mod:`simulate` (libsumo stepping, FCD at 25 Hz) with :mod:`events` (scripted critical
+events) -> :mod:`convert` (image axes, 420 m window, main carriageway) ->
 ``letspi.highd.derive.build_recording`` (lanes, neighbours, dhw/thw/ttc, metas) ->
-``letspi.highd.io.write_recording``.
+``letspi.highd.io.write_recording`` and ``NN_events.csv``.
 
 Timeline: the simulation runs ``warmup_s`` + ``minutes`` * 60 seconds; recording starts after the
 warm-up so the road is populated, and every vehicle has driven ``approach_m`` (700 m) before it
 enters the window, so it arrives at speed, in a lane chosen by the lane-change model and with
-car-following spacing.
+car-following spacing. Events start only after the warm-up.
 
-Determinism: a seed fixes the demand (numpy generator) and SUMO's seed; SUMO runs with sigma = 0
-(EIDM with its driver-error processes off) and one thread, so equal seeds give identical files.
+Determinism: a seed fixes the demand (numpy generator), the event schedule (a second, independent
+generator) and SUMO's seed; SUMO runs with sigma = 0 (EIDM with its driver-error processes off)
+and one thread, so equal seeds give identical files.
+
+No contact, ever: a run is rejected when SUMO reports a collision (``--collision.mingap-factor 0``:
+physical contact only) or when any two boxes of the written window overlap (the HighD boxes are
+axis-aligned and the lateral lane-change profile is re-timed, so this is checked on the boxes
+themselves). A rejected run is re-simulated from scratch with a sub-seed derived from the seed
+(``attempt`` 1, 2, ... of :func:`derived_seed`), up to ``TrafficConfig.max_attempts`` runs; the
+result stays a deterministic function of the seed. If every attempt has contact, generation fails
+with an error naming the seed and the contacts instead of writing overlapping boxes.
 """
 
 from __future__ import annotations
 
 import shutil
 import tempfile
-import warnings
+import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from letspi.highd.contacts import overlapping_boxes
 from letspi.highd.derive import build_recording
+from letspi.highd.events import EVENTS_COLUMNS, write_events
 from letspi.highd.io import write_recording
+from letspi.sumo.config import TrafficConfig, traffic_preset
 from letspi.sumo.convert import ImageTracks, clip_to_window, fcd_to_image
-from letspi.sumo.demand import DEFAULT_FLOW_PER_LANE_VEH_PER_H, DemandConfig, sample_demand, write_routes
+from letspi.sumo.demand import DEFAULT_FLOW_PER_LANE_VEH_PER_H, DemandConfig, VehicleSpec, sample_demand, write_routes
+from letspi.sumo.events import EventInjector, EventRecord, VehicleInfo, Window
 from letspi.sumo.network import HighwayGeometry, HighwayNetwork, build_network
-from letspi.sumo.simulate import STEP_S, run_sumo
+from letspi.sumo.simulate import STEP_S, Collision, SimulationResult, run_sumo
 
 FRAME_RATE_HZ = 25
 _TAIL_S = 6.0  # > lane-change duration (4 s)
@@ -44,6 +58,13 @@ def default_flow_veh_per_h(lanes_per_direction: int) -> float:
     return DEFAULT_FLOW_PER_LANE_VEH_PER_H * lanes_per_direction
 
 
+def derived_seed(seed: int, attempt: int) -> int:
+    """Seed of re-simulation ``attempt`` (0 = the seed itself)."""
+    if attempt == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(attempt)]).generate_state(1)[0] % (2**31 - 1))
+
+
 @dataclass
 class SimulatedRecordings:
     """Everything a generation run produced in memory (before writing).
@@ -51,14 +72,77 @@ class SimulatedRecordings:
     Attributes:
         network: the road (markings, transform). Its ``net_file`` is deleted after the run.
         chunks: one ``(states, vehicles)`` pair per recording, see :func:`clip_to_window`.
-        collisions: collisions reported by SUMO.
-        sim_wall_time_s: wall time of the SUMO run [s].
+        first_steps: simulation step of frame 1 of each recording (frame = step - first + 1).
+        events: one table per recording: the events in HighD frames, with ``id``/``other_id``
+            still SUMO ids (``sumo_id``/``other_sumo_id``) and SUMO lane indices.
+        collisions: collisions SUMO reported in the accepted run (always empty).
+        sim_wall_time_s: wall time of the SUMO run(s), all attempts [s].
+        sim_cpu_time_s: CPU time of the SUMO run(s), all attempts [s].
+        attempt: which attempt was accepted (0 = the seed itself).
+        rejected: one line per rejected attempt saying why.
+        failed_events: forced lane changes SUMO did not carry out (not written).
+        perceived_lane_changes: followers held by lane-change perception (accepted run).
     """
-
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
-    collisions: int = 0
+    first_steps: list[int] = field(default_factory=list)
+    events: list[pd.DataFrame] = field(default_factory=list)
+    collisions: list[Collision] = field(default_factory=list)
     sim_wall_time_s: float = 0.0
+    sim_cpu_time_s: float = 0.0
+    attempt: int = 0
+    rejected: list[str] = field(default_factory=list)
+    failed_events: int = 0
+    perceived_lane_changes: int = 0
+
+
+def _window(network: HighwayNetwork) -> Window:
+    x0 = network.window_x0_m
+    return Window(x0, x0 + network.geometry.window_m, network.east_centres_y_m, network.west_centres_y_m)
+
+
+def _event_table(records: list[EventRecord], first_step: int, n_steps: int) -> pd.DataFrame:
+    """Events of one recording chunk, frames relative to the chunk (SUMO ids kept)."""
+    rows = []
+    for r in records:
+        step = round(r.time_s / STEP_S)
+        if first_step <= step < first_step + n_steps and r.kind != "failed":
+            rows.append({"frame": step - first_step + 1, "sumo_id": r.actor, "kind": r.kind,
+                         "other_sumo_id": r.other, "lane": r.lane, "target_lane": r.target_lane,
+                         "speed_mps": r.speed_mps, "target_speed_mps": r.target_speed_mps,
+                         "decel_mps2": r.decel_mps2, "duration_s": r.duration_s, "gap_m": r.gap_m,
+                         "reaction_s": r.reaction_s, "held_s": r.held_s,
+                         "other_decel_mps2": r.other_decel_mps2})
+    return pd.DataFrame(rows, columns=["frame", "sumo_id", "kind", "other_sumo_id", "lane", "target_lane",
+                                       "speed_mps", "target_speed_mps", "decel_mps2", "duration_s", "gap_m",
+                                       "reaction_s", "held_s", "other_decel_mps2"])
+
+
+def _simulate_once(
+    tmp: Path, *, seed: int, network: HighwayNetwork, flow: float, traffic: TrafficConfig,
+    end_s: float, warmup_s: float, progress: Callable[[float], None], ssm_file: Path | None = None,
+) -> tuple[list[VehicleSpec], ImageTracks, SimulationResult]:
+    # Two independent streams: adding events does not change the drawn demand.
+    rng_demand = np.random.default_rng(seed)
+    rng_events = np.random.default_rng([seed, 1])
+    demand = DemandConfig(truck_share=traffic.truck_share, drivers=traffic.drivers)
+    specs = sample_demand(rng_demand, entries=network.entries, flow_veh_per_h=flow, end_s=end_s, config=demand)
+    routes = tmp / "highway.rou.xml"
+    write_routes(routes, specs, network.routes,
+                 lc_strategic=None if traffic.layout.kind == "straight" else traffic.layout.lc_strategic)
+    info = {s.vid: VehicleInfo(s.length_m, s.east, s.kind == "truck", s.reaction_time_s) for s in specs}
+
+    def make_hook(sim: object) -> EventInjector:
+        return EventInjector(sim=sim, config=traffic.events, rng=rng_events, window=_window(network),
+                             vehicles=info, start_s=warmup_s, end_s=end_s - _TAIL_S,
+                             lane_change_perception=traffic.drivers.lane_change_perception)
+
+    x0 = network.window_x0_m
+    needs_hook = traffic.events.any_enabled or traffic.drivers.lane_change_perception
+    sim = run_sumo(network.net_file, routes, tmp, end_s=end_s, seed=seed,
+                   x_range_m=(x0 - _X_MARGIN_M, x0 + network.geometry.window_m + _X_MARGIN_M),
+                   make_hook=make_hook if needs_hook else None, ssm_file=ssm_file, progress=progress)
+    return specs, fcd_to_image(sim.fcd, specs, network), sim
 
 
 def simulate_recordings(
@@ -70,19 +154,25 @@ def simulate_recordings(
     recording_minutes: float | None = None,
     warmup_s: float = DEFAULT_WARMUP_S,
     geometry: HighwayGeometry | None = None,
-    demand: DemandConfig | None = None,
+    traffic: TrafficConfig | None = None,
+    ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`."""
+    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`.
+
+    ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
+    output remains; see :mod:`letspi.sumo.ssm`).
+    """
     if minutes <= 0:
         raise ValueError(f"minutes must be > 0, got {minutes}")
     if lanes_per_direction not in (2, 3):
         raise ValueError(f"lanes_per_direction must be 2 or 3, got {lanes_per_direction}")
     if recording_minutes is not None and recording_minutes <= 0:
         raise ValueError(f"recording_minutes must be > 0, got {recording_minutes}")
+    cfg = traffic or traffic_preset("highd")
     geo = geometry or HighwayGeometry()
     if geo.lanes_per_direction != lanes_per_direction:
-        geo = HighwayGeometry(**{**geo.__dict__, "lanes_per_direction": lanes_per_direction})
+        geo = replace(geo, lanes_per_direction=lanes_per_direction)
     flow = default_flow_veh_per_h(lanes_per_direction) if flow_veh_per_h is None else flow_veh_per_h
     if flow <= 0:
         raise ValueError(f"flow_veh_per_h must be > 0, got {flow}")
@@ -93,40 +183,114 @@ def simulate_recordings(
     # (their smoothing needs the end anchor).
     end_s = (first_step + record_steps) * STEP_S + _TAIL_S
     chunk_steps = record_steps if recording_minutes is None else max(1, round(recording_minutes * 60.0 / STEP_S))
+    starts = list(range(first_step, first_step + record_steps, chunk_steps))
 
     report = progress or (lambda _f: None)
     report(0.0)
-    rng = np.random.default_rng(seed)
     tmp = Path(tempfile.mkdtemp(prefix="letspi_sumo_"))
     try:
-        network = build_network(tmp, geo)
-        specs = sample_demand(rng, lanes_per_direction=lanes_per_direction, flow_veh_per_h=flow,
-                              end_s=end_s, config=demand)
-        routes = tmp / "highway.rou.xml"
-        write_routes(routes, specs)
-        report(0.02)
-        sim = run_sumo(network.net_file, routes, tmp, end_s=end_s, seed=seed,
-                       x_range_m=(network.window_x0_m - _X_MARGIN_M,
-                                  network.window_x0_m + geo.window_m + _X_MARGIN_M),
-                       progress=lambda f: report(0.02 + 0.78 * f))
-        tracks: ImageTracks = fcd_to_image(sim.fcd, specs, network)
-        report(0.9)
-        if sim.collisions:
-            # Never seen with the default demand; kept visible rather than silently written.
-            warnings.warn(f"SUMO reported {sim.collisions} collision(s); boxes may overlap",
-                          RuntimeWarning, stacklevel=2)
-        result = SimulatedRecordings(network=network, collisions=sim.collisions,
-                                     sim_wall_time_s=sim.wall_time_s)
-        for start in range(first_step, first_step + record_steps, chunk_steps):
-            n = min(chunk_steps, first_step + record_steps - start)
-            result.chunks.append(clip_to_window(tracks, first_step=start, n_steps=n,
-                                                window_m=geo.window_m))
-        return result
+        network = build_network(tmp, geo, cfg.layout)
+        result = SimulatedRecordings(network=network)
+        upper = (float(network.upper_markings_y_m[0]), float(network.upper_markings_y_m[-1]))
+        lower = (float(network.lower_markings_y_m[0]), float(network.lower_markings_y_m[-1]))
+        for attempt in range(cfg.max_attempts):
+            lo, hi = attempt / cfg.max_attempts, (attempt + 1) / cfg.max_attempts
+            sub_seed = derived_seed(seed, attempt)
+
+            def attempt_progress(f: float, lo: float = lo, hi: float = hi) -> None:
+                report(0.9 * (lo + (hi - lo) * f))
+
+            _, tracks, sim = _simulate_once(tmp, seed=sub_seed, network=network, flow=flow, traffic=cfg,
+                                            end_s=end_s, warmup_s=warmup_s, progress=attempt_progress,
+                                            ssm_file=ssm_file)
+            records, collisions = sim.events, sim.collisions
+            result.sim_wall_time_s += sim.wall_time_s
+            result.sim_cpu_time_s += sim.cpu_time_s
+            chunks = [clip_to_window(tracks, first_step=s, n_steps=min(chunk_steps, first_step + record_steps - s),
+                                     window_m=geo.window_m, upper_y_m=upper, lower_y_m=lower) for s in starts]
+            overlaps = [overlapping_boxes(states) for states, _ in chunks]
+            n_overlap = sum(len(o) for o in overlaps)
+            if not collisions and n_overlap == 0:
+                result.chunks = chunks
+                result.first_steps = list(starts)
+                result.events = [_event_table(records, s, min(chunk_steps, first_step + record_steps - s))
+                                 for s in starts]
+                result.attempt = attempt
+                result.failed_events = sim.hook_stats.get("failed_lane_changes", 0)
+                result.perceived_lane_changes = sim.hook_stats.get("perceived_lane_changes", 0)
+                report(0.9)
+                return result
+            first = collisions[0] if collisions else None
+            what = (f"SUMO collision at t={first.time_s:.2f} s between {first.collider} and {first.victim} "
+                    f"({len(collisions)} in total)" if first else f"{n_overlap} overlapping box pair-frames")
+            result.rejected.append(f"attempt {attempt} (seed {sub_seed}): {what}")
+        raise RuntimeError(f"seed {seed}: every one of {cfg.max_attempts} simulation attempts had contact; "
+                           + "; ".join(result.rejected))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def generate_recordings(
+def _highd_lane_id(network: HighwayNetwork, east: bool, lane_index: int) -> int:
+    """HighD laneId of a main SUMO lane index (0 = rightmost) of one carriageway."""
+    centres = network.east_centres_y_m if east else network.west_centres_y_m
+    image_y = network.image_y_ref_m - float(centres[lane_index])
+    markings = np.sort(np.concatenate([network.upper_markings_y_m, network.lower_markings_y_m]))
+    return int(1 + np.searchsorted(np.round(markings, 2), image_y, side="left"))
+
+
+def _highd_events(table: pd.DataFrame, vehicles: pd.DataFrame, states: pd.DataFrame,
+                  network: HighwayNetwork) -> pd.DataFrame:
+    """Map SUMO ids to HighD ids; keep events whose actor is in the recording at the start frame."""
+    id_of = dict(zip(vehicles["sumo_id"], vehicles["id"], strict=True))
+    present = set(zip(states["id"].to_numpy().tolist(), states["frame"].to_numpy().tolist(), strict=True))
+    rows = []
+    for r in table.to_dict("records"):
+        vid = id_of.get(r["sumo_id"])
+        if vid is None or (vid, r["frame"]) not in present:
+            continue
+        east = str(r["sumo_id"]).startswith("E")
+        rows.append({**{k: r[k] for k in ("kind", "speed_mps", "target_speed_mps", "decel_mps2", "duration_s",
+                                          "gap_m", "reaction_s", "held_s", "other_decel_mps2")},
+                     "frame": int(r["frame"]), "id": int(vid), "other_id": int(id_of.get(r["other_sumo_id"], 0)),
+                     "lane_id": _highd_lane_id(network, east, int(r["lane"])),
+                     "target_lane_id": _highd_lane_id(network, east, int(r["target_lane"]))})
+    return pd.DataFrame(rows, columns=list(EVENTS_COLUMNS))
+
+
+@dataclass(frozen=True)
+class GenerationReport:
+    """What :func:`generate_highd` wrote and how long it took.
+
+    Attributes:
+        paths: the written ``NN_recordingMeta.csv`` files, in recording order.
+        simulated_minutes: recorded minutes (the warm-up excluded).
+        wall_time_s: wall time of the whole generation [s].
+        sumo_wall_time_s: of which SUMO stepping (all attempts) [s].
+        sumo_cpu_time_s: CPU time of the SUMO stepping (all attempts) [s].
+        attempt: accepted attempt (0 = the seed itself).
+        rejected: why earlier attempts were rejected.
+        events_written: scripted events written, all recordings.
+        failed_events: forced lane changes SUMO refused (not written).
+        perceived_lane_changes: followers held by lane-change perception.
+    """
+
+    paths: list[Path]
+    simulated_minutes: float
+    wall_time_s: float
+    sumo_wall_time_s: float
+    sumo_cpu_time_s: float
+    attempt: int
+    rejected: list[str]
+    events_written: int
+    failed_events: int
+    perceived_lane_changes: int
+
+    @property
+    def sim_minutes_per_wall_s(self) -> float:
+        return self.simulated_minutes / self.wall_time_s if self.wall_time_s > 0 else float("nan")
+
+
+def generate_highd(
     out_dir: Path,
     *,
     minutes: float = 3.0,
@@ -134,39 +298,20 @@ def generate_recordings(
     lanes_per_direction: int = 3,
     flow_veh_per_h: float | None = None,
     recording_minutes: float | None = None,
+    traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
-) -> list[Path]:
-    """Simulate a straight highway and write HighD-format recordings into ``out_dir``.
-
-    Args:
-        out_dir: output directory (created if missing); receives ``NN_tracks.csv``,
-            ``NN_tracksMeta.csv`` and ``NN_recordingMeta.csv`` for NN = 01, 02, ...
-        minutes: recorded (simulated) minutes, after a 90 s warm-up.
-        seed: random seed; equal seeds give identical recordings.
-        lanes_per_direction: 2 or 3 lanes per carriageway.
-        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
-            (2,200 on 3 lanes), free flow with frequent interactions.
-        recording_minutes: split the run into consecutive recordings of this length
-            (the last may be shorter); default one recording for the whole run. Vehicles
-            crossing a split are cut, as in real recordings.
-        progress: called with the fraction done, in [0, 1].
-
-    Returns:
-        Paths of the written ``NN_recordingMeta.csv`` files, in recording order.
-
-    Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
-    "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
-    frame when its whole box is inside. Direction 1 drives towards -x on the upper lanes,
-    direction 2 towards +x on the lower lanes. No speed limit (speedLimit -1).
-    """
+) -> GenerationReport:
+    """Like :func:`generate_recordings`, returning a :class:`GenerationReport` (timings, attempts, events)."""
+    started = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = progress or (lambda _f: None)
     sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
                               flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes,
-                              progress=lambda f: report(0.9 * f))
+                              traffic=traffic, progress=lambda f: report(0.9 * f))
     written: list[Path] = []
-    for k, (states, vehicles) in enumerate(sim.chunks, start=1):
+    n_events = 0
+    for k, ((states, vehicles), table) in enumerate(zip(sim.chunks, sim.events, strict=True), start=1):
         rec = build_recording(
             states, vehicles[["id", "class", "drivingDirection"]],
             recording_id=k,
@@ -177,6 +322,57 @@ def generate_recordings(
             speed_limit_mps=-1.0,
         )
         paths = write_recording(rec, out)
+        events = _highd_events(table, vehicles, states, sim.network)
+        write_events(events, out, k)
+        n_events += len(events)
         written.extend(p for p in paths if p.name.endswith("_recordingMeta.csv"))
         report(0.9 + 0.1 * k / len(sim.chunks))
-    return written
+    return GenerationReport(paths=written, simulated_minutes=float(minutes), wall_time_s=time.perf_counter() - started,
+                            sumo_wall_time_s=sim.sim_wall_time_s, sumo_cpu_time_s=sim.sim_cpu_time_s,
+                            attempt=sim.attempt, rejected=sim.rejected, events_written=n_events,
+                            failed_events=sim.failed_events, perceived_lane_changes=sim.perceived_lane_changes)
+
+
+def generate_recordings(
+    out_dir: Path,
+    *,
+    minutes: float = 3.0,
+    seed: int = 0,
+    lanes_per_direction: int = 3,
+    flow_veh_per_h: float | None = None,
+    recording_minutes: float | None = None,
+    criticality: str = "highd",
+    traffic: TrafficConfig | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> list[Path]:
+    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir``.
+
+    Args:
+        out_dir: output directory (created if missing); receives ``NN_tracks.csv``,
+            ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv`` and ``NN_events.csv`` for NN = 01, 02, ...
+        minutes: recorded (simulated) minutes, after a 90 s warm-up.
+        seed: random seed; equal seeds give identical recordings.
+        lanes_per_direction: 2 or 3 lanes per (main) carriageway.
+        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
+            (2,200 on 3 lanes), free flow with frequent interactions.
+        recording_minutes: split the run into consecutive recordings of this length
+            (the last may be shorter); default one recording for the whole run. Vehicles
+            crossing a split are cut, as in real recordings.
+        criticality: preset ``calm``, ``highd`` (default) or ``stress`` (ignored if ``traffic``
+            is given).
+        traffic: full traffic configuration (drivers, events, layout).
+        progress: called with the fraction done, in [0, 1].
+
+    Returns:
+        Paths of the written ``NN_recordingMeta.csv`` files, in recording order.
+
+    Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
+    "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
+    frame when its whole box is inside and its centre is on the main carriageway. Direction 1
+    drives towards -x on the upper lanes, direction 2 towards +x on the lower lanes. No speed
+    limit (speedLimit -1).
+    """
+    cfg = traffic or traffic_preset(criticality)
+    return generate_highd(out_dir, minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
+                    flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes, traffic=cfg,
+                    progress=progress).paths

@@ -1,17 +1,24 @@
-"""Run SUMO as a subprocess and read its floating-car-data (FCD) output.
+"""Run SUMO through libsumo (in-process) and read its floating-car-data (FCD) output.
 
-The command-line simulator is used instead of TraCI/libsumo: the ``eclipse-sumo`` wheel ships
-the binaries but not the Python client packages, and one FCD file written in CSV and parsed with
-pyarrow is faster than per-step TraCI calls anyway.
+SUMO itself writes the trajectories (FCD as CSV, parsed with pyarrow: faster than per-step
+queries); Python only steps the simulation so that :mod:`letspi.sumo.events` can inject
+scripted events. Between events the simulation advances many steps per call
+(``simulationStep(t)``), so stepping from Python costs next to nothing.
+
+libsumo allows one simulation per process at a time; :func:`run_sumo` always closes it.
 """
 
 from __future__ import annotations
 
-import subprocess
+import contextlib
+import io
+import math
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Protocol
 
 import pandas as pd
 import pyarrow as pa
@@ -21,6 +28,21 @@ import pyarrow.csv as pacsv
 from letspi.sumo.binaries import sumo_binary
 
 STEP_S = 0.04  # 25 Hz, the HighD frame rate
+_PROGRESS_CHUNK_S = 10.0  # longest single advance, so progress is reported regularly
+
+
+@dataclass(frozen=True)
+class Collision:
+    """A collision reported by SUMO (``--collision-output``).
+
+    Attributes:
+        time_s: simulation time [s]; collider, victim: SUMO ids; kind: SUMO's collision type.
+    """
+
+    time_s: float
+    collider: str
+    victim: str
+    kind: str
 
 
 @dataclass(frozen=True)
@@ -30,34 +52,51 @@ class SimulationResult:
     Attributes:
         fcd: columns ``time`` [s], ``id`` (SUMO id), ``x``, ``y`` (front-bumper centre, SUMO
             axes, y up) [m], ``speed`` [m/s], ``acceleration`` [m/s²]; sorted by (id, time).
-        collisions: number of collisions SUMO reported.
-        wall_time_s: wall time of the simulator run [s].
+        collisions: collisions reported by SUMO (physical contact only: mingap-factor 0).
+        wall_time_s: wall time of the simulation (stepping, without reading the FCD) [s].
+        cpu_time_s: CPU time of this process during the simulation (SUMO runs in-process) [s];
+            less sensitive than wall time to other load on the machine.
+        events: the hook's ``records`` (see :func:`run_sumo`).
+        hook_stats: the hook's ``stats()`` counters.
     """
 
     fcd: pd.DataFrame
-    collisions: int
+    collisions: list[Collision]
     wall_time_s: float
+    cpu_time_s: float = 0.0
+    events: list[Any] = field(default_factory=list)
+    hook_stats: dict[str, int] = field(default_factory=dict)
 
 
-def _last_time_in_file(path: Path) -> float | None:
-    """Simulation time of the last complete line of a growing FCD CSV (cheap tail read)."""
+class StepHook(Protocol):
+    """What :func:`run_sumo` calls while stepping (the event injector implements it)."""
+
+    records: list[Any]
+
+    def next_wakeup(self) -> float: ...
+
+    def on_step(self, t: float) -> None: ...
+
+    def stats(self) -> dict[str, int]: ...
+
+
+def import_libsumo() -> Any:
+    """Import libsumo quietly (it prints a pyarrow version notice on import; harmless here:
+    its Arrow copy is vendored under another soname, and letspi only reads CSV output)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        import libsumo
+    return libsumo
+
+
+def _read_collisions(path: Path) -> list[Collision]:
+    if not path.exists() or path.stat().st_size == 0:
+        return []
     try:
-        with path.open("rb") as fh:
-            fh.seek(0, 2)
-            size = fh.tell()
-            if size < 2:
-                return None
-            fh.seek(max(0, size - 512))
-            tail = fh.read().decode("ascii", errors="ignore").splitlines()
-    except OSError:
-        return None
-    for line in reversed(tail[:-1]):  # the very last line may be incomplete
-        head = line.split(";", 1)[0]
-        try:
-            return float(head)
-        except ValueError:
-            continue
-    return None
+        root = ET.parse(path).getroot()
+    except ET.ParseError:  # an empty document (no collisions) can lack the closing tag
+        return []
+    return [Collision(float(c.get("time", "nan")), c.get("collider", ""), c.get("victim", ""), c.get("type", ""))
+            for c in root.iter("collision")]
 
 
 def run_sumo(
@@ -69,9 +108,11 @@ def run_sumo(
     seed: int,
     lane_change_duration_s: float = 4.0,
     x_range_m: tuple[float, float] | None = None,
+    make_hook: Callable[[Any], StepHook] | None = None,
+    ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
-    """Simulate ``[0, end_s)`` at 0.04 s steps and return the FCD.
+    """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD.
 
     Args:
         net_file: the ``.net.xml``.
@@ -82,10 +123,20 @@ def run_sumo(
         lane_change_duration_s: duration of a (non-sublane) lane change [s]; > 0 makes lane
             changes continuous instead of instantaneous jumps.
         x_range_m: keep only FCD rows with SUMO x in this range [m] (saves memory).
+        make_hook: called with the libsumo module once the simulation is loaded; returns an
+            object with ``next_wakeup() -> float``, ``on_step(t)``, ``stats()`` and a
+            ``records`` list (the event injector). ``on_step(t)`` is called whenever SUMO's
+            current time t (that of the next step to run; the vehicles are in the state of the
+            step t - 0.04 s) has reached ``next_wakeup()``; commands given then act in step t.
+        ssm_file: if given, every vehicle carries SUMO's SSM device writing into this file: TTC,
+            DRAC and PET with their time lines (``trajectories``) for every encounter whose TTC
+            falls below 5 s, DRAC exceeds 3 m/s² or PET falls below 2 s, within 100 m.
         progress: called with the fraction of simulated time done, in [0, 1].
     """
+    sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
     log_file = work_dir / "sumo.log"
+    collision_file = work_dir / "collisions.xml"
     cmd = [
         sumo_binary("sumo"),
         "--net-file", str(net_file), "--route-files", str(route_file),
@@ -96,29 +147,47 @@ def run_sumo(
         "--lanechange.duration", f"{lane_change_duration_s}",
         "--time-to-teleport", "-1",
         "--collision.action", "warn", "--collision.mingap-factor", "0",
+        "--collision-output", str(collision_file),
         "--fcd-output", str(fcd_file),
         "--fcd-output.attributes", "id,x,y,speed,acceleration",
         "--no-step-log", "true", "--duration-log.disable", "true",
+        "--no-warnings", "true",  # emergency-braking notices of scripted events; collisions go to their file
         "--log", str(log_file),
         "--threads", "1",
     ]
+    if ssm_file is not None:
+        cmd += ["--device.ssm.probability", "1", "--device.ssm.file", str(ssm_file),
+                "--device.ssm.measures", "TTC DRAC PET", "--device.ssm.thresholds", "5.0 3.0 2.0",
+                "--device.ssm.range", "100", "--device.ssm.trajectories", "true"]
+    report = progress or (lambda _f: None)
     started = time.perf_counter()
-    with subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) as proc:
-        while proc.poll() is None:
-            time.sleep(0.25)
-            if progress is not None:
-                t = _last_time_in_file(fcd_file)
-                if t is not None:
-                    progress(min(1.0, t / end_s))
-        stderr = proc.stderr.read() if proc.stderr is not None else ""
+    cpu_started = time.process_time()
+    sim.start(cmd)
+    try:
+        hook = make_hook(sim) if make_hook is not None else None
+        t = 0.0
+        while t < end_s - 1e-9:
+            wake = hook.next_wakeup() if hook is not None else math.inf
+            target = min(end_s, t + _PROGRESS_CHUNK_S, max(wake, t + STEP_S))
+            # Round up to the step grid: simulationStep(target) runs until time >= target.
+            target = math.ceil(target / STEP_S - 1e-6) * STEP_S
+            if target - t > 1.5 * STEP_S:
+                sim.simulationStep(target)
+            else:
+                sim.simulationStep()
+            t = float(sim.simulation.getTime())
+            if hook is not None and t >= wake - 1e-9:
+                hook.on_step(t)
+            report(min(1.0, t / end_s))
+        events = list(hook.records) if hook is not None else []
+        stats = hook.stats() if hook is not None else {}
+    finally:
+        sim.close()
     wall = time.perf_counter() - started
-    log = log_file.read_text(errors="ignore") if log_file.exists() else ""
-    if proc.returncode != 0:
-        raise RuntimeError(f"sumo failed ({proc.returncode}): {stderr.strip()} {log[-2000:]}")
-    collisions = sum(1 for line in log.splitlines() if "collision" in line.lower())
-    if progress is not None:
-        progress(1.0)
-    return SimulationResult(fcd=read_fcd(fcd_file, x_range_m=x_range_m), collisions=collisions, wall_time_s=wall)
+    cpu = time.process_time() - cpu_started
+    report(1.0)
+    return SimulationResult(fcd=read_fcd(fcd_file, x_range_m=x_range_m), collisions=_read_collisions(collision_file),
+                            wall_time_s=wall, cpu_time_s=cpu, events=events, hook_stats=stats)
 
 
 def read_fcd(path: Path, *, x_range_m: tuple[float, float] | None = None) -> pd.DataFrame:

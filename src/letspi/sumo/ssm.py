@@ -1,0 +1,214 @@
+"""Independent check of the recordings' TTC against SUMO's own SSM device.
+
+SUMO's SSM device (``--device.ssm.probability 1``) computes, for every lead/follow encounter of
+every vehicle, TTC = space gap / speed difference with the space gap measured along the lanes
+from the follower's front bumper to the leader's rear bumper (encounter types 2
+FOLLOWING_FOLLOWER and 3 FOLLOWING_LEADER), every simulation step. The recordings' TTC is
+HighD's: the preceding vehicle is the nearest one ahead in the same laneId (lane of the box
+centre), the gap is taken between the written boxes and the speeds are central differences of
+the written positions. :func:`ssm_check` simulates one recording with the SSM device on,
+restricts SUMO's TTC time lines to the frames in which both vehicles are recorded, and compares:
+
+- per (follower, leader, frame): the two TTC values where both exist;
+- per vehicle: the recording's ``minTTC`` (tracksMeta) with SUMO's minimum over its recorded
+  frames.
+
+Known reasons for differences (SUMO's SSM documentation and this package's conversion):
+SUMO treats a vehicle changing lanes as on both lanes (its leaders and followers change at the
+start of the manoeuvre), HighD assigns a lane by the box centre, so around lane changes one side
+has a TTC the other lacks; the device tracks every vehicle ahead within its range, HighD only
+the nearest (``precedingId``); SUMO's speeds are the step's speeds, the recording's are central
+differences of positions (half a step apart, so they differ by about a·0.02 s); the recording's
+lateral lane-change profile is re-timed (only lanes matter here, and they switch at the same
+time); the device writes only encounters whose TTC falls below its threshold (5 s here) and
+only within its range (100 m).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from letspi.highd.derive import build_recording
+from letspi.highd.io import write_recording
+from letspi.sumo.config import TrafficConfig
+from letspi.sumo.generate import FRAME_RATE_HZ, simulate_recordings
+from letspi.sumo.simulate import STEP_S
+
+_FOLLOWING_TYPES = {2: "ego", 3: "foe"}  # encounter type -> who is the follower
+SSM_TTC_THRESHOLD_S = 5.0  # the device's TTC threshold set in simulate.run_sumo
+
+
+def read_ssm_ttc(path: Path) -> pd.DataFrame:
+    """Per-step TTC of all lead/follow encounters in an SSM output file.
+
+    Returns:
+        Columns ``time_s``, ``follower``, ``leader`` (SUMO ids), ``ttc_s``; one row per step of
+        an encounter with a defined TTC, duplicates (the same pair seen by both devices) removed.
+    """
+    rows: list[pd.DataFrame] = []
+    for _, elem in ET.iterparse(path, events=("end",)):
+        if elem.tag != "conflict":
+            continue
+        spans = {child.tag: child.get("values", "").split() for child in elem}
+        times, types, ttcs = spans.get("timeSpan"), spans.get("typeSpan"), spans.get("TTCSpan")
+        if times and types and ttcs:
+            kind = np.asarray(types, dtype=np.int64)
+            ttc = pd.to_numeric(pd.Series(ttcs), errors="coerce").to_numpy()  # "NA" -> NaN
+            ok = np.isin(kind, list(_FOLLOWING_TYPES)) & np.isfinite(ttc)
+            ego, foe = elem.get("ego", ""), elem.get("foe", "")
+            follower = np.where(kind == 2, ego, foe)
+            leader = np.where(kind == 2, foe, ego)
+            rows.append(pd.DataFrame({"time_s": np.asarray(times, dtype=np.float64)[ok], "follower": follower[ok],
+                                      "leader": leader[ok], "ttc_s": ttc[ok]}))
+        elem.clear()
+    if not rows:
+        return pd.DataFrame(columns=["time_s", "follower", "leader", "ttc_s"])
+    out = pd.concat(rows, ignore_index=True)
+    return out.drop_duplicates(["time_s", "follower", "leader"]).reset_index(drop=True)
+
+
+@dataclass(frozen=True)
+class SsmComparison:
+    """Agreement between the recording's TTC and SUMO's SSM device on one recording.
+
+    Attributes:
+        recorded_minutes: length of the recording [min].
+        vehicles: vehicles in the recording.
+        frames_both: (follower, frame) pairs where both have a TTC below the device threshold
+            for the same leader.
+        frame_median_abs_diff_s: median |TTC_recording - TTC_SUMO| over those [s].
+        frame_p95_abs_diff_s: 95th percentile of that difference [s].
+        frame_within_5pct: share of those pairs agreeing within 5 %.
+        frames_only_recording: recording has a TTC below the threshold for a leader SUMO's device
+            does not report at that frame (counts (follower, frame)).
+        frames_only_ssm: the reverse.
+        frames_only_ssm_other_lane: of those, frames where the two vehicles have different HighD
+            laneIds (SUMO already/still counts a lane changer on both lanes).
+        frames_only_ssm_above_threshold: of those, frames where the recording has a TTC for the
+            same leader but at or above the threshold (both near it).
+        frames_only_ssm_not_preceding: of those, frames in the same laneId where the recording's
+            preceding vehicle is another one (the device also tracks vehicles further ahead;
+            HighD's TTC is with the nearest).
+        vehicles_below_3s_recording: vehicles with 0 <= minTTC < 3 s in tracksMeta.
+        vehicles_below_3s_ssm: vehicles whose SUMO minimum over their recorded frames is < 3 s.
+        vehicles_below_3s_both: in both sets.
+        vehicle_median_abs_diff_s: median |minTTC - SUMO minimum| over vehicles below 3 s in both [s].
+    """
+
+    recorded_minutes: float
+    vehicles: int
+    frames_both: int
+    frame_median_abs_diff_s: float
+    frame_p95_abs_diff_s: float
+    frame_within_5pct: float
+    frames_only_recording: int
+    frames_only_ssm: int
+    frames_only_ssm_other_lane: int
+    frames_only_ssm_above_threshold: int
+    frames_only_ssm_not_preceding: int
+    vehicles_below_3s_recording: int
+    vehicles_below_3s_ssm: int
+    vehicles_below_3s_both: int
+    vehicle_median_abs_diff_s: float
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str, int], ssm: pd.DataFrame,
+                first_step: int, recorded_minutes: float) -> SsmComparison:
+    """Compare a recording (HighD tracks/tracksMeta, SUMO id -> HighD id) with SSM TTC rows."""
+    thr = SSM_TTC_THRESHOLD_S
+    s = ssm.assign(frame=np.rint(ssm["time_s"].to_numpy(np.float64) / STEP_S).astype(np.int64) - first_step + 1,
+                   id=ssm["follower"].map(id_of), leader_id=ssm["leader"].map(id_of))
+    s = s.dropna(subset=["id", "leader_id"]).astype({"id": np.int64, "leader_id": np.int64})
+    present = tracks[["id", "frame"]]
+    s = s.merge(present, on=["id", "frame"]).merge(present.rename(columns={"id": "leader_id"}),
+                                                     on=["leader_id", "frame"])
+    s = s[s["ttc_s"] < thr]
+    ours_all = tracks.loc[tracks["ttc"] > 0, ["id", "frame", "precedingId", "ttc"]]
+    ours_all = ours_all.rename(columns={"precedingId": "leader_id"})
+    ours = ours_all[ours_all["ttc"] < thr]
+    both = ours.merge(s[["id", "frame", "leader_id", "ttc_s"]], on=["id", "frame", "leader_id"])
+    diff = np.abs(both["ttc"].to_numpy() - both["ttc_s"].to_numpy())
+    keys_ours = set(zip(ours["id"], ours["frame"], strict=True))
+    keys_ssm = set(zip(s["id"], s["frame"], strict=True))
+    keys_both = set(zip(both["id"], both["frame"], strict=True))
+    lane = tracks.set_index(["id", "frame"])["laneId"]
+    only_ssm = s[[k not in keys_both for k in zip(s["id"], s["frame"], strict=True)]]
+    only_ssm = only_ssm.drop_duplicates(["id", "frame"])
+    follower_keys = list(zip(only_ssm["id"], only_ssm["frame"], strict=True))
+    differs = (lane.loc[follower_keys].to_numpy()
+               != lane.loc[list(zip(only_ssm["leader_id"], only_ssm["frame"], strict=True))].to_numpy())
+    other_lane = int(np.sum(differs))
+    preceding = tracks.set_index(["id", "frame"])["precedingId"].loc[follower_keys].to_numpy()
+    not_preceding = int(np.sum(~differs & (preceding != only_ssm["leader_id"].to_numpy())))
+    above = len(only_ssm.merge(ours_all[ours_all["ttc"] >= thr], on=["id", "frame", "leader_id"]))
+
+    meta = tracks_meta.set_index("id")["minTTC"]
+    rec_low = set(meta.index[(meta >= 0) & (meta < 3.0)])
+    ssm_min = s.groupby("id")["ttc_s"].min()
+    ssm_low = set(ssm_min.index[ssm_min < 3.0])
+    common = sorted(rec_low & ssm_low)
+    vdiff = np.abs(meta.loc[common].to_numpy() - ssm_min.loc[common].to_numpy()) if common else np.array([])
+    return SsmComparison(
+        recorded_minutes=recorded_minutes,
+        vehicles=len(tracks_meta),
+        frames_both=len(both),
+        frame_median_abs_diff_s=float(np.median(diff)) if len(diff) else float("nan"),
+        frame_p95_abs_diff_s=float(np.percentile(diff, 95)) if len(diff) else float("nan"),
+        frame_within_5pct=float(np.mean(diff <= 0.05 * both["ttc_s"].to_numpy())) if len(diff) else float("nan"),
+        frames_only_recording=len(keys_ours - keys_both),
+        frames_only_ssm=len(keys_ssm - keys_both),
+        frames_only_ssm_other_lane=other_lane,
+        frames_only_ssm_above_threshold=above,
+        frames_only_ssm_not_preceding=not_preceding,
+        vehicles_below_3s_recording=len(rec_low),
+        vehicles_below_3s_ssm=len(ssm_low),
+        vehicles_below_3s_both=len(common),
+        vehicle_median_abs_diff_s=float(np.median(vdiff)) if len(vdiff) else float("nan"),
+    )
+
+
+def ssm_check(*, minutes: float, seed: int, traffic: TrafficConfig, lanes_per_direction: int = 3,
+              keep_dir: Path | None = None, progress: Callable[[float], None] | None = None) -> SsmComparison:
+    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs.
+
+    Args:
+        minutes: recorded minutes.
+        seed: seed of the traffic (as for generation).
+        traffic: traffic configuration.
+        lanes_per_direction: 2 or 3.
+        keep_dir: if given, the SSM XML and the HighD files are written there for inspection.
+        progress: fraction done, in [0, 1].
+    """
+
+    work = Path(tempfile.mkdtemp(prefix="letspi_ssm_"))
+    try:
+        ssm_file = work / "ssm.xml"
+        sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
+                                  traffic=traffic, ssm_file=ssm_file, progress=progress)
+        states, vehicles = sim.chunks[0]
+        rec = build_recording(states, vehicles[["id", "class", "drivingDirection"]], recording_id=1,
+                              upper_markings_y_m=sim.network.upper_markings_y_m.tolist(),
+                              lower_markings_y_m=sim.network.lower_markings_y_m.tolist(),
+                              frame_rate_hz=FRAME_RATE_HZ)
+        ssm = read_ssm_ttc(ssm_file)
+        if keep_dir is not None:
+            keep = Path(keep_dir)
+            keep.mkdir(parents=True, exist_ok=True)
+            write_recording(rec, keep)
+            shutil.copy(ssm_file, keep / "01_ssm.xml")
+            vehicles[["id", "sumo_id"]].to_csv(keep / "01_sumo_ids.csv", index=False)
+        id_of = dict(zip(vehicles["sumo_id"], vehicles["id"], strict=True))
+        return compare_ttc(rec.tracks, rec.tracks_meta, id_of, ssm, sim.first_steps[0], float(minutes))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
