@@ -162,3 +162,92 @@ def test_no_windows_is_a_clear_error(rec):
                       rec.tracks[rec.tracks["id"] == 32])
     with pytest.raises(ValueError, match="no 200-frame windows"):
         extract_scenarios([short])
+
+
+def _approach_recording(late_x0: float) -> Recording:
+    """Ego 1 (lane 7, 30 m/s); car 2 ahead in lane 6 at 30 m/s; car 50 starts 160 m ahead in lane 8 at
+    t = 0 and brakes hard only after t = 0 (far away then; later within 100 m); car 60 enters the road
+    2 s after t = 0 right beside the ego."""
+    f = np.arange(1, 261)
+    t_s = (f - 1) * DT
+    t0_s = T0_INDEX * DT
+    x50 = late_x0 + 30.0 * t_s - np.where(t_s > t0_s, 0.5 * 6.0 * (t_s - t0_s) ** 2, 0.0)
+    x50 = np.minimum.accumulate(x50[::-1])[::-1]  # never backwards once stopped
+    v50 = np.gradient(x50, DT)
+    car50 = pd.DataFrame({"frame": f, "id": 50, "x": x50 - 2.25, "y": CENTRE_Y[8] - 0.9, "width": 4.5, "height": 1.8,
+                          "xVelocity": v50, "yVelocity": 0.0, "xAcceleration": 0.0, "yAcceleration": 0.0})
+    late = np.arange(1 + T0_INDEX + 50, 261)
+    parts = [_vehicle(1, CAR, 100.0, 30.0, 7, f), _vehicle(2, CAR, 140.0, 30.0, 6, f), car50,
+             _vehicle(60, CAR, 100.0 + 30.0 * (late[0] - 1) * DT, 30.0, 8, late)]
+    states = pd.concat(parts, ignore_index=True)
+    vehicles = pd.DataFrame({"id": [1, 2, 50, 60], "class": "Car", "drivingDirection": 2})
+    return build_recording(states, vehicles, recording_id=1, upper_markings_y_m=(10.0, 13.5, 17.0, 20.5),
+                           lower_markings_y_m=(24.0, 27.5, 31.0, 34.5), speed_limit_mps=33.3)
+
+
+def test_neighbours_are_chosen_from_what_is_visible_at_t0():
+    """Moving a vehicle only in the future leaves the selection unchanged; what comes near later is
+    context (scored, never shown to planners)."""
+    for late_x0 in (260.0, 280.0):  # two different futures of car 50 (both > 100 m away at t = 0)
+        batch = extract_scenarios([_approach_recording(late_x0)], max_scenarios=None)
+        s = _scenario(batch, 1, 1)
+        assert s.nbr_id[s.nbr_id != 0].tolist() == [2]
+        assert sorted(s.ctx_id[s.ctx_id != 0].tolist()) == [50, 60]
+        assert not batch.history().ctx_valid.size  # the history-only view holds no context
+    j = list(s.ctx_id).index(60)
+    assert not s.ctx_valid[j, :49].any() and s.ctx_valid[j, 50:].all()  # enters 2 s after t = 0
+
+
+def test_a_plan_into_a_context_vehicle_is_a_collision():
+    from letspi.metrics.evaluate import compute_metrics
+    from letspi.scenario.build import VehicleSpec, straight_road_scenario
+
+    # nobody visible at t = 0; a car appears 2 s later standing in the ego's lane 80 m ahead
+    batch = straight_road_scenario(ego_speed_mps=30.0, context=[
+        VehicleSpec(x0_m=80.0, speed_mps=0.0, visible_from_index=T0_INDEX + 50)])
+    t = np.arange(1, 126) * DT
+    xy = np.stack([30.0 * t, np.zeros_like(t)], axis=-1)[None]
+    vxy = np.broadcast_to(np.array([30.0, 0.0]), xy.shape)
+    m = compute_metrics(batch, xy, vxy)
+    assert bool(m.collision[0]) and int(m.collision_nbr[0]) == batch.n_neighbours  # the first context slot
+
+
+def test_focus_critical_oversamples_windows_with_a_conflict(rec):
+    from letspi.scenario.extract import critical_windows, sample_windows
+
+    recs = [_approach_recording(120.0)]  # car 50 brakes 20 m ahead of the ego in the next lane... and car 2
+    windows = enumerate_windows(recs)
+    critical = critical_windows(recs, windows)
+    # only ego vehicles that close in on a braking leader in their own lane have a conflict; here nobody
+    # follows car 50 in lane 8 until car 60 enters: car 60's windows are the critical ones, if any
+    events = {1: pd.DataFrame({"frame": [100], "id": [50], "other_id": [1], "kind": ["hard_brake"]})}
+    with_events = critical_windows(recs, windows, events)
+    assert with_events.sum() >= critical.sum()
+    ego1 = windows.ego_id == 1
+    assert with_events[ego1].any()  # the event involving ego 1 marks its windows around frame 100
+    chosen = sample_windows(windows, 4, seed=0, critical=with_events, critical_share=1.0)
+    picked = np.array([np.flatnonzero((windows.ego_id == e) & (windows.start_frame == s))[0]
+                       for e, s in zip(chosen.ego_id, chosen.start_frame, strict=True)])
+    assert with_events[picked].sum() == min(4, int(with_events.sum()))
+    with pytest.raises(ValueError, match="critical_share must be in"):
+        sample_windows(windows, 4, seed=0, critical=with_events, critical_share=1.5)
+
+
+def test_critical_windows_follow_the_recorded_ttc():
+    from letspi.scenario.extract import CRITICAL_TTC_S, critical_windows
+
+    f = np.arange(1, 501)  # 20 s: ego 1 at 30 m/s closes on car 2 at 20 m/s, 220 m ahead at the start
+    parts = [_vehicle(1, CAR, 100.0, 30.0, 7, f), _vehicle(2, CAR, 324.5, 20.0, 7, f)]
+    states = pd.concat(parts, ignore_index=True)
+    vehicles = pd.DataFrame({"id": [1, 2], "class": "Car", "drivingDirection": 2})
+    rec2 = build_recording(states, vehicles, recording_id=1, upper_markings_y_m=(10.0, 13.5, 17.0, 20.5),
+                           lower_markings_y_m=(24.0, 27.5, 31.0, 34.5), speed_limit_mps=33.3)
+    windows = enumerate_windows([rec2])
+    crit = critical_windows([rec2], windows)
+    ego1 = np.flatnonzero(windows.ego_id == 1)
+    # gap(t) = 220 - 10 t; TTC < 3 s once the gap is below 30 m, i.e. after t = 19 s (frame 476)
+    last_future_frame = windows.start_frame[ego1] + N_TOTAL - 1
+    ttc_at_end = (220.0 - 10.0 * (last_future_frame - 1) * DT) / 10.0
+    np.testing.assert_array_equal(crit[ego1], ttc_at_end < CRITICAL_TTC_S)
+    assert crit[ego1].any() and not crit[ego1].all()
+    assert not crit[windows.ego_id == 2].any()  # the leader has nobody ahead

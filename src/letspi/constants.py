@@ -17,4 +17,8 @@ T0_INDEX: Final = N_HISTORY - 1
 HORIZON_S: Final = N_FUTURE * DT_S
 MAX_NEIGHBOURS: Final = 8
 NEIGHBOUR_RADIUS_M: Final = 100.0
+CONTEXT_RADIUS_M: Final = 150.0
+"""Context vehicles (scored, never shown to a planner) come within this distance of the ego's recorded
+future track: beyond it no plausible plan reaches them in 5 s (a 30 m/s speed difference)."""
+MAX_CONTEXT: Final = 24
 DEFAULT_STRIDE_FRAMES: Final = 20

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from letspi.constants import DT_S, MAX_NEIGHBOURS, N_TOTAL, T0_INDEX
+from letspi.constants import DT_S, MAX_NEIGHBOURS, N_FUTURE, N_TOTAL, T0_INDEX
 from letspi.metrics._common import MetricInputs
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.distance import distances
@@ -93,6 +93,13 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
         marking_y_m=marking_y.astype(np.float32),
         marking_is_edge=np.broadcast_to(np.array([True, False, False, True]), (n, 4)).copy(),
         lane_ids=lane_ids,
+        ctx_id=np.zeros((n, 0), np.int32),
+        ctx_class=np.zeros((n, 0), np.int8),
+        ctx_length_m=np.zeros((n, 0), np.float32),
+        ctx_width_m=np.zeros((n, 0), np.float32),
+        ctx_xy_m=np.zeros((n, 0, N_FUTURE, 2), np.float32),
+        ctx_vxy_mps=np.zeros((n, 0, N_FUTURE, 2), np.float32),
+        ctx_valid=np.zeros((n, 0, N_FUTURE), bool),
     )
 
     # Plans: the human future with a speed offset, a third of them with a lane change

@@ -12,8 +12,9 @@ import typer
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.constants import DEFAULT_STRIDE_FRAMES, T0_INDEX
 from letspi.highd.criticality import profile_directory, profile_table
+from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
-from letspi.scenario.extract import enumerate_windows, extract_scenarios
+from letspi.scenario.extract import critical_windows, enumerate_windows, extract_scenarios
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
 from letspi.sumo.config import traffic_preset, with_overrides
 from letspi.sumo.generate import generate_highd
@@ -125,24 +126,40 @@ def scenarios(
     seed: Annotated[int, typer.Option(help="Seed of the random sample.")] = 0,
     stride: Annotated[int, typer.Option(min=1, help="Sliding-window stride [frames].")] = DEFAULT_STRIDE_FRAMES,
     recordings: Annotated[str | None, typer.Option(help="Comma-separated recording ids (default: all).")] = None,
+    focus: Annotated[str, typer.Option(help="uniform (the paper: uniform random windows) or critical "
+                                            "(oversample windows whose recorded future holds a conflict)")] = "uniform",
+    critical_share: Annotated[float, typer.Option(
+        help="With --focus critical: the share of scenarios drawn from windows with a conflict of the ego "
+             "(TTC < 3 s, DRAC > 3 m/s^2, or a scripted event).")] = 0.5,
 ) -> None:
-    """Cut recordings into 8 s ego-centric scenarios (3 s history, 5 s future) and store them."""
+    """Cut recordings into 8 s ego-centric scenarios (3 s history, 5 s future) and store them.
+
+    Neighbours are chosen at t = 0 from what is visible then; other vehicles near the ego's recorded
+    future are kept as context the evaluation scores and planners never see."""
     with user_errors():
+        if focus not in ("uniform", "critical"):
+            raise ValueError(f"--focus must be uniform or critical, got {focus!r}")
+        share = critical_share if focus == "critical" else 0.0
         recs = read_recordings(highd, _parse_ids(recordings))
-        total = len(enumerate_windows(recs, stride))
+        events = {r.recording_id: read_events(highd, r.recording_id) for r in recs}
+        windows = enumerate_windows(recs, stride)
+        total = len(windows)
         n = total if max is None else min(max, total)
+        n_critical = int(critical_windows(recs, windows, events).sum())
         with progress_bar() as bar:
             task = bar.add_task("extracting", total=n)
             batch = extract_scenarios(
-                recs, max_scenarios=max, seed=seed, stride_frames=stride,
+                recs, max_scenarios=max, seed=seed, stride_frames=stride, critical_share=share, events=events,
                 progress=lambda k: bar.advance(task, k),
             )
         provenance = {
             "source": str(highd), "recordings": [r.recording_id for r in recs], "stride_frames": stride,
-            "max": max, "seed": seed, "windows_available": total,
+            "max": max, "seed": seed, "windows_available": total, "focus": focus, "critical_share": share,
+            "critical_windows_available": n_critical,
         }
         save_scenarios(batch, out, extra_meta={"provenance": provenance})
-    console.print(f"wrote {len(batch)} of {total} scenarios to {out}")
+    console.print(f"wrote {len(batch)} of {total} scenarios to {out} ({n_critical} windows have a conflict "
+                  f"in their future; focus {focus})")
 
 
 @app.command()

@@ -23,7 +23,7 @@ import numpy as np
 
 from letspi.constants import T0_INDEX
 from letspi.scenario.queries import OFF_ROAD, lane_index_of
-from letspi.scenario.types import ScenarioBatch
+from letspi.scenario.types import CONTEXT_FIELDS, ScenarioBatch
 
 FuturePolicy = Literal["none", "log"]
 
@@ -141,4 +141,6 @@ def replanning_batch(
             out[name] = (arr.astype(np.float64) - centre.reshape(shape)).astype(arr.dtype)
     out["marking_y_m"] = (out["marking_y_m"].astype(np.float64) - centre[:, 1:2]).astype(source.marking_y_m.dtype)
     out["frame0"] = (np.asarray(source.frame0) + shift).astype(source.frame0.dtype)
+    if future == "none":  # context vehicles are future-only ground truth: never part of a planner's view
+        out.update({name: out[name][:, :0] for name in CONTEXT_FIELDS})
     return ScenarioBatch(**out), centre

@@ -45,7 +45,8 @@ class MetricInputs:
     def from_batch(
         cls, batch: ScenarioBatch, ego_future_xy_m: np.ndarray, ego_future_vxy_mps: np.ndarray
     ) -> MetricInputs:
-        """Planned ego future + the batch's neighbour ground truth over ``batch.future_slice``."""
+        """Planned ego future + the batch's neighbour ground truth over ``batch.future_slice``, with the
+        batch's context vehicles (``ctx_*``: scored, never shown to planners) appended as slots N..N+C-1."""
         fs = batch.future_slice
         xy = np.asarray(ego_future_xy_m, dtype=np.float64)
         vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)
@@ -64,7 +65,8 @@ class MetricInputs:
             nbr_valid=batch.nbr_valid[:, :, fs] & np.isfinite(nbr_xy).all(axis=-1),
             nbr_length_m=batch.nbr_length_m.astype(np.float64),
             nbr_width_m=batch.nbr_width_m.astype(np.float64),
-        )
+        ).with_neighbours(batch.ctx_xy_m, batch.ctx_vxy_mps, batch.ctx_valid, batch.ctx_length_m,
+                          batch.ctx_width_m)
 
     def with_neighbours(
         self,

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.constants import DT_S, MAX_NEIGHBOURS, N_TOTAL, T0_INDEX
+from letspi.constants import DT_S, MAX_NEIGHBOURS, N_FUTURE, N_TOTAL, T0_INDEX
 from letspi.scenario.types import VEHICLE_CLASS_CAR, VEHICLE_CLASS_NONE, ScenarioBatch
 
 LANE_WIDTH_M = 3.75
@@ -55,6 +55,7 @@ def straight_road_scenario(
     ego_speed_mps: float = 30.0,
     ego_accel_mps2: float = 0.0,
     neighbours: list[VehicleSpec] | tuple[VehicleSpec, ...] = (),
+    context: list[VehicleSpec] | tuple[VehicleSpec, ...] = (),
     n_lanes: int = 3,
     ego_lane_index: int = 1,
     lane_width_m: float = LANE_WIDTH_M,
@@ -66,6 +67,7 @@ def straight_road_scenario(
 
     The ego drives at the centre of its lane. Lane ids follow HighD for an ``n_lanes`` + ``n_lanes``
     road: the lower carriageway has ids ``n_lanes + 3 ... 2 * n_lanes + 2``, rightmost largest.
+    ``context`` vehicles are scored but never shown to a planner (future frames only; ids from 100).
     """
     if not 0 <= ego_lane_index < n_lanes:
         raise ValueError(f"ego_lane_index {ego_lane_index} outside 0..{n_lanes - 1}")
@@ -101,6 +103,18 @@ def straight_road_scenario(
         nbr_class[j] = spec.vehicle_class
         nbr_len[j] = spec.length_m
         nbr_wid[j] = spec.width_m
+    c = len(context)
+    ctx_xy = np.full((c, N_FUTURE, 2), np.nan)
+    ctx_v = np.full((c, N_FUTURE, 2), np.nan)
+    ctx_valid = np.zeros((c, N_FUTURE), dtype=bool)
+    for j, spec in enumerate(context):
+        x, v, _ = _kinematics(spec.x0_m, spec.speed_mps, spec.accel_mps2)
+        y = spec.lane_offset * lane_width_m + spec.y_offset_m
+        vis = np.arange(N_TOTAL)[T0_INDEX + 1:] >= spec.visible_from_index
+        fut = slice(T0_INDEX + 1, None)
+        ctx_xy[j] = np.where(vis[:, None], np.stack([x[fut], np.full(N_FUTURE, y)], -1), np.nan)
+        ctx_v[j] = np.where(vis[:, None], np.stack([v[fut], np.zeros(N_FUTURE)], -1), np.nan)
+        ctx_valid[j] = vis
     edge = np.zeros(n_lanes + 1, dtype=bool)
     edge[[0, -1]] = True
     return ScenarioBatch.from_single(
@@ -130,4 +144,11 @@ def straight_road_scenario(
         marking_y_m=marking_y.astype(np.float32),
         marking_is_edge=edge,
         lane_ids=lane_ids,
+        ctx_id=np.arange(100, 100 + c, dtype=np.int32),
+        ctx_class=np.array([spec.vehicle_class for spec in context], dtype=np.int8),
+        ctx_length_m=np.array([spec.length_m for spec in context], dtype=np.float32),
+        ctx_width_m=np.array([spec.width_m for spec in context], dtype=np.float32),
+        ctx_xy_m=ctx_xy.astype(np.float32),
+        ctx_vxy_mps=ctx_v.astype(np.float32),
+        ctx_valid=ctx_valid,
     )

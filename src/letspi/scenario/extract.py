@@ -4,27 +4,40 @@ Every vehicle with at least ``N_TOTAL`` frames yields windows of ``N_TOTAL`` fra
 first frame and then every ``stride_frames`` frames. In each window:
 
 * the ego's states are transformed into the ego frame (see ``letspi.scenario.types``);
-* neighbours are the other vehicles **of the same driving direction** whose centre comes within
-  ``NEIGHBOUR_RADIUS_M`` of the ego's centre at any frame of the window (both present); the
-  ``MAX_NEIGHBOURS`` closest by that minimum distance are kept, closest first (distances compared
-  at 1 mm resolution; ties: lower id).
-  Opposite-carriageway traffic is separated by the median and never interacts, so it is left out.
-  Note the selection looks at the whole 8 s window, like the paper; planners must only read
-  neighbour states at frames ``<= T0_INDEX`` (``nbr_valid`` tells which slots have a history).
+* **neighbours** (what a planner sees) are chosen at t = 0 from what is visible then: the other
+  vehicles **of the same driving direction** present at t = 0 whose centre is within
+  ``NEIGHBOUR_RADIUS_M`` of the ego's centre at t = 0, the ``MAX_NEIGHBOURS`` closest first (distances
+  compared at 1 mm resolution; ties: lower id). No frame after t = 0 influences the choice, so the
+  selection itself cannot leak the future. Their whole window (history and recorded future) is kept.
+* **context vehicles** (what the evaluation checks, never shown to a planner): every other vehicle of
+  the same direction present in the recorded future whose centre comes within ``CONTEXT_RADIUS_M`` of
+  the ego's recorded centre at some future frame, closest first, at most ``MAX_CONTEXT`` of them; only
+  their future frames are stored. A plan that leaves the human's path is thereby scored against cars
+  that entered the scene later or were beyond the 8 nearest at t = 0.
+
+Opposite-carriageway traffic is separated by the median and never interacts, so it is left out.
+
+Scenario selection (``sample_windows``): uniform random sampling by default, as in the paper;
+``critical_share`` oversamples windows whose recorded future holds a conflict of the ego
+(``critical_windows``: a per-frame TTC to its leader below ``CRITICAL_TTC_S``, a DRAC above
+``CRITICAL_DRAC_MPS2``, or a scripted event of ``NN_events.csv`` involving it).
 """
 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from letspi.constants import (
+    CONTEXT_RADIUS_M,
     DEFAULT_STRIDE_FRAMES,
+    MAX_CONTEXT,
     MAX_NEIGHBOURS,
+    N_FUTURE,
     N_TOTAL,
     NEIGHBOUR_RADIUS_M,
     T0_INDEX,
@@ -32,6 +45,7 @@ from letspi.constants import (
 from letspi.highd.schema import DRIVING_DIRECTION_LOWER
 from letspi.highd.types import Recording
 from letspi.scenario.types import (
+    CONTEXT_FIELDS,
     VEHICLE_CLASS_CAR,
     VEHICLE_CLASS_NONE,
     VEHICLE_CLASS_TRUCK,
@@ -85,16 +99,85 @@ def enumerate_windows(
     return WindowIndex(np.concatenate(rec_ids), np.concatenate(ego_ids), np.concatenate(starts))
 
 
-def sample_windows(windows: WindowIndex, max_n: int | None, seed: int) -> WindowIndex:
-    """Up to ``max_n`` windows drawn uniformly without replacement, reproducible by ``seed``.
+CRITICAL_TTC_S = 3.0
+CRITICAL_DRAC_MPS2 = 3.0
+EVENT_LEAD_FRAMES = 50
+"""An event that started up to 2 s before t = 0 still unfolds in the window's future."""
 
-    The result is sorted by (recording, ego, start) so extraction reads each recording once.
+
+def critical_windows(
+    recordings: Sequence[Recording],
+    windows: WindowIndex,
+    events: Mapping[int, pd.DataFrame | None] | None = None,
+) -> np.ndarray:
+    """(W,) bool: whether each window's recorded *future* holds a conflict of its ego.
+
+    A conflict is a frame after t = 0 whose per-frame TTC to the preceding vehicle (HighD ``ttc``,
+    > 0 when defined) is below ``CRITICAL_TTC_S``, or whose DRAC = closing speed / (2 TTC) exceeds
+    ``CRITICAL_DRAC_MPS2``, or a scripted event (``events``: recording id -> ``NN_events.csv`` rows)
+    with the ego as actor or as the vehicle acted on, starting within ``EVENT_LEAD_FRAMES`` before
+    t = 0 or in the future. Used only to *select* scenarios (training and evaluation sets), never by
+    a planner.
     """
+    out = np.zeros(len(windows), dtype=bool)
+    for rec in recordings:
+        sel = np.flatnonzero(windows.recording_id == rec.recording_id)
+        if not len(sel):
+            continue
+        t = rec.tracks.sort_values(["id", "frame"], kind="stable")
+        ttc = t["ttc"].to_numpy(np.float64)
+        closing = np.abs(t["xVelocity"].to_numpy(np.float64) - t["precedingXVelocity"].to_numpy(np.float64))
+        defined = ttc > 0
+        drac = np.where(defined, closing / (2.0 * np.where(defined, ttc, 1.0)), 0.0)
+        crit = defined & ((ttc < CRITICAL_TTC_S) | (drac > CRITICAL_DRAC_MPS2))
+        counts = np.concatenate([[0], np.cumsum(crit)])
+        ids = t["id"].to_numpy(np.int64)
+        first_row = {int(v): int(i) for v, i in zip(*np.unique(ids, return_index=True), strict=True)}
+        first_frame = dict(zip(rec.tracks_meta["id"].astype(int), rec.tracks_meta["initialFrame"].astype(int),
+                               strict=True))
+        ego, start = windows.ego_id[sel].astype(np.int64), windows.start_frame[sel].astype(np.int64)
+        base = np.array([first_row[int(e)] for e in ego]) + start - np.array([first_frame[int(e)] for e in ego])
+        begin, end = base + T0_INDEX + 1, base + N_TOTAL  # future rows [begin, end)
+        hit = counts[end] - counts[begin] > 0
+        ev = None if events is None else events.get(rec.recording_id)
+        if ev is not None and len(ev):
+            frame0 = start + T0_INDEX
+            ev_frame = ev["frame"].to_numpy(np.int64)
+            involved = [(ev["id"].to_numpy(np.int64) == e) | (ev["other_id"].to_numpy(np.int64) == e) for e in ego]
+            hit |= np.array([bool(np.any(inv & (ev_frame >= f0 - EVENT_LEAD_FRAMES) & (ev_frame < f0 + N_FUTURE)))
+                             for inv, f0 in zip(involved, frame0, strict=True)], dtype=bool)
+        out[sel] = hit
+    return out
+
+
+def sample_windows(
+    windows: WindowIndex,
+    max_n: int | None,
+    seed: int,
+    critical: np.ndarray | None = None,
+    critical_share: float = 0.0,
+) -> WindowIndex:
+    """Up to ``max_n`` windows drawn without replacement, reproducible by ``seed``.
+
+    Uniform by default (the paper). With ``critical`` ((W,) bool, ``critical_windows``) and
+    ``critical_share`` F > 0, round(F · max_n) windows are drawn from the critical ones (all of them if
+    fewer) and the rest uniformly from the remaining windows. The result is sorted by (recording, ego,
+    start) so extraction reads each recording once.
+    """
+    if not 0.0 <= critical_share <= 1.0:
+        raise ValueError(f"critical_share must be in [0, 1], got {critical_share}")
     n = len(windows)
+    rng = np.random.default_rng(seed)
     if max_n is None or max_n >= n:
         chosen = np.arange(n)
+    elif critical is None or critical_share == 0.0:
+        chosen = np.sort(rng.choice(n, size=max_n, replace=False))
     else:
-        chosen = np.sort(np.random.default_rng(seed).choice(n, size=max_n, replace=False))
+        crit = np.flatnonzero(critical)
+        n_crit = min(round(critical_share * max_n), len(crit))
+        from_crit = rng.choice(crit, size=n_crit, replace=False)
+        rest = np.setdiff1d(np.arange(n), from_crit)
+        chosen = np.sort(np.concatenate([from_crit, rng.choice(rest, size=max_n - n_crit, replace=False)]))
     sub = windows.take(chosen)
     order = np.lexsort((sub.start_frame, sub.ego_id, sub.recording_id))
     return sub.take(order)
@@ -206,19 +289,21 @@ def extract_windows(
         ex, ey = _to_ego_frame(direction, cx, cy, cx0, cy0)
         sx, sy = _sign(direction)
 
-        # neighbour candidates: same direction, within the radius at some frame
+        # neighbours: same direction, present at t = 0 and within the radius then (no later frame counts)
         ego_x_at, ego_y_at = ex[ego_rows], ey[ego_rows]
         dist = np.hypot(ex - ego_x_at[fr], ey - ego_y_at[fr])
-        cand = (~is_ego) & (arr.direction[vid] == direction) & (dist <= NEIGHBOUR_RADIUS_M)
-        cand_ids = vid[cand]
-        if len(cand_ids):
-            uniq, inv = np.unique(cand_ids, return_inverse=True)
+        same_dir = (~is_ego) & (arr.direction[vid] == direction)
+        at_t0 = same_dir & (fr == T0_INDEX) & (dist <= NEIGHBOUR_RADIUS_M)
+        order = np.lexsort((vid[at_t0], np.round(dist[at_t0], 3)))
+        keep = vid[at_t0][order][:n]
+        # context: the others present in the future that come within CONTEXT_RADIUS_M of the ego's track
+        future_rows = same_dir & (fr > T0_INDEX) & (dist <= CONTEXT_RADIUS_M) & ~np.isin(vid, keep)
+        ctx = np.zeros(0, dtype=np.int64)
+        if future_rows.any():
+            uniq, inv = np.unique(vid[future_rows], return_inverse=True)
             min_d = np.full(len(uniq), np.inf)
-            np.minimum.at(min_d, inv, dist[cand])
-            # rank at 1 mm resolution so float noise from CSV round trips can't reorder ties
-            keep = uniq[np.lexsort((uniq, np.round(min_d, 3)))][:n]
-        else:
-            keep = np.zeros(0, dtype=np.int64)
+            np.minimum.at(min_d, inv, dist[future_rows])
+            ctx = uniq[np.lexsort((uniq, np.round(min_d, 3)))][:MAX_CONTEXT]
 
         out["scenario_id"][w] = f"r{rec.recording_id:02d}_v{ego}_f{start + T0_INDEX}"
         out["recording_id"][w] = rec.recording_id
@@ -251,12 +336,27 @@ def extract_windows(
             out["nbr_vxy_mps"][w, j, t, 1] = sy * arr.vy[sl][rows]
             out["nbr_valid"][w, j, t] = True
             out["nbr_lane_id"][w, j, t] = arr.lane[sl][rows]
+        for j, cid in enumerate(ctx):
+            rows = np.flatnonzero((vid == cid) & (fr > T0_INDEX))
+            t = fr[rows] - (T0_INDEX + 1)
+            out["ctx_id"][w, j] = cid
+            out["ctx_class"][w, j] = arr.vclass[cid]
+            out["ctx_length_m"][w, j] = arr.length[cid]
+            out["ctx_width_m"][w, j] = arr.width[cid]
+            out["ctx_xy_m"][w, j, t, 0] = ex[rows]
+            out["ctx_xy_m"][w, j, t, 1] = ey[rows]
+            out["ctx_vxy_mps"][w, j, t, 0] = sx * arr.vx[sl][rows]
+            out["ctx_vxy_mps"][w, j, t, 1] = sy * arr.vy[sl][rows]
+            out["ctx_valid"][w, j, t] = True
         my, edge, lane_ids = _road_arrays(rec, direction, cy0)
         out["marking_y_m"][w, : len(my)] = my
         out["marking_is_edge"][w, : len(my)] = edge
         out["lane_ids"][w, : len(lane_ids)] = lane_ids
         if progress is not None:
             progress(1)
+    used = int((out["ctx_id"] != 0).sum(axis=1).max()) if n_win else 0
+    for name in CONTEXT_FIELDS:  # drop context slots no window of this recording uses
+        out[name] = out[name][:, :used]
     return ScenarioBatch(**out)
 
 
@@ -289,6 +389,13 @@ def _empty_batch_arrays(n_win: int, n: int, m: int) -> dict[str, np.ndarray]:
         "marking_y_m": np.full((n_win, m), np.nan, f32),
         "marking_is_edge": np.zeros((n_win, m), bool),
         "lane_ids": np.zeros((n_win, max(m - 1, 0)), np.int8),
+        "ctx_id": np.zeros((n_win, MAX_CONTEXT), np.int32),
+        "ctx_class": np.full((n_win, MAX_CONTEXT), VEHICLE_CLASS_NONE, np.int8),
+        "ctx_length_m": np.zeros((n_win, MAX_CONTEXT), f32),
+        "ctx_width_m": np.zeros((n_win, MAX_CONTEXT), f32),
+        "ctx_xy_m": np.full((n_win, MAX_CONTEXT, N_FUTURE, 2), np.nan, f32),
+        "ctx_vxy_mps": np.full((n_win, MAX_CONTEXT, N_FUTURE, 2), np.nan, f32),
+        "ctx_valid": np.zeros((n_win, MAX_CONTEXT, N_FUTURE), bool),
     }
 
 
@@ -298,10 +405,15 @@ def extract_scenarios(
     max_scenarios: int | None = None,
     seed: int = 0,
     stride_frames: int = DEFAULT_STRIDE_FRAMES,
+    critical_share: float = 0.0,
+    events: Mapping[int, pd.DataFrame | None] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> ScenarioBatch:
-    """All windows of the recordings, or ``max_scenarios`` of them sampled reproducibly by ``seed``."""
-    windows = sample_windows(enumerate_windows(recordings, stride_frames), max_scenarios, seed)
+    """All windows of the recordings, or ``max_scenarios`` of them sampled reproducibly by ``seed``
+    (uniformly, or with ``critical_share`` of them from windows with a conflict: ``sample_windows``)."""
+    every = enumerate_windows(recordings, stride_frames)
+    critical = critical_windows(recordings, every, events) if critical_share > 0 else None
+    windows = sample_windows(every, max_scenarios, seed, critical, critical_share)
     if len(windows) == 0:
         raise ValueError(
             f"no {N_TOTAL}-frame windows in {len(recordings)} recording(s): "

@@ -99,6 +99,9 @@ def save_scenarios(batch: ScenarioBatch, path: Path, extra_meta: dict[str, objec
             columns[f.name] = pa.array(arr)
             continue
         size = int(np.prod(inner))
+        if size == 0:  # e.g. no context vehicles anywhere: Arrow lists need a positive size
+            columns[f.name] = pa.nulls(len(arr), type=pa.int8())
+            continue
         flat = np.ascontiguousarray(arr).reshape(-1)
         if arr.dtype == bool:
             values = pa.array(flat.astype(np.uint8))
@@ -239,6 +242,9 @@ def _to_batch(path: Path, table: pa.Table, meta: dict[str, Any]) -> ScenarioBatc
         dtype = np.dtype(dtypes[f.name])
         if not inner:
             out[f.name] = col.to_numpy(zero_copy_only=False).astype(dtype, copy=False)
+            continue
+        if 0 in inner:
+            out[f.name] = np.zeros((table.num_rows, *inner), dtype=dtype)
             continue
         values = col.flatten().to_numpy(zero_copy_only=False)
         arr = values.astype(dtype, copy=False)

@@ -29,16 +29,18 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from letspi.constants import N_HISTORY, N_TOTAL, T0_INDEX
+from letspi.constants import N_FUTURE, N_HISTORY, N_TOTAL, T0_INDEX
 
-SCHEMA_VERSION = 2
-"""2: ``recording_key`` added (vehicle identity across datasets)."""
+SCHEMA_VERSION = 3
+"""2: ``recording_key`` (vehicle identity across datasets). 3: neighbours chosen at t = 0; context vehicles."""
 
 VEHICLE_CLASS_CAR = 0
 VEHICLE_CLASS_TRUCK = 1
 VEHICLE_CLASS_NONE = -1
 VEHICLE_CLASS_NAMES = {VEHICLE_CLASS_CAR: "Car", VEHICLE_CLASS_TRUCK: "Truck"}
 
+#: Context-vehicle fields (future frames only, padded along their axis C; see ``ScenarioBatch``).
+CONTEXT_FIELDS = ("ctx_id", "ctx_class", "ctx_length_m", "ctx_width_m", "ctx_xy_m", "ctx_vxy_mps", "ctx_valid")
 #: Per-frame fields: ``ego_*`` have the time axis at 1, ``nbr_*`` at 2.
 _TIME_FIELDS = ("ego_xy_m", "ego_vxy_mps", "ego_axy_mps2", "ego_lane_id", "nbr_xy_m", "nbr_vxy_mps", "nbr_valid",
                 "nbr_lane_id")
@@ -59,8 +61,9 @@ class ScenarioBatch:
     Ego (T = 200 frames):
         ego_xy_m (B, T, 2), ego_vxy_mps (B, T, 2), ego_axy_mps2 (B, T, 2): float32, ego frame.
         ego_lane_id (B, T): int8, HighD laneId.
-    Neighbours (N = 8 slots, closest first by minimum centre distance over the window;
-    empty slots have id 0, class -1, size 0 and are never valid):
+    Neighbours (what a planner sees; N = 8 slots, chosen at t = 0 from the vehicles visible then,
+    closest first (``letspi.scenario.extract``); empty slots have id 0, class -1, size 0 and are never
+    valid):
         nbr_id (B, N) int32; nbr_class (B, N) int8; nbr_length_m, nbr_width_m (B, N) float32.
         nbr_xy_m, nbr_vxy_mps (B, N, T, 2) float32 (NaN where not visible).
         nbr_valid (B, N, T) bool: the vehicle is in the recording at that frame.
@@ -70,6 +73,12 @@ class ScenarioBatch:
         marking_is_edge (B, M) bool: road edge (True) or crossable lane line (False).
         lane_ids (B, M - 1) int8: HighD laneId of the lane between marking k and k + 1
             (0 for padding).
+    Context vehicles (scored by the evaluation, never shown to a planner: the other vehicles of the
+    recorded future near the ego; C slots padded to the batch's widest, F = ``N_FUTURE`` future frames
+    only, frame f is t = (f + 1) dt; empty slots have id 0 and are never valid):
+        ctx_id (B, C) int32; ctx_class (B, C) int8; ctx_length_m, ctx_width_m (B, C) float32.
+        ctx_xy_m, ctx_vxy_mps (B, C, F, 2) float32 (NaN where not present); ctx_valid (B, C, F) bool.
+        A history-only view has C = 0.
     """
 
     scenario_id: np.ndarray
@@ -98,6 +107,13 @@ class ScenarioBatch:
     marking_y_m: np.ndarray
     marking_is_edge: np.ndarray
     lane_ids: np.ndarray
+    ctx_id: np.ndarray
+    ctx_class: np.ndarray
+    ctx_length_m: np.ndarray
+    ctx_width_m: np.ndarray
+    ctx_xy_m: np.ndarray
+    ctx_vxy_mps: np.ndarray
+    ctx_valid: np.ndarray
 
     def __post_init__(self) -> None:
         b = len(self.scenario_id)
@@ -116,6 +132,12 @@ class ScenarioBatch:
             axis = 1 if name.startswith("ego_") else 2
             if arr.shape[axis] != t:
                 raise ValueError(f"ScenarioBatch.{name} has {arr.shape[axis]} frames, ego_xy_m has {t}")
+        c = self.ctx_id.shape[1:2]
+        for name in CONTEXT_FIELDS:
+            arr = getattr(self, name)
+            if arr.shape[1:2] != c or (arr.ndim > 2 and arr.shape[2] != N_FUTURE):
+                raise ValueError(f"ScenarioBatch.{name} has shape {arr.shape}: context fields are (B, C) or "
+                                 f"(B, C, {N_FUTURE}, ...) with one C (ctx_id has {c})")
 
     @classmethod
     def from_single(cls, **values: object) -> ScenarioBatch:
@@ -157,7 +179,8 @@ class ScenarioBatch:
             return self
         cut = {name: (getattr(self, name)[:, :N_HISTORY] if name.startswith("ego_")
                       else getattr(self, name)[:, :, :N_HISTORY]) for name in _TIME_FIELDS}
-        return replace(self, **cut)
+        no_context = {name: getattr(self, name)[:, :0] for name in CONTEXT_FIELDS}
+        return replace(self, **cut, **no_context)
 
     # Convenience views at t = 0 (what a planner may see) -------------------------------------
     @property
@@ -179,22 +202,30 @@ class ScenarioBatch:
         return slice(T0_INDEX + 1, N_TOTAL)
 
 
+#: Fields whose axis 1 is padded to the widest batch when concatenating, with their fill value.
+_PADDED: dict[str, object] = {
+    "marking_y_m": np.nan, "marking_is_edge": False, "lane_ids": 0,
+    "ctx_id": 0, "ctx_class": VEHICLE_CLASS_NONE, "ctx_length_m": 0.0, "ctx_width_m": 0.0,
+    "ctx_xy_m": np.nan, "ctx_vxy_mps": np.nan, "ctx_valid": False,
+}
+
+
 def concat_batches(batches: list[ScenarioBatch]) -> ScenarioBatch:
-    """Concatenate batches, padding the marking axis (M) to the widest batch."""
+    """Concatenate batches, padding the marking axis (M) and the context axis (C) to the widest batch."""
     if not batches:
         raise ValueError("concat_batches needs at least one batch")
-    m = max(b.marking_y_m.shape[1] for b in batches)
     out: dict[str, np.ndarray] = {}
     for f in fields(ScenarioBatch):
-        parts = []
-        for b in batches:
-            arr = getattr(b, f.name)
-            if f.name in ("marking_y_m", "marking_is_edge", "lane_ids"):
-                width = m if f.name != "lane_ids" else m - 1
-                pad = width - arr.shape[1]
+        arrays = [getattr(b, f.name) for b in batches]
+        if f.name in _PADDED:
+            width = max(a.shape[1] for a in arrays)
+            padded = []
+            for a in arrays:
+                pad = width - a.shape[1]
                 if pad > 0:
-                    fill: object = np.nan if f.name == "marking_y_m" else (False if f.name == "marking_is_edge" else 0)
-                    arr = np.concatenate([arr, np.full((arr.shape[0], pad), fill, dtype=arr.dtype)], axis=1)
-            parts.append(arr)
-        out[f.name] = np.concatenate(parts, axis=0)
+                    a = np.concatenate([a, np.full((a.shape[0], pad, *a.shape[2:]), _PADDED[f.name], dtype=a.dtype)],
+                                       axis=1)
+                padded.append(a)
+            arrays = padded
+        out[f.name] = np.concatenate(arrays, axis=0)
     return ScenarioBatch(**out)
