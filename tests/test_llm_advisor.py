@@ -19,6 +19,8 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     ModelNotFoundError,
+    RequestFailedError,
+    RequestRejectedError,
     ServerBusyError,
     message,
 )
@@ -109,11 +111,29 @@ def test_timeout_then_success() -> None:
 
 
 def test_all_attempts_bad_falls_back() -> None:
-    be = ScriptedBackend(["nope", LLMTransportError("HTTP 500"), '{"tau": "fast"}'])
+    be = ScriptedBackend(["nope", "still prose", '{"tau": "fast"}'])
     a = advisor(be)[0].advise(MSGS)
     assert a.fallback and a.reply == DEFAULT_REPLY and len(a.attempts) == 3
-    assert [x.error_kind for x in a.attempts] == ["parse:no_json", "transport", "parse:missing_keys"]
+    assert [x.error_kind for x in a.attempts] == ["parse:no_json", "parse:no_json", "parse:missing_keys"]
     assert a.summary()["fallback"] is True and be.remaining == 0
+
+
+def test_a_transport_failure_among_the_attempts_is_not_a_fallback() -> None:
+    """A fallback means the model had every attempt; one lost in transport makes the request fail
+    (the scenario is not stored, a rerun retries it)."""
+    be = ScriptedBackend(["nope", LLMTransportError("HTTP 500"), '{"tau": "fast"}'])
+    with pytest.raises(RequestFailedError, match=r"no valid reply in 3 attempts \(parse:no_json, transport, "
+                                                 r"parse:missing_keys\).*HTTP 500"):
+        advisor(be)[0].advise(MSGS)
+    assert be.remaining == 0
+
+
+def test_a_rejected_request_falls_back_at_once() -> None:
+    be = ScriptedBackend([RequestRejectedError("HTTP 400: prompt too long", status=400), json.dumps(GOOD)])
+    adv, sleeps = advisor(be)
+    a = adv.advise(MSGS)
+    assert a.fallback and [x.error_kind for x in a.attempts] == ["rejected"] and be.remaining == 1 and sleeps == []
+    assert adv.breaker.consecutive_failures == 0
 
 
 def test_configured_attempt_count() -> None:

@@ -11,25 +11,34 @@ Control flow of ``ParamAdvisor.advise(messages)`` (up to ``RetryPolicy.max_attem
 3. Invalid reply (``ReplyParseError``): resend at once with the bad reply and a short
    corrective user message appended (so the request, and its cache key, differ; no backoff
    because the server is fine).
-4. After the last attempt: ``DEFAULT_REPLY`` with ``fallback=True`` and every attempt recorded.
+4. The server refused this one request (``RequestRejectedError``, e.g. a prompt longer than its
+   context): no further attempt (the same request would be refused again).
+5. After the last attempt without a valid reply: if the model answered every attempt (invalid
+   replies, a rejection), ``DEFAULT_REPLY`` with ``fallback=True`` and every attempt recorded; if
+   any attempt failed in transport, ``RequestFailedError``: the scenario is not stored, so a rerun
+   retries it (a fallback always means the model itself never answered validly).
 
-Never raised out of ``advise``: transport errors and invalid replies. Raised at once:
-``LLMConfigError`` (unknown backend, missing package or model, auth). Also raised: a
-``BackendUnavailableError`` when *every* attempt found the server unreachable, because a dead
-server would otherwise turn a whole run into silent fallbacks; and a ``ServerBusyError`` when
-the server asks (``Retry-After``) for a longer wait than ``RetryPolicy.max_retry_after_s``
-(a rate limit that long would otherwise do the same).
+Raised at once: ``LLMConfigError`` (unknown backend, missing package or model, auth). Also raised:
+a ``BackendUnavailableError`` when *every* attempt found the server unreachable; a
+``ServerBusyError`` when the server asks (``Retry-After``) for a longer wait than
+``RetryPolicy.max_retry_after_s``; ``RunStoppedError`` when the advisor's run-wide circuit breaker
+(``letspi.llm.guard``, shared by every request in flight) has tripped, checked before every attempt.
+
+Thread-safe: a run calls one advisor from many threads (``letspi.core.runner``); ``stats`` counts
+their requests. Backoff waits end at once when the breaker trips.
 """
 
 from __future__ import annotations
 
 import random
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from letspi.llm.cache import CachedEntry, ResponseCache, cache_key
+from letspi.llm.guard import CircuitBreaker, RequestStats
 from letspi.llm.parse import parse_reply, try_parse_json
 from letspi.llm.schema import DEFAULT_REPLY, WIRE_KEYS, PlannerReply, Variant, reply_json_schema
 from letspi.llm.spec import make_backend
@@ -42,9 +51,14 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     ReplyParseError,
+    RequestFailedError,
+    RequestRejectedError,
     ServerBusyError,
     message,
 )
+
+#: ``Attempt.error_kind`` values of transport failures (the request may succeed if retried later).
+TRANSPORT_KINDS = frozenset({"transport", "timeout", "unavailable", "busy"})
 
 #: Bad replies are cut to this many characters when echoed back in a corrective message.
 _ECHO_CHARS = 600
@@ -92,8 +106,8 @@ class RetryPolicy:
 @dataclass(frozen=True)
 class Attempt:
     """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable``,
-    ``busy`` (HTTP 429/503) or ``parse:<reason>`` (``no_json``, ``missing_keys``, ``bad_value``,
-    ``non_finite``, ``bad_type``)."""
+    ``busy`` (HTTP 429/503), ``rejected`` (the server refused this request) or ``parse:<reason>``
+    (``no_json``, ``missing_keys``, ``bad_value``, ``non_finite``, ``bad_type``)."""
 
     index: int
     error_kind: str | None
@@ -164,6 +178,8 @@ class Advice:
             "original_latency_s": round(self.original_latency_s, 3),
             "prompt_tokens": self.prompt_tokens,
             "completion_tokens": self.completion_tokens,
+            "live_prompt_tokens": sum(a.prompt_tokens for a in self.attempts if not a.cached),
+            "live_completion_tokens": sum(a.completion_tokens for a in self.attempts if not a.cached),
             "cached": self.cached,
             "cached_attempts": sum(int(a.cached) for a in self.attempts),
         }
@@ -182,6 +198,8 @@ CacheArg = ResponseCache | None | Literal["default"]
 
 
 def _transport_kind(exc: LLMTransportError) -> str:
+    if isinstance(exc, RequestRejectedError):
+        return "rejected"
     if isinstance(exc, BackendUnavailableError):
         return "unavailable"
     if isinstance(exc, LLMTimeoutError):
@@ -196,7 +214,9 @@ class ParamAdvisor:
 
     ``cache="default"`` uses ``ResponseCache()`` (``$LETSPI_CACHE_DIR``); ``cache=None`` turns it off.
     ``use_schema=False`` sends no JSON schema (for servers without structured output).
-    ``sleep`` is injectable so tests do not wait for backoff; ``rng`` draws the backoff jitter.
+    ``sleep`` is injectable so tests do not wait for backoff (default: ``breaker.wait``, which a
+    stopping run interrupts); ``rng`` draws the backoff jitter. ``breaker`` and ``stats`` are the
+    run-wide circuit breaker and request counters (``letspi.llm.guard``; a runner resets them).
     """
 
     def __init__(
@@ -208,8 +228,9 @@ class ParamAdvisor:
         settings: DecodingSettings | None = None,
         use_schema: bool = True,
         fallback_reply: PlannerReply = DEFAULT_REPLY,
-        sleep: Callable[[float], None] = time.sleep,
+        sleep: Callable[[float], None] | None = None,
         rng: random.Random | None = None,
+        breaker: CircuitBreaker | None = None,
     ) -> None:
         self.backend: LLMBackend = make_backend(backend) if isinstance(backend, str) else backend
         self.cache: ResponseCache | None = ResponseCache() if cache == "default" else cache
@@ -217,8 +238,11 @@ class ParamAdvisor:
         self.settings = settings or DecodingSettings()
         self.use_schema = use_schema
         self.fallback_reply = fallback_reply
-        self._sleep = sleep
+        self.breaker = breaker or CircuitBreaker()
+        self.stats = RequestStats()
+        self._sleep = sleep or self.breaker.wait
         self._rng = rng or random.Random()
+        self._rng_lock = threading.Lock()
 
     def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None) -> LLMResponse:
         """One call through the cache (no validation, no retry)."""
@@ -247,7 +271,7 @@ class ParamAdvisor:
         return resp
 
     def advise(self, messages: Sequence[Message], *, variant: Variant = "physics") -> Advice:
-        """Parameters for one prompt; never raises for a bad reply or a failed call."""
+        """Parameters for one prompt; a bad reply falls back, a failed transport raises (module docstring)."""
         schema = reply_json_schema(variant) if self.use_schema else None
         base = list(messages)
         current = list(base)
@@ -255,10 +279,18 @@ class ParamAdvisor:
         transport_failures = 0
         last_response: LLMResponse | None = None
         for i in range(self.retry.max_attempts):
+            self.breaker.check()
             t0 = time.perf_counter()
+            self.stats.begin()
             try:
                 resp = self.complete(current, schema=schema)
+            except RequestRejectedError as exc:
+                self.stats.end(ok=True)  # answered, but without a reply: no latency to count
+                self.breaker.record_success()
+                attempts.append(Attempt(i, "rejected", str(exc), time.perf_counter() - t0))
+                break  # the same request would be refused again
             except LLMTransportError as exc:
+                self.stats.end(ok=False)
                 attempts.append(Attempt(i, _transport_kind(exc), str(exc), time.perf_counter() - t0))
                 transport_failures += 1
                 retry_after = exc.retry_after_s
@@ -271,10 +303,21 @@ class ParamAdvisor:
                         retry_after_s=retry_after,
                     ) from exc
                 if i + 1 < self.retry.max_attempts:
-                    self._sleep(self.retry.wait_s(transport_failures, retry_after, self._rng.random()))
+                    self.breaker.record_failure(exc)  # raises RunStoppedError when the budget is spent
+                    with self._rng_lock:
+                        u = self._rng.random()
+                    self._sleep(self.retry.wait_s(transport_failures, retry_after, u))
                 elif all(a.error_kind == "unavailable" for a in attempts):
                     raise
+                else:
+                    self.breaker.record_failure(exc)
                 continue
+            except BaseException:
+                self.stats.end(ok=False)
+                raise
+            self.stats.end(ok=True, cached=resp.cached, latency_s=resp.latency_s, prompt_tokens=resp.prompt_tokens,
+                           completion_tokens=resp.completion_tokens)
+            self.breaker.record_success()
             last_response = resp
             try:
                 parsed = parse_reply(resp.text)
@@ -314,6 +357,12 @@ class ParamAdvisor:
                 response=resp,
                 model_spec=self.backend.spec,
             )
+        failed = [a for a in attempts if a.error_kind in TRANSPORT_KINDS]
+        if failed:
+            kinds = ", ".join(a.error_kind or "" for a in attempts)
+            raise RequestFailedError(
+                f"{self.backend.spec}: no valid reply in {len(attempts)} attempts ({kinds}); last transport "
+                f"error: {failed[-1].error}")
         return Advice(
             reply=self.fallback_reply,
             fallback=True,

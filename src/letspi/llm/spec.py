@@ -103,6 +103,19 @@ def backend_names() -> tuple[str, ...]:
     return tuple(_FACTORIES)
 
 
+#: Scenarios in flight by default per backend kind: the embedded model generates one reply at a time
+#: (a lock around its KV cache), a scripted backend replays its script in call order; servers
+#: (Ollama with ``OLLAMA_NUM_PARALLEL``, llama.cpp ``-np``, vLLM) answer many requests at once.
+DEFAULT_CONCURRENCY: Final[dict[str, int]] = {"llamacpp": 1, "scripted": 1, "ollama": 8, "openai": 8}
+
+
+def default_concurrency(spec: str | BackendSpec) -> int:
+    """How many scenarios a run keeps in flight against ``spec`` (a backend's ``spec``) unless
+    ``--concurrency`` says otherwise; 1 for a kind it does not know."""
+    kind = spec.kind if isinstance(spec, BackendSpec) else str(spec).partition(":")[0].strip().lower()
+    return DEFAULT_CONCURRENCY.get(kind, 1)
+
+
 def make_backend(spec: str | BackendSpec, **options: Any) -> LLMBackend:
     """Build a backend from a spec. ``options`` go to the backend's constructor
     (``n_ctx``/``n_threads`` for llamacpp, ``base_url`` for ollama, ``api_key`` for openai...).

@@ -11,6 +11,15 @@ Error taxonomy (what the caller does with it):
   parameters. Two stop the run instead (raised out of ``ParamAdvisor.advise``): a
   ``BackendUnavailableError`` on every attempt (dead server), and a ``ServerBusyError`` whose
   ``Retry-After`` exceeds the policy's ``max_retry_after_s``.
+  A request whose attempts were spent without a valid reply and at least one of them failed in
+  transport raises ``RequestFailedError``: nothing is stored for that scenario and a rerun retries it
+  (a fallback means the *model* had every attempt and never answered validly).
+  ``RequestRejectedError`` (the server refused this one request, e.g. a prompt longer than the
+  context; HTTP 4xx other than 401/403/404/429) is not a transport failure: retrying cannot help,
+  the request falls back at once.
+* Run level (``letspi.llm.guard``): ``RunStoppedError`` when the shared circuit breaker trips
+  (a bounded number of consecutive transport failures across all requests in flight);
+  ``letspi.core.runner.ScenariosFailedError`` at the end of a run that left scenarios unstored.
 * ``ReplyParseError``: the model answered but the reply is not a valid parameter set. Retried with
   a corrective message, then the fallback.
 """
@@ -162,6 +171,24 @@ class BackendUnavailableError(LLMTransportError):
     Retried like any transport error, but if *every* attempt of a call hit it the advisor raises
     it instead of falling back: a dead server is a setup problem, not one bad reply.
     """
+
+
+class RequestRejectedError(LLMTransportError):
+    """The server answered but refused this one request (HTTP 4xx other than 401/403/404/429, or
+    the embedded model could not evaluate the prompt): deterministic, so it is not retried and the
+    request falls back; it does not count as a transport failure."""
+
+
+class RequestFailedError(LLMTransportError):
+    """A request spent its attempts without a valid reply and at least one attempt failed in
+    transport. The scenario is not stored (so a rerun retries it) and the run goes on; the run's
+    circuit breaker decides when too many failures stop it."""
+
+
+class RunStoppedError(BackendUnavailableError):
+    """The run's circuit breaker tripped: too many consecutive transport failures across all requests
+    in flight (or a dead server, or one request that could not be retried). Every request of the run
+    stops with this error; the message names the first cause. Finished scenarios are stored."""
 
 
 class ReplyParseError(LLMError, ValueError):

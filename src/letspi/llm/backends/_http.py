@@ -14,6 +14,16 @@ import httpx
 from letspi.llm.types import BackendUnavailableError, LLMTimeoutError, LLMTransportError, ServerBusyError
 
 _SECONDS_RE = re.compile(r"\s*\d+(?:\.\d+)?\s*")
+#: Connections kept open per client. A run keeps up to ``--concurrency`` requests in flight; keeping
+#: that many connections alive avoids a new TCP connection (and server thread) per request.
+KEEPALIVE_CONNECTIONS = 256
+
+
+def pooled_client() -> httpx.Client:
+    """An ``httpx.Client`` for many concurrent requests: no cap on connections (the runner bounds
+    requests in flight, and a capped pool would make waiting for a connection count against the
+    request's timeout), up to ``KEEPALIVE_CONNECTIONS`` kept alive."""
+    return httpx.Client(limits=httpx.Limits(max_connections=None, max_keepalive_connections=KEEPALIVE_CONNECTIONS))
 
 
 def post_json(

@@ -38,6 +38,7 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     MissingDependencyError,
+    RequestRejectedError,
 )
 
 _INSTALL_HINT = (
@@ -181,7 +182,9 @@ class LlamaCppBackend:
                         )
             except LLMTimeoutError:
                 raise
-            except (RuntimeError, ValueError) as exc:  # llama_decode errors, context overflow
+            except ValueError as exc:  # the prompt does not fit the context: this request only
+                raise RequestRejectedError(f"{self.spec}: {exc}") from exc
+            except RuntimeError as exc:  # llama_decode errors
                 raise LLMTransportError(f"{self.spec}: {exc}") from exc
             latency = time.perf_counter() - t0
             completion_tokens = len(parts)  # streaming yields one chunk per generated token

@@ -14,7 +14,7 @@ from typing import Any
 
 import httpx
 
-from letspi.llm.backends._http import error_text, post_json, raise_for_server_error
+from letspi.llm.backends._http import error_text, pooled_client, post_json, raise_for_server_error
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -23,6 +23,7 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     ModelNotFoundError,
+    RequestRejectedError,
 )
 
 DEFAULT_OLLAMA_HOST = "http://localhost:11434"
@@ -44,7 +45,7 @@ class OllamaBackend:
             raise LLMConfigError("ollama spec needs a model name, e.g. ollama:llama3.1:8b")
         self.model = model
         self.base_url = ollama_base_url(base_url)
-        self._client = client or httpx.Client()
+        self._client = client or pooled_client()
 
     @property
     def spec(self) -> str:
@@ -90,7 +91,7 @@ class OllamaBackend:
             raise LLMConfigError(f"{url} returned 404 ({msg}); is {self.base_url} an Ollama server?")
         raise_for_server_error(resp, url)  # 429 and 5xx, with the server's Retry-After
         if resp.status_code >= 400:  # concerns this request (e.g. too long), not the setup
-            raise LLMTransportError(
+            raise RequestRejectedError(
                 f"{url} rejected the request (HTTP {resp.status_code}): {error_text(resp)}", status=resp.status_code
             )
         try:

@@ -35,7 +35,7 @@ from typing import Any, Final
 
 import httpx
 
-from letspi.llm.backends._http import error_text, post_json, raise_for_server_error
+from letspi.llm.backends._http import error_text, pooled_client, post_json, raise_for_server_error
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -44,6 +44,7 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     ModelNotFoundError,
+    RequestRejectedError,
 )
 
 DEFAULT_OPENAI_BASE_URL: Final = "https://api.openai.com/v1"
@@ -81,7 +82,7 @@ class OpenAICompatBackend:
         self.model = model
         self.base_url = (base_url or os.environ.get("OPENAI_BASE_URL") or DEFAULT_OPENAI_BASE_URL).rstrip("/")
         self._api_key = api_key if api_key is not None else os.environ.get("OPENAI_API_KEY")
-        self._client = client or httpx.Client()
+        self._client = client or pooled_client()
         self._auto = format_mode == "auto"
         # index into FORMAT_MODES of the established mode (auto: the first one not yet rejected)
         self._mode_index = 0 if self._auto else FORMAT_MODES.index(format_mode)
@@ -199,6 +200,6 @@ class OpenAICompatBackend:
                 raise ModelNotFoundError(f"{url}: model {self.model!r} not found ({msg})")
             raise LLMConfigError(f"{url}: HTTP 404 ({msg}); does the base URL end in /v1?")
         raise_for_server_error(resp, url)  # 429 and 5xx, with the server's Retry-After
-        # Other 4xx (e.g. prompt longer than the context) concern this request, not the setup:
-        # treat as a failed call so a long run falls back instead of stopping.
-        raise LLMTransportError(f"{url}: request rejected (HTTP {code}): {msg}", status=code)
+        # Other 4xx (e.g. prompt longer than the context) concern this request, not the setup and not
+        # the transport: the request falls back (retrying it would be refused again).
+        raise RequestRejectedError(f"{url}: request rejected (HTTP {code}): {msg}", status=code)
