@@ -332,7 +332,8 @@ class MemoryBankError(ValueError):
 class MemoryBank:
     """SQLite-backed experience store (decisions in the module doc). Use ``MemoryBank.open(path)``.
 
-    Not thread-safe (one connection); every process opens its own bank.
+    One connection: use it from one thread at a time (it may be handed between threads, e.g. a
+    ``Retriever`` that serialises its reads with a lock); every process opens its own bank.
     """
 
     def __init__(self, conn: sqlite3.Connection, path: Path, *, readonly: bool) -> None:
@@ -350,11 +351,11 @@ class MemoryBank:
         p = Path(path)
         if readonly:
             conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True, timeout=timeout_s,
-                                   isolation_level=None)
+                                   isolation_level=None, check_same_thread=False)
         else:
             p.parent.mkdir(parents=True, exist_ok=True)
             # isolation_level=None: autocommit; transactions are explicit (BEGIN IMMEDIATE) and short
-            conn = sqlite3.connect(p, timeout=timeout_s, isolation_level=None)
+            conn = sqlite3.connect(p, timeout=timeout_s, isolation_level=None, check_same_thread=False)
         try:
             conn.execute(f"PRAGMA busy_timeout = {int(timeout_s * 1000)}")
             if not readonly:

@@ -13,6 +13,7 @@ the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from letspi.constants import N_TOTAL
 from letspi.core.matching import top_k
 from letspi.core.memory import Experience, MemoryBank, MemoryFeatures
 from letspi.core.reflection import Proposal, ReflectionContext, ReflectionResult, reflect
+from letspi.core.runner import RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.describe import describe_scenario
@@ -114,7 +116,8 @@ class MemoryPhase:
 class CollectStats:
     """Counts of one collection run. ``fallback_results``: scenarios whose final answer was a
     fallback (stored flagged, retried on resume); ``fallback_replies``: fallback proposals over all
-    iterations; ``cached_calls`` / ``calls``: LLM calls served by the response cache / made."""
+    iterations; ``cached_calls`` / ``calls``: LLM calls served by the response cache / made;
+    ``run``: throughput, latency and request counters of the scenarios this run executed."""
 
     total: int
     skipped: int
@@ -126,42 +129,56 @@ class CollectStats:
     calls: int
     cached_calls: int
     seconds: float
+    run: RunStats | None = None
 
 
 def collect(
     phase: MemoryPhase,
     batch: ScenarioBatch,
     bank: MemoryBank,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[RunStatus], None] | None = None,
+    *,
+    runner: RunnerConfig | None = None,
 ) -> CollectStats:
     """The memory collection phase over ``batch``; resumable: scenarios with a real (non-fallback)
-    result under this configuration are skipped, and each experience is committed as soon as it
-    exists. A backend that cannot be reached raises ``BackendUnavailableError`` (nothing is stored
-    for that scenario); rerunning resumes."""
+    result under this configuration are skipped.
+
+    ``runner.concurrency`` scenarios run at once (``letspi.core.runner``); their experiences are
+    committed one at a time in scenario order by this thread, so the bank's rows (ids included) do
+    not depend on the concurrency or on which scenario finished first, and a killed run resumed
+    gives the bank of an uninterrupted one. A scenario whose LLM requests failed in transport is not
+    stored (the run ends with ``ScenariosFailedError``; rerunning retries it); a server that cannot be
+    reached, or too many failures in a row, stops the run (``BackendUnavailableError``,
+    ``RunStoppedError``) with what finished stored."""
     t0 = time.perf_counter()
     key = phase.config_key
     digests = scenario_digests(batch)
     done = bank.done_digests(key)
-    skipped = stored = validated = fallback_results = fallback_replies = refinements = calls = cached = 0
-    for i in range(len(batch)):
-        if digests[i] in done:
-            skipped += 1
-        else:
-            one = batch.take([i])
-            result = phase.run(one)
-            exp = phase.experience(one, result, str(digests[i]))
-            stored += int(bank.add(exp))
-            validated += int(exp.validated)
-            fallback_results += int(exp.fallback)
-            fallback_replies += sum(int(it.proposal.fallback) for it in result.iterations)
-            refinements += result.n_refinements
-            for it in result.iterations:
-                calls += int(it.proposal.meta.get("attempts", 0))
-                cached += int(it.proposal.meta.get("cached_attempts", 0))
-        if progress is not None:
-            progress(1)
-    return CollectStats(len(batch), skipped, stored, validated, fallback_results, fallback_replies, refinements,
-                        calls, cached, time.perf_counter() - t0)
+    todo = [i for i in range(len(batch)) if digests[i] not in done]
+    counts = {"stored": 0, "validated": 0, "fallback_results": 0, "fallback_replies": 0, "refinements": 0,
+              "calls": 0, "cached": 0}
+
+    def work(i: int) -> tuple[ScenarioBatch, ReflectionResult]:
+        one = batch.take([i])
+        return one, phase.run(one)
+
+    def write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
+        one, result = done_
+        exp = phase.experience(one, result, str(digests[i]))
+        counts["stored"] += int(bank.add(exp))
+        counts["validated"] += int(exp.validated)
+        counts["fallback_results"] += int(exp.fallback)
+        counts["fallback_replies"] += sum(int(it.proposal.fallback) for it in result.iterations)
+        counts["refinements"] += result.n_refinements
+        for it in result.iterations:
+            counts["calls"] += int(it.proposal.meta.get("attempts", 0))
+            counts["cached"] += int(it.proposal.meta.get("cached_attempts", 0))
+
+    run = run_ordered(todo, work, write, config=runner, advisor=phase.advisor,
+                      is_fallback=lambda d: bool(d[1].final.proposal.fallback), progress=progress)
+    return CollectStats(len(batch), len(batch) - len(todo), counts["stored"], counts["validated"],
+                        counts["fallback_results"], counts["fallback_replies"], counts["refinements"],
+                        counts["calls"], counts["cached"], time.perf_counter() - t0, run)
 
 
 def _summary_of_features(features: Sequence[float]) -> str:
@@ -202,6 +219,9 @@ class Retriever:
     allow_same_vehicle: False (default) leaves out memories of the query's own ego vehicle and
         every memory whose window overlaps the query's in the same recording: their history is
         the query's future, or shares it. True keeps them (a leak; labelled in configurations).
+
+    Thread-safe: scenarios planned concurrently share one retriever; its bank is read by one thread
+    at a time (a lock; reads take milliseconds next to seconds of LLM time).
     """
 
     bank: MemoryBank
@@ -209,10 +229,12 @@ class Retriever:
     config_key: str | None = None
     allowed_ids: np.ndarray | None = None
     allow_same_vehicle: bool = False
+    _lock: threading.Lock = field(default_factory=threading.Lock, init=False, repr=False, compare=False)
 
     def candidates(self, scenario: ScenarioBatch) -> MemoryFeatures:
         """The memories this query may retrieve (before ranking)."""
-        mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
+        with self._lock:
+            mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
         if self.allowed_ids is not None:
             mem = mem.take(np.isin(mem.ids, self.allowed_ids))
         if not self.allow_same_vehicle and len(mem):
@@ -227,7 +249,8 @@ class Retriever:
         if len(mem) == 0 or self.k == 0:
             return []
         idx, sims = top_k(scenario_features(scenario), mem.features, min(self.k, len(mem)))
-        exps = self.bank.get([int(mem.ids[j]) for j in idx[0]])
+        with self._lock:
+            exps = self.bank.get([int(mem.ids[j]) for j in idx[0]])
         return list(zip(exps, [float(s) for s in sims[0]], strict=True))
 
 

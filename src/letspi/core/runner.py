@@ -1,0 +1,318 @@
+"""Run one task per scenario, N at a time, and store their results through one writer in scenario order.
+
+Design (issue 13)
+-----------------
+* **Threads.** Each scenario's work (goal prediction, prompt, LLM calls, rollouts, reflection) is one
+  task on a ``ThreadPoolExecutor`` of ``concurrency`` workers. The code is synchronous end to end
+  (httpx, NumPy, SQLite); while a worker waits for the LLM server it holds no GIL, so N workers keep
+  N requests in flight without a second, asynchronous code path. ``concurrency = 1`` runs every task
+  in the calling thread (no pool): the embedded model's behaviour and Ctrl-C stay exactly as before.
+* **One writer, scenario order.** Completed results wait in a reorder buffer; the calling thread
+  writes result k only after results 0..k-1 were written (or failed). The order in which tasks
+  *finish* therefore never changes what is stored, nor the order in which it is stored (memory-bank
+  row ids included). A killed run has stored a prefix of the scenarios it was given (minus
+  failures); rerunning stores the rest in the same order, so the result equals an uninterrupted run.
+* **Failures.** A task that raises ``RequestFailedError`` (its LLM requests failed in transport)
+  is a *failed* scenario: nothing is written for it, the writer moves on, and the run ends with
+  ``ScenariosFailedError`` so a rerun retries it. Any other exception stops the run: no new tasks,
+  queued ones cancelled, the advisor's circuit breaker tripped so tasks in flight stop before their
+  next request (and their backoff waits end), the in-order prefix of what finished is written, and
+  the *first* error is raised (one message). The breaker itself stops the run after a bounded
+  number of consecutive transport failures (``letspi.llm.guard``).
+* **Bounded memory.** At most ``concurrency + reorder_window`` scenarios are between submission and
+  writing: a slow scenario holds back writing, not memory.
+
+``concurrency`` is not part of any configuration key: it changes how fast answers come, not which.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from letspi.llm.client import ParamAdvisor
+from letspi.llm.guard import RequestSnapshot, default_failure_budget
+from letspi.llm.types import LLMTransportError, RequestFailedError
+
+R = TypeVar("R")
+
+#: How often (s) the progress callback hears from a run even when nothing finishes.
+PROGRESS_INTERVAL_S = 0.5
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """How a run executes (never what it answers).
+
+    concurrency: scenarios in flight at once (1: in the calling thread).
+    max_consecutive_failures: failed requests in a row that stop the run (None:
+        ``default_failure_budget(concurrency)`` = max(8, 2 N)).
+    reorder_window: finished scenarios that may wait for an earlier one before submission pauses.
+    """
+
+    concurrency: int = 1
+    max_consecutive_failures: int | None = None
+    reorder_window: int = 1024
+
+    def __post_init__(self) -> None:
+        if self.concurrency < 1:
+            raise ValueError(f"--concurrency must be >= 1, got {self.concurrency}")
+        if self.max_consecutive_failures is not None and self.max_consecutive_failures < 1:
+            raise ValueError("max_consecutive_failures must be >= 1")
+        if self.reorder_window < 0:
+            raise ValueError("reorder_window must be >= 0")
+
+    @property
+    def failure_budget(self) -> int:
+        return self.max_consecutive_failures or default_failure_budget(self.concurrency)
+
+
+@dataclass(frozen=True)
+class RunStatus:
+    """A progress snapshot. ``done`` counts scenarios finished in this run (written or failed);
+    ``requests_in_flight`` is the advisor's count (None without one); ``running`` counts scenario
+    tasks between submission and completion."""
+
+    done: int
+    total: int
+    written: int
+    failed: int
+    fallbacks: int
+    running: int
+    requests_in_flight: int | None
+    elapsed_s: float
+
+    @property
+    def scenarios_per_s(self) -> float:
+        return self.done / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    @property
+    def eta_s(self) -> float | None:
+        rate = self.scenarios_per_s
+        return (self.total - self.done) / rate if rate > 0 else None
+
+
+@dataclass(frozen=True)
+class RunStats:
+    """The outcome of one run: counts, wall time, per-scenario task times (written scenarios) and the
+    advisor's request counters (None without an advisor)."""
+
+    total: int
+    written: int
+    failed: int
+    fallbacks: int
+    seconds: float
+    concurrency: int
+    scenario_s: tuple[float, ...] = ()
+    requests: RequestSnapshot | None = None
+
+    @property
+    def scenarios_per_s(self) -> float | None:
+        done = self.written + self.failed
+        return done / self.seconds if self.seconds > 0 and done else None
+
+    def _pct(self, q: float) -> float | None:
+        return float(np.percentile(self.scenario_s, q)) if self.scenario_s else None
+
+    @property
+    def scenario_p50_s(self) -> float | None:
+        return self._pct(50)
+
+    @property
+    def scenario_p95_s(self) -> float | None:
+        return self._pct(95)
+
+    def as_dict(self) -> dict[str, Any]:
+        req = self.requests
+        return {
+            "scenarios": self.total, "written": self.written, "failed": self.failed, "fallbacks": self.fallbacks,
+            "seconds": round(self.seconds, 3), "concurrency": self.concurrency,
+            "scenarios_per_s": _r(self.scenarios_per_s), "scenario_p50_s": _r(self.scenario_p50_s),
+            "scenario_p95_s": _r(self.scenario_p95_s),
+            "requests": None if req is None else req.requests, "requests_cached": None if req is None else req.cached,
+            "requests_failed": None if req is None else req.failed,
+            "request_p50_s": None if req is None else _r(req.latency_p50_s),
+            "request_p95_s": None if req is None else _r(req.latency_p95_s),
+            "tokens_per_s": None if req is None else _r(req.tokens_per_s),
+            "completion_tokens_per_s": None if req is None else _r(req.completion_tokens_per_s),
+        }
+
+    def summary_line(self) -> str:
+        """One line for the end of a run: throughput, latency percentiles, tokens/s, fallbacks."""
+        if self.total == 0:
+            return "nothing to do (every scenario already stored)"
+        parts = [f"{self.written + self.failed} scenarios in {self.seconds:.1f} s "
+                 f"({_fmt(self.scenarios_per_s)} scenarios/s, concurrency {self.concurrency})"]
+        if self.scenario_s:
+            parts.append(f"scenario p50 {_fmt(self.scenario_p50_s)} s / p95 {_fmt(self.scenario_p95_s)} s")
+        req = self.requests
+        if req is not None and req.requests:
+            live = req.requests - req.cached - req.failed
+            lat = (f", p50 {_fmt(req.latency_p50_s)} s / p95 {_fmt(req.latency_p95_s)} s"
+                   if req.latency_p50_s is not None else "")
+            parts.append(f"{req.requests} requests ({req.cached} cached, {req.failed} failed{lat}); "
+                         f"{_fmt(req.tokens_per_s)} tokens/s over {live} live requests")
+        parts.append(f"{self.fallbacks} fallbacks, {self.failed} failed (not stored)")
+        return "; ".join(parts)
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), 4)
+
+
+def _fmt(x: float | None) -> str:
+    if x is None:
+        return "n/a"
+    return f"{x:.3g}" if abs(x) < 100 else f"{x:,.0f}"
+
+
+class ScenariosFailedError(LLMTransportError):
+    """A run finished but some scenarios got no answer (``RequestFailedError``) and were not stored;
+    rerunning the same command retries exactly those. ``stats``: the run's ``RunStats``."""
+
+    def __init__(self, message: str, *, stats: RunStats) -> None:
+        super().__init__(message)
+        self.stats = stats
+
+
+class _InlineExecutor:
+    """``concurrency = 1``: run each task at submission, in the calling thread."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        fut: Future[Any] = Future()
+        try:
+            fut.set_result(fn(*args))
+        except Exception as exc:  # KeyboardInterrupt and SystemExit propagate at once
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        pass
+
+
+@dataclass
+class _Done(Generic[R]):
+    value: R | None = None
+    seconds: float = 0.0
+    failed: BaseException | None = None  # RequestFailedError: skip it
+    stopped: bool = False  # another error: nothing at or after this position is written
+
+
+@dataclass
+class _Counts:
+    written: int = 0
+    failed: int = 0
+    fallbacks: int = 0
+    seconds: list[float] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+
+
+def run_ordered(
+    indices: Sequence[int],
+    work: Callable[[int], R],
+    write: Callable[[int, R], None],
+    *,
+    config: RunnerConfig | None = None,
+    advisor: ParamAdvisor | None = None,
+    is_fallback: Callable[[R], bool] | None = None,
+    progress: Callable[[RunStatus], None] | None = None,
+) -> RunStats:
+    """``work(i)`` for every i of ``indices`` (``config.concurrency`` at a time); ``write(i, result)``
+    in the order of ``indices``, in the calling thread (module docstring). ``advisor``: the LLM
+    advisor the tasks use (its breaker is reset and tripped by the run, its request counters reported).
+    Raises the first stopping error, or ``ScenariosFailedError`` after a run that left scenarios unstored.
+    """
+    config = config or RunnerConfig()
+    n = len(indices)
+    if advisor is not None:
+        advisor.breaker.reset(config.failure_budget)
+        advisor.stats.reset()
+    t0 = time.perf_counter()
+    counts = _Counts()
+    buffer: dict[int, _Done[R]] = {}
+    pending: dict[Future[tuple[R, float]], int] = {}
+    next_submit = next_write = 0
+    first_error: BaseException | None = None
+
+    def timed(i: int) -> tuple[R, float]:
+        start = time.perf_counter()
+        value = work(i)
+        return value, time.perf_counter() - start
+
+    def report() -> None:
+        if progress is not None:
+            progress(RunStatus(done=counts.written + counts.failed, total=n, written=counts.written,
+                               failed=counts.failed, fallbacks=counts.fallbacks, running=len(pending),
+                               requests_in_flight=None if advisor is None else advisor.stats.in_flight,
+                               elapsed_s=time.perf_counter() - t0))
+
+    def stop(exc: BaseException) -> None:
+        nonlocal first_error
+        if first_error is None:
+            first_error = exc
+            if advisor is not None:
+                advisor.breaker.trip(f"the run stopped: {exc}")
+
+    executor: ThreadPoolExecutor | _InlineExecutor = (
+        _InlineExecutor() if config.concurrency == 1 else
+        ThreadPoolExecutor(max_workers=config.concurrency, thread_name_prefix="letspi-scenario"))
+    interrupted = False
+    try:
+        while next_write < n:
+            while (first_error is None and next_submit < n and len(pending) < config.concurrency
+                   and next_submit - next_write < config.concurrency + config.reorder_window):
+                pending[executor.submit(timed, indices[next_submit])] = next_submit
+                next_submit += 1
+            if pending:
+                finished, _ = wait(list(pending), timeout=PROGRESS_INTERVAL_S, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    pos = pending.pop(fut)
+                    try:
+                        value, seconds = fut.result()
+                        buffer[pos] = _Done(value, seconds)
+                    except RequestFailedError as exc:
+                        buffer[pos] = _Done(failed=exc)
+                    except Exception as exc:
+                        stop(exc)
+                        buffer[pos] = _Done(stopped=True)
+            while next_write in buffer and not buffer[next_write].stopped:
+                done = buffer.pop(next_write)
+                if done.failed is not None:
+                    counts.failed += 1
+                    counts.failures.append(str(done.failed))
+                else:
+                    result: R = done.value  # type: ignore[assignment]
+                    write(indices[next_write], result)
+                    counts.written += 1
+                    counts.seconds.append(done.seconds)
+                    if is_fallback is not None and is_fallback(result):
+                        counts.fallbacks += 1
+                next_write += 1
+            report()
+            if first_error is not None and not pending:
+                break
+    except BaseException as exc:  # a write failed, or Ctrl-C: stop the tasks in flight
+        interrupted = isinstance(exc, KeyboardInterrupt)
+        stop(exc)
+        raise
+    finally:
+        for fut in pending:
+            fut.cancel()
+        executor.shutdown(wait=not interrupted, cancel_futures=True)
+    if first_error is not None:
+        raise first_error
+    stats = RunStats(total=n, written=counts.written, failed=counts.failed, fallbacks=counts.fallbacks,
+                     seconds=time.perf_counter() - t0, concurrency=config.concurrency,
+                     scenario_s=tuple(counts.seconds),
+                     requests=None if advisor is None else advisor.stats.snapshot())
+    if counts.failed:
+        raise ScenariosFailedError(
+            f"{counts.failed} of {n} scenarios got no answer from the LLM server and were not stored "
+            f"(first: {counts.failures[0]}); rerun the same command to retry them", stats=stats)
+    return stats
