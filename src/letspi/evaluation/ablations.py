@@ -17,15 +17,17 @@ Kinds:
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import collect
+from letspi.core.runner import RunnerConfig, RunStats
 from letspi.evaluation.harness import ProgressFactory, evaluate
 from letspi.fsutil import atomic_write_text
+from letspi.llm.spec import default_concurrency
 from letspi.metrics.aggregate import AggValue
 from letspi.registry.build import Builder, BuiltPlanner
 from letspi.registry.resolve import PlannerOptions, Resolver
@@ -47,8 +49,11 @@ def run_ablation(
     fractions: Sequence[float] = MEMORY_FRACTIONS,
     progress_factory: ProgressFactory | None = None,
     builder: Builder | None = None,
+    concurrency: int | None = None,
+    on_run: Callable[[str, RunStats], None] | None = None,
 ) -> dict[str, dict[str, AggValue]]:
-    """Run one ablation preset; returns ``{row name: aggregated metrics}``."""
+    """Run one ablation preset; returns ``{row name: aggregated metrics}``. ``concurrency``: scenarios in
+    flight for the LLM planners and the collection (None: each backend's default)."""
     if kind not in ABLATION_KINDS:
         raise ValueError(f"unknown ablation {kind!r}; available: {', '.join(ABLATION_KINDS)}")
     builder = builder or Builder(cache="default" if options.llm_cache else None)
@@ -56,7 +61,8 @@ def run_ablation(
     target = abl_root / kind
 
     def run(planners: list[BuiltPlanner]) -> dict[str, dict[str, AggValue]]:
-        out = evaluate(planners, batch, target, scenarios_file=scenarios_file, progress_factory=progress_factory)
+        out = evaluate(planners, batch, target, scenarios_file=scenarios_file, progress_factory=progress_factory,
+                       concurrency=concurrency, on_run=on_run)
         return {p.name: out[p.name] for p in planners}
 
     def built(kind_: str, name: str, opts: PlannerOptions = options) -> BuiltPlanner:
@@ -72,7 +78,7 @@ def run_ablation(
         return run([built("letspi-fast", "LetsPi_F"), built("letspi-fs", "FS (3 static examples)")])
     if kind == "memory-size":
         return _memory_size(options, fractions, abl_root, built, run)
-    return _llm_combinations(options, collect_batch, combinations, abl_root, builder, built, run)
+    return _llm_combinations(options, collect_batch, combinations, abl_root, builder, built, run, concurrency)
 
 
 def _memory_size(options: PlannerOptions, fractions: Sequence[float], abl_root: Path, built: Any,
@@ -95,7 +101,7 @@ def _memory_size(options: PlannerOptions, fractions: Sequence[float], abl_root: 
 
 def _llm_combinations(options: PlannerOptions, collect_batch: ScenarioBatch | None,
                       combinations: Sequence[tuple[str, str]], abl_root: Path, builder: Builder, built: Any,
-                      run: Any) -> dict[str, dict[str, AggValue]]:
+                      run: Any, concurrency: int | None) -> dict[str, dict[str, AggValue]]:
     if options.memory is None or collect_batch is None or not combinations:
         raise ValueError("llm-combinations needs --memory, collection scenarios and at least one --combo")
     planners: list[BuiltPlanner] = []
@@ -103,8 +109,9 @@ def _llm_combinations(options: PlannerOptions, collect_batch: ScenarioBatch | No
     for mem_spec, fast_spec in combinations:
         phase_config = Resolver(replace(options, llm=mem_spec)).memory_phase()
         phase, _ = builder.memory_phase(phase_config)
+        n = concurrency if concurrency is not None else default_concurrency(phase_config.llm.spec)
         with MemoryBank.open(options.memory) as bank:
-            collect(phase, collect_batch, bank)  # resumable: done scenarios are skipped
+            collect(phase, collect_batch, bank, runner=RunnerConfig(concurrency=n))  # resumable
         name = f"memory {mem_spec} + fast {fast_spec}"
         fast_options = replace(options, fast_llm=fast_spec, memory_key=phase_config.key())
         planners.append(built("letspi-fast", name, fast_options))

@@ -20,6 +20,12 @@ Crash safety: every file is written to a temporary, fsynced and renamed (``letsp
 files have unique names. A killed run loses at most the chunk in flight; rerunning completes it and
 gives the same results as an uninterrupted run.
 
+Concurrency: planners that plan one scenario per call and are thread-safe (the LLM planners) keep
+``concurrency`` scenarios in flight (``letspi.evaluation.concurrent``; default per LLM backend); one
+thread writes their rows in scenario order, so the concurrency never changes stored results and is
+not part of any key. A scenario whose LLM requests failed in transport is not stored: that planner's
+metrics are not aggregated and ``evaluate`` ends with ``ScenariosFailedError`` (rerun to complete).
+
 Planner contract: planners that do not read the future (``reads_future`` False) get the
 history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
 
@@ -45,10 +51,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from letspi.constants import N_FUTURE
+from letspi.core.runner import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
+from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.evaluate import compute_metrics
+from letspi.planners.base import PlanBatch
 from letspi.registry.build import BuiltPlanner
 from letspi.registry.configs import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
@@ -57,7 +66,9 @@ from letspi.scenario.types import ScenarioBatch
 RUN_FORMAT: Final = 2
 EVALUATION_MODES: Final = ("open-loop",)
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
-ProgressFactory = Callable[[str, int], Callable[[int], None]]
+#: (advance by k scenarios, the concurrent runner's status or None)
+Progress = Callable[[int, RunStatus | None], None]
+ProgressFactory = Callable[[str, int], Progress]
 
 
 class EvaluationDirError(ValueError):
@@ -211,15 +222,32 @@ def load_plans(out_dir: Path, planner_name: str) -> dict[str, tuple[np.ndarray, 
 # ------------------------------------------------------------------------------------------------
 
 
+def _scored_frame(sub: ScenarioBatch, idx: np.ndarray, digests: np.ndarray, plan: PlanBatch, inference_s: float,
+                  config: MetricsConfig) -> pd.DataFrame:
+    """The stored rows of scenarios ``idx`` (= ``sub``): ids, metrics, planning time per scenario, plan info."""
+    metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
+    frame = metrics.to_frame()
+    frame.insert(0, "scenario_id", [str(s) for s in sub.scenario_id])
+    frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
+    frame.insert(2, "row", idx.astype(np.int64))
+    frame["inference_s"] = inference_s
+    for name, col in _info_columns(plan.info).items():
+        frame[name] = col
+    return frame
+
+
 def run_planner(
     built: BuiltPlanner,
     batch: ScenarioBatch,
     digests: np.ndarray,
     out_dir: Path,
     config: MetricsConfig,
-    progress: Callable[[int], None] | None = None,
-) -> pd.DataFrame:
-    """Plan and score every scenario of ``batch`` not yet stored for ``built``; return all its rows."""
+    progress: Progress | None = None,
+    *,
+    concurrency: int | None = None,
+) -> tuple[pd.DataFrame, RunStats | None]:
+    """Plan and score every scenario of ``batch`` not yet stored for ``built``; return all its rows and,
+    for per-scenario planners, the run's ``RunStats`` (``concurrency``: None = the backend's default)."""
     planner = built.planner
     planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
     planner_dir.mkdir(parents=True, exist_ok=True)
@@ -228,28 +256,29 @@ def run_planner(
     done = _done_digests(planner_dir)
     todo = np.flatnonzero([d not in done for d in digests])
     if progress is not None and len(batch) - len(todo):
-        progress(len(batch) - len(todo))
-    step = max(1, int(planner.batch_size))
-    for start in range(0, len(todo), step):
-        idx = todo[start : start + step]
-        sub = batch.take(idx)
-        seen = sub if planner.reads_future else sub.history()
-        t0 = time.perf_counter()
-        plan = planner.plan(seen)
-        elapsed_s = time.perf_counter() - t0
-        metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
-        frame = metrics.to_frame()
-        frame.insert(0, "scenario_id", [str(s) for s in sub.scenario_id])
-        frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
-        frame.insert(2, "row", idx.astype(np.int64))
-        frame["inference_s"] = elapsed_s / len(idx)
-        for name, col in _info_columns(plan.info).items():
-            frame[name] = col
-        _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
-        if progress is not None:
-            progress(len(idx))
+        progress(len(batch) - len(todo), None)
+    run: RunStats | None = None
+    if runs_per_scenario(planner):
+        run = plan_concurrently(
+            planner, batch, [int(i) for i in todo],
+            score=lambda idx, sub, plan, seconds: _scored_frame(sub, idx, digests, plan, seconds, config),
+            write_part=lambda frame, xy, vxy, goals: _write_part(planner_dir, frame, xy, vxy, goals),
+            runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
+    else:
+        step = max(1, int(planner.batch_size))
+        for start in range(0, len(todo), step):
+            idx = todo[start : start + step]
+            sub = batch.take(idx)
+            seen = sub if planner.reads_future else sub.history()
+            t0 = time.perf_counter()
+            plan = planner.plan(seen)
+            elapsed_s = time.perf_counter() - t0
+            frame = _scored_frame(sub, idx, digests, plan, elapsed_s / len(idx), config)
+            _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
+            if progress is not None:
+                progress(len(idx), None)
     frame = load_planner_results(out_dir, built.name)
-    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True)
+    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), run
 
 
 def _cached(frame: pd.DataFrame) -> np.ndarray:
@@ -294,11 +323,17 @@ def evaluate(
     config: MetricsConfig | None = None,
     mode: str = "open-loop",
     progress_factory: ProgressFactory | None = None,
+    concurrency: int | None = None,
+    on_run: Callable[[str, RunStats], None] | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
     Returns ``{planner_name: aggregated metrics}`` (keys: ``letspi.metrics.aggregate`` and
     ``timing_summary``) for every planner stored in the directory (earlier runs included).
+    ``concurrency``: scenarios in flight for per-scenario planners (None: each backend's default);
+    ``on_run(name, stats)`` hears each such planner's throughput and latency. Raises
+    ``ScenariosFailedError`` at the end if some planner left scenarios unstored (the others' metrics
+    are written; rerun to complete).
     """
     if mode not in EVALUATION_MODES:
         raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
@@ -308,9 +343,18 @@ def evaluate(
     record = run_record(batch, digests, scenarios_file, config, mode)
     _check_run_file(out_dir, record)
     results: dict[str, dict[str, AggValue]] = {}
+    failures: list[ScenariosFailedError] = []
     for built in planners:
         progress = progress_factory(built.name, len(batch)) if progress_factory else None
-        frame = run_planner(built, batch, digests, out_dir, config, progress)
+        try:
+            frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency)
+        except ScenariosFailedError as exc:
+            if on_run is not None:
+                on_run(built.name, exc.stats)
+            failures.append(exc)
+            continue
+        if on_run is not None and run is not None:
+            on_run(built.name, run)
         timing = timing_summary(frame, built.load_s)
         agg = aggregate_metrics(frame, inference_time_s=live_inference_s(frame), config=config)
         results[built.name] = {**agg, **timing, "config_key": built.key}  # type: ignore[dict-item]
@@ -322,4 +366,8 @@ def evaluate(
     payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
     atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
     atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
+    if failures:
+        first = failures[0]
+        message = str(first) if len(failures) == 1 else f"{len(failures)} planners left scenarios unstored; {first}"
+        raise ScenariosFailedError(message, stats=first.stats)
     return merged

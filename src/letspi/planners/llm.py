@@ -2,7 +2,10 @@
 ``letspi-fast`` (fast-inference phase with retrieved memories) and ``letspi-fs`` (the FS ablation:
 the fast prompt with three static examples instead of retrieval).
 
-They plan one scenario per call (``batch_size = 1``) so the harness times each LLM call honestly.
+They plan one scenario per call (``batch_size = 1``) so the harness times each LLM call honestly,
+and ``plan`` is thread-safe (``concurrent_safe``): the harness keeps ``--concurrency`` scenarios in
+flight (``letspi.core.runner``), all asking the planner's one ``advisor``. ``last_*`` attributes
+describe the most recent call to finish (for ``letspi plan``, one scenario).
 Per-scenario extras (``PlanBatch.info``) record the LLM side: tokens, fallbacks, clamps, reflection
 iterations, whether the final plan was validated, and the timing honesty columns:
 
@@ -23,6 +26,7 @@ import numpy as np
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import FastPhase, MemoryPhase
 from letspi.core.reflection import IterationRecord, Proposal, simulate_proposal
+from letspi.llm.client import ParamAdvisor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch
@@ -71,6 +75,15 @@ class LetsPiMemoryPlanner:
     reads_future: bool = False
     last_iterations: tuple[IterationRecord, ...] = ()
 
+    @property
+    def advisor(self) -> ParamAdvisor:
+        return self.phase.advisor
+
+    @property
+    def concurrent_safe(self) -> bool:
+        """Without a ``bank``: storing inside ``plan`` would follow completion order, not scenario order."""
+        return self.bank is None
+
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         if len(batch) != 1:
             raise ValueError(f"{self.name} plans one scenario per call, got {len(batch)}")
@@ -98,6 +111,11 @@ class LetsPiFastPlanner:
     reads_future: bool = False
     last_retrieved: tuple[tuple[str, float], ...] = ()
     last_proposal: Proposal | None = None
+    concurrent_safe: bool = True
+
+    @property
+    def advisor(self) -> ParamAdvisor:
+        return self.phase.advisor
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         if len(batch) != 1:
