@@ -11,8 +11,9 @@ from __future__ import annotations
 import errno
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -21,12 +22,17 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    ProgressColumn,
+    Task,
+    TaskID,
     TaskProgressColumn,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+from rich.text import Text
 
+from letspi.core.runner import RunStats, RunStatus
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError
 
 console = Console(stderr=True)
@@ -37,6 +43,35 @@ def debug_enabled() -> bool:
     return os.environ.get(DEBUG_ENV, "") not in ("", "0")
 
 
+ConcurrencyOpt = Annotated[int | None, typer.Option(
+    help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "
+         "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
+
+
+def _duration(seconds: float) -> str:
+    s = round(seconds)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+
+
+class RunColumn(ProgressColumn):
+    """Scenarios/s, requests in flight, fallbacks, failures and ETA of a concurrent run (the task's
+    ``run`` field, set by ``run_progress``); rich's own time estimate for other tasks."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._remaining = TimeRemainingColumn()
+
+    def render(self, task: Task) -> Text:
+        status = task.fields.get("run")
+        if not isinstance(status, RunStatus):
+            return self._remaining.render(task)
+        in_flight = status.requests_in_flight if status.requests_in_flight is not None else status.running
+        eta = status.eta_s
+        return Text(f"{status.scenarios_per_s:.2f} scenarios/s, {in_flight} in flight, {status.fallbacks} fallbacks, "
+                    f"{status.failed} failed, ETA {_duration(eta) if eta is not None else '-:--:--'}",
+                    style="progress.remaining")
+
+
 def progress_bar() -> Progress:
     return Progress(
         TextColumn("[bold]{task.description}"),
@@ -44,10 +79,27 @@ def progress_bar() -> Progress:
         MofNCompleteColumn(),
         TaskProgressColumn(),
         TimeElapsedColumn(),
-        TimeRemainingColumn(),
+        RunColumn(),
         console=console,
         transient=False,
     )
+
+
+def run_progress(bar: Progress, task: TaskID) -> Callable[[int, RunStatus | None], None]:
+    """Advance ``task`` by k scenarios and show the runner's status (``RunColumn``)."""
+
+    def update(k: int, status: RunStatus | None = None) -> None:
+        if status is None:
+            bar.advance(task, k)
+        else:
+            bar.update(task, advance=k, run=status)
+
+    return update
+
+
+def print_run(name: str, stats: RunStats) -> None:
+    """The run summary line: throughput, p50/p95 latency, tokens/s, fallbacks, failures."""
+    console.print(f"{escape(name)}: {escape(stats.summary_line())}", highlight=False)
 
 
 def _fail(message: str, hint: str | None, code: int) -> typer.Exit:

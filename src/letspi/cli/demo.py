@@ -97,7 +97,7 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
     with MemoryBank.open(memory) as bank, progress_bar() as bar:
         bank.record_dataset(dataset_digest(scenario_digests(to_collect)), str(collect_file), len(to_collect))
         task = bar.add_task(f"memory collection ({llm})", total=len(collect_rows))
-        stats = collect(phase, to_collect, bank, progress=lambda k: bar.advance(task, k))
+        stats = collect(phase, to_collect, bank, progress=lambda st: bar.update(task, completed=st.done, run=st))
     console.print(f"memory: {stats.stored} new ({stats.validated} validated, {stats.fallback_results} fell back), "
                   f"{stats.skipped} reused -> {memory} (configuration {phase_config.key()})")
     options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key())

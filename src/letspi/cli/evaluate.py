@@ -7,8 +7,10 @@ from typing import Annotated
 
 import numpy as np
 import typer
+from rich.progress import Progress
 
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import ConcurrencyOpt, console, print_run, progress_bar, run_progress, user_errors
+from letspi.evaluation.harness import Progress as Progress_
 from letspi.evaluation.harness import ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.metrics.aggregate import render_markdown_table
@@ -28,10 +30,9 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
     return load_scenarios(scenarios, None if limit is None else np.arange(min(limit, n_total)))
 
 
-def progress_factory(bar: object) -> ProgressFactory:
-    def factory(name: str, total: int):  # type: ignore[no-untyped-def]
-        task = bar.add_task(name, total=total)  # type: ignore[attr-defined]
-        return lambda k: bar.advance(task, k)  # type: ignore[attr-defined]
+def progress_factory(bar: Progress) -> ProgressFactory:
+    def factory(name: str, total: int) -> Progress_:
+        return run_progress(bar, bar.add_task(name, total=total))
 
     return factory
 
@@ -65,6 +66,7 @@ def evaluate(
     goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = True,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
                                              "inference time).")] = True,
+    concurrency: ConcurrencyOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans."""
     with user_errors():
@@ -76,7 +78,7 @@ def evaluate(
         planners = build_planners(planner, options)
         with progress_bar() as bar:
             results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
-                                     progress_factory=progress_factory(bar))
+                                     progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
     console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/; keys in run.json and "
                   "per_scenario/*/config.json)")

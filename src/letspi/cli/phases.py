@@ -12,14 +12,16 @@ import numpy as np
 import typer
 from rich.pretty import pprint
 
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import ConcurrencyOpt, console, print_run, progress_bar, user_errors
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import Retriever, memory_example, messages_text
 from letspi.core.phases import collect as run_collect
+from letspi.core.runner import RunnerConfig, ScenariosFailedError
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
+from letspi.llm.spec import default_concurrency
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.metrics.evaluate import compute_metrics
 from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
@@ -40,26 +42,37 @@ def collect(
     sf_params: Annotated[Path | None, typer.Option(help="SF parameters (r_col and the fallback).")] = None,
     goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = True,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    concurrency: ConcurrencyOpt = None,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
     Experiences are keyed by the scenario's content and the collection configuration's key (printed),
     so another configuration or dataset gets its own rows. Resumable: rerun the same command after a
-    crash; stored experiences are kept and skipped, fallbacks are retried.
+    crash; stored experiences are kept and skipped, fallbacks are retried. --concurrency scenarios run
+    at once; experiences are stored in scenario order, so the bank does not depend on it.
     """
     with user_errors():
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache)
         config = Resolver(options).memory_phase()
+        runner = RunnerConfig(concurrency=default_concurrency(config.llm.spec) if concurrency is None else concurrency)
         phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
         with MemoryBank.open(memory) as bank, progress_bar() as bar:
             bank.record_dataset(dataset_digest(scenario_digests(batch)), str(scenarios), len(batch))
-            task = bar.add_task("collecting", total=len(batch))
-            stats = run_collect(phase, batch, bank, progress=lambda k: bar.advance(task, k))
+            done = len(bank.done_digests(config.key()) & set(scenario_digests(batch)))
+            task = bar.add_task("collecting", total=len(batch), completed=done)
+            try:
+                stats = run_collect(phase, batch, bank, runner=runner,
+                                    progress=lambda st: bar.update(task, completed=done + st.done, run=st))
+            except ScenariosFailedError as exc:
+                print_run("collect", exc.stats)
+                raise
             total = bank.count(validated_only=False, config_key=config.key())
             validated = bank.count(config_key=config.key())
     console.print(f"configuration {config.key()} ({config.llm.spec}; model loaded in {load_s:.1f} s)")
+    if stats.run is not None:
+        print_run("collect", stats.run)
     console.print(
         f"{stats.stored} new experiences: {stats.validated} validated, {stats.fallback_results} fell back "
         f"(stored flagged, never retrieved, retried on the next run), {stats.refinements} refinements, "
@@ -171,6 +184,7 @@ def ablate(
     collect_limit: Annotated[int | None, typer.Option(help="llm-combinations: first N collection scenarios.")] = None,
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    concurrency: ConcurrencyOpt = None,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors():
@@ -181,7 +195,7 @@ def ablate(
         with progress_bar() as bar:
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=_pairs(combo),
-                                   progress_factory=progress_factory(bar))
+                                   progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
     typer.echo(render_markdown_table(results))
 
 
