@@ -98,6 +98,9 @@ class LlmTestServer:
 
         class Handler(BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
+            # headers and body are two writes: without TCP_NODELAY the body waits for the client's
+            # delayed ACK of the headers (about 40 ms per request on Linux); uvicorn sets it too
+            disable_nagle_algorithm = True
 
             def do_POST(self) -> None:
                 length = int(self.headers.get("Content-Length") or 0)

@@ -6,7 +6,7 @@ import contextlib
 import io
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -16,6 +16,7 @@ from rich.table import Table
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
+from letspi.bench.llm_concurrency import bench_concurrency
 from letspi.bench.metrics import bench_metrics
 from letspi.bench.physics import bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
@@ -80,15 +81,62 @@ def physics_cmd(
     _emit(result, as_json, "letspi bench physics")
 
 
+def _levels(text: str, option: str) -> tuple[int, ...]:
+    try:
+        levels = tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise typer.BadParameter(f"{option} takes comma-separated integers, e.g. 1,4,16,64, got {text!r}") from None
+    if not levels or min(levels) < 1:
+        raise typer.BadParameter(f"{option} needs integers >= 1, got {text!r}")
+    return levels
+
+
+def _concurrency_table(result: dict[str, Any]) -> None:
+    table = Table(title=f"letspi bench llm --concurrency (test server, {result['server_latency_ms']} ms)")
+    for col in ("concurrency", "scenarios/s", "x concurrency 1", "client overhead ms/request", "client CPU ms/request",
+                "pipeline scenarios/s", "pipeline x 1"):
+        table.add_column(col, justify="right")
+    pipe: dict[str, Any] = result.get("pipeline") or {"concurrency": {}, "ratios": {}}
+    for c, row in result["concurrency"].items():
+        p = pipe["concurrency"].get(c, {})
+        table.add_row(c, format_number(row["scenarios_per_s"]), format_number(result["ratios"].get(f"{c}_over_1")),
+                      format_number(row.get("client_overhead_ms_per_request")),
+                      format_number(row["client_cpu_ms_per_request"]), format_number(p.get("scenarios_per_s", "-")),
+                      format_number(pipe["ratios"].get(f"{c}_over_1", "-")))
+    Console().print(table)
+    pprint({k: v for k, v in result.items() if k not in ("concurrency", "ratios", "pipeline")}, expand_all=True)
+
+
 @app.command("llm")
 def llm_cmd(
     model: Annotated[list[str] | None, typer.Option("--model", help="Embedded model (repeatable).")] = None,
     repeats: Annotated[int, typer.Option(help="Repetitions per latency measurement (median).")] = 2,
     phase_model: Annotated[str, typer.Option(help="Model spec of the per-phase latency run.")] = DEFAULT_LLM,
+    concurrency: Annotated[str | None, typer.Option(
+        help="Instead: throughput at these concurrencies (e.g. 1,4,16,64) against a local OpenAI-compatible test "
+             "server with injected latency and against llama-cpp-python's server with the embedded model.")] = None,
+    server_latency_ms: Annotated[float, typer.Option(help="--concurrency: the test server's mean latency.")] = 200.0,
+    pipeline: Annotated[bool, typer.Option(help="--concurrency: also the whole letspi-fast planner through "
+                                                "evaluate, and the 10,000-scenario projection.")] = True,
+    projection_scenarios: Annotated[int, typer.Option(help="--concurrency: scenarios measured for the projection "
+                                                           "(64 in flight, 64 slots, 1 s; 0: none).")] = 640,
+    real_server: Annotated[bool, typer.Option(help="--concurrency: also against `python -m llama_cpp.server` "
+                                                   "(SmolLM2), with its prefix reuse.")] = True,
+    real_concurrency: Annotated[str, typer.Option(help="--concurrency: levels against the real server.")] = "1,4",
     as_json: JsonOpt = False,
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
-    and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences."""
+    and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences.
+    With --concurrency: scenarios/s at each concurrency (JSON: concurrency -> scenarios_per_s)."""
+    if concurrency is not None:
+        conc = bench_concurrency(_levels(concurrency, "--concurrency"), server_latency_ms, pipeline=pipeline,
+                                 projection_scenarios=projection_scenarios, real_server=real_server,
+                                 real_levels=_levels(real_concurrency, "--real-concurrency"))
+        if as_json:
+            typer.echo(json.dumps(conc, indent=2, default=float))
+        else:
+            _concurrency_table(conc)
+        return
     models = tuple(model) if model else ("smollm2-135m", "gemma3-270m")
     result: dict[str, object] = {
         "models": bench_models(models, repeats=repeats, behaviour=False),

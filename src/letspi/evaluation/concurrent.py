@@ -2,12 +2,13 @@
 
 A planner that plans one scenario per call and says its ``plan`` is thread-safe (``concurrent_safe``)
 runs through ``letspi.core.runner``: each scenario is one task (plan on the history-only view unless
-the planner reads the future, then score it against the full scenario), and the calling thread
-collects the scored rows in scenario order and writes them as part files of up to
-``PART_SCENARIOS`` rows, or sooner when ``PART_FLUSH_S`` passed since the last part (so a killed run
-loses at most a few seconds of work). Every row's values are those of its own scenario alone, so
-neither the concurrency nor the part boundaries change what is stored; ``inference_s`` is the
-scenario's own wall time in its task (with N in flight it includes waiting in the server's queue).
+the planner reads the future, then its metrics against the full scenario), and the calling thread
+collects the results in scenario order and writes them as part files of up to ``PART_SCENARIOS``
+rows, or sooner when ``PART_FLUSH_S`` passed since the last part (so a killed run loses at most a few
+seconds of work; the table is built once per part, not per scenario). Every row's values are those of
+its own scenario alone (metrics are computed per scenario), so neither the concurrency nor the part
+boundaries change what is stored; ``inference_s`` is the scenario's own wall time in its task (with N
+in flight it includes waiting in the server's queue).
 """
 
 from __future__ import annotations
@@ -17,21 +18,21 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
 from letspi.core.runner import RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
+from letspi.metrics.evaluate import ScenarioMetrics
 from letspi.planners.base import PlanBatch, Planner
 from letspi.scenario.types import ScenarioBatch
 
 PART_SCENARIOS = 64
 PART_FLUSH_S = 5.0
 
-#: (rows of one scenario's index, the scenario, its plan, its planning time [s]) -> its scored row
-Score = Callable[[np.ndarray, ScenarioBatch, PlanBatch, float], pd.DataFrame]
-#: (rows, plan xy, plan vxy, goals) -> one part file written
-WritePart = Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], object]
+#: (one scenario with its future, its plan) -> its metrics
+Measure = Callable[[ScenarioBatch, PlanBatch], ScenarioMetrics]
+#: (metrics of k scenarios, their indices, their plans stacked, their planning times [s]) -> one part written
+WritePart = Callable[[ScenarioMetrics, np.ndarray, PlanBatch, np.ndarray], object]
 
 
 def runs_per_scenario(planner: Planner) -> bool:
@@ -54,8 +55,16 @@ def planner_concurrency(planner: Planner, requested: int | None) -> int:
 
 @dataclass
 class _Scored:
-    frame: pd.DataFrame
+    index: int
+    metrics: ScenarioMetrics
     plan: PlanBatch
+    seconds: float
+
+
+def _stack(plans: Sequence[PlanBatch]) -> PlanBatch:
+    info = {k: np.concatenate([np.asarray(p.info[k]) for p in plans]) for k in plans[0].info}
+    return PlanBatch(xy_m=np.concatenate([p.xy_m for p in plans]), vxy_mps=np.concatenate([p.vxy_mps for p in plans]),
+                     goals_xy_m=np.concatenate([p.goals_xy_m for p in plans]), info=info)
 
 
 def plan_concurrently(
@@ -63,7 +72,7 @@ def plan_concurrently(
     batch: ScenarioBatch,
     todo: Sequence[int],
     *,
-    score: Score,
+    measure: Measure,
     write_part: WritePart,
     runner: RunnerConfig,
     progress: Callable[[int, RunStatus | None], None] | None = None,
@@ -77,9 +86,8 @@ def plan_concurrently(
     def flush() -> None:
         nonlocal rows, last_flush
         if rows:
-            frame = pd.concat([r.frame for r in rows], ignore_index=True)
-            write_part(frame, *(np.concatenate([getattr(r.plan, a) for r in rows])
-                                for a in ("xy_m", "vxy_mps", "goals_xy_m")))
+            write_part(ScenarioMetrics.concat([r.metrics for r in rows]), np.array([r.index for r in rows]),
+                       _stack([r.plan for r in rows]), np.array([r.seconds for r in rows]))
         rows, last_flush = [], time.perf_counter()
 
     def work(i: int) -> _Scored:
@@ -88,7 +96,7 @@ def plan_concurrently(
         t0 = time.perf_counter()
         plan = planner.plan(seen)
         elapsed = time.perf_counter() - t0
-        return _Scored(score(np.array([i], dtype=np.int64), one, plan, elapsed), plan)
+        return _Scored(i, measure(one, plan), plan, elapsed)
 
     def write(i: int, scored: _Scored) -> None:
         rows.append(scored)

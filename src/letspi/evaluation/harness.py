@@ -56,8 +56,7 @@ from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency,
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import compute_metrics
-from letspi.planners.base import PlanBatch
+from letspi.metrics.evaluate import ScenarioMetrics, compute_metrics
 from letspi.registry.build import BuiltPlanner
 from letspi.registry.configs import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
@@ -222,18 +221,15 @@ def load_plans(out_dir: Path, planner_name: str) -> dict[str, tuple[np.ndarray, 
 # ------------------------------------------------------------------------------------------------
 
 
-def _scored_frame(sub: ScenarioBatch, idx: np.ndarray, digests: np.ndarray, plan: PlanBatch, inference_s: float,
-                  config: MetricsConfig) -> pd.DataFrame:
-    """The stored rows of scenarios ``idx`` (= ``sub``): ids, metrics, planning time per scenario, plan info."""
-    metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
+def _scored_frame(metrics: ScenarioMetrics, scenario_ids: np.ndarray, idx: np.ndarray, digests: np.ndarray,
+                  info: dict[str, np.ndarray], inference_s: float | np.ndarray) -> pd.DataFrame:
+    """The stored rows of scenarios ``idx``: ids, metrics, planning time per scenario, plan info."""
     frame = metrics.to_frame()
-    frame.insert(0, "scenario_id", [str(s) for s in sub.scenario_id])
-    frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
-    frame.insert(2, "row", idx.astype(np.int64))
-    frame["inference_s"] = inference_s
-    for name, col in _info_columns(plan.info).items():
-        frame[name] = col
-    return frame
+    columns: dict[str, Any] = {"scenario_id": [str(s) for s in scenario_ids],
+                               "scenario_digest": [str(d) for d in digests[idx]], "row": idx.astype(np.int64)}
+    tail: dict[str, Any] = {"inference_s": np.broadcast_to(np.asarray(inference_s, dtype=np.float64), (len(idx),)),
+                            **_info_columns(info)}
+    return pd.concat([pd.DataFrame(columns), frame, pd.DataFrame(tail)], axis=1)
 
 
 def run_planner(
@@ -261,8 +257,10 @@ def run_planner(
     if runs_per_scenario(planner):
         run = plan_concurrently(
             planner, batch, [int(i) for i in todo],
-            score=lambda idx, sub, plan, seconds: _scored_frame(sub, idx, digests, plan, seconds, config),
-            write_part=lambda frame, xy, vxy, goals: _write_part(planner_dir, frame, xy, vxy, goals),
+            measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
+            write_part=lambda metrics, idx, plan, seconds: _write_part(
+                planner_dir, _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
+                plan.xy_m, plan.vxy_mps, plan.goals_xy_m),
             runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
     else:
         step = max(1, int(planner.batch_size))
@@ -273,7 +271,8 @@ def run_planner(
             t0 = time.perf_counter()
             plan = planner.plan(seen)
             elapsed_s = time.perf_counter() - t0
-            frame = _scored_frame(sub, idx, digests, plan, elapsed_s / len(idx), config)
+            metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
+            frame = _scored_frame(metrics, sub.scenario_id, idx, digests, plan.info, elapsed_s / len(idx))
             _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
             if progress is not None:
                 progress(len(idx), None)
