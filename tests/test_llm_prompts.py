@@ -147,6 +147,20 @@ def test_fast_prompt() -> None:
     assert "## Guidance" not in plain[1]["content"] and "Example" not in plain[1]["content"]
 
 
+def test_static_examples_stay_inside_the_prefix_servers_cache() -> None:
+    """letspi-fs sends the same three examples with every scene: they come before the scene, so the
+    prefix two requests share (what vLLM's prefix caching and llama.cpp reuse) covers the system
+    message and every example; only the scene and its guidance differ."""
+    a = describe_scenario(scenario(VehicleSpec(25.0, 24.0)), (150.0, 0.0))
+    b = describe_scenario(scenario(VehicleSpec(60.0, 30.0, lane_offset=1)), (140.0, 3.75))
+    mems = [MemoryExample(f"example {i}", DEFAULT_REPLY, f"min TTC {i + 2}.0 s") for i in range(3)]
+    fa, fb = render_fast_prompt(a, memories=mems), render_fast_prompt(b, memories=mems)
+    ta, tb = "\n".join(m["content"] for m in fa), "\n".join(m["content"] for m in fb)
+    shared = ta[: next(i for i, (x, y) in enumerate(zip(ta, tb, strict=False)) if x != y)]
+    assert shared.startswith(system_prompt("fast")) and "min TTC 4.0 s" in shared  # all three examples
+    assert "## Current scenario" in shared and len(shared) < len(ta)  # the first difference is in the scene
+
+
 def test_units_come_from_the_physics_module() -> None:
     from letspi.llm.schema import FIELD_DOCS, LLM_PARAM_RANGES
     from letspi.physics.params import PARAM_UNITS
