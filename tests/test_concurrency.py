@@ -24,7 +24,8 @@ from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.llm.client import RetryPolicy
 from letspi.llm.guard import CircuitBreaker
 from letspi.llm.types import BackendUnavailableError, LLMTransportError, RequestFailedError, RunStoppedError
-from letspi.registry.build import build_planners
+from letspi.registry.build import Builder, build_planners
+from letspi.registry.resolve import Resolver
 from letspi.scenario.store import save_scenarios
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -292,3 +293,11 @@ def test_kill_9_mid_evaluation_then_rerun_gives_the_uninterrupted_results(tmp_pa
     assert len(raw) == 30 and raw["scenario_digest"].is_unique  # no duplicate, no missing row
     pd.testing.assert_frame_equal(stored_results(tmp_path / "killed" / "eval", "llm"),
                                   stored_results(tmp_path / "reference", "llm"))
+
+
+def test_request_timeout_reaches_the_advisor_and_changes_no_key() -> None:
+    default = Resolver(options("scripted:default")).memory_phase()
+    short = Resolver(options("scripted:default", llm_timeout_s=7.0)).memory_phase()
+    assert short.key() == default.key() and short.llm.timeout_s == 7.0
+    phase, _ = Builder(cache=None).memory_phase(short)
+    assert phase.advisor.retry.timeout_s == 7.0

@@ -133,17 +133,30 @@ def _advisor(spec: str, timeout_s: float = 120.0) -> ParamAdvisor:
 
 
 def request_level(spec: str, descs: Sequence[ScenarioDescription], concurrency: int, n: int, *,
-                  latency_s: float | None = None, jitter: float = 0.0, timeout_s: float = 120.0) -> dict[str, Any]:
-    """``n`` fast-phase LLM steps, ``concurrency`` in flight, through the runner (module docstring).
-    ``latency_s`` / ``jitter``: the test server's injection, to compute the client overhead."""
+                  latency_s: float | None = None, jitter: float = 0.0, timeout_s: float = 120.0,
+                  warmup: int = 3) -> dict[str, Any]:
+    """``n`` fast-phase LLM steps, ``concurrency`` in flight, through the runner (module docstring),
+    after ``warmup`` untimed ones. ``latency_s`` / ``jitter``: the test server's injection, to compute
+    the client overhead: per request (``client_overhead_ms_per_request``: N x wall time minus the
+    injected latencies, over the requests; ``client_overhead_ms_median``: each request's own wall
+    time minus its injected latency, median)."""
     advisor = _advisor(spec, timeout_s)
     prompts = [render_fast_prompt(descs[i % len(descs)], memories=_MEMORIES) for i in range(n)]
+    for k in range(min(warmup, n)):  # connection, template and schema set-up: once per process, not per request
+        advisor.advise(render_fast_prompt(descs[-1 - k], memories=_MEMORIES), variant="fast")
     replies: list[Any] = []
+    seconds: dict[int, float] = {}
+
+    def work(i: int) -> Any:
+        start = time.perf_counter()
+        advice = advisor.advise(render_fast_prompt(descs[i % len(descs)], memories=_MEMORIES), variant="fast")
+        seconds[i] = time.perf_counter() - start
+        return advice
+
     cpu0, t0 = time.process_time(), time.perf_counter()
-    stats = run_ordered(range(n), lambda i: advisor.advise(render_fast_prompt(descs[i % len(descs)],
-                                                                              memories=_MEMORIES), variant="fast"),
-                        lambda i, advice: replies.append(advice), config=RunnerConfig(concurrency=concurrency),
-                        advisor=advisor, is_fallback=lambda advice: advice.fallback)
+    stats = run_ordered(range(n), work, lambda i, advice: replies.append(advice),
+                        config=RunnerConfig(concurrency=concurrency), advisor=advisor,
+                        is_fallback=lambda advice: advice.fallback)
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     req = stats.requests
     out: dict[str, Any] = {
@@ -155,9 +168,11 @@ def request_level(spec: str, descs: Sequence[ScenarioDescription], concurrency: 
         "completion_tokens_per_s": None if req is None else req.completion_tokens_per_s,
     }
     if latency_s is not None:
-        injected = sum(latency_for(request_keys({"messages": p})[0], latency_s, jitter) for p in prompts)
+        each = [latency_for(request_keys({"messages": p})[0], latency_s, jitter) for p in prompts]
+        injected = sum(each)
         out["injected_latency_mean_s"] = round(injected / n, 4)
         out["client_overhead_ms_per_request"] = round(1000 * (concurrency * wall - injected) / n, 3)
+        out["client_overhead_ms_median"] = round(1000 * float(np.median([seconds[i] - each[i] for i in range(n)])), 3)
     return out
 
 
@@ -277,7 +292,7 @@ def bench_real_server(levels: Sequence[int], per_level: int, descs: Sequence[Sce
         log_before = log.read_text(errors="replace")
         levels_out: dict[str, dict[str, Any]] = {}
         for c in levels:
-            levels_out[str(c)] = request_level(spec, descs[1:], c, max(per_level, c), timeout_s=600.0)
+            levels_out[str(c)] = request_level(spec, descs[1:], c, max(per_level, c), timeout_s=600.0, warmup=0)
         out["concurrency"] = levels_out
         out["ratios"] = _ratios(levels_out)
         tokens = sum(v["scenarios"] for v in levels_out.values())

@@ -48,6 +48,11 @@ ConcurrencyOpt = Annotated[int | None, typer.Option(
          "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
 
 
+RequestTimeoutOpt = Annotated[float, typer.Option(
+    help="Seconds one LLM request may take (5 s to connect); a timeout is retried with backoff. Requests queued "
+         "behind a server's busy slots count against it.")]
+
+
 def _duration(seconds: float) -> str:
     s = round(seconds)
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"

@@ -9,7 +9,15 @@ import numpy as np
 import typer
 from rich.progress import Progress
 
-from letspi.cli.common import ConcurrencyOpt, console, print_run, progress_bar, run_progress, user_errors
+from letspi.cli.common import (
+    ConcurrencyOpt,
+    RequestTimeoutOpt,
+    console,
+    print_run,
+    progress_bar,
+    run_progress,
+    user_errors,
+)
 from letspi.evaluation.harness import Progress as Progress_
 from letspi.evaluation.harness import ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
@@ -67,6 +75,7 @@ def evaluate(
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
                                              "inference time).")] = True,
     concurrency: ConcurrencyOpt = None,
+    request_timeout: RequestTimeoutOpt = 120.0,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans."""
     with user_errors():
@@ -74,7 +83,7 @@ def evaluate(
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
-                                 allow_same_vehicle=allow_same_vehicle)
+                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout)
         planners = build_planners(planner, options)
         with progress_bar() as bar:
             results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),

@@ -12,7 +12,7 @@ import numpy as np
 import typer
 from rich.pretty import pprint
 
-from letspi.cli.common import ConcurrencyOpt, console, print_run, progress_bar, user_errors
+from letspi.cli.common import ConcurrencyOpt, RequestTimeoutOpt, console, print_run, progress_bar, user_errors
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import Retriever, memory_example, messages_text
@@ -43,6 +43,7 @@ def collect(
     goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = True,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
     concurrency: ConcurrencyOpt = None,
+    request_timeout: RequestTimeoutOpt = 120.0,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
@@ -54,7 +55,8 @@ def collect(
     with user_errors():
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
-                                 max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache)
+                                 max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
+                                 llm_timeout_s=request_timeout)
         config = Resolver(options).memory_phase()
         runner = RunnerConfig(concurrency=default_concurrency(config.llm.spec) if concurrency is None else concurrency)
         phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
@@ -185,13 +187,14 @@ def ablate(
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
     concurrency: ConcurrencyOpt = None,
+    request_timeout: RequestTimeoutOpt = 120.0,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors():
         batch = load_limited(scenarios, limit)
         collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
         options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
-                                 llm_cache=cache)
+                                 llm_cache=cache, llm_timeout_s=request_timeout)
         with progress_bar() as bar:
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=_pairs(combo),

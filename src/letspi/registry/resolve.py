@@ -68,6 +68,7 @@ class PlannerOptions:
     max_iterations: int = 3  # reflection refinements of letspi-memory (0 = "w/o reflection")
     goal_adjustment: bool = True  # False = "w/o goal adjustment" ablation
     llm_cache: bool = True  # persistent response cache
+    llm_timeout_s: float = 120.0  # per-request timeout (cosmetic: not part of any key)
     allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
     memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
     memory_seed: int = 0
@@ -175,7 +176,8 @@ class Resolver:
             path = locate_model(parsed.model)
             model_sha, model_path = file_sha256(path), str(path)
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
-                         prompt_sha256=self._prompt_sha, cache=self.options.llm_cache)
+                         prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
+                         timeout_s=self.options.llm_timeout_s)
 
     @functools.cached_property
     def _prompt_sha(self) -> str:
