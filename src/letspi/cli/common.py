@@ -131,6 +131,10 @@ def user_errors() -> Iterator[None]:
         raise _fail("interrupted", "Finished work is saved; rerun the same command to resume.", 130) from exc
 
 
+#: errors of a path that cannot be created or written (PermissionError is EACCES/EPERM)
+_PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.EEXIST})
+
+
 def _classify(exc: Exception) -> typer.Exit:
     if isinstance(exc, BackendUnavailableError):
         return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
@@ -138,15 +142,21 @@ def _classify(exc: Exception) -> typer.Exit:
     if isinstance(exc, LLMConfigError | LLMError):
         return _fail(str(exc), None, 2)
     if isinstance(exc, FileNotFoundError):
-        return _fail(str(exc), None, 2)
-    if isinstance(exc, PermissionError):
-        return _fail(f"{exc.filename or ''}: permission denied", "Choose an output location you can write to.", 2)
-    if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+        return _fail(f"{exc.filename}: no such file or directory" if exc.filename else str(exc), None, 2)
+    if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left" in str(exc)):
         return _fail(f"{exc.filename or 'output'}: no space left on the device",
                      "Free disk space and rerun the same command: finished work is kept.", 2)
+    if isinstance(exc, OSError) and exc.errno in _PATH_ERRNOS:
+        reason = (exc.strerror or type(exc).__name__).lower()
+        return _fail(f"{exc.filename or 'output'}: {reason}",
+                     "Choose a location you can write to (e.g. another --out) or fix its permissions.", 2)
     if isinstance(exc, sqlite3.DatabaseError):
         return _fail(f"database error: {exc}", "Is the --memory file a letspi memory bank (SQLite)?", 2)
-    if isinstance(exc, ValueError | KeyError | OSError):
-        return _fail(str(exc).strip("'\""), None, 2)
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        return _fail(f"{exc.filename}: {exc.strerror.lower()}", None, 2)
+    if isinstance(exc, KeyError):  # str() of a KeyError is its quoted key
+        return _fail(str(exc.args[0]) if exc.args else "missing key", None, 2)
+    if isinstance(exc, ValueError | OSError):
+        return _fail(str(exc), None, 2)
     return _fail(f"internal error: {type(exc).__name__}: {exc}",
                  f"This is a bug; rerun with --debug (or {DEBUG_ENV}=1) for the traceback and report it.", 1)

@@ -109,7 +109,9 @@ def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, c
     }
 
 
-def _check_run_file(out_dir: Path, record: dict[str, Any]) -> None:
+def _check_run_file(out_dir: Path, record: dict[str, Any]) -> bool:
+    """Refuse a directory keyed differently; True if ``run.json`` is still to be written (it is written
+    with the first stored results, so a run that stored nothing leaves no ``run.json``)."""
     run_file = out_dir / "run.json"
     if run_file.exists():
         old = json.loads(run_file.read_text())
@@ -126,24 +128,38 @@ def _check_run_file(out_dir: Path, record: dict[str, Any]) -> None:
                         f"{record['identity']['dataset_digest']}); " + what)
             raise EvaluationDirError(f"{out_dir} holds results keyed differently ({what}); "
                                      "use another --out or delete it")
-        return
-    atomic_write_text(run_file, json.dumps(record, indent=2) + "\n")
+        return False
+    return True
 
 
-def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> None:
+def _planner_record(built: BuiltPlanner) -> dict[str, Any]:
+    return {"name": built.name, "kind": built.config.kind, "key": built.key,
+            "identity": built.config.identity(), "config": built.config.record()}
+
+
+def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> bool:
+    """Refuse another configuration under this planner's name; True if ``config.json`` is still to be
+    written (with the planner's first part: a planner that stored nothing leaves no directory)."""
     marker = planner_dir / "config.json"
-    record: dict[str, Any] = {"name": built.name, "kind": built.config.kind, "key": built.key,
-              "identity": built.config.identity(), "config": built.config.record()}
     if marker.exists():
         old = json.loads(marker.read_text())
         if old.get("key") != built.key:
-            changes = diff(old.get("identity") or {}, record["identity"])
+            changes = diff(old.get("identity") or {}, _planner_record(built)["identity"])
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
                 f"(key {old.get('key')} vs {built.key}: {'; '.join(changes) or 'older letspi format'}); "
                 f"use another --out, or give this configuration its own label (--planner LABEL={built.config.kind})")
-        return
-    atomic_write_text(marker, json.dumps(record, indent=2) + "\n")
+        return False
+    return True
+
+
+def _remove_empty_dirs(*directories: Path) -> None:
+    """Remove ``directories`` (innermost first) that are empty: a failed run leaves no empty shells."""
+    for d in directories:
+        try:
+            d.rmdir()
+        except OSError:  # not empty, or already gone
+            pass
 
 
 # ------------------------------------------------------------------------------------------------
@@ -241,25 +257,54 @@ def run_planner(
     progress: Progress | None = None,
     *,
     concurrency: int | None = None,
+    before_write: Callable[[], None] | None = None,
 ) -> tuple[pd.DataFrame, RunStats | None]:
     """Plan and score every scenario of ``batch`` not yet stored for ``built``; return all its rows and,
-    for per-scenario planners, the run's ``RunStats`` (``concurrency``: None = the backend's default)."""
-    planner = built.planner
+    for per-scenario planners, the run's ``RunStats`` (``concurrency``: None = the backend's default).
+
+    The planner's directory and ``config.json`` appear with its first part (``before_write()`` runs
+    before each part is written): a planner that fails before storing anything leaves nothing."""
     planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
-    planner_dir.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries(planner_dir)
-    _check_planner_config(planner_dir, built)
+    if planner_dir.is_dir():
+        remove_stale_temporaries(planner_dir)
+    config_pending = _check_planner_config(planner_dir, built)
+
+    def write_part(frame: pd.DataFrame, xy: np.ndarray, vxy: np.ndarray, goals: np.ndarray) -> Path:
+        nonlocal config_pending
+        if before_write is not None:
+            before_write()
+        if config_pending:  # one writer thread: no race
+            atomic_write_text(planner_dir / "config.json", json.dumps(_planner_record(built), indent=2) + "\n")
+            config_pending = False
+        return _write_part(planner_dir, frame, xy, vxy, goals)
+
     done = _done_digests(planner_dir)
     todo = np.flatnonzero([d not in done for d in digests])
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo), None)
+    wrote_config = config_pending
+    try:
+        run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, write_part)
+    except BaseException:
+        if wrote_config and not config_pending and not _parts(planner_dir):  # e.g. the first part hit a full disk
+            (planner_dir / "config.json").unlink(missing_ok=True)
+        _remove_empty_dirs(planner_dir)
+        raise
+    frame = load_planner_results(out_dir, built.name)
+    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), run
+
+
+def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, todo: np.ndarray,
+                    config: MetricsConfig, progress: Progress | None, concurrency: int | None,
+                    write_part: Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], Path]) -> RunStats | None:
+    planner = built.planner
     run: RunStats | None = None
     if runs_per_scenario(planner):
         run = plan_concurrently(
             planner, batch, [int(i) for i in todo],
             measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
-            write_part=lambda metrics, idx, plan, seconds: _write_part(
-                planner_dir, _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
+            write_part=lambda metrics, idx, plan, seconds: write_part(
+                _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
                 plan.xy_m, plan.vxy_mps, plan.goals_xy_m),
             runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
     else:
@@ -273,11 +318,10 @@ def run_planner(
             elapsed_s = time.perf_counter() - t0
             metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
             frame = _scored_frame(metrics, sub.scenario_id, idx, digests, plan.info, elapsed_s / len(idx))
-            _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
+            write_part(frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
             if progress is not None:
                 progress(len(idx), None)
-    frame = load_planner_results(out_dir, built.name)
-    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), run
+    return run
 
 
 def _cached(frame: pd.DataFrame) -> np.ndarray:
@@ -313,6 +357,21 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
     return out
 
 
+def _write_summary(out_dir: Path, record: dict[str, Any], results: dict[str, dict[str, AggValue]],
+                   write_run_file: Callable[[], None]) -> dict[str, dict[str, AggValue]]:
+    """Merge ``results`` into metrics.json / metrics.md (planners of earlier runs kept); returns all."""
+    write_run_file()
+    metrics_file = out_dir / "metrics.json"
+    merged: dict[str, dict[str, AggValue]] = {}
+    if metrics_file.exists():
+        merged = json.loads(metrics_file.read_text()).get("planners", {})
+    merged.update(results)
+    payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
+    atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
+    atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
+    return merged
+
+
 def evaluate(
     planners: Sequence[BuiltPlanner],
     batch: ScenarioBatch,
@@ -340,31 +399,41 @@ def evaluate(
     out_dir = Path(out_dir)
     digests = scenario_digests(batch)
     record = run_record(batch, digests, scenarios_file, config, mode)
-    _check_run_file(out_dir, record)
+    run_pending = _check_run_file(out_dir, record)
+
+    def write_run_file() -> None:  # with the first stored results: no run.json for a run that stored nothing
+        nonlocal run_pending
+        if run_pending:
+            atomic_write_text(out_dir / "run.json", json.dumps(record, indent=2) + "\n")
+            run_pending = False
+
+    wrote_run_file = run_pending
     results: dict[str, dict[str, AggValue]] = {}
     failures: list[ScenariosFailedError] = []
     for built in planners:
         progress = progress_factory(built.name, len(batch)) if progress_factory else None
         try:
-            frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency)
+            frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency,
+                                     before_write=write_run_file)
         except ScenariosFailedError as exc:
             if on_run is not None:
                 on_run(built.name, exc.stats)
             failures.append(exc)
             continue
+        except BaseException:
+            # stopped (server down, disk full, Ctrl-C): the planners finished so far stay scored
+            if results:
+                _write_summary(out_dir, record, results, write_run_file)
+            elif wrote_run_file and not run_pending and not any(out_dir.glob("per_scenario/*/part-*.parquet")):
+                (out_dir / "run.json").unlink(missing_ok=True)
+            _remove_empty_dirs(out_dir / "per_scenario", out_dir)
+            raise
         if on_run is not None and run is not None:
             on_run(built.name, run)
         timing = timing_summary(frame, built.load_s)
         agg = aggregate_metrics(frame, inference_time_s=live_inference_s(frame), config=config)
         results[built.name] = {**agg, **timing, "config_key": built.key}  # type: ignore[dict-item]
-    metrics_file = out_dir / "metrics.json"
-    merged: dict[str, dict[str, AggValue]] = {}
-    if metrics_file.exists():
-        merged = json.loads(metrics_file.read_text()).get("planners", {})
-    merged.update(results)
-    payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
-    atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
-    atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
+    merged = _write_summary(out_dir, record, results, write_run_file)
     if failures:
         first = failures[0]
         message = str(first) if len(failures) == 1 else f"{len(failures)} planners left scenarios unstored; {first}"
