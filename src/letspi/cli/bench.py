@@ -31,10 +31,11 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output."
 
 
 def format_number(value: object) -> str:
-    """One format for every number: thousands separators, no exponents, 3 significant decimals."""
+    """One format for every number: thousands separators, counts without decimals (also counts held as
+    floats), 3 significant decimals, an exponent only below 0.001."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         return str(value)
-    if isinstance(value, int) or (float(value).is_integer() and abs(value) >= 1000):
+    if isinstance(value, int) or float(value).is_integer():
         return f"{value:,.0f}"
     v = float(value)
     if abs(v) >= 100:
