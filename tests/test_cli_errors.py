@@ -20,13 +20,14 @@ from highd_samples import sample_recording
 from typer.testing import CliRunner
 
 import letspi.evaluation.harness as harness
+import letspi.scenario.store as store
 from letspi.bench.llm_server import Fault, LlmTestServer
 from letspi.cli.app import app
 from letspi.highd.io import write_recording
 from letspi.planners.sf import SocialForcePlanner
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
-from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi.scenario.types import SCHEMA_VERSION, ScenarioBatch, concat_batches
 
 runner = CliRunner()
 DEAD = "openai:foo@http://127.0.0.1:9/v1"  # port 9 (discard): nothing listens, connections are refused
@@ -116,6 +117,20 @@ def test_evaluate_with_only_a_failing_planner_leaves_nothing(tmp_path: Path) -> 
     assert _files(out) == []  # no run.json without results
 
 
+def test_collect_with_an_unreachable_server_leaves_no_empty_bank(tmp_path: Path) -> None:
+    path = _scenario_file(tmp_path)
+    memory = tmp_path / "memory.sqlite"
+    args = ["collect", "--scenarios", str(path), "--memory", str(memory), "--no-cache"]
+    result = runner.invoke(app, [*args, "--llm", DEAD])
+    _one_clear_error(result, "127.0.0.1:9", "start the server")
+    assert _files(tmp_path) == ["s.arrow"]  # the bank it would have created is gone
+    assert runner.invoke(app, [*args, "--llm", "scripted:default"]).exit_code == 0
+    size = memory.stat().st_size
+    result = runner.invoke(app, [*args, "--llm", DEAD])  # a bank with experiences stays
+    _one_clear_error(result, "127.0.0.1:9")
+    assert memory.stat().st_size >= size
+
+
 def test_model_not_found(tmp_path: Path) -> None:
     path = _scenario_file(tmp_path)
     result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "0", "--llm",
@@ -186,6 +201,18 @@ def test_truncated_scenario_file(tmp_path: Path, keep: float) -> None:
     for args in _damaged_commands(damaged, out):
         result = runner.invoke(app, args)
         _one_clear_error(result, str(damaged), "truncated or corrupted", "letspi data scenarios")
+    assert _files(out) == []
+
+
+def test_scenario_file_of_an_old_schema(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    batch = straight_road_scenario(neighbours=[VehicleSpec(25.0, 27.0)])
+    with monkeypatch.context() as patch:
+        patch.setattr(store, "SCHEMA_VERSION", SCHEMA_VERSION - 1)
+        old = save_scenarios(batch, tmp_path / "old.arrow")
+    out = tmp_path / "ev"
+    for args in _damaged_commands(old, out):
+        result = runner.invoke(app, args)
+        _one_clear_error(result, str(old), f"version {SCHEMA_VERSION - 1} found", "letspi data scenarios")
     assert _files(out) == []
 
 

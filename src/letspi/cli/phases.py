@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -60,7 +62,8 @@ def collect(
         config = Resolver(options).memory_phase()
         runner = RunnerConfig(concurrency=default_concurrency(config.llm.spec) if concurrency is None else concurrency)
         phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
-        with MemoryBank.open(memory) as bank, progress_bar() as bar:
+        created = not memory.exists()
+        with _removed_if_empty_on_failure(memory, created), MemoryBank.open(memory) as bank, progress_bar() as bar:
             bank.record_dataset(dataset_digest(scenario_digests(batch)), str(scenarios), len(batch))
             done = len(bank.done_digests(config.key()) & set(scenario_digests(batch)))
             task = bar.add_task("collecting", total=len(batch), completed=done)
@@ -82,6 +85,22 @@ def collect(
         f"{stats.skipped} already stored")
     console.print(f"bank {memory}: {total} experiences of this configuration, {validated} validated "
                   f"(use --memory-key {config.key()} to retrieve only these)")
+
+
+@contextmanager
+def _removed_if_empty_on_failure(memory: Path, created: bool) -> Iterator[None]:
+    """A bank this run created and that holds no experience when the run fails is removed (no
+    partial output); a bank with experiences stays (rerun to resume)."""
+    try:
+        yield
+    except BaseException:
+        if created and memory.exists():
+            with MemoryBank.open(memory, readonly=True) as bank:
+                empty = bank.count(validated_only=False) == 0
+            if empty:
+                for p in (memory, memory.with_name(memory.name + "-wal"), memory.with_name(memory.name + "-shm")):
+                    p.unlink(missing_ok=True)
+        raise
 
 
 def _round(v: Any) -> Any:
