@@ -208,9 +208,13 @@ def pipeline_level(spec: str, bank: Path, work_dir: Path, concurrency: int, n: i
             "scenario_p95_s": run.scenario_p95_s, "fallbacks": run.fallbacks}
 
 
-def _wait_ready(url: str, seconds: float) -> None:
+def _wait_ready(url: str, seconds: float, proc: subprocess.Popen[bytes] | None = None) -> None:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:  # died (e.g. SIGILL: llama.cpp built for another CPU)
+            raise RuntimeError(f"{url}: the server exited with code {proc.returncode} before answering"
+                               + (" (illegal instruction: llama.cpp was built for another CPU; rebuild it)"
+                                  if proc.returncode in (-4, 132) else ""))
         try:
             if httpx.get(f"{url}/models", timeout=2.0).status_code == 200:
                 return
@@ -248,7 +252,7 @@ def start_llama_server(log: Path, *, n_threads: int = 2) -> tuple[_Process, str]
                      "--interrupt_requests", "False", "--verbose", "True"], log=log)
     url = f"http://127.0.0.1:{port}/v1"
     try:
-        _wait_ready(url, 180.0)
+        _wait_ready(url, 180.0, proc.proc)
     except RuntimeError:
         proc.close()
         raise
