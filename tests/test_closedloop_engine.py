@@ -50,6 +50,7 @@ def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> Clos
     return chunk.take(np.argsort(chunk.indices))
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_human_in_log_mode_reproduces_the_log_and_its_open_loop_metrics(traffic: ScenarioBatch) -> None:
     assert set(np.unique(traffic.driving_direction)) == {1, 2}
     # neighbours are chosen at t = 0 (present then); vehicles entering later are context vehicles
@@ -200,6 +201,7 @@ def test_driver_parameters_from_history() -> None:
     assert desired[0, 2] == pytest.approx(28.0)
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_sumo_collisions_agree_with_the_metric_code(traffic: ScenarioBatch) -> None:
     """Scenario flags agree on rear-end conflicts; every frame where they differ is one of SUMO's two
     documented gaps (``letspi.closedloop.engine``): a sideways separation is seen one frame late, and

@@ -54,6 +54,7 @@ def traffic(tmp_path_factory: pytest.TempPathFactory) -> ScenarioBatch:
     return generated_batch(tmp_path_factory.mktemp("cl_par_traffic"), n=32, seed=5)
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_workers_give_the_in_process_result_each_scenario_once(traffic: ScenarioBatch) -> None:
     sub = traffic.take(np.arange(8))
     local = ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("idm"), sub, "closed-loop-reactive",
@@ -125,6 +126,7 @@ def _wait_for_parts(out: Path, proc: subprocess.Popen[str], n: int, timeout_s: f
     raise AssertionError("no chunk was written in time")
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_a_killed_worker_is_replaced_and_no_scenario_is_lost_or_duplicated(
     tmp_path: Path, traffic: ScenarioBatch
 ) -> None:
@@ -146,6 +148,7 @@ def test_a_killed_worker_is_replaced_and_no_scenario_is_lost_or_duplicated(
     assert set(frame["scenario_id"]) == {str(s) for s in traffic.scenario_id}
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_a_killed_run_resumes_without_duplicates(tmp_path: Path, traffic: ScenarioBatch) -> None:
     out = tmp_path / "run"
     proc = _start_run(tmp_path, traffic, out, workers=2)

@@ -261,6 +261,7 @@ def _bank_count(path: Path) -> int:
         return 0
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_kill_9_mid_collection_then_rerun_gives_the_uninterrupted_bank(tmp_path: Path) -> None:
     """8 scenarios in flight, SIGKILL mid-run, rerun: the same rows (ids included) as a run that was
     never interrupted; no duplicate, none missing."""
@@ -277,6 +278,7 @@ def test_kill_9_mid_collection_then_rerun_gives_the_uninterrupted_bank(tmp_path:
     assert rows == bank_rows(tmp_path / "reference.sqlite") and len(rows) == 40
 
 
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_kill_9_mid_evaluation_then_rerun_gives_the_uninterrupted_results(tmp_path: Path) -> None:
     batch = scenarios(30, seed=4)
     scenario_file = save_scenarios(batch, tmp_path / "s.arrow")

@@ -1,7 +1,8 @@
 """Real models: embedded llama.cpp and llama-cpp-python's OpenAI-compatible server.
 
 Skipped when llama-cpp-python, the model packages or the server extras are missing. Each
-test takes about 5-15 s on 2 cores (not marked slow).
+test takes about 5-15 s on 2 cores: marked slow (``pytest -m slow``; CI runs them after the default
+suite). The default suite covers the backend's parsing, spec and cache code without a model.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from letspi.llm.schema import FIELD_RANGES
 from letspi.llm.types import DecodingSettings, MissingDependencyError, message
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
+pytestmark = pytest.mark.slow
 llama_cpp = pytest.importorskip("llama_cpp")
 
 

@@ -119,6 +119,7 @@ def test_presets_differ_measurably(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("layout", ["on_ramp", "lane_drop"])
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_layouts_record_the_main_carriageway_only(tmp_path: Path, layout: str) -> None:
     _generate(tmp_path, minutes=1.5, seed=2, layout__kind=layout, events__hard_brake_per_min="0",
               events__cut_in_per_min="8", events__truck_pullout_per_min="0")

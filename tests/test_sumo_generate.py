@@ -206,6 +206,7 @@ def test_calm_traffic_has_close_interactions(recording) -> None:  # type: ignore
 
 
 @pytest.mark.sumo
+@pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_deterministic_per_seed(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
     from letspi.sumo.generate import generate_recordings
