@@ -139,7 +139,7 @@ def test_model_not_found(tmp_path: Path) -> None:
     assert result.stdout == ""
     missing = tmp_path / "nowhere.gguf"
     result = runner.invoke(app, ["plan", "--scenarios", str(path), "--index", "0", "--llm", f"llamacpp:{missing}"])
-    _one_clear_error(result, str(missing))
+    _one_clear_error(result, str(missing), "letspi llm models")
     out = tmp_path / "ev"
     with LlmTestServer(fault=lambda r: Fault(404, "model 'nope' not found, try pulling it first")) as srv:
         result = runner.invoke(app, ["evaluate", "--scenarios", str(path), "--planner", "llm", "--out", str(out),
@@ -229,7 +229,7 @@ def test_malformed_highd(tmp_path: Path) -> None:
     tracks.write_text("\n".join(lines) + "\n")
     out = tmp_path / "s.arrow"
     result = runner.invoke(app, ["data", "scenarios", "--highd", str(highd), "--out", str(out)])
-    _one_clear_error(result, "01_tracks.csv", "xVelocity", "line 6")
+    _one_clear_error(result, f"{highd}/01_tracks.csv", "xVelocity", "line 6", "--recordings")
     assert not out.exists() and _files(tmp_path / "highd") == sorted(p.name for p in highd.iterdir())
 
 

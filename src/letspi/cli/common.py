@@ -13,6 +13,7 @@ import os
 import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -33,7 +34,8 @@ from rich.progress import (
 from rich.text import Text
 
 from letspi.core.runner import RunStats, RunStatus
-from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError
+from letspi.highd.errors import HighDFormatError
+from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
 
 console = Console(stderr=True)
 DEBUG_ENV = "LETSPI_DEBUG"
@@ -139,8 +141,16 @@ def _classify(exc: Exception) -> typer.Exit:
     if isinstance(exc, BackendUnavailableError):
         return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
                      "(or fix the address) and rerun the same command to resume.", 2)
+    if isinstance(exc, ModelNotFoundError):
+        return _fail(str(exc), "`letspi llm models` lists the embedded models; `letspi llm check SPEC` tests a model "
+                     "spec before a run.", 2)
     if isinstance(exc, LLMConfigError | LLMError):
         return _fail(str(exc), None, 2)
+    if isinstance(exc, HighDFormatError):
+        text = str(exc)  # starts with the file name; the directory tells which recording set
+        in_dir = exc.path.parent != Path(".") and text.startswith(exc.path.name)
+        return _fail(f"{exc.path.parent}/{text}" if in_dir else text,
+                     "Fix or re-export this recording, or leave it out (--recordings).", 2)
     if isinstance(exc, FileNotFoundError):
         return _fail(f"{exc.filename}: no such file or directory" if exc.filename else str(exc), None, 2)
     if isinstance(exc, OSError) and (exc.errno == errno.ENOSPC or "No space left" in str(exc)):
