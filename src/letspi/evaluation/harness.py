@@ -132,7 +132,8 @@ def _check_run_file(out_dir: Path, record: dict[str, Any]) -> bool:
     return True
 
 
-def _planner_record(built: BuiltPlanner) -> dict[str, Any]:
+def planner_record(built: BuiltPlanner) -> dict[str, Any]:
+    """What ``per_scenario/<label>/config.json`` holds."""
     return {"name": built.name, "kind": built.config.kind, "key": built.key,
             "identity": built.config.identity(), "config": built.config.record()}
 
@@ -144,7 +145,7 @@ def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> bool:
     if marker.exists():
         old = json.loads(marker.read_text())
         if old.get("key") != built.key:
-            changes = diff(old.get("identity") or {}, _planner_record(built)["identity"])
+            changes = diff(old.get("identity") or {}, planner_record(built)["identity"])
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
                 f"(key {old.get('key')} vs {built.key}: {'; '.join(changes) or 'older letspi format'}); "
@@ -269,12 +270,12 @@ def run_planner(
         remove_stale_temporaries(planner_dir)
     config_pending = _check_planner_config(planner_dir, built)
 
-    def write_part(frame: pd.DataFrame, xy: np.ndarray, vxy: np.ndarray, goals: np.ndarray) -> Path:
+    def store_part(frame: pd.DataFrame, xy: np.ndarray, vxy: np.ndarray, goals: np.ndarray) -> Path:
         nonlocal config_pending
         if before_write is not None:
             before_write()
         if config_pending:  # one writer thread: no race
-            atomic_write_text(planner_dir / "config.json", json.dumps(_planner_record(built), indent=2) + "\n")
+            atomic_write_text(planner_dir / "config.json", json.dumps(planner_record(built), indent=2) + "\n")
             config_pending = False
         return _write_part(planner_dir, frame, xy, vxy, goals)
 
@@ -284,7 +285,7 @@ def run_planner(
         progress(len(batch) - len(todo), None)
     wrote_config = config_pending
     try:
-        run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, write_part)
+        run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, store_part)
     except BaseException:
         if wrote_config and not config_pending and not _parts(planner_dir):  # e.g. the first part hit a full disk
             (planner_dir / "config.json").unlink(missing_ok=True)
@@ -296,14 +297,14 @@ def run_planner(
 
 def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, todo: np.ndarray,
                     config: MetricsConfig, progress: Progress | None, concurrency: int | None,
-                    write_part: Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], Path]) -> RunStats | None:
+                    store_part: Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], Path]) -> RunStats | None:
     planner = built.planner
     run: RunStats | None = None
     if runs_per_scenario(planner):
         run = plan_concurrently(
             planner, batch, [int(i) for i in todo],
             measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
-            write_part=lambda metrics, idx, plan, seconds: write_part(
+            write_part=lambda metrics, idx, plan, seconds: store_part(
                 _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
                 plan.xy_m, plan.vxy_mps, plan.goals_xy_m),
             runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
@@ -318,7 +319,7 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
             elapsed_s = time.perf_counter() - t0
             metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
             frame = _scored_frame(metrics, sub.scenario_id, idx, digests, plan.info, elapsed_s / len(idx))
-            write_part(frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
+            store_part(frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
             if progress is not None:
                 progress(len(idx), None)
     return run
