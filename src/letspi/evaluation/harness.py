@@ -18,7 +18,10 @@ scenario digest, so a resumed run skips exactly the scenarios already scored.
 
 Crash safety: every file is written to a temporary, fsynced and renamed (``letspi.fsutil``); part
 files have unique names. A killed run loses at most the chunk in flight; rerunning completes it and
-gives the same results as an uninterrupted run.
+gives the same results as an uninterrupted run. No partial output: ``run.json`` and a planner's
+directory and ``config.json`` are written with the first stored part (the keys are checked before
+planning), so a planner that fails before storing a scenario (server down, disk full, Ctrl-C) leaves
+nothing; the planners finished before a failure are still merged into metrics.json / metrics.md.
 
 Concurrency: planners that plan one scenario per call and are thread-safe (the LLM planners) keep
 ``concurrency`` scenarios in flight (``letspi.evaluation.concurrent``; default per LLM backend); one
