@@ -63,11 +63,19 @@ from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
 
 RUN_FORMAT: Final = 2
-EVALUATION_MODES: Final = ("open-loop",)
+#: open loop (the paper's protocol, this module) and the closed-loop modes (``letspi.evaluation.closed_loop``)
+EVALUATION_MODES: Final = ("open-loop", "closed-loop-log", "closed-loop-reactive")
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
+#: prefix of the large per-scenario array columns of closed-loop parts (replan plans, simulated
+#: neighbours); read only with ``with_plans``
+TRAJECTORY_PREFIX: Final = "cl_"
 #: (advance by k scenarios, the concurrent runner's status or None)
 Progress = Callable[[int, RunStatus | None], None]
 ProgressFactory = Callable[[str, int], Progress]
+#: runs one planner on the scenarios not yet stored and returns all its rows (``run_planner``'s
+#: signature; closed loop: ``letspi.evaluation.closed_loop.ClosedLoopRunner``)
+PlannerRunner = Callable[[BuiltPlanner, ScenarioBatch, np.ndarray, Path, MetricsConfig, Progress | None],
+                         tuple[pd.DataFrame, RunStats | None]]
 
 
 class EvaluationDirError(ValueError):
@@ -93,14 +101,20 @@ def planner_dir_name(name: str) -> str:
 
 
 def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, config: MetricsConfig,
-               mode: str) -> dict[str, Any]:
-    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields."""
-    identity = {
+               mode: str, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields.
+
+    ``mode_settings``: what else of the mode changes answers (closed loop: the simulation and, in
+    ``closed-loop-reactive``, the driver model); absent in open loop, so open-loop keys are unchanged.
+    """
+    identity: dict[str, Any] = {
         "format": RUN_FORMAT,
         "mode": mode,
         "dataset_digest": dataset_digest(digests),
         "metrics_config": config.recorded(),
     }
+    if mode_settings:
+        identity["mode_settings"] = mode_settings
     return {
         "identity": identity,
         "key": key_of(identity),
@@ -130,17 +144,33 @@ def _check_run_file(out_dir: Path, record: dict[str, Any]) -> None:
     atomic_write_text(run_file, json.dumps(record, indent=2) + "\n")
 
 
-def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> None:
+def planner_record(built: BuiltPlanner, evaluation: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What ``per_scenario/<label>/config.json`` holds. ``evaluation``: how the planner was run when
+    that changes its answers (closed loop: mode and replanning period); it joins the identity and
+    the key, so an open-loop key stays the planner configuration's own."""
+    identity = built.config.identity()
+    key = built.key
+    if evaluation:
+        identity = {**identity, "evaluation": evaluation}
+        key = key_of(identity)
+    record: dict[str, Any] = {"name": built.name, "kind": built.config.kind, "key": key, "identity": identity,
+                              "config": built.config.record()}
+    if evaluation:
+        record["evaluation"] = evaluation
+    return record
+
+
+def check_planner_config(planner_dir: Path, built: BuiltPlanner, evaluation: dict[str, Any] | None = None) -> None:
+    """Write the planner's ``config.json``, or refuse a directory holding another configuration."""
     marker = planner_dir / "config.json"
-    record: dict[str, Any] = {"name": built.name, "kind": built.config.kind, "key": built.key,
-              "identity": built.config.identity(), "config": built.config.record()}
+    record = planner_record(built, evaluation)
     if marker.exists():
         old = json.loads(marker.read_text())
-        if old.get("key") != built.key:
+        if old.get("key") != record["key"]:
             changes = diff(old.get("identity") or {}, record["identity"])
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
-                f"(key {old.get('key')} vs {built.key}: {'; '.join(changes) or 'older letspi format'}); "
+                f"(key {old.get('key')} vs {record['key']}: {'; '.join(changes) or 'older letspi format'}); "
                 f"use another --out, or give this configuration its own label (--planner LABEL={built.config.kind})")
         return
     atomic_write_text(marker, json.dumps(record, indent=2) + "\n")
@@ -168,10 +198,16 @@ def _fixed_list(arr: np.ndarray) -> pa.FixedSizeListArray:
     return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
 
 
-def _write_part(planner_dir: Path, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray,
-                goals: np.ndarray) -> Path:
+def write_part(planner_dir: Path, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray,
+               goals: np.ndarray, arrays: dict[str, np.ndarray] | None = None) -> Path:
+    """One part file: ``frame``'s rows plus the plan columns and, optionally, more per-row arrays
+    (``arrays``: name -> (K, ...), stored flat as float32; names start with ``TRAJECTORY_PREFIX``)."""
     table = pa.Table.from_pandas(frame, preserve_index=False)
     for name, arr in zip(PLAN_COLUMNS, (plan_xy, plan_vxy, goals), strict=True):
+        table = table.append_column(name, _fixed_list(arr))
+    for name, arr in (arrays or {}).items():
+        if not name.startswith(TRAJECTORY_PREFIX):
+            raise ValueError(f"extra part column {name!r} must start with {TRAJECTORY_PREFIX!r}")
         table = table.append_column(name, _fixed_list(arr))
     path = planner_dir / f"part-{uuid.uuid4().hex[:16]}.parquet"
     return atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
@@ -181,7 +217,7 @@ def _parts(planner_dir: Path) -> list[Path]:
     return sorted(planner_dir.glob("part-*.parquet"))
 
 
-def _done_digests(planner_dir: Path) -> set[str]:
+def done_digests(planner_dir: Path) -> set[str]:
     done: set[str] = set()
     for part in _parts(planner_dir):
         done.update(pq.read_table(part, columns=["scenario_digest"]).column(0).to_pylist())
@@ -199,7 +235,8 @@ def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool =
     frames = []
     for p in parts:
         names = pq.read_schema(p).names
-        cols = names if with_plans else [c for c in names if c not in PLAN_COLUMNS]
+        cols = names if with_plans else [c for c in names
+                                         if c not in PLAN_COLUMNS and not c.startswith(TRAJECTORY_PREFIX)]
         frames.append(pq.read_table(p, columns=cols).to_pandas())
     frame = pd.concat(frames, ignore_index=True).drop_duplicates("scenario_digest", keep="first")
     return frame.sort_values("row", kind="stable").reset_index(drop=True)
@@ -248,8 +285,8 @@ def run_planner(
     planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
     planner_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(planner_dir)
-    _check_planner_config(planner_dir, built)
-    done = _done_digests(planner_dir)
+    check_planner_config(planner_dir, built)
+    done = done_digests(planner_dir)
     todo = np.flatnonzero([d not in done for d in digests])
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo), None)
@@ -258,7 +295,7 @@ def run_planner(
         run = plan_concurrently(
             planner, batch, [int(i) for i in todo],
             measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
-            write_part=lambda metrics, idx, plan, seconds: _write_part(
+            write_part=lambda metrics, idx, plan, seconds: write_part(
                 planner_dir, _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
                 plan.xy_m, plan.vxy_mps, plan.goals_xy_m),
             runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
@@ -273,7 +310,7 @@ def run_planner(
             elapsed_s = time.perf_counter() - t0
             metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
             frame = _scored_frame(metrics, sub.scenario_id, idx, digests, plan.info, elapsed_s / len(idx))
-            _write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
+            write_part(planner_dir, frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
             if progress is not None:
                 progress(len(idx), None)
     frame = load_planner_results(out_dir, built.name)
@@ -310,6 +347,10 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["llm_calls_per_scenario"] = float(np.asarray(frame["info_llm_calls"], dtype=np.float64).mean())
     if "info_fallback" in frame:
         out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
+    if "sumo_collision" in frame and len(frame):  # closed loop: SUMO's own check beside the metric's
+        out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
+        out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
+        out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
     return out
 
 
@@ -324,6 +365,8 @@ def evaluate(
     progress_factory: ProgressFactory | None = None,
     concurrency: int | None = None,
     on_run: Callable[[str, RunStats], None] | None = None,
+    mode_settings: dict[str, Any] | None = None,
+    runner: PlannerRunner | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
@@ -332,21 +375,27 @@ def evaluate(
     ``concurrency``: scenarios in flight for per-scenario planners (None: each backend's default);
     ``on_run(name, stats)`` hears each such planner's throughput and latency. Raises
     ``ScenariosFailedError`` at the end if some planner left scenarios unstored (the others' metrics
-    are written; rerun to complete).
+    are written; rerun to complete). ``mode_settings`` joins the run's identity; ``runner`` replaces
+    ``run_planner`` (closed-loop modes need one: use ``letspi.evaluation.closed_loop.evaluate_closed_loop``).
     """
     if mode not in EVALUATION_MODES:
         raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
+    if mode != "open-loop" and runner is None:
+        raise ValueError(f"mode {mode!r} runs through letspi.evaluation.closed_loop.evaluate_closed_loop")
     config = config or MetricsConfig()
     out_dir = Path(out_dir)
     digests = scenario_digests(batch)
-    record = run_record(batch, digests, scenarios_file, config, mode)
+    record = run_record(batch, digests, scenarios_file, config, mode, mode_settings)
     _check_run_file(out_dir, record)
     results: dict[str, dict[str, AggValue]] = {}
     failures: list[ScenariosFailedError] = []
     for built in planners:
         progress = progress_factory(built.name, len(batch)) if progress_factory else None
         try:
-            frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency)
+            if runner is not None:
+                frame, run = runner(built, batch, digests, out_dir, config, progress)
+            else:
+                frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency)
         except ScenariosFailedError as exc:
             if on_run is not None:
                 on_run(built.name, exc.stats)
