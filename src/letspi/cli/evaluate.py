@@ -53,12 +53,15 @@ RayOpt = Annotated[bool, typer.Option(
                   "unless --ray-address is given.")]
 RayAddressOpt = Annotated[str | None, typer.Option(
     help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.")]
+ChunkSizeOpt = Annotated[int, typer.Option(
+    help="Closed loop: scenarios simulated together in one SUMO network and written per part (never changes "
+         "results; smaller chunks lose less when a run is killed).")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
 
 
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool) -> ClosedLoopSettings | None:
+                         ray: str | None, sumo_gui: bool, chunk_size: int = 32) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
     ``ray``: None (no Ray), ``local`` or a cluster address."""
     if mode not in EVALUATION_MODES:
@@ -71,8 +74,10 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
                              "closed-loop-reactive)")
         return None
     default, own = parse_replan_options(replan_s, labels)
+    if chunk_size < 1:
+        raise ValueError(f"--chunk-size must be >= 1, got {chunk_size}")
     return ClosedLoopSettings(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                              sumo_gui=sumo_gui)
+                              sumo_gui=sumo_gui, chunk_size=chunk_size)
 
 
 def progress_factory(bar: Progress) -> ProgressFactory:
@@ -119,12 +124,13 @@ def evaluate(
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
     sumo_gui: SumoGuiOpt = False,
+    chunk_size: ChunkSizeOpt = 32,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
     with user_errors():
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
-                                      ray_address or ("local" if ray else None), sumo_gui)
+                                      ray_address or ("local" if ray else None), sumo_gui, chunk_size)
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
@@ -139,6 +145,9 @@ def evaluate(
                 results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
                                          progress_factory=progress_factory(bar), concurrency=concurrency,
                                          on_run=print_run)
+    if closed is not None:
+        typer.echo(f"Mode: {closed.mode}, replanning every "
+                   + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})" for p in planners) + "\n")
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
     console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/; keys in run.json and "
                   "per_scenario/*/config.json)")

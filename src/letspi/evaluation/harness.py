@@ -413,7 +413,9 @@ def evaluate(
     merged.update(results)
     payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
     atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
-    atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
+    mode_line = f"Mode: {mode} (per planner replanning period: per_scenario/*/config.json)\n\n" \
+        if mode != "open-loop" else ""
+    atomic_write_text(out_dir / "metrics.md", mode_line + render_markdown_table(merged) + "\n")
     if failures:
         first = failures[0]
         message = str(first) if len(failures) == 1 else f"{len(failures)} planners left scenarios unstored; {first}"
