@@ -28,7 +28,7 @@ from letspi.evaluation.closed_loop import (
     closed_loop_rows,
     evaluate_closed_loop,
 )
-from letspi.evaluation.harness import EvaluationDirError, load_planner_results
+from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results
 from letspi.registry.build import BuiltPlanner
 from letspi.registry.configs import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -243,3 +243,35 @@ def test_ray_path_gives_the_in_process_rows(tmp_path: Path, traffic_file: Path) 
     np.testing.assert_allclose(on_ray["min_box_gap_m"], local["min_box_gap_m"], atol=1e-6)
     assert (json.loads((tmp_path / "ray" / "per_scenario" / "idm" / "config.json").read_text())["key"]
             == json.loads((tmp_path / "local" / "per_scenario" / "idm" / "config.json").read_text())["key"])
+
+
+def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path: Path, traffic_file: Path) -> None:
+    batch = _brake_batch()
+    scen = save_scenarios(batch, tmp_path / "brake.arrow")
+    built = BuiltPlanner("brake", CvConfig(), BrakePlanner(8.0))
+    evaluate([built], batch, tmp_path / "open", scenarios_file=str(scen))
+    evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopSettings(REACTIVE), scenarios_file=str(scen))
+    result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(tmp_path / "reactive"), "--out",
+                                 str(tmp_path / "cmp")])
+    assert result.exit_code == 0, result.output
+    assert "A = " in result.output and "(open-loop)" in result.output and "(closed-loop-reactive)" in result.output
+    assert "| brake | 2 | 100.00 → 0.00 (-100.00) |" in result.output
+    data = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert len(data["collides_only_a"]["brake"]) == 2 and data["collides_only_b"]["brake"] == []
+    page = (tmp_path / "cmp" / "compare.html").read_text()
+    assert page.count("<img src='data:image/png;base64,") == 2 and "collides in A only" in page
+    # the report of a closed-loop directory draws the panel for its worst scenarios
+    code = runner.invoke(app, ["report", str(tmp_path / "reactive")]).exit_code
+    assert code == 0
+    report = (tmp_path / "reactive" / "report.html").read_text()
+    assert report.count("data:image/png;base64,") >= 3  # distributions + 2 worst scenarios
+    # a directory of other scenarios is refused, naming why
+    other = tmp_path / "other"
+    evaluate([built], batch.take(np.array([0])), other)
+    result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(other)])
+    assert result.exit_code == 2 and "other scenarios" in result.output
+    # letspi plot --mode simulates one scenario and draws the panel
+    result = runner.invoke(app, ["plot", "--scenarios", str(traffic_file), "--index", "1", "--planner", "cv",
+                                 "--mode", LOG, "--out", str(tmp_path / "p.png")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "p.png").stat().st_size > 10_000
