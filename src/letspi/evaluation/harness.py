@@ -26,6 +26,11 @@ thread writes their rows in scenario order, so the concurrency never changes sto
 not part of any key. A scenario whose LLM requests failed in transport is not stored: that planner's
 metrics are not aggregated and ``evaluate`` ends with ``ScenariosFailedError`` (rerun to complete).
 
+Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log`` and
+``closed-loop-reactive`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
+``evaluate``) into the same layout: the mode and its settings join ``run.json``'s identity and each
+planner's key gets ``evaluation = {mode, replan_s}``, so one directory never mixes modes or periods.
+
 Planner contract: planners that do not read the future (``reads_future`` False) get the
 history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
 
