@@ -54,8 +54,8 @@ RayOpt = Annotated[bool, typer.Option(
 RayAddressOpt = Annotated[str | None, typer.Option(
     help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.")]
 ChunkSizeOpt = Annotated[int, typer.Option(
-    help="Closed loop: scenarios simulated together in one SUMO network and written per part (never changes "
-         "results; smaller chunks lose less when a run is killed).")]
+    help="Closed loop: scenarios simulated together in one SUMO network and written per part (not in any key: "
+         "results agree to float rounding; smaller chunks lose less when a run is killed).")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
 
