@@ -275,3 +275,13 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
                                  "--mode", LOG, "--out", str(tmp_path / "p.png")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_llm_planners_call_their_model_at_every_replan(tmp_path: Path, traffic_file: Path) -> None:
+    out = tmp_path / "ev"
+    code, text = _evaluate("--scenarios", str(traffic_file), "--limit", "2", "--planner", "llm", "--llm",
+                           "scripted:default", "--no-cache", "--out", str(out), "--mode", LOG, "--replan-s", "llm=2.5")
+    assert code == 0, text
+    m = _metrics(out)["llm"]
+    assert m["replans_per_scenario"] == 3.0  # t = 0, 2.48 s, 4.96 s (62 whole frames apart)
+    assert m["llm_calls_per_scenario"] == 3.0 and m["inference_n"] == 2

@@ -189,6 +189,8 @@ def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.nda
     frame = chunk_frame(chunk, metrics)
     frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
     frame.insert(2, "row", idx)
+    if "llm_calls" in chunk.plan_info:  # model calls of all replans (``info_llm_calls``: the t = 0 plan's)
+        frame["info_llm_calls_total"] = np.nansum(np.asarray(chunk.plan_info["llm_calls"], dtype=np.float64), axis=1)
     if "llm_cached" in chunk.plan_info:  # a row's time is "cached" only if no replan called the model
         cached = np.asarray(chunk.plan_info["llm_cached"], dtype=np.float64)
         frame["info_llm_cached"] = np.all(np.nan_to_num(cached, nan=1.0) > 0.5, axis=1)

@@ -349,7 +349,9 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
     if "info_llm_original_latency_s" in frame:
         orig = np.asarray(frame["info_llm_original_latency_s"], dtype=np.float64)
         out["llm_original_latency_s"] = float(orig.mean()) if len(orig) else None
-        out["llm_calls_per_scenario"] = float(np.asarray(frame["info_llm_calls"], dtype=np.float64).mean())
+        # closed loop: the calls of all replans
+        calls = "info_llm_calls_total" if "info_llm_calls_total" in frame else "info_llm_calls"
+        out["llm_calls_per_scenario"] = float(np.asarray(frame[calls], dtype=np.float64).mean())
     if "info_fallback" in frame:
         out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
     if "sumo_collision" in frame and len(frame):  # closed loop: SUMO's own check beside the metric's
