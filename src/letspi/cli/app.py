@@ -52,6 +52,7 @@ app.command("ablate")(phases.ablate)
 app.command("prompt")(phases.prompt)
 app.command("plot")(viz.plot)
 app.command("report")(viz.report)
+app.command("compare")(viz.compare)
 
 
 def main() -> None:

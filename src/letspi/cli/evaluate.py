@@ -18,11 +18,12 @@ from letspi.cli.common import (
     run_progress,
     user_errors,
 )
+from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop, parse_replan_options
+from letspi.evaluation.harness import EVALUATION_MODES, ProgressFactory
 from letspi.evaluation.harness import Progress as Progress_
-from letspi.evaluation.harness import ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.metrics.aggregate import render_markdown_table
-from letspi.registry.build import build_planners
+from letspi.registry.build import build_planners, parse_planner_arg
 from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
@@ -36,6 +37,47 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
     """The first ``limit`` scenarios of a file (all when None)."""
     n_total = count_scenarios(scenarios)
     return load_scenarios(scenarios, None if limit is None else np.arange(min(limit, n_total)))
+
+
+ModeOpt = Annotated[str, typer.Option(
+    help="open-loop (the paper's protocol: one plan at t = 0, neighbours replay the log), closed-loop-log (the "
+         "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log) or "
+         "closed-loop-reactive (neighbours are driven by SUMO's IDM from t = 0 and react to the ego).")]
+ReplanOpt = Annotated[list[str] | None, typer.Option(
+    "--replan-s", help="Closed loop: replanning period [s] of every planner (S, default 1.0; 5 plans once) or of "
+                       "one planner (LABEL=S); repeatable. LLM planners call their model at every replan.")]
+WorkersOpt = Annotated[int, typer.Option(
+    help="Closed loop: worker processes (one SUMO each; 0 = this process). With --ray: Ray actors.")]
+RayOpt = Annotated[bool, typer.Option(
+    "--ray", help="Closed loop: run the --workers on Ray actors (pip install 'letspi[ray]'); a local Ray instance "
+                  "unless --ray-address is given.")]
+RayAddressOpt = Annotated[str | None, typer.Option(
+    help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.")]
+ChunkSizeOpt = Annotated[int, typer.Option(
+    help="Closed loop: scenarios simulated together in one SUMO network and written per part (not in any key: "
+         "results agree to float rounding; smaller chunks lose less when a run is killed).")]
+SumoGuiOpt = Annotated[bool, typer.Option(
+    "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
+
+
+def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
+                         ray: str | None, sumo_gui: bool, chunk_size: int = 32) -> ClosedLoopSettings | None:
+    """The closed-loop settings of the options (None in open loop, where they are refused).
+    ``ray``: None (no Ray), ``local`` or a cluster address."""
+    if mode not in EVALUATION_MODES:
+        raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
+    if mode == "open-loop":
+        given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
+                                       ("--ray", ray is not None), ("--sumo-gui", sumo_gui)) if on]
+        if given:
+            raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log or "
+                             "closed-loop-reactive)")
+        return None
+    default, own = parse_replan_options(replan_s, labels)
+    if chunk_size < 1:
+        raise ValueError(f"--chunk-size must be >= 1, got {chunk_size}")
+    return ClosedLoopSettings(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
+                              sumo_gui=sumo_gui, chunk_size=chunk_size)
 
 
 def progress_factory(bar: Progress) -> ProgressFactory:
@@ -76,9 +118,19 @@ def evaluate(
                                              "inference time).")] = True,
     concurrency: ConcurrencyOpt = None,
     request_timeout: RequestTimeoutOpt = 120.0,
+    mode: ModeOpt = "open-loop",
+    replan_s: ReplanOpt = None,
+    workers: WorkersOpt = 0,
+    ray: RayOpt = False,
+    ray_address: RayAddressOpt = None,
+    sumo_gui: SumoGuiOpt = False,
+    chunk_size: ChunkSizeOpt = 32,
 ) -> None:
-    """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans."""
+    """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
+    (open loop, or closed loop in SUMO with --mode)."""
     with user_errors():
+        closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
+                                      ray_address or ("local" if ray else None), sumo_gui, chunk_size)
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
@@ -86,8 +138,16 @@ def evaluate(
                                  allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout)
         planners = build_planners(planner, options)
         with progress_bar() as bar:
-            results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
-                                     progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
+            if closed is not None:
+                results = evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
+                                               progress_factory=progress_factory(bar))
+            else:
+                results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
+                                         progress_factory=progress_factory(bar), concurrency=concurrency,
+                                         on_run=print_run)
+    if closed is not None:
+        typer.echo(f"Mode: {closed.mode}, replanning every "
+                   + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})" for p in planners) + "\n")
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
     console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/; keys in run.json and "
                   "per_scenario/*/config.json)")

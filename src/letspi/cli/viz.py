@@ -8,12 +8,16 @@ from typing import Annotated
 import typer
 
 from letspi.cli.common import console, user_errors
+from letspi.closedloop.config import validate_replan_s
+from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
 from letspi.registry.build import build_planners
 from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.scenario.store import load_scenarios
+from letspi.viz.compare import write_comparison
 from letspi.viz.figure import plot_scenario
 from letspi.viz.llm_panel import load_iterations, panel_record
+from letspi.viz.outcomes import simulate_panel
 from letspi.viz.report import write_report
 
 
@@ -31,17 +35,33 @@ def plot(
     llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
     fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
+    mode: Annotated[str, typer.Option(
+        help="open-loop (default: the diagrams above) or closed-loop-log / closed-loop-reactive: simulate the "
+             "scenario in SUMO and draw the closed-loop panel (open-loop plan above, every replan and the "
+             "simulated paths below; one PNG per planner, OUT-LABEL.png when several).")] = "open-loop",
+    replan_s: Annotated[float, typer.Option("--replan-s", help="Closed loop: replanning period [s].")] = 1.0,
 ) -> None:
     """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
     vehicle, and the safety reports and LLM responses per reflection iteration (of a
-    letspi-memory / llm planner, or from --iterations)."""
+    letspi-memory / llm planner, or from --iterations); with --mode closed-loop-*, the closed-loop panel."""
     with user_errors():
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
+        if mode not in EVALUATION_MODES:
+            raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
+        validate_replan_s(replan_s)
         batch = load_scenarios(scenarios, [index])
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, llm=llm, fast_llm=fast_llm,
                                  memory=memory)
         built = build_planners(list(planner) if planner else ["sf"], options)
+        if mode != "open-loop":
+            for b in built:
+                target = out if len(built) == 1 else out.with_name(f"{out.stem}-{planner_dir_name(b.name)}{out.suffix}")
+                fig = simulate_panel(batch, b.planner, b.name, mode, replan_s)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                fig.savefig(target, dpi=110)
+                console.print(f"scenario {batch.scenario_id[0]}, {b.name}, {mode} -> {target}")
+            return
         plans = {b.name: b.planner.plan(batch if b.planner.reads_future else batch.history()) for b in built}
         records = load_iterations(iterations) if iterations is not None else None
         for b in built:
@@ -63,3 +83,19 @@ def report(
     with user_errors():
         path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
     typer.echo(str(path))
+
+
+def compare(
+    a: Annotated[Path, typer.Argument(help="Results directory A (e.g. open loop).")],
+    b: Annotated[Path, typer.Argument(help="Results directory B of the same scenarios (e.g. closed loop).")],
+    out: Annotated[Path | None, typer.Option(help="Output directory (default: B/compare).")] = None,
+    examples: Annotated[int, typer.Option(help="Scenarios drawn per planner whose collision outcome differs.")] = 3,
+) -> None:
+    """Compare two evaluations of the same scenarios (e.g. open loop vs closed loop): metric deltas per
+    planner (compare.md, compare.json) and compare.html with open- vs closed-loop panels of the
+    scenarios whose outcome differs."""
+    with user_errors():
+        target = out if out is not None else Path(b) / "compare"
+        cmp = write_comparison(a, b, target, n_examples=examples)
+    typer.echo(cmp.markdown())
+    console.print(f"comparison in {target}/ (compare.md, compare.json, compare.html)")

@@ -29,6 +29,11 @@ thread writes their rows in scenario order, so the concurrency never changes sto
 not part of any key. A scenario whose LLM requests failed in transport is not stored: that planner's
 metrics are not aggregated and ``evaluate`` ends with ``ScenariosFailedError`` (rerun to complete).
 
+Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log`` and
+``closed-loop-reactive`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
+``evaluate``) into the same layout: the mode and its settings join ``run.json``'s identity and each
+planner's key gets ``evaluation = {mode, replan_s}``, so one directory never mixes modes or periods.
+
 Planner contract: planners that do not read the future (``reads_future`` False) get the
 history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
 
@@ -66,11 +71,22 @@ from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
 
 RUN_FORMAT: Final = 2
-EVALUATION_MODES: Final = ("open-loop",)
+#: open loop (the paper's protocol, this module) and the closed-loop modes (``letspi.evaluation.closed_loop``)
+EVALUATION_MODES: Final = ("open-loop", "closed-loop-log", "closed-loop-reactive")
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
+#: prefix of the large per-scenario array columns of closed-loop parts (replan plans, simulated
+#: neighbours); read only with ``with_plans``
+TRAJECTORY_PREFIX: Final = "cl_"
 #: (advance by k scenarios, the concurrent runner's status or None)
 Progress = Callable[[int, RunStatus | None], None]
 ProgressFactory = Callable[[str, int], Progress]
+#: runs one planner on the scenarios not yet stored and returns all its rows (``run_planner``'s
+#: signature; closed loop: ``letspi.evaluation.closed_loop.ClosedLoopRunner``)
+#: A way to run one planner (open loop: ``run_planner``; closed loop: ``closed_loop.ClosedLoopRunner``):
+#: (planner, batch, digests, out_dir, metrics config, progress, before_write) -> (its rows, run stats).
+#: ``before_write()`` must run before each part is written (``PartWriter`` does).
+PlannerRunner = Callable[[BuiltPlanner, ScenarioBatch, np.ndarray, Path, MetricsConfig, Progress | None,
+                          Callable[[], None] | None], tuple[pd.DataFrame, RunStats | None]]
 
 
 class EvaluationDirError(ValueError):
@@ -96,14 +112,20 @@ def planner_dir_name(name: str) -> str:
 
 
 def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, config: MetricsConfig,
-               mode: str) -> dict[str, Any]:
-    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields."""
-    identity = {
+               mode: str, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields.
+
+    ``mode_settings``: what else of the mode changes answers (closed loop: the simulation and, in
+    ``closed-loop-reactive``, the driver model); absent in open loop, so open-loop keys are unchanged.
+    """
+    identity: dict[str, Any] = {
         "format": RUN_FORMAT,
         "mode": mode,
         "dataset_digest": dataset_digest(digests),
         "metrics_config": config.recorded(),
     }
+    if mode_settings:
+        identity["mode_settings"] = mode_settings
     return {
         "identity": identity,
         "key": key_of(identity),
@@ -135,23 +157,34 @@ def _check_run_file(out_dir: Path, record: dict[str, Any]) -> bool:
     return True
 
 
-def planner_record(built: BuiltPlanner) -> dict[str, Any]:
-    """What ``per_scenario/<label>/config.json`` holds."""
-    return {"name": built.name, "kind": built.config.kind, "key": built.key,
-            "identity": built.config.identity(), "config": built.config.record()}
+def planner_record(built: BuiltPlanner, evaluation: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What ``per_scenario/<label>/config.json`` holds. ``evaluation``: how the planner was run when
+    that changes its answers (closed loop: mode and replanning period); it joins the identity and
+    the key, so an open-loop key stays the planner configuration's own."""
+    identity = built.config.identity()
+    key = built.key
+    if evaluation:
+        identity = {**identity, "evaluation": evaluation}
+        key = key_of(identity)
+    record: dict[str, Any] = {"name": built.name, "kind": built.config.kind, "key": key, "identity": identity,
+                              "config": built.config.record()}
+    if evaluation:
+        record["evaluation"] = evaluation
+    return record
 
 
-def _check_planner_config(planner_dir: Path, built: BuiltPlanner) -> bool:
+def check_planner_config(planner_dir: Path, built: BuiltPlanner, evaluation: dict[str, Any] | None = None) -> bool:
     """Refuse another configuration under this planner's name; True if ``config.json`` is still to be
     written (with the planner's first part: a planner that stored nothing leaves no directory)."""
     marker = planner_dir / "config.json"
+    record = planner_record(built, evaluation)
     if marker.exists():
         old = json.loads(marker.read_text())
-        if old.get("key") != built.key:
-            changes = diff(old.get("identity") or {}, planner_record(built)["identity"])
+        if old.get("key") != record["key"]:
+            changes = diff(old.get("identity") or {}, record["identity"])
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
-                f"(key {old.get('key')} vs {built.key}: {'; '.join(changes) or 'older letspi format'}); "
+                f"(key {old.get('key')} vs {record['key']}: {'; '.join(changes) or 'older letspi format'}); "
                 f"use another --out, or give this configuration its own label (--planner LABEL={built.config.kind})")
         return False
     return True
@@ -188,10 +221,16 @@ def _fixed_list(arr: np.ndarray) -> pa.FixedSizeListArray:
     return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
 
 
-def _write_part(planner_dir: Path, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray,
-                goals: np.ndarray) -> Path:
+def write_part(planner_dir: Path, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray,
+               goals: np.ndarray, arrays: dict[str, np.ndarray] | None = None) -> Path:
+    """One part file: ``frame``'s rows plus the plan columns and, optionally, more per-row arrays
+    (``arrays``: name -> (K, ...), stored flat as float32; names start with ``TRAJECTORY_PREFIX``)."""
     table = pa.Table.from_pandas(frame, preserve_index=False)
     for name, arr in zip(PLAN_COLUMNS, (plan_xy, plan_vxy, goals), strict=True):
+        table = table.append_column(name, _fixed_list(arr))
+    for name, arr in (arrays or {}).items():
+        if not name.startswith(TRAJECTORY_PREFIX):
+            raise ValueError(f"extra part column {name!r} must start with {TRAJECTORY_PREFIX!r}")
         table = table.append_column(name, _fixed_list(arr))
     path = planner_dir / f"part-{uuid.uuid4().hex[:16]}.parquet"
     return atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
@@ -201,7 +240,43 @@ def _parts(planner_dir: Path) -> list[Path]:
     return sorted(planner_dir.glob("part-*.parquet"))
 
 
-def _done_digests(planner_dir: Path) -> set[str]:
+class PartWriter:
+    """Writes one planner's part files. Its directory and ``config.json`` appear with the first part
+    (``before_write()`` runs before each part, e.g. to write ``run.json``); ``abandon()`` after a
+    failure removes a ``config.json`` no part followed and empty directories, so a planner that
+    stored nothing leaves nothing. One writer thread per planner: no locking."""
+
+    def __init__(self, out_dir: Path, built: BuiltPlanner, evaluation: dict[str, Any] | None = None,
+                 before_write: Callable[[], None] | None = None) -> None:
+        self.planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
+        if self.planner_dir.is_dir():
+            remove_stale_temporaries(self.planner_dir)
+        self._record = planner_record(built, evaluation)
+        self._config_pending = check_planner_config(self.planner_dir, built, evaluation)
+        self._wrote_config = False
+        self._before_write = before_write
+
+    def done(self) -> set[str]:
+        """Digests of the scenarios already stored."""
+        return done_digests(self.planner_dir)
+
+    def write(self, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray, goals: np.ndarray,
+              arrays: dict[str, np.ndarray] | None = None) -> Path:
+        if self._before_write is not None:
+            self._before_write()
+        if self._config_pending:
+            atomic_write_text(self.planner_dir / "config.json", json.dumps(self._record, indent=2) + "\n")
+            self._config_pending = False
+            self._wrote_config = True
+        return write_part(self.planner_dir, frame, plan_xy, plan_vxy, goals, arrays)
+
+    def abandon(self) -> None:
+        if self._wrote_config and not _parts(self.planner_dir):  # e.g. the first part hit a full disk
+            (self.planner_dir / "config.json").unlink(missing_ok=True)
+        _remove_empty_dirs(self.planner_dir)
+
+
+def done_digests(planner_dir: Path) -> set[str]:
     done: set[str] = set()
     for part in _parts(planner_dir):
         done.update(pq.read_table(part, columns=["scenario_digest"]).column(0).to_pylist())
@@ -219,7 +294,8 @@ def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool =
     frames = []
     for p in parts:
         names = pq.read_schema(p).names
-        cols = names if with_plans else [c for c in names if c not in PLAN_COLUMNS]
+        cols = names if with_plans else [c for c in names
+                                         if c not in PLAN_COLUMNS and not c.startswith(TRAJECTORY_PREFIX)]
         frames.append(pq.read_table(p, columns=cols).to_pandas())
     frame = pd.concat(frames, ignore_index=True).drop_duplicates("scenario_digest", keep="first")
     return frame.sort_values("row", kind="stable").reset_index(drop=True)
@@ -268,31 +344,15 @@ def run_planner(
 
     The planner's directory and ``config.json`` appear with its first part (``before_write()`` runs
     before each part is written): a planner that fails before storing anything leaves nothing."""
-    planner_dir = out_dir / "per_scenario" / planner_dir_name(built.name)
-    if planner_dir.is_dir():
-        remove_stale_temporaries(planner_dir)
-    config_pending = _check_planner_config(planner_dir, built)
-
-    def store_part(frame: pd.DataFrame, xy: np.ndarray, vxy: np.ndarray, goals: np.ndarray) -> Path:
-        nonlocal config_pending
-        if before_write is not None:
-            before_write()
-        if config_pending:  # one writer thread: no race
-            atomic_write_text(planner_dir / "config.json", json.dumps(planner_record(built), indent=2) + "\n")
-            config_pending = False
-        return _write_part(planner_dir, frame, xy, vxy, goals)
-
-    done = _done_digests(planner_dir)
+    writer = PartWriter(out_dir, built, before_write=before_write)
+    done = writer.done()
     todo = np.flatnonzero([d not in done for d in digests])
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo), None)
-    wrote_config = config_pending
     try:
-        run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, store_part)
+        run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, writer.write)
     except BaseException:
-        if wrote_config and not config_pending and not _parts(planner_dir):  # e.g. the first part hit a full disk
-            (planner_dir / "config.json").unlink(missing_ok=True)
-        _remove_empty_dirs(planner_dir)
+        writer.abandon()
         raise
     frame = load_planner_results(out_dir, built.name)
     return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), run
@@ -355,9 +415,15 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
     if "info_llm_original_latency_s" in frame:
         orig = np.asarray(frame["info_llm_original_latency_s"], dtype=np.float64)
         out["llm_original_latency_s"] = float(orig.mean()) if len(orig) else None
-        out["llm_calls_per_scenario"] = float(np.asarray(frame["info_llm_calls"], dtype=np.float64).mean())
+        # closed loop: the calls of all replans
+        calls = "info_llm_calls_total" if "info_llm_calls_total" in frame else "info_llm_calls"
+        out["llm_calls_per_scenario"] = float(np.asarray(frame[calls], dtype=np.float64).mean())
     if "info_fallback" in frame:
         out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
+    if "sumo_collision" in frame and len(frame):  # closed loop: SUMO's own check beside the metric's
+        out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
+        out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
+        out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
     return out
 
 
@@ -372,7 +438,10 @@ def _write_summary(out_dir: Path, record: dict[str, Any], results: dict[str, dic
     merged.update(results)
     payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
     atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
-    atomic_write_text(out_dir / "metrics.md", render_markdown_table(merged) + "\n")
+    mode = record["identity"]["mode"]
+    mode_line = (f"Mode: {mode} (per planner replanning period: per_scenario/*/config.json)\n\n"
+                 if mode != "open-loop" else "")
+    atomic_write_text(out_dir / "metrics.md", mode_line + render_markdown_table(merged) + "\n")
     return merged
 
 
@@ -387,6 +456,8 @@ def evaluate(
     progress_factory: ProgressFactory | None = None,
     concurrency: int | None = None,
     on_run: Callable[[str, RunStats], None] | None = None,
+    mode_settings: dict[str, Any] | None = None,
+    runner: PlannerRunner | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
@@ -395,14 +466,17 @@ def evaluate(
     ``concurrency``: scenarios in flight for per-scenario planners (None: each backend's default);
     ``on_run(name, stats)`` hears each such planner's throughput and latency. Raises
     ``ScenariosFailedError`` at the end if some planner left scenarios unstored (the others' metrics
-    are written; rerun to complete).
+    are written; rerun to complete). ``mode_settings`` joins the run's identity; ``runner`` replaces
+    ``run_planner`` (closed-loop modes need one: use ``letspi.evaluation.closed_loop.evaluate_closed_loop``).
     """
     if mode not in EVALUATION_MODES:
         raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
+    if mode != "open-loop" and runner is None:
+        raise ValueError(f"mode {mode!r} runs through letspi.evaluation.closed_loop.evaluate_closed_loop")
     config = config or MetricsConfig()
     out_dir = Path(out_dir)
     digests = scenario_digests(batch)
-    record = run_record(batch, digests, scenarios_file, config, mode)
+    record = run_record(batch, digests, scenarios_file, config, mode, mode_settings)
     run_pending = _check_run_file(out_dir, record)
 
     def write_run_file() -> None:  # with the first stored results: no run.json for a run that stored nothing
@@ -417,8 +491,11 @@ def evaluate(
     for built in planners:
         progress = progress_factory(built.name, len(batch)) if progress_factory else None
         try:
-            frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency,
-                                     before_write=write_run_file)
+            if runner is not None:
+                frame, run = runner(built, batch, digests, out_dir, config, progress, write_run_file)
+            else:
+                frame, run = run_planner(built, batch, digests, out_dir, config, progress, concurrency=concurrency,
+                                         before_write=write_run_file)
         except ScenariosFailedError as exc:
             if on_run is not None:
                 on_run(built.name, exc.stats)

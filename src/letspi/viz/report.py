@@ -12,7 +12,9 @@ Reads the layout written by ``letspi.evaluation.harness`` (``metrics.json``, ``p
    minimum TTC, then smallest gap; each drawn with ``plot_scenario`` from the plan the evaluation
    stored (never re-planned: the picture shows exactly what was scored). The scene comes from the
    scenarios file named in ``run.json``; a scenario whose content digest no longer matches is listed
-   with a note instead of a wrong picture.
+   with a note instead of a wrong picture. Closed-loop results (``letspi evaluate --mode
+   closed-loop-*``) are drawn as the closed-loop panel instead (``letspi.viz.outcomes``): the plan
+   made at t = 0 against the recorded neighbours above, the simulated run with every replan below.
 4. Ablations, from ``DIR/ablations/``:
 
    ``memory_size.json``::
@@ -47,6 +49,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from letspi.constants import N_FUTURE
+from letspi.evaluation.closed_loop import CL_PLAN_XY
 from letspi.evaluation.harness import load_planner_results
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.aggregate import TABLE_COLUMNS
@@ -56,6 +59,7 @@ from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.viz import style
 from letspi.viz.figure import plot_scenario
+from letspi.viz.outcomes import closed_loop_report_figure
 
 #: extra columns of the report's metrics table (after the paper columns)
 EXTRA_COLUMNS: tuple[tuple[str, str], ...] = (("↑ min gap (m)", "min_box_gap_m"), ("n", "n"))
@@ -120,6 +124,13 @@ def read_metrics(eval_dir: Path) -> dict[str, dict[str, Any]]:
     if not isinstance(planners, dict):
         raise ValueError(f"{path}: expected {{'planners': {{name: metrics}}}}")
     return planners
+
+
+def _run_mode(eval_dir: Path) -> str:
+    run = eval_dir / "run.json"
+    if not run.exists():
+        return "open-loop"
+    return str(json.loads(run.read_text()).get("identity", {}).get("mode", "open-loop"))
 
 
 def _scenarios_file(eval_dir: Path) -> Path | None:
@@ -230,6 +241,12 @@ def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame],
                 item.note = f"scenario not found unchanged in {scen_file}: listed without a diagram"
             else:
                 rec = stored.loc[str(row["scenario_digest"])]
+                if CL_PLAN_XY in stored.columns:  # closed loop: its t = 0 plan in open loop above the run
+                    record = {**{str(k): v for k, v in rec.items()}, "scenario_id": sid}
+                    fig = closed_loop_report_figure(sub, record, name, _run_mode(eval_dir))
+                    item.image = figure_to_data_uri(fig, dpi=90)
+                    sec.scenarios.append(item)
+                    continue
                 plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
                                  vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
                                  goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))

@@ -1,0 +1,310 @@
+"""Closed-loop modes of ``letspi evaluate``: the harness's layout, keys and resume; SUMO's simulation.
+
+``evaluate_closed_loop`` runs ``letspi.evaluation.harness.evaluate`` with a ``ClosedLoopRunner``: the
+same results directory (``run.json``, ``per_scenario/<label>/``, ``metrics.json``, ``metrics.md``),
+the same metric code and tables, resumable per chunk and keyed by scenario digest. What differs:
+
+* ``run.json``'s identity holds the mode and ``mode_settings`` (the simulation settings that change
+  answers and, in ``closed-loop-reactive``, the driver model), so a directory never mixes modes;
+* each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period);
+* a part's rows are scored on the simulated trajectories (``letspi.closedloop.chunk_metrics``) and
+  add SUMO's collision flag, replans, simulation time (``letspi.closedloop.store.chunk_frame``);
+* the plan columns hold what was scored: ``plan_xy_m`` / ``plan_vxy_mps`` the simulated ego,
+  ``plan_goal_xy_m`` the goal of the plan made at t = 0; the ``cl_*`` columns hold what the
+  closed-loop panel draws (``closed_loop_rows``): every replan's plan and goal, the replanning
+  frames, and the simulated (or replayed) neighbours.
+
+Planners run in this process (``workers=0``: the planner built by the CLI is used as is), in N
+worker processes or on Ray actors (each builds its planner from the configuration). LLM planners
+call their backend at every replan: about ``5 / replan_s`` times the open-loop cost.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from letspi.closedloop import (
+    CLOSED_LOOP_MODES,
+    ClosedLoopChunk,
+    ClosedLoopConfig,
+    DriverModelConfig,
+    PlannerSpec,
+    chunk_metrics,
+    run_closed_loop,
+)
+from letspi.closedloop.config import DEFAULT_REPLAN_S, validate_replan_s
+from letspi.closedloop.spec import PlannerSpecLike
+from letspi.closedloop.store import chunk_frame
+from letspi.constants import N_FUTURE
+from letspi.core.runner import RunStats
+from letspi.evaluation.harness import (
+    PartWriter,
+    Progress,
+    ProgressFactory,
+    evaluate,
+    load_planner_results,
+)
+from letspi.metrics.aggregate import AggValue
+from letspi.metrics.config import MetricsConfig
+from letspi.metrics.evaluate import ScenarioMetrics
+from letspi.registry.build import BuiltPlanner
+from letspi.scenario.types import ScenarioBatch
+from letspi.sumo.binaries import sumo_home
+
+#: closed-loop per-scenario array columns (flat float32 in the parts; shapes per row)
+CL_PLAN_XY = "cl_plan_xy_m"  # (R, F, 2) every plan, in the scenario's ego frame at t = 0
+CL_PLAN_GOAL = "cl_plan_goal_xy_m"  # (R, 2)
+CL_REPLAN_STEP = "cl_replan_step"  # (R,) frames after t = 0 at which each plan was made
+CL_NBR_XY = "cl_nbr_xy_m"  # (N, F, 2) simulated (or replayed) neighbours, NaN when absent
+CL_NBR_VALID = "cl_nbr_valid"  # (N, F) 1.0 / 0.0
+
+
+class ClosedLoopSetupError(ValueError):
+    """A closed-loop option cannot be honoured here (Ray or sumo-gui missing, bad period)."""
+
+
+@dataclass(frozen=True)
+class ClosedLoopSettings:
+    """How ``letspi evaluate`` runs a closed-loop mode.
+
+    Attributes:
+        mode: ``closed-loop-log`` or ``closed-loop-reactive``.
+        replan_s: replanning period of every planner [s] (1.0; 5.0 plans once).
+        planner_replan_s: label -> its own period [s] (e.g. a slower period for an LLM planner).
+        workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
+        ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
+        sumo_gui: watch the simulation in ``sumo-gui`` (TraCI; slow: for debugging a few scenarios).
+        chunk_size: scenarios simulated together in one SUMO network (not part of any key: measured,
+            chunk sizes 3 and 32 give the same plans to 1e-12 m).
+        driver: driver model of reactive neighbours (part of the key in ``closed-loop-reactive``).
+    """
+
+    mode: str
+    replan_s: float = DEFAULT_REPLAN_S
+    planner_replan_s: Mapping[str, float] = field(default_factory=dict)
+    workers: int = 0
+    ray_address: str | None = None
+    sumo_gui: bool = False
+    chunk_size: int = 32
+    driver: DriverModelConfig = field(default_factory=DriverModelConfig)
+
+    def __post_init__(self) -> None:
+        if self.mode not in CLOSED_LOOP_MODES:
+            raise ClosedLoopSetupError(f"unknown closed-loop mode {self.mode!r}; available: "
+                                       f"{', '.join(CLOSED_LOOP_MODES)}")
+        for label, period in [("--replan-s", self.replan_s), *self.planner_replan_s.items()]:
+            try:
+                validate_replan_s(period)
+            except ValueError as exc:
+                raise ClosedLoopSetupError(f"--replan-s {label}: {exc}") from None
+        if self.workers < 0:
+            raise ClosedLoopSetupError(f"--workers must be >= 0, got {self.workers}")
+
+    def engine_config(self) -> ClosedLoopConfig:
+        return ClosedLoopConfig(mode=self.mode, replan_s=self.replan_s, chunk_size=self.chunk_size,  # type: ignore[arg-type]
+                                sumo_backend="traci" if self.sumo_gui else "libsumo", sumo_gui=self.sumo_gui,
+                                driver=self.driver)
+
+    def replan_s_of(self, label: str) -> float:
+        """The replanning period of the planner labelled ``label`` [s]."""
+        return float(self.planner_replan_s.get(label, self.replan_s))
+
+    def mode_settings(self) -> dict[str, Any]:
+        """What of the simulation changes answers (``run.json``): road and sublane model, and the
+        driver model in ``closed-loop-reactive`` (log-replayed neighbours have none)."""
+        cfg = self.engine_config()
+        out: dict[str, Any] = {"lateral_resolution_m": cfg.lateral_resolution_m, "road_behind_m": cfg.road_behind_m,
+                               "road_ahead_m": cfg.road_ahead_m}
+        if self.mode == "closed-loop-reactive":
+            out["driver"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.driver).items()}
+        return out
+
+    def planner_evaluation(self, label: str) -> dict[str, Any]:
+        """What joins the planner's configuration key: the mode and its replanning period."""
+        return {"mode": self.mode, "replan_s": round(self.replan_s_of(label), 6)}
+
+    def uses_processes(self) -> bool:
+        return self.workers > 0 or self.ray_address is not None
+
+
+def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[float, dict[str, float]]:
+    """``--replan-s`` values: ``S`` (every planner) and ``LABEL=S`` (one planner); returns
+    (default period, {label: period}). Unknown labels and unparsable values are errors."""
+    default = DEFAULT_REPLAN_S
+    own: dict[str, float] = {}
+    for text in values or []:
+        label, sep, value = text.rpartition("=")
+        try:
+            period = float(value)
+        except ValueError:
+            raise ClosedLoopSetupError(f"--replan-s takes S or LABEL=S (seconds), got {text!r}") from None
+        if not sep:
+            default = period
+        elif label not in labels:
+            raise ClosedLoopSetupError(f"--replan-s {text}: no planner labelled {label!r} "
+                                       f"(planners: {', '.join(labels)})")
+        else:
+            own[label] = period
+    return default, own
+
+
+def check_setup(settings: ClosedLoopSettings) -> None:
+    """Fail early, in one line, when Ray or sumo-gui is asked for but not installed."""
+    if settings.ray_address is not None and importlib.util.find_spec("ray") is None:
+        raise ClosedLoopSetupError("--ray needs the optional extra 'ray': pip install 'letspi[ray]'")
+    if settings.sumo_gui:
+        if settings.uses_processes():
+            raise ClosedLoopSetupError("--sumo-gui runs in this process: drop --workers/--ray")
+        if not (sumo_home() / "bin" / "sumo-gui").is_file() and shutil.which("sumo-gui") is None:
+            raise ClosedLoopSetupError("--sumo-gui needs SUMO's sumo-gui: install SUMO (e.g. apt-get install "
+                                       "sumo-gui) and set SUMO_HOME")
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ClosedLoopSetupError("--sumo-gui needs a display (DISPLAY is not set): run it on a desktop or "
+                                       "with X forwarding (ssh -X)")
+
+
+# ------------------------------------------------------------------------------------------------
+# Rows of a part
+# ------------------------------------------------------------------------------------------------
+
+
+def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.ndarray) -> pd.DataFrame:
+    """The harness's row layout (id, digest, row, metrics, ``inference_s``, info) plus the closed-loop
+    columns of ``chunk_frame`` (SUMO collision, replans, simulation time)."""
+    idx = np.asarray(chunk.indices, dtype=np.int64)
+    frame = chunk_frame(chunk, metrics)
+    frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
+    frame.insert(2, "row", idx)
+    if "llm_calls" in chunk.plan_info:  # model calls of all replans (``info_llm_calls``: the t = 0 plan's)
+        frame["info_llm_calls_total"] = np.nansum(np.asarray(chunk.plan_info["llm_calls"], dtype=np.float64), axis=1)
+    if "llm_cached" in chunk.plan_info:  # a row's time is "cached" only if no replan called the model
+        cached = np.asarray(chunk.plan_info["llm_cached"], dtype=np.float64)
+        frame["info_llm_cached"] = np.all(np.nan_to_num(cached, nan=1.0) > 0.5, axis=1)
+    return frame
+
+
+def trajectory_arrays(chunk: ClosedLoopChunk) -> dict[str, np.ndarray]:
+    """The ``cl_*`` columns of a chunk (see the module docstring)."""
+    k = len(chunk)
+    return {
+        CL_PLAN_XY: np.asarray(chunk.plan_xy_m),
+        CL_PLAN_GOAL: np.asarray(chunk.plan_goal_xy_m),
+        CL_REPLAN_STEP: np.broadcast_to(np.asarray(chunk.replan_step, dtype=np.float64), (k, len(chunk.replan_step))),
+        CL_NBR_XY: np.asarray(chunk.nbr_xy_m),
+        CL_NBR_VALID: np.asarray(chunk.nbr_valid, dtype=np.float32),
+    }
+
+
+@dataclass(frozen=True)
+class ClosedLoopRow:
+    """What the closed-loop panel needs of one stored scenario (ego frame at t = 0; R plans, N slots)."""
+
+    ego_xy_m: np.ndarray  # (F, 2) simulated ego
+    plans_xy_m: np.ndarray  # (R, F, 2)
+    plan_goals_xy_m: np.ndarray  # (R, 2)
+    replan_step: np.ndarray  # (R,) int
+    nbr_xy_m: np.ndarray  # (N, F, 2)
+    nbr_valid: np.ndarray  # (N, F) bool
+
+
+def closed_loop_row(record: Mapping[Any, Any]) -> ClosedLoopRow:
+    """A stored row (``load_planner_results(..., with_plans=True)``) as arrays."""
+    steps = np.asarray(record[CL_REPLAN_STEP], dtype=np.float64).astype(np.int64)
+    r = len(steps)
+    valid = np.asarray(record[CL_NBR_VALID], dtype=np.float32) > 0.5
+    n = len(valid) // N_FUTURE
+    return ClosedLoopRow(
+        ego_xy_m=np.asarray(record["plan_xy_m"], np.float64).reshape(N_FUTURE, 2),
+        plans_xy_m=np.asarray(record[CL_PLAN_XY], np.float64).reshape(r, N_FUTURE, 2),
+        plan_goals_xy_m=np.asarray(record[CL_PLAN_GOAL], np.float64).reshape(r, 2),
+        replan_step=steps,
+        nbr_xy_m=np.asarray(record[CL_NBR_XY], np.float64).reshape(n, N_FUTURE, 2),
+        nbr_valid=valid.reshape(n, N_FUTURE),
+    )
+
+
+def closed_loop_rows(out_dir: Path, planner_name: str) -> dict[str, ClosedLoopRow]:
+    """Every stored closed-loop row of one planner: scenario digest -> ``ClosedLoopRow``."""
+    frame = load_planner_results(out_dir, planner_name, with_plans=True)
+    if len(frame) and CL_PLAN_XY not in frame:
+        raise ValueError(f"{out_dir}: {planner_name!r} has no closed-loop rows (an open-loop directory?)")
+    return {str(rec["scenario_digest"]): closed_loop_row(rec) for rec in frame.to_dict("records")}
+
+
+# ------------------------------------------------------------------------------------------------
+# Running
+# ------------------------------------------------------------------------------------------------
+
+
+def planner_spec(built: BuiltPlanner, settings: ClosedLoopSettings) -> PlannerSpecLike:
+    """In this process the planner the CLI built (its model is loaded once); in workers or on Ray its
+    configuration, from which every worker builds its own."""
+    if settings.uses_processes():
+        return PlannerSpec(built.config, built.name, settings.replan_s_of(built.name))
+    return built.planner
+
+
+@dataclass
+class ClosedLoopRunner:
+    """``harness.PlannerRunner`` of the closed-loop modes (see the module docstring)."""
+
+    settings: ClosedLoopSettings
+
+    def __call__(self, built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, out_dir: Path,
+                 config: MetricsConfig, progress: Progress | None,
+                 before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
+        settings = self.settings
+        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name), before_write)
+        done = writer.done()
+        todo = np.flatnonzero([d not in done for d in digests])
+        if progress is not None and len(batch) - len(todo):
+            progress(len(batch) - len(todo), None)
+        if len(todo):
+            try:
+                chunks = run_closed_loop(planner_spec(built, settings), batch, settings.mode,
+                                         replan_s=settings.replan_s_of(built.name), workers=settings.workers,
+                                         config=settings.engine_config(), indices=todo,
+                                         ray_address=settings.ray_address)
+                for chunk in chunks:
+                    metrics = chunk_metrics(batch, chunk, config)
+                    goals = (chunk.plan_goal_xy_m[:, 0] if chunk.plan_goal_xy_m.shape[1]
+                             else np.full((len(chunk), 2), np.nan))
+                    writer.write(part_frame(chunk, metrics, digests), chunk.ego_xy_m, chunk.ego_vxy_mps,
+                                 goals, trajectory_arrays(chunk))
+                    if progress is not None:
+                        progress(len(chunk), None)
+            except BaseException:
+                writer.abandon()
+                raise
+        frame = load_planner_results(out_dir, built.name)
+        return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), None
+
+
+def evaluate_closed_loop(
+    planners: list[BuiltPlanner],
+    batch: ScenarioBatch,
+    out_dir: Path,
+    settings: ClosedLoopSettings,
+    *,
+    scenarios_file: str = "",
+    config: MetricsConfig | None = None,
+    progress_factory: ProgressFactory | None = None,
+) -> dict[str, dict[str, AggValue]]:
+    """``harness.evaluate`` in a closed-loop mode (same outputs; module docstring for the differences)."""
+    check_setup(settings)
+    unknown = sorted(set(settings.planner_replan_s) - {b.name for b in planners})
+    if unknown:
+        raise ClosedLoopSetupError(f"--replan-s for unknown planner label(s): {', '.join(unknown)}")
+    return evaluate(planners, batch, Path(out_dir), scenarios_file=scenarios_file, config=config,
+                    mode=settings.mode, progress_factory=progress_factory, mode_settings=settings.mode_settings(),
+                    runner=ClosedLoopRunner(settings))
