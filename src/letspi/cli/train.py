@@ -120,3 +120,42 @@ def train_gnp(
         save_weights(out, res.arrays, res.manifest)
     console.print(f"gnp model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
     _print_validation(res.manifest["validation"])
+
+
+@app.command("llm-data")
+def train_llm_data(
+    scenarios: Annotated[Path, typer.Option("--scenarios", help="Training scenario file (never an evaluation set).")],
+    out: Annotated[Path, typer.Option(help="Output labels directory (labels.parquet + manifest.json); "
+                                      "an interrupted run resumes.")],
+    seed: SeedOpt = 0,
+    max_scenarios: Annotated[int | None, typer.Option("--max", help="Label only the first N scenarios.")] = None,
+    n_random: Annotated[int, typer.Option(help="Random candidates per scenario.")] = 48,
+    n_rounds: Annotated[int, typer.Option(help="Local refinement rounds.")] = 2,
+    n_local: Annotated[int, typer.Option(help="Candidates per refinement round.")] = 24,
+    sf_params: Annotated[Path | None, typer.Option(
+        help="Fitted SF parameters (defaults, r_col_m; default: the shipped `sf` fit).")] = None,
+    goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
+) -> None:
+    """Physics-verified labels for the LLM: per scenario, search the six social-force parameters and the
+    two goal factors, scored against the RECORDED future (hindsight; training only)."""
+    from letspi.finetune.labels import LabelRun, LabelSearch
+    from letspi.scenario.store import load_scenarios
+
+    with user_errors():
+        if goals not in ("learned", "kinematic"):
+            raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
+        search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
+        batch = load_scenarios(scenarios)
+        if max_scenarios is not None:
+            batch = batch.take(slice(0, max_scenarios))
+        params, _ = load_sf_params(sf_params)
+        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
+                            params=params, search=search, seed=seed, command=_command())
+        with progress_bar() as bar:
+            task = bar.add_task("labelling", total=len(batch))
+            manifest = labeller.run(progress=lambda k: bar.advance(task, k))
+    console.print(f"labels -> {out}: {manifest['n_propose']} propose + {manifest['n_refine']} refine rows from "
+                  f"{manifest['n_scenarios']} scenarios in {manifest['elapsed_s']:.0f} s "
+                  f"({manifest['scenarios_per_s']:.2f} scenarios/s); safe labels "
+                  f"{100 * (manifest['label_safe_share'] or 0):.1f} %")
