@@ -12,6 +12,7 @@ from rich.progress import Progress
 from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
+    ShieldOpt,
     console,
     print_run,
     progress_bar,
@@ -76,6 +77,7 @@ def evaluate(
                                              "inference time).")] = True,
     concurrency: ConcurrencyOpt = None,
     request_timeout: RequestTimeoutOpt = 120.0,
+    shield: ShieldOpt = True,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans."""
     with user_errors():
@@ -83,7 +85,8 @@ def evaluate(
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
-                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout)
+                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
+                                 shield=shield)
         planners = build_planners(planner, options)
         with progress_bar() as bar:
             results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),

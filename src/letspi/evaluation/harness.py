@@ -310,6 +310,8 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["llm_calls_per_scenario"] = float(np.asarray(frame["info_llm_calls"], dtype=np.float64).mean())
     if "info_fallback" in frame:
         out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
+    if "info_shielded" in frame:  # the LLM planners' safety shield replaced the plan
+        out["shielded_pct"] = float(100.0 * np.asarray(frame["info_shielded"], dtype=np.float64).mean())
     return out
 
 

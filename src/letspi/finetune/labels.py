@@ -304,7 +304,7 @@ def label_rows(
         best = int(order[i, 0])
         rng = np.random.default_rng([seed, int(indices[i]), 1])
 
-        def row(kind: str, target: int, proposal: np.ndarray | None, report: str) -> dict[str, Any]:
+        def row(kind: str, target: int, proposal: np.ndarray | None, report: str, i: int = i) -> dict[str, Any]:
             out: dict[str, Any] = {"scenario_index": int(indices[i]), "scenario_digest": str(digests[i]),
                                    "kind": kind}
             out.update({f: float(cands[i, target, k]) for k, f in enumerate(NUMERIC_FIELDS)})
@@ -408,7 +408,7 @@ class LabelRun:
                 idx = np.arange(start, stop)
                 df = frame_of(label_rows(self.batch.take(idx), idx, self.goal_predictor, self.params,
                                          self.search, self.seed))
-                atomic_write(part, lambda p, df=df: df.to_parquet(p, index=False))
+                _write_parquet(part, df)
                 if time.perf_counter() - last > self.consolidate_s:
                     self._consolidate(elapsed_before + time.perf_counter() - t0, complete=False)
                     last = time.perf_counter()
@@ -419,7 +419,7 @@ class LabelRun:
     def _consolidate(self, elapsed_s: float, complete: bool) -> dict[str, Any]:
         files = sorted((self.out / PARTS_DIR).glob("part-*.parquet"))
         df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True) if files else frame_of([])
-        atomic_write(self.out / LABELS_FILE, lambda p: df.to_parquet(p, index=False))
+        _write_parquet(self.out / LABELS_FILE, df)
         n_scen = int(df["scenario_index"].nunique())
         manifest = {
             "format": FORMAT, "scenarios_path": str(self.scenarios_path), "dataset_digest": self.dataset_digest,
@@ -435,6 +435,13 @@ class LabelRun:
         }
         atomic_write_text(self.out / MANIFEST_FILE, json.dumps(manifest, indent=2) + "\n")
         return manifest
+
+
+def _write_parquet(path: Path, df: pd.DataFrame) -> None:
+    def write(tmp: Path) -> None:
+        df.to_parquet(tmp, index=False)
+
+    atomic_write(path, write)
 
 
 def load_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:

@@ -161,7 +161,8 @@ class Builder:
                                  name=label)
         elif isinstance(config, MemoryPlannerConfig):
             phase, load_s = self.memory_phase(config.phase)
-            planner = LetsPiMemoryPlanner(phase, name=label)
+            planner = LetsPiMemoryPlanner(phase, name=label, shield_params=(
+                config.phase.sf_params.params() if config.shield else None))
         elif isinstance(config, FastPlannerConfig):
             planner, load_s = self._fast(config, label)
         else:  # pragma: no cover - the union is exhaustive
@@ -191,7 +192,8 @@ class Builder:
         else:  # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
             static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
             phase = FastPhase(advisor, goals, r_col, None, static_examples=static)
-        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, name=label), load_s
+        shield = config.sf_params.params() if config.shield else None
+        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, shield_params=shield, name=label), load_s
 
 
 def parse_planner_arg(arg: str) -> tuple[str, str]:

@@ -262,10 +262,16 @@ class GnpConfig(Config):
 
 
 class MemoryPlannerConfig(Config):
-    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``."""
+    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
+
+    ``shield``: the safety shield (``letspi.planners.llm``; beyond the paper) replaces a plan that fails
+    the reflection checks by the fitted ``sf`` plan when that is safer. Not part of the phase: the
+    stored experiences are the same with and without it.
+    """
 
     kind: Literal["llm", "letspi-memory"] = "letspi-memory"
     phase: MemoryPhaseConfig
+    shield: bool = True
 
 
 class FastPlannerConfig(Config):
@@ -278,6 +284,7 @@ class FastPlannerConfig(Config):
     sf_params: SfParamsConfig
     memory: MemoryRef
     top_k: int = Field(default=3, ge=0)
+    shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
 
 
 PlannerConfig = Annotated[

@@ -72,6 +72,7 @@ class PlannerOptions:
     allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
     memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
     memory_seed: int = 0
+    shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -230,9 +231,9 @@ class Resolver:
             return GnpConfig(neighbours=self.neighbours, goals=self.goals, gnp=self.gnp_weights)
         if kind in ("llm", "letspi-memory"):
             phase = self.memory_phase(max_iterations=0 if kind == "llm" else None)
-            return MemoryPlannerConfig(kind=kind, phase=phase)  # type: ignore[arg-type]
+            return MemoryPlannerConfig(kind=kind, phase=phase, shield=o.shield)  # type: ignore[arg-type]
         if kind in ("letspi-fast", "letspi-fs"):
             return FastPlannerConfig(kind=kind, llm=self.llm(o.fast_llm), goals=self.goals,  # type: ignore[arg-type]
                                      neighbours=self.neighbours, sf_params=self.sf_params,
-                                     memory=self.memory_ref(), top_k=o.top_k)
+                                     memory=self.memory_ref(), top_k=o.top_k, shield=o.shield)
         raise ValueError(f"unknown planner {kind!r}; available: {', '.join(PLANNER_KINDS)}")
