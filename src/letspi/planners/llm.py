@@ -18,18 +18,19 @@ iterations, whether the final plan was validated, and the timing honesty columns
 Safety shield (beyond the paper; on by default, ``--no-shield`` is the paper-faithful ablation):
 before a plan is returned, the reflection checks run once more against the *predicted* neighbours
 (the planner's own prediction from history; no LLM call, milliseconds). If the plan fails, the
-alternatives (the retrieved memories' parameters for ``letspi-fast``, and the fitted ``sf``
-parameters) are simulated and checked in one batch, and the safest one is returned instead:
-the first safe alternative in that order, else the least unsafe plan of all (possibly the original).
-Info columns: ``shielded`` (the plan was replaced), ``shield_checked`` (the shield ran),
-``shield_safe`` (the returned plan passes the checks), ``shield_source`` (0 = the LLM's plan,
-1..k = retrieved memory k, -1 = the fitted ``sf`` parameters).
+alternatives (the retrieved memories' parameters for ``letspi-fast``, the fitted ``sf`` parameters,
+then ``sf-opt``'s candidate grid around them, cheapest first) are simulated and checked in one batch,
+and the safest one is returned instead: the first safe alternative in that order, else the least
+unsafe plan of all (possibly the original). Info columns: ``shielded`` (the plan was replaced),
+``shield_checked`` (the shield ran), ``shield_safe`` (the returned plan passes the checks),
+``shield_source`` (0 = the LLM's plan, 1..k = retrieved memory k, -1 = the fitted ``sf``
+parameters, -2 = a grid candidate).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -43,6 +44,7 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
+from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
 
@@ -74,6 +76,8 @@ def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float
 
 
 SF_SOURCE = -1  # shield_source of the fitted sf parameters
+GRID_SOURCE = -2  # shield_source of a candidate of sf-opt's grid
+Alternative = tuple[int, SocialForceParams, float, float]  # (shield_source, params, lon_factor, lane_factor)
 
 
 @dataclass(frozen=True)
@@ -108,7 +112,7 @@ def shield_plan(
     plan_vxy_mps: np.ndarray,
     goal_xy_m: np.ndarray,
     proposal: Proposal,
-    alternatives: list[tuple[int, SocialForceParams, float, float]],
+    alternatives: list[Alternative],
     base_goal_xy_m: np.ndarray,
     prediction: NeighbourPrediction,
     thresholds: ReflectionThresholds,
@@ -143,8 +147,20 @@ def shield_plan(
                         params, lon, lane)
 
 
-def _sf_alternative(params: SocialForceParams) -> tuple[int, SocialForceParams, float, float]:
-    return (SF_SOURCE, params, NEUTRAL_LON_FACTOR, NEUTRAL_LANE_FACTOR)
+def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None) -> list[Alternative]:
+    """The fitted parameters with the neutral goal, then ``sf-opt``'s grid around them, cheapest first
+    (``SearchSpace`` cost: goal change, lane change, stronger repulsion)."""
+    space = space or SearchSpace()
+    grid = space.grid()
+    cost = (np.abs(grid[:, 1] - NEUTRAL_LON_FACTOR) + space.lane_change_cost * np.abs(grid[:, 2])
+            + space.k_scale_cost * (grid[:, 0] - 1.0))
+    out: list[Alternative] = [(SF_SOURCE, params, NEUTRAL_LON_FACTOR, NEUTRAL_LANE_FACTOR)]
+    for k_scale, lon, lane in grid[np.argsort(cost, kind="stable")]:
+        if k_scale == 1.0 and lon == NEUTRAL_LON_FACTOR and lane == NEUTRAL_LANE_FACTOR:
+            continue  # the fitted parameters themselves, already first
+        scaled = replace(params, k_np=params.k_np * k_scale, k_nf=params.k_nf * k_scale, k_nl=params.k_nl * k_scale)
+        out.append((GRID_SOURCE, scaled, float(lon), float(lane)))
+    return out
 
 
 _UNSHIELDED = {"shielded": 0.0, "shield_checked": 0.0, "shield_safe": float("nan"), "shield_source": 0.0}
@@ -190,7 +206,7 @@ class LetsPiMemoryPlanner:
             # the reflection loop already checked the final plan against the same prediction
             base_goal = self.phase.goal_predictor.predict_goals(batch).top[0]
             pred = predict_neighbours(batch, self.phase.neighbour_mode)
-            shield = shield_plan(batch, xy, vxy, goal, final.proposal, [_sf_alternative(self.shield_params)],
+            shield = shield_plan(batch, xy, vxy, goal, final.proposal, sf_alternatives(self.shield_params),
                                  base_goal, pred, self.phase.thresholds)
             xy, vxy, goal = shield.xy_m, shield.vxy_mps, shield.goal_xy_m
             extra.update(shield.info())
@@ -236,14 +252,14 @@ class LetsPiFastPlanner:
             info = _info(proposal, [proposal], extra)
             return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
         shield = shield_plan(batch, sim.xy_m[0], sim.vxy_mps[0], sim.goals_xy_m[0], proposal,
-                             [*self._memory_alternatives(batch), _sf_alternative(self.shield_params)],
+                             [*self._memory_alternatives(batch), *sf_alternatives(self.shield_params)],
                              base_goal[0], pred, self.thresholds)
         extra.update(shield.info())
         info = _info(proposal, [proposal], extra)
         return PlanBatch(xy_m=shield.xy_m[None], vxy_mps=shield.vxy_mps[None], goals_xy_m=shield.goal_xy_m[None],
                          info=info)
 
-    def _memory_alternatives(self, batch: ScenarioBatch) -> list[tuple[int, SocialForceParams, float, float]]:
+    def _memory_alternatives(self, batch: ScenarioBatch) -> list[Alternative]:
         """The retrieved memories' parameters (retrieval is repeated here: milliseconds, bank reads only)."""
         retriever = self.phase.retriever
         if retriever is None:
