@@ -78,6 +78,8 @@ def evaluate(
     concurrency: ConcurrencyOpt = None,
     request_timeout: RequestTimeoutOpt = 120.0,
     shield: ShieldOpt = True,
+    mlp_weights: Annotated[Path | None, typer.Option(
+        help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")] = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans."""
     with user_errors():
@@ -86,7 +88,7 @@ def evaluate(
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
                                  allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
-                                 shield=shield)
+                                 shield=shield, mlp_weights=mlp_weights)
         planners = build_planners(planner, options)
         with progress_bar() as bar:
             results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
@@ -159,3 +160,41 @@ def train_llm_data(
                   f"{manifest['n_scenarios']} scenarios in {manifest['elapsed_s']:.0f} s "
                   f"({manifest['scenarios_per_s']:.2f} scenarios/s); safe labels "
                   f"{100 * (manifest['label_safe_share'] or 0):.1f} %")
+
+
+@app.command("mlp")
+def train_mlp_cmd(
+    data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
+                                             "(repeat for several).")],
+    out: OutOpt,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 300,
+    hidden: Annotated[int, typer.Option(help="Hidden units per layer.")] = 64,
+    seed: SeedOpt = 0,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Train the `mlp` regressor ablation: the eight LLM answers from the matching features, on the same
+    physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
+    _require_torch()
+    from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
+    from letspi.llm.schema import NUMERIC_FIELDS
+
+    with user_errors():
+        if epochs < 1:
+            raise ValueError("--epochs must be >= 1")
+        feats, targets, digests, infos = load_training_rows(data)
+        if len(feats) < 10:
+            raise ValueError(f"{', '.join(map(str, data))}: only {len(feats)} safe propose labels; need >= 10")
+        sf = infos[0].get("sf_params") or {}
+        defaults = np.array([float(sf.get(f, np.nan)) if f in sf else (0.4 if f == "lon_factor" else 0.0)
+                             for f in NUMERIC_FIELDS])
+        cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
+        res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
+        res.manifest["data"]["labels"] = infos
+        res.manifest["training"]["command"] = _command()
+        save_weights(out, res.arrays, res.manifest)
+    val = res.manifest["validation"]
+    console.print(f"mlp -> {out} ({res.manifest['training']['seconds']:.0f} s, {len(feats)} labels); "
+                  f"validation RMSE (n={val['n']}):")
+    for f, v in val["rmse"].items():
+        base = val.get("rmse_sf_defaults", {}).get(f)
+        console.print(f"  {f}: {v:.3f}" + (f" (sf defaults {base:.3f})" if base is not None else ""))

@@ -261,6 +261,13 @@ class GnpConfig(Config):
     gnp: WeightsConfig
 
 
+class MlpConfig(_SocialForcePlannerFields):
+    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
+
+    kind: Literal["mlp"] = "mlp"
+    mlp: WeightsConfig
+
+
 class MemoryPlannerConfig(Config):
     """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
 
@@ -288,10 +295,11 @@ class FastPlannerConfig(Config):
 
 
 PlannerConfig = Annotated[
-    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MemoryPlannerConfig | FastPlannerConfig,
+    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MlpConfig | MemoryPlannerConfig
+    | FastPlannerConfig,
     Field(discriminator="kind"),
 ]
-PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "llm", "letspi-memory",
+PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "mlp", "llm", "letspi-memory",
                                   "letspi-fast", "letspi-fs")
 
 
