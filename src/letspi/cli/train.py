@@ -13,9 +13,11 @@ import typer
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import save_weights
+from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
 from letspi.registry.build import Builder
 from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.scenario.store import load_scenarios
 
 app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -140,7 +142,6 @@ def train_llm_data(
     """Physics-verified labels for the LLM: per scenario, search the six social-force parameters and the
     two goal factors, scored against the RECORDED future (hindsight; training only)."""
     from letspi.finetune.labels import LabelRun, LabelSearch
-    from letspi.scenario.store import load_scenarios
 
     with user_errors():
         if goals not in ("learned", "kinematic"):
@@ -176,7 +177,6 @@ def train_mlp_cmd(
     physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
     _require_torch()
     from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
-    from letspi.llm.schema import NUMERIC_FIELDS
 
     with user_errors():
         if epochs < 1:
