@@ -50,6 +50,11 @@ ConcurrencyOpt = Annotated[int | None, typer.Option(
          "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
 
 
+ShieldOpt = Annotated[bool, typer.Option(
+    "--shield/--no-shield",
+    help="Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
+         "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters. "
+         "--no-shield: the paper-faithful ablation.")]
 RequestTimeoutOpt = Annotated[float, typer.Option(
     help="Seconds one LLM request may take (5 s to connect); a timeout is retried with backoff. Requests queued "
          "behind a server's busy slots count against it.")]

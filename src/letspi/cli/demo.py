@@ -8,7 +8,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import ShieldOpt, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import collect
@@ -36,6 +36,7 @@ def demo(
     llm: Annotated[str, typer.Option(help="Embedded (or any) model spec for both LetsPi phases.")] = DEFAULT_LLM,
     llm_collect: Annotated[int, typer.Option(help="Scenarios in the memory collection phase (0: skip LLMs).")] = 8,
     llm_eval: Annotated[int, typer.Option(help="Held-back scenarios for the LLM head-to-head table.")] = 8,
+    shield: ShieldOpt = True,
 ) -> None:
     """The main job: generate (or reuse) SUMO traffic as HighD files, extract planning scenarios,
     evaluate the baselines (human, cv, idm, sf, sf-opt, gnp) and print the paper-style table.
@@ -75,11 +76,11 @@ def demo(
         outputs = [f"{highd_dir}/ (HighD CSV)", str(scenarios_file), f"{eval_dir}/metrics.json, metrics.md, "
                    "per_scenario/ (with the plans)", str(report)]
         if llm_collect > 0 and llm_eval > 0:
-            outputs += _llm_demo(batch, out, llm, llm_collect, llm_eval)
+            outputs += _llm_demo(batch, out, llm, llm_collect, llm_eval, shield)
     console.print("files:\n  " + "\n  ".join(outputs))
 
 
-def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval: int) -> list[str]:
+def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval: int, shield: bool) -> list[str]:
     """Collect a small memory on some ego vehicles, compare planners on other vehicles' scenarios."""
     collect_rows, eval_rows = split_by_vehicle(batch, 0.5, seed=0)
     rng = np.random.default_rng(0)
@@ -100,7 +101,7 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
         stats = collect(phase, to_collect, bank, progress=lambda st: bar.update(task, completed=st.done, run=st))
     console.print(f"memory: {stats.stored} new ({stats.validated} validated, {stats.fallback_results} fell back), "
                   f"{stats.skipped} reused -> {memory} (configuration {phase_config.key()})")
-    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key())
+    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key(), shield=shield)
     planners: list[BuiltPlanner] = build_planners(["human", "idm", "sf", "sf-opt", "gnp", "letspi-memory",
                                                    "letspi-fast"], options, builder=builder)
     eval_dir = out / "evaluation-llm"

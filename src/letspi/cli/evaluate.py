@@ -12,6 +12,7 @@ from rich.progress import Progress
 from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
+    ShieldOpt,
     console,
     print_run,
     progress_bar,
@@ -125,6 +126,9 @@ def evaluate(
     ray_address: RayAddressOpt = None,
     sumo_gui: SumoGuiOpt = False,
     chunk_size: ChunkSizeOpt = 32,
+    shield: ShieldOpt = True,
+    mlp_weights: Annotated[Path | None, typer.Option(
+        help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")] = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
@@ -135,7 +139,8 @@ def evaluate(
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
-                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout)
+                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
+                                 shield=shield, mlp_weights=mlp_weights)
         planners = build_planners(planner, options)
         with progress_bar() as bar:
             if closed is not None:

@@ -14,7 +14,15 @@ import numpy as np
 import typer
 from rich.pretty import pprint
 
-from letspi.cli.common import ConcurrencyOpt, RequestTimeoutOpt, console, print_run, progress_bar, user_errors
+from letspi.cli.common import (
+    ConcurrencyOpt,
+    RequestTimeoutOpt,
+    ShieldOpt,
+    console,
+    print_run,
+    progress_bar,
+    user_errors,
+)
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.core.memory import MemoryBank
 from letspi.core.phases import Retriever, memory_example, messages_text
@@ -124,6 +132,7 @@ def plan(
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
+    shield: ShieldOpt = True,
 ) -> None:
     """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
     reflection iterations and retrieved memories."""
@@ -131,7 +140,8 @@ def plan(
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
         batch = load_scenarios(scenarios, [index])
-        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k, goals=goals, llm_cache=cache)
+        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k, goals=goals, llm_cache=cache,
+                                 shield=shield)
         built = build_planners([planner], options)[0]
         p = built.planner
         t0 = time.perf_counter()
@@ -207,13 +217,14 @@ def ablate(
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
     concurrency: ConcurrencyOpt = None,
     request_timeout: RequestTimeoutOpt = 120.0,
+    shield: ShieldOpt = True,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors():
         batch = load_limited(scenarios, limit)
         collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
         options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
-                                 llm_cache=cache, llm_timeout_s=request_timeout)
+                                 llm_cache=cache, llm_timeout_s=request_timeout, shield=shield)
         with progress_bar() as bar:
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=_pairs(combo),

@@ -7,14 +7,17 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import save_weights
+from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
 from letspi.registry.build import Builder
 from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.scenario.store import load_scenarios
 
 app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -120,3 +123,78 @@ def train_gnp(
         save_weights(out, res.arrays, res.manifest)
     console.print(f"gnp model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
     _print_validation(res.manifest["validation"])
+
+
+@app.command("llm-data")
+def train_llm_data(
+    scenarios: Annotated[Path, typer.Option("--scenarios", help="Training scenario file (never an evaluation set).")],
+    out: Annotated[Path, typer.Option(help="Output labels directory (labels.parquet + manifest.json); "
+                                      "an interrupted run resumes.")],
+    seed: SeedOpt = 0,
+    max_scenarios: Annotated[int | None, typer.Option("--max", help="Label only the first N scenarios.")] = None,
+    n_random: Annotated[int, typer.Option(help="Random candidates per scenario.")] = 48,
+    n_rounds: Annotated[int, typer.Option(help="Local refinement rounds.")] = 2,
+    n_local: Annotated[int, typer.Option(help="Candidates per refinement round.")] = 24,
+    sf_params: Annotated[Path | None, typer.Option(
+        help="Fitted SF parameters (defaults, r_col_m; default: the shipped `sf` fit).")] = None,
+    goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
+) -> None:
+    """Physics-verified labels for the LLM: per scenario, search the six social-force parameters and the
+    two goal factors, scored against the RECORDED future (hindsight; training only)."""
+    from letspi.finetune.labels import LabelRun, LabelSearch
+
+    with user_errors():
+        if goals not in ("learned", "kinematic"):
+            raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
+        search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
+        batch = load_scenarios(scenarios)
+        if max_scenarios is not None:
+            batch = batch.take(slice(0, max_scenarios))
+        params, _ = load_sf_params(sf_params)
+        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
+                            params=params, search=search, seed=seed, command=_command())
+        with progress_bar() as bar:
+            task = bar.add_task("labelling", total=len(batch))
+            manifest = labeller.run(progress=lambda k: bar.advance(task, k))
+    console.print(f"labels -> {out}: {manifest['n_propose']} propose + {manifest['n_refine']} refine rows from "
+                  f"{manifest['n_scenarios']} scenarios in {manifest['elapsed_s']:.0f} s "
+                  f"({manifest['scenarios_per_s']:.2f} scenarios/s); safe labels "
+                  f"{100 * (manifest['label_safe_share'] or 0):.1f} %")
+
+
+@app.command("mlp")
+def train_mlp_cmd(
+    data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
+                                             "(repeat for several).")],
+    out: OutOpt,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 300,
+    hidden: Annotated[int, typer.Option(help="Hidden units per layer.")] = 64,
+    seed: SeedOpt = 0,
+    threads: ThreadsOpt = 1,
+) -> None:
+    """Train the `mlp` regressor ablation: the eight LLM answers from the matching features, on the same
+    physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
+    _require_torch()
+    from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
+
+    with user_errors():
+        if epochs < 1:
+            raise ValueError("--epochs must be >= 1")
+        feats, targets, digests, infos = load_training_rows(data)
+        if len(feats) < 10:
+            raise ValueError(f"{', '.join(map(str, data))}: only {len(feats)} safe propose labels; need >= 10")
+        sf = infos[0].get("sf_params") or {}
+        defaults = np.array([float(sf.get(f, np.nan)) if f in sf else (0.4 if f == "lon_factor" else 0.0)
+                             for f in NUMERIC_FIELDS])
+        cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
+        res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
+        res.manifest["data"]["labels"] = infos
+        res.manifest["training"]["command"] = _command()
+        save_weights(out, res.arrays, res.manifest)
+    val = res.manifest["validation"]
+    console.print(f"mlp -> {out} ({res.manifest['training']['seconds']:.0f} s, {len(feats)} labels); "
+                  f"validation RMSE (n={val['n']}):")
+    for f, v in val["rmse"].items():
+        base = val.get("rmse_sf_defaults", {}).get(f)
+        console.print(f"  {f}: {v:.3f}" + (f" (sf defaults {base:.3f})" if base is not None else ""))

@@ -424,6 +424,8 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
         out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
         out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
+    if "info_shielded" in frame:  # the LLM planners' safety shield replaced the plan
+        out["shielded_pct"] = float(100.0 * np.asarray(frame["info_shielded"], dtype=np.float64).mean())
     return out
 
 

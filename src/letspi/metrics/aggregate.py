@@ -54,6 +54,7 @@ DETAIL_COLUMNS: tuple[tuple[str, str], ...] = (
     ("↓ CR rear (%)", "cr_rear_pct"),
     ("↑ PET capped (s)", "pet_capped_s"),
     ("↑ SR own goal (%)", "sr_self_pct"),
+    ("Shielded (%)", "shielded_pct"),
 )
 
 

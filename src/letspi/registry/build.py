@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from letspi.core.memory import MemoryBank
 from letspi.core.phases import FastPhase, MemoryPhase, Retriever, memory_example
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.param_mlp import ParamMlp
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.schema import fallback_reply_from_params
@@ -29,6 +31,7 @@ from letspi.planners.gnp import GnpPlanner
 from letspi.planners.human import HumanPlanner
 from letspi.planners.idm import IdmPlanner
 from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.mlp import ParamMlpPlanner
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.registry.configs import (
@@ -41,6 +44,7 @@ from letspi.registry.configs import (
     LlmConfig,
     MemoryPhaseConfig,
     MemoryPlannerConfig,
+    MlpConfig,
     PlannerConfig,
     SfConfig,
     SfOptConfig,
@@ -159,9 +163,15 @@ class Builder:
             planner = GnpPlanner(model=GnpModel.from_dir(config.gnp.weights_dir),
                                  goal_predictor=self.goal_predictor(config.goals), neighbour_mode=config.neighbours,
                                  name=label)
+        elif isinstance(config, MlpConfig):
+            planner = ParamMlpPlanner(model=ParamMlp.from_dir(Path(config.mlp.weights_dir)),
+                                      goal_predictor=self.goal_predictor(config.goals),
+                                      r_col_m=float(config.sf_params.values["r_col_m"]),
+                                      neighbour_mode=config.neighbours, name=label)
         elif isinstance(config, MemoryPlannerConfig):
             phase, load_s = self.memory_phase(config.phase)
-            planner = LetsPiMemoryPlanner(phase, name=label)
+            planner = LetsPiMemoryPlanner(phase, name=label, shield_params=(
+                config.phase.sf_params.params() if config.shield else None))
         elif isinstance(config, FastPlannerConfig):
             planner, load_s = self._fast(config, label)
         else:  # pragma: no cover - the union is exhaustive
@@ -191,7 +201,8 @@ class Builder:
         else:  # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
             static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
             phase = FastPhase(advisor, goals, r_col, None, static_examples=static)
-        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, name=label), load_s
+        shield = config.sf_params.params() if config.shield else None
+        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, shield_params=shield, name=label), load_s
 
 
 def parse_planner_arg(arg: str) -> tuple[str, str]:

@@ -261,11 +261,24 @@ class GnpConfig(Config):
     gnp: WeightsConfig
 
 
+class MlpConfig(_SocialForcePlannerFields):
+    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
+
+    kind: Literal["mlp"] = "mlp"
+    mlp: WeightsConfig
+
+
 class MemoryPlannerConfig(Config):
-    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``."""
+    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
+
+    ``shield``: the safety shield (``letspi.planners.llm``; beyond the paper) replaces a plan that fails
+    the reflection checks by the fitted ``sf`` plan when that is safer. Not part of the phase: the
+    stored experiences are the same with and without it.
+    """
 
     kind: Literal["llm", "letspi-memory"] = "letspi-memory"
     phase: MemoryPhaseConfig
+    shield: bool = True
 
 
 class FastPlannerConfig(Config):
@@ -278,13 +291,15 @@ class FastPlannerConfig(Config):
     sf_params: SfParamsConfig
     memory: MemoryRef
     top_k: int = Field(default=3, ge=0)
+    shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
 
 
 PlannerConfig = Annotated[
-    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MemoryPlannerConfig | FastPlannerConfig,
+    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MlpConfig | MemoryPlannerConfig
+    | FastPlannerConfig,
     Field(discriminator="kind"),
 ]
-PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "llm", "letspi-memory",
+PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "mlp", "llm", "letspi-memory",
                                   "letspi-fast", "letspi-fs")
 
 

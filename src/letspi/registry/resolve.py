@@ -37,6 +37,7 @@ from letspi.registry.configs import (
     MemoryPhaseConfig,
     MemoryPlannerConfig,
     MemoryRef,
+    MlpConfig,
     PlannerConfig,
     SfConfig,
     SfOptConfig,
@@ -46,6 +47,7 @@ from letspi.registry.configs import (
 
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
 GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
+MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
 DEFAULT_LLM = "llamacpp:smollm2-135m"
 DEFAULT_FAST_LLM = "llamacpp:smollm2-135m"
 GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
@@ -72,6 +74,8 @@ class PlannerOptions:
     allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
     memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
     memory_seed: int = 0
+    shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
+    mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -168,6 +172,17 @@ class Resolver:
         load_weights(chosen, expected_model="gnp")  # WeightsError names the directory
         return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
 
+    @functools.cached_property
+    def mlp_weights(self) -> WeightsConfig:
+        """The ``mlp`` regressor: ``--mlp-weights`` or ``$LETSPI_MLP_WEIGHTS`` (nothing is shipped)."""
+        requested = self.options.mlp_weights or self.env.get(MLP_WEIGHTS_ENV)
+        if not requested:
+            raise ValueError(f"the mlp planner needs trained weights: --mlp-weights DIR or ${MLP_WEIGHTS_ENV} "
+                             "(train them with `letspi train mlp`)")
+        chosen = Path(requested)
+        load_weights(chosen, expected_model="param-mlp")  # WeightsError names the directory
+        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
         parsed = parse_spec(spec)
@@ -228,11 +243,16 @@ class Resolver:
                 raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
                                  "not the recorded future")
             return GnpConfig(neighbours=self.neighbours, goals=self.goals, gnp=self.gnp_weights)
+        if kind == "mlp":
+            if self.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+                raise ValueError("mlp must roll out with predicted neighbours (idm or constant_velocity)")
+            return MlpConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params,
+                             mlp=self.mlp_weights)
         if kind in ("llm", "letspi-memory"):
             phase = self.memory_phase(max_iterations=0 if kind == "llm" else None)
-            return MemoryPlannerConfig(kind=kind, phase=phase)  # type: ignore[arg-type]
+            return MemoryPlannerConfig(kind=kind, phase=phase, shield=o.shield)  # type: ignore[arg-type]
         if kind in ("letspi-fast", "letspi-fs"):
             return FastPlannerConfig(kind=kind, llm=self.llm(o.fast_llm), goals=self.goals,  # type: ignore[arg-type]
                                      neighbours=self.neighbours, sf_params=self.sf_params,
-                                     memory=self.memory_ref(), top_k=o.top_k)
+                                     memory=self.memory_ref(), top_k=o.top_k, shield=o.shield)
         raise ValueError(f"unknown planner {kind!r}; available: {', '.join(PLANNER_KINDS)}")

@@ -90,7 +90,17 @@ def check_plans(
     batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
 ) -> SafetyCheck:
     """TTC, box gap, contact and road-edge checks of plans against predicted neighbours."""
-    inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours)
+    return check_inputs(batch, predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours))
+
+
+def check_recorded(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray) -> SafetyCheck:
+    """The same checks against the RECORDED future (neighbours and context vehicles, as the evaluation
+    scores them): hindsight for training labels only, never for planning. ``batch`` must hold the future."""
+    return check_inputs(batch, MetricInputs.from_batch(batch, plan_xy_m, plan_vxy_mps))
+
+
+def check_inputs(batch: ScenarioBatch, inp: MetricInputs) -> SafetyCheck:
+    """The checks of ``check_plans`` on prepared metric inputs (any neighbour slots)."""
     ttc = ttc_1d(inp)
     rear = ttc_1d(_mirrored(inp))
     dist = distances(inp)

@@ -1,0 +1,130 @@
+"""Training of the ``mlp`` regressor (``letspi.learned.param_mlp``) on physics-verified labels (torch).
+
+Data: the ``propose`` rows with a safe label of one or more label directories (``letspi train
+llm-data``); inputs are the matching features of each row's scenario, read from the scenario file
+the labels name (its dataset digest must match the manifest). Split by scenario digest (80 / 20,
+seeded); loss: mean squared error of the outputs normalised to [0, 1] by the field ranges.
+Validation reports the per-field RMSE of the regressor next to that of always answering the fitted
+``sf`` defaults (the label search's regularisation centre), so a regressor that learnt nothing shows.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from letspi.finetune.labels import load_labels
+from letspi.learned.param_mlp import MODEL_NAME, OUTPUT_FIELDS, OUTPUT_RANGES
+from letspi.scenario.features import FEATURE_NAMES, scenario_features
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.store import load_scenarios
+
+
+@dataclass(frozen=True)
+class MlpTrainConfig:
+    hidden: int = 64
+    epochs: int = 300
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    batch_size: int = 256
+    val_share: float = 0.2
+    seed: int = 0
+    threads: int = 1
+
+
+@dataclass(frozen=True)
+class MlpResult:
+    arrays: dict[str, np.ndarray]
+    manifest: dict[str, Any]
+
+
+def load_training_rows(label_dirs: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+    """Features (R, 6), targets (R, 8), scenario digests (R,) and per-directory provenance."""
+    feats, targets, digests, infos = [], [], [], []
+    for d in label_dirs:
+        df, manifest = load_labels(d)
+        rows = df[(df["kind"] == "propose") & df["label_safe"]]
+        path = Path(manifest["scenarios_path"])
+        batch = load_scenarios(path)
+        n = int(manifest.get("n_scenarios_total", len(batch)))
+        batch = batch.take(slice(0, n))
+        digest = dataset_digest(scenario_digests(batch))
+        if digest != manifest["dataset_digest"]:
+            raise ValueError(f"{d}: the labels were made from other scenarios than {path} holds now "
+                             f"(dataset digest {manifest['dataset_digest']} != {digest})")
+        idx = rows["scenario_index"].to_numpy(dtype=np.int64)
+        feats.append(scenario_features(batch.take(idx).history()))
+        targets.append(rows[list(OUTPUT_FIELDS)].to_numpy(dtype=np.float64))
+        digests.append(rows["scenario_digest"].to_numpy(dtype=object))
+        infos.append({"dir": str(d), "labels_sha256": manifest.get("labels_sha256"),
+                      "dataset_digest": manifest["dataset_digest"], "n_rows": len(rows),
+                      "sf_params": manifest.get("sf_params")})
+    return np.concatenate(feats), np.concatenate(targets), np.concatenate(digests), infos
+
+
+def _split(digests: np.ndarray, share: float, seed: int) -> np.ndarray:
+    """(R,) bool validation mask, by scenario digest (a scenario never lands on both sides)."""
+    keys = np.array([int(hashlib.sha256(f"{seed}:{d}".encode()).hexdigest()[:8], 16) for d in digests])
+    return (keys / 0xFFFFFFFF) < share
+
+
+def train_mlp(features: np.ndarray, targets: np.ndarray, digests: np.ndarray, cfg: MlpTrainConfig,
+              defaults: np.ndarray | None = None) -> MlpResult:
+    """Fit the regressor; returns weight arrays (names as ``ParamMlp`` expects) and a manifest."""
+    t0 = time.perf_counter()
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    low = np.array([OUTPUT_RANGES[f][0] for f in OUTPUT_FIELDS])
+    high = np.array([OUTPUT_RANGES[f][1] for f in OUTPUT_FIELDS])
+    x = np.nan_to_num(features.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    y = (np.clip(targets, low, high) - low) / (high - low)
+    val = _split(digests, cfg.val_share, cfg.seed)
+    mean = x[~val].mean(axis=0)
+    std = np.maximum(x[~val].std(axis=0), 1e-6)
+    z = (x - mean) / std
+    net = nn.Sequential(nn.Linear(x.shape[1], cfg.hidden), nn.ReLU(), nn.Linear(cfg.hidden, cfg.hidden), nn.ReLU(),
+                        nn.Linear(cfg.hidden, len(OUTPUT_FIELDS)))
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    xt = torch.tensor(z[~val], dtype=torch.float32)
+    yt = torch.tensor(y[~val], dtype=torch.float32)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    for _ in range(cfg.epochs):
+        perm = torch.randperm(len(xt), generator=gen)
+        for start in range(0, len(xt), cfg.batch_size):
+            sel = perm[start:start + cfg.batch_size]
+            loss = ((torch.sigmoid(net(xt[sel])) - yt[sel]) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    arrays = {k: v.detach().numpy().astype(np.float64) for k, v in net.state_dict().items()}
+    arrays = {f"net.{k}": v for k, v in arrays.items()}
+    arrays.update(feat_mean=mean, feat_std=std, low=low, high=high)
+
+    with torch.no_grad():
+        pred = torch.sigmoid(net(torch.tensor(z, dtype=torch.float32))).numpy().astype(np.float64)
+    pred_values = low + (high - low) * pred
+
+    def rmse(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
+        return {f: float(np.sqrt(np.mean((a[:, i] - b[:, i]) ** 2))) for i, f in enumerate(OUTPUT_FIELDS)}
+
+    truth = low + (high - low) * y
+    validation: dict[str, Any] = {"n": int(val.sum()), "rmse": rmse(pred_values[val], truth[val])}
+    if defaults is not None:
+        validation["rmse_sf_defaults"] = rmse(np.broadcast_to(defaults, truth[val].shape), truth[val])
+    manifest = {
+        "model": MODEL_NAME,
+        "config": {"hidden": cfg.hidden, "features": list(FEATURE_NAMES), "outputs": list(OUTPUT_FIELDS)},
+        "data": {"n_train": int((~val).sum()), "n_val": int(val.sum()), "split": "by scenario digest"},
+        "validation": validation,
+        "training": {"epochs": cfg.epochs, "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed,
+                     "batch_size": cfg.batch_size, "seconds": time.perf_counter() - t0,
+                     "torch": torch.__version__},
+    }
+    return MlpResult(arrays, manifest)
