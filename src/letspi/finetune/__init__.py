@@ -1,0 +1,1 @@
+"""letspi.finetune: training data and models for the LLM planners (physics-verified labels, regressor)."""
