@@ -138,6 +138,7 @@ def train_llm(
         "--max-scenarios", help="Use only the first N labelled scenarios.")] = None,
     scenarios: Annotated[Path | None, typer.Option(
         help="The scenario file the labels index (default: the labels manifest's scenarios_path).")] = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of scenarios held out for the validation loss.")] = 0.1,
     verify: Annotated[int, typer.Option(help="Prompts on which torch and llama.cpp outputs are compared.")] = 3,
     threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
 ) -> None:
@@ -150,7 +151,7 @@ def train_llm(
 
     with user_errors():
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
-                              max_steps=max_steps, threads=threads)
+                              max_steps=max_steps, threads=threads, val_fraction=val_fraction)
         goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
         examples, info = build_examples(data, goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
         if not examples:

@@ -32,11 +32,13 @@ PromptStyle = Literal["paper", "compact"]
 PROMPT_STYLES: Final[tuple[PromptStyle, ...]] = ("paper", "compact")
 
 #: Nearest neighbours listed (sorted by distance); the rest are left out to bound the prompt.
-MAX_NEIGHBOURS: Final = 8
-#: Decimals of each field in a compact reply (one decimal on the large repulsion gains is below
-#: what changes a plan; fewer digits = fewer generated tokens).
+MAX_NEIGHBOURS: Final = 6
+#: Same-lane TTCs above this are shown as ``-`` (no conflict within the horizon's reach).
+MAX_TTC_SHOWN_S: Final = 20.0
+#: Decimals of each field in a compact reply: SmolLM2 spends one token per digit, and output tokens
+#: are most of the latency; 1 m/s^2 on the large repulsion gains is below what changes a plan.
 REPLY_DECIMALS: Final[dict[str, int]] = {
-    "tau_s": 2, "k_np": 1, "k_nf": 1, "k_nl": 2, "k_boundary": 2, "k_cline": 2, "lon_factor": 2, "lane_factor": 2,
+    "tau_s": 1, "k_np": 0, "k_nf": 0, "k_nl": 1, "k_boundary": 1, "k_cline": 1, "lon_factor": 2, "lane_factor": 1,
 }
 
 
@@ -75,23 +77,21 @@ def compact_scene_text(desc: ScenarioDescription, *, max_neighbours: int = MAX_N
     right = "yes" if desc.lane_right_of(desc.ego_lane) is not None else "no"
     limit = "none" if desc.speed_limit_mps is None else f"{_f(desc.speed_limit_mps)} m/s"
     lines = [
-        f"Road: {n} lanes, ego in lane {k} from the left, lane to the left {left}, to the right {right}, "
-        f"speed limit {limit}.",
-        f"Ego: speed {_f(desc.ego_speed)} m/s, acc {_f(desc.ego_ax)} m/s^2, lateral speed {_f(desc.ego_vy)} m/s.",
+        f"Road: {n} lanes, ego lane {k} from left, left lane {left}, right lane {right}, limit {limit}",
+        f"Ego: speed {_f(desc.ego_speed)}, acc {_f(desc.ego_ax)}, lateral {_f(desc.ego_vy)}.",
     ]
     shown = desc.neighbours[:max_neighbours]
-    lines.append(f"Neighbours ({len(shown)} of {len(desc.neighbours)}, nearest first; dx dy m, rel speed m/s):")
+    lines.append(f"Cars {len(shown)} of {len(desc.neighbours)} (dx dy m, rel speed m/s):")
     if not shown:
         lines.append("none")
-    for nb in shown:
-        line = f"{nb.relation}: dx {_f(nb.x)}, dy {_f(nb.y)}, rel {_f(nb.rel_vx)}"
-        if nb.relation in ("ahead", "behind", "alongside"):
-            line += f", gap {_f(nb.gap_m)} m"
-            line += f", TTC {_f(nb.ttc_s)} s" if nb.ttc_s is not None else ", not closing"
-        lines.append(line)
-    lines.append(
-        f"Goal at {_f(desc.horizon_s, 0)} s: dx {_f(desc.goal_x)}, dy {_f(desc.goal_y)}, {_goal_lane_text(desc)}."
-    )
+    for nb in shown:  # nearest first; metres as integers (one token per digit)
+        if nb.relation in ("ahead", "behind", "alongside"):  # same lane: dy ~ 0, the gap and TTC matter
+            ttc = _f(nb.ttc_s) if nb.ttc_s is not None and nb.ttc_s <= MAX_TTC_SHOWN_S else "-"
+            lines.append(f"{nb.relation} dx {_f(nb.x, 0)} rel {_f(nb.rel_vx)} gap {_f(nb.gap_m, 0)} TTC {ttc}")
+        else:
+            lines.append(f"{nb.relation} dx {_f(nb.x, 0)} dy {_f(nb.y, 0)} rel {_f(nb.rel_vx)}")
+    lines.append(f"Goal at {_f(desc.horizon_s, 0)} s: dx {_f(desc.goal_x, 0)} dy {_f(desc.goal_y, 0)}, "
+                 f"{_goal_lane_text(desc)}.")
     return "\n".join(lines)
 
 
@@ -102,31 +102,36 @@ def compact_reply_text(values: Mapping[str, float] | PlannerReply) -> str:
     is one that llama.cpp's JSON-schema grammar accepts.
     """
     get = (lambda k: getattr(values, k)) if isinstance(values, PlannerReply) else values.__getitem__
-    out: dict[str, float] = {}
+    out: dict[str, float | int] = {}
     for name in NUMERIC_FIELDS:
         v = round(float(get(name)), REPLY_DECIMALS[name])
-        out[WIRE_KEYS[name]] = 0.0 if v == 0 else v  # no "-0.0"
+        out[WIRE_KEYS[name]] = int(v) if REPLY_DECIMALS[name] == 0 else (0.0 if v == 0 else v)  # no "-0.0"
     return json.dumps(out, separators=(", ", ": "))
 
 
-def _num(value: Any, unit: str) -> str:
+def compact_values_text(values: Mapping[str, float] | PlannerReply) -> str:
+    """``tau 1.7 k_np 11 ...``: a rejected answer in few tokens (wire keys, ``REPLY_DECIMALS``)."""
+    wire = json.loads(compact_reply_text(values))
+    return " ".join(f"{k} {v}" for k, v in wire.items())
+
+
+def _num(value: Any) -> str:
     try:
         x = float(value)
     except (TypeError, ValueError):
-        return "none"
-    return f"{x:.1f} {unit}" if math.isfinite(x) else "none"
+        return "-"
+    return _f(x) if math.isfinite(x) else "-"
 
 
 def compact_report_text(metrics: Mapping[str, Any], violations: Sequence[str]) -> str:
-    """One line of safety-check facts: ``metrics`` has min_ttc_s, min_rear_ttc_s, min_path_gap_m,
-    min_box_gap_m (None or non-finite = no conflict) and collision; ``violations`` the failed checks'
-    names (``letspi.core.reflection.Violation.metric``)."""
+    """One line of safety-check facts: ``metrics`` has min_ttc_s, min_rear_ttc_s, min_path_gap_m
+    (s, s, m; None or non-finite = no conflict, shown as ``-``) and collision; ``violations`` the failed
+    checks' names (``letspi.core.reflection.Violation.metric``)."""
     contact = "yes" if bool(metrics.get("collision")) else "no"
     failed = ", ".join(dict.fromkeys(violations)) or "none"
     return (
-        f"front TTC {_num(metrics.get('min_ttc_s'), 's')}, rear TTC {_num(metrics.get('min_rear_ttc_s'), 's')}, "
-        f"in-path gap {_num(metrics.get('min_path_gap_m'), 'm')}, box gap {_num(metrics.get('min_box_gap_m'), 'm')}, "
-        f"contact {contact}; failed: {failed}."
+        f"front TTC {_num(metrics.get('min_ttc_s'))}, rear TTC {_num(metrics.get('min_rear_ttc_s'))}, "
+        f"gap {_num(metrics.get('min_path_gap_m'))}, contact {contact}; failed {failed}."
     )
 
 
@@ -143,7 +148,7 @@ def render_compact_prompt(
     user = _render(
         "compact_user.j2",
         scene=compact_scene_text(desc),
-        rejected=compact_reply_text(rejected) if rejected is not None else "",
+        rejected=compact_values_text(rejected) if rejected is not None else "",
         report=report or "",
     )
     return [message("system", compact_system_prompt()), message("user", user)]
