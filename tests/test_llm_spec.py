@@ -69,7 +69,7 @@ def test_missing_model_file_is_a_config_error(tmp_path: Path) -> None:
     with pytest.raises(ModelNotFoundError) as e:
         locate_model("gpt-5")
     assert "gemma3-270m" in str(e.value)
-    assert set(EMBEDDED_MODELS) == {"gemma3-270m", "smollm2-135m"}
+    assert set(EMBEDDED_MODELS) == {"gemma3-270m", "smollm2-135m", "smollm2-135m-letspi"}
 
 
 def test_missing_packages_name_the_pip_command(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -13,6 +13,7 @@ import typer
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import save_weights
+from letspi.llm.models import locate_model
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
 from letspi.registry.build import Builder
@@ -198,3 +199,53 @@ def train_mlp_cmd(
     for f, v in val["rmse"].items():
         base = val.get("rmse_sf_defaults", {}).get(f)
         console.print(f"  {f}: {v:.3f}" + (f" (sf defaults {base:.3f})" if base is not None else ""))
+
+
+@app.command("llm")
+def train_llm(
+    data: Annotated[Path, typer.Option("--data", help="Labels directory from `letspi train llm-data`.")],
+    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/).")],
+    epochs: Annotated[float, typer.Option(help="Passes over the training examples (fractions allowed).")] = 1.0,
+    lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, warm-up then linear decay).")] = 3e-4,
+    rank: Annotated[int, typer.Option(help="LoRA rank.")] = 8,
+    alpha: Annotated[int, typer.Option(help="LoRA alpha (scale alpha / rank).")] = 16,
+    batch_size: Annotated[int, typer.Option(help="Examples per optimiser step.")] = 8,
+    seed: SeedOpt = 0,
+    max_steps: Annotated[int | None, typer.Option(help="Stop after this many optimiser steps.")] = None,
+    max_scenarios: Annotated[int | None, typer.Option(
+        "--max-scenarios", help="Use only the first N labelled scenarios.")] = None,
+    scenarios: Annotated[Path | None, typer.Option(
+        help="The scenario file the labels index (default: the labels manifest's scenarios_path).")] = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of scenarios held out for the validation loss.")] = 0.1,
+    verify: Annotated[int, typer.Option(help="Prompts on which torch and llama.cpp outputs are compared.")] = 3,
+    threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
+) -> None:
+    """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
+    export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
+    LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
+    _require_torch()
+    from letspi.finetune.data import build_examples
+    from letspi.finetune.train import LoraTrainConfig, train_lora
+
+    with user_errors():
+        cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
+                              max_steps=max_steps, threads=threads, val_fraction=val_fraction)
+        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
+        examples, info = build_examples(data, goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
+        if not examples:
+            raise ValueError(f"{data}: no safe labels to train on")
+        with progress_bar() as bar:
+            task = bar.add_task("fine-tuning", total=None)
+
+            def progress(step: int, total: int, loss: float) -> None:
+                bar.update(task, completed=step, total=total, description=f"fine-tuning (loss {loss:.3f})")
+
+            manifest = train_lora(examples, cfg, locate_model("smollm2-135m"), out, data_info=info,
+                                  progress=progress, verify=verify, command=_command())
+    t = manifest["training"]
+    check = manifest.get("export_check") or {}
+    console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "
+                  f"{t['steps']} steps, {t['elapsed_s']:.0f} s); {manifest['data']['n_train']} train / "
+                  f"{manifest['data']['n_val']} val examples; val loss {t['val_loss_before']:.3f} -> "
+                  f"{t['val_loss_after']:.3f}; torch vs llama.cpp greedy agree on "
+                  f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")

@@ -9,6 +9,10 @@
 
 ``LlmProposer`` adapts a ``ParamAdvisor`` to ``reflect``'s proposer interface. The LLM chooses
 the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
+
+``prompt_style="compact"`` (the fine-tuned model, ``letspi.llm.compact``) replaces both prompts by the
+compact one: no few-shot examples (retrieval still runs: the memories are recorded), numbers-only
+replies, and a refinement round is the compact refine prompt (scene, rejected answer, check facts).
 """
 
 from __future__ import annotations
@@ -23,10 +27,11 @@ import numpy as np
 from letspi.constants import N_TOTAL
 from letspi.core.matching import top_k
 from letspi.core.memory import Experience, MemoryBank, MemoryFeatures
-from letspi.core.reflection import Proposal, ReflectionContext, ReflectionResult, reflect
+from letspi.core.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
 from letspi.core.runner import RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.llm.client import Advice, ParamAdvisor
+from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
@@ -60,16 +65,35 @@ def proposal_from_advice(advice: Advice, messages: Sequence[Message], r_col_m: f
     )
 
 
+def compact_report(report: SafetyReport) -> str:
+    """A safety report as the compact refine prompt states it (the facts the labels' reports give)."""
+    return compact_report_text(report.metrics, [v.metric for v in report.violations])
+
+
+def _reply_values(proposal: Proposal) -> dict[str, float]:
+    values = {k: float(v) for k, v in proposal.params.as_dict().items() if k in LLM_PARAM_RANGES}
+    return {**values, "lon_factor": float(proposal.lon_factor), "lane_factor": float(proposal.lane_factor)}
+
+
 @dataclass
 class LlmProposer:
-    """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report."""
+    """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report
+    (``prompt_style="compact"``: the compact prompt, then the compact refine prompt)."""
 
     advisor: ParamAdvisor
     r_col_m: float
     memories: Sequence[MemoryExample] = ()
+    prompt_style: PromptStyle = "paper"
 
     def __call__(self, ctx: ReflectionContext) -> Proposal:
         desc = describe_scenario(ctx.scenario, ctx.base_goal_xy_m)
+        if self.prompt_style == "compact":
+            if ctx.report is None or ctx.previous is None:
+                messages = render_compact_prompt(desc)
+            else:
+                messages = render_compact_prompt(desc, rejected=_reply_values(ctx.previous),
+                                                 report=compact_report(ctx.report))
+            return proposal_from_advice(self.advisor.advise(messages, variant="fast"), messages, self.r_col_m)
         if ctx.report is None or ctx.previous is None:
             messages = render_physics_prompt(desc, memories=self.memories)
         else:
@@ -98,12 +122,13 @@ class MemoryPhase:
     thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     goal_adjustment: bool = True
+    prompt_style: PromptStyle = "paper"
 
     def run(self, scenario: ScenarioBatch) -> ReflectionResult:
         """Reflection loop on a batch of one."""
         base_goal = self.goal_predictor.predict_goals(scenario).top[0]
         pred = predict_neighbours(scenario, self.neighbour_mode)
-        proposer = LlmProposer(self.advisor, self.r_col_m)
+        proposer = LlmProposer(self.advisor, self.r_col_m, prompt_style=self.prompt_style)
         return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
                        neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
 
@@ -264,11 +289,15 @@ class FastPhase:
     retriever: Retriever | None
     static_examples: Sequence[MemoryExample] = ()  # the "FS" ablation: fixed examples, no retrieval
     variant: Variant = "fast"
+    prompt_style: PromptStyle = "paper"
 
     def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
         retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
-        examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
         desc = describe_scenario(scenario, base_goal_xy_m)
-        messages = render_fast_prompt(desc, memories=examples)
+        if self.prompt_style == "compact":  # the fine-tuned model: no few-shot examples in its prompt
+            messages = render_compact_prompt(desc)
+        else:
+            examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
+            messages = render_fast_prompt(desc, memories=examples)
         proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
         return proposal, [(e.scenario_id, s) for e, s in retrieved]

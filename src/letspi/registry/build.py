@@ -118,7 +118,8 @@ class Builder:
         if key in self._advisors:
             return self._advisors[key][0], 0.0
         t0 = time.perf_counter()
-        backend = make_backend(llm.spec)
+        options = {"lora_path": llm.adapter_path} if llm.adapter_path is not None else {}
+        backend = make_backend(llm.spec, **options)
         load = getattr(backend, "load", None)
         if callable(load):
             load()
@@ -137,7 +138,7 @@ class Builder:
         advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
         phase = MemoryPhase(advisor, self.goal_predictor(config.goals), float(config.sf_params.values["r_col_m"]),
                             config_key=config.key(), thresholds=config.reflection, neighbour_mode=config.neighbours,
-                            goal_adjustment=config.goal_adjustment)
+                            goal_adjustment=config.goal_adjustment, prompt_style=config.llm.prompt_style)
         return phase, load_s
 
     # planners ----------------------------------------------------------------------------------
@@ -197,10 +198,11 @@ class Builder:
         if config.kind == "letspi-fast":
             retriever = Retriever(bank, k=config.top_k, config_key=ref.collection_key, allowed_ids=ids,
                                   allow_same_vehicle=ref.allow_same_vehicle)
-            phase = FastPhase(advisor, goals, r_col, retriever)
+            phase = FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style)
         else:  # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
             static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
-            phase = FastPhase(advisor, goals, r_col, None, static_examples=static)
+            phase = FastPhase(advisor, goals, r_col, None, static_examples=static,
+                              prompt_style=config.llm.prompt_style)
         shield = config.sf_params.params() if config.shield else None
         return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, shield_params=shield, name=label), load_s
 

@@ -161,13 +161,21 @@ class WeightsConfig(Config):
 
 
 class LlmConfig(Config):
-    """One language model as used by a phase: model, weights, decoding, prompt text, retries."""
+    """One language model as used by a phase: model, weights, decoding, prompt text, retries.
 
-    cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path"})
+    ``adapter_sha256`` / ``adapter_path``: the LoRA adapter llama.cpp applies (the fine-tuned
+    ``smollm2-135m-letspi``); ``prompt_style``: ``paper`` (physics + fast prompts with few-shot
+    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on).
+    """
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
 
     spec: str
     model_sha256: str | None = None
     model_path: str | None = None
+    adapter_sha256: str | None = None
+    adapter_path: str | None = None
+    prompt_style: Literal["paper", "compact"] = "paper"
     temperature: float = 0.0
     seed: int = 0
     max_tokens: int = 320

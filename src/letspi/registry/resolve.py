@@ -21,7 +21,8 @@ from pathlib import Path
 from letspi.core.memory import MemoryBank
 from letspi.core.thresholds import ReflectionThresholds
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
-from letspi.llm.models import locate_model
+from letspi.llm.compact import PROMPT_STYLES
+from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.sf_params import load_sf_params
@@ -76,6 +77,7 @@ class PlannerOptions:
     memory_seed: int = 0
     shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
     mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
+    prompt_style: str | None = None  # paper | compact; None: compact for a fine-tuned model, else paper
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -186,11 +188,20 @@ class Resolver:
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
         parsed = parse_spec(spec)
-        model_sha = model_path = None
+        model_sha = model_path = adapter_sha = adapter_path = None
         if parsed.kind == "llamacpp":
             path = locate_model(parsed.model)
             model_sha, model_path = file_sha256(path), str(path)
+            adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
+            if adapter is not None:
+                adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
+        style = self.options.prompt_style
+        if style is None:
+            style = "compact" if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
+        if style not in PROMPT_STYLES:
+            raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
+                         adapter_sha256=adapter_sha, adapter_path=adapter_path, prompt_style=style,  # type: ignore[arg-type]
                          prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
                          timeout_s=self.options.llm_timeout_s)
 

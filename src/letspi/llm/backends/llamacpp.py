@@ -1,6 +1,8 @@
 """Embedded llama.cpp backend (llama-cpp-python), for ``llamacpp:MODEL`` specs.
 
-* One ``Llama`` instance per (model file, context size) per process, shared by every backend
+* A LoRA adapter GGUF (``lora_path``; ``llamacpp:smollm2-135m-letspi`` finds its own, see
+  ``letspi.llm.models.locate_adapter``) is applied by llama.cpp when the model is loaded.
+* One ``Llama`` instance per (model file, adapter, context size) per process, shared by every backend
   object: loading is cheap but llama.cpp keeps the previous prompt's KV cache, so consecutive
   calls that share a static prompt prefix only evaluate the changed tail (REFERENCE §8).
 * Decoding is constrained by the JSON schema (``response_format={"type": "json_object",
@@ -29,7 +31,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from letspi.llm.models import locate_model
+from letspi.llm.models import locate_adapter, locate_model
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -46,8 +48,8 @@ _INSTALL_HINT = (
     "(builds from source, about 6 min on 2 cores)"
 )
 
-# (model path, n_ctx, n_threads) -> (Llama, lock). Filled lazily; never at import.
-_INSTANCES: dict[tuple[str, int, int], tuple[Any, threading.Lock]] = {}
+# (model path, adapter path or "", n_ctx, n_threads) -> (Llama, lock). Filled lazily; never at import.
+_INSTANCES: dict[tuple[str, str, int, int], tuple[Any, threading.Lock]] = {}
 _INSTANCES_LOCK = threading.Lock()
 
 
@@ -101,10 +103,10 @@ def without_extra_buffer_types(llama_mod: Any) -> Iterator[None]:
 
 
 def shared_llama(
-    model_path: Path, *, n_ctx: int = 4096, n_threads: int = 2, seed: int = 0
+    model_path: Path, *, n_ctx: int = 4096, n_threads: int = 2, seed: int = 0, lora_path: Path | None = None
 ) -> tuple[Any, threading.Lock]:
-    """The process-wide ``Llama`` for this model file and its lock (created on first use)."""
-    key = (str(model_path), n_ctx, n_threads)
+    """The process-wide ``Llama`` for this model file (and LoRA adapter) and its lock (created on first use)."""
+    key = (str(model_path), str(lora_path or ""), n_ctx, n_threads)
     with _INSTANCES_LOCK:
         hit = _INSTANCES.get(key)
         if hit is not None:
@@ -117,6 +119,7 @@ def shared_llama(
                 n_threads=n_threads,
                 n_threads_batch=n_threads,
                 seed=seed,
+                lora_path=str(lora_path) if lora_path is not None else None,
                 verbose=False,
             )
         # free the model before interpreter teardown: llama_cpp's __del__ fails noisily once its
@@ -128,14 +131,19 @@ def shared_llama(
 
 
 class LlamaCppBackend:
-    """``llamacpp:gemma3-270m``, ``llamacpp:smollm2-135m`` or ``llamacpp:/path/model.gguf``."""
+    """``llamacpp:gemma3-270m``, ``llamacpp:smollm2-135m``, ``llamacpp:smollm2-135m-letspi`` or
+    ``llamacpp:/path/model.gguf``. ``lora_path``: a LoRA adapter GGUF (default: the fine-tuned model's
+    own, ``locate_adapter``; None for the others)."""
 
-    def __init__(self, model: str, *, n_ctx: int = 4096, n_threads: int = 2) -> None:
+    def __init__(
+        self, model: str, *, n_ctx: int = 4096, n_threads: int = 2, lora_path: Path | str | None = None
+    ) -> None:
         self.model = model
         self.n_ctx = n_ctx
         self.n_threads = n_threads
         _import_llama_cpp()  # fail fast with the pip hint
         self.model_path = locate_model(model)
+        self.lora_path = Path(lora_path) if lora_path is not None else locate_adapter(model)
 
     @property
     def spec(self) -> str:
@@ -143,7 +151,7 @@ class LlamaCppBackend:
 
     def load(self) -> None:
         """Load the model now (otherwise the first call does): callers time loading apart from inference."""
-        shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads)
+        shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, lora_path=self.lora_path)
 
     def complete(
         self,
@@ -153,7 +161,8 @@ class LlamaCppBackend:
         settings: DecodingSettings,
         timeout_s: float,
     ) -> LLMResponse:
-        llm, lock = shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, seed=settings.seed)
+        llm, lock = shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, seed=settings.seed,
+                                 lora_path=self.lora_path)
         response_format: dict[str, Any] | None = None
         if schema is not None:
             response_format = {"type": "json_object", "schema": schema}

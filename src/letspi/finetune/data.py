@@ -1,0 +1,169 @@
+"""Labels directory (``letspi train llm-data``) -> chat examples in the compact prompt.
+
+Each label row becomes ``(messages, reply)``: the compact prompt of its scenario
+(``letspi.llm.compact``; the scene described with the goal the planners predict, so the model sees in
+training what it sees when planning) and the label in the compact wire format. ``refine`` rows also
+carry the rejected proposal and the facts of its safety check. Rows whose label failed the checks
+(``label_safe`` False) are left out: the model is only taught answers the physics verified.
+
+The train/validation split is by scenario (a hash of the scenario digest), so the two refine
+examples and the propose example of one scenario stay on one side.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from letspi.llm.compact import compact_reply_text, compact_report_text, render_compact_prompt
+from letspi.llm.describe import describe_scenario
+from letspi.llm.schema import NUMERIC_FIELDS
+from letspi.llm.types import Message
+from letspi.physics.goals import GoalPredictor
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.store import load_scenarios
+
+LABELS_FILE = "labels.parquet"
+MANIFEST_FILE = "manifest.json"
+LABELS_FORMAT = "letspi-llm-labels/1"
+KINDS = ("propose", "refine")
+
+
+@dataclass(frozen=True)
+class ChatExample:
+    """One training example: prompt messages, the reply to learn, and where it came from."""
+
+    messages: tuple[Message, ...]
+    reply: str
+    kind: str
+    scenario_digest: str
+
+
+def labels_sha256(directory: Path) -> str:
+    """SHA-256 of ``labels.parquet`` (the data identity recorded in a training manifest)."""
+    h = hashlib.sha256()
+    with open(Path(directory) / LABELS_FILE, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def read_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """(labels table, manifest) of a labels directory; ``ValueError`` naming the file for a bad one."""
+    directory = Path(directory)
+    manifest_path, labels_path = directory / MANIFEST_FILE, directory / LABELS_FILE
+    if not manifest_path.is_file() or not labels_path.is_file():
+        raise FileNotFoundError(f"{directory}: not a labels directory (needs {MANIFEST_FILE} and {LABELS_FILE}; "
+                                "make one with `letspi train llm-data`)")
+    manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+    if manifest.get("format") != LABELS_FORMAT:
+        raise ValueError(f"{manifest_path}: format {manifest.get('format')!r}, expected {LABELS_FORMAT!r}")
+    df = pd.read_parquet(labels_path)
+    missing = [c for c in ("scenario_index", "scenario_digest", "kind", *NUMERIC_FIELDS, "report_json",
+                           "label_safe") if c not in df.columns]
+    if missing:
+        raise ValueError(f"{labels_path}: missing column(s) {', '.join(missing)}")
+    bad = sorted(set(df["kind"]) - set(KINDS))
+    if bad:
+        raise ValueError(f"{labels_path}: unknown kind(s) {bad}; expected {KINDS}")
+    return df, manifest
+
+
+def is_validation(digest: str, fraction: float) -> bool:
+    """Whether the scenario with this digest belongs to the validation split (stable across runs)."""
+    if fraction <= 0:
+        return False
+    h = int(hashlib.sha256(f"letspi-finetune-split:{digest}".encode()).hexdigest()[:8], 16)
+    return h / 0xFFFFFFFF < fraction
+
+
+def _values(row: pd.Series, prefix: str = "") -> dict[str, float]:
+    return {f: float(row[prefix + f]) for f in NUMERIC_FIELDS}
+
+
+def example_of_row(row: pd.Series, desc: Any) -> ChatExample:
+    """The chat example of one label row, its scenario described by ``desc`` (``ScenarioDescription``)."""
+    if row["kind"] == "refine":
+        rejected = _values(row, "proposal_")
+        if not all(math.isfinite(v) for v in rejected.values()):
+            raise ValueError(f"refine row of scenario {row['scenario_digest']}: the rejected proposal has NaN")
+        report = json.loads(row["report_json"]) if row["report_json"] else {}
+        text = compact_report_text(report, report.get("violations", []))
+        messages = render_compact_prompt(desc, rejected=rejected, report=text)
+    else:
+        messages = render_compact_prompt(desc)
+    return ChatExample(tuple(messages), compact_reply_text(_values(row)), str(row["kind"]),
+                       str(row["scenario_digest"]))
+
+
+def build_examples(
+    directory: Path,
+    goal_predictor: GoalPredictor,
+    *,
+    scenarios: Path | None = None,
+    safe_only: bool = True,
+    max_scenarios: int | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[list[ChatExample], dict[str, Any]]:
+    """Chat examples of a labels directory and a description of the data (for the manifest).
+
+    ``scenarios``: the scenario file the labels index (default: the manifest's ``scenarios_path``);
+    its rows must have the digests the labels recorded. ``max_scenarios``: only the first N
+    labelled scenarios (by row index), for quick runs and tests.
+    """
+    df, manifest = read_labels(directory)
+    path = Path(scenarios or manifest.get("scenarios_path", ""))
+    if not path.is_file():
+        raise FileNotFoundError(f"{directory}/{MANIFEST_FILE}: scenario file {path} not found (pass --scenarios)")
+    n_rows = len(df)
+    if safe_only:
+        df = df[df["label_safe"].astype(bool)]
+    indices = np.unique(df["scenario_index"].to_numpy(dtype=np.int64))
+    if max_scenarios is not None:
+        indices = indices[:max_scenarios]
+        df = df[df["scenario_index"].isin(indices)]
+    batch = load_scenarios(path, indices)
+    digests = scenario_digests(batch)
+    pos = {int(k): j for j, k in enumerate(indices)}
+    goals = goal_predictor.predict_goals(batch).top
+    descs: dict[int, Any] = {}
+    examples: list[ChatExample] = []
+    for _, row in df.sort_values(["scenario_index", "kind"], kind="stable").iterrows():
+        j = pos[int(row["scenario_index"])]
+        if digests[j] != row["scenario_digest"]:
+            raise ValueError(f"{path}: row {int(row['scenario_index'])} has digest {digests[j]}, the labels in "
+                             f"{directory} expect {row['scenario_digest']} (another scenario file?)")
+        if j not in descs:
+            descs[j] = describe_scenario(batch.take([j]), goals[j])
+            if progress is not None:
+                progress(1)
+        examples.append(example_of_row(row, descs[j]))
+    info = {
+        "labels_dir": str(directory),
+        "labels_sha256": labels_sha256(directory),
+        "labels_manifest": {k: manifest.get(k) for k in ("dataset_digest", "n_scenarios", "n_propose", "n_refine",
+                                                         "seed", "sf_params_sha256", "command")},
+        "scenarios_path": str(path),
+        "scenarios_digest": dataset_digest(digests),
+        "n_label_rows": n_rows,
+        "n_examples": len(examples),
+        "n_scenarios": len(indices),
+        "safe_only": safe_only,
+    }
+    return examples, info
+
+
+def split_examples(examples: Sequence[ChatExample], val_fraction: float) -> tuple[list[ChatExample],
+                                                                                   list[ChatExample]]:
+    """(train, validation) by scenario digest (``is_validation``)."""
+    train = [e for e in examples if not is_validation(e.scenario_digest, val_fraction)]
+    val = [e for e in examples if is_validation(e.scenario_digest, val_fraction)]
+    return train, val

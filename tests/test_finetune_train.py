@@ -1,0 +1,123 @@
+"""``letspi train llm``: a few LoRA steps on a handful of labelled scenarios; the exported adapter
+loads in llama.cpp and changes the embedded model's answer (slow: loads the model in torch and llama.cpp)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from letspi.cli.app import app
+from letspi.finetune.data import LABELS_FORMAT, build_examples, split_examples
+from letspi.finetune.export import read_adapter_gguf
+from letspi.llm.compact import compact_reply_text, render_compact_prompt
+from letspi.llm.describe import describe_scenario
+from letspi.llm.parse import parse_reply
+from letspi.llm.schema import NUMERIC_FIELDS, reply_json_schema
+from letspi.llm.types import DecodingSettings
+from letspi.physics.goals import KinematicGoalPredictor
+from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.store import save_scenarios
+from letspi.scenario.types import ScenarioBatch, concat_batches
+
+#: a label far from what the base model answers, so a few steps visibly move the model towards it
+TARGET = {"tau_s": 0.5, "k_np": 55.0, "k_nf": 1.0, "k_nl": 4.5, "k_boundary": 4.0, "k_cline": 2.5,
+          "lon_factor": 0.9, "lane_factor": 0.0}
+
+
+def _batch() -> ScenarioBatch:
+    return concat_batches([
+        straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
+                               scenario_id="leader"),
+        straight_road_scenario(ego_speed_mps=28.0, neighbours=[VehicleSpec(x0_m=-30.0, speed_mps=30.0)],
+                               scenario_id="follower"),
+        straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=5.0, speed_mps=30.0, lane_offset=1)],
+                               scenario_id="beside"),
+    ])
+
+
+def _labels(tmp_path: Path) -> tuple[Path, Path, ScenarioBatch]:
+    batch = _batch()
+    scen = save_scenarios(batch, tmp_path / "train.arrow")
+    digests = scenario_digests(batch)
+    rows = []
+    for i in range(len(batch)):
+        row: dict[str, object] = {"scenario_index": i, "scenario_digest": str(digests[i]), "kind": "propose",
+                                  **TARGET, **{f"proposal_{f}": np.nan for f in NUMERIC_FIELDS}, "report_json": "",
+                                  "label_safe": True, "label_score": 3.0, "label_min_ttc_s": 6.0,
+                                  "label_min_gap_m": 20.0, "label_progress_m": 150.0}
+        rows.append(row)
+    refine = dict(rows[0], kind="refine", **{f"proposal_{f}": v for f, v in TARGET.items()})
+    refine.update(proposal_k_np=2.0, report_json=json.dumps({"min_ttc_s": 0.9, "min_rear_ttc_s": None,
+                                                             "min_path_gap_m": 0.5, "min_box_gap_m": 0.0,
+                                                             "collision": True, "violations": ["contact", "ttc"]}))
+    rows.append(refine)
+    rows.append(dict(rows[1], label_safe=False, k_np=1.0))  # an unsafe label is never taught
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    pd.DataFrame(rows).to_parquet(labels / "labels.parquet")
+    (labels / "manifest.json").write_text(json.dumps({
+        "format": LABELS_FORMAT, "scenarios_path": str(scen), "dataset_digest": dataset_digest(digests),
+        "n_scenarios": 3, "n_propose": 3, "n_refine": 1, "seed": 0}))
+    return labels, scen, batch
+
+
+def test_examples_are_compact_prompts_with_the_label_as_reply(tmp_path: Path) -> None:
+    labels, _, batch = _labels(tmp_path)
+    examples, info = build_examples(labels, KinematicGoalPredictor())
+    assert info["n_label_rows"] == 5 and info["n_examples"] == 4  # the unsafe label is left out
+    assert [e.kind for e in examples] == ["propose", "refine", "propose", "propose"]
+    assert all(e.reply == compact_reply_text(TARGET) for e in examples)
+    goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]
+    assert list(examples[0].messages) == render_compact_prompt(describe_scenario(batch.take([0]), goal))
+    assert "k_np 2 " in examples[1].messages[1]["content"] and "contact yes" in examples[1].messages[1]["content"]
+    train, val = split_examples(examples, 0.5)
+    assert {e.scenario_digest for e in train}.isdisjoint({e.scenario_digest for e in val})
+    # labels that index another scenario file are refused, naming it
+    other = save_scenarios(batch.take([2, 1, 0]), tmp_path / "other.arrow")
+    with pytest.raises(ValueError, match="another scenario file"):
+        build_examples(labels, KinematicGoalPredictor(), scenarios=other)
+
+
+@pytest.mark.slow
+def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_changes_the_answer(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    pytest.importorskip("peft")
+    pytest.importorskip("transformers")
+    pytest.importorskip("llama_cpp")
+    from letspi.llm.backends.llamacpp import LlamaCppBackend
+
+    labels, _, batch = _labels(tmp_path)
+    out = tmp_path / "w"
+    res = CliRunner().invoke(app, ["train", "llm", "--data", str(labels), "--out", str(out), "--max-steps", "6",
+                                   "--batch-size", "2", "--rank", "4", "--lr", "5e-3", "--val-fraction", "0",
+                                   "--verify", "1", "--seed", "1"])
+    assert res.exit_code == 0, res.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["training"]["steps"] == 6 and manifest["hyperparameters"]["rank"] == 4
+    assert manifest["data"]["n_train"] == 4 and len(manifest["base_model"]["sha256"]) == 64
+    assert manifest["training"]["final_loss_mean10"] < manifest["training"]["first_loss"]
+    check = manifest["export_check"]
+    assert check["n"] == 1 and check["prompts"][0]["same_prompt_tokens"]
+    assert check["prompts"][0]["common_prefix"] >= 8  # torch+peft and llama.cpp+adapter greedy agree
+
+    meta, tensors = read_adapter_gguf(out / "adapter.gguf")
+    assert meta["adapter.type"] == "lora" and meta["adapter.lora.alpha"] == 16.0
+    assert len(tensors) == 30 * 7 * 2 and not any("token_embd" in n or "output." in n for n in tensors)
+
+    goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]
+    msgs = render_compact_prompt(describe_scenario(batch.take([0]), goal))
+    settings = DecodingSettings(temperature=0.0, seed=0, max_tokens=80)
+    replies = {}
+    for name, lora in (("base", None), ("tuned", out / "adapter.gguf")):
+        backend = LlamaCppBackend("smollm2-135m", n_ctx=1024, lora_path=lora)
+        resp = backend.complete(msgs, schema=reply_json_schema("fast"), settings=settings, timeout_s=120)
+        replies[name] = parse_reply(resp.text).reply
+    assert replies["tuned"] != replies["base"]
+    # a few steps on one answer pull the repulsion towards the label
+    assert abs(replies["tuned"].k_np - TARGET["k_np"]) < abs(replies["base"].k_np - TARGET["k_np"])
