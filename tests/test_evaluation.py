@@ -177,8 +177,8 @@ _KILL_SCRIPT = textwrap.dedent("""
 """)
 
 
-# one kill in the default suite; the later one with the slow tests (each over ~10 s on a loaded 2-core machine)
-@pytest.mark.parametrize("kill_after_s", [0.5, pytest.param(1.2, marks=pytest.mark.slow)])
+@pytest.mark.slow  # 25 s each on a loaded 2-core machine (notes/reliability.md)
+@pytest.mark.parametrize("kill_after_s", [0.5, 1.2])
 def test_kill_9_during_writing_then_rerun_equals_an_uninterrupted_run(tmp_path: Path, kill_after_s: float) -> None:
     batch = _batch(120)  # 40 parts of 3, >= 2 s of work: the kill lands mid-run
     scen = save_scenarios(batch, tmp_path / "s.arrow")

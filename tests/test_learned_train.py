@@ -38,6 +38,7 @@ def test_goal_training_reduces_loss_and_is_deterministic() -> None:
     assert set(a.manifest["validation"]) >= {"learned", "kinematic"}
 
 
+@pytest.mark.slow  # 15 s on a loaded 2-core machine (notes/reliability.md)
 def test_gnp_training_reduces_loss_and_is_deterministic() -> None:
     batch = _tiny_batch(40)
     cfg = GnpTrainConfig(epochs=4, batch_size=16, lr=1e-2, encoder=TINY, val_fraction=0.25, seed=2,
