@@ -265,6 +265,7 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     assert code == 0
     report = (tmp_path / "reactive" / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 3  # distributions + 2 worst scenarios
+    assert "mode <strong>closed-loop-reactive</strong>" in report
     # a directory of other scenarios is refused, naming why
     other = tmp_path / "other"
     evaluate([built], batch.take(np.array([0])), other)
