@@ -144,6 +144,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
         (["--mode", LOG, "--replan-s", "sf=2"], "no planner labelled 'sf'"),
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
+        (["--mode", LOG, "--concurrency", "4"], "--concurrency applies to open loop"),
     ]
     for extra, message in cases:
         code, text = _evaluate(*base, *extra)
