@@ -144,6 +144,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
         (["--mode", LOG, "--replan-s", "sf=2"], "no planner labelled 'sf'"),
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
+        (["--mode", LOG, "--concurrency", "4"], "--concurrency applies to open loop"),
     ]
     for extra, message in cases:
         code, text = _evaluate(*base, *extra)
@@ -265,6 +266,7 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     assert code == 0
     report = (tmp_path / "reactive" / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 3  # distributions + 2 worst scenarios
+    assert "mode <strong>closed-loop-reactive</strong>" in report
     # a directory of other scenarios is refused, naming why
     other = tmp_path / "other"
     evaluate([built], batch.take(np.array([0])), other)

@@ -62,7 +62,8 @@ SumoGuiOpt = Annotated[bool, typer.Option(
 
 
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int = 32) -> ClosedLoopSettings | None:
+                         ray: str | None, sumo_gui: bool, chunk_size: int = 32,
+                         concurrency: int | None = None) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
     ``ray``: None (no Ray), ``local`` or a cluster address."""
     if mode not in EVALUATION_MODES:
@@ -74,6 +75,9 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
             raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log or "
                              "closed-loop-reactive)")
         return None
+    if concurrency is not None:
+        raise ValueError("--concurrency applies to open loop; in closed loop scenarios run in parallel with --workers "
+                         "(one planner per worker: for LLM planners, about one per model-server slot)")
     default, own = parse_replan_options(replan_s, labels)
     if chunk_size < 1:
         raise ValueError(f"--chunk-size must be >= 1, got {chunk_size}")
@@ -134,7 +138,8 @@ def evaluate(
     (open loop, or closed loop in SUMO with --mode)."""
     with user_errors():
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
-                                      ray_address or ("local" if ray else None), sumo_gui, chunk_size)
+                                      ray_address or ("local" if ray else None), sumo_gui, chunk_size,
+                                      concurrency)
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
