@@ -175,7 +175,8 @@ def greedy_llamacpp(llm: Any, prompt_ids: Sequence[int], max_new_tokens: int, eo
     """Greedy continuation token ids of ``prompt_ids`` with a loaded ``llama_cpp.Llama``."""
     llm.reset()
     out: list[int] = []
-    for tok in llm.generate(list(prompt_ids), top_k=1, temp=0.0, reset=True):
+    for tok in llm.generate(list(prompt_ids), top_k=1, top_p=1.0, min_p=0.0, temp=0.0, repeat_penalty=1.0,
+                            reset=True):
         out.append(int(tok))
         if tok == eos or len(out) >= max_new_tokens:
             break
@@ -190,9 +191,12 @@ def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Pat
     and whether both tokenizers give the same prompt ids (llama.cpp's chat completion tokenizes the
     prompt with its own tokenizer)."""
     llama_mod = _import_llama_cpp()
+    # n_batch=1: prompt evaluated token by token. With llama-cpp-python 0.3.36 on this machine (AVX2,
+    # Q4_1 base) a batched prompt evaluation gives different greedy answers than torch and than
+    # token-by-token evaluation of the same prompt (notes/finetune.md); this check is about the adapter.
     with without_extra_buffer_types(llama_mod):
         llm = llama_mod.Llama(model_path=str(base_gguf), lora_path=str(adapter_gguf), n_ctx=1024, n_threads=2,
-                              n_threads_batch=2, seed=0, verbose=False)
+                              n_threads_batch=2, n_batch=1, n_ubatch=1, seed=0, verbose=False)
     eos = int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
     rows = []
     try:
