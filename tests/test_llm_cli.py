@@ -32,4 +32,4 @@ def test_models_lists_embedded() -> None:
     res = runner.invoke(app, ["models"])
     assert res.exit_code == 0
     specs = {row["spec"] for row in json.loads(res.stdout)}
-    assert specs == {"llamacpp:gemma3-270m", "llamacpp:smollm2-135m"}
+    assert specs == {"llamacpp:gemma3-270m", "llamacpp:smollm2-135m", "llamacpp:smollm2-135m-letspi"}

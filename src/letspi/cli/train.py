@@ -219,6 +219,8 @@ def train_llm(
     val_fraction: Annotated[float, typer.Option(help="Share of scenarios held out for the validation loss.")] = 0.1,
     verify: Annotated[int, typer.Option(help="Prompts on which torch and llama.cpp outputs are compared.")] = 3,
     threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
+    layers: Annotated[int | None, typer.Option(help="Adapt only the last N of the 30 layers (cheaper).")] = None,
+    max_val: Annotated[int, typer.Option(help="Validation examples scored before and after training.")] = 48,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
     export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
@@ -229,7 +231,8 @@ def train_llm(
 
     with user_errors():
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
-                              max_steps=max_steps, threads=threads, val_fraction=val_fraction)
+                              max_steps=max_steps, threads=threads, val_fraction=val_fraction,
+                              layers=layers, max_val=max_val)
         goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
         examples, info = build_examples(data, goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
         if not examples:
