@@ -6,17 +6,15 @@ Finished planners' results stay valid and a rerun resumes; a planner that failed
 
 from __future__ import annotations
 
-import dataclasses
 import errno
 import json
 import subprocess
 from collections.abc import Iterator
-from dataclasses import fields
 from pathlib import Path
 
-import numpy as np
 import pytest
 from highd_samples import sample_recording
+from scenario_support import noisy_batch
 from typer.testing import CliRunner
 
 import letspi.evaluation.harness as harness
@@ -27,7 +25,7 @@ from letspi.highd.io import write_recording
 from letspi.planners.sf import SocialForcePlanner
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
-from letspi.scenario.types import SCHEMA_VERSION, ScenarioBatch, concat_batches
+from letspi.scenario.types import SCHEMA_VERSION, concat_batches
 
 runner = CliRunner()
 DEAD = "openai:foo@http://127.0.0.1:9/v1"  # port 9 (discard): nothing listens, connections are refused
@@ -38,20 +36,6 @@ def _scenario_file(tmp_path: Path, n: int = 4) -> Path:
         straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)]) for i in range(n)
     ])
     return save_scenarios(batch, tmp_path / "s.arrow")
-
-
-def noisy_batch(n: int, seed: int = 0) -> ScenarioBatch:
-    """``n`` scenarios with noisy trajectories (so the file does not compress to nothing)."""
-    base = straight_road_scenario(neighbours=[VehicleSpec(20.0, 25.0), VehicleSpec(-15.0, 30.0, lane_offset=1)])
-    rng = np.random.default_rng(seed)
-    out = {}
-    for f in fields(ScenarioBatch):
-        arr = np.repeat(getattr(base, f.name), n, axis=0)
-        if f.name in ("ego_xy_m", "nbr_xy_m", "ego_vxy_mps"):
-            arr = (arr + rng.normal(0.0, 1.0, arr.shape)).astype(arr.dtype)
-        out[f.name] = arr
-    out["scenario_id"] = np.array([f"s{i}" for i in range(n)], dtype=object)
-    return dataclasses.replace(base, **out)
 
 
 def _one_clear_error(result, *names: str, code: int = 2) -> str:  # type: ignore[no-untyped-def]

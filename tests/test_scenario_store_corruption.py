@@ -4,7 +4,6 @@ of a batch, never silently different numbers."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 from dataclasses import fields
@@ -17,27 +16,13 @@ import pytest
 from fuzz_settings import fuzz
 from hypothesis import assume, given
 from hypothesis import strategies as st
+from scenario_support import noisy_batch
 
 import letspi.scenario.store as store
-from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import ScenarioFileError, count_scenarios, load_scenarios, read_scenario_meta, save_scenarios
 from letspi.scenario.types import SCHEMA_VERSION, ScenarioBatch
 
 DAMAGED = "truncated or corrupted"
-
-
-def noisy_batch(n: int, seed: int = 0) -> ScenarioBatch:
-    """``n`` scenarios with noisy trajectories (so the file does not compress to nothing)."""
-    base = straight_road_scenario(neighbours=[VehicleSpec(20.0, 25.0), VehicleSpec(-15.0, 30.0, lane_offset=1)])
-    rng = np.random.default_rng(seed)
-    out = {}
-    for f in fields(ScenarioBatch):
-        arr = np.repeat(getattr(base, f.name), n, axis=0)
-        if f.name in ("ego_xy_m", "nbr_xy_m", "ego_vxy_mps"):
-            arr = (arr + rng.normal(0.0, 1.0, arr.shape)).astype(arr.dtype)
-        out[f.name] = arr
-    out["scenario_id"] = np.array([f"s{i}" for i in range(n)], dtype=object)
-    return dataclasses.replace(base, **out)
 
 
 def same(a: ScenarioBatch, b: ScenarioBatch) -> bool:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from letspi.finetune.labels import FORMAT, LABELS_FILE, MANIFEST_FILE, load_labels
 from letspi.llm.compact import compact_reply_text, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
 from letspi.llm.schema import NUMERIC_FIELDS
@@ -31,9 +32,7 @@ from letspi.physics.goals import GoalPredictor
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.store import load_scenarios
 
-LABELS_FILE = "labels.parquet"
-MANIFEST_FILE = "manifest.json"
-LABELS_FORMAT = "letspi-llm-labels/1"
+LABELS_FORMAT = FORMAT
 KINDS = ("propose", "refine")
 
 
@@ -57,23 +56,12 @@ def labels_sha256(directory: Path) -> str:
 
 
 def read_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """(labels table, manifest) of a labels directory; ``ValueError`` naming the file for a bad one."""
-    directory = Path(directory)
-    manifest_path, labels_path = directory / MANIFEST_FILE, directory / LABELS_FILE
-    if not manifest_path.is_file() or not labels_path.is_file():
-        raise FileNotFoundError(f"{directory}: not a labels directory (needs {MANIFEST_FILE} and {LABELS_FILE}; "
-                                "make one with `letspi train llm-data`)")
-    manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
-    if manifest.get("format") != LABELS_FORMAT:
-        raise ValueError(f"{manifest_path}: format {manifest.get('format')!r}, expected {LABELS_FORMAT!r}")
-    df = pd.read_parquet(labels_path)
-    missing = [c for c in ("scenario_index", "scenario_digest", "kind", *NUMERIC_FIELDS, "report_json",
-                           "label_safe") if c not in df.columns]
-    if missing:
-        raise ValueError(f"{labels_path}: missing column(s) {', '.join(missing)}")
+    """(labels table, manifest) of a labels directory (``labels.load_labels``, which names the file of a
+    bad one), with only the example kinds this module renders."""
+    df, manifest = load_labels(directory)
     bad = sorted(set(df["kind"]) - set(KINDS))
     if bad:
-        raise ValueError(f"{labels_path}: unknown kind(s) {bad}; expected {KINDS}")
+        raise ValueError(f"{Path(directory) / LABELS_FILE}: unknown kind(s) {bad}; expected {KINDS}")
     return df, manifest
 
 
