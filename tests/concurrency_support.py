@@ -10,13 +10,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import CollectStats, collect
-from letspi.core.runner import RunnerConfig
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.evaluation.harness import load_planner_results
 from letspi.llm.client import RetryPolicy
-from letspi.registry.build import Builder
-from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import CollectStats, collect
+from letspi.method.runner import RunnerConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 

@@ -16,16 +16,16 @@ import pytest
 from concurrency_support import bank_rows, collect_into, options, scenarios, stored_results
 from typer.testing import CliRunner
 
+from letspi.assembly.build import Builder, build_planners
+from letspi.assembly.resolve import Resolver
 from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.cli.app import app
-from letspi.core.memory import MemoryBank
-from letspi.core.runner import RunnerConfig, ScenariosFailedError, run_ordered
 from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.llm.client import RetryPolicy
 from letspi.llm.guard import CircuitBreaker
 from letspi.llm.types import BackendUnavailableError, LLMTransportError, RequestFailedError, RunStoppedError
-from letspi.registry.build import Builder, build_planners
-from letspi.registry.resolve import Resolver
+from letspi.method.memory import MemoryBank
+from letspi.method.runner import RunnerConfig, ScenariosFailedError, run_ordered
 from letspi.scenario.store import save_scenarios
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")

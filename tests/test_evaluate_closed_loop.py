@@ -1,6 +1,6 @@
 """``letspi evaluate --mode closed-loop-*``: the harness's layout, keys and resume with SUMO's simulation.
 
-The engine itself is tested in test_closedloop_*.py; these tests go through the CLI and the harness.
+The engine itself is tested in test_simulation_*.py; these tests go through the CLI and the harness.
 """
 
 from __future__ import annotations
@@ -17,9 +17,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_closedloop_support import BrakePlanner, generated_batch
+from test_simulation_support import BrakePlanner, generated_batch
 from typer.testing import CliRunner
 
+from letspi.assembly.build import BuiltPlanner
+from letspi.assembly.configs import CvConfig
 from letspi.cli.app import app
 from letspi.evaluation.closed_loop import (
     ClosedLoopSettings,
@@ -29,8 +31,6 @@ from letspi.evaluation.closed_loop import (
     evaluate_closed_loop,
 )
 from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results
-from letspi.registry.build import BuiltPlanner
-from letspi.registry.configs import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches

@@ -16,13 +16,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from letspi.assembly.build import BuiltPlanner, build_planners
+from letspi.assembly.configs import CvConfig
+from letspi.assembly.resolve import PlannerOptions
 from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results, load_plans, timing_summary
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch
 from letspi.planners.cv import ConstantVelocityPlanner
-from letspi.registry.build import BuiltPlanner, build_planners
-from letspi.registry.configs import CvConfig
-from letspi.registry.resolve import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
@@ -159,8 +159,8 @@ _KILL_SCRIPT = textwrap.dedent("""
     from pathlib import Path
     from letspi.evaluation.harness import evaluate
     from letspi.planners.sf import SocialForcePlanner
-    from letspi.registry.build import build_planners
-    from letspi.registry.resolve import PlannerOptions
+    from letspi.assembly.build import build_planners
+    from letspi.assembly.resolve import PlannerOptions
     from letspi.scenario.store import load_scenarios
 
     class Slow:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.finetune.export import (
     AdapterExportError,
     adapter_tensors,
@@ -26,7 +27,6 @@ from letspi.llm.models import ADAPTER_ENV, locate_model
 from letspi.llm.parse import parse_reply
 from letspi.llm.schema import DEFAULT_REPLY, NUMERIC_FIELDS, WIRE_KEYS
 from letspi.llm.types import ModelNotFoundError
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
 LABEL = {"tau_s": 1.234, "k_np": 31.26, "k_nf": 9.04, "k_nl": 0.5, "k_boundary": 1.0, "k_cline": 0.33,

@@ -11,7 +11,6 @@ import pytest
 from typer.testing import CliRunner
 
 from letspi.cli.app import app
-from letspi.core.reflection import simulate_proposal
 from letspi.finetune.labels import (
     LABEL_COLUMNS,
     PROPOSAL_COLUMNS,
@@ -23,6 +22,7 @@ from letspi.finetune.labels import (
     params_of,
 )
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
+from letspi.method.reflection import simulate_proposal
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams

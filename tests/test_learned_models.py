@@ -9,10 +9,13 @@ import numpy as np
 import pytest
 from test_learned_scenes import random_batch
 
+from letspi.assembly.build import Builder, BuiltPlanner
+from letspi.assembly.configs import GnpConfig, GoalsConfig, WeightsConfig
+from letspi.assembly.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.evaluation.harness import evaluate
-from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel
+from letspi.learned.goal_metrics import goal_metrics, goal_truth
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
@@ -20,9 +23,6 @@ from letspi.physics.goals import GoalPrediction, KinematicGoalPredictor
 from letspi.physics.lanes import outer_lane_centres_m
 from letspi.physics.params import SocialForceParams
 from letspi.planners.gnp import GnpPlanner
-from letspi.registry.build import Builder, BuiltPlanner
-from letspi.registry.configs import GnpConfig, GoalsConfig, WeightsConfig
-from letspi.registry.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
@@ -118,7 +118,7 @@ def test_goals_are_finite_sorted_and_on_the_road(tmp_path: Path) -> None:
 
 def test_goal_source_falls_back_without_shipped_weights_and_says_so(monkeypatch: pytest.MonkeyPatch,
                                                                      tmp_path: Path) -> None:
-    from letspi.registry import resolve
+    from letspi.assembly import resolve
 
     monkeypatch.setattr(resolve, "shipped_weights_dir", lambda model: tmp_path / "nothing")
     fallback = Resolver(PlannerOptions(), env={}).goals

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from letspi.assembly.build import build_planners
+from letspi.assembly.resolve import PlannerOptions
 from letspi.bench.llm import bench_scenarios
 from letspi.bench.llm_concurrency import prefix_reuse, real_server_available, start_llama_server
 from letspi.evaluation.harness import evaluate, load_planner_results
@@ -20,8 +22,6 @@ from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.prompts import render_fast_prompt
 from letspi.llm.schema import reply_json_schema
-from letspi.registry.build import build_planners
-from letspi.registry.resolve import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from letspi.bench.metrics import _reference_core, bench_metrics, synthetic_batch
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.distance import distances
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d
 

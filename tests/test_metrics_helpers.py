@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
-from letspi.metrics._common import MetricInputs
+from letspi.metrics.inputs import MetricInputs
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch
 

@@ -7,9 +7,9 @@ import pytest
 from test_metrics_helpers import constant_speed_plan, inputs, make
 
 from letspi.bench.metrics import _reference_pet, synthetic_batch
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.distance import distances
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.pet import pet_grid
 from letspi.scenario.build import VehicleSpec
 

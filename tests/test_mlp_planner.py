@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.learned.param_mlp import OUTPUT_FIELDS, OUTPUT_RANGES, ParamMlp
 from letspi.learned.weights import WeightsError, save_weights
-from letspi.registry.build import Builder
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import concat_batches

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from letspi.metrics.evaluate import compute_metrics
+from letspi.assembly.build import build_planners
+from letspi.assembly.resolve import PlannerOptions
+from letspi.metrics.compute import compute_metrics
 from letspi.physics.params import SocialForceParams
 from letspi.planners.fit_sf import fit_sf_params
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.planners.sf_params import load_sf_params, save_sf_params
-from letspi.registry.build import build_planners
-from letspi.registry.resolve import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.types import concat_batches

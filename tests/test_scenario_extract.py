@@ -199,7 +199,7 @@ def test_neighbours_are_chosen_from_what_is_visible_at_t0():
 
 
 def test_a_plan_into_a_context_vehicle_is_a_collision():
-    from letspi.metrics.evaluate import compute_metrics
+    from letspi.metrics.compute import compute_metrics
     from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
     # nobody visible at t = 0; a car appears 2 s later standing in the ego's lane 80 m ahead

@@ -8,19 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import FastPhase, MemoryPhase, Retriever, collect
-from letspi.core.reflection import safety_report
-from letspi.core.thresholds import ReflectionThresholds
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.llm.backends.scripted import ScriptedBackend
 from letspi.llm.client import ParamAdvisor
-from letspi.metrics.evaluate import compute_metrics
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import FastPhase, MemoryPhase, Retriever, collect
+from letspi.method.reflection import safety_report
+from letspi.method.thresholds import ReflectionThresholds
+from letspi.metrics.compute import compute_metrics
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.planners.llm import GRID_SOURCE, SF_SOURCE, LetsPiFastPlanner, LetsPiMemoryPlanner
-from letspi.registry.build import Builder
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.closedloop import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
-from letspi.closedloop.run import effective_config
-from letspi.closedloop.worker import ChunkWorker, make_tasks
 from letspi.highd.io import read_recordings
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
+from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
+from letspi.simulation.run import effective_config
+from letspi.simulation.worker import ChunkWorker, make_tasks
 from letspi.sumo.generate import generate_recordings
 
 

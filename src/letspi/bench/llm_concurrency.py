@@ -40,18 +40,18 @@ import httpx
 import numpy as np
 
 import letspi
+from letspi.assembly.build import Builder, build_planners
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.bench.llm_server import latency_for, request_keys
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import collect
-from letspi.core.runner import RunnerConfig, RunStats, run_ordered
 from letspi.evaluation.harness import evaluate
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.models import locate_model
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import PlannerReply
-from letspi.registry.build import Builder, build_planners
-from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import collect
+from letspi.method.runner import RunnerConfig, RunStats, run_ordered
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 

@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from letspi.constants import DT_S, MAX_NEIGHBOURS, N_FUTURE, N_TOTAL, T0_INDEX
-from letspi.metrics._common import MetricInputs
+from letspi.metrics.compute import compute_metrics
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.distance import distances
-from letspi.metrics.evaluate import compute_metrics
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.pet import pet_grid
 from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d

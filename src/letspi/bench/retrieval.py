@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from letspi.core.matching import top_k
-from letspi.core.memory import Experience, MemoryBank
-from letspi.core.phases import FastPhase, Retriever, collect
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.method.matching import top_k
+from letspi.method.memory import Experience, MemoryBank
+from letspi.method.phases import FastPhase, Retriever, collect
 from letspi.physics.params import SocialForceParams
-from letspi.registry.build import Builder
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 

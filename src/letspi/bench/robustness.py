@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import collect
+from letspi.assembly.build import Builder, BuiltPlanner, build_planners
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import collect
 from letspi.metrics.aggregate import aggregate_metrics
-from letspi.metrics.evaluate import compute_metrics
-from letspi.registry.build import Builder, BuiltPlanner, build_planners
-from letspi.registry.resolve import PlannerOptions, Resolver
+from letspi.metrics.compute import compute_metrics
 from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from letspi.scenario.types import ScenarioBatch
 

@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
+from letspi.assembly.resolve import DEFAULT_LLM
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
@@ -22,7 +23,6 @@ from letspi.bench.physics import bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
-from letspi.registry.resolve import DEFAULT_LLM
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
                   no_args_is_help=True, rich_markup_mode=None)

@@ -33,9 +33,9 @@ from rich.progress import (
 )
 from rich.text import Text
 
-from letspi.core.runner import RunStats, RunStatus
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
+from letspi.method.runner import RunStats, RunStatus
 
 console = Console(stderr=True)
 DEBUG_ENV = "LETSPI_DEBUG"

@@ -8,15 +8,15 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from letspi.assembly.build import Builder, BuiltPlanner, build_planners
+from letspi.assembly.resolve import DEFAULT_LLM, PlannerOptions, Resolver
 from letspi.cli.common import ShieldOpt, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import collect
 from letspi.evaluation.harness import evaluate
 from letspi.highd.io import list_recording_ids, read_recordings
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import collect
 from letspi.metrics.aggregate import render_markdown_table
-from letspi.registry.build import Builder, BuiltPlanner, build_planners
-from letspi.registry.resolve import DEFAULT_LLM, PlannerOptions, Resolver
 from letspi.scenario.extract import count_windows, extract_scenarios
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle

@@ -9,6 +9,8 @@ import numpy as np
 import typer
 from rich.progress import Progress
 
+from letspi.assembly.build import build_planners, parse_planner_arg
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
@@ -20,12 +22,9 @@ from letspi.cli.common import (
     user_errors,
 )
 from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop, parse_replan_options
-from letspi.evaluation.harness import EVALUATION_MODES, ProgressFactory
-from letspi.evaluation.harness import Progress as Progress_
+from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.metrics.aggregate import render_markdown_table
-from letspi.registry.build import build_planners, parse_planner_arg
-from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 
@@ -86,7 +85,7 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
 
 
 def progress_factory(bar: Progress) -> ProgressFactory:
-    def factory(name: str, total: int) -> Progress_:
+    def factory(name: str, total: int) -> ProgressCallback:
         return run_progress(bar, bar.add_task(name, total=total))
 
     return factory

@@ -14,6 +14,8 @@ import numpy as np
 import typer
 from rich.pretty import pprint
 
+from letspi.assembly.build import Builder, build_planners
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions, Resolver
 from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
@@ -24,19 +26,17 @@ from letspi.cli.common import (
     user_errors,
 )
 from letspi.cli.evaluate import load_limited, progress_factory
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import Retriever, memory_example, messages_text
-from letspi.core.phases import collect as run_collect
-from letspi.core.runner import RunnerConfig, ScenariosFailedError
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
 from letspi.llm.spec import default_concurrency
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import Retriever, memory_example, messages_text
+from letspi.method.phases import collect as run_collect
+from letspi.method.runner import RunnerConfig, ScenariosFailedError
 from letspi.metrics.aggregate import render_markdown_table
-from letspi.metrics.evaluate import compute_metrics
+from letspi.metrics.compute import compute_metrics
 from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
-from letspi.registry.build import Builder, build_planners
-from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions, Resolver
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.store import load_scenarios
 

@@ -10,14 +10,14 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import save_weights
 from letspi.llm.models import locate_model
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
-from letspi.registry.build import Builder
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.store import load_scenarios
 
 app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",

@@ -7,13 +7,13 @@ from typing import Annotated
 
 import typer
 
+from letspi.assembly.build import build_planners
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.cli.common import console, user_errors
-from letspi.closedloop.config import validate_replan_s
 from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
-from letspi.registry.build import build_planners
-from letspi.registry.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.scenario.store import load_scenarios
+from letspi.simulation.config import validate_replan_s
 from letspi.viz.compare import write_comparison
 from letspi.viz.figure import plot_scenario
 from letspi.viz.llm_panel import load_iterations, panel_record

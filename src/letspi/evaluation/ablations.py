@@ -4,7 +4,7 @@
 evaluation; the memory-size and LLM-combination presets also write
 ``DIR/ablations/memory_size.json`` and ``DIR/ablations/llm_combinations.json`` (shapes in
 ``letspi.viz.report``), which ``letspi report DIR`` plots. Every row is built from its own
-configuration (``letspi.registry``), so its key says exactly what it ran.
+configuration (``letspi.assembly``), so its key says exactly what it ran.
 
 Kinds:
     reflection       letspi-memory with and without reflection (0 refinements)
@@ -22,15 +22,15 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import collect
-from letspi.core.runner import RunnerConfig, RunStats
+from letspi.assembly.build import Builder, BuiltPlanner
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.evaluation.harness import ProgressFactory, evaluate
 from letspi.fsutil import atomic_write_text
 from letspi.llm.spec import default_concurrency
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import collect
+from letspi.method.runner import RunnerConfig, RunStats
 from letspi.metrics.aggregate import AggValue
-from letspi.registry.build import Builder, BuiltPlanner
-from letspi.registry.resolve import PlannerOptions, Resolver
 from letspi.scenario.types import ScenarioBatch
 
 ABLATION_KINDS: tuple[str, ...] = ("reflection", "goal-adjustment", "few-shot", "memory-size", "llm-combinations")

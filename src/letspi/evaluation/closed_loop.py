@@ -7,8 +7,8 @@ the same metric code and tables, resumable per chunk and keyed by scenario diges
 * ``run.json``'s identity holds the mode and ``mode_settings`` (the simulation settings that change
   answers and, in ``closed-loop-reactive``, the driver model), so a directory never mixes modes;
 * each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period);
-* a part's rows are scored on the simulated trajectories (``letspi.closedloop.chunk_metrics``) and
-  add SUMO's collision flag, replans, simulation time (``letspi.closedloop.store.chunk_frame``);
+* a part's rows are scored on the simulated trajectories (``letspi.simulation.chunk_metrics``) and
+  add SUMO's collision flag, replans, simulation time (``letspi.simulation.store.chunk_frame``);
 * the plan columns hold what was scored: ``plan_xy_m`` / ``plan_vxy_mps`` the simulated ego,
   ``plan_goal_xy_m`` the goal of the plan made at t = 0; the ``cl_*`` columns hold what the
   closed-loop panel draws (``closed_loop_rows``): every replan's plan and goal, the replanning
@@ -33,7 +33,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.closedloop import (
+from letspi.assembly.build import BuiltPlanner
+from letspi.constants import N_FUTURE
+from letspi.evaluation.harness import (
+    PartWriter,
+    ProgressCallback,
+    ProgressFactory,
+    evaluate,
+    load_planner_results,
+)
+from letspi.method.runner import RunStats
+from letspi.metrics.aggregate import AggValue
+from letspi.metrics.compute import ScenarioMetrics
+from letspi.metrics.config import MetricsConfig
+from letspi.scenario.types import ScenarioBatch
+from letspi.simulation import (
     CLOSED_LOOP_MODES,
     ClosedLoopChunk,
     ClosedLoopConfig,
@@ -42,23 +56,9 @@ from letspi.closedloop import (
     chunk_metrics,
     run_closed_loop,
 )
-from letspi.closedloop.config import DEFAULT_REPLAN_S, validate_replan_s
-from letspi.closedloop.spec import PlannerSpecLike
-from letspi.closedloop.store import chunk_frame
-from letspi.constants import N_FUTURE
-from letspi.core.runner import RunStats
-from letspi.evaluation.harness import (
-    PartWriter,
-    Progress,
-    ProgressFactory,
-    evaluate,
-    load_planner_results,
-)
-from letspi.metrics.aggregate import AggValue
-from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import ScenarioMetrics
-from letspi.registry.build import BuiltPlanner
-from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import DEFAULT_REPLAN_S, validate_replan_s
+from letspi.simulation.spec import PlannerSpecLike
+from letspi.simulation.store import chunk_frame
 from letspi.sumo.binaries import sumo_home
 
 #: closed-loop per-scenario array columns (flat float32 in the parts; shapes per row)
@@ -261,7 +261,7 @@ class ClosedLoopRunner:
     settings: ClosedLoopSettings
 
     def __call__(self, built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, out_dir: Path,
-                 config: MetricsConfig, progress: Progress | None,
+                 config: MetricsConfig, progress: ProgressCallback | None,
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
         writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name), before_write)

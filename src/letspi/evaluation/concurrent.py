@@ -1,7 +1,7 @@
 """Per-scenario planners (the LLM planners) in the harness: N scenarios in flight, parts in scenario order.
 
 A planner that plans one scenario per call and says its ``plan`` is thread-safe (``concurrent_safe``)
-runs through ``letspi.core.runner``: each scenario is one task (plan on the history-only view unless
+runs through ``letspi.method.runner``: each scenario is one task (plan on the history-only view unless
 the planner reads the future, then its metrics against the full scenario), and the calling thread
 collects the results in scenario order and writes them as part files of up to ``PART_SCENARIOS``
 rows, or sooner when ``PART_FLUSH_S`` passed since the last part (so a killed run loses at most a few
@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.core.runner import RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
-from letspi.metrics.evaluate import ScenarioMetrics
+from letspi.method.runner import RunnerConfig, RunStats, RunStatus, run_ordered
+from letspi.metrics.compute import ScenarioMetrics
 from letspi.planners.base import PlanBatch, Planner
 from letspi.scenario.types import ScenarioBatch
 

@@ -12,7 +12,7 @@ Layout of an evaluation directory::
 
 Keys: a directory holds one dataset (the digest of its scenarios' contents, ``letspi.scenario.identity``)
 under one metrics configuration and mode; another is refused, naming what differs. Each planner name
-holds one planner configuration (``letspi.registry.configs``); another configuration under the same
+holds one planner configuration (``letspi.assembly.configs``); another configuration under the same
 name is refused with the differing fields (label variants ``LABEL=KIND``). Rows are keyed by
 scenario digest, so a resumed run skips exactly the scenarios already scored.
 
@@ -58,15 +58,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from letspi.assembly.build import BuiltPlanner
+from letspi.assembly.configs import diff, key_of
 from letspi.constants import N_FUTURE
-from letspi.core.runner import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
+from letspi.method.runner import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
+from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import ScenarioMetrics, compute_metrics
-from letspi.registry.build import BuiltPlanner
-from letspi.registry.configs import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
 
@@ -78,14 +78,14 @@ PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
 #: neighbours); read only with ``with_plans``
 TRAJECTORY_PREFIX: Final = "cl_"
 #: (advance by k scenarios, the concurrent runner's status or None)
-Progress = Callable[[int, RunStatus | None], None]
-ProgressFactory = Callable[[str, int], Progress]
+ProgressCallback = Callable[[int, RunStatus | None], None]
+ProgressFactory = Callable[[str, int], ProgressCallback]
 #: runs one planner on the scenarios not yet stored and returns all its rows (``run_planner``'s
 #: signature; closed loop: ``letspi.evaluation.closed_loop.ClosedLoopRunner``)
 #: A way to run one planner (open loop: ``run_planner``; closed loop: ``closed_loop.ClosedLoopRunner``):
 #: (planner, batch, digests, out_dir, metrics config, progress, before_write) -> (its rows, run stats).
 #: ``before_write()`` must run before each part is written (``PartWriter`` does).
-PlannerRunner = Callable[[BuiltPlanner, ScenarioBatch, np.ndarray, Path, MetricsConfig, Progress | None,
+PlannerRunner = Callable[[BuiltPlanner, ScenarioBatch, np.ndarray, Path, MetricsConfig, ProgressCallback | None,
                           Callable[[], None] | None], tuple[pd.DataFrame, RunStats | None]]
 
 
@@ -334,7 +334,7 @@ def run_planner(
     digests: np.ndarray,
     out_dir: Path,
     config: MetricsConfig,
-    progress: Progress | None = None,
+    progress: ProgressCallback | None = None,
     *,
     concurrency: int | None = None,
     before_write: Callable[[], None] | None = None,
@@ -359,7 +359,7 @@ def run_planner(
 
 
 def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, todo: np.ndarray,
-                    config: MetricsConfig, progress: Progress | None, concurrency: int | None,
+                    config: MetricsConfig, progress: ProgressCallback | None, concurrency: int | None,
                     store_part: Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], Path]) -> RunStats | None:
     planner = built.planner
     run: RunStats | None = None

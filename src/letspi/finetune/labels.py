@@ -9,7 +9,7 @@ For every training scenario the six social-force parameters and the two goal fac
    with a shrinking step.
 
 Each candidate is planned the way a planner plans it at inference time (goal adjustment of the
-predicted goal, social force rollout against *predicted* neighbours, ``letspi.core.reflection
+predicted goal, social force rollout against *predicted* neighbours, ``letspi.method.reflection
 .simulate_proposal``), and the resulting trajectory is checked against the RECORDED future
 (neighbours and context vehicles, ``letspi.safety.plan_check.check_recorded``): hindsight, as the
 evaluation scores plans. This is for training only; planners never see the future.
@@ -52,10 +52,10 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict
 
 from letspi.constants import DT_S
-from letspi.core.reflection import Proposal, safety_report, simulate_proposal
-from letspi.core.thresholds import ReflectionThresholds
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
+from letspi.method.reflection import Proposal, safety_report, simulate_proposal
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR, GoalPredictor
 from letspi.physics.lanes import lane_width_m
 from letspi.physics.neighbours import NeighbourPredictionMode, ground_truth_oracle, predict_neighbours

@@ -34,11 +34,11 @@ from typing import Any, Final
 
 import numpy as np
 
+from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text
 from letspi.llm.backends.llamacpp import _import_llama_cpp, without_extra_buffer_types
-from letspi.registry.resolve import file_sha256
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"

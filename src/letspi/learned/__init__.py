@@ -6,13 +6,13 @@ training lives in ``letspi.learned.train`` and needs torch (``pip install 'letsp
 Public API:
 
 * ``LearnedGoalPredictor.from_dir(path)``; ``GnpModel.from_dir(path)`` (which directory, shipped or
-  ``$LETSPI_GOAL_WEIGHTS`` / ``$LETSPI_GNP_WEIGHTS``, is decided by ``letspi.registry.resolve``).
+  ``$LETSPI_GOAL_WEIGHTS`` / ``$LETSPI_GNP_WEIGHTS``, is decided by ``letspi.assembly.resolve``).
 * ``goal_metrics`` (minFDE@K, miss rate), ``scene_features``, ``save_weights`` / ``load_weights``.
 """
 
-from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import SceneFeatures, scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
+from letspi.learned.goal_metrics import goal_metrics, goal_truth
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.weights import WeightsError, load_weights, save_weights, shipped_weights_dir
 

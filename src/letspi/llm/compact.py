@@ -126,7 +126,7 @@ def _num(value: Any) -> str:
 def compact_report_text(metrics: Mapping[str, Any], violations: Sequence[str]) -> str:
     """One line of safety-check facts: ``metrics`` has min_ttc_s, min_rear_ttc_s, min_path_gap_m
     (s, s, m; None or non-finite = no conflict, shown as ``-``) and collision; ``violations`` the failed
-    checks' names (``letspi.core.reflection.Violation.metric``)."""
+    checks' names (``letspi.method.reflection.Violation.metric``)."""
     contact = "yes" if bool(metrics.get("collision")) else "no"
     failed = ", ".join(dict.fromkeys(violations)) or "none"
     return (

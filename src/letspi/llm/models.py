@@ -99,7 +99,7 @@ EMBEDDED_MODELS: Final[dict[str, EmbeddedModel]] = {
 }
 
 #: Environment variable naming the fine-tuned model's adapter (file or directory); read by the
-#: registry's resolver (it enters the configuration key through the adapter's SHA-256).
+#: assembly's resolver (it enters the configuration key through the adapter's SHA-256).
 ADAPTER_ENV: Final = "LETSPI_LLM_ADAPTER"
 ADAPTER_FILE: Final = "adapter.gguf"
 

@@ -3,10 +3,9 @@
 Entry points: ``compute_metrics`` (per scenario, vectorised over scenarios, neighbours and time),
 ``aggregate_metrics`` (paper Table III keys and extras) and ``render_markdown_table``. Every
 per-scenario metric is declared once in ``letspi.metrics.registry``; one computation per module;
-geometry conventions in ``letspi.metrics._common``.
+geometry conventions in ``letspi.metrics.inputs``.
 """
 
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.aggregate import (
     DETAIL_COLUMNS,
     TABLE_COLUMNS,
@@ -15,8 +14,9 @@ from letspi.metrics.aggregate import (
     recorded_config,
     render_markdown_table,
 )
+from letspi.metrics.compute import ScenarioMetrics, compute_metrics, human_future
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import ScenarioMetrics, compute_metrics, human_future
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.registry import METRICS, Agg, Metric, reference_markdown
 from letspi.metrics.relative import classify_offset, relative_position
 

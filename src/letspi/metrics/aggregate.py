@@ -24,8 +24,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import ScenarioMetrics
 from letspi.metrics.registry import CONFIG_COLUMNS, METRICS, Agg, reference_markdown
 
 __doc__ = (__doc__ or "") + reference_markdown()

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.config import Collision2mMode
 from letspi.metrics.distance import box_gap
+from letspi.metrics.inputs import MetricInputs
 
 
 @dataclass(frozen=True)

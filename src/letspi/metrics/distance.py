@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs, min_over_nbr_time
+from letspi.metrics.inputs import MetricInputs, min_over_nbr_time
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs, min_over_time
+from letspi.metrics.inputs import MetricInputs, min_over_time
 from letspi.metrics.ttc import PrecedingVehicle, preceding_vehicle
 
 

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs
+from letspi.metrics.inputs import MetricInputs
 
 #: collision kinds, indexed by the codes in ``FaultResult.pair_kind``
 KINDS: tuple[str, ...] = ("none", "front", "side", "rear")

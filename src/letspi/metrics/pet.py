@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from letspi.constants import DT_S
-from letspi.metrics._common import MetricInputs
+from letspi.metrics.inputs import MetricInputs
 
 _CLIP = 1 << 30  # |cell index| bound; boxes beyond (5e8 m at 0.5 m cells) count as absent
 _NONE = 1 << 31  # sentinel: "covers no cell" (lo index +_NONE, hi index -_NONE)

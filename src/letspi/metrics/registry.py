@@ -5,7 +5,7 @@ where ``compute_metrics`` takes it from) and the ``Agg`` keys it contributes to 
 (``aggregate_metrics``). ``ScenarioMetrics`` columns, the per-scenario frame, the aggregate keys
 and their documentation (``reference_markdown``; the ``letspi.metrics.aggregate`` docstring) are
 all derived from ``METRICS``. Adding a metric = one ``Metric`` entry here plus, if it is a new
-kind of computation, its module and one line in ``letspi.metrics.evaluate._compute_chunk``.
+kind of computation, its module and one line in ``letspi.metrics.compute._compute_chunk``.
 
 ``source`` is ``"group.attribute"`` of the intermediate results of ``compute_metrics`` (groups:
 ttc, rear, ttc2d, pet, drac, dist, coll, fault, kin, route, ok; see ``evaluate``), or None for a

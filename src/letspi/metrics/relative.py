@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs
+from letspi.metrics.inputs import MetricInputs
 
 
 def classify_offset(

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.collision import boxes_overlap
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.kinematics import ade_fde
 from letspi.metrics.ttc import ttc_1d
 from letspi.physics.goals import KinematicGoalPredictor

@@ -4,7 +4,7 @@ the fast prompt with three static examples instead of retrieval).
 
 They plan one scenario per call (``batch_size = 1``) so the harness times each LLM call honestly,
 and ``plan`` is thread-safe (``concurrent_safe``): the harness keeps ``--concurrency`` scenarios in
-flight (``letspi.core.runner``), all asking the planner's one ``advisor``. ``last_*`` attributes
+flight (``letspi.method.runner``), all asking the planner's one ``advisor``. ``last_*`` attributes
 describe the most recent call to finish (for ``letspi plan``, one scenario).
 Per-scenario extras (``PlanBatch.info``) record the LLM side: tokens, fallbacks, clamps, reflection
 iterations, whether the final plan was validated, and the timing honesty columns:
@@ -34,11 +34,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from letspi.core.memory import MemoryBank
-from letspi.core.phases import FastPhase, MemoryPhase
-from letspi.core.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
-from letspi.core.thresholds import ReflectionThresholds
 from letspi.llm.client import ParamAdvisor
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import FastPhase, MemoryPhase
+from letspi.method.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import PARAM_NAMES, SocialForceParams

@@ -3,7 +3,7 @@
 Per scenario it predicts the eight values an LLM answers (six social-force parameters, two goal
 factors) from the matching features, then plans exactly as ``letspi-fast`` does with an LLM's
 answer: goal adjustment of the predicted goal and a social force rollout against predicted
-neighbours (``letspi.core.reflection.simulate_proposal``). Vectorised over the batch; no LLM.
+neighbours (``letspi.method.reflection.simulate_proposal``). Vectorised over the batch; no LLM.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from letspi.core.reflection import simulate_proposal
 from letspi.learned.param_mlp import OUTPUT_FIELDS, ParamMlp
+from letspi.method.reflection import simulate_proposal
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams

@@ -10,9 +10,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.distance import distances
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.kinematics import off_road
 from letspi.metrics.ttc import ttc_1d
 from letspi.physics.types import NeighbourPrediction

@@ -9,7 +9,7 @@ boxes. Drawn from arrays only (nothing is re-planned); the y axis is stretched (
 Artists carry gids: ``ego_path:<row>``, ``plan:<row>:<r>``, ``replan:<row>``, ``nbr_path:<row>:<j>``,
 ``collision:<row>``, ``road_edge:<k>`` / ``lane_line:<k>``.
 
-Example, from a ``letspi.closedloop.ClosedLoopChunk`` row ``i`` and an open-loop plan::
+Example, from a ``letspi.simulation.ClosedLoopChunk`` row ``i`` and an open-loop plan::
 
     closed = LoopOutcome("closed-loop-log", chunk.ego_xy_m[i], chunk.nbr_xy_m[i], chunk.nbr_valid[i],
                          chunk.plan_xy_m[i], chunk.replan_step, collision_step=..., collision_nbr=...)

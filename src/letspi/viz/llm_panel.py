@@ -238,7 +238,7 @@ def iterations_height_in(records: Sequence[IterationRecord], width_chars: int) -
 
 
 def panel_record(iteration: Any) -> IterationRecord:
-    """A panel record from a ``letspi.core.reflection.IterationRecord`` (duck-typed: no import cycle)."""
+    """A panel record from a ``letspi.method.reflection.IterationRecord`` (duck-typed: no import cycle)."""
     prop = iteration.proposal
     metrics = {k: float(v) for k, v in iteration.report.metrics.items()}
     return IterationRecord(iteration=int(iteration.iteration), safety_report=iteration.report.to_text(prop),

@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from letspi.closedloop import ClosedLoopChunk, chunk_metrics, run_closed_loop
 from letspi.constants import DT_S, N_FUTURE, T0_INDEX
 from letspi.evaluation.closed_loop import CL_PLAN_XY, closed_loop_row
+from letspi.metrics.compute import compute_metrics
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.evaluate import compute_metrics
 from letspi.planners.base import Planner
 from letspi.scenario.types import ScenarioBatch
+from letspi.simulation import ClosedLoopChunk, chunk_metrics, run_closed_loop
 from letspi.viz.closed_loop import LoopOutcome, plot_closed_loop_panel
 
 

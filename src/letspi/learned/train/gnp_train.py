@@ -32,8 +32,8 @@ from letspi.learned.train.data import split
 from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
 from letspi.learned.train.modules import FeatureTensors, GnpNet, export_state
 from letspi.learned.train.torch_sf import TorchScene, rollout_torch
-from letspi.metrics._common import MetricInputs
 from letspi.metrics.collision import boxes_overlap
+from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.kinematics import ade_fde
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours

@@ -24,8 +24,8 @@ import torch
 import torch.nn.functional as F
 
 from letspi.constants import HORIZON_S
-from letspi.learned.evaluate import goal_metrics, goal_truth
 from letspi.learned.features import scene_features
+from letspi.learned.goal_metrics import goal_metrics, goal_truth
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.layers import EncoderConfig
 from letspi.learned.train.data import split

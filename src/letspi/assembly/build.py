@@ -1,0 +1,230 @@
+"""Configurations -> objects: planners, LLM advisors, LetsPi phases (the one place that builds them).
+
+``Builder`` shares what is expensive between everything it builds: one ``ParamAdvisor`` (and so
+one loaded model) per LLM configuration, one goal predictor per goal configuration. Building an LLM
+planner loads its model at once and reports the time as ``BuiltPlanner.load_s``, so model loading
+never hides inside the first scenario's inference time.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from letspi.assembly.configs import (
+    CvConfig,
+    FastPlannerConfig,
+    GnpConfig,
+    GoalsConfig,
+    HumanConfig,
+    IdmConfig,
+    LlmConfig,
+    MemoryPhaseConfig,
+    MemoryPlannerConfig,
+    MlpConfig,
+    PlannerConfig,
+    SfConfig,
+    SfOptConfig,
+    SfParamsConfig,
+    reads_future,
+)
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.learned.gnp_model import GnpModel
+from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.param_mlp import ParamMlp
+from letspi.llm.cache import ResponseCache
+from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.schema import fallback_reply_from_params
+from letspi.llm.spec import make_backend
+from letspi.method.memory import MemoryBank
+from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
+from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
+from letspi.planners.base import Planner
+from letspi.planners.cv import ConstantVelocityPlanner
+from letspi.planners.gnp import GnpPlanner
+from letspi.planners.human import HumanPlanner
+from letspi.planners.idm import IdmPlanner
+from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.mlp import ParamMlpPlanner
+from letspi.planners.sf import SocialForcePlanner
+from letspi.planners.sf_opt import SocialForceSearchPlanner
+
+
+class ConfigurationChangedError(ValueError):
+    """What a configuration pins (a memory snapshot) no longer matches what is on disk."""
+
+
+@dataclass
+class BuiltPlanner:
+    """A planner with the configuration it was built from.
+
+    name: the label of its results (short; ``config`` holds everything). load_s: model loading at
+    build time [s] (0 for planners without a model), reported apart from inference time.
+    """
+
+    name: str
+    config: PlannerConfig
+    planner: Planner
+    load_s: float = 0.0
+
+    @property
+    def key(self) -> str:
+        return self.config.key()
+
+
+@dataclass
+class Builder:
+    """Builds planners and phases from configurations, sharing models (see the module docstring).
+
+    ``cache``: the LLM response cache (``"default"``: ``ResponseCache()`` when a configuration asks
+    for it; ``None``: never). Tests pass a ``ResponseCache`` in a temporary directory.
+    """
+
+    cache: ResponseCache | str | None = "default"
+    _advisors: dict[tuple[str, str], tuple[ParamAdvisor, float]] = field(default_factory=dict)
+    _goals: dict[str, GoalPredictor] = field(default_factory=dict)
+    _default_cache: ResponseCache | None = None
+
+    # shared parts ------------------------------------------------------------------------------
+    def goal_predictor(self, goals: GoalsConfig) -> GoalPredictor:
+        key = goals.key()
+        if key not in self._goals:
+            if goals.source == "learned":
+                assert goals.weights_dir is not None
+                self._goals[key] = LearnedGoalPredictor.from_dir(goals.weights_dir)
+            elif goals.source == "oracle":
+                self._goals[key] = OracleGoalPredictor()
+            else:
+                self._goals[key] = KinematicGoalPredictor()
+        return self._goals[key]
+
+    def _response_cache(self, llm: LlmConfig) -> ResponseCache | None:
+        if not llm.cache or self.cache is None:
+            return None
+        if isinstance(self.cache, ResponseCache):
+            return self.cache
+        if self._default_cache is None:
+            self._default_cache = ResponseCache()
+        return self._default_cache
+
+    def advisor_with_load_time(self, llm: LlmConfig, fallback: SfParamsConfig) -> tuple[ParamAdvisor, float]:
+        """The advisor for ``llm`` whose fallback reply is ``fallback``'s parameters, and how long its
+        model took to load (the first time; 0 afterwards)."""
+        key = (llm.key(), fallback.key())
+        if key in self._advisors:
+            return self._advisors[key][0], 0.0
+        t0 = time.perf_counter()
+        options = {"lora_path": llm.adapter_path} if llm.adapter_path is not None else {}
+        backend = make_backend(llm.spec, **options)
+        load = getattr(backend, "load", None)
+        if callable(load):
+            load()
+        advisor = ParamAdvisor(
+            backend, cache=self._response_cache(llm),
+            retry=RetryPolicy(max_attempts=llm.max_attempts, timeout_s=llm.timeout_s),
+            settings=llm.decoding(), use_schema=llm.use_schema,
+            fallback_reply=fallback_reply_from_params(fallback.params()),
+        )
+        load_s = time.perf_counter() - t0
+        self._advisors[key] = (advisor, load_s)
+        return advisor, load_s
+
+    def memory_phase(self, config: MemoryPhaseConfig) -> tuple[MemoryPhase, float]:
+        """The memory-collection phase (its experiences are stored under ``config.key()``) and model load time."""
+        advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
+        phase = MemoryPhase(advisor, self.goal_predictor(config.goals), float(config.sf_params.values["r_col_m"]),
+                            config_key=config.key(), thresholds=config.reflection, neighbour_mode=config.neighbours,
+                            goal_adjustment=config.goal_adjustment, prompt_style=config.llm.prompt_style)
+        return phase, load_s
+
+    # planners ----------------------------------------------------------------------------------
+    def planner(self, config: PlannerConfig, name: str | None = None) -> BuiltPlanner:
+        """Build the planner ``config`` describes, labelled ``name`` (default: its kind)."""
+        label = name or config.kind
+        load_s = 0.0
+        planner: Planner
+        if isinstance(config, HumanConfig):
+            planner = HumanPlanner(name=label)
+        elif isinstance(config, CvConfig):
+            planner = ConstantVelocityPlanner(name=label)
+        elif isinstance(config, IdmConfig):
+            planner = IdmPlanner(neighbour_mode=config.neighbours, name=label)
+        elif isinstance(config, SfConfig):
+            planner = SocialForcePlanner(params=config.sf_params.params(), goal_predictor=self.goal_predictor(
+                config.goals), neighbour_mode=config.neighbours, name=label)
+        elif isinstance(config, SfOptConfig):
+            planner = SocialForceSearchPlanner(params=config.sf_params.params(), space=config.search,
+                                               goal_predictor=self.goal_predictor(config.goals),
+                                               neighbour_mode=config.neighbours, name=label)
+        elif isinstance(config, GnpConfig):
+            planner = GnpPlanner(model=GnpModel.from_dir(config.gnp.weights_dir),
+                                 goal_predictor=self.goal_predictor(config.goals), neighbour_mode=config.neighbours,
+                                 name=label)
+        elif isinstance(config, MlpConfig):
+            planner = ParamMlpPlanner(model=ParamMlp.from_dir(Path(config.mlp.weights_dir)),
+                                      goal_predictor=self.goal_predictor(config.goals),
+                                      r_col_m=float(config.sf_params.values["r_col_m"]),
+                                      neighbour_mode=config.neighbours, name=label)
+        elif isinstance(config, MemoryPlannerConfig):
+            phase, load_s = self.memory_phase(config.phase)
+            planner = LetsPiMemoryPlanner(phase, name=label, shield_params=(
+                config.phase.sf_params.params() if config.shield else None))
+        elif isinstance(config, FastPlannerConfig):
+            planner, load_s = self._fast(config, label)
+        else:  # pragma: no cover - the union is exhaustive
+            raise TypeError(f"no builder for {type(config).__name__}")
+        planner.reads_future = reads_future(config)
+        return BuiltPlanner(label, config, planner, load_s)
+
+    def _fast(self, config: FastPlannerConfig, label: str) -> tuple[Planner, float]:
+        advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
+        ref = config.memory
+        bank = MemoryBank.open(ref.path, readonly=True)
+        ids, sha = bank.snapshot(ref.collection_key)
+        if sha != ref.snapshot_sha256:
+            bank.close()
+            raise ConfigurationChangedError(
+                f"{ref.path}: the memory bank changed since this configuration was made ({ref.n_memories} -> "
+                f"{len(ids)} retrievable memories); resolve the configuration again")
+        if ref.subset_fraction is not None:
+            ids = bank.sample_fraction(ref.subset_fraction, seed=ref.subset_seed,
+                                       config_key=ref.collection_key).ids
+        goals = self.goal_predictor(config.goals)
+        r_col = float(config.sf_params.values["r_col_m"])
+        if config.kind == "letspi-fast":
+            retriever = Retriever(bank, k=config.top_k, config_key=ref.collection_key, allowed_ids=ids,
+                                  allow_same_vehicle=ref.allow_same_vehicle)
+            phase = FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style)
+        else:  # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
+            static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
+            phase = FastPhase(advisor, goals, r_col, None, static_examples=static,
+                              prompt_style=config.llm.prompt_style)
+        shield = config.sf_params.params() if config.shield else None
+        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, shield_params=shield, name=label), load_s
+
+
+def parse_planner_arg(arg: str) -> tuple[str, str]:
+    """``KIND`` or ``LABEL=KIND`` (a second configuration of one kind in the same results) -> (label, kind)."""
+    label, sep, kind = arg.partition("=")
+    if not sep:
+        return arg.strip(), arg.strip()
+    if not label.strip() or not kind.strip():
+        raise ValueError(f"--planner takes KIND or LABEL=KIND, got {arg!r}")
+    return label.strip(), kind.strip()
+
+
+def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
+                   env: Mapping[str, str] | None = None) -> list[BuiltPlanner]:
+    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (models are loaded once)."""
+    resolver = Resolver(options, env)
+    builder = builder or Builder(cache="default" if options.llm_cache else None)
+    labels = [parse_planner_arg(a) for a in args]
+    seen = [label for label, _ in labels]
+    dup = sorted({x for x in seen if seen.count(x) > 1})
+    if dup:
+        raise ValueError(f"planner label(s) {', '.join(dup)} given twice; use LABEL=KIND for variants")
+    return [builder.planner(resolver.planner(kind), name=label) for label, kind in labels]

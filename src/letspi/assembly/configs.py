@@ -1,0 +1,324 @@
+"""Frozen configurations: everything that changes an answer, and the content hash that identifies it.
+
+A planner, a memory-collection run and an evaluation are built from one of these objects and are
+identified by its ``key()``: the first 16 hex digits of the SHA-256 of the configuration's
+canonical JSON (sorted keys, no cosmetic fields). Two configurations with equal keys give the same
+answers; anything that can change an answer is a field:
+
+* LLM: the model spec, a fingerprint of the weights when they are local files (GGUF, LoRA adapter),
+  the decoding settings, whether a JSON schema constrains the reply, the number of attempts, and a
+  fingerprint of the prompt text (template files and the code that renders the scene);
+* physics: the neighbour prediction mode, the social force parameter *values* (not the file they
+  came from), the goal source with a fingerprint of its weights;
+* LetsPi: reflection thresholds and iteration budget, goal adjustment on/off, top-k, and the
+  identity of the memories a fast planner may retrieve (a snapshot fingerprint of the bank's rows);
+* evaluation: the dataset digest and the metrics configuration (``letspi.evaluation.harness``).
+
+Cosmetic fields (a file path whose content is fingerprinted elsewhere, a timeout, the response
+cache switch) are recorded in ``run.json`` for the reader but left out of the key: they cannot change
+an answer. ``diff`` names the fields in which two configurations differ, for refusal messages.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from enum import Enum
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from letspi.llm.types import DecodingSettings
+from letspi.method.thresholds import ReflectionThresholds
+from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.physics.params import PARAM_NAMES, SocialForceParams
+from letspi.planners.sf_opt import SearchSpace
+
+KEY_CHARS = 16
+
+
+def _identity(value: Any) -> Any:
+    if isinstance(value, Config):
+        return value.identity()
+    if isinstance(value, BaseModel):
+        return value.model_dump(mode="json")
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, Mapping):
+        return {str(k): _identity(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_identity(v) for v in value]
+    return value
+
+
+def canonical_json(value: Any) -> str:
+    """Sorted-key, whitespace-free JSON: the text that is hashed."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+
+
+def key_of(identity: Any) -> str:
+    """The key of an identity dict (``Config.identity()``)."""
+    return hashlib.sha256(canonical_json(identity).encode("utf-8")).hexdigest()[:KEY_CHARS]
+
+
+class Config(BaseModel):
+    """Base of every configuration: frozen, no unknown fields, a content key."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    #: fields that locate or label but cannot change an answer (recorded, not hashed)
+    cosmetic: ClassVar[frozenset[str]] = frozenset()
+
+    def identity(self) -> dict[str, Any]:
+        """What the key hashes: every non-cosmetic field, nested configurations by their identity."""
+        return {name: _identity(getattr(self, name)) for name in type(self).model_fields
+                if name not in self.cosmetic}
+
+    def key(self) -> str:
+        """16 hex digits identifying this configuration's answers."""
+        return key_of(self.identity())
+
+    def record(self) -> dict[str, Any]:
+        """Everything, cosmetic fields included (what ``run.json`` stores)."""
+        return self.model_dump(mode="json")
+
+
+def diff(old: Mapping[str, Any], new: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """Dotted field paths whose values differ between two identity dicts, with both values."""
+    out: list[str] = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k, "<absent>"), new.get(k, "<absent>")
+        path = f"{prefix}{k}"
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            out += diff(a, b, prefix=f"{path}.")
+        elif a != b:
+            out.append(f"{path}: {_short(a)} -> {_short(b)}")
+    return out
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value, sort_keys=True) if not isinstance(value, str) else value
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+# ------------------------------------------------------------------------------------------------
+# Building blocks
+# ------------------------------------------------------------------------------------------------
+
+
+class SfParamsConfig(Config):
+    """Social force parameter values (one set, ``PARAM_NAMES`` -> value) and, cosmetically, their file."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"source"})
+
+    values: dict[str, float]
+    source: str = "shipped"
+
+    @field_validator("values")
+    @classmethod
+    def _all_parameters(cls, values: dict[str, float]) -> dict[str, float]:
+        if set(values) != set(PARAM_NAMES):
+            raise ValueError(f"social force parameters must be exactly {PARAM_NAMES}, got {sorted(values)}")
+        return {name: float(values[name]) for name in PARAM_NAMES}
+
+    @classmethod
+    def of(cls, params: SocialForceParams, source: str) -> SfParamsConfig:
+        return cls(values=params.as_dict(), source=source)
+
+    def params(self) -> SocialForceParams:
+        return SocialForceParams(**self.values)
+
+
+GoalSource = Literal["learned", "kinematic", "oracle"]
+
+
+class GoalsConfig(Config):
+    """Where goals come from. ``learned`` carries the fingerprint of the weights it uses; when no
+    weights are found it falls back to ``kinematic`` and says so (``fallback_reason``)."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"weights_dir", "fallback_reason"})
+
+    source: GoalSource = "learned"
+    weights_sha256: str | None = None
+    weights_dir: str | None = None
+    fallback_reason: str | None = None
+
+    @property
+    def reads_future(self) -> bool:
+        return self.source == "oracle"
+
+
+class WeightsConfig(Config):
+    """A trained model directory, identified by the fingerprint of its files."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"weights_dir"})
+
+    weights_sha256: str
+    weights_dir: str
+
+
+class LlmConfig(Config):
+    """One language model as used by a phase: model, weights, decoding, prompt text, retries.
+
+    ``adapter_sha256`` / ``adapter_path``: the LoRA adapter llama.cpp applies (the fine-tuned
+    ``smollm2-135m-letspi``); ``prompt_style``: ``paper`` (physics + fast prompts with few-shot
+    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on).
+    """
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
+
+    spec: str
+    model_sha256: str | None = None
+    model_path: str | None = None
+    adapter_sha256: str | None = None
+    adapter_path: str | None = None
+    prompt_style: Literal["paper", "compact"] = "paper"
+    temperature: float = 0.0
+    seed: int = 0
+    max_tokens: int = 320
+    use_schema: bool = True
+    max_attempts: int = Field(default=3, ge=1)
+    prompt_sha256: str
+    timeout_s: float = 120.0
+    cache: bool = True
+
+    def decoding(self) -> DecodingSettings:
+        return DecodingSettings(temperature=self.temperature, seed=self.seed, max_tokens=self.max_tokens)
+
+
+class MemoryRef(Config):
+    """The memories a fast planner may retrieve, pinned by a fingerprint of the bank's rows.
+
+    collection_key: only memories collected under this configuration (None: any configuration).
+    snapshot_sha256: fingerprint of every retrievable row (id, scenario digest, configuration) when
+        the planner was built; a bank that gained or lost memories gives another key.
+    allow_same_vehicle: False excludes memories of the query's own ego vehicle with an overlapping
+        window (a leak of the query's future); True keeps them (labelled in results).
+    subset_fraction / subset_seed: the memory-size ablation's reproducible subset (None: all).
+    """
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"path", "n_memories"})
+
+    path: str
+    collection_key: str | None = None
+    snapshot_sha256: str
+    n_memories: int
+    allow_same_vehicle: bool = False
+    subset_fraction: float | None = None
+    subset_seed: int = 0
+
+
+# ------------------------------------------------------------------------------------------------
+# Planners and phases
+# ------------------------------------------------------------------------------------------------
+
+
+class MemoryPhaseConfig(Config):
+    """LetsPi's memory collection phase: its key identifies the experiences it stores.
+
+    ``reflection.max_iterations`` = 0 is the single-shot ``llm`` planner and the "w/o Ref" ablation;
+    ``goal_adjustment`` False the "w/o GA" ablation. ``sf_params`` supplies ``r_col_m`` (the LLM sets
+    the other six) and the fallback parameters of a failed call.
+    """
+
+    llm: LlmConfig
+    goals: GoalsConfig
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    sf_params: SfParamsConfig
+    reflection: ReflectionThresholds = Field(default_factory=ReflectionThresholds)
+    goal_adjustment: bool = True
+
+
+class HumanConfig(Config):
+    kind: Literal["human"] = "human"
+
+
+class CvConfig(Config):
+    kind: Literal["cv"] = "cv"
+
+
+class IdmConfig(Config):
+    kind: Literal["idm"] = "idm"
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+
+
+class _SocialForcePlannerFields(Config):
+    """What every fixed-parameter social force planner is built from."""
+
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goals: GoalsConfig
+    sf_params: SfParamsConfig
+
+
+class SfConfig(_SocialForcePlannerFields):
+    kind: Literal["sf"] = "sf"
+
+
+class SfOptConfig(_SocialForcePlannerFields):
+    kind: Literal["sf-opt"] = "sf-opt"
+    search: SearchSpace = Field(default_factory=SearchSpace)
+
+
+class GnpConfig(Config):
+    kind: Literal["gnp"] = "gnp"
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goals: GoalsConfig
+    gnp: WeightsConfig
+
+
+class MlpConfig(_SocialForcePlannerFields):
+    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
+
+    kind: Literal["mlp"] = "mlp"
+    mlp: WeightsConfig
+
+
+class MemoryPlannerConfig(Config):
+    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
+
+    ``shield``: the safety shield (``letspi.planners.llm``; beyond the paper) replaces a plan that fails
+    the reflection checks by the fitted ``sf`` plan when that is safer. Not part of the phase: the
+    stored experiences are the same with and without it.
+    """
+
+    kind: Literal["llm", "letspi-memory"] = "letspi-memory"
+    phase: MemoryPhaseConfig
+    shield: bool = True
+
+
+class FastPlannerConfig(Config):
+    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples)."""
+
+    kind: Literal["letspi-fast", "letspi-fs"] = "letspi-fast"
+    llm: LlmConfig
+    goals: GoalsConfig
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    sf_params: SfParamsConfig
+    memory: MemoryRef
+    top_k: int = Field(default=3, ge=0)
+    shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
+
+
+PlannerConfig = Annotated[
+    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MlpConfig | MemoryPlannerConfig
+    | FastPlannerConfig,
+    Field(discriminator="kind"),
+]
+PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "mlp", "llm", "letspi-memory",
+                                  "letspi-fast", "letspi-fs")
+
+
+def reads_future(config: Config) -> bool:
+    """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner):
+    ``human`` replays it; oracle goals or oracle neighbour prediction leak it."""
+    if isinstance(config, HumanConfig):
+        return True
+    goals = getattr(config, "goals", None)
+    if isinstance(config, MemoryPlannerConfig):
+        goals, mode = config.phase.goals, config.phase.neighbours
+    else:
+        mode = getattr(config, "neighbours", NeighbourPredictionMode.IDM)
+    return bool((goals is not None and goals.reads_future) or mode == NeighbourPredictionMode.GROUND_TRUTH_ORACLE)

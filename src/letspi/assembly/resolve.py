@@ -1,0 +1,269 @@
+"""Requests -> configurations: read every file and environment variable once, fingerprint them.
+
+``PlannerOptions`` is what a user asks for (CLI flags: a model spec, a goal source, a parameter
+file, ...). ``Resolver`` turns it into the frozen configurations of ``letspi.assembly.configs``, whose
+content keys identify results: the parameter *values* instead of a file name, the SHA-256 of the
+weights a goal source or an embedded model uses, the text of the prompts, a snapshot of the memory
+bank. Environment variables that change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``)
+are read here and nowhere else, so they always show up in a configuration.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from letspi.assembly.configs import (
+    PLANNER_KINDS,
+    CvConfig,
+    FastPlannerConfig,
+    GnpConfig,
+    GoalsConfig,
+    HumanConfig,
+    IdmConfig,
+    LlmConfig,
+    MemoryPhaseConfig,
+    MemoryPlannerConfig,
+    MemoryRef,
+    MlpConfig,
+    PlannerConfig,
+    SfConfig,
+    SfOptConfig,
+    SfParamsConfig,
+    WeightsConfig,
+)
+from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
+from letspi.llm.compact import PROMPT_STYLES
+from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
+from letspi.llm.spec import parse_spec
+from letspi.method.memory import MemoryBank
+from letspi.method.thresholds import ReflectionThresholds
+from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.planners.sf_params import load_sf_params
+
+GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
+GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
+MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
+DEFAULT_LLM = "llamacpp:smollm2-135m"
+DEFAULT_FAST_LLM = "llamacpp:smollm2-135m"
+GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
+#: The modules whose code writes prompt text; their source is part of the prompt fingerprint.
+PROMPT_CODE_MODULES: tuple[str, ...] = ("describe.py", "prompts.py", "schema.py", "compact.py")
+
+
+@dataclass(frozen=True)
+class PlannerOptions:
+    """What the user asks for (CLI flags map onto these); ``Resolver`` makes configurations of it."""
+
+    sf_params_file: Path | None = None
+    neighbour_mode: str = "idm"
+    goals: str = "learned"  # learned (shipped transformer or $LETSPI_GOAL_WEIGHTS), kinematic, oracle
+    llm: str = DEFAULT_LLM  # memory-collection / single-shot model spec
+    fast_llm: str = DEFAULT_FAST_LLM  # fast-inference model spec
+    memory: Path | None = None  # memory bank (SQLite) for letspi-fast / letspi-fs
+    memory_key: str | None = None  # only memories collected under this configuration key (None: all)
+    top_k: int = 3
+    max_iterations: int = 3  # reflection refinements of letspi-memory (0 = "w/o reflection")
+    goal_adjustment: bool = True  # False = "w/o goal adjustment" ablation
+    llm_cache: bool = True  # persistent response cache
+    llm_timeout_s: float = 120.0  # per-request timeout (cosmetic: not part of any key)
+    allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
+    memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
+    memory_seed: int = 0
+    shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
+    mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
+    prompt_style: str | None = None  # paper | compact; None: compact for a fine-tuned model, else paper
+
+
+def sha256_files(paths: list[Path]) -> str:
+    """SHA-256 over the names and bytes of ``paths`` (in the given order)."""
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(p.name.encode())
+        with open(p, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=16)
+def _file_sha256(path: str, size: int, mtime_ns: int) -> str:
+    return sha256_files([Path(path)])
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 of one file, computed once per process for an unchanged file (size, mtime)."""
+    st = Path(path).stat()
+    return _file_sha256(str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
+def weights_sha256(model_dir: Path) -> str:
+    """Fingerprint of a trained model directory (``weights.npz`` and ``manifest.json``)."""
+    return sha256_files([Path(model_dir) / WEIGHTS_FILE, Path(model_dir) / MANIFEST_FILE])
+
+
+def prompt_sha256() -> str:
+    """Fingerprint of the prompt text: every template file and the code that renders scenes into them."""
+    h = hashlib.sha256()
+    templates = sorted(resources.files("letspi").joinpath("prompts").iterdir(), key=lambda t: t.name)
+    for t in templates:
+        if t.name.endswith(".j2"):
+            h.update(t.name.encode())
+            h.update(t.read_bytes())
+    llm_pkg = resources.files("letspi").joinpath("llm")
+    for name in PROMPT_CODE_MODULES:
+        module = llm_pkg.joinpath(name)
+        if module.is_file():
+            h.update(name.encode())
+            h.update(module.read_bytes())
+    return h.hexdigest()
+
+
+class Resolver:
+    """Turns ``PlannerOptions`` into configurations (see the module docstring).
+
+    ``env`` defaults to ``os.environ``; tests pass a dict. Fingerprints are computed once per resolver.
+    """
+
+    def __init__(self, options: PlannerOptions | None = None, env: Mapping[str, str] | None = None) -> None:
+        self.options = options or PlannerOptions()
+        self.env = os.environ if env is None else env
+
+    # building blocks ---------------------------------------------------------------------------
+    @functools.cached_property
+    def sf_params(self) -> SfParamsConfig:
+        params, _ = load_sf_params(self.options.sf_params_file)
+        source = "shipped" if self.options.sf_params_file is None else str(self.options.sf_params_file)
+        return SfParamsConfig.of(params, source)
+
+    @functools.cached_property
+    def neighbours(self) -> NeighbourPredictionMode:
+        try:
+            return NeighbourPredictionMode(self.options.neighbour_mode)
+        except ValueError:
+            valid = ", ".join(m.value for m in NeighbourPredictionMode)
+            raise ValueError(
+                f"unknown neighbour prediction {self.options.neighbour_mode!r}; available: {valid}") from None
+
+    @functools.cached_property
+    def goals(self) -> GoalsConfig:
+        source = self.options.goals
+        if source not in GOAL_SOURCES:
+            raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
+        if source != "learned":
+            return GoalsConfig(source=source)  # type: ignore[arg-type]
+        requested = self.env.get(GOAL_WEIGHTS_ENV)
+        chosen = Path(requested) if requested else shipped_weights_dir("goal")
+        try:
+            load_weights(chosen, expected_model="goal")
+        except (WeightsError, OSError) as exc:
+            if requested:  # an explicit request that does not load is an error, never a silent swap
+                raise WeightsError(f"${GOAL_WEIGHTS_ENV}={requested}: {exc}") from exc
+            return GoalsConfig(source="kinematic", fallback_reason=f"no usable shipped goal weights ({exc})")
+        return GoalsConfig(source="learned", weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+
+    @functools.cached_property
+    def gnp_weights(self) -> WeightsConfig:
+        requested = self.env.get(GNP_WEIGHTS_ENV)
+        chosen = Path(requested) if requested else shipped_weights_dir("gnp")
+        load_weights(chosen, expected_model="gnp")  # WeightsError names the directory
+        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+
+    @functools.cached_property
+    def mlp_weights(self) -> WeightsConfig:
+        """The ``mlp`` regressor: ``--mlp-weights`` or ``$LETSPI_MLP_WEIGHTS`` (nothing is shipped)."""
+        requested = self.options.mlp_weights or self.env.get(MLP_WEIGHTS_ENV)
+        if not requested:
+            raise ValueError(f"the mlp planner needs trained weights: --mlp-weights DIR or ${MLP_WEIGHTS_ENV} "
+                             "(train them with `letspi train mlp`)")
+        chosen = Path(requested)
+        load_weights(chosen, expected_model="param-mlp")  # WeightsError names the directory
+        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+
+    def llm(self, spec: str) -> LlmConfig:
+        """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
+        parsed = parse_spec(spec)
+        model_sha = model_path = adapter_sha = adapter_path = None
+        if parsed.kind == "llamacpp":
+            path = locate_model(parsed.model)
+            model_sha, model_path = file_sha256(path), str(path)
+            adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
+            if adapter is not None:
+                adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
+        style = self.options.prompt_style
+        if style is None:
+            style = "compact" if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
+        if style not in PROMPT_STYLES:
+            raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
+        return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
+                         adapter_sha256=adapter_sha, adapter_path=adapter_path, prompt_style=style,  # type: ignore[arg-type]
+                         prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
+                         timeout_s=self.options.llm_timeout_s)
+
+    @functools.cached_property
+    def _prompt_sha(self) -> str:
+        return prompt_sha256()
+
+    def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
+                     goal_adjustment: bool | None = None) -> MemoryPhaseConfig:
+        """The collection configuration (defaults from the options)."""
+        iterations = self.options.max_iterations if max_iterations is None else max_iterations
+        return MemoryPhaseConfig(
+            llm=self.llm(spec or self.options.llm), goals=self.goals, neighbours=self.neighbours,
+            sf_params=self.sf_params, reflection=ReflectionThresholds(max_iterations=iterations),
+            goal_adjustment=self.options.goal_adjustment if goal_adjustment is None else goal_adjustment,
+        )
+
+    def memory_ref(self) -> MemoryRef:
+        """A snapshot of the memories ``--memory`` (restricted to ``--memory-key``) offers now."""
+        path = self.options.memory
+        if path is None:
+            raise ValueError("letspi-fast and letspi-fs need a memory bank: --memory FILE "
+                             "(build one with `letspi collect`)")
+        if not Path(path).exists():
+            raise FileNotFoundError(f"{path}: no memory bank (build one with `letspi collect`)")
+        with MemoryBank.open(path, readonly=True) as bank:
+            ids, sha = bank.snapshot(self.options.memory_key)
+        return MemoryRef(path=str(path), collection_key=self.options.memory_key, snapshot_sha256=sha,
+                         n_memories=len(ids), allow_same_vehicle=self.options.allow_same_vehicle,
+                         subset_fraction=self.options.memory_fraction, subset_seed=self.options.memory_seed)
+
+    # planners ------------------------------------------------------------------------------------
+    def planner(self, kind: str) -> PlannerConfig:
+        """The configuration of planner ``kind`` (``ValueError`` listing the kinds for an unknown one)."""
+        o = self.options
+        if kind == "human":
+            return HumanConfig()
+        if kind == "cv":
+            return CvConfig()
+        if kind == "idm":
+            return IdmConfig(neighbours=self.neighbours)
+        if kind == "sf":
+            return SfConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params)
+        if kind == "sf-opt":
+            return SfOptConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params)
+        if kind == "gnp":
+            if o.goals != "learned":
+                raise ValueError("gnp uses its learned goal predictor; --goals applies to the other planners")
+            if self.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+                raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
+                                 "not the recorded future")
+            return GnpConfig(neighbours=self.neighbours, goals=self.goals, gnp=self.gnp_weights)
+        if kind == "mlp":
+            if self.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
+                raise ValueError("mlp must roll out with predicted neighbours (idm or constant_velocity)")
+            return MlpConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params,
+                             mlp=self.mlp_weights)
+        if kind in ("llm", "letspi-memory"):
+            phase = self.memory_phase(max_iterations=0 if kind == "llm" else None)
+            return MemoryPlannerConfig(kind=kind, phase=phase, shield=o.shield)  # type: ignore[arg-type]
+        if kind in ("letspi-fast", "letspi-fs"):
+            return FastPlannerConfig(kind=kind, llm=self.llm(o.fast_llm), goals=self.goals,  # type: ignore[arg-type]
+                                     neighbours=self.neighbours, sf_params=self.sf_params,
+                                     memory=self.memory_ref(), top_k=o.top_k, shield=o.shield)
+        raise ValueError(f"unknown planner {kind!r}; available: {', '.join(PLANNER_KINDS)}")

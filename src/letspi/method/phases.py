@@ -1,0 +1,303 @@
+"""LetsPi's two phases on top of the LLM engine (paper §III-E, Figure 1).
+
+* Memory collection: for each scenario, the physics-informed prompt → LLM proposal → simulate →
+  reflection (safety report → refined proposal, up to N times) → store the experience in the
+  memory bank (validated or not; retrieval uses validated ones only). A result whose final proposal
+  is a fallback is stored flagged, never retrieved, and retried when the run is resumed.
+* Fast inference: scenario features → top-k similar validated memories → the short fast prompt
+  with them as few-shot examples → one LLM call → simulate.
+
+``LlmProposer`` adapts a ``ParamAdvisor`` to ``reflect``'s proposer interface. The LLM chooses
+the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
+
+``prompt_style="compact"`` (the fine-tuned model, ``letspi.llm.compact``) replaces both prompts by the
+compact one: no few-shot examples (retrieval still runs: the memories are recorded), numbers-only
+replies, and a refinement round is the compact refine prompt (scene, rejected answer, check facts).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from letspi.constants import N_TOTAL
+from letspi.llm.client import Advice, ParamAdvisor
+from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
+from letspi.llm.describe import describe_scenario
+from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
+from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
+from letspi.llm.types import Message
+from letspi.method.matching import top_k
+from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
+from letspi.method.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
+from letspi.method.runner import RunnerConfig, RunStats, RunStatus, run_ordered
+from letspi.method.thresholds import ReflectionThresholds
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.params import SocialForceParams
+from letspi.scenario.features import FEATURE_NAMES, scenario_features
+from letspi.scenario.identity import scenario_digests
+from letspi.scenario.types import ScenarioBatch
+
+
+def messages_text(messages: Sequence[Message]) -> str:
+    """A readable transcript of a prompt (stored with experiences and shown by ``letspi plan``)."""
+    return "\n\n".join(f"[{m['role']}]\n{m['content']}" for m in messages)
+
+
+def proposal_from_advice(advice: Advice, messages: Sequence[Message], r_col_m: float) -> Proposal:
+    reply = advice.reply
+    params = SocialForceParams(**reply.params(), r_col_m=r_col_m)
+    return Proposal(
+        params=params,
+        lon_factor=reply.lon_factor,
+        lane_factor=reply.lane_factor,
+        rationale=reply.rationale,
+        prompt=messages_text(messages),
+        reply=advice.response.text if advice.response is not None else None,
+        clamped_fields=tuple(advice.clamped),
+        fallback=advice.fallback,
+        meta=advice.summary(),
+    )
+
+
+def compact_report(report: SafetyReport) -> str:
+    """A safety report as the compact refine prompt states it (the facts the labels' reports give)."""
+    return compact_report_text(report.metrics, [v.metric for v in report.violations])
+
+
+def _reply_values(proposal: Proposal) -> dict[str, float]:
+    values = {k: float(v) for k, v in proposal.params.as_dict().items() if k in LLM_PARAM_RANGES}
+    return {**values, "lon_factor": float(proposal.lon_factor), "lane_factor": float(proposal.lane_factor)}
+
+
+@dataclass
+class LlmProposer:
+    """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report
+    (``prompt_style="compact"``: the compact prompt, then the compact refine prompt)."""
+
+    advisor: ParamAdvisor
+    r_col_m: float
+    memories: Sequence[MemoryExample] = ()
+    prompt_style: PromptStyle = "paper"
+
+    def __call__(self, ctx: ReflectionContext) -> Proposal:
+        desc = describe_scenario(ctx.scenario, ctx.base_goal_xy_m)
+        if self.prompt_style == "compact":
+            if ctx.report is None or ctx.previous is None:
+                messages = render_compact_prompt(desc)
+            else:
+                messages = render_compact_prompt(desc, rejected=_reply_values(ctx.previous),
+                                                 report=compact_report(ctx.report))
+            return proposal_from_advice(self.advisor.advise(messages, variant="fast"), messages, self.r_col_m)
+        if ctx.report is None or ctx.previous is None:
+            messages = render_physics_prompt(desc, memories=self.memories)
+        else:
+            messages = render_physics_prompt(
+                desc,
+                memories=self.memories,
+                safety_report=ctx.report.to_text(ctx.previous),
+                previous_reply=ctx.previous.reply or "",
+            )
+        return proposal_from_advice(self.advisor.advise(messages, variant="physics"), messages, self.r_col_m)
+
+
+@dataclass
+class MemoryPhase:
+    """Runs the memory-collection pipeline on one scenario at a time.
+
+    ``config_key`` identifies everything that changes its answers (the content key of the
+    configuration it was built from, ``letspi.assembly.configs.MemoryPhaseConfig.key()``); its
+    experiences are stored under it.
+    """
+
+    advisor: ParamAdvisor
+    goal_predictor: GoalPredictor
+    r_col_m: float
+    config_key: str
+    thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goal_adjustment: bool = True
+    prompt_style: PromptStyle = "paper"
+
+    def run(self, scenario: ScenarioBatch) -> ReflectionResult:
+        """Reflection loop on a batch of one."""
+        base_goal = self.goal_predictor.predict_goals(scenario).top[0]
+        pred = predict_neighbours(scenario, self.neighbour_mode)
+        proposer = LlmProposer(self.advisor, self.r_col_m, prompt_style=self.prompt_style)
+        return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
+                       neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
+
+    def experience(self, scenario: ScenarioBatch, result: ReflectionResult, scenario_digest: str) -> Experience:
+        return Experience.from_reflection(result, scenario, scenario_digest=scenario_digest,
+                                          config_key=self.config_key, model=self.advisor.backend.spec)
+
+
+@dataclass(frozen=True)
+class CollectStats:
+    """Counts of one collection run. ``fallback_results``: scenarios whose final answer was a
+    fallback (stored flagged, retried on resume); ``fallback_replies``: fallback proposals over all
+    iterations; ``cached_calls`` / ``calls``: LLM calls served by the response cache / made;
+    ``run``: throughput, latency and request counters of the scenarios this run executed."""
+
+    total: int
+    skipped: int
+    stored: int
+    validated: int
+    fallback_results: int
+    fallback_replies: int
+    refinements: int
+    calls: int
+    cached_calls: int
+    seconds: float
+    run: RunStats | None = None
+
+
+def collect(
+    phase: MemoryPhase,
+    batch: ScenarioBatch,
+    bank: MemoryBank,
+    progress: Callable[[RunStatus], None] | None = None,
+    *,
+    runner: RunnerConfig | None = None,
+) -> CollectStats:
+    """The memory collection phase over ``batch``; resumable: scenarios with a real (non-fallback)
+    result under this configuration are skipped.
+
+    ``runner.concurrency`` scenarios run at once (``letspi.method.runner``); their experiences are
+    committed one at a time in scenario order by this thread, so the bank's rows (ids included) do
+    not depend on the concurrency or on which scenario finished first, and a killed run resumed
+    gives the bank of an uninterrupted one. A scenario whose LLM requests failed in transport is not
+    stored (the run ends with ``ScenariosFailedError``; rerunning retries it); a server that cannot be
+    reached, or too many failures in a row, stops the run (``BackendUnavailableError``,
+    ``RunStoppedError``) with what finished stored."""
+    t0 = time.perf_counter()
+    key = phase.config_key
+    digests = scenario_digests(batch)
+    done = bank.done_digests(key)
+    todo = [i for i in range(len(batch)) if digests[i] not in done]
+    counts = {"stored": 0, "validated": 0, "fallback_results": 0, "fallback_replies": 0, "refinements": 0,
+              "calls": 0, "cached": 0}
+
+    def work(i: int) -> tuple[ScenarioBatch, ReflectionResult]:
+        one = batch.take([i])
+        return one, phase.run(one)
+
+    def write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
+        one, result = done_
+        exp = phase.experience(one, result, str(digests[i]))
+        counts["stored"] += int(bank.add(exp))
+        counts["validated"] += int(exp.validated)
+        counts["fallback_results"] += int(exp.fallback)
+        counts["fallback_replies"] += sum(int(it.proposal.fallback) for it in result.iterations)
+        counts["refinements"] += result.n_refinements
+        for it in result.iterations:
+            counts["calls"] += int(it.proposal.meta.get("attempts", 0))
+            counts["cached"] += int(it.proposal.meta.get("cached_attempts", 0))
+
+    run = run_ordered(todo, work, write, config=runner, advisor=phase.advisor,
+                      is_fallback=lambda d: bool(d[1].final.proposal.fallback), progress=progress)
+    return CollectStats(len(batch), len(batch) - len(todo), counts["stored"], counts["validated"],
+                        counts["fallback_results"], counts["fallback_replies"], counts["refinements"],
+                        counts["calls"], counts["cached"], time.perf_counter() - t0, run)
+
+
+def _summary_of_features(features: Sequence[float]) -> str:
+    f = dict(zip(FEATURE_NAMES, features, strict=True))
+    return (
+        f"{int(f['n_vehicles'])} vehicles near, ego {f['ego_speed_mps']:.1f} m/s, "
+        f"{'changing lane' if f['lane_change'] > 0.5 else 'keeping lane'}, nearest {f['min_dist_m']:.1f} m, "
+        f"mean distance {f['mean_dist_m']:.1f} m, neighbours {f['mean_nbr_speed_mps']:.1f} m/s"
+    )
+
+
+def _outcome(metrics: dict[str, object]) -> str:
+    def num(key: str) -> str:
+        v = metrics.get(key)
+        try:
+            x = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return "n/a"
+        return "none" if not np.isfinite(x) else f"{x:.1f}"
+
+    return f"min TTC {num('min_ttc_s')} s, min in-path gap {num('min_path_gap_m')} m"
+
+
+def memory_example(exp: Experience) -> MemoryExample:
+    """A stored experience as a few-shot example for the fast prompt."""
+    values = {k: v for k, v in exp.params.as_dict().items() if k in LLM_PARAM_RANGES}
+    reply = PlannerReply(**values, lon_factor=exp.lon_factor, lane_factor=exp.lane_factor, rationale=exp.rationale)
+    return MemoryExample(summary=_summary_of_features(exp.features), reply=reply, outcome=_outcome(exp.metrics_after))
+
+
+@dataclass
+class Retriever:
+    """Top-k validated memories by the (fixed) §III-E similarity.
+
+    config_key: only memories of this collection configuration (None: any).
+    allowed_ids: only these row ids (the snapshot a fast planner was built with, or the
+        memory-size ablation's subset); None: every retrievable row.
+    allow_same_vehicle: False (default) leaves out memories of the query's own ego vehicle and
+        every memory whose window overlaps the query's in the same recording: their history is
+        the query's future, or shares it. True keeps them (a leak; labelled in configurations).
+
+    Thread-safe: scenarios planned concurrently share one retriever; its bank is read by one thread
+    at a time (a lock; reads take milliseconds next to seconds of LLM time).
+    """
+
+    bank: MemoryBank
+    k: int = 3
+    config_key: str | None = None
+    allowed_ids: np.ndarray | None = None
+    allow_same_vehicle: bool = False
+    _lock: threading.Lock = field(default_factory=threading.Lock, init=False, repr=False, compare=False)
+
+    def candidates(self, scenario: ScenarioBatch) -> MemoryFeatures:
+        """The memories this query may retrieve (before ranking)."""
+        with self._lock:
+            mem = self.bank.features_matrix(validated_only=True, config_key=self.config_key)
+        if self.allowed_ids is not None:
+            mem = mem.take(np.isin(mem.ids, self.allowed_ids))
+        if not self.allow_same_vehicle and len(mem):
+            same_recording = mem.recording_key == scenario.recording_key[0]
+            same_vehicle = same_recording & (mem.ego_id == int(scenario.ego_id[0]))
+            overlapping = same_recording & (np.abs(mem.frame0 - int(scenario.frame0[0])) < N_TOTAL)
+            mem = mem.take(~(same_vehicle | overlapping))
+        return mem
+
+    def retrieve(self, scenario: ScenarioBatch) -> list[tuple[Experience, float]]:
+        mem = self.candidates(scenario)
+        if len(mem) == 0 or self.k == 0:
+            return []
+        idx, sims = top_k(scenario_features(scenario), mem.features, min(self.k, len(mem)))
+        with self._lock:
+            exps = self.bank.get([int(mem.ids[j]) for j in idx[0]])
+        return list(zip(exps, [float(s) for s in sims[0]], strict=True))
+
+
+@dataclass
+class FastPhase:
+    """Fast inference: retrieval + fast prompt + one call of the (smaller) fast model."""
+
+    advisor: ParamAdvisor
+    goal_predictor: GoalPredictor
+    r_col_m: float
+    retriever: Retriever | None
+    static_examples: Sequence[MemoryExample] = ()  # the "FS" ablation: fixed examples, no retrieval
+    variant: Variant = "fast"
+    prompt_style: PromptStyle = "paper"
+
+    def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
+        retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
+        desc = describe_scenario(scenario, base_goal_xy_m)
+        if self.prompt_style == "compact":  # the fine-tuned model: no few-shot examples in its prompt
+            messages = render_compact_prompt(desc)
+        else:
+            examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
+            messages = render_fast_prompt(desc, memories=examples)
+        proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
+        return proposal, [(e.scenario_id, s) for e, s in retrieved]

@@ -1,1 +1,0 @@
-"""letspi.registry: the one place that turns configurations into planners, LLM backends and LetsPi phases."""

@@ -1,0 +1,35 @@
+"""Closed-loop evaluation in SUMO: log-replay and reactive traffic, receding-horizon replanning.
+
+Public API:
+
+* ``run_closed_loop(planner_spec, batch, mode, replan_s=..., workers=..., ray_address=...)``:
+  an iterator of ``ClosedLoopChunk`` (simulated ego and neighbours, every plan, SUMO collisions);
+* ``chunk_metrics`` / ``scored_batch``: the open-loop metric code on the simulated trajectories;
+* ``run_closed_loop_to_dir`` / ``ClosedLoopStore``: resumable per-chunk output;
+* ``PlannerSpec`` / ``build_planner``: the picklable planner description workers build from;
+* ``ClosedLoopConfig``, ``ClosedLoopMode``, ``DriverModelConfig``.
+"""
+
+from letspi.simulation.config import CLOSED_LOOP_MODES, ClosedLoopConfig, ClosedLoopMode, DriverModelConfig
+from letspi.simulation.pool import ClosedLoopWorkerError
+from letspi.simulation.result import ClosedLoopChunk, chunk_metrics, scored_batch
+from letspi.simulation.run import run_closed_loop
+from letspi.simulation.spec import PlannerSpec, build_planner
+from letspi.simulation.store import ClosedLoopStore, ClosedLoopStoreError, run_closed_loop_to_dir
+
+__all__ = [
+    "CLOSED_LOOP_MODES",
+    "ClosedLoopChunk",
+    "ClosedLoopConfig",
+    "ClosedLoopMode",
+    "ClosedLoopStore",
+    "ClosedLoopStoreError",
+    "ClosedLoopWorkerError",
+    "DriverModelConfig",
+    "PlannerSpec",
+    "build_planner",
+    "chunk_metrics",
+    "run_closed_loop",
+    "run_closed_loop_to_dir",
+    "scored_batch",
+]

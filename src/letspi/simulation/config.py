@@ -1,0 +1,144 @@
+"""Settings of the closed-loop engine (typed, frozen; SI units in the names).
+
+Modes
+-----
+* ``closed-loop-log``: the neighbours replay their recorded trajectories (they cannot react);
+  the ego follows its planner and replans from the simulated history.
+* ``closed-loop-reactive``: up to t = 0 every vehicle replays the log; from then on the neighbours
+  are driven by SUMO's car-following (IDM) and sublane lane-change (SL2015) models, with a desired
+  speed and a time headway estimated from each one's history, and react to the ego.
+
+Open loop (the paper's protocol) is not a mode of this package: it is the existing harness.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Literal
+
+from letspi.constants import DT_S, N_FUTURE
+
+
+class ClosedLoopMode(StrEnum):
+    LOG = "closed-loop-log"
+    REACTIVE = "closed-loop-reactive"
+
+
+CLOSED_LOOP_MODES: tuple[str, ...] = tuple(m.value for m in ClosedLoopMode)
+DEFAULT_REPLAN_S = 1.0
+#: Plans further than this beyond a road edge are not followed (the ego keeps its velocity instead).
+OFF_ROAD_MARGIN_M = 15.0
+
+
+@dataclass(frozen=True)
+class DriverModelConfig:
+    """SUMO driver parameters of released neighbours in ``closed-loop-reactive``.
+
+    Fixed for everyone: IDM with ``accel_mps2`` / ``decel_mps2`` (comfortable), braking up to
+    ``emergency_decel_mps2``, standstill gap ``min_gap_m``, no driver imperfection.
+    Estimated per vehicle from its history (``letspi.simulation.drivers``): the desired speed (the
+    highest speed it drove, clipped to ``desired_speed_bounds_mps``) and the time headway (the
+    ``headway_quantile`` of its observed time gaps to an in-path leader, clipped to
+    ``headway_bounds_s``; ``default_headway_s`` when it never had one within ``max_leader_gap_s``).
+    """
+
+    accel_mps2: float = 1.5
+    decel_mps2: float = 3.0
+    emergency_decel_mps2: float = 9.0
+    min_gap_m: float = 2.0
+    default_headway_s: float = 1.5
+    headway_bounds_s: tuple[float, float] = (0.6, 2.5)
+    headway_quantile: float = 0.2
+    max_leader_gap_s: float = 4.0
+    desired_speed_bounds_mps: tuple[float, float] = (5.0, 50.0)
+
+    def __post_init__(self) -> None:
+        lo, hi = self.headway_bounds_s
+        if not 0 < lo <= self.default_headway_s <= hi:
+            raise ValueError(
+                f"need 0 < headway_bounds_s[0] <= default_headway_s <= headway_bounds_s[1], "
+                f"got {self.headway_bounds_s}, {self.default_headway_s}"
+            )
+        if lo < DT_S:
+            raise ValueError(f"headways below the step length ({DT_S} s) make SUMO brake unrealistically")
+        if not 0.0 <= self.headway_quantile <= 1.0:
+            raise ValueError(f"headway_quantile must be in [0, 1], got {self.headway_quantile}")
+        if min(self.accel_mps2, self.decel_mps2, self.emergency_decel_mps2) <= 0 or self.min_gap_m < 0:
+            raise ValueError("accelerations must be > 0 and min_gap_m >= 0")
+        if self.emergency_decel_mps2 < self.decel_mps2:
+            raise ValueError("emergency_decel_mps2 must be >= decel_mps2")
+
+
+@dataclass(frozen=True)
+class ClosedLoopConfig:
+    """How a closed-loop run simulates.
+
+    Attributes:
+        mode: ``ClosedLoopMode`` (or its string value).
+        replan_s: replanning period [s] (1.0 default; 5.0 = plan once, i.e. open-loop plan in a
+            closed-loop world). Rounded to whole 0.04 s frames. A planner's own ``replan_s``
+            (``PlannerSpec.replan_s``) overrides it.
+        chunk_size: scenarios simulated together in one SUMO network (one road per scenario,
+            stepped in lockstep, replanned in one batched planner call); also the unit of
+            work of the worker processes and of resumable output.
+        lateral_resolution_m: SUMO's sublane resolution [m]. The sublane model is needed so that
+            SUMO's collision check looks at lateral positions (the exact position, not the grid);
+            the resolution only shapes the lane-change model of reactive neighbours.
+        road_behind_m, road_ahead_m: the simulated road extends this far behind / ahead of the
+            ego's t = 0 position [m].
+        slot_spacing_m: lateral distance between the parallel roads of one network [m].
+        sumo_backend: ``libsumo`` (in-process, fast; one simulation per process) or ``traci``
+            (a SUMO subprocess over a socket; needed for the GUI).
+        sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
+        driver: parameters of reactive neighbours.
+    """
+
+    mode: ClosedLoopMode = ClosedLoopMode.LOG
+    replan_s: float = DEFAULT_REPLAN_S
+    chunk_size: int = 32
+    lateral_resolution_m: float = 1.0
+    road_behind_m: float = 1000.0
+    road_ahead_m: float = 1500.0
+    slot_spacing_m: float = 60.0
+    sumo_backend: Literal["libsumo", "traci"] = "libsumo"
+    sumo_gui: bool = False
+    driver: DriverModelConfig = field(default_factory=DriverModelConfig)
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "mode", ClosedLoopMode(self.mode))
+        except ValueError:
+            raise ValueError(
+                f"unknown closed-loop mode {self.mode!r}; available: {', '.join(CLOSED_LOOP_MODES)}"
+            ) from None
+        validate_replan_s(self.replan_s)
+        if self.chunk_size < 1:
+            raise ValueError(f"chunk_size must be >= 1, got {self.chunk_size}")
+        if self.lateral_resolution_m <= 0:
+            raise ValueError(
+                "lateral_resolution_m must be > 0 (the sublane model is required for SUMO's lateral collision check)"
+            )
+        if self.road_behind_m < 300 or self.road_ahead_m < 500:
+            raise ValueError("the road must reach at least 300 m behind and 500 m ahead of the ego")
+        if self.sumo_backend not in ("libsumo", "traci"):
+            raise ValueError(f"sumo_backend must be 'libsumo' or 'traci', got {self.sumo_backend!r}")
+
+    @property
+    def replan_frames(self) -> int:
+        """Replanning period in frames (>= 1)."""
+        return replan_frames(self.replan_s)
+
+
+def validate_replan_s(replan_s: float) -> float:
+    """``replan_s`` if it is a usable replanning period [s], else ``ValueError``."""
+    if not DT_S <= float(replan_s) <= N_FUTURE * DT_S:
+        raise ValueError(
+            f"replan_s must be between one frame ({DT_S} s) and the horizon ({N_FUTURE * DT_S:g} s), got {replan_s}"
+        )
+    return float(replan_s)
+
+
+def replan_frames(replan_s: float) -> int:
+    """A replanning period [s] in whole frames (at least 1)."""
+    return max(1, round(validate_replan_s(replan_s) / DT_S))

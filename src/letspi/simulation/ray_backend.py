@@ -1,0 +1,93 @@
+"""Closed-loop chunks on Ray: one actor per worker, each with its own planner and libsumo.
+
+An actor is a long-lived worker process, so the planner (and any model it loads) and the SUMO
+session are built once per actor, as in ``letspi.simulation.pool``. Each actor gets one chunk at a
+time; an actor that dies is restarted by Ray and its chunk retried (``max_restarts``), so nothing
+is lost or duplicated. Needs the optional extra ``ray`` (``pip install 'letspi[ray]'``).
+
+On a cluster every node needs letspi (and libsumo) installed in the same environment; chunks and
+results travel through Ray's object store (about 30 kB per scenario and direction).
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from collections.abc import Iterator
+from types import ModuleType
+from typing import Any
+
+from letspi.simulation.config import ClosedLoopConfig
+from letspi.simulation.pool import ClosedLoopWorkerError
+from letspi.simulation.result import ClosedLoopChunk
+from letspi.simulation.spec import PlannerSpecLike
+from letspi.simulation.worker import ChunkTask, ChunkWorker
+
+
+def import_ray() -> ModuleType:
+    try:
+        import ray
+    except ImportError as exc:
+        raise ClosedLoopWorkerError("running on Ray needs the optional extra: pip install 'letspi[ray]'") from exc
+    return ray
+
+
+class RayChunkWorker:
+    """The actor class (made remote at run time, so importing this module does not import Ray)."""
+
+    def __init__(self, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
+        self._worker = ChunkWorker(planner_spec, config)
+
+    def run(self, task: ChunkTask) -> ClosedLoopChunk:
+        return self._worker.run(task)
+
+    def pid(self) -> int:
+        return os.getpid()
+
+
+def ensure_ray(address: str, num_cpus: int) -> ModuleType:
+    """Ray, initialised: an existing instance is used as is; "local" starts one with ``num_cpus``."""
+    ray = import_ray()
+    if not ray.is_initialized():
+        if address == "local":
+            ray.init(num_cpus=num_cpus, include_dashboard=False)
+        else:
+            ray.init(address=address)
+    return ray
+
+
+def run_on_ray(
+    planner_spec: PlannerSpecLike,
+    tasks: list[ChunkTask],
+    config: ClosedLoopConfig,
+    n_actors: int,
+    address: str,
+    max_restarts: int = 2,
+) -> Iterator[ClosedLoopChunk]:
+    """Simulate ``tasks`` on ``n_actors`` Ray actors; yield chunks as they complete."""
+    ray = ensure_ray(address, n_actors)
+    actor_cls = ray.remote(num_cpus=1, max_restarts=max_restarts, max_task_retries=max_restarts)(RayChunkWorker)
+    actors = [actor_cls.remote(planner_spec, config) for _ in range(min(n_actors, len(tasks)))]
+    pending: deque[ChunkTask] = deque(tasks)
+    inflight: dict[Any, tuple[Any, ChunkTask]] = {}
+
+    def submit(actor: Any) -> None:
+        if pending:
+            task = pending.popleft()
+            inflight[actor.run.remote(task)] = (actor, task)
+
+    try:
+        for actor in actors:
+            submit(actor)
+        while inflight:
+            done, _ = ray.wait(list(inflight), num_returns=1)
+            actor, task = inflight.pop(done[0])
+            try:
+                result = ray.get(done[0])
+            except Exception as exc:  # RayTaskError (exception in the worker) or RayActorError (died)
+                raise ClosedLoopWorkerError(f"closed-loop chunk {task.task_id} failed on Ray: {exc}") from exc
+            yield result
+            submit(actor)
+    finally:
+        for actor in actors:
+            ray.kill(actor)

@@ -1,0 +1,84 @@
+"""The one seam between the closed-loop engine and planner construction.
+
+Workers (processes, Ray actors) build their planner themselves from a picklable description, so
+models and caches are loaded once per worker and nothing unpicklable crosses a process boundary.
+``build_planner`` is the only function that turns a description into a planner: it hands the
+planner's frozen configuration (``letspi.assembly.configs``, picklable) to the registry's ``Builder``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from letspi.assembly.build import Builder
+from letspi.assembly.configs import PlannerConfig, reads_future
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.planners.base import Planner
+from letspi.simulation.config import validate_replan_s
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """A planner by its configuration (picklable), its label and its own replanning period.
+
+    Attributes:
+        config: the planner's frozen configuration (``letspi.assembly.configs``); its key
+            identifies the planner in results.
+        name: the label of its results (default: the configuration's kind).
+        replan_s: this planner's replanning period [s]; None = the run's ``replan_s``. LLM
+            planners call their backend at every replan, so a longer period bounds their cost.
+    """
+
+    config: PlannerConfig
+    name: str = ""
+    replan_s: float | None = None
+
+    @classmethod
+    def of(cls, kind: str, options: PlannerOptions | None = None, *, name: str = "",
+           replan_s: float | None = None) -> PlannerSpec:
+        """Resolve ``kind`` with ``options`` (files and environment are read here, once)."""
+        return cls(Resolver(options or PlannerOptions()).planner(kind), name or kind, replan_s)
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            object.__setattr__(self, "name", self.config.kind)
+        if self.replan_s is not None:
+            validate_replan_s(self.replan_s)
+
+
+#: What ``run_closed_loop`` accepts as a planner description: a ``PlannerSpec``, or a picklable
+#: planner object (anything with ``name``, ``batch_size`` and ``plan``), used as is.
+PlannerSpecLike = PlannerSpec | Planner
+
+
+def build_planner(spec: PlannerSpecLike) -> Planner:
+    """The planner a description stands for (built in the process that will use it)."""
+    if isinstance(spec, PlannerSpec):
+        return Builder().planner(spec.config, name=spec.name).planner
+    if isinstance(spec, Planner):
+        return spec
+    raise TypeError(
+        f"planner_spec must be a PlannerSpec or a planner object (name, batch_size, plan), got {type(spec).__name__}"
+    )
+
+
+def spec_name(spec: PlannerSpecLike) -> str:
+    """The planner's name as results should show it (without building a PlannerSpec's planner)."""
+    return spec.name if isinstance(spec, PlannerSpec) else str(spec.name)
+
+
+def spec_replan_s(spec: PlannerSpecLike) -> float | None:
+    """The planner's own replanning period [s], or None."""
+    value = spec.replan_s if isinstance(spec, PlannerSpec) else getattr(spec, "replan_s", None)
+    return None if value is None else validate_replan_s(float(value))
+
+
+def reads_recorded_future(spec: PlannerSpecLike) -> bool:
+    """Whether the planner reads the recorded future (``human``, oracle goals or neighbours).
+
+    Such planners are given the log's future (shifted to each replanning instant) instead of
+    NaN; a planner object declares it with its ``reads_future`` attribute.
+    """
+    if isinstance(spec, PlannerSpec):
+        return reads_future(spec.config)
+    return bool(getattr(spec, "reads_future", False))

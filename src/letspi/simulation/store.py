@@ -1,0 +1,196 @@
+"""Resumable closed-loop output: one directory per (planner, mode, replanning period, scenarios).
+
+Layout::
+
+    DIR/run.json                 planner, mode, replan_s, scenario count and fingerprint (resume guard)
+    DIR/traj-NNNNN.npz           the chunk's trajectories (ego, neighbours, plans, SUMO contacts)
+    DIR/part-NNNNN.parquet       one row per scenario: the open-loop metric columns on the simulated
+                                 trajectories, SUMO's collision flag, timings, per-replan extras
+
+A chunk is written when it is complete, trajectories first and the Parquet part last (both via a
+temporary file and an atomic rename): a part file is the commit of its chunk. A run that is
+killed loses at most the chunks in flight; rerunning skips every scenario id already in a part.
+This is the shape the harness (``letspi.evaluation``) can adopt per planner directory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from letspi.metrics.compute import ScenarioMetrics
+from letspi.metrics.config import MetricsConfig
+from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode
+from letspi.simulation.result import ClosedLoopChunk, chunk_metrics
+from letspi.simulation.run import effective_config, run_closed_loop
+from letspi.simulation.spec import PlannerSpecLike, spec_name
+
+_PART = re.compile(r"^(part|traj)-(\d{5})\.(parquet|npz)$")
+_TRAJ_FIELDS = (
+    "indices", "scenario_id", "ego_xy_m", "ego_vxy_mps", "nbr_xy_m", "nbr_vxy_mps", "nbr_valid", "nbr_lane_id",
+    "replan_step", "plan_xy_m", "plan_goal_xy_m", "plan_nonfinite", "sumo_contact", "sumo_nbr_collisions",
+    "plan_s", "sim_s", "cpu_s",
+)  # fmt: skip
+
+
+class ClosedLoopStoreError(ValueError):
+    """The directory holds another run (other planner, mode, replanning period or scenarios)."""
+
+
+def scenario_fingerprint(scenario_ids: Sequence[str] | np.ndarray) -> str:
+    h = hashlib.sha256()
+    for sid in scenario_ids:
+        h.update(str(sid).encode())
+        h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+def chunk_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics) -> pd.DataFrame:
+    """One row per scenario of the chunk: metrics, SUMO collision columns, timings, plan extras."""
+    frame = metrics.to_frame()
+    frame.insert(0, "scenario_id", [str(s) for s in chunk.scenario_id])
+    frame["sumo_collision"] = chunk.sumo_collision
+    frame["sumo_collision_step"] = chunk.sumo_collision_step
+    frame["sumo_nbr_collisions"] = chunk.sumo_nbr_collisions
+    frame["plan_nonfinite"] = chunk.plan_nonfinite
+    frame["n_replans"] = len(chunk.replan_step)
+    frame["inference_s"] = chunk.plan_s
+    frame["sim_s"] = chunk.sim_s
+    frame["cpu_s"] = chunk.cpu_s
+    for key, arr in chunk.plan_info.items():
+        frame[f"info_{key}"] = arr[:, 0]  # the plan made at t = 0, as in open loop
+        frame[f"info_{key}_mean_over_replans"] = np.nanmean(arr, axis=1)
+    return frame
+
+
+class ClosedLoopStore:
+    """One run's directory (see module doc)."""
+
+    def __init__(self, directory: Path, record: dict[str, object]) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        run_file = self.directory / "run.json"
+        if run_file.exists():
+            old = json.loads(run_file.read_text())
+            if old != record:
+                raise ClosedLoopStoreError(
+                    f"{self.directory} holds another closed-loop run ({old}); this one is {record}: "
+                    "use another directory or delete it"
+                )
+        else:
+            tmp = run_file.with_name("run.json.tmp")
+            tmp.write_text(json.dumps(record, indent=2))
+            os.replace(tmp, run_file)
+        self.record = record
+
+    @classmethod
+    def for_run(
+        cls, directory: Path, planner: str, mode: str, replan_s: float, batch: ScenarioBatch
+    ) -> ClosedLoopStore:
+        record: dict[str, object] = {
+            "planner": planner,
+            "mode": mode,
+            "replan_s": round(float(replan_s), 6),
+            "n_scenarios": len(batch),
+            "fingerprint": scenario_fingerprint(batch.scenario_id),
+        }
+        return cls(directory, record)
+
+    def _indices(self) -> list[int]:
+        return sorted({int(m.group(2)) for p in self.directory.iterdir() if (m := _PART.match(p.name))})
+
+    def parts(self) -> list[Path]:
+        return sorted(self.directory.glob("part-*.parquet"))
+
+    def done_ids(self) -> set[str]:
+        done: set[str] = set()
+        for part in self.parts():
+            done.update(pd.read_parquet(part, columns=["scenario_id"])["scenario_id"].astype(str))
+        return done
+
+    def write(self, chunk: ClosedLoopChunk, frame: pd.DataFrame) -> Path:
+        """Write a chunk's trajectories and rows (atomically, the rows last); returns the part path."""
+        existing = self._indices()
+        index = existing[-1] + 1 if existing else 0
+        traj = self.directory / f"traj-{index:05d}.npz"
+        arrays: dict[str, Any] = {name: np.asarray(getattr(chunk, name)) for name in _TRAJ_FIELDS}
+        arrays["scenario_id"] = arrays["scenario_id"].astype(str)
+        arrays.update({f"info__{k}": v for k, v in chunk.plan_info.items()})
+        tmp = traj.with_name(traj.name + ".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, traj)
+        part = self.directory / f"part-{index:05d}.parquet"
+        tmp_part = part.with_name(part.name + ".tmp")
+        frame.to_parquet(tmp_part, index=False)
+        os.replace(tmp_part, part)
+        return part
+
+    def load_frame(self) -> pd.DataFrame:
+        """Every committed row (each scenario once)."""
+        parts = self.parts()
+        if not parts:
+            return pd.DataFrame()
+        return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+
+    def load_chunks(self) -> ClosedLoopChunk:
+        """All committed trajectories as one chunk (``indices`` refer to the run's batch)."""
+        chunks = []
+        for part in self.parts():
+            with np.load(part.with_name(part.name.replace("part-", "traj-").replace(".parquet", ".npz"))) as z:
+                info = {k[len("info__") :]: z[k] for k in z.files if k.startswith("info__")}
+                chunks.append(
+                    ClosedLoopChunk(
+                        planner=str(self.record["planner"]),
+                        mode=str(self.record["mode"]),
+                        replan_s=float(str(self.record["replan_s"])),
+                        plan_info=info,
+                        **{name: z[name] for name in _TRAJ_FIELDS},
+                    )
+                )
+        if not chunks:
+            raise FileNotFoundError(f"{self.directory} holds no closed-loop chunks yet")
+        return ClosedLoopChunk.concat(chunks)
+
+
+def run_closed_loop_to_dir(
+    planner_spec: PlannerSpecLike,
+    batch: ScenarioBatch,
+    out_dir: Path,
+    mode: ClosedLoopMode | str = ClosedLoopMode.LOG,
+    *,
+    replan_s: float | None = None,
+    workers: int = 0,
+    config: ClosedLoopConfig | None = None,
+    metrics_config: MetricsConfig | None = None,
+    ray_address: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> pd.DataFrame:
+    """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows.
+
+    Arguments as ``run_closed_loop``; ``progress`` is called with the number of scenarios done
+    (first with those found from an earlier run).
+    """
+    cfg = effective_config(planner_spec, mode, replan_s, config)
+    store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch)
+    done = store.done_ids()
+    todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
+    if progress is not None and len(batch) - len(todo):
+        progress(len(batch) - len(todo))
+    if len(todo):
+        for chunk in run_closed_loop(
+            planner_spec, batch, cfg.mode, replan_s=cfg.replan_s, workers=workers, config=cfg, indices=todo,
+            ray_address=ray_address,
+        ):  # fmt: skip
+            store.write(chunk, chunk_frame(chunk, chunk_metrics(batch, chunk, metrics_config)))
+            if progress is not None:
+                progress(len(chunk))
+    return store.load_frame()

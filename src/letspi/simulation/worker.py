@@ -1,0 +1,95 @@
+"""Chunks of work and the worker that simulates them (one planner + one SUMO session per process)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from letspi.planners.base import Planner
+from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import ClosedLoopConfig
+from letspi.simulation.engine import simulate_group
+from letspi.simulation.network import layout_keys
+from letspi.simulation.replan import FuturePolicy
+from letspi.simulation.result import ClosedLoopChunk
+from letspi.simulation.session import SumoSession
+from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorded_future
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """One unit of work: scenarios ``indices`` of the run's batch, already taken (``batch``)."""
+
+    task_id: int
+    indices: np.ndarray
+    batch: ScenarioBatch
+
+
+def plan_chunks(
+    batch: ScenarioBatch, chunk_size: int, indices: Sequence[int] | np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Scenario positions grouped by lane layout (batch order within a layout), cut into chunks."""
+    idx = np.arange(len(batch)) if indices is None else np.asarray(indices, dtype=np.int64)
+    if idx.size == 0:
+        return []
+    keys = layout_keys(batch.marking_y_m[idx])
+    order: dict[tuple[float, ...], list[int]] = {}
+    for i, key in zip(idx.tolist(), keys, strict=True):
+        order.setdefault(key, []).append(i)
+    chunks: list[np.ndarray] = []
+    for members in order.values():
+        arr = np.asarray(members, dtype=np.int64)
+        chunks.extend(arr[s : s + chunk_size] for s in range(0, len(arr), chunk_size))
+    return chunks
+
+
+def simulate_chunk(
+    session: SumoSession, planner: Planner, task: ChunkTask, config: ClosedLoopConfig, future: FuturePolicy
+) -> ClosedLoopChunk:
+    """Simulate one chunk (any layouts: one lockstep group per layout) and label it with batch indices."""
+    keys = layout_keys(task.batch.marking_y_m)
+    parts: list[ClosedLoopChunk] = []
+    rows_all: list[np.ndarray] = []
+    for key in dict.fromkeys(keys):
+        rows = np.asarray([i for i, k in enumerate(keys) if k == key], dtype=np.int64)
+        part = simulate_group(
+            session,
+            planner,
+            task.batch.take(rows),
+            config,
+            replan_every=config.replan_frames,
+            future=future,
+            run_tag=f"t{task.task_id}.{len(parts)}",
+        )
+        parts.append(part)
+        rows_all.append(rows)
+    out = parts[0] if len(parts) == 1 else ClosedLoopChunk.concat(parts)
+    rows = np.concatenate(rows_all)
+    return replace(out, indices=np.asarray(task.indices)[rows])
+
+
+class ChunkWorker:
+    """A planner and a SUMO session, built once, simulating chunk after chunk (one per process)."""
+
+    def __init__(self, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
+        self.config = config
+        self.planner = build_planner(planner_spec)
+        self.future: FuturePolicy = "log" if reads_recorded_future(planner_spec) else "none"
+        self.session = SumoSession(config)
+
+    def run(self, task: ChunkTask) -> ClosedLoopChunk:
+        return simulate_chunk(self.session, self.planner, task, self.config, self.future)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def make_tasks(
+    batch: ScenarioBatch, config: ClosedLoopConfig, indices: Sequence[int] | np.ndarray | None = None
+) -> list[ChunkTask]:
+    return [
+        ChunkTask(task_id=i, indices=rows, batch=batch.take(rows))
+        for i, rows in enumerate(plan_chunks(batch, config.chunk_size, indices))
+    ]
