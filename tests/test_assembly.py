@@ -13,13 +13,14 @@ import pytest
 
 from letspi.assembly import resolve
 from letspi.assembly.build import Builder, ConfigurationChangedError, build_planners, parse_planner_arg
-from letspi.assembly.configs import SfConfig, diff
 from letspi.assembly.resolve import GNP_WEIGHTS_ENV, GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.learned.weights import shipped_weights_dir
 from letspi.llm.cache import ResponseCache
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
 from letspi.physics.params import SocialForceParams
+from letspi.planners.config import diff
+from letspi.planners.sf import SfConfig
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches

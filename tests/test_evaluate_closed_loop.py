@@ -21,7 +21,6 @@ from test_simulation_support import BrakePlanner, generated_batch
 from typer.testing import CliRunner
 
 from letspi.assembly.build import BuiltPlanner
-from letspi.assembly.configs import CvConfig
 from letspi.cli.app import app
 from letspi.evaluation.closed_loop import (
     ClosedLoopSettings,
@@ -31,6 +30,7 @@ from letspi.evaluation.closed_loop import (
     evaluate_closed_loop,
 )
 from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results
+from letspi.planners.cv import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches

@@ -17,12 +17,11 @@ import pandas as pd
 import pytest
 
 from letspi.assembly.build import BuiltPlanner, build_planners
-from letspi.assembly.configs import CvConfig
 from letspi.assembly.resolve import PlannerOptions
 from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results, load_plans, timing_summary
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch
-from letspi.planners.cv import ConstantVelocityPlanner
+from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches

@@ -11,31 +11,12 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from letspi.assembly.configs import (
-    CvConfig,
-    FastPlannerConfig,
-    GnpConfig,
-    GoalsConfig,
-    HumanConfig,
-    IdmConfig,
-    LlmConfig,
-    MemoryPhaseConfig,
-    MemoryPlannerConfig,
-    MlpConfig,
-    PlannerConfig,
-    SfConfig,
-    SfOptConfig,
-    SfParamsConfig,
-    reads_future,
-)
+from letspi.assembly.planner_table import kind_of
 from letspi.assembly.resolve import PlannerOptions, Resolver
-from letspi.learned.gnp_model import GnpModel
 from letspi.learned.goal_model import LearnedGoalPredictor
-from letspi.learned.param_mlp import ParamMlp
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.schema import fallback_reply_from_params
@@ -44,14 +25,8 @@ from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
 from letspi.planners.base import Planner
-from letspi.planners.cv import ConstantVelocityPlanner
-from letspi.planners.gnp import GnpPlanner
-from letspi.planners.human import HumanPlanner
-from letspi.planners.idm import IdmPlanner
-from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
-from letspi.planners.mlp import ParamMlpPlanner
-from letspi.planners.sf import SocialForcePlanner
-from letspi.planners.sf_opt import SocialForceSearchPlanner
+from letspi.planners.config import GoalsConfig, LlmConfig, MemoryPhaseConfig, PlannerConfig, SfParamsConfig
+from letspi.planners.llm import FastPlannerConfig
 
 
 class ConfigurationChangedError(ValueError):
@@ -141,46 +116,9 @@ class Builder:
                             goal_adjustment=config.goal_adjustment, prompt_style=config.llm.prompt_style)
         return phase, load_s
 
-    # planners ----------------------------------------------------------------------------------
-    def planner(self, config: PlannerConfig, name: str | None = None) -> BuiltPlanner:
-        """Build the planner ``config`` describes, labelled ``name`` (default: its kind)."""
-        label = name or config.kind
-        load_s = 0.0
-        planner: Planner
-        if isinstance(config, HumanConfig):
-            planner = HumanPlanner(name=label)
-        elif isinstance(config, CvConfig):
-            planner = ConstantVelocityPlanner(name=label)
-        elif isinstance(config, IdmConfig):
-            planner = IdmPlanner(neighbour_mode=config.neighbours, name=label)
-        elif isinstance(config, SfConfig):
-            planner = SocialForcePlanner(params=config.sf_params.params(), goal_predictor=self.goal_predictor(
-                config.goals), neighbour_mode=config.neighbours, name=label)
-        elif isinstance(config, SfOptConfig):
-            planner = SocialForceSearchPlanner(params=config.sf_params.params(), space=config.search,
-                                               goal_predictor=self.goal_predictor(config.goals),
-                                               neighbour_mode=config.neighbours, name=label)
-        elif isinstance(config, GnpConfig):
-            planner = GnpPlanner(model=GnpModel.from_dir(config.gnp.weights_dir),
-                                 goal_predictor=self.goal_predictor(config.goals), neighbour_mode=config.neighbours,
-                                 name=label)
-        elif isinstance(config, MlpConfig):
-            planner = ParamMlpPlanner(model=ParamMlp.from_dir(Path(config.mlp.weights_dir)),
-                                      goal_predictor=self.goal_predictor(config.goals),
-                                      r_col_m=float(config.sf_params.values["r_col_m"]),
-                                      neighbour_mode=config.neighbours, name=label)
-        elif isinstance(config, MemoryPlannerConfig):
-            phase, load_s = self.memory_phase(config.phase)
-            planner = LetsPiMemoryPlanner(phase, name=label, shield_params=(
-                config.phase.sf_params.params() if config.shield else None))
-        elif isinstance(config, FastPlannerConfig):
-            planner, load_s = self._fast(config, label)
-        else:  # pragma: no cover - the union is exhaustive
-            raise TypeError(f"no builder for {type(config).__name__}")
-        planner.reads_future = reads_future(config)
-        return BuiltPlanner(label, config, planner, load_s)
-
-    def _fast(self, config: FastPlannerConfig, label: str) -> tuple[Planner, float]:
+    def fast_phase(self, config: FastPlannerConfig) -> tuple[FastPhase, float]:
+        """The fast-inference phase of ``letspi-fast`` (retrieval) or ``letspi-fs`` (three static examples)
+        over the memory snapshot ``config`` pins, and model load time."""
         advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
         ref = config.memory
         bank = MemoryBank.open(ref.path, readonly=True)
@@ -198,13 +136,21 @@ class Builder:
         if config.kind == "letspi-fast":
             retriever = Retriever(bank, k=config.top_k, config_key=ref.collection_key, allowed_ids=ids,
                                   allow_same_vehicle=ref.allow_same_vehicle)
-            phase = FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style)
-        else:  # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
-            static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
-            phase = FastPhase(advisor, goals, r_col, None, static_examples=static,
-                              prompt_style=config.llm.prompt_style)
-        shield = config.sf_params.params() if config.shield else None
-        return LetsPiFastPlanner(phase, neighbour_mode=config.neighbours, shield_params=shield, name=label), load_s
+            return FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style), load_s
+        # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
+        static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
+        return FastPhase(advisor, goals, r_col, None, static_examples=static,
+                         prompt_style=config.llm.prompt_style), load_s
+
+    # planners ----------------------------------------------------------------------------------
+    def planner(self, config: PlannerConfig, name: str | None = None) -> BuiltPlanner:
+        """Build the planner ``config`` describes (its entry in ``letspi.assembly.planner_table``),
+        labelled ``name`` (default: its kind)."""
+        label = name or config.kind
+        kind = kind_of(config)
+        planner, load_s = kind.build(self, config, label)
+        planner.reads_future = kind.reads_future(config)
+        return BuiltPlanner(label, config, planner, load_s)
 
 
 def parse_planner_arg(arg: str) -> tuple[str, str]:

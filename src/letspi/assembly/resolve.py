@@ -1,11 +1,12 @@
 """Requests -> configurations: read every file and environment variable once, fingerprint them.
 
 ``PlannerOptions`` is what a user asks for (CLI flags: a model spec, a goal source, a parameter
-file, ...). ``Resolver`` turns it into the frozen configurations of ``letspi.assembly.configs``, whose
-content keys identify results: the parameter *values* instead of a file name, the SHA-256 of the
-weights a goal source or an embedded model uses, the text of the prompts, a snapshot of the memory
-bank. Environment variables that change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``)
-are read here and nowhere else, so they always show up in a configuration.
+file, ...). ``Resolver`` turns it into frozen configurations (``letspi.planners.config``; each kind's
+resolution is its entry in ``letspi.assembly.planner_table``), whose content keys identify
+results: the parameter *values* instead of a file name, the SHA-256 of the weights a goal source or
+an embedded model uses, the text of the prompts, a snapshot of the memory bank. Environment
+variables that change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``) are read here and
+nowhere else, so they always show up in a configuration.
 """
 
 from __future__ import annotations
@@ -18,25 +19,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from letspi.assembly.configs import (
-    PLANNER_KINDS,
-    CvConfig,
-    FastPlannerConfig,
-    GnpConfig,
-    GoalsConfig,
-    HumanConfig,
-    IdmConfig,
-    LlmConfig,
-    MemoryPhaseConfig,
-    MemoryPlannerConfig,
-    MemoryRef,
-    MlpConfig,
-    PlannerConfig,
-    SfConfig,
-    SfOptConfig,
-    SfParamsConfig,
-    WeightsConfig,
-)
+from letspi.assembly.planner_table import planner_kind
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
@@ -44,6 +27,15 @@ from letspi.llm.spec import parse_spec
 from letspi.method.memory import MemoryBank
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.planners.config import (
+    GoalsConfig,
+    LlmConfig,
+    MemoryPhaseConfig,
+    MemoryRef,
+    PlannerConfig,
+    SfParamsConfig,
+    WeightsConfig,
+)
 from letspi.planners.sf_params import load_sf_params
 
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
@@ -236,34 +228,5 @@ class Resolver:
     # planners ------------------------------------------------------------------------------------
     def planner(self, kind: str) -> PlannerConfig:
         """The configuration of planner ``kind`` (``ValueError`` listing the kinds for an unknown one)."""
-        o = self.options
-        if kind == "human":
-            return HumanConfig()
-        if kind == "cv":
-            return CvConfig()
-        if kind == "idm":
-            return IdmConfig(neighbours=self.neighbours)
-        if kind == "sf":
-            return SfConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params)
-        if kind == "sf-opt":
-            return SfOptConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params)
-        if kind == "gnp":
-            if o.goals != "learned":
-                raise ValueError("gnp uses its learned goal predictor; --goals applies to the other planners")
-            if self.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
-                raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
-                                 "not the recorded future")
-            return GnpConfig(neighbours=self.neighbours, goals=self.goals, gnp=self.gnp_weights)
-        if kind == "mlp":
-            if self.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
-                raise ValueError("mlp must roll out with predicted neighbours (idm or constant_velocity)")
-            return MlpConfig(neighbours=self.neighbours, goals=self.goals, sf_params=self.sf_params,
-                             mlp=self.mlp_weights)
-        if kind in ("llm", "letspi-memory"):
-            phase = self.memory_phase(max_iterations=0 if kind == "llm" else None)
-            return MemoryPlannerConfig(kind=kind, phase=phase, shield=o.shield)  # type: ignore[arg-type]
-        if kind in ("letspi-fast", "letspi-fs"):
-            return FastPlannerConfig(kind=kind, llm=self.llm(o.fast_llm), goals=self.goals,  # type: ignore[arg-type]
-                                     neighbours=self.neighbours, sf_params=self.sf_params,
-                                     memory=self.memory_ref(), top_k=o.top_k, shield=o.shield)
-        raise ValueError(f"unknown planner {kind!r}; available: {', '.join(PLANNER_KINDS)}")
+        config: PlannerConfig = planner_kind(kind).resolve(self)
+        return config

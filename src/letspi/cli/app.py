@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate, fit, llm, phases, train, viz
+from letspi.cli import bench, data, demo, evaluate, fit, llm, phases, planners, train, viz
 from letspi.cli.common import DEBUG_ENV
 from letspi.evaluation.harness import letspi_version
 
@@ -46,6 +46,7 @@ app.add_typer(train.app, name="train")
 app.add_typer(llm.app, name="llm")
 app.command("demo")(demo.demo)
 app.command("evaluate")(evaluate.evaluate)
+app.command("planners")(planners.planners)
 app.command("collect")(phases.collect)
 app.command("plan")(phases.plan)
 app.command("ablate")(phases.ablate)

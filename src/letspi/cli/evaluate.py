@@ -10,6 +10,7 @@ import typer
 from rich.progress import Progress
 
 from letspi.assembly.build import build_planners, parse_planner_arg
+from letspi.assembly.planner_table import planner_help
 from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.cli.common import (
     ConcurrencyOpt,
@@ -28,9 +29,7 @@ from letspi.metrics.aggregate import render_markdown_table
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 
-PlannerOpt = Annotated[list[str], typer.Option(
-    help="Planner KIND (human, cv, idm, sf, sf-opt, gnp, llm, letspi-memory, letspi-fast, letspi-fs) or "
-         "LABEL=KIND for a second configuration of one kind; repeat for several.")]
+PlannerOpt = Annotated[list[str], typer.Option(help=planner_help())]
 
 
 def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:

@@ -12,7 +12,7 @@ Layout of an evaluation directory::
 
 Keys: a directory holds one dataset (the digest of its scenarios' contents, ``letspi.scenario.identity``)
 under one metrics configuration and mode; another is refused, naming what differs. Each planner name
-holds one planner configuration (``letspi.assembly.configs``); another configuration under the same
+holds one planner configuration (``letspi.planners.config``); another configuration under the same
 name is refused with the differing fields (label variants ``LABEL=KIND``). Rows are keyed by
 scenario digest, so a resumed run skips exactly the scenarios already scored.
 
@@ -59,7 +59,6 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from letspi.assembly.build import BuiltPlanner
-from letspi.assembly.configs import diff, key_of
 from letspi.constants import N_FUTURE
 from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
@@ -67,6 +66,7 @@ from letspi.method.runner import RunnerConfig, RunStats, RunStatus, ScenariosFai
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig
+from letspi.planners.config import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
 

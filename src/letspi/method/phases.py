@@ -111,7 +111,7 @@ class MemoryPhase:
     """Runs the memory-collection pipeline on one scenario at a time.
 
     ``config_key`` identifies everything that changes its answers (the content key of the
-    configuration it was built from, ``letspi.assembly.configs.MemoryPhaseConfig.key()``); its
+    configuration it was built from, ``letspi.planners.config.MemoryPhaseConfig.key()``); its
     experiences are stored under it.
     """
 

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config
 from letspi.scenario.types import ScenarioBatch
+
+
+class CvConfig(Config):
+    kind: Literal["cv"] = "cv"
 
 
 @dataclass

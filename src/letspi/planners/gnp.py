@@ -8,6 +8,7 @@ leaks the future, so the oracle mode is refused here.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -18,7 +19,15 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config, GoalsConfig, WeightsConfig
 from letspi.scenario.types import ScenarioBatch
+
+
+class GnpConfig(Config):
+    kind: Literal["gnp"] = "gnp"
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goals: GoalsConfig
+    gnp: WeightsConfig
 
 
 @dataclass

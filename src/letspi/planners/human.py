@@ -7,9 +7,15 @@ human drivers in the data were (zero collisions on collision-free data is the ha
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config
 from letspi.scenario.types import ScenarioBatch
+
+
+class HumanConfig(Config):
+    kind: Literal["human"] = "human"
 
 
 @dataclass

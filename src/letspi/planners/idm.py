@@ -10,6 +10,7 @@ mid-lane-change sideways within one 0.04 s step (≈ 30 m/s² lateral), which no
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -17,6 +18,7 @@ from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.idm import rollout_idm_ego
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config
 from letspi.scenario.queries import OFF_ROAD, lane_centres_y_m, lane_index_of
 from letspi.scenario.types import ScenarioBatch
 
@@ -44,6 +46,11 @@ def settle_laterally(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray]:
     y = target[:, None] + (c1 + c2 * t_s[None, :]) * decay
     vy = (c2 - (c1 + c2 * t_s[None, :]) / tc) * decay
     return y, vy
+
+
+class IdmConfig(Config):
+    kind: Literal["idm"] = "idm"
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
 
 
 @dataclass

@@ -31,8 +31,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
+from pydantic import Field
 
 from letspi.llm.client import ParamAdvisor
 from letspi.method.memory import MemoryBank
@@ -44,6 +46,7 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config, GoalsConfig, LlmConfig, MemoryPhaseConfig, MemoryRef, SfParamsConfig
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
@@ -266,3 +269,29 @@ class LetsPiFastPlanner:
             return []
         return [(k + 1, e.params, float(e.lon_factor), float(e.lane_factor))
                 for k, (e, _) in enumerate(retriever.retrieve(batch))]
+
+
+class MemoryPlannerConfig(Config):
+    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
+
+    ``shield``: the safety shield (beyond the paper) replaces a plan that fails the reflection checks
+    by the fitted ``sf`` plan when that is safer. Not part of the phase: the stored experiences are
+    the same with and without it.
+    """
+
+    kind: Literal["llm", "letspi-memory"] = "letspi-memory"
+    phase: MemoryPhaseConfig
+    shield: bool = True
+
+
+class FastPlannerConfig(Config):
+    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples)."""
+
+    kind: Literal["letspi-fast", "letspi-fs"] = "letspi-fast"
+    llm: LlmConfig
+    goals: GoalsConfig
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    sf_params: SfParamsConfig
+    memory: MemoryRef
+    top_k: int = Field(default=3, ge=0)
+    shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)

@@ -9,6 +9,7 @@ neighbours (``letspi.method.reflection.simulate_proposal``). Vectorised over the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -18,8 +19,16 @@ from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import SocialForcePlannerFields, WeightsConfig
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import ScenarioBatch
+
+
+class MlpConfig(SocialForcePlannerFields):
+    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
+
+    kind: Literal["mlp"] = "mlp"
+    mlp: WeightsConfig
 
 
 @dataclass

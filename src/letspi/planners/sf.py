@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -12,7 +13,12 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import SocialForcePlannerFields
 from letspi.scenario.types import ScenarioBatch
+
+
+class SfConfig(SocialForcePlannerFields):
+    kind: Literal["sf"] = "sf"
 
 
 @dataclass

@@ -16,9 +16,10 @@ All candidates of a batch are rolled out in one vectorised call (B × C scenario
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
@@ -26,6 +27,7 @@ from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import SocialForcePlannerFields
 from letspi.safety.plan_check import check_plans
 from letspi.scenario.types import ScenarioBatch
 
@@ -52,6 +54,11 @@ class SearchSpace(BaseModel):
 
 def _repeat_prediction(pred: NeighbourPrediction, c: int) -> NeighbourPrediction:
     return NeighbourPrediction(*(np.repeat(np.asarray(a), c, axis=0) for a in pred))
+
+
+class SfOptConfig(SocialForcePlannerFields):
+    kind: Literal["sf-opt"] = "sf-opt"
+    search: SearchSpace = Field(default_factory=SearchSpace)
 
 
 @dataclass

@@ -3,7 +3,7 @@
 Workers (processes, Ray actors) build their planner themselves from a picklable description, so
 models and caches are loaded once per worker and nothing unpicklable crosses a process boundary.
 ``build_planner`` is the only function that turns a description into a planner: it hands the
-planner's frozen configuration (``letspi.assembly.configs``, picklable) to the registry's ``Builder``.
+planner's frozen configuration (``letspi.planners.config``, picklable) to the ``Builder``.
 """
 
 from __future__ import annotations
@@ -11,9 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from letspi.assembly.build import Builder
-from letspi.assembly.configs import PlannerConfig, reads_future
+from letspi.assembly.planner_table import reads_future
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.planners.base import Planner
+from letspi.planners.config import PlannerConfig
 from letspi.simulation.config import validate_replan_s
 
 
@@ -22,7 +23,7 @@ class PlannerSpec:
     """A planner by its configuration (picklable), its label and its own replanning period.
 
     Attributes:
-        config: the planner's frozen configuration (``letspi.assembly.configs``); its key
+        config: the planner's frozen configuration (``letspi.planners.config``); its key
             identifies the planner in results.
         name: the label of its results (default: the configuration's kind).
         replan_s: this planner's replanning period [s]; None = the run's ``replan_s``. LLM

@@ -17,6 +17,10 @@ answers; anything that can change an answer is a field:
 Cosmetic fields (a file path whose content is fingerprinted elsewhere, a timeout, the response
 cache switch) are recorded in ``run.json`` for the reader but left out of the key: they cannot change
 an answer. ``diff`` names the fields in which two configurations differ, for refusal messages.
+
+This module holds the base class and the building blocks planners share. Each planner's own
+configuration (``CvConfig``, ``SfConfig``, ...) sits beside the planner in its module, and
+``letspi.assembly.planner_table`` lists every kind with how it is resolved and built.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import json
 from collections.abc import Mapping
 from enum import Enum
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -34,7 +38,6 @@ from letspi.llm.types import DecodingSettings
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
-from letspi.planners.sf_opt import SearchSpace
 
 KEY_CHARS = 16
 
@@ -211,11 +214,6 @@ class MemoryRef(Config):
     subset_seed: int = 0
 
 
-# ------------------------------------------------------------------------------------------------
-# Planners and phases
-# ------------------------------------------------------------------------------------------------
-
-
 class MemoryPhaseConfig(Config):
     """LetsPi's memory collection phase: its key identifies the experiences it stores.
 
@@ -232,93 +230,23 @@ class MemoryPhaseConfig(Config):
     goal_adjustment: bool = True
 
 
-class HumanConfig(Config):
-    kind: Literal["human"] = "human"
-
-
-class CvConfig(Config):
-    kind: Literal["cv"] = "cv"
-
-
-class IdmConfig(Config):
-    kind: Literal["idm"] = "idm"
-    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-
-
-class _SocialForcePlannerFields(Config):
-    """What every fixed-parameter social force planner is built from."""
+class SocialForcePlannerFields(Config):
+    """What every fixed-parameter social force planner is built from (``sf``, ``sf-opt``, ``mlp``)."""
 
     neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     goals: GoalsConfig
     sf_params: SfParamsConfig
 
 
-class SfConfig(_SocialForcePlannerFields):
-    kind: Literal["sf"] = "sf"
+class PlannerConfig(Protocol):
+    """What every planner configuration offers: a frozen ``Config`` whose ``kind`` field is a literal
+    naming its entry in ``letspi.assembly.planner_table``."""
 
+    @property
+    def kind(self) -> str: ...
 
-class SfOptConfig(_SocialForcePlannerFields):
-    kind: Literal["sf-opt"] = "sf-opt"
-    search: SearchSpace = Field(default_factory=SearchSpace)
+    def identity(self) -> dict[str, Any]: ...
 
+    def key(self) -> str: ...
 
-class GnpConfig(Config):
-    kind: Literal["gnp"] = "gnp"
-    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-    goals: GoalsConfig
-    gnp: WeightsConfig
-
-
-class MlpConfig(_SocialForcePlannerFields):
-    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
-
-    kind: Literal["mlp"] = "mlp"
-    mlp: WeightsConfig
-
-
-class MemoryPlannerConfig(Config):
-    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
-
-    ``shield``: the safety shield (``letspi.planners.llm``; beyond the paper) replaces a plan that fails
-    the reflection checks by the fitted ``sf`` plan when that is safer. Not part of the phase: the
-    stored experiences are the same with and without it.
-    """
-
-    kind: Literal["llm", "letspi-memory"] = "letspi-memory"
-    phase: MemoryPhaseConfig
-    shield: bool = True
-
-
-class FastPlannerConfig(Config):
-    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples)."""
-
-    kind: Literal["letspi-fast", "letspi-fs"] = "letspi-fast"
-    llm: LlmConfig
-    goals: GoalsConfig
-    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
-    sf_params: SfParamsConfig
-    memory: MemoryRef
-    top_k: int = Field(default=3, ge=0)
-    shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
-
-
-PlannerConfig = Annotated[
-    HumanConfig | CvConfig | IdmConfig | SfConfig | SfOptConfig | GnpConfig | MlpConfig | MemoryPlannerConfig
-    | FastPlannerConfig,
-    Field(discriminator="kind"),
-]
-PLANNER_KINDS: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "mlp", "llm", "letspi-memory",
-                                  "letspi-fast", "letspi-fs")
-
-
-def reads_future(config: Config) -> bool:
-    """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner):
-    ``human`` replays it; oracle goals or oracle neighbour prediction leak it."""
-    if isinstance(config, HumanConfig):
-        return True
-    goals = getattr(config, "goals", None)
-    if isinstance(config, MemoryPlannerConfig):
-        goals, mode = config.phase.goals, config.phase.neighbours
-    else:
-        mode = getattr(config, "neighbours", NeighbourPredictionMode.IDM)
-    return bool((goals is not None and goals.reads_future) or mode == NeighbourPredictionMode.GROUND_TRUTH_ORACLE)
+    def record(self) -> dict[str, Any]: ...

@@ -1,0 +1,135 @@
+"""The table of planner kinds: every kind resolves, builds and lists from one entry, and keys do not move."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from letspi.assembly import resolve
+from letspi.assembly.planner_table import (
+    PLANNER_KINDS,
+    PLANNER_TABLE,
+    FutureUse,
+    parse_planner_config,
+    planner_kind,
+    reads_future,
+)
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.cli.app import app
+from letspi.method.memory import MemoryBank
+from letspi.physics.params import SocialForceParams
+from letspi.planners.cv import CvConfig
+from letspi.planners.idm import IdmConfig
+from letspi.planners.sf_params import save_sf_params
+
+ALL_KINDS = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "mlp", "llm", "letspi-memory", "letspi-fast", "letspi-fs")
+
+
+def _name_sha(path: object) -> str:
+    return hashlib.sha256(Path(str(path)).name.encode()).hexdigest()
+
+
+@pytest.fixture
+def pinned_options(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> PlannerOptions:
+    """Options whose fingerprints do not depend on shipped data: weights, model files and prompt text are
+    fingerprinted by their name, the parameters are the code defaults and the memory bank is empty."""
+    monkeypatch.setattr(resolve, "load_weights", lambda *args, **kwargs: None)
+    monkeypatch.setattr(resolve, "weights_sha256", _name_sha)
+    monkeypatch.setattr(resolve, "file_sha256", _name_sha)
+    monkeypatch.setattr(resolve, "prompt_sha256", lambda: "p" * 64)
+    params = save_sf_params(tmp_path / "sf.json", SocialForceParams(), {}, {})
+    MemoryBank.open(tmp_path / "memory.sqlite").close()
+    return PlannerOptions(sf_params_file=params, memory=tmp_path / "memory.sqlite", mlp_weights=tmp_path / "mlp")
+
+
+VARIANT = {"neighbour_mode": "constant_velocity", "top_k": 5, "shield": False, "max_iterations": 1,
+           "goal_adjustment": False, "allow_same_vehicle": True, "memory_fraction": 0.5, "llm": "scripted:default",
+           "fast_llm": "scripted:default", "prompt_style": "compact"}
+#: Keys computed on main at ea22160, before the table existed: results directories and memory banks are
+#: keyed by them, so moving configuration classes must not move a key.
+PINNED_KEYS = {
+    "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
+    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "4837d44ce3fd3247",
+    "letspi-memory": "4984fea987f2f707", "letspi-fast": "f90ce24f92b9d0f2", "letspi-fs": "25c830276057e54c",
+}
+PINNED_VARIANT_KEYS = {
+    "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
+    "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "f443273dff45cf4c",
+    "letspi-memory": "361e8f0baa7d6973", "letspi-fast": "4e6e0c3caf9fd1ac", "letspi-fs": "a6173c0084f4597f",
+}
+PINNED_COLLECTION_KEYS = {"default": "8ac4ebef35350119", "variant": "3607d3dad6dcab50"}
+
+
+def _keys(options: PlannerOptions) -> dict[str, str]:
+    return {kind: Resolver(options, env={}).planner(kind).key() for kind in ALL_KINDS}
+
+
+def test_configuration_keys_did_not_move(pinned_options: PlannerOptions) -> None:
+    variant = replace(pinned_options, **VARIANT)  # type: ignore[arg-type]
+    assert _keys(pinned_options) == PINNED_KEYS
+    assert _keys(variant) == PINNED_VARIANT_KEYS
+    assert {"default": Resolver(pinned_options, env={}).memory_phase().key(),
+            "variant": Resolver(variant, env={}).memory_phase().key()} == PINNED_COLLECTION_KEYS
+
+
+def test_every_kind_has_one_entry_and_the_kinds_derive_from_it() -> None:
+    assert PLANNER_KINDS == ALL_KINDS
+    assert len({kind.name for kind in PLANNER_TABLE}) == len(PLANNER_TABLE)
+    for kind in PLANNER_TABLE:
+        # the configuration class can stand for this kind (its `kind` literal admits the name)
+        assert kind.config_class.model_fields["kind"].annotation.__args__.count(kind.name) == 1, kind.name
+    with pytest.raises(ValueError, match=r"unknown planner 'sf-cv'; available: human, cv, .*, letspi-fs$"):
+        Resolver(PlannerOptions()).planner("sf-cv")
+
+
+def test_records_parse_back_into_their_configuration_class(pinned_options: PlannerOptions) -> None:
+    for kind in ALL_KINDS:
+        config = Resolver(pinned_options, env={}).planner(kind)
+        again = parse_planner_config(json.loads(json.dumps(config.record())))
+        assert type(again) is type(config) and again == config and again.key() == config.key(), kind
+    with pytest.raises(ValueError, match="does not match any of the expected tags"):
+        parse_planner_config({"kind": "frenet"})
+
+
+def test_reads_future_follows_the_oracle_inputs(pinned_options: PlannerOptions) -> None:
+    """``human`` always reads the recorded future, ``cv`` never; the others when their goals or neighbour
+    prediction are oracles (``gnp`` and ``mlp`` refuse the oracle neighbours at resolution)."""
+    def future(kind: str, **options: str) -> bool | str:
+        try:
+            return reads_future(Resolver(replace(pinned_options, **options), env={}).planner(kind))  # type: ignore[arg-type]
+        except ValueError as exc:
+            return "refused" if "predicted neighbours" in str(exc) or "learned goal" in str(exc) else str(exc)
+
+    assert {k: future(k) for k in ALL_KINDS} == {k: k == "human" for k in ALL_KINDS}
+    with_oracle_goals = {k: future(k, goals="oracle") for k in ALL_KINDS}
+    assert with_oracle_goals == {**{k: True for k in ALL_KINDS}, "cv": False, "idm": False, "gnp": "refused"}
+    with_oracle_neighbours = {k: future(k, neighbour_mode="ground_truth_oracle") for k in ALL_KINDS}
+    assert with_oracle_neighbours == {**{k: True for k in ALL_KINDS}, "cv": False, "gnp": "refused",
+                                      "mlp": "refused"}
+    assert planner_kind("human").future is FutureUse.ALWAYS and planner_kind("cv").future is FutureUse.NEVER
+
+
+def test_a_configuration_of_the_wrong_class_is_refused() -> None:
+    wrong = CvConfig.model_construct(kind="idm")  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match="expects IdmConfig"):
+        reads_future(wrong)
+    assert not reads_future(IdmConfig())
+
+
+def test_letspi_planners_lists_every_kind() -> None:
+    runner = CliRunner()
+    listing = runner.invoke(app, ["planners", "--json"])
+    assert listing.exit_code == 0, listing.output
+    rows = json.loads(listing.output)
+    assert [row["kind"] for row in rows] == list(ALL_KINDS)
+    assert {row["kind"]: row["reads_future"] for row in rows}["human"] == FutureUse.ALWAYS.value
+    assert all(row["description"] for row in rows)
+    text = runner.invoke(app, ["planners"])
+    assert text.exit_code == 0 and all(kind in text.output for kind in ALL_KINDS)
+    help_text = runner.invoke(app, ["evaluate", "--help"], terminal_width=400).output
+    assert "mlp" in help_text and "letspi-fs" in help_text  # the --planner help is derived from the table
