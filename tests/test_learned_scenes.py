@@ -7,7 +7,7 @@ import numpy as np
 
 from letspi.learned.features import N_HIST_STEPS, N_LANE_FEATURES, N_STATIC_FEATURES, N_STEP_FEATURES, scene_features
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
-from letspi.scenario.split import split_by_recording, split_by_vehicle
+from letspi.scenario.split import split_by_key, split_by_recording, split_by_vehicle
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
 
@@ -71,3 +71,13 @@ def test_split_by_vehicle_has_no_leakage() -> None:
     # vehicle 5 of file A and vehicle 5 of file B are different vehicles: both sides may hold one
     by_rec = split_by_recording(batch, 0.5, seed=0)
     assert {str(k) for k in batch.recording_key[by_rec[0]]} != {str(k) for k in batch.recording_key[by_rec[1]]}
+
+
+def test_split_by_key_keeps_groups_whole_and_splits_by_group_count() -> None:
+    keys = np.array(["a"] * 7 + ["b"] * 1 + ["c"] * 2 + ["d"] * 5, dtype=object)
+    train, val = split_by_key(keys, 0.5, seed=0)
+    assert sorted([*train, *val]) == list(range(len(keys)))
+    assert not set(keys[train]) & set(keys[val])
+    assert len(set(keys[train])) == 2 and len(set(keys[val])) == 2  # half of the 4 groups, whatever their sizes
+    again = split_by_key(keys, 0.5, seed=0)
+    np.testing.assert_array_equal(again[0], train)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from letspi.conflict import deceleration_to_avoid_crash_mps2
 from letspi.highd.contacts import overlapping_boxes
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
@@ -123,8 +124,7 @@ def vehicle_criticality(rec: Recording) -> pd.DataFrame:
     dhw = tr["dhw"].to_numpy(np.float64)
     has_prec = tr["precedingId"].to_numpy() > 0
     closing = np.abs(vx) - np.abs(prec_vx)
-    ok = has_prec & (closing > 0.0) & (dhw > 0.0)
-    drac = np.where(ok, closing**2 / (2.0 * np.where(ok, dhw, 1.0)), 0.0)
+    drac = np.where(has_prec, deceleration_to_avoid_crash_mps2(dhw, closing, contact_mps2=0.0), 0.0)
     max_drac = pd.Series(drac).groupby(tr["id"].to_numpy()).max()
     cols = ["id", "class", "drivingDirection", "minTTC", "minTHW", "minDHW", "numLaneChanges"]
     out = rec.tracks_meta[cols].copy()

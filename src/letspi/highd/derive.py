@@ -43,6 +43,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from letspi.conflict import time_to_collision_s
 from letspi.highd.schema import (
     DRIVING_DIRECTION_LOWER,
     DRIVING_DIRECTION_UPPER,
@@ -232,7 +233,7 @@ def build_recording(
     thw = np.where(has_prec & (speed > 0), dhw / np.where(speed > 0, speed, 1.0), 0.0)
     closing = v_s - v_s[pr]
     ttc_ok = has_prec & (closing > 0) & (dhw > 0)
-    ttc = np.where(ttc_ok, dhw / np.where(ttc_ok, closing, 1.0), 0.0)
+    ttc = np.where(has_prec, time_to_collision_s(dhw, closing, contact_s=0.0, not_closing_s=0.0), 0.0)
     prec_vx = np.where(has_prec, vx[pr], 0.0)
 
     # adjacent lanes: left = towards the median (lane - 1 for direction 2, lane + 1 for direction 1)

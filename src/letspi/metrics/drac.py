@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from letspi.conflict import deceleration_to_avoid_crash_mps2
 from letspi.metrics.inputs import MetricInputs, min_over_time
 from letspi.metrics.ttc import PrecedingVehicle, preceding_vehicle
 
@@ -28,10 +29,7 @@ class DRACResult:
 
 def drac_from_gap(gap_m: np.ndarray, closing_mps: np.ndarray) -> np.ndarray:
     """DRAC [m/s^2] from bumper gap [m] and closing speed [m/s] (inf gap or NaN speed -> 0)."""
-    closing = np.nan_to_num(closing_mps, nan=0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.where((closing > 0) & (gap_m > 0), closing**2 / (2.0 * gap_m), 0.0)
-    return np.where(np.isfinite(gap_m) & (gap_m <= 0), np.inf, d)
+    return deceleration_to_avoid_crash_mps2(gap_m, closing_mps, contact_mps2=np.inf)
 
 
 def drac(inp: MetricInputs, preceding: PrecedingVehicle | None = None) -> DRACResult:

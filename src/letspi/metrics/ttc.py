@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from letspi.conflict import time_to_collision_s
 from letspi.metrics.inputs import MetricInputs, min_over_time
 
 
@@ -87,9 +88,7 @@ def ttc_from_gap(gap_m: np.ndarray, closing_mps: np.ndarray) -> np.ndarray:
 
     NaN closing speed (no preceding vehicle) gives +inf.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ttc = np.where(closing_mps > 0, gap_m / closing_mps, np.inf)
-    return np.where(gap_m <= 0, 0.0, ttc)
+    return time_to_collision_s(gap_m, closing_mps, contact_s=0.0, not_closing_s=np.inf)
 
 
 def _ttc_of(path: PrecedingVehicle) -> TTCResult:

@@ -19,7 +19,13 @@ def vehicle_keys(batch: ScenarioBatch) -> np.ndarray:
 
 def split_by_vehicle(batch: ScenarioBatch, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices (train, validation): whole ego vehicles (recording, id) go to one side."""
-    keys = vehicle_keys(batch).astype(str)
+    return split_by_key(vehicle_keys(batch), train_fraction, seed)
+
+
+def split_by_key(keys: np.ndarray, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (train, validation) of rows with (R,) group ``keys`` (e.g. ``vehicle_keys`` of the rows'
+    scenarios): every group goes to one side, ``train_fraction`` of the groups to training."""
+    keys = np.asarray(keys).astype(str)
     uniq = np.unique(keys)
     perm = np.random.default_rng(seed).permutation(len(uniq))
     n_train = round(train_fraction * len(uniq))
