@@ -132,10 +132,21 @@ def _option_names(command: Any) -> dict[str, bool]:
     return names
 
 
-def check_command(root: Any, cmd: DocCommand) -> tuple[list[str], list[str]]:
-    """(errors, command path) of one documented invocation against the click command tree."""
+@dataclass(frozen=True)
+class Checked:
+    """What checking one documented invocation found: errors, the command path, and each option
+    with the command path it was given at (``()`` for ``letspi`` itself)."""
+
+    errors: list[str]
+    path: tuple[str, ...]
+    options: list[tuple[tuple[str, ...], str]]
+
+
+def check_command(root: Any, cmd: DocCommand) -> Checked:
+    """Walk one documented invocation down the click command tree (``root``)."""
     errors: list[str] = []
     path: list[str] = []
+    used: list[tuple[tuple[str, ...], str]] = []
     current = root
     options = _option_names(current)
     expect_value = False
@@ -148,23 +159,22 @@ def check_command(root: Any, cmd: DocCommand) -> tuple[list[str], list[str]]:
         if arg.startswith("-") and arg != "-":
             name = arg.split("=", 1)[0]
             if name not in options:
-                where = " ".join(["letspi", *path])
-                errors.append(f"{cmd.source}: `{where}` has no option {name}")
+                errors.append(f"{cmd.source}: `{' '.join(['letspi', *path])}` has no option {name}")
             else:
+                used.append((tuple(path), name))
                 expect_value = options[name] and "=" not in arg
             continue
         if hasattr(current, "commands"):  # a group: the word names a sub-command
             sub = current.commands.get(arg)
             if sub is None:
-                where = " ".join(["letspi", *path])
-                errors.append(f"{cmd.source}: `{where}` has no command {arg!r} "
+                errors.append(f"{cmd.source}: `{' '.join(['letspi', *path])}` has no command {arg!r} "
                               f"(commands: {', '.join(sorted(current.commands))})")
                 break
             path.append(arg)
             current = sub
             options = _option_names(current)
         # else: a positional argument of a leaf command, nothing to check
-    return errors, path
+    return Checked(errors, tuple(path), used)
 
 
 @pytest.fixture(scope="module")
@@ -188,18 +198,25 @@ def test_the_docs_exist_and_show_commands(documented):
 
 
 def test_every_documented_command_and_option_exists(root, documented):
-    errors = [e for cmd in documented for e in check_command(root, cmd)[0]]
+    errors = [e for cmd in documented for e in check_command(root, cmd).errors]
     assert not errors, "\n".join(errors)
 
 
-def test_every_documented_command_path_answers_help(root, documented):
-    """The help of each documented command path renders (in-process) and lists its options."""
+def test_every_documented_command_path_answers_help_with_its_options(root, documented):
+    """``letspi PATH --help`` of each documented command path renders (in-process) and shows every
+    option the docs use there."""
+    wanted: dict[tuple[str, ...], set[str]] = {}
+    for cmd in documented:
+        checked = check_command(root, cmd)
+        wanted.setdefault(checked.path, set())
+        for path, option in checked.options:
+            wanted.setdefault(path, set()).add(option)
     runner = CliRunner()
-    paths = {tuple(check_command(root, cmd)[1]) for cmd in documented}
-    for path in sorted(paths):
-        result = runner.invoke(app, [*path, "--help"])
+    for path, options in sorted(wanted.items()):
+        result = runner.invoke(app, [*path, "--help"], terminal_width=200)
         assert result.exit_code == 0, f"letspi {' '.join(path)} --help: {result.output}"
-        assert "Usage:" in result.output
+        missing = [o for o in sorted(options) if not re.search(rf"(?<![\w-]){re.escape(o)}(?![\w-])", result.output)]
+        assert not missing, f"letspi {' '.join(path)} --help does not show {missing}"
 
 
 def metrics_reference_text() -> str:
@@ -285,7 +302,7 @@ def test_checker_finds_commands_in_every_form():
 
 
 def test_checker_reports_unknown_options_and_commands(root):
-    errors = [e for c in extract_commands(FAKE_DOC, "fake.md") for e in check_command(root, c)[0]]
+    errors = [e for c in extract_commands(FAKE_DOC, "fake.md") for e in check_command(root, c).errors]
     assert errors == [
         "fake.md:1: `letspi evaluate` has no option --no-such-inline",
         "fake.md:6: `letspi evaluate` has no option --frobnicate",
@@ -301,8 +318,11 @@ def test_heading_anchors_follow_the_forge_rule():
 
 
 def test_checker_accepts_negated_flags_and_option_values_that_look_like_commands(root):
-    cmd = DocCommand("x:1", ("evaluate", "--planner", "data", "--no-cache", "--replan-s=fast=2.5", "--out", "ev"))
-    assert check_command(root, cmd) == ([], ["evaluate"])
+    cmd = DocCommand("x:1", ("--debug", "evaluate", "--planner", "data", "--no-cache", "--replan-s=fast=2.5",
+                             "--out", "ev"))
+    assert check_command(root, cmd) == Checked([], ("evaluate",), [
+        ((), "--debug"), (("evaluate",), "--planner"), (("evaluate",), "--no-cache"), (("evaluate",), "--replan-s"),
+        (("evaluate",), "--out")])
 
 
 if __name__ == "__main__":  # regenerate docs/metrics-reference.md
