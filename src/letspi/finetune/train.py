@@ -21,8 +21,10 @@ Runs on CPU with ``threads`` torch threads; deterministic for a given seed and t
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import platform
 import time
 from collections.abc import Callable, Sequence
@@ -30,7 +32,7 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 import numpy as np
 
@@ -38,7 +40,8 @@ from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text
-from letspi.llm.backends.llamacpp import _import_llama_cpp, without_extra_buffer_types
+from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps
+from letspi.llm.backends.llamacpp import open_llama
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"
@@ -48,6 +51,8 @@ MANIFEST_FORMAT: Final = "letspi-llm-adapter/1"
 TARGET_MODULES: Final[tuple[str, ...]] = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
 END_OF_TURN: Final = "<|im_end|>"
 IGNORE_INDEX: Final = -100
+#: bf16 autocast is used only when the first batch's loss stays within this relative distance of float32's
+BF16_LOSS_TOLERANCE: Final = 0.02
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class LoraTrainConfig:
     max_val: int = 48  # validation examples evaluated (teacher-forced loss before and after)
     threads: int = 2
     layers: int | None = None  # adapt only the last N transformer layers (None: all)
+    precision: Literal["auto", "fp32", "bf16"] = "auto"  # bf16 autocast of the forward pass (``choose_precision``)
+    checkpoint_every_s: float = 300.0  # resumable checkpoint period (training seconds)
 
     def __post_init__(self) -> None:
         if self.rank < 1 or self.batch_size < 1 or self.lr <= 0 or self.epochs <= 0:
@@ -76,6 +83,10 @@ class LoraTrainConfig:
             raise ValueError("--max-steps must be >= 1")
         if self.layers is not None and self.layers < 1:
             raise ValueError("--layers must be >= 1")
+        if self.precision not in ("auto", "fp32", "bf16"):
+            raise ValueError(f"--precision must be auto, fp32 or bf16, got {self.precision!r}")
+        if self.checkpoint_every_s <= 0:
+            raise ValueError("--checkpoint-every-s must be positive")
 
 
 def load_base(gguf_path: Path) -> tuple[Any, Any]:
@@ -190,13 +201,9 @@ def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Pat
     Returns per prompt whether the token sequences agree and the length of their common prefix,
     and whether both tokenizers give the same prompt ids (llama.cpp's chat completion tokenizes the
     prompt with its own tokenizer)."""
-    llama_mod = _import_llama_cpp()
-    # n_batch=1: prompt evaluated token by token. With llama-cpp-python 0.3.36 on this machine (AVX2,
-    # Q4_1 base) a batched prompt evaluation gives different greedy answers than torch and than
-    # token-by-token evaluation of the same prompt (notes/finetune.md); this check is about the adapter.
-    with without_extra_buffer_types(llama_mod):
-        llm = llama_mod.Llama(model_path=str(base_gguf), lora_path=str(adapter_gguf), n_ctx=1024, n_threads=2,
-                              n_threads_batch=2, n_batch=1, n_ubatch=1, seed=0, verbose=False)
+    # the production settings (flash attention: batched prompt evaluation equals token by token, see
+    # letspi.llm.backends.llamacpp), so the check covers the path planners use
+    llm = open_llama(Path(base_gguf), n_ctx=1024, n_threads=2, lora_path=Path(adapter_gguf))
     eos = int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
     rows = []
     try:
@@ -215,6 +222,47 @@ def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Pat
     return {"n": len(rows), "agree": sum(r["agree"] for r in rows), "prompts": rows}
 
 
+def cpu_supports_bf16() -> bool:
+    """Whether the CPU has native bfloat16 arithmetic (AVX512_BF16 or AMX-BF16), from /proc/cpuinfo."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            flags = next((line for line in fh if line.startswith("flags")), "")
+    except OSError:
+        return False
+    return " avx512_bf16" in flags or " amx_bf16" in flags
+
+
+def choose_precision(config: LoraTrainConfig, model: Any, first: tuple[Any, Any, Any, int]) -> dict[str, Any]:
+    """``fp32`` or ``bf16`` autocast for the forward pass, and the evidence: ``auto`` takes bf16 only on
+    a CPU with native bf16 when the first batch's loss under autocast is within ``BF16_LOSS_TOLERANCE``
+    (relative) of float32's."""
+    import torch
+
+    if config.precision == "fp32" or (config.precision == "auto" and not cpu_supports_bf16()):
+        return {"precision": "fp32", "reason": "requested" if config.precision == "fp32" else "no native bf16"}
+    ids, labels, mask, tail = first
+    model.eval()
+    with torch.no_grad():
+        fp32 = float(_reply_loss(model, ids, labels, mask, tail))
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            bf16 = float(_reply_loss(model, ids, labels, mask, tail))
+    rel = abs(bf16 - fp32) / max(abs(fp32), 1e-9)
+    chosen = "bf16" if config.precision == "bf16" or rel <= BF16_LOSS_TOLERANCE else "fp32"
+    return {"precision": chosen, "first_batch_loss_fp32": fp32, "first_batch_loss_bf16": bf16,
+            "relative_difference": rel, "tolerance": BF16_LOSS_TOLERANCE}
+
+
+def run_fingerprint(config: LoraTrainConfig, base_sha256: str, train: Sequence[ChatExample]) -> dict[str, Any]:
+    """What identifies a training run for its checkpoint (threads and checkpoint period excluded: they
+    change speed, not the result)."""
+    h = hashlib.sha256()
+    for e in train:
+        h.update(json.dumps([list(map(dict, e.messages)), e.reply], sort_keys=True).encode())
+    hyper = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every_s", "max_val")}
+    return {"hyperparameters": hyper, "base_sha256": base_sha256, "train_examples_sha256": h.hexdigest(),
+            "n_train": len(train)}
+
+
 def train_lora(
     examples: Sequence[ChatExample],
     config: LoraTrainConfig,
@@ -228,11 +276,14 @@ def train_lora(
 ) -> dict[str, Any]:
     """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
 
+    Resumable: ``out_dir/checkpoint.pt`` is written every ``config.checkpoint_every_s`` seconds of
+    training (``letspi.learned.train.loop.run_steps``); rerunning the same command continues from it,
+    and a run whose manifest already records this fingerprint returns that manifest at once.
     ``progress(step, total_steps, loss)`` after every optimiser step. ``verify``: prompts of the
     validation split (else training) on which torch and llama.cpp greedy outputs are compared.
     """
     import torch
-    from peft import LoraConfig, get_peft_model, get_peft_model_state_dict
+    from peft import LoraConfig, get_peft_model, get_peft_model_state_dict, set_peft_model_state_dict
 
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
@@ -241,9 +292,14 @@ def train_lora(
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
 
-    train, val = split_examples(examples, config.val_fraction)
+    train, val = split_examples(examples, config.val_fraction, config.seed)
     if not train:
         raise ValueError("no training examples (all in the validation split?)")
+    base_sha = file_sha256(Path(base_gguf))
+    fingerprint = run_fingerprint(config, base_sha, train)
+    done = _finished_manifest(out_dir, fingerprint)
+    if done is not None:
+        return done
     val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
 
     base, tokenizer = load_base(base_gguf)
@@ -260,14 +316,14 @@ def train_lora(
                       task_type="CAUSAL_LM")
     model: Any = get_peft_model(base, lora)
     n_trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    precision = choose_precision(config, model, _collate(enc_train[: config.batch_size], pad_id))
+    autocast = precision["precision"] == "bf16"
     val_before = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
     steps_per_epoch = math.ceil(len(enc_train) / config.batch_size)
     total = max(1, math.ceil(config.epochs * steps_per_epoch))
     if config.max_steps is not None:
         total = min(total, config.max_steps)
-    params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=config.lr, weight_decay=config.weight_decay)
 
     def lr_at(step: int) -> float:  # linear warm-up, then linear decay to 10 %
         if step < config.warmup_steps:
@@ -275,26 +331,23 @@ def train_lora(
         frac = (step - config.warmup_steps) / max(1, total - config.warmup_steps)
         return max(0.1, 1.0 - 0.9 * frac)
 
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_at)
-    order: list[int] = []
-    losses: list[float] = []
-    t_train = time.perf_counter()
-    model.train()
-    for step in range(total):
-        if len(order) < config.batch_size:
-            order += [int(i) for i in rng.permutation(len(enc_train))]
-        idx, order = order[: config.batch_size], order[config.batch_size :]
+    def batch_loss(idx: list[int]) -> Any:
+        model.train()
         ids, labels, mask, tail = _collate([enc_train[i] for i in idx], pad_id)
-        loss = _reply_loss(model, ids, labels, mask, tail)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(params, 1.0)
-        opt.step()
-        sched.step()
-        losses.append(float(loss))
-        if progress is not None:
-            progress(step + 1, total, float(loss))
-    train_s = time.perf_counter() - t_train
+        if autocast:
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                return _reply_loss(model, ids, labels, mask, tail)
+        return _reply_loss(model, ids, labels, mask, tail)
+
+    history = run_steps(
+        [p for p in model.parameters() if p.requires_grad], n_train=len(enc_train), total_steps=total,
+        batch_size=config.batch_size, lr=config.lr, weight_decay=config.weight_decay, seed=config.seed,
+        batch_loss=batch_loss, lr_factor=lr_at, grad_clip=1.0,
+        trainable_state=lambda: {k: v.detach().clone() for k, v in get_peft_model_state_dict(model).items()},
+        load_trainable_state=lambda state: set_peft_model_state_dict(model, state),
+        checkpoint_dir=out_dir, checkpoint_every_s=config.checkpoint_every_s, fingerprint=fingerprint,
+        progress=progress)
+    losses = history.losses
     val_after = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
     # export: the PEFT adapter (reference) and the llama.cpp adapter GGUF
@@ -304,27 +357,54 @@ def train_lora(
     check = verify_export(model, tokenizer, base_gguf, adapter, (val_eval or train)[:verify]) if verify else None
 
     last10 = losses[-min(len(losses), 10):]
+    epoch_len = max(1, steps_per_epoch)
     manifest: dict[str, Any] = {
         "format": MANIFEST_FORMAT,
         "model": "smollm2-135m-letspi",
-        "base_model": {"path": str(base_gguf), "sha256": file_sha256(Path(base_gguf))},
+        "fingerprint": fingerprint,
+        "base_model": {"path": str(base_gguf), "sha256": base_sha},
         "adapter": {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
                     "n_tensors": len(tensors), "trainable_parameters": int(n_trainable),
                     "target_modules": list(TARGET_MODULES)},
         "prompt_style": "compact",
         "hyperparameters": asdict(config),
         "data": {**(data_info or {}), "n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
+                 "split": f"by ego vehicle, {100 * config.val_fraction:.0f} % validation, seed {config.seed}",
+                 "train_vehicles": len({e.vehicle_key for e in train}),
+                 "val_vehicles": len({e.vehicle_key for e in val}),
+                 "train_kinds": {k: sum(e.kind == k for e in train) for k in sorted({e.kind for e in train})},
                  "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
                  "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))},
         "training": {"steps": total, "examples_seen": total * config.batch_size,
                      "epochs_done": total * config.batch_size / len(enc_train),
                      "first_loss": losses[0], "final_loss_mean10": float(np.mean(last10)),
+                     "epoch_mean_loss": [float(np.mean(losses[k:k + epoch_len]))
+                                         for k in range(0, len(losses), epoch_len)],
                      "val_loss_before": val_before, "val_loss_after": val_after,
-                     "load_s": load_s, "train_s": train_s, "elapsed_s": time.perf_counter() - t_start,
-                     "threads": config.threads, "command": command,
+                     **precision,
+                     "resumed_from_step": history.resumed_from, "checkpoints_written": history.checkpoints_written,
+                     "load_s": load_s, "train_s": history.train_s, "s_per_step": history.train_s / max(total, 1),
+                     "elapsed_s_this_process": time.perf_counter() - t_start,
+                     "threads": config.threads, "command": command, "cpu": platform.processor() or platform.machine(),
+                     "loadavg_end": list(os.getloadavg()),
                      "created": datetime.now(UTC).isoformat(timespec="seconds")},
         "export_check": check,
         "versions": _versions(),
     }
     atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
+    (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)  # the adapter and manifest now say it all
     return manifest
+
+
+def _finished_manifest(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
+    """The manifest of a finished run with this fingerprint in ``out_dir`` (a rerun is then a no-op)."""
+    path = out_dir / MANIFEST_FILE
+    if not path.is_file() or not (out_dir / ADAPTER_FILE).is_file():
+        return None
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if manifest.get("fingerprint") != json.loads(json.dumps(fingerprint)):
+        return None
+    return dict(manifest)
