@@ -21,6 +21,7 @@ from pathlib import Path
 
 from letspi.assembly.planner_table import planner_kind
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
+from letspi.llm.backends.llamacpp import LlamaRuntime
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
@@ -180,8 +181,9 @@ class Resolver:
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
         parsed = parse_spec(spec)
-        model_sha = model_path = adapter_sha = adapter_path = None
+        model_sha = model_path = adapter_sha = adapter_path = runtime = None
         if parsed.kind == "llamacpp":
+            runtime = LlamaRuntime.from_env(dict(self.env)).identity()
             path = locate_model(parsed.model)
             model_sha, model_path = file_sha256(path), str(path)
             adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
@@ -193,7 +195,8 @@ class Resolver:
         if style not in PROMPT_STYLES:
             raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
-                         adapter_sha256=adapter_sha, adapter_path=adapter_path, prompt_style=style,  # type: ignore[arg-type]
+                         adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
+                         prompt_style=style,  # type: ignore[arg-type]
                          prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
                          timeout_s=self.options.llm_timeout_s)
 
