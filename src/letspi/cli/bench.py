@@ -18,6 +18,7 @@ from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
+from letspi.bench.llm_runtime import CONFIGS, bench_runtime
 from letspi.bench.metrics import bench_metrics
 from letspi.bench.physics import bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
@@ -84,6 +85,26 @@ def physics_cmd(
     _emit(result, as_json, "letspi bench physics")
 
 
+def _runtime_table(result: dict[str, Any]) -> None:
+    table = Table(title=f"letspi bench llm --contention {result['hogs']}: {result['model']}, uncached planning "
+                        f"request (median of {result['repeats']})")
+    for col in ("configuration", "quiet s", "busy s", "busy / quiet", "threads quiet / busy"):
+        table.add_column(col, justify="left" if col == "configuration" else "right")
+    for name in CONFIGS:
+        entry = result.get(name)
+        if not isinstance(entry, dict) or "quiet" not in entry:
+            continue
+        q, b = entry["quiet"], entry["busy"]
+        table.add_row(name, format_number(q["median_s"]), format_number(b["median_s"]),
+                      format_number(entry["busy_over_quiet"]),
+                      f"{max(q['threads'])} / {max(b['threads'])}")
+    Console().print(table)
+    off = result["flash_attention_off"]
+    console.print(f"flash attention off (quiet): {format_number(off['median_s'])} s "
+                  f"({format_number(result['flash_attention_off_over_on'])}x on); "
+                  f"{result['letspi']['quiet']['self_check']}; load average at start {result['loadavg_start']}")
+
+
 def _levels(text: str, option: str) -> tuple[int, ...]:
     try:
         levels = tuple(int(x) for x in text.split(",") if x.strip())
@@ -126,11 +147,21 @@ def llm_cmd(
     real_server: Annotated[bool, typer.Option(help="--concurrency: also against `python -m llama_cpp.server` "
                                                    "(SmolLM2), with its prefix reuse.")] = True,
     real_concurrency: Annotated[str, typer.Option(help="--concurrency: levels against the real server.")] = "1,4",
+    contention: Annotated[int | None, typer.Option(
+        help="Instead: the embedded model's uncached latency on a quiet machine and beside N CPU-bound "
+             "processes (letspi's runtime vs 2 spinning threads), its self-check, and flash attention off.")] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences.
     With --concurrency: scenarios/s at each concurrency (JSON: concurrency -> scenarios_per_s)."""
+    if contention is not None:
+        runtime = bench_runtime((model or ["smollm2-135m"])[0], hogs=contention, repeats=repeats)
+        if as_json:
+            typer.echo(json.dumps(runtime, indent=2, default=float))
+        else:
+            _runtime_table(runtime)
+        return
     if concurrency is not None:
         conc = bench_concurrency(_levels(concurrency, "--concurrency"), server_latency_ms, pipeline=pipeline,
                                  projection_scenarios=projection_scenarios, real_server=real_server,
