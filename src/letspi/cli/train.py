@@ -182,14 +182,14 @@ def train_mlp_cmd(
     with user_errors():
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
-        feats, targets, digests, infos = load_training_rows(data)
+        feats, targets, vehicles, infos = load_training_rows(data)
         if len(feats) < 10:
             raise ValueError(f"{', '.join(map(str, data))}: only {len(feats)} safe propose labels; need >= 10")
         sf = infos[0].get("sf_params") or {}
         defaults = np.array([float(sf.get(f, np.nan)) if f in sf else (0.4 if f == "lon_factor" else 0.0)
                              for f in NUMERIC_FIELDS])
         cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
-        res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
+        res = train_mlp(feats, targets, vehicles, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
         res.manifest["data"]["labels"] = infos
         res.manifest["training"]["command"] = _command()
         save_weights(out, res.arrays, res.manifest)
