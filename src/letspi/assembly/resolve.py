@@ -42,8 +42,8 @@ from letspi.planners.sf_params import load_sf_params
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
 GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
 MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
-DEFAULT_LLM = "llamacpp:smollm2-135m"
-DEFAULT_FAST_LLM = "llamacpp:smollm2-135m"
+DEFAULT_LLM = "llamacpp:smollm2-135m-letspi"
+DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
 GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
 #: The modules whose code writes prompt text; their source is part of the prompt fingerprint.
 PROMPT_CODE_MODULES: tuple[str, ...] = ("describe.py", "prompts.py", "schema.py", "compact.py")

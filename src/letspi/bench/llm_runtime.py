@@ -95,7 +95,7 @@ def _stop(hogs: Sequence[subprocess.Popen[bytes]]) -> None:
         p.wait()
 
 
-def bench_runtime(model: str = "smollm2-135m", *, hogs: int = 2, repeats: int = 5,
+def bench_runtime(model: str = "smollm2-135m-letspi", *, hogs: int = 2, repeats: int = 5,
                   configs: Sequence[str] = ("letspi", "spinning-2-threads")) -> dict[str, Any]:
     """Quiet and busy latency per configuration (module docstring); JSON-ready."""
     result: dict[str, Any] = {"model": model, "hogs": hogs, "repeats": repeats, "cpus": os.cpu_count(),
@@ -119,7 +119,7 @@ def bench_runtime(model: str = "smollm2-135m", *, hogs: int = 2, repeats: int = 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m letspi.bench.llm_runtime")
     parser.add_argument("--child", action="store_true")
-    parser.add_argument("--model", default="smollm2-135m")
+    parser.add_argument("--model", default="smollm2-135m-letspi")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--hogs", type=int, default=2)
     args = parser.parse_args(argv)

@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
-from letspi.assembly.resolve import DEFAULT_LLM
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
@@ -156,7 +156,7 @@ def llm_cmd(
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences.
     With --concurrency: scenarios/s at each concurrency (JSON: concurrency -> scenarios_per_s)."""
     if contention is not None:
-        runtime = bench_runtime((model or ["smollm2-135m"])[0], hogs=contention, repeats=repeats)
+        runtime = bench_runtime((model or [DEFAULT_FAST_LLM.partition(":")[2]])[0], hogs=contention, repeats=repeats)
         if as_json:
             typer.echo(json.dumps(runtime, indent=2, default=float))
         else:
