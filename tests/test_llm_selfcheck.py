@@ -68,6 +68,7 @@ def test_tolerances_per_model_file() -> None:
     smollm2 = locate_model("smollm2-135m")
     assert batch_tolerance(smollm2) == EMBEDDED_MODELS["smollm2-135m"].batch_tolerance == 0.02
     assert batch_tolerance(smollm2.with_name("my-model.gguf")) == 0.15
+    assert batch_tolerance(smollm2, smollm2.with_name("adapter.gguf")) == pytest.approx(0.05)
 
 
 def test_self_check_on_this_machine() -> None:
@@ -79,6 +80,14 @@ def test_self_check_on_this_machine() -> None:
     assert check.verdict == "agree", check.summary()
     assert check.mode == "batched" and check.argmax_agree and len(check.positions) == 3
     assert check.max_rel_diff <= check.tolerance
+
+
+def test_the_shipped_fine_tuned_model_passes_the_self_check_batched() -> None:
+    pytest.importorskip("llama_cpp")
+    from letspi.llm.backends.llamacpp import LlamaCppBackend
+
+    check = LlamaCppBackend("smollm2-135m-letspi", n_ctx=512).loaded().check
+    assert check.verdict == "agree" and check.mode == "batched", check.summary()
 
 
 def test_without_flash_attention_the_check_never_leaves_a_disagreeing_model_in_use() -> None:

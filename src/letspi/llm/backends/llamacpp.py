@@ -20,8 +20,9 @@ logits are bit-identical on both builds, and closer to float32 torch (4.6 % vs 6
 
 **Self-check at load** (``self_check``): the logits of a fixed prompt at three positions, evaluated
 in batches (the production path) and token by token, must agree (argmax, and a relative difference
-<= the model's ``batch_tolerance``). On disagreement the model is reloaded to evaluate prompts token by
-token (slower, correct by construction) with one warning line; ``LETSPI_LLAMA_SELF_CHECK=strict``
+<= the model's tolerance, larger with a LoRA adapter: ``letspi.llm.models.batch_tolerance``). On
+disagreement the model is reloaded to evaluate prompts token by token (slower, correct by
+construction) with one warning line; ``LETSPI_LLAMA_SELF_CHECK=strict``
 refuses instead (``ModelSelfCheckError``), ``=off`` skips the check. The result is kept on the loaded
 model (``LoadedLlama.check``) and reported by ``letspi llm check`` and the benchmarks.
 
@@ -361,7 +362,7 @@ def shared_llama(model_path: Path, *, n_ctx: int = 4096, n_threads: int = DEFAUL
         if hit is not None:
             return hit
         t0 = time.perf_counter()
-        tol = batch_tolerance(model_path) if tolerance is None else tolerance
+        tol = batch_tolerance(model_path, lora_path) if tolerance is None else tolerance
         llm, check = _load_checked(model_path, n_ctx=n_ctx, n_threads=n_threads, seed=seed, lora_path=lora_path,
                                    runtime=runtime, tolerance=tol)
         # free the model before interpreter teardown: llama_cpp's __del__ fails noisily once its
