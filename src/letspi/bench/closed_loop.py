@@ -29,7 +29,7 @@ from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
 from letspi.simulation.run import effective_config
 from letspi.simulation.worker import ChunkWorker, make_tasks
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 
 
 def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -> ScenarioBatch:
@@ -38,7 +38,7 @@ def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -
         batch = load_scenarios(scenarios)
     else:
         with tempfile.TemporaryDirectory(prefix="letspi-bench-cl-") as tmp:
-            generate_recordings(Path(tmp), minutes=minutes, seed=seed)
+            generate_highd(Path(tmp), minutes=minutes, seed=seed)
             batch = extract_scenarios(read_recordings(Path(tmp)))
     if len(batch) < n:
         raise ValueError(f"only {len(batch)} scenarios available, {n} requested (generate more minutes)")

@@ -158,7 +158,7 @@ def simulate_recordings(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`.
+    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_highd`.
 
     ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
     output remains; see :mod:`letspi.sumo.ssm`).
@@ -298,17 +298,45 @@ def generate_highd(
     lanes_per_direction: int = 3,
     flow_veh_per_h: float | None = None,
     recording_minutes: float | None = None,
+    criticality: str = "highd",
     traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> GenerationReport:
-    """Like :func:`generate_recordings`, returning a :class:`GenerationReport` (timings, attempts, events)."""
+    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir``.
+
+    Args:
+        out_dir: output directory (created if missing); receives ``NN_tracks.csv``,
+            ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv`` and ``NN_events.csv`` for NN = 01, 02, ...
+        minutes: recorded (simulated) minutes, after a 90 s warm-up.
+        seed: random seed; equal seeds give identical recordings.
+        lanes_per_direction: 2 or 3 lanes per (main) carriageway.
+        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
+            (2,200 on 3 lanes), free flow with frequent interactions.
+        recording_minutes: split the run into consecutive recordings of this length
+            (the last may be shorter); default one recording for the whole run. Vehicles
+            crossing a split are cut, as in real recordings.
+        criticality: preset ``calm``, ``highd`` (default) or ``stress`` (ignored if ``traffic``
+            is given).
+        traffic: full traffic configuration (drivers, events, layout).
+        progress: called with the fraction done, in [0, 1].
+
+    Returns:
+        What was written (``paths``: the ``NN_recordingMeta.csv`` files, in recording order) and how
+        long it took (timings, attempts, events).
+
+    Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
+    "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
+    frame when its whole box is inside and its centre is on the main carriageway. Direction 1
+    drives towards -x on the upper lanes, direction 2 towards +x on the lower lanes. No speed
+    limit (speedLimit -1).
+    """
     started = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = progress or (lambda _f: None)
     sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
                               flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes,
-                              traffic=traffic, progress=lambda f: report(0.9 * f))
+                              traffic=traffic or traffic_preset(criticality), progress=lambda f: report(0.9 * f))
     written: list[Path] = []
     n_events = 0
     for k, ((states, vehicles), table) in enumerate(zip(sim.chunks, sim.events, strict=True), start=1):
@@ -331,48 +359,3 @@ def generate_highd(
                             sumo_wall_time_s=sim.sim_wall_time_s, sumo_cpu_time_s=sim.sim_cpu_time_s,
                             attempt=sim.attempt, rejected=sim.rejected, events_written=n_events,
                             failed_events=sim.failed_events, perceived_lane_changes=sim.perceived_lane_changes)
-
-
-def generate_recordings(
-    out_dir: Path,
-    *,
-    minutes: float = 3.0,
-    seed: int = 0,
-    lanes_per_direction: int = 3,
-    flow_veh_per_h: float | None = None,
-    recording_minutes: float | None = None,
-    criticality: str = "highd",
-    traffic: TrafficConfig | None = None,
-    progress: Callable[[float], None] | None = None,
-) -> list[Path]:
-    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir``.
-
-    Args:
-        out_dir: output directory (created if missing); receives ``NN_tracks.csv``,
-            ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv`` and ``NN_events.csv`` for NN = 01, 02, ...
-        minutes: recorded (simulated) minutes, after a 90 s warm-up.
-        seed: random seed; equal seeds give identical recordings.
-        lanes_per_direction: 2 or 3 lanes per (main) carriageway.
-        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
-            (2,200 on 3 lanes), free flow with frequent interactions.
-        recording_minutes: split the run into consecutive recordings of this length
-            (the last may be shorter); default one recording for the whole run. Vehicles
-            crossing a split are cut, as in real recordings.
-        criticality: preset ``calm``, ``highd`` (default) or ``stress`` (ignored if ``traffic``
-            is given).
-        traffic: full traffic configuration (drivers, events, layout).
-        progress: called with the fraction done, in [0, 1].
-
-    Returns:
-        Paths of the written ``NN_recordingMeta.csv`` files, in recording order.
-
-    Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
-    "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
-    frame when its whole box is inside and its centre is on the main carriageway. Direction 1
-    drives towards -x on the upper lanes, direction 2 towards +x on the lower lanes. No speed
-    limit (speedLimit -1).
-    """
-    cfg = traffic or traffic_preset(criticality)
-    return generate_highd(out_dir, minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
-                    flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes, traffic=cfg,
-                    progress=progress).paths
