@@ -33,6 +33,7 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from letspi.assembly.resolve import PlannerOptions
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
 from letspi.method.runner import RunStats, RunStatus
@@ -44,6 +45,9 @@ DEBUG_ENV = "LETSPI_DEBUG"
 def debug_enabled() -> bool:
     return os.environ.get(DEBUG_ENV, "") not in ("", "0")
 
+
+#: The default of every planner option, from its type: CLI options take theirs from here.
+PLANNER_DEFAULTS = PlannerOptions()
 
 ConcurrencyOpt = Annotated[int | None, typer.Option(
     help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "

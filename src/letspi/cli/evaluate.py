@@ -11,8 +11,9 @@ from rich.progress import Progress
 
 from letspi.assembly.build import build_planners, parse_planner_arg
 from letspi.assembly.planner_table import planner_help
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
+from letspi.assembly.resolve import PlannerOptions
 from letspi.cli.common import (
+    PLANNER_DEFAULTS,
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
@@ -60,7 +61,7 @@ SumoGuiOpt = Annotated[bool, typer.Option(
 
 
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int = 32,
+                         ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
                          concurrency: int | None = None) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
     ``ray``: None (no Ray), ``local`` or a cluster address."""
@@ -101,34 +102,39 @@ def evaluate(
         str,
         typer.Option(help="Neighbour prediction of idm/sf/sf-opt/gnp/LLM planners: idm, constant_velocity, or "
                           "ground_truth_oracle (leaks the future: an upper bound, not a planner)."),
-    ] = "idm",
+    ] = PLANNER_DEFAULTS.neighbour_mode,
     goals: Annotated[
         str, typer.Option(help="Goal source: learned (shipped transformer, or $LETSPI_GOAL_WEIGHTS), kinematic, or "
                                "oracle (true endpoint: leaks the future).")
-    ] = "learned",
+    ] = PLANNER_DEFAULTS.goals,
     llm: Annotated[str, typer.Option(help="Model of llm / letspi-memory (spec, e.g. llamacpp:smollm2-135m, "
-                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
+                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")] = (
+        PLANNER_DEFAULTS.llm),
+    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank (from `letspi collect`) for letspi-fast/fs.")] = None,
-    top_k: Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")] = 3,
+    top_k: Annotated[int, typer.Option(
+        help="Memories retrieved per scenario by letspi-fast.")] = PLANNER_DEFAULTS.top_k,
     memory_key: Annotated[str | None, typer.Option(
         help="Only memories collected under this configuration key (default: all in the bank).")] = None,
     allow_same_vehicle: Annotated[bool, typer.Option(
-        help="Let retrieval return memories of the query's own vehicle or overlapping windows (a leak).")] = False,
-    max_iterations: Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")] = 3,
-    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = True,
+        help="Let retrieval return memories of the query's own vehicle or overlapping windows (a leak).")] = (
+        PLANNER_DEFAULTS.allow_same_vehicle),
+    max_iterations: Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")] = (
+        PLANNER_DEFAULTS.max_iterations),
+    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = (
+        PLANNER_DEFAULTS.goal_adjustment),
     cache: Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
-                                             "inference time).")] = True,
+                                             "inference time).")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
     mode: ModeOpt = "open-loop",
     replan_s: ReplanOpt = None,
-    workers: WorkersOpt = 0,
+    workers: WorkersOpt = ClosedLoopSettings.workers,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
-    sumo_gui: SumoGuiOpt = False,
-    chunk_size: ChunkSizeOpt = 32,
-    shield: ShieldOpt = True,
+    sumo_gui: SumoGuiOpt = ClosedLoopSettings.sumo_gui,
+    chunk_size: ChunkSizeOpt = ClosedLoopSettings.chunk_size,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
     mlp_weights: Annotated[Path | None, typer.Option(
         help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")] = None,
 ) -> None:

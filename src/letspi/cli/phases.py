@@ -15,8 +15,9 @@ import typer
 from rich.pretty import pprint
 
 from letspi.assembly.build import Builder, build_planners
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions, Resolver
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import (
+    PLANNER_DEFAULTS,
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
@@ -44,16 +45,18 @@ from letspi.scenario.store import load_scenarios
 def collect(
     scenarios: Annotated[Path, typer.Option(help="Scenario file to collect experiences on.")],
     memory: Annotated[Path, typer.Option(help="Memory bank (SQLite; created if missing, resumed if present).")],
-    llm: Annotated[str, typer.Option(help="Model spec of the memory-collection phase.")] = DEFAULT_LLM,
+    llm: Annotated[str, typer.Option(help="Model spec of the memory-collection phase.")] = PLANNER_DEFAULTS.llm,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
-    max_iterations: Annotated[int, typer.Option(help="Reflection refinements per scenario.")] = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
+    max_iterations: Annotated[int, typer.Option(
+        help="Reflection refinements per scenario.")] = PLANNER_DEFAULTS.max_iterations,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
+    neighbours: Annotated[str, typer.Option(
+        help="Neighbour prediction: idm or constant_velocity.")] = PLANNER_DEFAULTS.neighbour_mode,
     sf_params: Annotated[Path | None, typer.Option(help="SF parameters (r_col and the fallback).")] = None,
-    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = True,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = PLANNER_DEFAULTS.goal_adjustment,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
@@ -124,15 +127,15 @@ def plan(
     scenarios: Annotated[Path, typer.Option(help="Scenario file.")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
     planner: Annotated[str, typer.Option(help="Planner kind (llm, letspi-memory, letspi-fast, sf, ...).")] = "llm",
-    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
+    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
-    top_k: int = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    top_k: int = PLANNER_DEFAULTS.top_k,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
-    shield: ShieldOpt = True,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
     reflection iterations and retrieved memories."""
@@ -208,16 +211,16 @@ def ablate(
     memory_key: Annotated[str | None, typer.Option(
         help="Only memories collected under this configuration key (default: all in the bank).")] = None,
     limit: Annotated[int | None, typer.Option(help="Only the first N evaluation scenarios.")] = None,
-    llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = DEFAULT_FAST_LLM,
-    top_k: int = 3,
+    llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = PLANNER_DEFAULTS.fast_llm,
+    top_k: int = PLANNER_DEFAULTS.top_k,
     collect_scenarios: Annotated[Path | None, typer.Option(help="llm-combinations: scenarios to collect on.")] = None,
     collect_limit: Annotated[int | None, typer.Option(help="llm-combinations: first N collection scenarios.")] = None,
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
-    shield: ShieldOpt = True,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors():
@@ -237,8 +240,8 @@ def prompt(
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
     fast: Annotated[bool, typer.Option(help="The fast prompt (with memories from --memory) instead.")] = False,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for the fast prompt's examples.")] = None,
-    top_k: int = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
+    top_k: int = PLANNER_DEFAULTS.top_k,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
 ) -> None:
     """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
     memory-collection phase, or with --fast the short prompt of the fast-inference phase."""

@@ -14,6 +14,7 @@ from letspi.assembly.build import Builder
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.hyperparams import GnpTrainConfig, GoalTrainConfig
 from letspi.learned.weights import save_weights
 from letspi.llm.models import locate_model
 from letspi.llm.schema import NUMERIC_FIELDS
@@ -55,17 +56,18 @@ def _print_validation(validation: dict[str, Any]) -> None:
 def train_goals(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 40,
-    seed: SeedOpt = 0,
-    n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = 6,
-    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = None,
-    threads: ThreadsOpt = 1,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = GoalTrainConfig.epochs,
+    seed: SeedOpt = GoalTrainConfig.seed,
+    n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = GoalTrainConfig.n_goals,
+    max_train: Annotated[int | None, typer.Option(
+        help="At most this many training scenarios.")] = GoalTrainConfig.max_train,
+    threads: ThreadsOpt = GoalTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
     """Train the transformer multi-goal predictor (winner-takes-all over K goals at the 5 s horizon)."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.goal_train import GoalTrainConfig, train_goal_model
+    from letspi.learned.train.goal_train import train_goal_model
 
     with user_errors():
         if epochs < 1:
@@ -86,22 +88,24 @@ def train_goals(
 def train_gnp(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 8,
-    seed: SeedOpt = 0,
+    epochs: Annotated[int, typer.Option(help="Training epochs.")] = GnpTrainConfig.epochs,
+    seed: SeedOpt = GnpTrainConfig.seed,
     goal_weights: Annotated[Path | None, typer.Option(
         help="Goal model directory for the rollout goals (default: $LETSPI_GOAL_WEIGHTS or the shipped one).")] = None,
     sf_params: Annotated[Path | None, typer.Option(
         help="Fixed SF parameters the weights scale (default: the shipped `sf` fit).")] = None,
-    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = 6000,
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
-    threads: ThreadsOpt = 1,
+    max_train: Annotated[int | None, typer.Option(
+        help="At most this many training scenarios.")] = GnpTrainConfig.max_train,
+    neighbours: Annotated[str, typer.Option(
+        help="Neighbour prediction: idm or constant_velocity.")] = GnpTrainConfig.neighbour_mode,
+    threads: ThreadsOpt = GnpTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
     """Train GNP: tau per scene and a repulsion weight per neighbour, end to end through the
     differentiable social force rollout (predicted goals and predicted neighbours)."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.gnp_train import GnpTrainConfig, train_gnp_model
+    from letspi.learned.train.gnp_train import train_gnp_model
 
     with user_errors():
         if epochs < 1:
