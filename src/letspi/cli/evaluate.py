@@ -17,6 +17,7 @@ from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
+    command_line,
     console,
     print_run,
     progress_bar,
@@ -26,6 +27,7 @@ from letspi.cli.common import (
 from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop, parse_replan_options
 from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
+from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
@@ -140,7 +142,7 @@ def evaluate(
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
                                       ray_address or ("local" if ray else None), sumo_gui, chunk_size,
                                       concurrency)

@@ -21,6 +21,7 @@ from letspi.cli.common import (
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
+    command_line,
     console,
     print_run,
     progress_bar,
@@ -28,6 +29,7 @@ from letspi.cli.common import (
 )
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
 from letspi.llm.spec import default_concurrency
@@ -65,7 +67,7 @@ def collect(
     crash; stored experiences are kept and skipped, fallbacks are retried. --concurrency scenarios run
     at once; experiences are stored in scenario order, so the bank does not depend on it.
     """
-    with user_errors():
+    with user_errors(), writer_lock(memory, command_line(), directory=False):
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,

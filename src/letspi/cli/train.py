@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,7 +10,8 @@ import typer
 
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import PlannerOptions, Resolver
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import command_line, console, progress_bar, user_errors
+from letspi.fsutil import writer_lock
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.hyperparams import GnpTrainConfig, GoalTrainConfig
 from letspi.learned.weights import save_weights
@@ -41,10 +40,6 @@ def _require_torch() -> None:
         raise typer.Exit(code=2) from exc
 
 
-def _command() -> str:
-    return "letspi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-
-
 def _print_validation(validation: dict[str, Any]) -> None:
     for name, values in validation.items():
         if isinstance(values, dict):
@@ -69,7 +64,7 @@ def train_goals(
     from letspi.learned.train.data import load_training_scenarios
     from letspi.learned.train.goal_train import train_goal_model
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
         batch, infos = load_training_scenarios(scenarios)
@@ -78,7 +73,7 @@ def train_goals(
             task = bar.add_task("training goals", total=epochs)
             res = train_goal_model(batch, cfg, progress=lambda k: bar.advance(task, k),
                                    manifest_extra={"data": {"scenario_files": infos, "note": data_note},
-                                                   "training": {"command": _command()}})
+                                                   "training": {"command": command_line()}})
         save_weights(out, res.arrays, res.manifest)
     console.print(f"goal model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
     _print_validation(res.manifest["validation"])
@@ -107,7 +102,7 @@ def train_gnp(
     from letspi.learned.train.data import load_training_scenarios
     from letspi.learned.train.gnp_train import train_gnp_model
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
         if neighbours not in ("idm", "constant_velocity"):
@@ -122,7 +117,7 @@ def train_gnp(
             task = bar.add_task("training gnp", total=epochs + 1)
             res = train_gnp_model(batch, cfg, base, goals, progress=lambda k: bar.advance(task, k),
                                   manifest_extra={"data": {"scenario_files": infos, "note": data_note},
-                                                  "training": {"command": _command(),
+                                                  "training": {"command": command_line(),
                                                                "goal_weights": str(goal_weights or "default"),
                                                                "sf_params": str(sf_params or "shipped")}})
         save_weights(out, res.arrays, res.manifest)
@@ -148,7 +143,7 @@ def train_llm_data(
     two goal factors, scored against the RECORDED future (hindsight; training only)."""
     from letspi.finetune.labels import LabelRun, LabelSearch
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if goals not in ("learned", "kinematic"):
             raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
         search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
@@ -158,7 +153,7 @@ def train_llm_data(
         params, _ = load_sf_params(sf_params)
         goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
         labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
-                            params=params, search=search, seed=seed, command=_command())
+                            params=params, search=search, seed=seed, command=command_line())
         with progress_bar() as bar:
             task = bar.add_task("labelling", total=len(batch))
             manifest = labeller.run(progress=lambda k: bar.advance(task, k))
@@ -183,7 +178,7 @@ def train_mlp_cmd(
     _require_torch()
     from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
         feats, targets, digests, infos = load_training_rows(data)
@@ -195,7 +190,7 @@ def train_mlp_cmd(
         cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
         res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
         res.manifest["data"]["labels"] = infos
-        res.manifest["training"]["command"] = _command()
+        res.manifest["training"]["command"] = command_line()
         save_weights(out, res.arrays, res.manifest)
     val = res.manifest["validation"]
     console.print(f"mlp -> {out} ({res.manifest['training']['seconds']:.0f} s, {len(feats)} labels); "
@@ -233,7 +228,7 @@ def train_llm(
     from letspi.finetune.data import build_examples
     from letspi.finetune.train import LoraTrainConfig, train_lora
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
                               layers=layers, max_val=max_val)
@@ -248,7 +243,7 @@ def train_llm(
                 bar.update(task, completed=step, total=total, description=f"fine-tuning (loss {loss:.3f})")
 
             manifest = train_lora(examples, cfg, locate_model("smollm2-135m"), out, data_info=info,
-                                  progress=progress, verify=verify, command=_command())
+                                  progress=progress, verify=verify, command=command_line())
     t = manifest["training"]
     check = manifest.get("export_check") or {}
     console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "
