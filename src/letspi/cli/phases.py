@@ -170,8 +170,19 @@ def plan(
         "metrics": {k: _round(v) for k, v in metrics.items()},
         "rationale": None,
     }
+    out.update(_llm_details(p, show_prompt))
+    if as_json:
+        typer.echo(json.dumps(out, indent=2))
+    else:
+        pprint(out, expand_all=True)
+
+
+def _llm_details(p: object, show_prompt: bool) -> dict[str, Any]:
+    """What an LLM planner's last call did: reflection iterations, retrieved memories, rationale (and
+    the prompts with ``show_prompt``)."""
+    details: dict[str, Any] = {}
     if isinstance(p, LetsPiMemoryPlanner):
-        out["iterations"] = [
+        details["iterations"] = [
             {"iteration": it.iteration, "safe": it.safe, "rationale": it.proposal.rationale or None,
              "params": {k: round(v, 3) for k, v in it.proposal.params.as_dict().items()},
              "lon_factor": it.proposal.lon_factor, "lane_factor": it.proposal.lane_factor,
@@ -181,18 +192,15 @@ def plan(
         ]
         if p.last_iterations:
             final = p.last_iterations[-1].proposal
-            out["rationale"] = final.rationale or ("(fallback: no valid model answer)" if final.fallback else None)
+            details["rationale"] = final.rationale or ("(fallback: no valid model answer)" if final.fallback else None)
     if isinstance(p, LetsPiFastPlanner):
-        out["retrieved_memories"] = [{"scenario_id": sid, "similarity": round(s, 4)} for sid, s in p.last_retrieved]
+        details["retrieved_memories"] = [{"scenario_id": sid, "similarity": round(s, 4)} for sid, s in p.last_retrieved]
         if p.last_proposal is not None:
-            out["rationale"] = p.last_proposal.rationale or None
+            details["rationale"] = p.last_proposal.rationale or None
             if show_prompt:
-                out["prompt"] = p.last_proposal.prompt
-                out["reply"] = p.last_proposal.reply
-    if as_json:
-        typer.echo(json.dumps(out, indent=2))
-    else:
-        pprint(out, expand_all=True)
+                details["prompt"] = p.last_proposal.prompt
+                details["reply"] = p.last_proposal.reply
+    return details
 
 
 def _pairs(items: list[str] | None) -> list[tuple[str, str]]:

@@ -160,20 +160,10 @@ def _group_key(frame: np.ndarray, direction: np.ndarray, lane: np.ndarray) -> np
     return (frame.astype(np.int64) * 4 + direction.astype(np.int64)) * 1024 + lane_code
 
 
-def build_recording(
-    states: pd.DataFrame,
-    vehicles: pd.DataFrame,
-    *,
-    recording_id: int,
-    upper_markings_y_m: Sequence[float],
-    lower_markings_y_m: Sequence[float],
-    frame_rate_hz: int = 25,
-    location_id: int = 0,
-    speed_limit_mps: float = -1.0,
-    month: str = "01",
-    week_day: str = "Mon",
-    start_time: str = "08:00",
-) -> Recording:
+def build_recording(states: pd.DataFrame, vehicles: pd.DataFrame, *, recording_id: int,
+                    upper_markings_y_m: Sequence[float], lower_markings_y_m: Sequence[float], frame_rate_hz: int = 25,
+                    location_id: int = 0, speed_limit_mps: float = -1.0, month: str = "01", week_day: str = "Mon",
+                    start_time: str = "08:00") -> Recording:
     """Compute all derived HighD columns and return a complete, valid :class:`Recording`.
 
     Args:
@@ -198,26 +188,36 @@ def build_recording(
             frames of a vehicle that are not consecutive.
     """
     _check_inputs(states, vehicles)
-    st = _sorted_states(states)
-    ids = st["id"].to_numpy(dtype=np.int64)
-    frames = st["frame"].to_numpy(dtype=np.int64)
-    x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))
-    vx = st["xVelocity"].to_numpy(dtype=np.float64)
     veh = vehicles.set_index("id")
-    direction = st["id"].map(veh["drivingDirection"]).to_numpy(dtype=np.int64)
-
     # lanes from the markings as they will be stored (2 decimals), see module docstring
     upper_text = format_markings(np.asarray(upper_markings_y_m, dtype=np.float64))
     lower_text = format_markings(np.asarray(lower_markings_y_m, dtype=np.float64))
     markings = np.sort(np.concatenate([parse_markings(upper_text), parse_markings(lower_text)]))
-    lane = 1 + np.searchsorted(markings, y + width_m / 2.0, side="left").astype(np.int64)
+    tracks, has_prec, ttc_ok = _tracks(_sorted_states(states), veh, markings)
+    tracks_meta = _tracks_meta(tracks, veh, has_prec, ttc_ok)
+    meta: dict[str, object] = {
+        "id": int(recording_id), "frameRate": int(frame_rate_hz), "locationId": int(location_id),
+        "speedLimit": float(speed_limit_mps), "month": str(month), "weekDay": str(week_day),
+        "startTime": str(start_time), **_totals(tracks["frame"].to_numpy(), tracks_meta, frame_rate_hz),
+        "upperLaneMarkings": upper_text, "lowerLaneMarkings": lower_text,
+    }
+    return Recording(recording_id=int(recording_id), meta=meta, tracks_meta=tracks_meta, tracks=tracks)
 
+
+def _tracks(st: pd.DataFrame, veh: pd.DataFrame, markings: np.ndarray) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle
+    exists and where TTC is defined (for the per-vehicle minima)."""
+    ids = st["id"].to_numpy(dtype=np.int64)
+    frames = st["frame"].to_numpy(dtype=np.int64)
+    x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))
+    vx = st["xVelocity"].to_numpy(dtype=np.float64)
+    direction = st["id"].map(veh["drivingDirection"]).to_numpy(dtype=np.int64)
+    lane = 1 + np.searchsorted(markings, y + width_m / 2.0, side="left").astype(np.int64)
     # progress coordinate along the travel direction: everything below is "ahead = larger s"
     sign = np.where(direction == DRIVING_DIRECTION_LOWER, 1.0, -1.0)
     s_centre = sign * (x + length / 2.0)
     key = _group_key(frames, direction, lane)
     leader = _leader_columns(key, s_centre, length, sign * vx, vx, ids)
-    adjacent = _adjacent_columns(frames, direction, lane, key, s_centre, length, ids)
     tracks = pd.DataFrame(
         {
             "frame": frames,
@@ -232,25 +232,11 @@ def build_recording(
             "yAcceleration": st["yAcceleration"].to_numpy(dtype=np.float64),
             **_sight_distances(x, length, direction),
             **{k: v for k, v in leader.items() if not k.startswith("_")},
-            **adjacent,
+            **_adjacent_columns(frames, direction, lane, key, s_centre, length, ids),
             "laneId": lane,
         }
     )[list(TRACKS_COLUMNS)]
-
-    tracks_meta = _tracks_meta(tracks, veh, leader["_has_preceding"], leader["_ttc_defined"])
-    meta: dict[str, object] = {
-        "id": int(recording_id),
-        "frameRate": int(frame_rate_hz),
-        "locationId": int(location_id),
-        "speedLimit": float(speed_limit_mps),
-        "month": str(month),
-        "weekDay": str(week_day),
-        "startTime": str(start_time),
-        **_totals(frames, tracks_meta, frame_rate_hz),
-        "upperLaneMarkings": upper_text,
-        "lowerLaneMarkings": lower_text,
-    }
-    return Recording(recording_id=int(recording_id), meta=meta, tracks_meta=tracks_meta, tracks=tracks)
+    return tracks, leader["_has_preceding"], leader["_ttc_defined"]
 
 
 def _sorted_states(states: pd.DataFrame) -> pd.DataFrame:
