@@ -659,6 +659,26 @@ def _severity(report: SafetyReport) -> tuple[float, ...]:
     return (m["collision"], m["off_road"], float(len(report.violations)), -ttc, -gap)
 
 
+def _goal_and_prediction(scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None,
+                         neighbour_prediction: NeighbourPrediction | None) -> tuple[np.ndarray, NeighbourPrediction]:
+    """The goal before adjustment (2,) and the neighbour prediction, the planners' defaults where not given
+    (kinematic goal, IDM prediction)."""
+    if base_goal_xy_m is None:
+        base_goal_xy_m = KinematicGoalPredictor().predict_goals(scenario).top[0]
+    pred = neighbour_prediction if neighbour_prediction is not None else predict_neighbours(
+        scenario, NeighbourPredictionMode.IDM)
+    return np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2), pred
+
+
+def _with_goal_factors_of(proposal: Proposal, first: Proposal) -> Proposal:
+    """``proposal`` with the first proposal's goal factors (the "w/o GA" ablation); an override is
+    recorded in ``meta['goal_factors_frozen']``."""
+    if (proposal.lon_factor, proposal.lane_factor) == (first.lon_factor, first.lane_factor):
+        return proposal
+    meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
+    return replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
+
+
 def reflect(
     scenario: ScenarioBatch,
     propose: Proposer,
@@ -680,11 +700,7 @@ def reflect(
     if len(scenario) != 1:
         raise ValueError(f"reflect works on one scenario (a batch of one), got {len(scenario)}")
     th = thresholds or ReflectionThresholds()
-    if base_goal_xy_m is None:
-        base_goal_xy_m = KinematicGoalPredictor().predict_goals(scenario).top[0]
-    base_goal = np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2)
-    pred = neighbour_prediction if neighbour_prediction is not None else predict_neighbours(
-        scenario, NeighbourPredictionMode.IDM)
+    base_goal, pred = _goal_and_prediction(scenario, base_goal_xy_m, neighbour_prediction)
 
     history: list[IterationRecord] = []
     for iteration in range(th.max_iterations + 1):
@@ -698,10 +714,7 @@ def reflect(
         proposal = propose(ctx).normalised()
         t1 = time.perf_counter()
         if not goal_adjustment and history:
-            first = history[0].proposal
-            if (proposal.lon_factor, proposal.lane_factor) != (first.lon_factor, first.lane_factor):
-                meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
-                proposal = replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
+            proposal = _with_goal_factors_of(proposal, history[0].proposal)
         plan = simulate_proposal(
             scenario, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
             np.array([proposal.lane_factor]), base_goal[None], pred,
@@ -717,14 +730,17 @@ def reflect(
         if report.safe:
             break
 
+    return ReflectionResult(
+        scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history),
+        final_index=_final_index(history, unsafe_choice), validated=any(rec.safe for rec in history),
+    )
+
+
+def _final_index(history: list[IterationRecord], unsafe_choice: Literal["best", "last"]) -> int:
+    """The iteration that is the result: the first safe one, else the last or the least severe."""
     safe_idx = [i for i, rec in enumerate(history) if rec.safe]
     if safe_idx:
-        final = safe_idx[0]
-    elif unsafe_choice == "last":
-        final = len(history) - 1
-    else:
-        final = min(range(len(history)), key=lambda i: (_severity(history[i].report), -i))
-    return ReflectionResult(
-        scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history), final_index=final,
-        validated=bool(safe_idx),
-    )
+        return safe_idx[0]
+    if unsafe_choice == "last":
+        return len(history) - 1
+    return min(range(len(history)), key=lambda i: (_severity(history[i].report), -i))
