@@ -28,6 +28,8 @@ ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario 
 OutOpt = Annotated[Path, typer.Option(help="Output model directory (weights.npz + manifest.json).")]
 SeedOpt = Annotated[int, typer.Option(help="Seed of the split, initialisation and batch order.")]
 ThreadsOpt = Annotated[int, typer.Option(help="torch CPU threads (1 keeps runs reproducible and polite).")]
+EpochsOpt = Annotated[int, typer.Option(help="Training epochs.")]
+MaxTrainOpt = Annotated[int | None, typer.Option(help="At most this many training scenarios.")]
 DataNoteOpt = Annotated[str | None, typer.Option(
     help="Where the data came from, stored in the manifest (e.g. the `letspi data generate` seeds).")]
 
@@ -51,11 +53,10 @@ def _print_validation(validation: dict[str, Any]) -> None:
 def train_goals(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = GoalTrainConfig.epochs,
+    epochs: EpochsOpt = GoalTrainConfig.epochs,
     seed: SeedOpt = GoalTrainConfig.seed,
     n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = GoalTrainConfig.n_goals,
-    max_train: Annotated[int | None, typer.Option(
-        help="At most this many training scenarios.")] = GoalTrainConfig.max_train,
+    max_train: MaxTrainOpt = GoalTrainConfig.max_train,
     threads: ThreadsOpt = GoalTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
@@ -83,14 +84,13 @@ def train_goals(
 def train_gnp(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = GnpTrainConfig.epochs,
+    epochs: EpochsOpt = GnpTrainConfig.epochs,
     seed: SeedOpt = GnpTrainConfig.seed,
     goal_weights: Annotated[Path | None, typer.Option(
         help="Goal model directory for the rollout goals (default: $LETSPI_GOAL_WEIGHTS or the shipped one).")] = None,
     sf_params: Annotated[Path | None, typer.Option(
         help="Fixed SF parameters the weights scale (default: the shipped `sf` fit).")] = None,
-    max_train: Annotated[int | None, typer.Option(
-        help="At most this many training scenarios.")] = GnpTrainConfig.max_train,
+    max_train: MaxTrainOpt = GnpTrainConfig.max_train,
     neighbours: Annotated[str, typer.Option(
         help="Neighbour prediction: idm or constant_velocity.")] = GnpTrainConfig.neighbour_mode,
     threads: ThreadsOpt = GnpTrainConfig.threads,
@@ -168,7 +168,7 @@ def train_mlp_cmd(
     data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
                                              "(repeat for several).")],
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 300,
+    epochs: EpochsOpt = 300,
     hidden: Annotated[int, typer.Option(help="Hidden units per layer.")] = 64,
     seed: SeedOpt = 0,
     threads: ThreadsOpt = 1,
