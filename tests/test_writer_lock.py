@@ -113,3 +113,11 @@ def test_aggregation_refuses_a_scenario_stored_twice() -> None:
     frame = pd.DataFrame({"scenario_digest": ["a", "b", "a"], "collision": np.zeros(3, dtype=bool)})
     with pytest.raises(ValueError, match="1 scenario.* more than once"):
         aggregate_metrics(frame)
+
+
+def test_a_lock_that_cannot_be_opened_names_the_output(tmp_path: Path) -> None:
+    out = tmp_path / "ev"
+    (out / DIRECTORY_LOCK).mkdir(parents=True)  # opening it as a file fails, even for root
+    with pytest.raises(IsADirectoryError) as caught, writer_lock(out):
+        pass
+    assert caught.value.filename == str(out)

@@ -93,7 +93,10 @@ def _holder(lock: Path) -> dict[str, object]:
 def _acquire(lock: Path, output: Path) -> TextIO:
     """The open, flock-ed lock file (``OutputLockedError`` naming the holder when another has it)."""
     while True:
-        fh = open(lock, "a+", encoding="utf-8")  # held until release
+        try:
+            fh = open(lock, "a+", encoding="utf-8")  # held until release
+        except OSError as exc:  # name the output, not our lock file
+            raise OSError(exc.errno, exc.strerror, str(output)) from exc
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
