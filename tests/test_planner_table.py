@@ -52,18 +52,19 @@ VARIANT = {"neighbour_mode": "constant_velocity", "top_k": 5, "shield": False, "
            "fast_llm": "scripted:default", "prompt_style": "compact"}
 #: Keys computed on main at ea22160, before the table existed: results directories and memory banks are
 #: keyed by them, so moving configuration classes must not move a key. The LLM planners' keys moved once,
-#: on purpose, when ``LlmConfig`` gained ``runtime`` (llama.cpp version and flash attention change answers).
+#: on purpose, when ``LlmConfig`` gained ``runtime`` (llama.cpp version and flash attention change answers), and
+#: the default ones again when the fine-tuned model became the default (its adapter and the compact prompt).
 PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
-    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "d084e9af4cd8f30e",
-    "letspi-memory": "98eb9c8c953e675b", "letspi-fast": "4532bb5dd80a3e84", "letspi-fs": "ad821b9f676f85fb",
+    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "d2f86acc63383123",
+    "letspi-memory": "7888058c6fe80e5c", "letspi-fast": "4e76d45509a7831d", "letspi-fs": "fa19c2e729efa07c",
 }
 PINNED_VARIANT_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
     "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "8b044cb7aa3fbaa4",
     "letspi-memory": "b990114e7952b187", "letspi-fast": "27ae453b4559b8a3", "letspi-fs": "0d959d74e5b9deb0",
 }
-PINNED_COLLECTION_KEYS = {"default": "881ce2a15bff39b9", "variant": "48dba622cf863542"}
+PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf863542"}
 
 
 def _keys(options: PlannerOptions) -> dict[str, str]:

@@ -38,7 +38,7 @@ def _train(out: Path | None, kill_after: int | None = None, fingerprint: dict[st
         if kill_after is not None and step == kill_after:
             raise Killed
 
-    history = run_steps(list(net.parameters()), n_train=N_TRAIN, total_steps=total, batch_size=8, lr=0.3,
+    history = run_steps(net, list(net.parameters()), n_train=N_TRAIN, total_steps=total, batch_size=8, lr=0.3,
                         weight_decay=0.0, seed=7, batch_loss=loss, lr_factor=lambda s: 1.0 / (1 + 0.05 * s),
                         trainable_state=lambda: {k: v.detach().clone() for k, v in net.state_dict().items()},
                         load_trainable_state=net.load_state_dict, checkpoint_dir=out, checkpoint_every_s=0.0,

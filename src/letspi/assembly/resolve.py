@@ -22,11 +22,13 @@ from pathlib import Path
 from letspi.assembly.planner_table import planner_kind
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
 from letspi.llm.backends.llamacpp import LlamaRuntime
+from letspi.llm.client import RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
+from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
-from letspi.method.thresholds import ReflectionThresholds
+from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.config import (
     GoalsConfig,
@@ -60,11 +62,11 @@ class PlannerOptions:
     fast_llm: str = DEFAULT_FAST_LLM  # fast-inference model spec
     memory: Path | None = None  # memory bank (SQLite) for letspi-fast / letspi-fs
     memory_key: str | None = None  # only memories collected under this configuration key (None: all)
-    top_k: int = 3
-    max_iterations: int = 3  # reflection refinements of letspi-memory (0 = "w/o reflection")
+    top_k: int = TOP_K
+    max_iterations: int = MAX_ITERATIONS  # reflection refinements of letspi-memory (0 = "w/o reflection")
     goal_adjustment: bool = True  # False = "w/o goal adjustment" ablation
     llm_cache: bool = True  # persistent response cache
-    llm_timeout_s: float = 120.0  # per-request timeout (cosmetic: not part of any key)
+    llm_timeout_s: float = RetryPolicy.timeout_s  # per-request timeout (cosmetic: not part of any key)
     allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
     memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
     memory_seed: int = 0

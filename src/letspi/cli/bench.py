@@ -24,6 +24,7 @@ from letspi.bench.physics import bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
+from letspi.evaluation.closed_loop import ClosedLoopSettings
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -192,7 +193,8 @@ def closed_loop_cmd(
     mode: Annotated[str, typer.Option(help="closed-loop-log or closed-loop-reactive.")] = "closed-loop-log",
     replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
     workers: Annotated[int, typer.Option(help="Worker processes compared with 1 worker (>= 2).")] = 2,
-    chunk_size: Annotated[int, typer.Option(help="Scenarios simulated together in one SUMO network.")] = 32,
+    chunk_size: Annotated[int, typer.Option(
+        help="Scenarios simulated together in one SUMO network.")] = ClosedLoopSettings.chunk_size,
     minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
     seed: int = 0,
     as_json: JsonOpt = False,

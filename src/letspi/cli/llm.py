@@ -32,9 +32,9 @@ def check(
                                "scenario; auto: compact for the fine-tuned model, else tiny).")
     ] = "auto",
     no_cache: Annotated[bool, typer.Option("--no-cache", help="Do not read or write the response cache.")] = False,
-    timeout: Annotated[float, typer.Option(help="Per-call timeout in seconds.")] = 120.0,
-    attempts: Annotated[int, typer.Option(help="Maximum calls (1 = no retry).")] = 3,
-    max_tokens: Annotated[int, typer.Option(help="Reply token limit.")] = 320,
+    timeout: Annotated[float, typer.Option(help="Per-call timeout in seconds.")] = RetryPolicy.timeout_s,
+    attempts: Annotated[int, typer.Option(help="Maximum calls (1 = no retry).")] = RetryPolicy.max_attempts,
+    max_tokens: Annotated[int, typer.Option(help="Reply token limit.")] = DecodingSettings.max_tokens,
 ) -> None:
     """Load SPEC, send one prompt, print latency, tokens and the parsed reply as JSON.
 

@@ -40,7 +40,7 @@ from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text
-from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps
+from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
 from letspi.llm.backends.llamacpp import open_llama
 
 ADAPTER_FILE: Final = "adapter.gguf"
@@ -283,117 +283,159 @@ def train_lora(
     validation split (else training) on which torch and llama.cpp greedy outputs are compared.
     """
     import torch
-    from peft import LoraConfig, get_peft_model, get_peft_model_state_dict, set_peft_model_state_dict
+    from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
-    t_start = time.perf_counter()
+    t_start = time.perf_counter()  # steps: split and fingerprint, encode, LoRA model, run_steps, export
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
 
-    train, val = split_examples(examples, config.val_fraction, config.seed)
-    if not train:
-        raise ValueError("no training examples (all in the validation split?)")
+    train, val, val_eval = _split(examples, config)
     base_sha = file_sha256(Path(base_gguf))
     fingerprint = run_fingerprint(config, base_sha, train)
     done = _finished_manifest(out_dir, fingerprint)
     if done is not None:
         return done
-    val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
-
     base, tokenizer = load_base(base_gguf)
-    n_head, n_kv_head = int(base.config.num_attention_heads), int(base.config.num_key_value_heads)
     pad_id = int(tokenizer.pad_token_id if tokenizer.pad_token_id is not None else tokenizer.eos_token_id)
     enc_train = [encode_example(tokenizer, e) for e in train]
     enc_val = [encode_example(tokenizer, e) for e in val_eval]
     load_s = time.perf_counter() - t_start
 
-    n_layers = int(base.config.num_hidden_layers)
-    layers = list(range(n_layers - min(config.layers, n_layers), n_layers)) if config.layers else None
-    lora = LoraConfig(r=config.rank, lora_alpha=config.alpha, lora_dropout=config.dropout,
-                      target_modules=list(TARGET_MODULES), layers_to_transform=layers, bias="none",
-                      task_type="CAUSAL_LM")
-    model: Any = get_peft_model(base, lora)
+    model = lora_model(base, config)
     n_trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
     precision = choose_precision(config, model, _collate(enc_train[: config.batch_size], pad_id))
-    autocast = precision["precision"] == "bf16"
     val_before = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
     steps_per_epoch = math.ceil(len(enc_train) / config.batch_size)
     total = max(1, math.ceil(config.epochs * steps_per_epoch))
     if config.max_steps is not None:
         total = min(total, config.max_steps)
-
-    def lr_at(step: int) -> float:  # linear warm-up, then linear decay to 10 %
-        if step < config.warmup_steps:
-            return (step + 1) / config.warmup_steps
-        frac = (step - config.warmup_steps) / max(1, total - config.warmup_steps)
-        return max(0.1, 1.0 - 0.9 * frac)
-
-    def batch_loss(idx: list[int]) -> Any:
-        model.train()
-        ids, labels, mask, tail = _collate([enc_train[i] for i in idx], pad_id)
-        if autocast:
-            with torch.autocast("cpu", dtype=torch.bfloat16):
-                return _reply_loss(model, ids, labels, mask, tail)
-        return _reply_loss(model, ids, labels, mask, tail)
-
+    batch_loss = _batch_loss(model, enc_train, pad_id, autocast=precision["precision"] == "bf16")
     history = run_steps(
-        [p for p in model.parameters() if p.requires_grad], n_train=len(enc_train), total_steps=total,
+        model, [p for p in model.parameters() if p.requires_grad], n_train=len(enc_train), total_steps=total,
         batch_size=config.batch_size, lr=config.lr, weight_decay=config.weight_decay, seed=config.seed,
-        batch_loss=batch_loss, lr_factor=lr_at, grad_clip=1.0,
+        batch_loss=batch_loss, lr_factor=lr_schedule(config, total), clip_norm=1.0,
         trainable_state=lambda: {k: v.detach().clone() for k, v in get_peft_model_state_dict(model).items()},
         load_trainable_state=lambda state: set_peft_model_state_dict(model, state),
         checkpoint_dir=out_dir, checkpoint_every_s=config.checkpoint_every_s, fingerprint=fingerprint,
         progress=progress)
-    losses = history.losses
     val_after = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
-    # export: the PEFT adapter (reference) and the llama.cpp adapter GGUF
-    model.save_pretrained(str(out_dir / PEFT_DIR))
-    tensors = adapter_tensors(get_peft_model_state_dict(model), n_head=n_head, n_kv_head=n_kv_head)
-    adapter = write_adapter_gguf(out_dir / ADAPTER_FILE, tensors, alpha=config.alpha)
-    check = verify_export(model, tokenizer, base_gguf, adapter, (val_eval or train)[:verify]) if verify else None
-
-    last10 = losses[-min(len(losses), 10):]
-    epoch_len = max(1, steps_per_epoch)
+    adapter_record, check = _export(model, tokenizer, base_gguf, out_dir, config, (val_eval or train)[:verify])
     manifest: dict[str, Any] = {
         "format": MANIFEST_FORMAT,
         "model": "smollm2-135m-letspi",
         "fingerprint": fingerprint,
         "base_model": {"path": str(base_gguf), "sha256": base_sha},
-        "adapter": {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
-                    "n_tensors": len(tensors), "trainable_parameters": int(n_trainable),
-                    "target_modules": list(TARGET_MODULES)},
+        "adapter": {**adapter_record, "trainable_parameters": int(n_trainable)},
         "prompt_style": "compact",
         "hyperparameters": asdict(config),
-        "data": {**(data_info or {}), "n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
-                 "split": f"by ego vehicle, {100 * config.val_fraction:.0f} % validation, seed {config.seed}",
-                 "train_vehicles": len({e.vehicle_key for e in train}),
-                 "val_vehicles": len({e.vehicle_key for e in val}),
-                 "train_kinds": {k: sum(e.kind == k for e in train) for k in sorted({e.kind for e in train})},
-                 "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
-                 "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))},
-        "training": {"steps": total, "examples_seen": total * config.batch_size,
-                     "epochs_done": total * config.batch_size / len(enc_train),
-                     "first_loss": losses[0], "final_loss_mean10": float(np.mean(last10)),
-                     "epoch_mean_loss": [float(np.mean(losses[k:k + epoch_len]))
-                                         for k in range(0, len(losses), epoch_len)],
-                     "val_loss_before": val_before, "val_loss_after": val_after,
-                     **precision,
-                     "resumed_from_step": history.resumed_from, "checkpoints_written": history.checkpoints_written,
-                     "load_s": load_s, "train_s": history.train_s, "s_per_step": history.train_s / max(total, 1),
-                     "elapsed_s_this_process": time.perf_counter() - t_start,
-                     "threads": config.threads, "command": command, "cpu": platform.processor() or platform.machine(),
-                     "loadavg_end": list(os.getloadavg()),
-                     "created": datetime.now(UTC).isoformat(timespec="seconds")},
+        "data": {**(data_info or {}), **_data_record(config, train, val, val_eval, enc_train)},
+        "training": {**_training_record(config, history, steps_per_epoch, len(enc_train)),
+                     "val_loss_before": val_before, "val_loss_after": val_after, **precision,
+                     "load_s": load_s, "elapsed_s_this_process": time.perf_counter() - t_start, "command": command},
         "export_check": check,
         "versions": _versions(),
     }
     atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
     (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)  # the adapter and manifest now say it all
     return manifest
+
+
+def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[list[ChatExample],
+                                                                             list[ChatExample], list[ChatExample]]:
+    """(train, validation, the ``max_val`` validation examples scored before and after training)."""
+    train, val = split_examples(examples, config.val_fraction, config.seed)
+    if not train:
+        raise ValueError("no training examples (all in the validation split?)")
+    rng = np.random.default_rng(config.seed)
+    val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
+    return train, val, val_eval
+
+
+def _export(model: Any, tokenizer: Any, base_gguf: Path, out_dir: Path, config: LoraTrainConfig,
+            verify_examples: Sequence[ChatExample]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Write the PEFT adapter (reference) and the llama.cpp adapter GGUF; compare torch and llama.cpp
+    greedy outputs on ``verify_examples``. Returns (the manifest's adapter record, the check or None)."""
+    from peft import get_peft_model_state_dict
+
+    model.save_pretrained(str(out_dir / PEFT_DIR))
+    cfg = model.base_model.model.config
+    tensors = adapter_tensors(get_peft_model_state_dict(model), n_head=int(cfg.num_attention_heads),
+                              n_kv_head=int(cfg.num_key_value_heads))
+    adapter = write_adapter_gguf(out_dir / ADAPTER_FILE, tensors, alpha=config.alpha)
+    check = verify_export(model, tokenizer, base_gguf, adapter, verify_examples) if verify_examples else None
+    record = {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
+              "n_tensors": len(tensors), "target_modules": list(TARGET_MODULES)}
+    return record, check
+
+
+def lora_model(base: Any, config: LoraTrainConfig) -> Any:
+    """``base`` with LoRA on ``TARGET_MODULES`` of every layer, or of the last ``config.layers``."""
+    from peft import LoraConfig, get_peft_model
+
+    n_layers = int(base.config.num_hidden_layers)
+    layers = list(range(n_layers - min(config.layers, n_layers), n_layers)) if config.layers else None
+    lora = LoraConfig(r=config.rank, lora_alpha=config.alpha, lora_dropout=config.dropout,
+                      target_modules=list(TARGET_MODULES), layers_to_transform=layers, bias="none",
+                      task_type="CAUSAL_LM")
+    return get_peft_model(base, lora)
+
+
+def lr_schedule(config: LoraTrainConfig, total: int) -> Callable[[int], float]:
+    """Learning-rate factor per step: linear warm-up over ``warmup_steps``, then linear decay to 10 %."""
+
+    def factor(step: int) -> float:
+        if step < config.warmup_steps:
+            return (step + 1) / config.warmup_steps
+        frac = (step - config.warmup_steps) / max(1, total - config.warmup_steps)
+        return max(0.1, 1.0 - 0.9 * frac)
+
+    return factor
+
+
+def _batch_loss(model: Any, encoded: Sequence[tuple[list[int], list[int]]], pad_id: int,
+                *, autocast: bool) -> Callable[[list[int]], Any]:
+    """The reply loss of the training examples at some indices (forward under bf16 autocast if asked)."""
+    import torch
+
+    def loss(idx: list[int]) -> Any:
+        ids, labels, mask, tail = _collate([encoded[i] for i in idx], pad_id)
+        if autocast:
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                return _reply_loss(model, ids, labels, mask, tail)
+        return _reply_loss(model, ids, labels, mask, tail)
+
+    return loss
+
+
+def _data_record(config: LoraTrainConfig, train: Sequence[ChatExample], val: Sequence[ChatExample],
+                 val_eval: Sequence[ChatExample], enc_train: Sequence[tuple[list[int], list[int]]]) -> dict[str, Any]:
+    """The manifest's data section: split, sizes, kinds and token counts."""
+    return {"n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
+            "split": f"by ego vehicle, {100 * config.val_fraction:.0f} % validation, seed {config.seed}",
+            "train_vehicles": len({e.vehicle_key for e in train}),
+            "val_vehicles": len({e.vehicle_key for e in val}),
+            "train_kinds": {k: sum(e.kind == k for e in train) for k in sorted({e.kind for e in train})},
+            "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
+            "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))}
+
+
+def _training_record(config: LoraTrainConfig, history: StepHistory, steps_per_epoch: int,
+                     n_train: int) -> dict[str, Any]:
+    """The manifest's training section: steps, losses, timing, resume and the machine's load."""
+    losses, total = history.losses, history.steps
+    epoch_len = max(1, steps_per_epoch)
+    return {"steps": total, "examples_seen": total * config.batch_size,
+            "epochs_done": total * config.batch_size / n_train,
+            "first_loss": losses[0], "final_loss_mean10": float(np.mean(losses[-min(len(losses), 10):])),
+            "epoch_mean_loss": [float(np.mean(losses[k:k + epoch_len])) for k in range(0, len(losses), epoch_len)],
+            "resumed_from_step": history.resumed_from, "checkpoints_written": history.checkpoints_written,
+            "train_s": history.train_s, "s_per_step": history.train_s / max(total, 1),
+            "threads": config.threads, "cpu": platform.processor() or platform.machine(),
+            "loadavg_end": list(os.getloadavg()), "created": datetime.now(UTC).isoformat(timespec="seconds")}
 
 
 def _finished_manifest(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] | None:

@@ -34,6 +34,7 @@ from typing import Any, ClassVar, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from letspi.llm.client import RetryPolicy
 from letspi.llm.types import DecodingSettings
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
@@ -182,13 +183,13 @@ class LlmConfig(Config):
     adapter_path: str | None = None
     prompt_style: Literal["paper", "compact"] = "paper"
     runtime: str | None = None
-    temperature: float = 0.0
-    seed: int = 0
-    max_tokens: int = 320
+    temperature: float = DecodingSettings.temperature
+    seed: int = DecodingSettings.seed
+    max_tokens: int = DecodingSettings.max_tokens
     use_schema: bool = True
-    max_attempts: int = Field(default=3, ge=1)
+    max_attempts: int = Field(default=RetryPolicy.max_attempts, ge=1)
     prompt_sha256: str
-    timeout_s: float = 120.0
+    timeout_s: float = RetryPolicy.timeout_s
     cache: bool = True
 
     def decoding(self) -> DecodingSettings:
