@@ -37,17 +37,15 @@ Rejected (not *valid*):
   1-D TTC below ``ttc_s``: the thresholds ``sf-opt`` and LetsPi's reflection use). Contact (plain box
   overlap) is a special case.
 
-The cheapest valid candidate wins. When none is valid, the *least unsafe* one: fewest
-time-weighted contacts with the predicted neighbours (a contact at frame f weighs F - f, so later
-contacts are lighter), then feasible before infeasible, then fewest time-weighted margin violations,
-then cost.
+The cheapest valid candidate wins. When none is valid, the *least unsafe* one: the latest first
+contact with a predicted neighbour (then the fewest contact (neighbour, frame) pairs), then feasible
+before infeasible, then the latest and fewest margin violations, then cost.
 
 Batched: the lattice is evaluated as arrays (B, I, F) and (B, J, F); the pair checks need no
-(B, I, J, F) array because a pair collides with a neighbour at a frame exactly when its longitudinal
-candidate overlaps longitudinally *and* its lateral candidate overlaps laterally, so the weighted
-counts of all pairs are one batched matrix product over the (neighbour, frame) axis. Costs add the
-same way. No Python loop runs over scenarios or candidates (only over chunks of scenarios, to
-bound memory).
+(B, I, J, F) float array because a pair overlaps a neighbour at a frame exactly when its longitudinal
+candidate overlaps longitudinally *and* its lateral candidate overlaps laterally: the per-candidate
+flags are packed into bit strings and every pair is one AND of two of them. Costs add the same way.
+No Python loop runs over scenarios or candidates (only over chunks of scenarios, to bound memory).
 """
 
 from __future__ import annotations
@@ -245,7 +243,8 @@ class Lattice:
     (J,), ``lat_target_y_m``, ``lat_exists``, ``lat_feasible``, ``lat_jerk``, ``lat_lanes_from_goal`` (lanes
     between the target lane and the goal's lane).
     Pairs (B, I, J): ``pair_ok`` (both exist and pair), ``feasible`` (with the curvature bound),
-    ``contact`` and ``violation`` (time-weighted counts of predicted contacts / margin violations).
+    ``contact`` and ``violation`` (unsafety scores of predicted contacts / margin violations, 0 = none;
+    ``_pair_counts``).
     Per scenario (B,): ``v_des_mps``, ``goals_xy_m`` (B, 2).
     """
 
@@ -504,42 +503,59 @@ def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np
 
 def _pair_counts(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray, vx: np.ndarray, y: np.ndarray,
                  safety: FrenetSafety) -> tuple[np.ndarray, np.ndarray]:
-    """Time-weighted counts (B, I, J) of (neighbour, frame) contacts and margin violations of every pair.
+    """Unsafety scores (B, I, J) int64 of every pair: contacts and margin violations with the predicted
+    neighbours; 0 = none.
 
     A pair (i, j) overlaps neighbour n at frame f iff candidate i overlaps it longitudinally and j
-    laterally, so the counts are sums over (n, f) of products: one batched matrix product each.
-    x, vx: (B, I, F) longitudinal candidates; y: (B, J, F) lateral candidates. Computed in float32
-    (positions within a few hundred metres: sub-millimetre resolution); the weights F - f are
-    integers, so the sums are exact.
+    laterally. The per-candidate flags are packed into bits ((frame, neighbour) order, 8 frames of 8
+    neighbours per 64-bit word), so a pair's overlaps are the AND of two bit strings: no (B, I, J, F)
+    array and no BLAS call (whose threads stall on a busy machine). Score = (W - first word with an
+    overlap) x 1,000,000 + number of overlapping (neighbour, frame) pairs, W = words per plan: an
+    earlier first overlap (0.32 s resolution) is worse, then a longer or wider one.
+    x, vx: (B, I, F) longitudinal candidates; y: (B, J, F) lateral candidates; float32 arithmetic
+    (positions within a few hundred metres: sub-millimetre resolution).
     """
-    b, n = pred.valid.shape[:2]
-    f = x.shape[2]
-    valid = pred.valid & np.isfinite(pred.xy_m).all(axis=-1)
-    xn = pred.xy_m[..., 0].astype(np.float32)[:, None]  # (B, 1, N, F)
-    yn = pred.xy_m[..., 1].astype(np.float32)[:, None]
-    vn = pred.vxy_mps[..., 0].astype(np.float32)[:, None]
+    valid = (pred.valid & np.isfinite(pred.xy_m).all(axis=-1)).transpose(0, 2, 1)[:, None]  # (B, 1, F, N)
+    xn = pred.xy_m[..., 0].astype(np.float32).transpose(0, 2, 1)[:, None]
+    yn = pred.xy_m[..., 1].astype(np.float32).transpose(0, 2, 1)[:, None]
+    vn = pred.vxy_mps[..., 0].astype(np.float32).transpose(0, 2, 1)[:, None]
     half_len = (0.5 * (batch.ego_length_m[:, None] + np.nan_to_num(batch.nbr_length_m))).astype(np.float32)
     half_wid = (0.5 * (batch.ego_width_m[:, None] + np.nan_to_num(batch.nbr_width_m))).astype(np.float32)
-    half_len = half_len[:, None, :, None]
-    half_wid = half_wid[:, None, :, None]
-    weight = np.where(valid, (f - np.arange(f, dtype=np.float32))[None, None, :], 0.0).astype(np.float32)[:, None]
+    half_len = half_len[:, None, None, :]  # (B, 1, 1, N)
+    half_wid = half_wid[:, None, None, :]
 
-    xe = x.astype(np.float32)[:, :, None, :]  # (B, I, 1, F)
-    ve = vx.astype(np.float32)[:, :, None, :]
-    dx = xn - xe  # (B, I, N, F), > 0: the neighbour is ahead
-    closing = ve - vn  # ego faster: closing on a vehicle ahead
+    xe = x.astype(np.float32)[..., None]  # (B, I, F, 1)
+    dx = xn - xe  # (B, I, F, N), > 0: the neighbour is ahead
+    closing = vx.astype(np.float32)[..., None] - vn  # ego faster: closing on a vehicle ahead
     front = half_len + np.maximum(np.float32(safety.front_gap_m), np.float32(safety.ttc_s) * closing)
     rear = half_len + np.maximum(np.float32(safety.rear_gap_m), np.float32(safety.ttc_s) * -closing)
-    lon_contact = (np.abs(dx) < half_len) * weight
-    lon_margin = ((dx < front) & (dx > -rear)) * weight
-    dy = np.abs(yn - y.astype(np.float32)[:, :, None, :])  # (B, J, N, F)
-    lat_contact = (dy < half_wid).astype(np.float32)
-    lat_margin = (dy < half_wid + np.float32(safety.lat_margin_m)).astype(np.float32)
+    lon_contact = (np.abs(dx) < half_len) & valid
+    lon_margin = (dx < front) & (dx > -rear) & valid
+    dy = np.abs(yn - y.astype(np.float32)[..., None])  # (B, J, F, N)
+    lat_contact = dy < half_wid
+    lat_margin = dy < half_wid + np.float32(safety.lat_margin_m)
+    return _and_score(_bits(lon_contact), _bits(lat_contact)), _and_score(_bits(lon_margin), _bits(lat_margin))
 
-    def pair_sum(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-        return np.matmul(lon.reshape(b, lon.shape[1], n * f), lat.reshape(b, lat.shape[1], n * f).transpose(0, 2, 1))
 
-    return pair_sum(lon_contact, lat_contact), pair_sum(lon_margin, lat_margin)
+def _bits(flags: np.ndarray) -> np.ndarray:
+    """(B, K, F, N) bool -> (B, K, W) uint64 bit strings (frame-major, zero padded)."""
+    b, k = flags.shape[:2]
+    packed = np.packbits(flags, axis=-1).reshape(b, k, -1)  # (B, K, F * ceil(N / 8)) bytes
+    pad = (-packed.shape[2]) % 8
+    if pad:
+        packed = np.concatenate([packed, np.zeros((b, k, pad), dtype=np.uint8)], axis=2)
+    return np.ascontiguousarray(packed).view(np.uint64)
+
+
+def _and_score(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
+    """Scores (B, I, J) of the pairwise ANDs of (B, I, W) and (B, J, W) bit strings (``_pair_counts``)."""
+    both = lon_bits[:, :, None, :] & lat_bits[:, None, :, :]  # (B, I, J, W)
+    hit = both != 0
+    n_words = both.shape[3]
+    count = np.bitwise_count(both).sum(axis=3, dtype=np.int64)
+    first = np.where(hit.any(axis=3), hit.argmax(axis=3), n_words)
+    out: np.ndarray = (n_words - first).astype(np.int64) * 1_000_000 + count
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
