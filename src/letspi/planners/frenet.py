@@ -76,7 +76,8 @@ ANY_LANE = -9  # lane code of longitudinal candidates that pair with every later
 
 
 class FrenetWeights(BaseModel):
-    """Cost weights (chosen by ``letspi fit frenet``; the shipped values in ``letspi/data/frenet_weights.json``).
+    """Cost weights. The defaults are hand-set starting values of ``letspi fit frenet``; the planner uses the
+    fitted ones shipped in ``letspi/data/frenet_weights.json`` (``shipped_settings``).
 
     Units: k_jerk_lon, k_jerk_lat per (m²/s⁵) (the integral of squared jerk over the horizon);
     k_time per s of horizon; k_offset per m² of end offset from the target lane's centre; k_goal_lane
@@ -563,13 +564,19 @@ def _and_score(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
+def shipped_settings() -> FrenetSettings:
+    """The default lattice with the shipped (fitted) weights."""
+    return FrenetSettings(weights=load_frenet_weights()[0])
+
+
 @dataclass
 class FrenetPlanner:
-    """Planner ``frenet`` (module doc). ``info`` per scenario: the chosen candidate's lane change
-    (``target_lane``: -1 right, 0 keep, +1 left), lateral offset, longitudinal mode (0 speed, 1
-    follow), target speed, both horizons, its cost, ``n_safe`` (valid candidates) and ``found_safe``."""
+    """Planner ``frenet`` (module doc); by default with the shipped weights. ``info`` per scenario: the chosen
+    candidate's lane change (``target_lane``: -1 right, 0 keep, +1 left), lateral offset, longitudinal mode
+    (0 speed, 1 follow), target speed, both horizons, its cost, ``n_safe`` (valid candidates) and
+    ``found_safe``."""
 
-    settings: FrenetSettings = field(default_factory=FrenetSettings)
+    settings: FrenetSettings = field(default_factory=shipped_settings)
     goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "frenet"
