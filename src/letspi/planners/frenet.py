@@ -54,7 +54,7 @@ import json
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -66,6 +66,7 @@ from letspi.physics.lanes import lane_centres_m, lane_index_of
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
+from letspi.planners.config import Config, GoalsConfig
 from letspi.scenario.types import ScenarioBatch
 
 SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
@@ -148,6 +149,19 @@ class FrenetSettings(BaseModel):
     sampling: FrenetSampling = Field(default_factory=FrenetSampling)
     limits: FrenetLimits = Field(default_factory=FrenetLimits)
     safety: FrenetSafety = Field(default_factory=FrenetSafety)
+
+
+class FrenetConfig(Config):
+    """``frenet``: the lattice planner; ``frenet`` holds its weights (the fitted values; ``weights_source``
+    names their file), sample sets, limits and safety margins."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"weights_source"})
+
+    kind: Literal["frenet"] = "frenet"
+    neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    goals: GoalsConfig
+    frenet: FrenetSettings = Field(default_factory=FrenetSettings)
+    weights_source: str = "shipped"
 
 
 def load_frenet_weights(path: Path | None = None) -> tuple[FrenetWeights, dict[str, Any]]:
@@ -401,103 +415,133 @@ def _concat(parts: list[Lattice]) -> Lattice:
                       for name in first.__dict__})
 
 
-def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np.ndarray,
-                 settings: FrenetSettings) -> Lattice:
-    s, lim, safety = settings.sampling, settings.limits, settings.safety
-    b = len(batch)
-    t_s = np.arange(1, N_FUTURE + 1) * DT_S  # (F,)
+@dataclass(frozen=True)
+class _Start:
+    """The t = 0 state and road of a chunk, (B,) arrays (``_build_chunk``)."""
+
+    x0: np.ndarray
+    y0: np.ndarray
+    vx0: np.ndarray
+    vy0: np.ndarray
+    ax0: np.ndarray
+    ay0: np.ndarray
+    marks: np.ndarray
+    centres: np.ndarray
+    n_lanes: np.ndarray
+    cur: np.ndarray
+    progress: np.ndarray
+    v_des: np.ndarray
+    goal_lane: np.ndarray
+
+
+def _start(batch: ScenarioBatch, goals_xy_m: np.ndarray, lim: FrenetLimits) -> _Start:
     x0, y0 = (np.nan_to_num(batch.ego_xy0_m[:, k].astype(np.float64)) for k in (0, 1))
     vx0 = np.maximum(np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64)), 0.0)
-    vy0 = np.nan_to_num(batch.ego_vxy0_mps[:, 1].astype(np.float64))
     # the recorded/simulated acceleration at t = 0, within the limits (a candidate cannot start infeasible)
     a_now = np.nan_to_num(batch.ego_axy_mps2[:, T0_INDEX].astype(np.float64))
-    ax0 = np.clip(a_now[:, 0], -lim.max_decel_mps2, lim.max_accel_mps2)
-    ay0 = np.clip(a_now[:, 1], -lim.max_lat_accel_mps2, lim.max_lat_accel_mps2)
     marks = batch.marking_y_m.astype(np.float64)
     centres = lane_centres_m(marks)  # (B, M - 1)
-    n_lanes = np.isfinite(centres).sum(axis=1)
     cur = lane_index_of(y0, marks)  # (B,), -1 without lanes
     progress, v_des, goal_lane = _goal_terms(batch, goals_xy_m, x0, vx0, cur)
+    return _Start(x0=x0, y0=y0, vx0=vx0, vy0=np.nan_to_num(batch.ego_vxy0_mps[:, 1].astype(np.float64)),
+                  ax0=np.clip(a_now[:, 0], -lim.max_decel_mps2, lim.max_accel_mps2),
+                  ay0=np.clip(a_now[:, 1], -lim.max_lat_accel_mps2, lim.max_lat_accel_mps2), marks=marks,
+                  centres=centres, n_lanes=np.isfinite(centres).sum(axis=1), cur=cur, progress=progress, v_des=v_des,
+                  goal_lane=goal_lane)
 
-    # lateral candidates (B, J)
+
+def _lateral(batch: ScenarioBatch, st: _Start, s: FrenetSampling, lim: FrenetLimits, t_s: np.ndarray,
+             ) -> dict[str, np.ndarray]:
+    """Lateral candidates (B, J): coefficients, trajectories, checks and cost terms."""
+    b = len(batch)
     lat_t, lat_lane, lat_off = _lat_grid(s)
-    target_idx = cur[:, None] + lat_lane[None, :]
-    if centres.shape[1]:
-        lane_ok = (target_idx >= 0) & (target_idx < n_lanes[:, None]) & (cur[:, None] >= 0)
-        lane_y = np.take_along_axis(np.nan_to_num(centres, nan=0.0),
-                                    np.clip(target_idx, 0, centres.shape[1] - 1), axis=1)
+    target_idx = st.cur[:, None] + lat_lane[None, :]
+    if st.centres.shape[1]:
+        lane_ok = (target_idx >= 0) & (target_idx < st.n_lanes[:, None]) & (st.cur[:, None] >= 0)
+        lane_y = np.take_along_axis(np.nan_to_num(st.centres, nan=0.0),
+                                    np.clip(target_idx, 0, st.centres.shape[1] - 1), axis=1)
     else:
         lane_ok = np.zeros(target_idx.shape, dtype=bool)
         lane_y = np.zeros(target_idx.shape)
-    no_lanes = (n_lanes == 0)[:, None] & (lat_lane[None, :] == 0)
-    lat_exists = lane_ok | no_lanes
-    lat_y1 = np.where(no_lanes, y0[:, None], lane_y) + lat_off[None, :]
-    zeros_j = np.zeros_like(lat_y1)
-    lat_coef = quintic_coefficients(y0[:, None], vy0[:, None], ay0[:, None], lat_y1, zeros_j, zeros_j,
-                                    lat_t[None, :])
-    y, vy, ay = evaluate_held(lat_coef, np.broadcast_to(lat_t, lat_y1.shape), t_s)  # (B, J, F)
+    no_lanes = (st.n_lanes == 0)[:, None] & (lat_lane[None, :] == 0)
+    exists = lane_ok | no_lanes
+    y1 = np.where(no_lanes, st.y0[:, None], lane_y) + lat_off[None, :]
+    zeros = np.zeros_like(y1)
+    coef = quintic_coefficients(st.y0[:, None], st.vy0[:, None], st.ay0[:, None], y1, zeros, zeros, lat_t[None, :])
+    y, vy, ay = evaluate_held(coef, np.broadcast_to(lat_t, y1.shape), t_s)  # (B, J, F)
     leaves_road = off_road(y.reshape(-1, N_FUTURE), np.repeat(batch.ego_width_m.astype(np.float64), len(lat_t)),
-                           np.repeat(marks, len(lat_t), axis=0),
+                           np.repeat(st.marks, len(lat_t), axis=0),
                            np.repeat(batch.marking_is_edge, len(lat_t), axis=0)).reshape(b, -1)
-    lat_peak_ay = np.abs(ay).max(axis=2)
-    lat_peak_vy = np.abs(vy).max(axis=2)
-    lat_feasible = lat_exists & ~leaves_road & (lat_peak_ay <= lim.max_lat_accel_mps2)
-    lat_jerk = jerk_integral(lat_coef, lat_t[None, :])
-    lanes_from_goal = np.abs(target_idx - goal_lane[:, None]).astype(np.float64)
+    peak_ay = np.abs(ay).max(axis=2)
+    return {"t": lat_t, "lane": lat_lane, "off": lat_off, "y1": y1, "exists": exists, "coef": coef, "y": y,
+            "peak_ay": peak_ay, "peak_vy": np.abs(vy).max(axis=2),
+            "feasible": exists & ~leaves_road & (peak_ay <= lim.max_lat_accel_mps2),
+            "jerk": jerk_integral(coef, lat_t[None, :]),
+            "from_goal": np.abs(target_idx - st.goal_lane[:, None]).astype(np.float64)}
 
-    # longitudinal candidates (B, I)
+
+def _longitudinal(batch: ScenarioBatch, pred: NeighbourPrediction, st: _Start, s: FrenetSampling,
+                  lim: FrenetLimits, t_s: np.ndarray) -> dict[str, np.ndarray]:
+    """Longitudinal candidates (B, I): coefficients, trajectories, checks and cost terms."""
+    b = len(batch)
     lon_t, lon_mode, lon_lane, lon_par = _lon_grid(s)
     value, kind = lon_par[:, 0], lon_par[:, 1]
     tt = lon_t[None, :]
+    x0, vx0, ax0 = st.x0[:, None], st.vx0[:, None], st.ax0[:, None]
     # end speed that reaches the goal's progress at 5 s when held after T (quartic, a = 0 at T)
-    v_goal = (progress[:, None] - vx0[:, None] * tt / 2.0 - ax0[:, None] * tt**2 / 12.0) / (HORIZON_S - tt / 2.0)
-    base = np.where(kind[None, :] == 0, v_goal, np.where(kind[None, :] == 1, vx0[:, None], 0.0))
-    v_speed = base + value[None, :]
-    v_speed = np.maximum(v_speed, 0.0)
+    v_goal = (st.progress[:, None] - vx0 * tt / 2.0 - ax0 * tt**2 / 12.0) / (HORIZON_S - tt / 2.0)
+    base = np.where(kind[None, :] == 0, v_goal, np.where(kind[None, :] == 1, vx0, 0.0))
+    v_speed = np.maximum(base + value[None, :], 0.0)
     follow = lon_mode == LON_FOLLOW
     # following: the predicted leader of the candidate's lane
-    lane_codes = np.array(s.lane_changes, dtype=np.int64)
-    lanes_abs = cur[:, None] + lane_codes[None, :]  # (B, L)
-    lanes_exist = (lanes_abs >= 0) & (lanes_abs < n_lanes[:, None]) & (cur[:, None] >= 0)
-    leader, has_leader = _leaders(batch, pred, x0, lanes_abs, lanes_exist)  # (B, L)
+    lanes_abs = st.cur[:, None] + np.array(s.lane_changes, dtype=np.int64)[None, :]  # (B, L)
+    lanes_exist = (lanes_abs >= 0) & (lanes_abs < st.n_lanes[:, None]) & (st.cur[:, None] >= 0)
+    leader, has_leader = _leaders(batch, pred, st.x0, lanes_abs, lanes_exist)  # (B, L)
     lane_pos = np.array([list(s.lane_changes).index(int(c)) if c != ANY_LANE else 0 for c in lon_lane])
-    lead_slot = leader[:, lane_pos]  # (B, I)
     k_t = np.clip(np.round(lon_t / DT_S).astype(np.int64) - 1, 0, N_FUTURE - 1)  # frame of t = T
     rows = np.arange(b)[:, None]
-    slot = np.maximum(lead_slot, 0)
+    slot = np.maximum(leader[:, lane_pos], 0)  # (B, I)
     lead_x = pred.xy_m[rows, slot, k_t[None, :], 0]
     lead_v = np.maximum(pred.vxy_mps[rows, slot, k_t[None, :], 0], 0.0)
     lead_ok = has_leader[:, lane_pos] & pred.valid[rows, slot, k_t[None, :]]
     half_len = 0.5 * (batch.ego_length_m.astype(np.float64)[:, None]
                       + np.nan_to_num(batch.nbr_length_m.astype(np.float64))[rows, slot])
     s1 = lead_x - half_len - s.follow_gap_m - value[None, :] * lead_v
-    zeros_i = np.zeros((b, len(lon_t)))
-    coef_speed = quartic_coefficients(x0[:, None], vx0[:, None], ax0[:, None], v_speed, zeros_i, tt)
-    coef_follow = quintic_coefficients(x0[:, None], vx0[:, None], ax0[:, None], s1, lead_v, zeros_i, tt)
-    lon_coef = np.where(follow[None, :, None], coef_follow, coef_speed)
-    lon_exists = np.where(follow[None, :], lead_ok, True)
-    target_speed = np.where(follow[None, :], lead_v, v_speed)
-    x, vx, ax = evaluate_held(lon_coef, np.broadcast_to(lon_t, (b, len(lon_t))), t_s)  # (B, I, F)
-    lon_feasible = (lon_exists & (ax.max(axis=2) <= lim.max_accel_mps2 + 1e-9)
-                    & (ax.min(axis=2) >= -lim.max_decel_mps2 - 1e-9) & (vx.min(axis=2) >= lim.min_speed_mps))
-    lon_jerk = jerk_integral(lon_coef, tt)
-    mean_speed = (x[:, :, -1] - x0[:, None]) / HORIZON_S
+    zeros = np.zeros((b, len(lon_t)))
+    coef_speed = quartic_coefficients(x0, vx0, ax0, v_speed, zeros, tt)
+    coef_follow = quintic_coefficients(x0, vx0, ax0, s1, lead_v, zeros, tt)
+    coef = np.where(follow[None, :, None], coef_follow, coef_speed)
+    exists = np.where(follow[None, :], lead_ok, True)
+    x, vx, ax = evaluate_held(coef, np.broadcast_to(lon_t, (b, len(lon_t))), t_s)  # (B, I, F)
+    feasible = (exists & (ax.max(axis=2) <= lim.max_accel_mps2 + 1e-9)
+                & (ax.min(axis=2) >= -lim.max_decel_mps2 - 1e-9) & (vx.min(axis=2) >= lim.min_speed_mps))
+    return {"t": lon_t, "mode": lon_mode, "lane": lon_lane, "coef": coef, "x": x, "vx": vx,
+            "target_speed": np.where(follow[None, :], lead_v, v_speed), "exists": exists, "feasible": feasible,
+            "jerk": jerk_integral(coef, tt), "mean_speed": (x[:, :, -1] - st.x0[:, None]) / HORIZON_S,
+            "v_min": vx.min(axis=2), "peak_ax": np.abs(ax).max(axis=2)}
 
+
+def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np.ndarray,
+                 settings: FrenetSettings) -> Lattice:
+    s, lim = settings.sampling, settings.limits
+    t_s = np.arange(1, N_FUTURE + 1) * DT_S  # (F,)
+    st = _start(batch, goals_xy_m, lim)
+    lat = _lateral(batch, st, s, lim, t_s)
+    lon = _longitudinal(batch, pred, st, s, lim, t_s)
     # pairs: which exist, the curvature bound |κ| <= (|ay| |vx| + |vy| |ax|) / vx³ with separable maxima
-    pairs_lane = (lon_lane[:, None] == ANY_LANE) | (lon_lane[:, None] == lat_lane[None, :])  # (I, J)
-    pair_ok = pairs_lane[None] & lon_exists[:, :, None] & lat_exists[:, None, :]
-    v_min = np.maximum(vx.min(axis=2), CURVATURE_SPEED_FLOOR_MPS)
-    kappa = (lat_peak_ay[:, None, :] / v_min[:, :, None] ** 2
-             + lat_peak_vy[:, None, :] * np.abs(ax).max(axis=2)[:, :, None] / v_min[:, :, None] ** 3)
-    feasible = lon_feasible[:, :, None] & lat_feasible[:, None, :] & (kappa <= lim.max_curvature_1pm)
-    contact, violation = _pair_counts(batch, pred, x, vx, y, safety)
+    pairs_lane = (lon["lane"][:, None] == ANY_LANE) | (lon["lane"][:, None] == lat["lane"][None, :])  # (I, J)
+    pair_ok = pairs_lane[None] & lon["exists"][:, :, None] & lat["exists"][:, None, :]
+    v_min = np.maximum(lon["v_min"], CURVATURE_SPEED_FLOOR_MPS)[:, :, None]
+    kappa = lat["peak_ay"][:, None, :] / v_min**2 + lat["peak_vy"][:, None, :] * lon["peak_ax"][:, :, None] / v_min**3
+    feasible = lon["feasible"][:, :, None] & lat["feasible"][:, None, :] & (kappa <= lim.max_curvature_1pm)
+    contact, violation = _pair_counts(batch, pred, lon["x"], lon["vx"], lat["y"], settings.safety)
     return Lattice(
-        lon_coef=lon_coef, lon_horizon_s=lon_t, lon_mode=lon_mode, lon_lane=lon_lane,
-        lon_target_speed_mps=target_speed, lon_exists=lon_exists, lon_feasible=lon_feasible, lon_jerk=lon_jerk,
-        lon_mean_speed_mps=mean_speed, lat_coef=lat_coef, lat_horizon_s=lat_t, lat_lane=lat_lane, lat_offset_m=lat_off,
-        lat_target_y_m=lat_y1, lat_exists=lat_exists, lat_feasible=lat_feasible, lat_jerk=lat_jerk,
-        lat_lanes_from_goal=lanes_from_goal, pair_ok=pair_ok, feasible=feasible, contact=contact,
-        violation=violation, v_des_mps=v_des,
+        lon_coef=lon["coef"], lon_horizon_s=lon["t"], lon_mode=lon["mode"], lon_lane=lon["lane"],
+        lon_target_speed_mps=lon["target_speed"], lon_exists=lon["exists"], lon_feasible=lon["feasible"],
+        lon_jerk=lon["jerk"], lon_mean_speed_mps=lon["mean_speed"], lat_coef=lat["coef"], lat_horizon_s=lat["t"],
+        lat_lane=lat["lane"], lat_offset_m=lat["off"], lat_target_y_m=lat["y1"], lat_exists=lat["exists"],
+        lat_feasible=lat["feasible"], lat_jerk=lat["jerk"], lat_lanes_from_goal=lat["from_goal"], pair_ok=pair_ok,
+        feasible=feasible, contact=contact, violation=violation, v_des_mps=st.v_des,
         goals_xy_m=np.asarray(goals_xy_m, dtype=np.float64),
     )
 
