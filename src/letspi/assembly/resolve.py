@@ -73,6 +73,7 @@ class PlannerOptions:
     shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
     mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
     prompt_style: str | None = None  # paper | compact; None: compact for a fine-tuned model, else paper
+    frenet_weights_file: Path | None = None  # frenet cost weights (default: the shipped fit)
 
 
 def sha256_files(paths: list[Path]) -> str:

@@ -20,7 +20,7 @@ from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
 from letspi.bench.llm_runtime import CONFIGS, bench_runtime
 from letspi.bench.metrics import bench_metrics
-from letspi.bench.physics import bench_rollout
+from letspi.bench.physics import bench_frenet, bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
@@ -74,15 +74,19 @@ def data_cmd(
 def physics_cmd(
     n: Annotated[int, typer.Option(help="Scenarios (x 8 neighbours x 125 steps).")] = 10_000,
     n_reference: Annotated[int, typer.Option(help="Scenarios run through the plain Python loops.")] = 100,
+    frenet_n: Annotated[int, typer.Option(help="Scenarios of the batched frenet planner timing (0: skip).")] = 1000,
     seed: int = 0,
     as_json: JsonOpt = False,
 ) -> None:
-    """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio)."""
+    """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio); CPU ms per
+    scenario of one batched frenet plan."""
     # the bench functions print progress lines of their own; keep stdout clean for --json
     with contextlib.redirect_stdout(io.StringIO()):
         rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference)
         metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference)
-    result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()}}
+        frenet = bench_frenet(n_scenarios=frenet_n, seed=seed) if frenet_n > 0 else {}
+    result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()},
+              **{f"frenet_{k}": v for k, v in frenet.items()}}
     _emit(result, as_json, "letspi bench physics")
 
 
