@@ -4,8 +4,10 @@
 compact prompt of the standard close-leader scene, KV cache cleared before every call, JSON-schema
 constrained, greedy) in child processes, so each configuration starts with a fresh OpenMP runtime:
 
-* ``letspi`` (what planners use): flash attention, passive OpenMP waits, threads chosen per call from
-  the free CPUs (``letspi.llm.backends.llamacpp.choose_threads``);
+* ``letspi`` (what planners use): flash attention, OpenMP waits that spin ~0.1 ms then sleep
+  (``GOMP_SPINCOUNT=100000``), threads chosen per call from the free CPUs
+  (``letspi.llm.backends.llamacpp.choose_threads``);
+* ``passive-adaptive``: the same with no spin (sleep at once); ``active-adaptive``: unbounded spin;
 * ``spinning-2-threads`` (the v0.1 behaviour): 2 threads always, OpenMP's default active waiting;
 
 each on a quiet machine and beside ``hogs`` CPU-bound processes (pure-Python busy loops), and reports
@@ -38,10 +40,16 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
 HOG_CODE: Final = "while True:\n    pass\n"
 CONFIGS: Final[dict[str, dict[str, str]]] = {
-    "letspi": {"OMP_WAIT_POLICY": "PASSIVE", "LETSPI_LLAMA_THREADS": "", "LETSPI_LLAMA_FLASH_ATTN": "1"},
+    "letspi": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "100000", "LETSPI_LLAMA_THREADS": "",
+               "LETSPI_LLAMA_FLASH_ATTN": "1"},
+    "passive-adaptive": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "0", "LETSPI_LLAMA_THREADS": "",
+                         "LETSPI_LLAMA_FLASH_ATTN": "1"},
     "spinning-2-threads": {"OMP_WAIT_POLICY": "ACTIVE", "LETSPI_LLAMA_THREADS": "2", "LETSPI_LLAMA_FLASH_ATTN": "1"},
-    "flash-attention-off": {"OMP_WAIT_POLICY": "PASSIVE", "LETSPI_LLAMA_THREADS": "",
+    "flash-attention-off": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "100000", "LETSPI_LLAMA_THREADS": "",
                             "LETSPI_LLAMA_FLASH_ATTN": "0"},
+    # alternatives to letspi's runtime: sleeping at once (passive, no spin); unbounded spinning with
+    # threads chosen per call
+    "active-adaptive": {"OMP_WAIT_POLICY": "ACTIVE", "LETSPI_LLAMA_THREADS": "", "LETSPI_LLAMA_FLASH_ATTN": "1"},
 }
 
 
@@ -96,7 +104,7 @@ def _stop(hogs: Sequence[subprocess.Popen[bytes]]) -> None:
 
 
 def bench_runtime(model: str = "smollm2-135m-letspi", *, hogs: int = 2, repeats: int = 5,
-                  configs: Sequence[str] = ("letspi", "spinning-2-threads")) -> dict[str, Any]:
+                  configs: Sequence[str] = ("letspi", "passive-adaptive", "spinning-2-threads")) -> dict[str, Any]:
     """Quiet and busy latency per configuration (module docstring); JSON-ready."""
     result: dict[str, Any] = {"model": model, "hogs": hogs, "repeats": repeats, "cpus": os.cpu_count(),
                               "loadavg_start": list(os.getloadavg())}
@@ -122,11 +130,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--model", default="smollm2-135m-letspi")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--hogs", type=int, default=2)
+    parser.add_argument("--configs", default="letspi,passive-adaptive,spinning-2-threads",
+                        help="comma-separated CONFIGS names")
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(_child(args.model, args.repeats)))
     else:
-        print(json.dumps(bench_runtime(args.model, hogs=args.hogs, repeats=args.repeats), indent=2))
+        print(json.dumps(bench_runtime(args.model, hogs=args.hogs, repeats=args.repeats,
+                                       configs=tuple(args.configs.split(","))), indent=2))
 
 
 if __name__ == "__main__":

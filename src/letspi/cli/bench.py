@@ -93,7 +93,7 @@ def physics_cmd(
 def _runtime_table(result: dict[str, Any]) -> None:
     table = Table(title=f"letspi bench llm --contention {result['hogs']}: {result['model']}, uncached planning "
                         f"request (median of {result['repeats']})")
-    for col in ("configuration", "quiet s", "busy s", "busy / quiet", "threads quiet / busy"):
+    for col in ("configuration", "quiet s", "busy s", "busy / quiet", "threads quiet / busy", "load quiet / busy"):
         table.add_column(col, justify="left" if col == "configuration" else "right")
     for name in CONFIGS:
         entry = result.get(name)
@@ -102,7 +102,8 @@ def _runtime_table(result: dict[str, Any]) -> None:
         q, b = entry["quiet"], entry["busy"]
         table.add_row(name, format_number(q["median_s"]), format_number(b["median_s"]),
                       format_number(entry["busy_over_quiet"]),
-                      f"{max(q['threads'])} / {max(b['threads'])}")
+                      f"{max(q['threads'])} / {max(b['threads'])}",
+                      f"{q['loadavg_1min'][0]:.1f} / {b['loadavg_1min'][0]:.1f}")
     Console().print(table)
     off = result["flash_attention_off"]
     console.print(f"flash attention off (quiet): {format_number(off['median_s'])} s "

@@ -29,8 +29,12 @@ model (``LoadedLlama.check``) and reported by ``letspi llm check`` and the bench
 **Threads under contention**: llama.cpp's OpenMP workers meet at a barrier after every operation
 (hundreds per token). With another process on the cores, a worker whose partner is descheduled
 spins, then waits a whole scheduler slice: a 2-thread evaluation on a busy 2-core machine collapses
-instead of slowing down. We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` before llama.cpp is first
-imported (unless the user set it), so waiting workers sleep instead of spinning, and (2) choose the
+instead of slowing down; a worker that sleeps at once (passive waiting) pays a wake-up at every
+barrier instead, which on a quiet machine made a request 1.8x slower than spinning (2.39 s vs 1.29 s,
+``letspi bench llm --contention 2``). We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` with a bounded
+spin, ``GOMP_SPINCOUNT=100000`` (libgomp's spin count overrides the policy's; about 0.1 ms), before
+llama.cpp is first imported (unless the user set them): a worker spins across the short gaps between
+operations and sleeps when its partner is descheduled; and (2) choose the
 thread count per call from the CPUs this process may use and the processes runnable right now
 (``choose_threads``; ``LETSPI_LLAMA_THREADS=N`` fixes it).
 
@@ -94,9 +98,14 @@ def llama_cpp_version() -> str:
         return "absent"
 
 
+#: libgomp spin iterations before a waiting worker sleeps (module doc: measured against 0 and unbounded)
+OMP_SPIN_COUNT: Final = 100_000
+
+
 def _import_llama_cpp() -> Any:
-    # before libgomp is loaded with llama.cpp: waiting OpenMP workers sleep instead of spinning
+    # before libgomp is loaded with llama.cpp: waiting OpenMP workers spin briefly, then sleep (module doc)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
     try:
         import llama_cpp
         import llama_cpp.llama
