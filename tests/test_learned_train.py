@@ -54,3 +54,32 @@ def test_gnp_training_reduces_loss_and_is_deterministic() -> None:
     assert {"gnp", "sf"} <= set(val) and np.isfinite(val["gnp"]["ade_m"])
     with pytest.raises(ValueError):
         train_gnp_model(batch, replace(cfg, neighbour_mode="ground_truth_oracle"), base, KinematicGoalPredictor())
+
+
+def test_train_steps_clips_each_update_and_reports_every_step() -> None:
+    """With SGD at lr 1, a clipped step moves the parameters by exactly the clip norm, whatever the loss scale."""
+    import torch
+
+    from letspi.learned.train.loop import BestState, shuffled_batches, train_steps
+
+    model = torch.nn.Linear(3, 1, bias=False)
+    with torch.no_grad():
+        model.weight.zero_()
+    opt = torch.optim.SGD(model.parameters(), lr=1.0)
+    x = torch.ones(8, 3)
+    seen: list[tuple[int, float]] = []
+    before = model.weight.detach().clone()
+    losses = train_steps(model, opt, [slice(0, 4)], lambda s: 1e6 * (model(x[s]) - 1.0).pow(2).mean(),
+                         clip_norm=0.5, on_step=lambda k, loss: seen.append((k, loss)))
+    assert losses == [1e6] and seen == [(1, 1e6)]
+    assert float((model.weight.detach() - before).norm()) == pytest.approx(0.5)
+    batches = shuffled_batches(10, 4, torch.Generator().manual_seed(0))
+    assert [len(b) for b in batches] == [4, 4, 2] and sorted(torch.cat(batches).tolist()) == list(range(10))
+    best = BestState(model)
+    kept = model.weight.detach().clone()
+    best.offer(model, 2.0)
+    with torch.no_grad():
+        model.weight.add_(1.0)
+    best.offer(model, 3.0)  # worse: not kept
+    best.restore(model)
+    assert best.val_loss == 2.0 and torch.equal(model.weight, kept)

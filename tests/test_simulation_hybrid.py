@@ -21,7 +21,7 @@ from letspi.simulation.config import HandoverConfig
 from letspi.simulation.engine import simulate_group
 from letspi.simulation.replan import PeriodicReplanner, Replan, SimulatedStates
 from letspi.simulation.session import SumoSession
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 
 pytestmark = pytest.mark.sumo
 LOG, REACTIVE, HYBRID = "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid"
@@ -173,7 +173,7 @@ def test_human_on_stress_traffic_is_never_at_fault_and_critical_encounters_are_k
     fault and at least 90 % of its critical windows (min TTC < 3 s) stay critical; recorded hard
     brakes of replayed actors happen as recorded for a planner that drives differently (idm)."""
     d = tmp_path_factory.mktemp("stress")
-    generate_recordings(d, minutes=2.0, seed=11, criticality="stress")
+    generate_highd(d, minutes=2.0, seed=11, criticality="stress")
     recs = read_recordings(d)
     batch = extract_scenarios(recs, max_scenarios=96, seed=0, critical_share=1.0,
                               events={r.recording_id: read_events(d, r.recording_id) for r in recs})

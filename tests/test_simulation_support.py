@@ -15,14 +15,14 @@ from letspi.highd.io import read_recordings
 from letspi.planners.base import PlanBatch
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 
 
 def generated_batch(directory: Path, n: int = 48, seed: int = 3, minutes: float = 1.0,
                     criticality: str = "calm") -> ScenarioBatch:
     """``n`` scenarios (both driving directions) of SUMO-generated HighD-format traffic (the engine tests
     were written on the calm preset, the generator's default before critical traffic)."""
-    generate_recordings(directory, minutes=minutes, seed=seed, criticality=criticality)
+    generate_highd(directory, minutes=minutes, seed=seed, criticality=criticality)
     batch = extract_scenarios(read_recordings(directory))
     step = max(1, len(batch) // n)
     return batch.take(np.arange(0, len(batch), step)[:n])

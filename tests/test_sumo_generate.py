@@ -89,12 +89,12 @@ def test_smooth_lane_change_leaves_unanchored_ramps() -> None:
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path]]:
     pytest.importorskip("sumo")
-    from letspi.sumo.generate import generate_recordings
+    from letspi.sumo.generate import generate_highd
 
     out = tmp_path_factory.mktemp("sumo_rec")
     fractions: list[float] = []
     # calm: the v0.1 traffic (no scripted events), whose smoothness the tests below pin down
-    paths = generate_recordings(out, minutes=1.5, seed=7, criticality="calm", progress=fractions.append)
+    paths = generate_highd(out, minutes=1.5, seed=7, criticality="calm", progress=fractions.append).paths
     assert fractions and fractions[-1] == pytest.approx(1.0)
     assert all(b >= a for a, b in itertools.pairwise(fractions))
     return out, paths
@@ -209,12 +209,12 @@ def test_calm_traffic_has_close_interactions(recording) -> None:  # type: ignore
 @pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_deterministic_per_seed(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
-    from letspi.sumo.generate import generate_recordings
+    from letspi.sumo.generate import generate_highd
 
     runs = {}
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
         # default (highd) traffic: scripted events and held followers are deterministic too
-        generate_recordings(tmp_path / name, minutes=0.5, seed=seed, lanes_per_direction=2)
+        generate_highd(tmp_path / name, minutes=0.5, seed=seed, lanes_per_direction=2)
         runs[name] = {f.name: f.read_bytes() for f in sorted((tmp_path / name).iterdir())}
     assert set(runs["a"]) == {"01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv", "01_events.csv"}
     assert runs["a"] == runs["b"]
@@ -225,10 +225,10 @@ def test_deterministic_per_seed(tmp_path: Path) -> None:
 def test_two_lanes_and_split_recordings(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
     from letspi.highd.io import read_recording
-    from letspi.sumo.generate import generate_recordings
+    from letspi.sumo.generate import generate_highd
 
-    paths = generate_recordings(tmp_path, minutes=1.0, seed=1, lanes_per_direction=2,
-                                flow_veh_per_h=1500, recording_minutes=0.4)
+    paths = generate_highd(tmp_path, minutes=1.0, seed=1, lanes_per_direction=2,
+                           flow_veh_per_h=1500, recording_minutes=0.4).paths
     assert [p.name for p in paths] == ["01_recordingMeta.csv", "02_recordingMeta.csv",
                                        "03_recordingMeta.csv"]
     durations = []
@@ -244,9 +244,9 @@ def test_two_lanes_and_split_recordings(tmp_path: Path) -> None:
 
 @pytest.mark.sumo
 def test_invalid_arguments(tmp_path: Path) -> None:
-    from letspi.sumo.generate import generate_recordings
+    from letspi.sumo.generate import generate_highd
 
     with pytest.raises(ValueError):
-        generate_recordings(tmp_path, minutes=0.5, lanes_per_direction=4)
+        generate_highd(tmp_path, minutes=0.5, lanes_per_direction=4)
     with pytest.raises(ValueError):
-        generate_recordings(tmp_path, minutes=0.0)
+        generate_highd(tmp_path, minutes=0.0)

@@ -1,13 +1,24 @@
-"""Crash-safe file writes: write a temporary file beside the target, fsync it, rename it over the
-target, fsync the directory. A reader sees the old file or the new one, never a torn one, and a
-completed write survives a crash of the process or the machine."""
+"""Crash-safe file writes and one writer per output.
+
+Writes: write a temporary file beside the target, fsync it, rename it over the target, fsync the
+directory. A reader sees the old file or the new one, never a torn one, and a completed write
+survives a crash of the process or the machine.
+
+Writers: ``writer_lock`` lets one process at a time write a results directory or a memory bank;
+two writers would interleave their parts and store scenarios twice.
+"""
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
+import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TextIO
 
 TMP_SUFFIX = ".tmp"
 
@@ -54,3 +65,81 @@ def remove_stale_temporaries(directory: Path) -> int:
         tmp.unlink(missing_ok=True)
         n += 1
     return n
+
+
+class OutputLockedError(OSError):
+    """Another live process holds the writer lock of an output (``writer_lock``)."""
+
+
+#: the lock file inside a locked directory (a locked file's lock is ``.NAME.lock`` beside it)
+DIRECTORY_LOCK = ".letspi-writer.lock"
+
+
+def lock_file_of(output: Path, *, directory: bool) -> Path:
+    """Where the writer lock of ``output`` lives: inside a directory (its parent may be read-only),
+    beside a file (``.NAME.lock``)."""
+    output = Path(output)
+    return output / DIRECTORY_LOCK if directory else output.with_name(f".{output.name}.lock")
+
+
+def _holder(lock: Path) -> dict[str, object]:
+    try:
+        data = json.loads(lock.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _acquire(lock: Path, output: Path) -> TextIO:
+    """The open, flock-ed lock file (``OutputLockedError`` naming the holder when another has it)."""
+    while True:
+        try:
+            fh = open(lock, "a+", encoding="utf-8")  # held until release
+        except OSError as exc:  # name the output, not our lock file
+            raise OSError(exc.errno, exc.strerror, str(output)) from exc
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.close()
+            holder = _holder(lock)
+            what = f" ({holder['command']})" if holder.get("command") else ""
+            raise OutputLockedError(f"{output} is being written by process {holder.get('pid', '?')}{what}; wait for "
+                                    "it to finish or write elsewhere") from None
+        try:  # the previous holder may have removed the file between our open and flock: retry on a new one
+            if os.fstat(fh.fileno()).st_ino == os.stat(lock).st_ino:
+                return fh
+        except FileNotFoundError:
+            pass
+        fh.close()
+
+
+@contextmanager
+def writer_lock(output: Path, command: str = "", *, directory: bool = True) -> Iterator[Path]:
+    """Hold the exclusive writer lock of ``output``, a results directory (created if missing) or a file
+    such as a memory bank (``directory=False``): one writer at a time.
+
+    A second process gets ``OutputLockedError`` at once, naming the holder's pid. The lock is an
+    ``flock``, which the kernel releases when its holder dies, so the lock of a killed process is
+    taken over. The lock file records pid, command and start time for that message and is removed on
+    release, and so is a directory this call created if nothing was written into it.
+    """
+    output = Path(output)
+    created = directory and not output.exists()
+    if directory:
+        output.mkdir(parents=True, exist_ok=True)
+    else:
+        output.parent.mkdir(parents=True, exist_ok=True)
+    lock = lock_file_of(output, directory=directory)
+    fh = _acquire(lock, output)
+    try:
+        fh.seek(0)
+        fh.truncate()
+        fh.write(json.dumps({"pid": os.getpid(), "command": command,
+                             "started": time.strftime("%Y-%m-%dT%H:%M:%S")}) + "\n")
+        fh.flush()
+        yield lock
+    finally:
+        lock.unlink(missing_ok=True)  # while still locked: an opener of the old file retries on a new one
+        fh.close()
+        if created and output.is_dir() and not any(output.iterdir()):
+            output.rmdir()

@@ -29,7 +29,7 @@ from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
 from letspi.simulation.run import effective_config
 from letspi.simulation.worker import ChunkWorker, make_tasks
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 
 
 def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -> ScenarioBatch:
@@ -38,7 +38,7 @@ def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -
         batch = load_scenarios(scenarios)
     else:
         with tempfile.TemporaryDirectory(prefix="letspi-bench-cl-") as tmp:
-            generate_recordings(Path(tmp), minutes=minutes, seed=seed)
+            generate_highd(Path(tmp), minutes=minutes, seed=seed)
             batch = extract_scenarios(read_recordings(Path(tmp)))
     if len(batch) < n:
         raise ValueError(f"only {len(batch)} scenarios available, {n} requested (generate more minutes)")
@@ -50,6 +50,47 @@ def _timed_run(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: flo
     t0 = time.perf_counter()
     chunks = list(run_closed_loop(spec, batch, mode, replan_s=replan_s, workers=workers, config=config))
     return time.perf_counter() - t0, ClosedLoopChunk.concat(chunks)
+
+
+def _in_process(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, config: ClosedLoopConfig,
+                out: dict[str, float | str]) -> ClosedLoopChunk:
+    """In-process throughput, with the worker object itself to read SUMO's load and build times (into
+    ``out``); returns the simulated chunk."""
+    n = len(batch)
+    cfg = effective_config(spec, mode, replan_s, config)
+    worker = ChunkWorker(spec, cfg)
+    try:
+        tasks = make_tasks(batch, cfg)
+        worker.run(make_tasks(batch.take(np.arange(min(4, n))), cfg)[0])  # warm-up: planner, network, SUMO
+        loads0, load_s0 = worker.session.loads, worker.session.load_s
+        t0, c0 = time.perf_counter(), time.process_time()
+        local = ClosedLoopChunk.concat([worker.run(task) for task in tasks])
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        out["in_process_scenarios_per_s"] = n / wall
+        out["in_process_plan_ms_per_scenario"] = 1e3 * float(local.plan_s.sum()) / n
+        out["in_process_sim_ms_per_scenario"] = 1e3 * float(local.sim_s.sum()) / n
+        out["in_process_cpu_ms_per_scenario"] = 1e3 * cpu / n
+        out["sumo_load_ms"] = 1e3 * (worker.session.load_s - load_s0) / max(1, worker.session.loads - loads0)
+        out["network_build_ms"] = 1e3 * worker.session.networks.build_s / max(1, worker.session.networks.builds)
+    finally:
+        worker.close()
+    return local
+
+
+def _workers(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, workers: int,
+             config: ClosedLoopConfig, out: dict[str, float | str]) -> None:
+    """Throughput of 1 and of ``workers`` worker processes, and the speed-up (into ``out``)."""
+    n = len(batch)
+    wall_1, one = _timed_run(spec, batch, mode, replan_s, 1, config)
+    wall_n, many = _timed_run(spec, batch, mode, replan_s, workers, config)
+    out["workers_1_wall_s"] = wall_1
+    out["workers_1_scenarios_per_s"] = n / wall_1
+    out["workers_1_busy_scenarios_per_s"] = n / float(one.plan_s.sum() + one.sim_s.sum())
+    out[f"workers_{workers}_wall_s"] = wall_n
+    out[f"workers_{workers}_scenarios_per_s"] = n / wall_n
+    out[f"workers_{workers}_busy_scenarios_per_s_per_worker"] = n / float(many.plan_s.sum() + many.sim_s.sum())
+    out[f"speedup_{workers}_workers_over_1"] = wall_1 / wall_n
+    out["cpu_ms_per_scenario_in_workers"] = 1e3 * float(many.cpu_s.sum()) / n
 
 
 def bench_closed_loop(
@@ -76,24 +117,7 @@ def bench_closed_loop(
         "load_avg_1min_start": os.getloadavg()[0],
     }  # fmt: skip
 
-    # in-process, with the worker object itself to read SUMO's load and build times
-    cfg = effective_config(spec, mode, replan_s, config)
-    worker = ChunkWorker(spec, cfg)
-    try:
-        tasks = make_tasks(batch, cfg)
-        worker.run(make_tasks(batch.take(np.arange(min(4, n))), cfg)[0])  # warm-up: planner, network, SUMO
-        loads0, load_s0 = worker.session.loads, worker.session.load_s
-        t0, c0 = time.perf_counter(), time.process_time()
-        local = ClosedLoopChunk.concat([worker.run(task) for task in tasks])
-        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-        out["in_process_scenarios_per_s"] = n / wall
-        out["in_process_plan_ms_per_scenario"] = 1e3 * float(local.plan_s.sum()) / n
-        out["in_process_sim_ms_per_scenario"] = 1e3 * float(local.sim_s.sum()) / n
-        out["in_process_cpu_ms_per_scenario"] = 1e3 * cpu / n
-        out["sumo_load_ms"] = 1e3 * (worker.session.load_s - load_s0) / max(1, worker.session.loads - loads0)
-        out["network_build_ms"] = 1e3 * worker.session.networks.build_s / max(1, worker.session.networks.builds)
-    finally:
-        worker.close()
+    local = _in_process(spec, batch, mode, replan_s, config, out)
 
     # one SUMO load and a batch-of-one planner call per scenario, on a subset
     m = min(n_reload, n)
@@ -103,16 +127,7 @@ def bench_closed_loop(
     out["reload_per_scenario_scenarios_per_s"] = m / wall_one
     out["lockstep_speedup_vs_reload_per_scenario"] = wall_one / wall_lock
 
-    wall_1, one = _timed_run(spec, batch, mode, replan_s, 1, config)
-    wall_n, many = _timed_run(spec, batch, mode, replan_s, workers, config)
-    out["workers_1_wall_s"] = wall_1
-    out["workers_1_scenarios_per_s"] = n / wall_1
-    out["workers_1_busy_scenarios_per_s"] = n / float(one.plan_s.sum() + one.sim_s.sum())
-    out[f"workers_{workers}_wall_s"] = wall_n
-    out[f"workers_{workers}_scenarios_per_s"] = n / wall_n
-    out[f"workers_{workers}_busy_scenarios_per_s_per_worker"] = n / float(many.plan_s.sum() + many.sim_s.sum())
-    out[f"speedup_{workers}_workers_over_1"] = wall_1 / wall_n
-    out["cpu_ms_per_scenario_in_workers"] = 1e3 * float(many.cpu_s.sum()) / n
+    _workers(spec, batch, mode, replan_s, workers, config, out)
 
     metrics = chunk_metrics(batch, local)
     out["collisions_metric"] = float(metrics.collision.sum())

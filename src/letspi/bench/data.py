@@ -12,7 +12,7 @@ from letspi.highd.io import read_recordings
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import concat_batches
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 
 
 def bench_data(minutes: float = 10.0, seed: int = 0, n_load: int = 10_000) -> dict[str, float]:
@@ -22,7 +22,7 @@ def bench_data(minutes: float = 10.0, seed: int = 0, n_load: int = 10_000) -> di
     with tempfile.TemporaryDirectory(prefix="letspi-bench-") as tmp:
         tmp_dir = Path(tmp)
         t = time.perf_counter()
-        generate_recordings(tmp_dir / "highd", minutes=minutes, seed=seed)
+        generate_highd(tmp_dir / "highd", minutes=minutes, seed=seed)
         out["generate_s"] = time.perf_counter() - t
 
         t = time.perf_counter()

@@ -129,12 +129,12 @@ def start_test_server(latency_ms: float, jitter: float, slots: int = 0) -> tuple
     return server, f"http://127.0.0.1:{int(line.split()[-1])}/v1"
 
 
-def _advisor(spec: str, timeout_s: float = 120.0) -> ParamAdvisor:
-    return ParamAdvisor(spec, cache=None, retry=RetryPolicy(max_attempts=3, timeout_s=timeout_s))
+def _advisor(spec: str, timeout_s: float = RetryPolicy.timeout_s) -> ParamAdvisor:
+    return ParamAdvisor(spec, cache=None, retry=RetryPolicy(timeout_s=timeout_s))
 
 
 def request_level(spec: str, descs: Sequence[ScenarioDescription], concurrency: int, n: int, *,
-                  latency_s: float | None = None, jitter: float = 0.0, timeout_s: float = 120.0,
+                  latency_s: float | None = None, jitter: float = 0.0, timeout_s: float = RetryPolicy.timeout_s,
                   warmup: int = 3) -> dict[str, Any]:
     """``n`` fast-phase LLM steps, ``concurrency`` in flight, through the runner (module docstring),
     after ``warmup`` untimed ones. ``latency_s`` / ``jitter``: the test server's injection, to compute

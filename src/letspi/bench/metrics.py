@@ -39,31 +39,10 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
     rng = np.random.default_rng(seed)
     m = MAX_NEIGHBOURS
     t = (np.arange(N_TOTAL) - T0_INDEX) * DT_S  # (T,)
-    ego_lane = rng.integers(0, 3, n)
+    ego_lane, ego_x, ego_xy, ego_v, ego_a = _random_ego(rng, n, t)
     marking_y = (np.arange(4)[None, :] - ego_lane[:, None] - 0.5) * LANE_W
-    v0 = rng.uniform(20.0, 35.0, n)
-    a0 = rng.uniform(-0.5, 0.5, n)
-    ego_x = v0[:, None] * t + 0.5 * a0[:, None] * t**2
-    ego_xy = np.stack([ego_x, np.zeros_like(ego_x)], -1)
-    ego_v = np.stack([v0[:, None] + a0[:, None] * t, np.zeros_like(ego_x)], -1)
-    ego_a = np.stack([np.broadcast_to(a0[:, None], ego_x.shape), np.zeros_like(ego_x)], -1)
 
-    n_valid = rng.integers(2, m + 1, n)
-    valid_slot = np.arange(m)[None, :] < n_valid[:, None]
-    lane = rng.integers(0, 3, (n, m))
-    ny = (lane - ego_lane[:, None]) * LANE_W + rng.uniform(-0.3, 0.3, (n, m))
-    nx0 = rng.uniform(-80.0, 80.0, (n, m))
-    nv0 = rng.uniform(18.0, 36.0, (n, m))
-    na = rng.uniform(-0.8, 0.8, (n, m))
-    truck = rng.random((n, m)) < 0.2
-    nlen = np.where(truck, rng.uniform(10.0, 18.0, (n, m)), rng.uniform(4.0, 5.2, (n, m)))
-    nwid = np.where(truck, 2.5, rng.uniform(1.7, 2.1, (n, m)))
-    nx = nx0[..., None] + nv0[..., None] * t + 0.5 * na[..., None] * t**2
-    nbr_xy = np.stack([nx, np.broadcast_to(ny[..., None], nx.shape)], -1)
-    nbr_v = np.stack([nv0[..., None] + na[..., None] * t, np.zeros_like(nx)], -1)
-    valid = np.broadcast_to(valid_slot[..., None], nx.shape).copy()
-    nbr_xy = np.where(valid[..., None], nbr_xy, np.nan)
-    nbr_v = np.where(valid[..., None], nbr_v, np.nan)
+    valid_slot, lane, truck, nlen, nwid, nbr_xy, nbr_v, valid = _random_neighbours(rng, ego_lane, t)
 
     lane_ids = np.broadcast_to(np.array([8, 7, 6], dtype=np.int8), (n, 3)).copy()
     batch = ScenarioBatch(
@@ -102,12 +81,55 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
         ctx_valid=np.zeros((n, 0, N_FUTURE), bool),
     )
 
-    # Plans: the human future with a speed offset, a third of them with a lane change
-    fs = batch.future_slice
-    tf = t[fs]
+    plan_xy, plan_vxy = _random_plans(rng, ego_x[:, batch.future_slice], ego_v[:, batch.future_slice, 0], ego_lane,
+                                      t[batch.future_slice])
+    # dv is a velocity jump at t = 0, so many plans fail the feasibility test: irrelevant for timing
+    goals = plan_xy[:, -1].copy()
+    return batch, plan_xy, plan_vxy, goals
+
+
+def _random_ego(rng: np.random.Generator, n: int, t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Constant-acceleration egos along y = 0: (lane index (B,), x (B, T), xy, vxy, axy (B, T, 2))."""
+    ego_lane = rng.integers(0, 3, n)
+    v0 = rng.uniform(20.0, 35.0, n)
+    a0 = rng.uniform(-0.5, 0.5, n)
+    ego_x = v0[:, None] * t + 0.5 * a0[:, None] * t**2
+    ego_xy = np.stack([ego_x, np.zeros_like(ego_x)], -1)
+    ego_v = np.stack([v0[:, None] + a0[:, None] * t, np.zeros_like(ego_x)], -1)
+    ego_a = np.stack([np.broadcast_to(a0[:, None], ego_x.shape), np.zeros_like(ego_x)], -1)
+    return ego_lane, ego_x, ego_xy, ego_v, ego_a
+
+
+def _random_neighbours(rng: np.random.Generator, ego_lane: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Up to ``MAX_NEIGHBOURS`` constant-acceleration neighbours per scenario: (valid slot (B, N), lane
+    index, truck flag, length, width (B, N), xy (B, N, T, 2), vxy, valid (B, N, T))."""
+    n, m = len(ego_lane), MAX_NEIGHBOURS
+    n_valid = rng.integers(2, m + 1, n)
+    valid_slot = np.arange(m)[None, :] < n_valid[:, None]
+    lane = rng.integers(0, 3, (n, m))
+    ny = (lane - ego_lane[:, None]) * LANE_W + rng.uniform(-0.3, 0.3, (n, m))
+    nx0 = rng.uniform(-80.0, 80.0, (n, m))
+    nv0 = rng.uniform(18.0, 36.0, (n, m))
+    na = rng.uniform(-0.8, 0.8, (n, m))
+    truck = rng.random((n, m)) < 0.2
+    nlen = np.where(truck, rng.uniform(10.0, 18.0, (n, m)), rng.uniform(4.0, 5.2, (n, m)))
+    nwid = np.where(truck, 2.5, rng.uniform(1.7, 2.1, (n, m)))
+    nx = nx0[..., None] + nv0[..., None] * t + 0.5 * na[..., None] * t**2
+    nbr_xy = np.stack([nx, np.broadcast_to(ny[..., None], nx.shape)], -1)
+    nbr_v = np.stack([nv0[..., None] + na[..., None] * t, np.zeros_like(nx)], -1)
+    valid = np.broadcast_to(valid_slot[..., None], nx.shape).copy()
+    return (valid_slot, lane, truck, nlen, nwid, np.where(valid[..., None], nbr_xy, np.nan),
+            np.where(valid[..., None], nbr_v, np.nan), valid)
+
+
+def _random_plans(rng: np.random.Generator, future_x: np.ndarray, future_vx: np.ndarray, ego_lane: np.ndarray,
+                  tf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Plans (B, F, 2) xy and vxy: the human future with a speed offset, a third of them with a 4 s
+    smoothstep lane change."""
+    n = len(ego_lane)
     dv = rng.uniform(-3.0, 3.0, n)
-    px = ego_x[:, fs] + dv[:, None] * tf
-    pvx = ego_v[:, fs, 0] + dv[:, None]
+    px = future_x + dv[:, None] * tf
+    pvx = future_vx + dv[:, None]
     side = np.where(ego_lane == 0, 1, np.where(ego_lane == 2, -1, rng.choice([-1, 1], n)))
     change = rng.random(n) < 1 / 3
     s = np.clip(tf / 4.0, 0.0, 1.0)
@@ -115,11 +137,7 @@ def synthetic_batch(n: int, seed: int = 0) -> tuple[ScenarioBatch, np.ndarray, n
     dshape = np.where(tf < 4.0, (6 * s - 6 * s**2) / 4.0, 0.0)
     py = np.where(change, side * LANE_W, 0.0)[:, None] * shape
     pvy = np.where(change, side * LANE_W, 0.0)[:, None] * dshape
-    plan_xy = np.stack([px, py], -1)
-    plan_vxy = np.stack([pvx, pvy], -1)
-    # dv is a velocity jump at t = 0, so many plans fail the feasibility test: irrelevant for timing
-    goals = plan_xy[:, -1].copy()
-    return batch, plan_xy, plan_vxy, goals
+    return np.stack([px, py], -1), np.stack([pvx, pvy], -1)
 
 
 # Scalar references (plain Python, one scenario at a time) --------------------------------------

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import errno
 import os
+import shlex
 import sqlite3
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -33,6 +35,8 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from letspi.assembly.resolve import PlannerOptions
+from letspi.fsutil import OutputLockedError
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
 from letspi.method.runner import RunStats, RunStatus
@@ -41,9 +45,17 @@ console = Console(stderr=True)
 DEBUG_ENV = "LETSPI_DEBUG"
 
 
+def command_line() -> str:
+    """The command as typed (recorded in manifests and writer locks)."""
+    return "letspi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
 def debug_enabled() -> bool:
     return os.environ.get(DEBUG_ENV, "") not in ("", "0")
 
+
+#: The default of every planner option, from its type: CLI options take theirs from here.
+PLANNER_DEFAULTS = PlannerOptions()
 
 ConcurrencyOpt = Annotated[int | None, typer.Option(
     help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "
@@ -143,6 +155,8 @@ _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR,
 
 
 def _classify(exc: Exception) -> typer.Exit:
+    if isinstance(exc, OutputLockedError):  # one line naming the holder; nothing to add
+        return _fail(str(exc), None, 2)
     if isinstance(exc, BackendUnavailableError):
         return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
                      "(or fix the address) and rerun the same command to resume.", 2)

@@ -9,8 +9,9 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.constants import DEFAULT_STRIDE_FRAMES, T0_INDEX
+from letspi.fsutil import writer_lock
 from letspi.highd.criticality import profile_directory, profile_table
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
@@ -70,7 +71,7 @@ def generate(
         if show_config:
             typer.echo(json.dumps(cfg.to_dict(), indent=2))
             return
-        with progress_bar() as bar:
+        with writer_lock(out, command_line()), progress_bar() as bar:
             task = bar.add_task("simulating", total=100.0)
             report = generate_highd(
                 out,

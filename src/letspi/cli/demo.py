@@ -9,8 +9,8 @@ import numpy as np
 import typer
 
 from letspi.assembly.build import Builder, BuiltPlanner, build_planners
-from letspi.assembly.resolve import DEFAULT_LLM, PlannerOptions, Resolver
-from letspi.cli.common import ShieldOpt, console, progress_bar, user_errors
+from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.cli.common import PLANNER_DEFAULTS, ShieldOpt, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
 from letspi.evaluation.harness import evaluate
 from letspi.highd.io import list_recording_ids, read_recordings
@@ -22,7 +22,7 @@ from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.sumo.generate import generate_recordings
+from letspi.sumo.generate import generate_highd
 from letspi.viz.report import write_report
 
 BASELINES: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
@@ -33,10 +33,11 @@ def demo(
     minutes: Annotated[float, typer.Option(help="Simulated minutes of traffic to generate.")] = 3.0,
     seed: int = 0,
     max_scenarios: Annotated[int, typer.Option(help="Scenarios to sample and evaluate.")] = 1000,
-    llm: Annotated[str, typer.Option(help="Embedded (or any) model spec for both LetsPi phases.")] = DEFAULT_LLM,
+    llm: Annotated[str, typer.Option(
+        help="Embedded (or any) model spec for both LetsPi phases.")] = PLANNER_DEFAULTS.llm,
     llm_collect: Annotated[int, typer.Option(help="Scenarios in the memory collection phase (0: skip LLMs).")] = 8,
     llm_eval: Annotated[int, typer.Option(help="Held-back scenarios for the LLM head-to-head table.")] = 8,
-    shield: ShieldOpt = True,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """The main job: generate (or reuse) SUMO traffic as HighD files, extract planning scenarios,
     evaluate the baselines (human, cv, idm, sf, sf-opt, gnp) and print the paper-style table.
@@ -58,8 +59,8 @@ def demo(
         else:
             with progress_bar() as bar:
                 task = bar.add_task("simulating (SUMO)", total=100.0)
-                generate_recordings(highd_dir, minutes=minutes, seed=seed,
-                                    progress=lambda f: bar.update(task, completed=100.0 * f))
+                generate_highd(highd_dir, minutes=minutes, seed=seed,
+                               progress=lambda f: bar.update(task, completed=100.0 * f))
         recs = read_recordings(highd_dir)
         with progress_bar() as bar:
             task = bar.add_task("extracting scenarios", total=min(max_scenarios, count_windows(recs)))

@@ -11,11 +11,13 @@ from rich.progress import Progress
 
 from letspi.assembly.build import build_planners, parse_planner_arg
 from letspi.assembly.planner_table import planner_help
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
+from letspi.assembly.resolve import PlannerOptions
 from letspi.cli.common import (
+    PLANNER_DEFAULTS,
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
+    command_line,
     console,
     print_run,
     progress_bar,
@@ -32,6 +34,7 @@ from letspi.evaluation.closed_loop import (
 )
 from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
+from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
@@ -77,8 +80,31 @@ HandoverLanesOpt = Annotated[int | None, typer.Option(
          "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
 
 
+OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
+                                                "configuration or planner configuration is refused).")]
+NeighboursOpt = Annotated[str, typer.Option(
+    help="Neighbour prediction of idm/sf/sf-opt/gnp/LLM planners: idm, constant_velocity, or "
+         "ground_truth_oracle (leaks the future: an upper bound, not a planner).")]
+GoalsOpt = Annotated[str, typer.Option(
+    help="Goal source: learned (shipped transformer, or $LETSPI_GOAL_WEIGHTS), kinematic, or "
+         "oracle (true endpoint: leaks the future).")]
+LlmOpt = Annotated[str, typer.Option(help="Model of llm / letspi-memory (spec, e.g. llamacpp:smollm2-135m, "
+                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")]
+TopKOpt = Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")]
+MemoryKeyOpt = Annotated[str | None, typer.Option(
+    help="Only memories collected under this configuration key (default: all in the bank).")]
+AllowSameVehicleOpt = Annotated[bool, typer.Option(
+    help="Let retrieval return memories of the query's own vehicle or overlapping windows (a leak).")]
+MaxIterationsOpt = Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")]
+GoalAdjustmentOpt = Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")]
+CacheOpt = Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
+                                             "inference time).")]
+MlpWeightsOpt = Annotated[Path | None, typer.Option(
+    help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")]
+
+
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int = 32,
+                         ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
                          concurrency: int | None = None,
                          handover_lanes: int | None = None) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
@@ -130,50 +156,37 @@ def progress_factory(bar: Progress) -> ProgressFactory:
 def evaluate(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     planner: PlannerOpt,
-    out: Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
-                                           "configuration or planner configuration is refused).")],
+    out: OutDirOpt,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
-    neighbours: Annotated[
-        str,
-        typer.Option(help="Neighbour prediction of idm/sf/sf-opt/gnp/LLM planners: idm, constant_velocity, or "
-                          "ground_truth_oracle (leaks the future: an upper bound, not a planner)."),
-    ] = "idm",
-    goals: Annotated[
-        str, typer.Option(help="Goal source: learned (shipped transformer, or $LETSPI_GOAL_WEIGHTS), kinematic, or "
-                               "oracle (true endpoint: leaks the future).")
-    ] = "learned",
-    llm: Annotated[str, typer.Option(help="Model of llm / letspi-memory (spec, e.g. llamacpp:smollm2-135m, "
-                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
+    neighbours: NeighboursOpt = PLANNER_DEFAULTS.neighbour_mode,
+    goals: GoalsOpt = PLANNER_DEFAULTS.goals,
+    llm: LlmOpt = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank (from `letspi collect`) for letspi-fast/fs.")] = None,
-    top_k: Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")] = 3,
-    memory_key: Annotated[str | None, typer.Option(
-        help="Only memories collected under this configuration key (default: all in the bank).")] = None,
-    allow_same_vehicle: Annotated[bool, typer.Option(
-        help="Let retrieval return memories of the query's own vehicle or overlapping windows (a leak).")] = False,
-    max_iterations: Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")] = 3,
-    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")] = True,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
-                                             "inference time).")] = True,
+    top_k: TopKOpt = PLANNER_DEFAULTS.top_k,
+    memory_key: MemoryKeyOpt = None,
+    allow_same_vehicle: AllowSameVehicleOpt = PLANNER_DEFAULTS.allow_same_vehicle,
+    max_iterations: MaxIterationsOpt = PLANNER_DEFAULTS.max_iterations,
+    goal_adjustment: GoalAdjustmentOpt = PLANNER_DEFAULTS.goal_adjustment,
+    cache: CacheOpt = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
     mode: ModeOpt = "open-loop",
     replan_s: ReplanOpt = None,
-    workers: WorkersOpt = 0,
+    workers: WorkersOpt = ClosedLoopSettings.workers,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
-    sumo_gui: SumoGuiOpt = False,
-    chunk_size: ChunkSizeOpt = 32,
+    sumo_gui: SumoGuiOpt = ClosedLoopSettings.sumo_gui,
+    chunk_size: ChunkSizeOpt = ClosedLoopSettings.chunk_size,
     events: EventsOpt = None,
     handover_lanes: HandoverLanesOpt = None,
-    shield: ShieldOpt = True,
-    mlp_weights: Annotated[Path | None, typer.Option(
-        help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")] = None,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
+    mlp_weights: MlpWeightsOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
                                       ray_address or ("local" if ray else None), sumo_gui, chunk_size,
                                       concurrency, handover_lanes)

@@ -15,11 +15,13 @@ import typer
 from rich.pretty import pprint
 
 from letspi.assembly.build import Builder, build_planners
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions, Resolver
+from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import (
+    PLANNER_DEFAULTS,
     ConcurrencyOpt,
     RequestTimeoutOpt,
     ShieldOpt,
+    command_line,
     console,
     print_run,
     progress_bar,
@@ -27,6 +29,7 @@ from letspi.cli.common import (
 )
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
 from letspi.llm.spec import default_concurrency
@@ -44,16 +47,18 @@ from letspi.scenario.store import load_scenarios
 def collect(
     scenarios: Annotated[Path, typer.Option(help="Scenario file to collect experiences on.")],
     memory: Annotated[Path, typer.Option(help="Memory bank (SQLite; created if missing, resumed if present).")],
-    llm: Annotated[str, typer.Option(help="Model spec of the memory-collection phase.")] = DEFAULT_LLM,
+    llm: Annotated[str, typer.Option(help="Model spec of the memory-collection phase.")] = PLANNER_DEFAULTS.llm,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
-    max_iterations: Annotated[int, typer.Option(help="Reflection refinements per scenario.")] = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
+    max_iterations: Annotated[int, typer.Option(
+        help="Reflection refinements per scenario.")] = PLANNER_DEFAULTS.max_iterations,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
+    neighbours: Annotated[str, typer.Option(
+        help="Neighbour prediction: idm or constant_velocity.")] = PLANNER_DEFAULTS.neighbour_mode,
     sf_params: Annotated[Path | None, typer.Option(help="SF parameters (r_col and the fallback).")] = None,
-    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = True,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = PLANNER_DEFAULTS.goal_adjustment,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
@@ -62,7 +67,7 @@ def collect(
     crash; stored experiences are kept and skipped, fallbacks are retried. --concurrency scenarios run
     at once; experiences are stored in scenario order, so the bank does not depend on it.
     """
-    with user_errors():
+    with user_errors(), writer_lock(memory, command_line(), directory=False):
         batch = load_limited(scenarios, limit)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
@@ -124,15 +129,15 @@ def plan(
     scenarios: Annotated[Path, typer.Option(help="Scenario file.")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
     planner: Annotated[str, typer.Option(help="Planner kind (llm, letspi-memory, letspi-fast, sf, ...).")] = "llm",
-    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
+    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
-    top_k: int = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    top_k: int = PLANNER_DEFAULTS.top_k,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
-    shield: ShieldOpt = True,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
     reflection iterations and retrieved memories."""
@@ -165,8 +170,19 @@ def plan(
         "metrics": {k: _round(v) for k, v in metrics.items()},
         "rationale": None,
     }
+    out.update(_llm_details(p, show_prompt))
+    if as_json:
+        typer.echo(json.dumps(out, indent=2))
+    else:
+        pprint(out, expand_all=True)
+
+
+def _llm_details(p: object, show_prompt: bool) -> dict[str, Any]:
+    """What an LLM planner's last call did: reflection iterations, retrieved memories, rationale (and
+    the prompts with ``show_prompt``)."""
+    details: dict[str, Any] = {}
     if isinstance(p, LetsPiMemoryPlanner):
-        out["iterations"] = [
+        details["iterations"] = [
             {"iteration": it.iteration, "safe": it.safe, "rationale": it.proposal.rationale or None,
              "params": {k: round(v, 3) for k, v in it.proposal.params.as_dict().items()},
              "lon_factor": it.proposal.lon_factor, "lane_factor": it.proposal.lane_factor,
@@ -176,18 +192,15 @@ def plan(
         ]
         if p.last_iterations:
             final = p.last_iterations[-1].proposal
-            out["rationale"] = final.rationale or ("(fallback: no valid model answer)" if final.fallback else None)
+            details["rationale"] = final.rationale or ("(fallback: no valid model answer)" if final.fallback else None)
     if isinstance(p, LetsPiFastPlanner):
-        out["retrieved_memories"] = [{"scenario_id": sid, "similarity": round(s, 4)} for sid, s in p.last_retrieved]
+        details["retrieved_memories"] = [{"scenario_id": sid, "similarity": round(s, 4)} for sid, s in p.last_retrieved]
         if p.last_proposal is not None:
-            out["rationale"] = p.last_proposal.rationale or None
+            details["rationale"] = p.last_proposal.rationale or None
             if show_prompt:
-                out["prompt"] = p.last_proposal.prompt
-                out["reply"] = p.last_proposal.reply
-    if as_json:
-        typer.echo(json.dumps(out, indent=2))
-    else:
-        pprint(out, expand_all=True)
+                details["prompt"] = p.last_proposal.prompt
+                details["reply"] = p.last_proposal.reply
+    return details
 
 
 def _pairs(items: list[str] | None) -> list[tuple[str, str]]:
@@ -208,16 +221,16 @@ def ablate(
     memory_key: Annotated[str | None, typer.Option(
         help="Only memories collected under this configuration key (default: all in the bank).")] = None,
     limit: Annotated[int | None, typer.Option(help="Only the first N evaluation scenarios.")] = None,
-    llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = DEFAULT_FAST_LLM,
-    top_k: int = 3,
+    llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = PLANNER_DEFAULTS.fast_llm,
+    top_k: int = PLANNER_DEFAULTS.top_k,
     collect_scenarios: Annotated[Path | None, typer.Option(help="llm-combinations: scenarios to collect on.")] = None,
     collect_limit: Annotated[int | None, typer.Option(help="llm-combinations: first N collection scenarios.")] = None,
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = True,
+    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = 120.0,
-    shield: ShieldOpt = True,
+    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
+    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors():
@@ -237,8 +250,8 @@ def prompt(
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
     fast: Annotated[bool, typer.Option(help="The fast prompt (with memories from --memory) instead.")] = False,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for the fast prompt's examples.")] = None,
-    top_k: int = 3,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
+    top_k: int = PLANNER_DEFAULTS.top_k,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
 ) -> None:
     """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
     memory-collection phase, or with --fast the short prompt of the fast-inference phase."""

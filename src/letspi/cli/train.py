@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,8 +10,10 @@ import typer
 
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import PlannerOptions, Resolver
-from letspi.cli.common import console, progress_bar, user_errors
+from letspi.cli.common import command_line, console, progress_bar, user_errors
+from letspi.fsutil import writer_lock
 from letspi.learned.goal_model import LearnedGoalPredictor
+from letspi.learned.hyperparams import GnpTrainConfig, GoalTrainConfig
 from letspi.learned.weights import save_weights
 from letspi.llm.models import locate_model
 from letspi.llm.schema import NUMERIC_FIELDS
@@ -28,6 +28,8 @@ ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario 
 OutOpt = Annotated[Path, typer.Option(help="Output model directory (weights.npz + manifest.json).")]
 SeedOpt = Annotated[int, typer.Option(help="Seed of the split, initialisation and batch order.")]
 ThreadsOpt = Annotated[int, typer.Option(help="torch CPU threads (1 keeps runs reproducible and polite).")]
+EpochsOpt = Annotated[int, typer.Option(help="Training epochs.")]
+MaxTrainOpt = Annotated[int | None, typer.Option(help="At most this many training scenarios.")]
 DataNoteOpt = Annotated[str | None, typer.Option(
     help="Where the data came from, stored in the manifest (e.g. the `letspi data generate` seeds).")]
 
@@ -38,10 +40,6 @@ def _require_torch() -> None:
     except ImportError as exc:
         console.print("[red]error:[/red] training needs torch: pip install 'letspi\\[train]' (torch==2.13.0)")
         raise typer.Exit(code=2) from exc
-
-
-def _command() -> str:
-    return "letspi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
 def _print_validation(validation: dict[str, Any]) -> None:
@@ -55,19 +53,19 @@ def _print_validation(validation: dict[str, Any]) -> None:
 def train_goals(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 40,
-    seed: SeedOpt = 0,
-    n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = 6,
-    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = None,
-    threads: ThreadsOpt = 1,
+    epochs: EpochsOpt = GoalTrainConfig.epochs,
+    seed: SeedOpt = GoalTrainConfig.seed,
+    n_goals: Annotated[int, typer.Option(help="Number of candidate goals K.")] = GoalTrainConfig.n_goals,
+    max_train: MaxTrainOpt = GoalTrainConfig.max_train,
+    threads: ThreadsOpt = GoalTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
     """Train the transformer multi-goal predictor (winner-takes-all over K goals at the 5 s horizon)."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.goal_train import GoalTrainConfig, train_goal_model
+    from letspi.learned.train.goal_train import train_goal_model
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
         batch, infos = load_training_scenarios(scenarios)
@@ -76,7 +74,7 @@ def train_goals(
             task = bar.add_task("training goals", total=epochs)
             res = train_goal_model(batch, cfg, progress=lambda k: bar.advance(task, k),
                                    manifest_extra={"data": {"scenario_files": infos, "note": data_note},
-                                                   "training": {"command": _command()}})
+                                                   "training": {"command": command_line()}})
         save_weights(out, res.arrays, res.manifest)
     console.print(f"goal model -> {out} ({res.manifest['training']['seconds']:.0f} s); validation:")
     _print_validation(res.manifest["validation"])
@@ -86,24 +84,25 @@ def train_goals(
 def train_gnp(
     scenarios: ScenariosOpt,
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 8,
-    seed: SeedOpt = 0,
+    epochs: EpochsOpt = GnpTrainConfig.epochs,
+    seed: SeedOpt = GnpTrainConfig.seed,
     goal_weights: Annotated[Path | None, typer.Option(
         help="Goal model directory for the rollout goals (default: $LETSPI_GOAL_WEIGHTS or the shipped one).")] = None,
     sf_params: Annotated[Path | None, typer.Option(
         help="Fixed SF parameters the weights scale (default: the shipped `sf` fit).")] = None,
-    max_train: Annotated[int | None, typer.Option(help="At most this many training scenarios.")] = 6000,
-    neighbours: Annotated[str, typer.Option(help="Neighbour prediction: idm or constant_velocity.")] = "idm",
-    threads: ThreadsOpt = 1,
+    max_train: MaxTrainOpt = GnpTrainConfig.max_train,
+    neighbours: Annotated[str, typer.Option(
+        help="Neighbour prediction: idm or constant_velocity.")] = GnpTrainConfig.neighbour_mode,
+    threads: ThreadsOpt = GnpTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
     """Train GNP: tau per scene and a repulsion weight per neighbour, end to end through the
     differentiable social force rollout (predicted goals and predicted neighbours)."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.gnp_train import GnpTrainConfig, train_gnp_model
+    from letspi.learned.train.gnp_train import train_gnp_model
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
         if neighbours not in ("idm", "constant_velocity"):
@@ -118,7 +117,7 @@ def train_gnp(
             task = bar.add_task("training gnp", total=epochs + 1)
             res = train_gnp_model(batch, cfg, base, goals, progress=lambda k: bar.advance(task, k),
                                   manifest_extra={"data": {"scenario_files": infos, "note": data_note},
-                                                  "training": {"command": _command(),
+                                                  "training": {"command": command_line(),
                                                                "goal_weights": str(goal_weights or "default"),
                                                                "sf_params": str(sf_params or "shipped")}})
         save_weights(out, res.arrays, res.manifest)
@@ -144,7 +143,7 @@ def train_llm_data(
     two goal factors, scored against the RECORDED future (hindsight; training only)."""
     from letspi.finetune.labels import LabelRun, LabelSearch
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if goals not in ("learned", "kinematic"):
             raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
         search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
@@ -154,7 +153,7 @@ def train_llm_data(
         params, _ = load_sf_params(sf_params)
         goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
         labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
-                            params=params, search=search, seed=seed, command=_command())
+                            params=params, search=search, seed=seed, command=command_line())
         with progress_bar() as bar:
             task = bar.add_task("labelling", total=len(batch))
             manifest = labeller.run(progress=lambda k: bar.advance(task, k))
@@ -169,7 +168,7 @@ def train_mlp_cmd(
     data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
                                              "(repeat for several).")],
     out: OutOpt,
-    epochs: Annotated[int, typer.Option(help="Training epochs.")] = 300,
+    epochs: EpochsOpt = 300,
     hidden: Annotated[int, typer.Option(help="Hidden units per layer.")] = 64,
     seed: SeedOpt = 0,
     threads: ThreadsOpt = 1,
@@ -179,19 +178,19 @@ def train_mlp_cmd(
     _require_torch()
     from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
-        feats, targets, digests, infos = load_training_rows(data)
+        feats, targets, vehicles, infos = load_training_rows(data)
         if len(feats) < 10:
             raise ValueError(f"{', '.join(map(str, data))}: only {len(feats)} safe propose labels; need >= 10")
         sf = infos[0].get("sf_params") or {}
         defaults = np.array([float(sf.get(f, np.nan)) if f in sf else (0.4 if f == "lon_factor" else 0.0)
                              for f in NUMERIC_FIELDS])
         cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
-        res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
+        res = train_mlp(feats, targets, vehicles, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
         res.manifest["data"]["labels"] = infos
-        res.manifest["training"]["command"] = _command()
+        res.manifest["training"]["command"] = command_line()
         save_weights(out, res.arrays, res.manifest)
     val = res.manifest["validation"]
     console.print(f"mlp -> {out} ({res.manifest['training']['seconds']:.0f} s, {len(feats)} labels); "
@@ -201,10 +200,30 @@ def train_mlp_cmd(
         console.print(f"  {f}: {v:.3f}" + (f" (sf defaults {base:.3f})" if base is not None else ""))
 
 
+def _llm_examples(data: list[Path], scenarios: Path | None,
+                  max_scenarios: int | None) -> tuple[list[Any], dict[str, Any]]:
+    """The chat examples of one or several label directories (``letspi.finetune.data``)."""
+    from letspi.finetune.data import build_examples, build_examples_many
+
+    goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
+    if scenarios is not None and len(data) > 1:
+        raise ValueError("--scenarios names the scenario file of one labels directory; with several --data "
+                         "each directory's manifest names its own")
+    if len(data) == 1:
+        examples, info = build_examples(data[0], goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
+    else:
+        examples, info = build_examples_many(data, goal_predictor, max_scenarios=max_scenarios)
+    if not examples:
+        raise ValueError(f"{', '.join(map(str, data))}: no safe labels to train on")
+    return list(examples), info
+
+
 @app.command("llm")
 def train_llm(
-    data: Annotated[Path, typer.Option("--data", help="Labels directory from `letspi train llm-data`.")],
-    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/).")],
+    data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
+                                             "(repeat for several; split by ego vehicle).")],
+    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
+                                      "resumes from its checkpoint when the same command is run again.")],
     epochs: Annotated[float, typer.Option(help="Passes over the training examples (fractions allowed).")] = 1.0,
     lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, warm-up then linear decay).")] = 3e-4,
     rank: Annotated[int, typer.Option(help="LoRA rank.")] = 8,
@@ -221,22 +240,24 @@ def train_llm(
     threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
     layers: Annotated[int | None, typer.Option(help="Adapt only the last N of the 30 layers (cheaper).")] = None,
     max_val: Annotated[int, typer.Option(help="Validation examples scored before and after training.")] = 48,
+    precision: Annotated[str, typer.Option(
+        help="auto (bf16 autocast where the CPU has native bf16 and the first batch's loss matches fp32), "
+             "fp32 or bf16.")] = "auto",
+    checkpoint_every_s: Annotated[float, typer.Option(
+        help="Seconds of training between resumable checkpoints.")] = 300.0,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
     export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
     LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
     _require_torch()
-    from letspi.finetune.data import build_examples
     from letspi.finetune.train import LoraTrainConfig, train_lora
 
-    with user_errors():
+    with user_errors(), writer_lock(out, command_line()):
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
-                              layers=layers, max_val=max_val)
-        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
-        examples, info = build_examples(data, goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
-        if not examples:
-            raise ValueError(f"{data}: no safe labels to train on")
+                              layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
+                              checkpoint_every_s=checkpoint_every_s)
+        examples, info = _llm_examples(data, scenarios, max_scenarios)
         with progress_bar() as bar:
             task = bar.add_task("fine-tuning", total=None)
 
@@ -244,11 +265,12 @@ def train_llm(
                 bar.update(task, completed=step, total=total, description=f"fine-tuning (loss {loss:.3f})")
 
             manifest = train_lora(examples, cfg, locate_model("smollm2-135m"), out, data_info=info,
-                                  progress=progress, verify=verify, command=_command())
+                                  progress=progress, verify=verify, command=command_line())
     t = manifest["training"]
     check = manifest.get("export_check") or {}
     console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "
-                  f"{t['steps']} steps, {t['elapsed_s']:.0f} s); {manifest['data']['n_train']} train / "
+                  f"{t['steps']} steps, {t['train_s']:.0f} s training, {t['precision']}); "
+                  f"{manifest['data']['n_train']} train / "
                   f"{manifest['data']['n_val']} val examples; val loss {t['val_loss_before']:.3f} -> "
                   f"{t['val_loss_after']:.3f}; torch vs llama.cpp greedy agree on "
                   f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")

@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 
 from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
-from letspi.cli.common import console, user_errors
+from letspi.assembly.resolve import PlannerOptions
+from letspi.cli.common import PLANNER_DEFAULTS, console, user_errors
 from letspi.evaluation.closed_loop import events_directory, scripted_for
 from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
@@ -32,9 +32,10 @@ def plot(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
     neighbours: Annotated[str, typer.Option(
-        help="Neighbour prediction of physics planners: idm, constant_velocity, ground_truth_oracle.")] = "idm",
-    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = DEFAULT_LLM,
-    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = DEFAULT_FAST_LLM,
+        help="Neighbour prediction of physics planners: idm, constant_velocity, ground_truth_oracle.")] = (
+        PLANNER_DEFAULTS.neighbour_mode),
+    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
     mode: Annotated[str, typer.Option(
         help="open-loop (default: the diagrams above) or closed-loop-log / -reactive / -hybrid (actors of "

@@ -160,20 +160,10 @@ def _group_key(frame: np.ndarray, direction: np.ndarray, lane: np.ndarray) -> np
     return (frame.astype(np.int64) * 4 + direction.astype(np.int64)) * 1024 + lane_code
 
 
-def build_recording(
-    states: pd.DataFrame,
-    vehicles: pd.DataFrame,
-    *,
-    recording_id: int,
-    upper_markings_y_m: Sequence[float],
-    lower_markings_y_m: Sequence[float],
-    frame_rate_hz: int = 25,
-    location_id: int = 0,
-    speed_limit_mps: float = -1.0,
-    month: str = "01",
-    week_day: str = "Mon",
-    start_time: str = "08:00",
-) -> Recording:
+def build_recording(states: pd.DataFrame, vehicles: pd.DataFrame, *, recording_id: int,
+                    upper_markings_y_m: Sequence[float], lower_markings_y_m: Sequence[float], frame_rate_hz: int = 25,
+                    location_id: int = 0, speed_limit_mps: float = -1.0, month: str = "01", week_day: str = "Mon",
+                    start_time: str = "08:00") -> Recording:
     """Compute all derived HighD columns and return a complete, valid :class:`Recording`.
 
     Args:
@@ -198,45 +188,96 @@ def build_recording(
             frames of a vehicle that are not consecutive.
     """
     _check_inputs(states, vehicles)
-    st = states[list(STATE_COLUMNS)].sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
-    ids = st["id"].to_numpy(dtype=np.int64)
-    frames = st["frame"].to_numpy(dtype=np.int64)
-    same_vehicle = ids[1:] == ids[:-1]
-    if np.any(same_vehicle & (np.diff(frames) != 1)):
-        raise ValueError("frames of each vehicle must be consecutive and unique")
-    x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))
-    vx = st["xVelocity"].to_numpy(dtype=np.float64)
-
     veh = vehicles.set_index("id")
-    direction = st["id"].map(veh["drivingDirection"]).to_numpy(dtype=np.int64)
-
     # lanes from the markings as they will be stored (2 decimals), see module docstring
     upper_text = format_markings(np.asarray(upper_markings_y_m, dtype=np.float64))
     lower_text = format_markings(np.asarray(lower_markings_y_m, dtype=np.float64))
     markings = np.sort(np.concatenate([parse_markings(upper_text), parse_markings(lower_text)]))
-    centre_y = y + width_m / 2.0
-    lane = 1 + np.searchsorted(markings, centre_y, side="left").astype(np.int64)
+    tracks, has_prec, ttc_ok = _tracks(_sorted_states(states), veh, markings)
+    tracks_meta = _tracks_meta(tracks, veh, has_prec, ttc_ok)
+    meta: dict[str, object] = {
+        "id": int(recording_id), "frameRate": int(frame_rate_hz), "locationId": int(location_id),
+        "speedLimit": float(speed_limit_mps), "month": str(month), "weekDay": str(week_day),
+        "startTime": str(start_time), **_totals(tracks["frame"].to_numpy(), tracks_meta, frame_rate_hz),
+        "upperLaneMarkings": upper_text, "lowerLaneMarkings": lower_text,
+    }
+    return Recording(recording_id=int(recording_id), meta=meta, tracks_meta=tracks_meta, tracks=tracks)
 
+
+def _tracks(st: pd.DataFrame, veh: pd.DataFrame, markings: np.ndarray) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle
+    exists and where TTC is defined (for the per-vehicle minima)."""
+    ids = st["id"].to_numpy(dtype=np.int64)
+    frames = st["frame"].to_numpy(dtype=np.int64)
+    x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))
+    vx = st["xVelocity"].to_numpy(dtype=np.float64)
+    direction = st["id"].map(veh["drivingDirection"]).to_numpy(dtype=np.int64)
+    lane = 1 + np.searchsorted(markings, y + width_m / 2.0, side="left").astype(np.int64)
     # progress coordinate along the travel direction: everything below is "ahead = larger s"
     sign = np.where(direction == DRIVING_DIRECTION_LOWER, 1.0, -1.0)
     s_centre = sign * (x + length / 2.0)
-    s_front = s_centre + length / 2.0
-    s_rear = s_centre - length / 2.0
-    v_s = sign * vx
-
     key = _group_key(frames, direction, lane)
+    leader = _leader_columns(key, s_centre, length, sign * vx, vx, ids)
+    tracks = pd.DataFrame(
+        {
+            "frame": frames,
+            "id": ids,
+            "x": x,
+            "y": y,
+            "width": length,
+            "height": width_m,
+            "xVelocity": vx,
+            "yVelocity": st["yVelocity"].to_numpy(dtype=np.float64),
+            "xAcceleration": st["xAcceleration"].to_numpy(dtype=np.float64),
+            "yAcceleration": st["yAcceleration"].to_numpy(dtype=np.float64),
+            **_sight_distances(x, length, direction),
+            **{k: v for k, v in leader.items() if not k.startswith("_")},
+            **_adjacent_columns(frames, direction, lane, key, s_centre, length, ids),
+            "laneId": lane,
+        }
+    )[list(TRACKS_COLUMNS)]
+    return tracks, leader["_has_preceding"], leader["_ttc_defined"]
+
+
+def _sorted_states(states: pd.DataFrame) -> pd.DataFrame:
+    """The state columns sorted by (id, frame); ``ValueError`` unless each vehicle's frames are consecutive."""
+    st = states[list(STATE_COLUMNS)].sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
+    ids = st["id"].to_numpy(dtype=np.int64)
+    frames = st["frame"].to_numpy(dtype=np.int64)
+    if np.any((ids[1:] == ids[:-1]) & (np.diff(frames) != 1)):
+        raise ValueError("frames of each vehicle must be consecutive and unique")
+    return st
+
+
+def _leader_columns(key: np.ndarray, s_centre: np.ndarray, length: np.ndarray, v_s: np.ndarray, vx: np.ndarray,
+                    ids: np.ndarray) -> dict[str, np.ndarray]:
+    """Same-lane neighbour columns (N,): preceding/following ids, dhw [m], thw [s], ttc [s] (0 where
+    undefined, as highD writes them), preceding x velocity; and, prefixed ``_``, the masks where the
+    preceding vehicle exists and where TTC is defined (for the per-vehicle minima)."""
+    s_front, s_rear = s_centre + length / 2.0, s_centre - length / 2.0
     prec_id, foll_id, prec_row, _ = _neighbour_ids(key, s_centre, ids)
     has_prec = prec_row >= 0
     pr = np.where(has_prec, prec_row, 0)
     dhw = np.where(has_prec, s_rear[pr] - s_front, 0.0)
     speed = np.abs(vx)
-    thw = np.where(has_prec & (speed > 0), dhw / np.where(speed > 0, speed, 1.0), 0.0)
     closing = v_s - v_s[pr]
-    ttc_ok = has_prec & (closing > 0) & (dhw > 0)
-    ttc = np.where(has_prec, time_to_collision_s(dhw, closing, contact_s=0.0, not_closing_s=0.0), 0.0)
-    prec_vx = np.where(has_prec, vx[pr], 0.0)
+    return {
+        "dhw": dhw,
+        "thw": np.where(has_prec & (speed > 0), dhw / np.where(speed > 0, speed, 1.0), 0.0),
+        "ttc": np.where(has_prec, time_to_collision_s(dhw, closing, contact_s=0.0, not_closing_s=0.0), 0.0),
+        "precedingXVelocity": np.where(has_prec, vx[pr], 0.0),
+        "precedingId": prec_id,
+        "followingId": foll_id,
+        "_has_preceding": has_prec,
+        "_ttc_defined": has_prec & (closing > 0) & (dhw > 0),
+    }
 
-    # adjacent lanes: left = towards the median (lane - 1 for direction 2, lane + 1 for direction 1)
+
+def _adjacent_columns(frames: np.ndarray, direction: np.ndarray, lane: np.ndarray, key: np.ndarray,
+                      s_centre: np.ndarray, length: np.ndarray, ids: np.ndarray) -> dict[str, np.ndarray]:
+    """Ids (0 = none) of the preceding, alongside and following vehicle in the left and right lanes,
+    (N,) each. Left = towards the median (lane - 1 for direction 2, lane + 1 for direction 1)."""
+    s_front, s_rear = s_centre + length / 2.0, s_centre - length / 2.0
     left_step = np.where(direction == DRIVING_DIRECTION_LOWER, -1, 1)
     n = len(ids)
     q_key = np.concatenate(
@@ -253,66 +294,37 @@ def build_recording(
         q_key, q_front, key, s_rear, {"id": id_f, "front": s_front}, direction="backward", allow_exact_matches=False
     )
     alongside = np.where(last["front"] > q_rear, last["id"], np.nan)
+    ahead_i, along_i, behind_i = (np.nan_to_num(v, nan=0.0).astype(np.int64) for v in (ahead, alongside, behind))
+    return {
+        "leftPrecedingId": ahead_i[:n],
+        "leftAlongsideId": along_i[:n],
+        "leftFollowingId": behind_i[:n],
+        "rightPrecedingId": ahead_i[n:],
+        "rightAlongsideId": along_i[n:],
+        "rightFollowingId": behind_i[n:],
+    }
 
-    def to_ids(values: np.ndarray) -> np.ndarray:
-        return np.nan_to_num(values, nan=0.0).astype(np.int64)
 
-    ahead_i, along_i, behind_i = to_ids(ahead), to_ids(alongside), to_ids(behind)
-
+def _sight_distances(x: np.ndarray, length: np.ndarray, direction: np.ndarray) -> dict[str, np.ndarray]:
+    """Distance [m] from each box to the recorded window's edge ahead of and behind it, (N,) each."""
     x_min = float(x.min())
     x_max = float((x + length).max())
-    front_sight = np.where(direction == DRIVING_DIRECTION_LOWER, x_max - (x + length), x - x_min)
-    back_sight = np.where(direction == DRIVING_DIRECTION_LOWER, x - x_min, x_max - (x + length))
+    return {
+        "frontSightDistance": np.where(direction == DRIVING_DIRECTION_LOWER, x_max - (x + length), x - x_min),
+        "backSightDistance": np.where(direction == DRIVING_DIRECTION_LOWER, x - x_min, x_max - (x + length)),
+    }
 
-    tracks = pd.DataFrame(
-        {
-            "frame": frames,
-            "id": ids,
-            "x": x,
-            "y": y,
-            "width": length,
-            "height": width_m,
-            "xVelocity": vx,
-            "yVelocity": st["yVelocity"].to_numpy(dtype=np.float64),
-            "xAcceleration": st["xAcceleration"].to_numpy(dtype=np.float64),
-            "yAcceleration": st["yAcceleration"].to_numpy(dtype=np.float64),
-            "frontSightDistance": front_sight,
-            "backSightDistance": back_sight,
-            "dhw": dhw,
-            "thw": thw,
-            "ttc": ttc,
-            "precedingXVelocity": prec_vx,
-            "precedingId": prec_id,
-            "followingId": foll_id,
-            "leftPrecedingId": ahead_i[:n],
-            "leftAlongsideId": along_i[:n],
-            "leftFollowingId": behind_i[:n],
-            "rightPrecedingId": ahead_i[n:],
-            "rightAlongsideId": along_i[n:],
-            "rightFollowingId": behind_i[n:],
-            "laneId": lane,
-        }
-    )[list(TRACKS_COLUMNS)]
 
-    tracks_meta = _tracks_meta(tracks, veh, has_prec, ttc_ok)
-    meta: dict[str, object] = {
-        "id": int(recording_id),
-        "frameRate": int(frame_rate_hz),
-        "locationId": int(location_id),
-        "speedLimit": float(speed_limit_mps),
-        "month": str(month),
-        "weekDay": str(week_day),
-        "startTime": str(start_time),
+def _totals(frames: np.ndarray, tracks_meta: pd.DataFrame, frame_rate_hz: int) -> dict[str, object]:
+    """recordingMeta's duration and totals."""
+    return {
         "duration": float(frames.max() - frames.min() + 1) / frame_rate_hz,
         "totalDrivenDistance": float(tracks_meta["traveledDistance"].sum()),
         "totalDrivenTime": float(tracks_meta["numFrames"].sum()) / frame_rate_hz,
         "numVehicles": len(tracks_meta),
         "numCars": int((tracks_meta["class"] == "Car").sum()),
         "numTrucks": int((tracks_meta["class"] == "Truck").sum()),
-        "upperLaneMarkings": upper_text,
-        "lowerLaneMarkings": lower_text,
     }
-    return Recording(recording_id=int(recording_id), meta=meta, tracks_meta=tracks_meta, tracks=tracks)
 
 
 def _tracks_meta(tracks: pd.DataFrame, veh: pd.DataFrame, has_prec: np.ndarray, ttc_ok: np.ndarray) -> pd.DataFrame:

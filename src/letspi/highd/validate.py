@@ -21,6 +21,7 @@ every value and every cross-file relation is checked, vectorised. Each check rai
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -101,46 +102,34 @@ def validate_recording_meta(meta: pd.DataFrame, recording_id: int, path: Path, l
 
 def validate_tracks_meta(tm: pd.DataFrame, path: Path, line_of: LineOf) -> None:
     ids = tm["id"].to_numpy()
-    if (k := _first(ids <= 0)) is not None:
-        raise HighDFormatError(path, f"vehicle id must be positive, got {ids[k]}", column="id", line=line_of(k))
-    if (k := _first(pd.Series(ids).duplicated().to_numpy())) is not None:
-        raise HighDFormatError(path, f"duplicated vehicle id {ids[k]}", column="id", line=line_of(k))
-    if (k := _first(~tm["class"].isin(VEHICLE_CLASSES).to_numpy())) is not None:
-        raise HighDFormatError(
-            path,
-            f"unknown class {tm['class'].iloc[k]!r} (expected one of {list(VEHICLE_CLASSES)})",
-            column="class",
-            line=line_of(k),
-        )
+    _check(ids <= 0, path, "id", line_of, lambda k: f"vehicle id must be positive, got {ids[k]}")
+    _check(pd.Series(ids).duplicated().to_numpy(), path, "id", line_of, lambda k: f"duplicated vehicle id {ids[k]}")
+    _check(~tm["class"].isin(VEHICLE_CLASSES).to_numpy(), path, "class", line_of,
+           lambda k: f"unknown class {tm['class'].iloc[k]!r} (expected one of {list(VEHICLE_CLASSES)})")
     direction = tm["drivingDirection"].to_numpy()
-    if (k := _first((direction != DRIVING_DIRECTION_UPPER) & (direction != DRIVING_DIRECTION_LOWER))) is not None:
-        raise HighDFormatError(
-            path, f"drivingDirection must be 1 or 2, got {direction[k]}", column="drivingDirection", line=line_of(k)
-        )
+    _check((direction != DRIVING_DIRECTION_UPPER) & (direction != DRIVING_DIRECTION_LOWER), path, "drivingDirection",
+           line_of, lambda k: f"drivingDirection must be 1 or 2, got {direction[k]}")
     for col in ("width", "height"):
         values = tm[col].to_numpy()
-        if (k := _first(~(values > 0))) is not None:
-            raise HighDFormatError(
-                path, f"vehicle {ids[k]}: {col} must be positive, got {values[k]:g}", column=col, line=line_of(k)
-            )
+        _check(~(values > 0), path, col, line_of, partial(_not_positive, ids, col, values))
     first, last, n = (tm[c].to_numpy() for c in ("initialFrame", "finalFrame", "numFrames"))
-    if (k := _first(first < 1)) is not None:
-        raise HighDFormatError(
-            path, f"vehicle {ids[k]}: frames start at 1, got initialFrame {first[k]}", column="initialFrame",
-            line=line_of(k),
-        )  # fmt: skip
-    if (k := _first(n != last - first + 1)) is not None:
-        raise HighDFormatError(
-            path,
-            f"vehicle {ids[k]}: numFrames {n[k]} != finalFrame - initialFrame + 1 = {last[k] - first[k] + 1}",
-            column="numFrames",
-            line=line_of(k),
-        )
+    _check(first < 1, path, "initialFrame", line_of,
+           lambda k: f"vehicle {ids[k]}: frames start at 1, got initialFrame {first[k]}")
+    _check(n != last - first + 1, path, "numFrames", line_of,
+           lambda k: f"vehicle {ids[k]}: numFrames {n[k]} != finalFrame - initialFrame + 1 = {last[k] - first[k] + 1}")
     changes = tm["numLaneChanges"].to_numpy()
-    if (k := _first(changes < 0)) is not None:
-        raise HighDFormatError(
-            path, f"numLaneChanges must not be negative, got {changes[k]}", column="numLaneChanges", line=line_of(k)
-        )
+    _check(changes < 0, path, "numLaneChanges", line_of,
+           lambda k: f"numLaneChanges must not be negative, got {changes[k]}")
+
+
+def _not_positive(ids: np.ndarray, col: str, values: np.ndarray, k: int) -> str:
+    return f"vehicle {ids[k]}: {col} must be positive, got {values[k]:g}"
+
+
+def _check(bad: np.ndarray, path: Path, column: str, line_of: LineOf, message: Callable[[int], str]) -> None:
+    """``HighDFormatError`` at the first row where ``bad`` holds, saying ``message(row)``."""
+    if (k := _first(bad)) is not None:
+        raise HighDFormatError(path, message(k), column=column, line=line_of(k))
 
 
 def validate_counts(meta: pd.DataFrame, tm: pd.DataFrame, path: Path, line_of: LineOf, tm_path: Path) -> None:
@@ -166,10 +155,7 @@ def _check_sizes(
     meta_row = pd.Index(tm["id"].to_numpy()).get_indexer(ids)  # every id is known by now
     for col in ("width", "height"):
         values = tracks[col].to_numpy()
-        if (k := _first(~(values > 0))) is not None:
-            raise HighDFormatError(
-                path, f"vehicle {ids[k]}: {col} must be positive, got {values[k]:g}", column=col, line=line_of(k)
-            )
+        _check(~(values > 0), path, col, line_of, partial(_not_positive, ids, col, values))
         expected = tm[col].to_numpy()[meta_row]
         bad = np.abs(values - expected) > _SIZE_TOLERANCE_M
         if (k := _first(bad)) is None:

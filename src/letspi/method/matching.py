@@ -30,6 +30,9 @@ import numpy as np
 
 from letspi.scenario.features import FEATURE_NAMES
 
+#: memories retrieved per scenario by the fast phase (``letspi-fast``)
+TOP_K = 3
+
 PAPER_WEIGHTS: Final = (1.0, 2.0, 3.0, 2.5, 1.5, 1.0)
 """Weights in ``FEATURE_NAMES`` order (paper §III-E)."""
 WEIGHTS_BY_NAME: Final = dict(zip(FEATURE_NAMES, PAPER_WEIGHTS, strict=True))

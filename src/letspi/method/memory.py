@@ -509,13 +509,6 @@ class MemoryBank:
             raise KeyError(f"no experiences with ids {missing[:10]}")
         return [found[i] for i in wanted]
 
-    def get_by_scenario(self, scenario_digest: str, config_key: str) -> Experience | None:
-        row = self._conn.execute(
-            f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE scenario_digest = ? AND config_key = ?",
-            (scenario_digest, config_key),
-        ).fetchone()
-        return None if row is None else _from_row(row)
-
     def iter_experiences(
         self, validated_only: bool = False, config_key: str | None = None, batch_size: int = 256
     ) -> Iterator[Experience]:

@@ -31,7 +31,7 @@ from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
 from letspi.llm.types import Message
-from letspi.method.matching import top_k
+from letspi.method.matching import TOP_K, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
 from letspi.method.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
 from letspi.method.runner import RunnerConfig, RunStats, RunStatus, run_ordered
@@ -250,7 +250,7 @@ class Retriever:
     """
 
     bank: MemoryBank
-    k: int = 3
+    k: int = TOP_K
     config_key: str | None = None
     allowed_ids: np.ndarray | None = None
     allow_same_vehicle: bool = False

@@ -27,7 +27,7 @@ import numpy as np
 from letspi.constants import DT_S
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.metrics.collision import boxes_overlap
-from letspi.metrics.inputs import min_over_nbr_time
+from letspi.metrics.inputs import MetricInputs, min_over_nbr_time
 from letspi.metrics.kinematics import road_edges
 from letspi.metrics.pet import pet_grid
 from letspi.metrics.relative import relative_position
@@ -383,41 +383,12 @@ def safety_report(
     ``check_plans(...).safe(ttc_s, min_dist_m)`` when PET is off and off-road is checked.
     """
     th = thresholds or ReflectionThresholds()
-    b = len(batch)
     check = check_plans(batch, plan_xy_m, plan_vxy_mps, neighbour_prediction)  # whole horizon: the metrics
     inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbour_prediction)
-    n_steps = inp.n_steps
-    rows = np.arange(b)
     contact, c_step, c_nbr = _first_event(boxes_overlap(inp))
-
-    # After the first contact the plan means nothing (a weak repulsion lets the ego drive *through* its
-    # leader, which then shows up as a "rear" conflict): TTC and gap violations are located on the steps
-    # before the first contact, by the same check_plans on a prediction masked after that step.
-    before = np.arange(n_steps)[None, :] < np.where(contact, c_step, n_steps)[:, None]  # (B, F)
-    masked = NeighbourPrediction(neighbour_prediction.xy_m, neighbour_prediction.vxy_mps,
-                                 np.asarray(neighbour_prediction.valid, dtype=bool) & before[:, None, :])
-    pre = check_plans(batch, plan_xy_m, plan_vxy_mps, masked) if contact.any() else check
-    pre_inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, masked) if contact.any() else inp
-    # in-path gap: where check_plans' min_path_gap_m occurs (same definition)
-    in_path = pre_inp.lateral_overlap & pre_inp.nbr_valid
-    _, gap_step, gap_nbr = min_over_nbr_time(
-        np.where(in_path, np.abs(pre_inp.dx_m) - pre_inp.half_len_sum_m, np.inf))
-    # off-road: first step beyond an edge, value = the largest excursion
-    right, left = road_edges(batch.marking_y_m, batch.marking_is_edge)
-    hw = 0.5 * inp.ego_width_m[:, None]
-    ey = inp.ego_xy_m[..., 1]
-    excess = np.maximum(right[:, None] - (ey - hw), (ey + hw) - left[:, None])  # (B, F), > 0 beyond
-    beyond = excess > 0
-    off_step = np.where(beyond.any(axis=1), beyond.argmax(axis=1), -1)
-    off_val = np.where(beyond.any(axis=1), np.nanmax(np.where(beyond, excess, -np.inf), axis=1), 0.0)
-
-    located: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {
-        # metric -> (value, step, nbr, violated) each (B,)
-        "contact": (np.zeros(b), c_step, c_nbr, contact),
-        "front_ttc": (pre.min_ttc_s, pre.min_ttc_step, pre.min_ttc_nbr, pre.min_ttc_s < th.ttc_s),
-        "rear_ttc": (pre.min_rear_ttc_s, pre.min_rear_ttc_step, pre.min_rear_ttc_nbr, pre.min_rear_ttc_s < th.ttc_s),
-        "in_path_gap": (pre.min_path_gap_m, gap_step, gap_nbr, pre.min_path_gap_m < th.min_dist_m),
-    }
+    pre, pre_inp = _before_contact(batch, plan_xy_m, plan_vxy_mps, neighbour_prediction, contact, c_step,
+                                   check, inp)
+    located = _located_metrics(batch, th, check, pre, pre_inp, contact, c_step, c_nbr)
     pet_s: np.ndarray | None = None
     pre_pet_s: np.ndarray | None = None
     if th.pet_s is not None:
@@ -427,18 +398,89 @@ def safety_report(
         pre_pet_s = pet.min_pet_s
         located["pet"] = (pet.min_pet_s, pet.min_pet_step, pet.min_pet_nbr, pet.min_pet_s < th.pet_s)
     if th.check_off_road:
-        located["off_road"] = (off_val, off_step, np.full(b, -1), check.off_road)
-    # peak braking of the plan, from the t = 0 velocity on (B,)
+        off_val, off_step = _off_road_excursion(batch, inp)
+        located["off_road"] = (off_val, off_step, np.full(len(batch), -1), check.off_road)
+    max_decel, brake_step = _peak_braking(batch, inp)
+    if th.max_decel_mps2 is not None:
+        located["harsh_braking"] = (max_decel, brake_step, np.full(len(batch), -1),
+                                    max_decel > th.max_decel_mps2 + 1e-9)
+    columns = _violation_columns(batch, inp, located)
+    reports = []
+    for i in range(len(batch)):
+        violations = _violations_of(columns, i, th)
+        reports.append(SafetyReport(
+            scenario_id=str(batch.scenario_id[i]),
+            violations=tuple(violations),
+            metrics={**_metrics_row(check, i, pet_s, safe=not violations), "max_decel_mps2": float(max_decel[i])},
+            thresholds=th,
+            n_steps=inp.n_steps,
+            pre_contact_metrics=_metrics_row(pre, i, pre_pet_s, safe=False) if contact[i] else None,
+            first_contact_time_s=float((c_step[i] + 1) * DT_S) if contact[i] else None,
+        ))
+    return reports
+
+
+#: metric -> (value, step, neighbour slot, violated), (B,) each
+Located = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _before_contact(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray,
+                    neighbour_prediction: NeighbourPrediction, contact: np.ndarray, c_step: np.ndarray,
+                    check: SafetyCheck, inp: MetricInputs) -> tuple[SafetyCheck, MetricInputs]:
+    """The plan checks on the steps before each scenario's first contact (the whole-horizon ones
+    when no scenario has contact)."""
+    if not contact.any():
+        return check, inp
+    # After the first contact the plan means nothing (a weak repulsion lets the ego drive *through* its
+    # leader, which then shows up as a "rear" conflict): TTC and gap violations are located on the steps
+    # before the first contact, by the same check_plans on a prediction masked after that step.
+    n_steps = inp.n_steps
+    before = np.arange(n_steps)[None, :] < np.where(contact, c_step, n_steps)[:, None]  # (B, F)
+    masked = NeighbourPrediction(neighbour_prediction.xy_m, neighbour_prediction.vxy_mps,
+                                 np.asarray(neighbour_prediction.valid, dtype=bool) & before[:, None, :])
+    return (check_plans(batch, plan_xy_m, plan_vxy_mps, masked),
+            predicted_inputs(batch, plan_xy_m, plan_vxy_mps, masked))
+
+
+def _located_metrics(batch: ScenarioBatch, th: ReflectionThresholds, check: SafetyCheck, pre: SafetyCheck,
+                     pre_inp: MetricInputs, contact: np.ndarray, c_step: np.ndarray, c_nbr: np.ndarray) -> Located:
+    """Contact, front and rear TTC and the in-path gap, each with where it occurs."""
+    # in-path gap: where check_plans' min_path_gap_m occurs (same definition)
+    in_path = pre_inp.lateral_overlap & pre_inp.nbr_valid
+    _, gap_step, gap_nbr = min_over_nbr_time(
+        np.where(in_path, np.abs(pre_inp.dx_m) - pre_inp.half_len_sum_m, np.inf))
+    return {
+        "contact": (np.zeros(len(batch)), c_step, c_nbr, contact),
+        "front_ttc": (pre.min_ttc_s, pre.min_ttc_step, pre.min_ttc_nbr, pre.min_ttc_s < th.ttc_s),
+        "rear_ttc": (pre.min_rear_ttc_s, pre.min_rear_ttc_step, pre.min_rear_ttc_nbr, pre.min_rear_ttc_s < th.ttc_s),
+        "in_path_gap": (pre.min_path_gap_m, gap_step, gap_nbr, pre.min_path_gap_m < th.min_dist_m),
+    }
+
+
+def _off_road_excursion(batch: ScenarioBatch, inp: MetricInputs) -> tuple[np.ndarray, np.ndarray]:
+    """(largest excursion of the ego box beyond a road edge [m], first step beyond it (-1: none)), (B,) each."""
+    right, left = road_edges(batch.marking_y_m, batch.marking_is_edge)
+    hw = 0.5 * inp.ego_width_m[:, None]
+    ey = inp.ego_xy_m[..., 1]
+    excess = np.maximum(right[:, None] - (ey - hw), (ey + hw) - left[:, None])  # (B, F), > 0 beyond
+    beyond = excess > 0
+    off_step = np.where(beyond.any(axis=1), beyond.argmax(axis=1), -1)
+    off_val = np.where(beyond.any(axis=1), np.nanmax(np.where(beyond, excess, -np.inf), axis=1), 0.0)
+    return off_val, off_step
+
+
+def _peak_braking(batch: ScenarioBatch, inp: MetricInputs) -> tuple[np.ndarray, np.ndarray]:
+    """(peak deceleration of the plan from the t = 0 velocity on [m/s²], its step), (B,) each."""
     vx = np.concatenate([batch.ego_vxy0_mps[:, None, 0].astype(np.float64), inp.ego_vxy_mps[..., 0]], axis=1)
     braking = -np.diff(vx, axis=1) / DT_S  # (B, F), > 0 when slowing down
     brake_step = np.nanargmax(np.where(np.isfinite(braking), braking, -np.inf), axis=1)
-    max_decel = braking[rows, brake_step]
-    if th.max_decel_mps2 is not None:
-        located["harsh_braking"] = (max_decel, brake_step, np.full(b, -1), max_decel > th.max_decel_mps2 + 1e-9)
-    thresholds_of = {"contact": th.min_dist_m, "front_ttc": th.ttc_s, "rear_ttc": th.ttc_s,
-                     "in_path_gap": th.min_dist_m, "pet": th.pet_s or 0.0, "off_road": 0.0,
-                     "harsh_braking": th.max_decel_mps2 or 0.0}
+    return braking[np.arange(len(batch)), brake_step], brake_step
 
+
+def _violation_columns(batch: ScenarioBatch, inp: MetricInputs, located: Located) -> dict[str, dict[str, np.ndarray]]:
+    """Per metric, (B,) columns of everything a ``Violation`` says: value, step, neighbour, lanes,
+    relative position and offsets."""
+    rows = np.arange(len(batch))
     ego_lane = lane_id_of(batch, inp.ego_xy_m[..., 1])  # (B, F)
     nbr_y = np.where(inp.nbr_valid, inp.nbr_xy_m[..., 1], np.nan)
     nbr_lane = lane_id_of(batch, nbr_y)  # (B, N, F)
@@ -461,40 +503,36 @@ def safety_report(
             "dx": np.where(nbr >= 0, inp.dx_m[rows, k0, s0], np.nan),
             "dy": np.where(nbr >= 0, inp.dy_m[rows, k0, s0], np.nan),
         }
+    return columns
 
-    reports = []
-    for i in range(b):
-        violations = []
-        for metric in METRIC_ORDER:
-            col = columns.get(metric)
-            if col is None or not col["bad"][i]:
-                continue
-            step_i = int(col["step"][i])
-            violations.append(Violation(
-                metric=metric,
-                value=float(col["value"][i]),
-                threshold=float(thresholds_of[metric]),
-                unit=_UNIT[metric],
-                step=step_i,
-                time_s=(step_i + 1) * DT_S,
-                nbr_slot=int(col["nbr"][i]),
-                vehicle_id=int(col["vehicle_id"][i]),
-                nbr_lane_id=int(col["nbr_lane"][i]),
-                ego_lane_id=int(col["ego_lane"][i]),
-                relative=str(col["relative"][i]),  # type: ignore[arg-type]
-                dx_m=float(col["dx"][i]),
-                dy_m=float(col["dy"][i]),
-            ))
-        reports.append(SafetyReport(
-            scenario_id=str(batch.scenario_id[i]),
-            violations=tuple(violations),
-            metrics={**_metrics_row(check, i, pet_s, safe=not violations), "max_decel_mps2": float(max_decel[i])},
-            thresholds=th,
-            n_steps=n_steps,
-            pre_contact_metrics=_metrics_row(pre, i, pre_pet_s, safe=False) if contact[i] else None,
-            first_contact_time_s=float((c_step[i] + 1) * DT_S) if contact[i] else None,
+
+def _violations_of(columns: dict[str, dict[str, np.ndarray]], i: int, th: ReflectionThresholds) -> list[Violation]:
+    """Scenario ``i``'s violations, in ``METRIC_ORDER``."""
+    thresholds_of = {"contact": th.min_dist_m, "front_ttc": th.ttc_s, "rear_ttc": th.ttc_s,
+                     "in_path_gap": th.min_dist_m, "pet": th.pet_s or 0.0, "off_road": 0.0,
+                     "harsh_braking": th.max_decel_mps2 or 0.0}
+    violations = []
+    for metric in METRIC_ORDER:
+        col = columns.get(metric)
+        if col is None or not col["bad"][i]:
+            continue
+        step_i = int(col["step"][i])
+        violations.append(Violation(
+            metric=metric,
+            value=float(col["value"][i]),
+            threshold=float(thresholds_of[metric]),
+            unit=_UNIT[metric],
+            step=step_i,
+            time_s=(step_i + 1) * DT_S,
+            nbr_slot=int(col["nbr"][i]),
+            vehicle_id=int(col["vehicle_id"][i]),
+            nbr_lane_id=int(col["nbr_lane"][i]),
+            ego_lane_id=int(col["ego_lane"][i]),
+            relative=str(col["relative"][i]),  # type: ignore[arg-type]
+            dx_m=float(col["dx"][i]),
+            dy_m=float(col["dy"][i]),
         ))
-    return reports
+    return violations
 
 
 def _metrics_row(check: SafetyCheck, i: int, pet_s: np.ndarray | None, *, safe: bool) -> dict[str, float]:
@@ -621,6 +659,26 @@ def _severity(report: SafetyReport) -> tuple[float, ...]:
     return (m["collision"], m["off_road"], float(len(report.violations)), -ttc, -gap)
 
 
+def _goal_and_prediction(scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None,
+                         neighbour_prediction: NeighbourPrediction | None) -> tuple[np.ndarray, NeighbourPrediction]:
+    """The goal before adjustment (2,) and the neighbour prediction, the planners' defaults where not given
+    (kinematic goal, IDM prediction)."""
+    if base_goal_xy_m is None:
+        base_goal_xy_m = KinematicGoalPredictor().predict_goals(scenario).top[0]
+    pred = neighbour_prediction if neighbour_prediction is not None else predict_neighbours(
+        scenario, NeighbourPredictionMode.IDM)
+    return np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2), pred
+
+
+def _with_goal_factors_of(proposal: Proposal, first: Proposal) -> Proposal:
+    """``proposal`` with the first proposal's goal factors (the "w/o GA" ablation); an override is
+    recorded in ``meta['goal_factors_frozen']``."""
+    if (proposal.lon_factor, proposal.lane_factor) == (first.lon_factor, first.lane_factor):
+        return proposal
+    meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
+    return replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
+
+
 def reflect(
     scenario: ScenarioBatch,
     propose: Proposer,
@@ -642,11 +700,7 @@ def reflect(
     if len(scenario) != 1:
         raise ValueError(f"reflect works on one scenario (a batch of one), got {len(scenario)}")
     th = thresholds or ReflectionThresholds()
-    if base_goal_xy_m is None:
-        base_goal_xy_m = KinematicGoalPredictor().predict_goals(scenario).top[0]
-    base_goal = np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2)
-    pred = neighbour_prediction if neighbour_prediction is not None else predict_neighbours(
-        scenario, NeighbourPredictionMode.IDM)
+    base_goal, pred = _goal_and_prediction(scenario, base_goal_xy_m, neighbour_prediction)
 
     history: list[IterationRecord] = []
     for iteration in range(th.max_iterations + 1):
@@ -660,10 +714,7 @@ def reflect(
         proposal = propose(ctx).normalised()
         t1 = time.perf_counter()
         if not goal_adjustment and history:
-            first = history[0].proposal
-            if (proposal.lon_factor, proposal.lane_factor) != (first.lon_factor, first.lane_factor):
-                meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
-                proposal = replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
+            proposal = _with_goal_factors_of(proposal, history[0].proposal)
         plan = simulate_proposal(
             scenario, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
             np.array([proposal.lane_factor]), base_goal[None], pred,
@@ -679,14 +730,17 @@ def reflect(
         if report.safe:
             break
 
+    return ReflectionResult(
+        scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history),
+        final_index=_final_index(history, unsafe_choice), validated=any(rec.safe for rec in history),
+    )
+
+
+def _final_index(history: list[IterationRecord], unsafe_choice: Literal["best", "last"]) -> int:
+    """The iteration that is the result: the first safe one, else the last or the least severe."""
     safe_idx = [i for i, rec in enumerate(history) if rec.safe]
     if safe_idx:
-        final = safe_idx[0]
-    elif unsafe_choice == "last":
-        final = len(history) - 1
-    else:
-        final = min(range(len(history)), key=lambda i: (_severity(history[i].report), -i))
-    return ReflectionResult(
-        scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history), final_index=final,
-        validated=bool(safe_idx),
-    )
+        return safe_idx[0]
+    if unsafe_choice == "last":
+        return len(history) - 1
+    return min(range(len(history)), key=lambda i: (_severity(history[i].report), -i))

@@ -17,6 +17,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.metrics.config import MetricsConfig
 
+#: reflection refinements per scenario (the paper's budget; 0 = the single-shot planner)
+MAX_ITERATIONS = 3
+#: the evaluation's thresholds (``MetricsConfig.reflection_*``) are the reflection's defaults: one source
+_METRICS = MetricsConfig()
+
 
 class ReflectionThresholds(BaseModel):
     """Thresholds [SI] and the iteration budget of the reflection loop.
@@ -33,27 +38,16 @@ class ReflectionThresholds(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    ttc_s: float = Field(default=1.5, gt=0)
-    min_dist_m: float = Field(default=2.0, ge=0)
-    pet_s: float | None = Field(default=None, gt=0)
-    pet_cell_m: float = Field(default=0.5, gt=0)
+    ttc_s: float = Field(default=_METRICS.reflection_ttc_s, gt=0)
+    min_dist_m: float = Field(default=_METRICS.reflection_min_dist_m, ge=0)
+    pet_s: float | None = Field(default=_METRICS.reflection_pet_s, gt=0)
+    pet_cell_m: float = Field(default=_METRICS.pet_cell_m, gt=0)
     check_off_road: bool = True
     # not in the paper: a plan braking harder than this is not "validated" either; 8 m/s^2 is the
     # feasibility bound of the success metric (MetricsConfig.max_abs_acc_lon_mps2), so a validated
     # experience is also a feasible one; None disables the check
-    max_decel_mps2: float | None = Field(default=8.0, gt=0)
-    max_iterations: int = Field(default=3, ge=0)
-
-    @classmethod
-    def from_metrics_config(cls, config: MetricsConfig, *, max_iterations: int = 3) -> ReflectionThresholds:
-        """The reflection thresholds kept in ``MetricsConfig`` (one source for evaluation and reflection)."""
-        return cls(
-            ttc_s=config.reflection_ttc_s,
-            min_dist_m=config.reflection_min_dist_m,
-            pet_s=config.reflection_pet_s,
-            pet_cell_m=config.pet_cell_m,
-            max_iterations=max_iterations,
-        )
+    max_decel_mps2: float | None = Field(default=_METRICS.max_abs_acc_lon_mps2, gt=0)
+    max_iterations: int = Field(default=MAX_ITERATIONS, ge=0)
 
     def key(self) -> str:
         """A short stable string for memory configuration keys (``ttc1.5-d2-petnone-it3``)."""

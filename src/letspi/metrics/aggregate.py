@@ -152,9 +152,9 @@ def aggregate_metrics(
     """Aggregate per-scenario metrics into the contract above (module doc).
 
     metrics: ``compute_metrics``' result or its frame (extra columns such as ``scenario_id`` are
-    ignored). inference_time_s: planning times [s] (any number of them, e.g. only the uncached
-    rows; their finite mean is reported) or one number; when None, an ``inference_s`` column of
-    the frame is used if present, else None.
+    ignored; a ``scenario_digest`` column must not repeat a digest). inference_time_s: planning
+    times [s] (any number of them, e.g. only the uncached rows; their finite mean is reported) or
+    one number; when None, an ``inference_s`` column of the frame is used if present, else None.
     config: thresholds to apply (module doc); None = the config recorded with the metrics.
     """
     if isinstance(metrics, ScenarioMetrics):
@@ -162,6 +162,11 @@ def aggregate_metrics(
         config = config if config is not None else metrics.config
     else:
         df = metrics
+    if "scenario_digest" in df and not df["scenario_digest"].is_unique:
+        # two writers in one results directory store some scenarios twice: n and every mean would lie
+        twice = int(df["scenario_digest"].duplicated().sum())
+        raise ValueError(f"{twice} scenario(s) appear more than once in the rows to aggregate (one row per "
+                         "scenario digest expected): were two processes writing the same results?")
     cfg = _config_in_effect(df, config)
     out: dict[str, AggValue] = {"n": len(df)}
     for m in METRICS:

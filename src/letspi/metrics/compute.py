@@ -22,17 +22,23 @@ import numpy as np
 import pandas as pd
 
 from letspi.constants import T0_INDEX
-from letspi.metrics.collision import collisions
+from letspi.metrics.collision import CollisionResult, collisions
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.distance import distances
-from letspi.metrics.drac import drac
-from letspi.metrics.fault import at_fault_collisions
+from letspi.metrics.drac import DRACResult, drac
+from letspi.metrics.fault import FaultResult, at_fault_collisions
 from letspi.metrics.inputs import MetricInputs
-from letspi.metrics.kinematics import ade_fde, count_lane_changes, finite_difference_kinematics, off_road
+from letspi.metrics.kinematics import (
+    KinematicsResult,
+    ade_fde,
+    count_lane_changes,
+    finite_difference_kinematics,
+    off_road,
+)
 from letspi.metrics.pet import pet_grid
 from letspi.metrics.registry import CONFIG_COLUMNS, computed_metrics
-from letspi.metrics.success import success
-from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
+from letspi.metrics.success import SuccessResult, success
+from letspi.metrics.ttc import TTCResult, rear_ttc_1d, ttc_1d
 from letspi.metrics.ttc2d import ttc_2d
 from letspi.scenario.types import ScenarioBatch
 
@@ -107,6 +113,23 @@ class ScenarioMetrics:
 _NUMPY_DTYPES: Mapping[str, Any] = {"float64": np.float64, "int64": np.int64, "bool": np.bool_, "str": object}
 
 
+def _fault(inp: MetricInputs, coll: CollisionResult, kin: KinematicsResult, dr: DRACResult, ttc: TTCResult,
+           config: MetricsConfig) -> FaultResult:
+    """Who caused each collision (``letspi.metrics.fault``)."""
+    return at_fault_collisions(inp, coll.overlap, coll.collision_step, coll.collision_nbr, kin.acc_mps2[..., 0],
+                               dr.drac_mps2, ttc.preceding.nbr, reaction_time_s=config.fault_reaction_time_s,
+                               comfort_decel_mps2=config.fault_comfort_decel_mps2, dt_s=config.dt_s)
+
+
+def _success(batch: ScenarioBatch, inp: MetricInputs, kin: KinematicsResult, offr: np.ndarray, coll: CollisionResult,
+             truth_xy: np.ndarray, goals_xy_m: np.ndarray | None, config: MetricsConfig) -> SuccessResult:
+    """Whether each plan succeeds (``letspi.metrics.success``)."""
+    return success(inp.ego_xy_m, inp.ego_vxy_mps, kin.peak_abs_acc_lon_mps2, kin.peak_abs_acc_lat_mps2, offr,
+                   coll.collision, coll.collision_2m, goals_xy_m, config, human_end_xy_m=truth_xy[:, -1],
+                   start_x_m=batch.ego_xy_m[:, T0_INDEX, 0].astype(np.float64),
+                   marking_y_m=batch.marking_y_m.astype(np.float64))
+
+
 def _compute_chunk(
     batch: ScenarioBatch,
     inp: MetricInputs,
@@ -135,18 +158,7 @@ def _compute_chunk(
         "drac": dr,
         "dist": distances(inp),
         "coll": coll,
-        "fault": at_fault_collisions(
-            inp,
-            coll.overlap,
-            coll.collision_step,
-            coll.collision_nbr,
-            kin.acc_mps2[..., 0],
-            dr.drac_mps2,
-            ttc.preceding.nbr,
-            reaction_time_s=config.fault_reaction_time_s,
-            comfort_decel_mps2=config.fault_comfort_decel_mps2,
-            dt_s=config.dt_s,
-        ),
+        "fault": _fault(inp, coll, kin, dr, ttc, config),
         "kin": kin,
         "route": _Route(
             ade_m=ade,
@@ -155,20 +167,7 @@ def _compute_chunk(
             off_road=offr,
             low_ttc=ttc.min_ttc_s < config.low_ttc_s,
         ),
-        "ok": success(
-            inp.ego_xy_m,
-            inp.ego_vxy_mps,
-            kin.peak_abs_acc_lon_mps2,
-            kin.peak_abs_acc_lat_mps2,
-            offr,
-            coll.collision,
-            coll.collision_2m,
-            goals_xy_m,
-            config,
-            human_end_xy_m=truth_xy[:, -1],
-            start_x_m=batch.ego_xy_m[:, T0_INDEX, 0].astype(np.float64),
-            marking_y_m=marks,
-        ),
+        "ok": _success(batch, inp, kin, offr, coll, truth_xy, goals_xy_m, config),
     }
     columns: dict[str, np.ndarray] = {}
     for m in computed_metrics():

@@ -89,6 +89,30 @@ def _unjustified_braking(
     return out
 
 
+def _classify_pairs(inp: MetricInputs, overlap: np.ndarray, bi: np.ndarray, ni: np.ndarray, reaction_time_s: float,
+                    dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(first contact step, kind, ego at fault) of the P colliding pairs (scenario ``bi``, slot ``ni``),
+    (P,) each; a rear collision's fault is decided afterwards (``_unjustified_braking``)."""
+    f = overlap.shape[2]
+    s = overlap[bi, ni].argmax(axis=1)  # (P,) first contact step
+    frames = np.arange(f)[None, :]
+    apart = inp.nbr_valid[bi, ni] & ~inp.lateral_overlap[bi, ni]  # (P, F); invalid steps: unknown
+    onset = np.where(apart & (frames < s[:, None]), frames, -1).max(axis=1)  # last step apart laterally
+    window = max(round(reaction_time_s / dt_s), 1)
+    lateral = (onset >= 0) & (s - onset <= window)
+    o = np.maximum(onset, 0)
+    sgn = np.sign(inp.dy_m[bi, ni, o])
+    ego_y = inp.ego_xy_m[bi, :, 1]
+    nbr_y = inp.nbr_xy_m[bi, ni, :, 1]
+    rows = np.arange(bi.size)
+    ego_in = sgn * (ego_y[rows, s] - ego_y[rows, o])
+    nbr_in = -sgn * (nbr_y[rows, s] - nbr_y[rows, o])
+    dx_before = inp.dx_m[bi, ni, np.maximum(s - 1, 0)]
+    ahead = np.where(np.isfinite(dx_before), dx_before, inp.dx_m[bi, ni, s]) > 0
+    kind = np.where(lateral, SIDE, np.where(ahead, FRONT, REAR)).astype(np.int8)
+    return s, kind, np.where(lateral, ego_in >= nbr_in, kind == FRONT)
+
+
 def at_fault_collisions(
     inp: MetricInputs,
     overlap: np.ndarray,
@@ -109,29 +133,13 @@ def at_fault_collisions(
     ego_acc_lon_mps2: (B, F) planned longitudinal acceleration (``KinematicsResult.acc_mps2[..., 0]``);
     drac_mps2, preceding_nbr: (B, F) the ego's DRAC and preceding slot per step (``drac``, ``ttc``).
     """
-    b, n, f = overlap.shape
+    b, n, _ = overlap.shape
     pair_kind = np.zeros((b, n), dtype=np.int8)
     pair_fault = np.zeros((b, n), dtype=bool)
     pair_step = np.full((b, n), -1, dtype=np.int64)
     bi, ni = np.nonzero(overlap.any(axis=2))
     if bi.size:
-        s = overlap[bi, ni].argmax(axis=1)  # (P,) first contact step
-        frames = np.arange(f)[None, :]
-        apart = inp.nbr_valid[bi, ni] & ~inp.lateral_overlap[bi, ni]  # (P, F); invalid steps: unknown
-        onset = np.where(apart & (frames < s[:, None]), frames, -1).max(axis=1)  # last step apart laterally
-        window = max(round(reaction_time_s / dt_s), 1)
-        lateral = (onset >= 0) & (s - onset <= window)
-        o = np.maximum(onset, 0)
-        sgn = np.sign(inp.dy_m[bi, ni, o])
-        ego_y = inp.ego_xy_m[bi, :, 1]
-        nbr_y = inp.nbr_xy_m[bi, ni, :, 1]
-        rows = np.arange(bi.size)
-        ego_in = sgn * (ego_y[rows, s] - ego_y[rows, o])
-        nbr_in = -sgn * (nbr_y[rows, s] - nbr_y[rows, o])
-        dx_before = inp.dx_m[bi, ni, np.maximum(s - 1, 0)]
-        ahead = np.where(np.isfinite(dx_before), dx_before, inp.dx_m[bi, ni, s]) > 0
-        kind = np.where(lateral, SIDE, np.where(ahead, FRONT, REAR)).astype(np.int8)
-        fault = np.where(lateral, ego_in >= nbr_in, kind == FRONT)
+        s, kind, fault = _classify_pairs(inp, overlap, bi, ni, reaction_time_s, dt_s)
         rear = np.flatnonzero(kind == REAR)
         if rear.size:
             fault[rear] = _unjustified_braking(

@@ -116,6 +116,21 @@ def step_speed(speed_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> np
     return np.maximum(speed_mps + accel_mps2 * dt_s, 0.0)
 
 
+def _neighbours_from_t0(batch: ScenarioBatch, neighbours: NeighbourPrediction
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Neighbour positions (B, N, F+1, 2), x velocities and validity (B, N, F+1): at t = 0 (observed),
+    then predicted, so index k is the state at t = k dt."""
+    nxy = np.concatenate(
+        [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
+    )
+    nvx = np.concatenate(
+        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]],
+        axis=2,
+    )
+    nvalid = np.concatenate([batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid], axis=2)
+    return nxy, nvx, nvalid & np.isfinite(nxy).all(axis=-1) & np.isfinite(nvx)
+
+
 def rollout_idm_ego(
     batch: ScenarioBatch,
     neighbours: NeighbourPrediction,
@@ -140,16 +155,7 @@ def rollout_idm_ego(
         else np.broadcast_to(np.asarray(desired_speed_mps, dtype=np.float64), (n,))
     )
     prm = IdmParams.for_classes(batch.ego_class) if params is None else params
-    # neighbours at t = 0 (observed) then predicted: index k is the state at t = k dt
-    nxy = np.concatenate(
-        [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
-    )
-    nvx = np.concatenate(
-        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]],
-        axis=2,
-    )
-    nvalid = np.concatenate([batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid], axis=2)
-    nvalid = nvalid & np.isfinite(nxy).all(axis=-1) & np.isfinite(nvx)
+    nxy, nvx, nvalid = _neighbours_from_t0(batch, neighbours)
     half_len = 0.5 * (batch.ego_length_m.astype(np.float64)[:, None] + np.nan_to_num(batch.nbr_length_m))
     half_wid = 0.5 * (batch.ego_width_m.astype(np.float64)[:, None] + np.nan_to_num(batch.nbr_width_m))
     in_lane_dy = np.maximum(0.5 * lane_width_m(batch.marking_y_m)[:, None], half_wid)

@@ -46,16 +46,6 @@ def lane_index_of(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     return np.where(n_lanes >= 1, idx, -1)
 
 
-def lane_centre_of(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
-    """Centre y of the lane containing ``y_m`` (B,); ``y_m`` itself when the road has no lanes."""
-    centres = lane_centres_m(marking_y_m)
-    idx = lane_index_of(y_m, marking_y_m)
-    if centres.shape[1] == 0:
-        return np.asarray(y_m, dtype=np.float64).copy()
-    picked = np.take_along_axis(centres, np.maximum(idx, 0)[:, None], axis=1)[:, 0]
-    return np.where(idx >= 0, picked, y_m)
-
-
 def outer_lane_centres_m(marking_y_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lowest, highest) lane centre y per scenario, (B,) each; NaN without lanes."""
     centres = lane_centres_m(marking_y_m)

@@ -96,6 +96,27 @@ AY_MAX_MPS2 = 3.0
 FAR_M = 1.0e12
 
 
+def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Markings (B, M) -> crossable lines compacted to the front, (B, L) y [m] (FAR_M when unknown) and
+    known flags, and the right and left road edges (B,) [m] (-FAR_M / FAR_M when absent). Only the
+    outermost edges act; a single edge is the right one when it lies below the ego, else the left one."""
+    known = np.isfinite(my)
+    is_edge = np.asarray(marking_is_edge, dtype=bool).reshape(my.shape[0], -1) & known
+    is_line = known & ~is_edge
+    n_lines = int(is_line.sum(axis=1).max(initial=0))
+    # compact the crossable lines to the front (stable: keeps ascending order)
+    order = np.argsort(~is_line, axis=1, kind="stable")[:, :n_lines]
+    line_known = np.take_along_axis(is_line, order, axis=1)
+    line_y = np.where(line_known, np.take_along_axis(np.where(known, my, 0.0), order, axis=1), FAR_M)
+    right = np.where(is_edge, my, np.inf).min(axis=1)
+    left = np.where(is_edge, my, -np.inf).max(axis=1)
+    one_edge = np.isfinite(right) & (right == left)
+    right_ok = np.isfinite(right) & ~(one_edge & (right > ego_y_m))
+    left_ok = np.isfinite(left) & ~(one_edge & (left <= ego_y_m))
+    return line_y, line_known, np.where(right_ok, right, -FAR_M), np.where(left_ok, left, FAR_M)
+
+
 @dataclass(frozen=True)
 class SocialForceScene:
     """Everything a rollout needs besides parameters and goals: float64, sanitised, and laid out
@@ -178,20 +199,7 @@ class SocialForceScene:
         nx, ny, valid_t = _step_major(xy_parts, valid_parts)
 
         my = np.asarray(marking_y_m, dtype=np.float64).reshape(b, -1)
-        known = np.isfinite(my)
-        is_edge = np.asarray(marking_is_edge, dtype=bool).reshape(b, -1) & known
-        is_line = known & ~is_edge
-        n_lines = int(is_line.sum(axis=1).max(initial=0))
-        # compact the crossable lines to the front (stable: keeps ascending order)
-        order = np.argsort(~is_line, axis=1, kind="stable")[:, :n_lines]
-        line_known = np.take_along_axis(is_line, order, axis=1)
-        line_y = np.where(line_known, np.take_along_axis(np.where(known, my, 0.0), order, axis=1), FAR_M)
-        right = np.where(is_edge, my, np.inf).min(axis=1)
-        left = np.where(is_edge, my, -np.inf).max(axis=1)
-        one_edge = np.isfinite(right) & (right == left)
-        # a single edge is the right one when it lies below the ego, else the left one
-        right_ok = np.isfinite(right) & ~(one_edge & (right > ego_xy[:, 1]))
-        left_ok = np.isfinite(left) & ~(one_edge & (left <= ego_xy[:, 1]))
+        line_y, line_known, right_edge, left_edge = _lines_and_edges(my, marking_is_edge, ego_xy[:, 1])
 
         def size(a: np.ndarray) -> np.ndarray:
             v = np.asarray(a, dtype=np.float64)
@@ -209,8 +217,8 @@ class SocialForceScene:
             nbr_width_m=np.ascontiguousarray(size(nbr_width_m).reshape(b, -1).T),
             line_y_m=np.ascontiguousarray(line_y.T),
             line_known=np.ascontiguousarray(line_known.T),
-            right_edge_y_m=np.where(right_ok, right, -FAR_M),
-            left_edge_y_m=np.where(left_ok, left, FAR_M),
+            right_edge_y_m=right_edge,
+            left_edge_y_m=left_edge,
             lane_width_m=lane_width_m(my),
         )
 

@@ -34,6 +34,7 @@ from typing import Any, ClassVar, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from letspi.llm.client import RetryPolicy
 from letspi.llm.types import DecodingSettings
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
@@ -168,7 +169,9 @@ class LlmConfig(Config):
 
     ``adapter_sha256`` / ``adapter_path``: the LoRA adapter llama.cpp applies (the fine-tuned
     ``smollm2-135m-letspi``); ``prompt_style``: ``paper`` (physics + fast prompts with few-shot
-    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on).
+    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on);
+    ``runtime``: the embedded model's llama.cpp version and attention path
+    (``letspi.llm.backends.llamacpp.LlamaRuntime.identity``; None for servers).
     """
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
@@ -179,13 +182,14 @@ class LlmConfig(Config):
     adapter_sha256: str | None = None
     adapter_path: str | None = None
     prompt_style: Literal["paper", "compact"] = "paper"
-    temperature: float = 0.0
-    seed: int = 0
-    max_tokens: int = 320
+    runtime: str | None = None
+    temperature: float = DecodingSettings.temperature
+    seed: int = DecodingSettings.seed
+    max_tokens: int = DecodingSettings.max_tokens
     use_schema: bool = True
-    max_attempts: int = Field(default=3, ge=1)
+    max_attempts: int = Field(default=RetryPolicy.max_attempts, ge=1)
     prompt_sha256: str
-    timeout_s: float = 120.0
+    timeout_s: float = RetryPolicy.timeout_s
     cache: bool = True
 
     def decoding(self) -> DecodingSettings:

@@ -37,6 +37,7 @@ import numpy as np
 from pydantic import Field
 
 from letspi.llm.client import ParamAdvisor
+from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
 from letspi.method.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
@@ -293,5 +294,5 @@ class FastPlannerConfig(Config):
     neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     sf_params: SfParamsConfig
     memory: MemoryRef
-    top_k: int = Field(default=3, ge=0)
+    top_k: int = Field(default=TOP_K, ge=0)
     shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)

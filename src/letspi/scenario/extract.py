@@ -260,6 +260,74 @@ def _road_arrays(rec: Recording, direction: int, cy0: float) -> tuple[np.ndarray
     return y_sorted.astype(np.float32), edge, lane_ids
 
 
+@dataclass(frozen=True)
+class _WindowView:
+    """The recording rows of one window (``sl``) in the ego frame: frame offset (0..199), vehicle id,
+    x and y [m] per row, and the signs taking image-axis velocities into the ego frame."""
+
+    sl: slice
+    fr: np.ndarray
+    vid: np.ndarray
+    ex: np.ndarray
+    ey: np.ndarray
+    sx: float
+    sy: float
+
+
+def _neighbours_and_context(arr: _RecordingArrays, view: _WindowView, is_ego: np.ndarray, ego_rows: np.ndarray,
+                            direction: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vehicle ids of the window's neighbours (same direction, present at t = 0 and within the radius
+    then; no later frame counts), nearest first, and of its context vehicles (the others present in
+    the future that come within ``CONTEXT_RADIUS_M`` of the ego's track), closest approach first."""
+    fr, vid = view.fr, view.vid
+    ego_x_at, ego_y_at = view.ex[ego_rows], view.ey[ego_rows]
+    dist = np.hypot(view.ex - ego_x_at[fr], view.ey - ego_y_at[fr])
+    same_dir = (~is_ego) & (arr.direction[vid] == direction)
+    at_t0 = same_dir & (fr == T0_INDEX) & (dist <= NEIGHBOUR_RADIUS_M)
+    order = np.lexsort((vid[at_t0], np.round(dist[at_t0], 3)))
+    keep = vid[at_t0][order][:MAX_NEIGHBOURS]
+    future_rows = same_dir & (fr > T0_INDEX) & (dist <= CONTEXT_RADIUS_M) & ~np.isin(vid, keep)
+    ctx = np.zeros(0, dtype=np.int64)
+    if future_rows.any():
+        uniq, inv = np.unique(vid[future_rows], return_inverse=True)
+        min_d = np.full(len(uniq), np.inf)
+        np.minimum.at(min_d, inv, dist[future_rows])
+        ctx = uniq[np.lexsort((uniq, np.round(min_d, 3)))][:MAX_CONTEXT]
+    return keep, ctx
+
+
+def _store_ego(out: dict[str, np.ndarray], w: int, ego: int, ego_rows: np.ndarray, arr: _RecordingArrays,
+               view: _WindowView) -> None:
+    """The ego's class, size and track into window ``w`` of ``out``."""
+    out["ego_class"][w] = arr.vclass[ego]
+    out["ego_length_m"][w] = arr.length[ego]
+    out["ego_width_m"][w] = arr.width[ego]
+    out["ego_xy_m"][w, :, 0] = view.ex[ego_rows]
+    out["ego_xy_m"][w, :, 1] = view.ey[ego_rows]
+    out["ego_vxy_mps"][w, :, 0] = view.sx * arr.vx[view.sl][ego_rows]
+    out["ego_vxy_mps"][w, :, 1] = view.sy * arr.vy[view.sl][ego_rows]
+    out["ego_axy_mps2"][w, :, 0] = view.sx * arr.ax[view.sl][ego_rows]
+    out["ego_axy_mps2"][w, :, 1] = view.sy * arr.ay[view.sl][ego_rows]
+    out["ego_lane_id"][w] = arr.lane[view.sl][ego_rows]
+
+
+def _store_track(out: dict[str, np.ndarray], prefix: str, w: int, j: int, vehicle: int, rows: np.ndarray,
+                 t: np.ndarray, arr: _RecordingArrays, view: _WindowView) -> None:
+    """Vehicle ``vehicle``'s class, size and track (its ``rows`` at time indices ``t``) into slot ``j``
+    of window ``w``: ``prefix`` ``nbr`` (neighbours, with lane ids) or ``ctx`` (context vehicles)."""
+    out[f"{prefix}_id"][w, j] = vehicle
+    out[f"{prefix}_class"][w, j] = arr.vclass[vehicle]
+    out[f"{prefix}_length_m"][w, j] = arr.length[vehicle]
+    out[f"{prefix}_width_m"][w, j] = arr.width[vehicle]
+    out[f"{prefix}_xy_m"][w, j, t, 0] = view.ex[rows]
+    out[f"{prefix}_xy_m"][w, j, t, 1] = view.ey[rows]
+    out[f"{prefix}_vxy_mps"][w, j, t, 0] = view.sx * arr.vx[view.sl][rows]
+    out[f"{prefix}_vxy_mps"][w, j, t, 1] = view.sy * arr.vy[view.sl][rows]
+    out[f"{prefix}_valid"][w, j, t] = True
+    if f"{prefix}_lane_id" in out:
+        out[f"{prefix}_lane_id"][w, j, t] = arr.lane[view.sl][rows]
+
+
 def extract_windows(
     rec: Recording,
     ego_ids: np.ndarray,
@@ -269,10 +337,8 @@ def extract_windows(
     """Extract the given windows (shape (W,) each) of one recording into a ScenarioBatch."""
     arr = _RecordingArrays(rec)
     n_win = len(ego_ids)
-    n = MAX_NEIGHBOURS
-    markings_m = len(rec.lower_markings_y_m)
-    markings_m = max(markings_m, len(rec.upper_markings_y_m))
-    out = _empty_batch_arrays(n_win, n, markings_m)
+    markings_m = max(len(rec.lower_markings_y_m), len(rec.upper_markings_y_m))
+    out = _empty_batch_arrays(n_win, MAX_NEIGHBOURS, markings_m)
     speed_limit = float(rec.meta.get("speedLimit", -1.0))  # type: ignore[arg-type]
     rec_key = recording_key(rec)
     location = int(rec.meta.get("locationId", 0))  # type: ignore[call-overload]
@@ -292,23 +358,8 @@ def extract_windows(
         cx, cy = arr.cx[sl], arr.cy[sl]
         cx0, cy0 = cx[ego_rows[T0_INDEX]], cy[ego_rows[T0_INDEX]]
         ex, ey = _to_ego_frame(direction, cx, cy, cx0, cy0)
-        sx, sy = _sign(direction)
-
-        # neighbours: same direction, present at t = 0 and within the radius then (no later frame counts)
-        ego_x_at, ego_y_at = ex[ego_rows], ey[ego_rows]
-        dist = np.hypot(ex - ego_x_at[fr], ey - ego_y_at[fr])
-        same_dir = (~is_ego) & (arr.direction[vid] == direction)
-        at_t0 = same_dir & (fr == T0_INDEX) & (dist <= NEIGHBOUR_RADIUS_M)
-        order = np.lexsort((vid[at_t0], np.round(dist[at_t0], 3)))
-        keep = vid[at_t0][order][:n]
-        # context: the others present in the future that come within CONTEXT_RADIUS_M of the ego's track
-        future_rows = same_dir & (fr > T0_INDEX) & (dist <= CONTEXT_RADIUS_M) & ~np.isin(vid, keep)
-        ctx = np.zeros(0, dtype=np.int64)
-        if future_rows.any():
-            uniq, inv = np.unique(vid[future_rows], return_inverse=True)
-            min_d = np.full(len(uniq), np.inf)
-            np.minimum.at(min_d, inv, dist[future_rows])
-            ctx = uniq[np.lexsort((uniq, np.round(min_d, 3)))][:MAX_CONTEXT]
+        view = _WindowView(sl, fr, vid, ex, ey, *_sign(direction))
+        keep, ctx = _neighbours_and_context(arr, view, is_ego, ego_rows, direction)
 
         out["scenario_id"][w] = f"r{rec.recording_id:02d}_v{ego}_f{start + T0_INDEX}"
         out["recording_id"][w] = rec.recording_id
@@ -318,41 +369,13 @@ def extract_windows(
         out["frame0"][w] = start + T0_INDEX
         out["driving_direction"][w] = direction
         out["speed_limit_mps"][w] = speed_limit if speed_limit > 0 else np.nan
-        out["ego_class"][w] = arr.vclass[ego]
-        out["ego_length_m"][w] = arr.length[ego]
-        out["ego_width_m"][w] = arr.width[ego]
-        out["ego_xy_m"][w, :, 0] = ego_x_at
-        out["ego_xy_m"][w, :, 1] = ego_y_at
-        out["ego_vxy_mps"][w, :, 0] = sx * arr.vx[sl][ego_rows]
-        out["ego_vxy_mps"][w, :, 1] = sy * arr.vy[sl][ego_rows]
-        out["ego_axy_mps2"][w, :, 0] = sx * arr.ax[sl][ego_rows]
-        out["ego_axy_mps2"][w, :, 1] = sy * arr.ay[sl][ego_rows]
-        out["ego_lane_id"][w] = arr.lane[sl][ego_rows]
+        _store_ego(out, w, ego, ego_rows, arr, view)
         for j, nid in enumerate(keep):
             rows = np.flatnonzero(vid == nid)
-            t = fr[rows]
-            out["nbr_id"][w, j] = nid
-            out["nbr_class"][w, j] = arr.vclass[nid]
-            out["nbr_length_m"][w, j] = arr.length[nid]
-            out["nbr_width_m"][w, j] = arr.width[nid]
-            out["nbr_xy_m"][w, j, t, 0] = ex[rows]
-            out["nbr_xy_m"][w, j, t, 1] = ey[rows]
-            out["nbr_vxy_mps"][w, j, t, 0] = sx * arr.vx[sl][rows]
-            out["nbr_vxy_mps"][w, j, t, 1] = sy * arr.vy[sl][rows]
-            out["nbr_valid"][w, j, t] = True
-            out["nbr_lane_id"][w, j, t] = arr.lane[sl][rows]
+            _store_track(out, "nbr", w, j, nid, rows, fr[rows], arr, view)
         for j, cid in enumerate(ctx):
             rows = np.flatnonzero((vid == cid) & (fr > T0_INDEX))
-            t = fr[rows] - (T0_INDEX + 1)
-            out["ctx_id"][w, j] = cid
-            out["ctx_class"][w, j] = arr.vclass[cid]
-            out["ctx_length_m"][w, j] = arr.length[cid]
-            out["ctx_width_m"][w, j] = arr.width[cid]
-            out["ctx_xy_m"][w, j, t, 0] = ex[rows]
-            out["ctx_xy_m"][w, j, t, 1] = ey[rows]
-            out["ctx_vxy_mps"][w, j, t, 0] = sx * arr.vx[sl][rows]
-            out["ctx_vxy_mps"][w, j, t, 1] = sy * arr.vy[sl][rows]
-            out["ctx_valid"][w, j, t] = True
+            _store_track(out, "ctx", w, j, cid, rows, fr[rows] - (T0_INDEX + 1), arr, view)
         my, edge, lane_ids = _road_arrays(rec, direction, cy0)
         out["marking_y_m"][w, : len(my)] = my
         out["marking_is_edge"][w, : len(my)] = edge
@@ -383,24 +406,25 @@ def _empty_batch_arrays(n_win: int, n: int, m: int) -> dict[str, np.ndarray]:
         "ego_vxy_mps": np.zeros((n_win, t, 2), f32),
         "ego_axy_mps2": np.zeros((n_win, t, 2), f32),
         "ego_lane_id": np.zeros((n_win, t), np.int8),
-        "nbr_id": np.zeros((n_win, n), np.int32),
-        "nbr_class": np.full((n_win, n), VEHICLE_CLASS_NONE, np.int8),
-        "nbr_length_m": np.zeros((n_win, n), f32),
-        "nbr_width_m": np.zeros((n_win, n), f32),
-        "nbr_xy_m": np.full((n_win, n, t, 2), np.nan, f32),
-        "nbr_vxy_mps": np.full((n_win, n, t, 2), np.nan, f32),
-        "nbr_valid": np.zeros((n_win, n, t), bool),
+        **_empty_tracks("nbr", n_win, n, t),
         "nbr_lane_id": np.zeros((n_win, n, t), np.int8),
         "marking_y_m": np.full((n_win, m), np.nan, f32),
         "marking_is_edge": np.zeros((n_win, m), bool),
         "lane_ids": np.zeros((n_win, max(m - 1, 0)), np.int8),
-        "ctx_id": np.zeros((n_win, MAX_CONTEXT), np.int32),
-        "ctx_class": np.full((n_win, MAX_CONTEXT), VEHICLE_CLASS_NONE, np.int8),
-        "ctx_length_m": np.zeros((n_win, MAX_CONTEXT), f32),
-        "ctx_width_m": np.zeros((n_win, MAX_CONTEXT), f32),
-        "ctx_xy_m": np.full((n_win, MAX_CONTEXT, N_FUTURE, 2), np.nan, f32),
-        "ctx_vxy_mps": np.full((n_win, MAX_CONTEXT, N_FUTURE, 2), np.nan, f32),
-        "ctx_valid": np.zeros((n_win, MAX_CONTEXT, N_FUTURE), bool),
+        **_empty_tracks("ctx", n_win, MAX_CONTEXT, N_FUTURE),
+    }
+
+
+def _empty_tracks(prefix: str, n_win: int, slots: int, steps: int) -> dict[str, np.ndarray]:
+    """Empty ``prefix``_* arrays of ``slots`` other vehicles over ``steps`` steps (no vehicle, NaN tracks)."""
+    return {
+        f"{prefix}_id": np.zeros((n_win, slots), np.int32),
+        f"{prefix}_class": np.full((n_win, slots), VEHICLE_CLASS_NONE, np.int8),
+        f"{prefix}_length_m": np.zeros((n_win, slots), np.float32),
+        f"{prefix}_width_m": np.zeros((n_win, slots), np.float32),
+        f"{prefix}_xy_m": np.full((n_win, slots, steps, 2), np.nan, np.float32),
+        f"{prefix}_vxy_mps": np.full((n_win, slots, steps, 2), np.nan, np.float32),
+        f"{prefix}_valid": np.zeros((n_win, slots, steps), bool),
     }
 
 

@@ -104,6 +104,19 @@ def _gradient(values: np.ndarray, t: np.ndarray, first: np.ndarray, last: np.nda
     return np.where(dt > 0, grad, 0.0)
 
 
+def _box_centres(fx: np.ndarray, fy: np.ndarray, t: np.ndarray, first: np.ndarray, last: np.ndarray,
+                 east: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Box centres [m] (SUMO axes) half a length behind the front points, along the heading of the
+    smoothed front trajectory (the road direction when slower than 0.5 m/s)."""
+    vfx, vfy = _gradient(fx, t, first, last), _gradient(fy, t, first, last)
+    speed = np.hypot(vfx, vfy)
+    road_dir = np.where(east, 1.0, -1.0)
+    slow = speed < 0.5
+    ux = np.where(slow, road_dir, vfx / np.where(slow, 1.0, speed))
+    uy = np.where(slow, 0.0, vfy / np.where(slow, 1.0, speed))
+    return fx - 0.5 * length * ux, fy - 0.5 * length * uy
+
+
 def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNetwork) -> ImageTracks:
     """Convert SUMO FCD (front centre, y up) to HighD image-axis boxes with derivatives.
 
@@ -138,16 +151,7 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
 
     fx = df["x"].to_numpy(np.float64)
     fy = smooth_lane_changes(t, df["y"].to_numpy(np.float64), vehicle, centres)
-
-    # Heading from the smoothed front trajectory; fall back to the road direction when slow.
-    vfx, vfy = _gradient(fx, t, first, last), _gradient(fy, t, first, last)
-    speed = np.hypot(vfx, vfy)
-    road_dir = np.where(east, 1.0, -1.0)
-    slow = speed < 0.5
-    ux = np.where(slow, road_dir, vfx / np.where(slow, 1.0, speed))
-    uy = np.where(slow, 0.0, vfy / np.where(slow, 1.0, speed))
-    cx = fx - 0.5 * length * ux
-    cy = fy - 0.5 * length * uy
+    cx, cy = _box_centres(fx, fy, t, first, last, east, length)
 
     img_cx = cx - network.window_x0_m
     img_cy = network.image_y_ref_m - cy  # image y points down

@@ -158,17 +158,12 @@ def simulate_recordings(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_recordings`.
+    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_highd`.
 
     ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
     output remains; see :mod:`letspi.sumo.ssm`).
     """
-    if minutes <= 0:
-        raise ValueError(f"minutes must be > 0, got {minutes}")
-    if lanes_per_direction not in (2, 3):
-        raise ValueError(f"lanes_per_direction must be 2 or 3, got {lanes_per_direction}")
-    if recording_minutes is not None and recording_minutes <= 0:
-        raise ValueError(f"recording_minutes must be > 0, got {recording_minutes}")
+    _check_request(minutes, lanes_per_direction, recording_minutes)
     cfg = traffic or traffic_preset("highd")
     geo = geometry or HighwayGeometry()
     if geo.lanes_per_direction != lanes_per_direction:
@@ -177,14 +172,7 @@ def simulate_recordings(
     if flow <= 0:
         raise ValueError(f"flow_veh_per_h must be > 0, got {flow}")
 
-    record_steps = round(minutes * 60.0 / STEP_S)
-    first_step = round(warmup_s / STEP_S)
-    # Run a little past the last recorded frame so lane changes in progress there complete
-    # (their smoothing needs the end anchor).
-    end_s = (first_step + record_steps) * STEP_S + _TAIL_S
-    chunk_steps = record_steps if recording_minutes is None else max(1, round(recording_minutes * 60.0 / STEP_S))
-    starts = list(range(first_step, first_step + record_steps, chunk_steps))
-
+    end_s, starts, lengths = _timeline(minutes, warmup_s, recording_minutes)
     report = progress or (lambda _f: None)
     report(0.0)
     tmp = Path(tempfile.mkdtemp(prefix="letspi_sumo_"))
@@ -203,31 +191,63 @@ def simulate_recordings(
             _, tracks, sim = _simulate_once(tmp, seed=sub_seed, network=network, flow=flow, traffic=cfg,
                                             end_s=end_s, warmup_s=warmup_s, progress=attempt_progress,
                                             ssm_file=ssm_file)
-            records, collisions = sim.events, sim.collisions
             result.sim_wall_time_s += sim.wall_time_s
             result.sim_cpu_time_s += sim.cpu_time_s
-            chunks = [clip_to_window(tracks, first_step=s, n_steps=min(chunk_steps, first_step + record_steps - s),
-                                     window_m=geo.window_m, upper_y_m=upper, lower_y_m=lower) for s in starts]
-            overlaps = [overlapping_boxes(states) for states, _ in chunks]
-            n_overlap = sum(len(o) for o in overlaps)
-            if not collisions and n_overlap == 0:
-                result.chunks = chunks
-                result.first_steps = list(starts)
-                result.events = [_event_table(records, s, min(chunk_steps, first_step + record_steps - s))
-                                 for s in starts]
-                result.attempt = attempt
-                result.failed_events = sim.hook_stats.get("failed_lane_changes", 0)
-                result.perceived_lane_changes = sim.hook_stats.get("perceived_lane_changes", 0)
+            chunks = [clip_to_window(tracks, first_step=s, n_steps=n, window_m=geo.window_m, upper_y_m=upper,
+                                     lower_y_m=lower) for s, n in zip(starts, lengths, strict=True)]
+            contact = _contact(sim, chunks)
+            if contact is None:
+                _accept(result, attempt, sim, chunks, starts, lengths)
                 report(0.9)
                 return result
-            first = collisions[0] if collisions else None
-            what = (f"SUMO collision at t={first.time_s:.2f} s between {first.collider} and {first.victim} "
-                    f"({len(collisions)} in total)" if first else f"{n_overlap} overlapping box pair-frames")
-            result.rejected.append(f"attempt {attempt} (seed {sub_seed}): {what}")
+            result.rejected.append(f"attempt {attempt} (seed {sub_seed}): {contact}")
         raise RuntimeError(f"seed {seed}: every one of {cfg.max_attempts} simulation attempts had contact; "
                            + "; ".join(result.rejected))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _timeline(minutes: float, warmup_s: float, recording_minutes: float | None) -> tuple[float, list[int], list[int]]:
+    """(simulation end [s], first step of each recording, its number of steps)."""
+    record_steps = round(minutes * 60.0 / STEP_S)
+    first_step = round(warmup_s / STEP_S)
+    # Run a little past the last recorded frame so lane changes in progress there complete
+    # (their smoothing needs the end anchor).
+    end_s = (first_step + record_steps) * STEP_S + _TAIL_S
+    chunk_steps = record_steps if recording_minutes is None else max(1, round(recording_minutes * 60.0 / STEP_S))
+    starts = list(range(first_step, first_step + record_steps, chunk_steps))
+    return end_s, starts, [min(chunk_steps, first_step + record_steps - s) for s in starts]
+
+
+def _accept(result: SimulatedRecordings, attempt: int, sim: SimulationResult,
+            chunks: list[tuple[pd.DataFrame, pd.DataFrame]], starts: list[int], lengths: list[int]) -> None:
+    """Keep a contact-free attempt's recordings and events in ``result``."""
+    result.chunks = chunks
+    result.first_steps = list(starts)
+    result.events = [_event_table(sim.events, s, n) for s, n in zip(starts, lengths, strict=True)]
+    result.attempt = attempt
+    result.failed_events = sim.hook_stats.get("failed_lane_changes", 0)
+    result.perceived_lane_changes = sim.hook_stats.get("perceived_lane_changes", 0)
+
+
+def _check_request(minutes: float, lanes_per_direction: int, recording_minutes: float | None) -> None:
+    if minutes <= 0:
+        raise ValueError(f"minutes must be > 0, got {minutes}")
+    if lanes_per_direction not in (2, 3):
+        raise ValueError(f"lanes_per_direction must be 2 or 3, got {lanes_per_direction}")
+    if recording_minutes is not None and recording_minutes <= 0:
+        raise ValueError(f"recording_minutes must be > 0, got {recording_minutes}")
+
+
+def _contact(sim: SimulationResult, chunks: list[tuple[pd.DataFrame, pd.DataFrame]]) -> str | None:
+    """Why a simulation attempt is rejected (a SUMO collision, or boxes overlapping in the written
+    window), None when it has no contact."""
+    n_overlap = sum(len(overlapping_boxes(states)) for states, _ in chunks)
+    if not sim.collisions and n_overlap == 0:
+        return None
+    first = sim.collisions[0] if sim.collisions else None
+    return (f"SUMO collision at t={first.time_s:.2f} s between {first.collider} and {first.victim} "
+            f"({len(sim.collisions)} in total)" if first else f"{n_overlap} overlapping box pair-frames")
 
 
 def _highd_lane_id(network: HighwayNetwork, east: bool, lane_index: int) -> int:
@@ -290,25 +310,8 @@ class GenerationReport:
         return self.simulated_minutes / self.wall_time_s if self.wall_time_s > 0 else float("nan")
 
 
-def generate_highd(
-    out_dir: Path,
-    *,
-    minutes: float = 3.0,
-    seed: int = 0,
-    lanes_per_direction: int = 3,
-    flow_veh_per_h: float | None = None,
-    recording_minutes: float | None = None,
-    traffic: TrafficConfig | None = None,
-    progress: Callable[[float], None] | None = None,
-) -> GenerationReport:
-    """Like :func:`generate_recordings`, returning a :class:`GenerationReport` (timings, attempts, events)."""
-    started = time.perf_counter()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    report = progress or (lambda _f: None)
-    sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
-                              flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes,
-                              traffic=traffic, progress=lambda f: report(0.9 * f))
+def _write_recordings(sim: SimulatedRecordings, out: Path, report: Callable[[float], None]) -> tuple[list[Path], int]:
+    """Derive and write each recording and its events file; (the recordingMeta paths, events written)."""
     written: list[Path] = []
     n_events = 0
     for k, ((states, vehicles), table) in enumerate(zip(sim.chunks, sim.events, strict=True), start=1):
@@ -327,13 +330,10 @@ def generate_highd(
         n_events += len(events)
         written.extend(p for p in paths if p.name.endswith("_recordingMeta.csv"))
         report(0.9 + 0.1 * k / len(sim.chunks))
-    return GenerationReport(paths=written, simulated_minutes=float(minutes), wall_time_s=time.perf_counter() - started,
-                            sumo_wall_time_s=sim.sim_wall_time_s, sumo_cpu_time_s=sim.sim_cpu_time_s,
-                            attempt=sim.attempt, rejected=sim.rejected, events_written=n_events,
-                            failed_events=sim.failed_events, perceived_lane_changes=sim.perceived_lane_changes)
+    return written, n_events
 
 
-def generate_recordings(
+def generate_highd(
     out_dir: Path,
     *,
     minutes: float = 3.0,
@@ -344,7 +344,7 @@ def generate_recordings(
     criticality: str = "highd",
     traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
-) -> list[Path]:
+) -> GenerationReport:
     """Simulate a two-direction highway and write HighD-format recordings into ``out_dir``.
 
     Args:
@@ -364,7 +364,8 @@ def generate_recordings(
         progress: called with the fraction done, in [0, 1].
 
     Returns:
-        Paths of the written ``NN_recordingMeta.csv`` files, in recording order.
+        What was written (``paths``: the ``NN_recordingMeta.csv`` files, in recording order) and how
+        long it took (timings, attempts, events).
 
     Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
     "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
@@ -372,7 +373,15 @@ def generate_recordings(
     drives towards -x on the upper lanes, direction 2 towards +x on the lower lanes. No speed
     limit (speedLimit -1).
     """
-    cfg = traffic or traffic_preset(criticality)
-    return generate_highd(out_dir, minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
-                    flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes, traffic=cfg,
-                    progress=progress).paths
+    started = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report = progress or (lambda _f: None)
+    sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
+                              flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes,
+                              traffic=traffic or traffic_preset(criticality), progress=lambda f: report(0.9 * f))
+    written, n_events = _write_recordings(sim, out, report)
+    return GenerationReport(paths=written, simulated_minutes=float(minutes), wall_time_s=time.perf_counter() - started,
+                            sumo_wall_time_s=sim.sim_wall_time_s, sumo_cpu_time_s=sim.sim_cpu_time_s,
+                            attempt=sim.attempt, rejected=sim.rejected, events_written=n_events,
+                            failed_events=sim.failed_events, perceived_lane_changes=sim.perceived_lane_changes)

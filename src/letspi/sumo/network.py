@@ -244,6 +244,21 @@ def _check_connections(net_file: Path, plan: _Plan) -> None:
             f"netconvert connections differ from the plan: missing {sorted(missing)}, extra {sorted(extra)}")
 
 
+def _netconvert(directory: Path, geometry: HighwayGeometry, plan: _Plan) -> Path:
+    """Write the plain XML of ``plan``, run netconvert on it and check its connections; the net file."""
+    net_file = directory / "highway.net.xml"
+    cmd = [
+        sumo_binary("netconvert"), *_write_plain_xml(directory, geometry, plan),
+        "--output-file", str(net_file), "--no-turnarounds", "true", "--no-warnings", "true",
+        "--precision", "6",  # default 2 decimals would misplace lane centres by up to 5 mm
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"netconvert failed ({proc.returncode}): {proc.stderr.strip()}")
+    _check_connections(net_file, plan)
+    return net_file
+
+
 def build_network(directory: Path, geometry: HighwayGeometry, layout: LayoutConfig | None = None) -> HighwayNetwork:
     """Write plain XML into ``directory``, run netconvert and read the lane layout back.
 
@@ -257,16 +272,7 @@ def build_network(directory: Path, geometry: HighwayGeometry, layout: LayoutConf
     """
     lay = layout or LayoutConfig()
     plan = _plan(geometry, lay)
-    net_file = directory / "highway.net.xml"
-    cmd = [
-        sumo_binary("netconvert"), *_write_plain_xml(directory, geometry, plan),
-        "--output-file", str(net_file), "--no-turnarounds", "true", "--no-warnings", "true",
-        "--precision", "6",  # default 2 decimals would misplace lane centres by up to 5 mm
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        raise RuntimeError(f"netconvert failed ({proc.returncode}): {proc.stderr.strip()}")
-    _check_connections(net_file, plan)
+    net_file = _netconvert(directory, geometry, plan)
 
     straight_edges = {e[0] for e in plan.edges if not e[0].endswith("_ramp")}
     lanes = _lane_table(net_file, straight_edges)

@@ -42,10 +42,6 @@ def _run(directory: Path) -> dict[str, Any]:
     return data
 
 
-def run_mode(directory: Path) -> str:
-    return str(_run(directory).get("identity", {}).get("mode", "open-loop"))
-
-
 def scenarios_file_of(directory: Path) -> Path | None:
     """The scenarios file named in ``run.json`` (as given, or beside the directory), None if absent."""
     name = _run(directory).get("dataset", {}).get("file") or ""

@@ -41,6 +41,23 @@ def _has_adjusted(tracks: Sequence[PlanTrack], goal: np.ndarray | None) -> bool:
                for t in tracks)
 
 
+def _row_heights_in(scenario: ScenarioBatch, tracks: Sequence[PlanTrack], goal: np.ndarray | None,
+                    records: Sequence[IterationRecord], width_in: float) -> tuple[list[float], int]:
+    """Heights [in] of the figure's rows (road to scale, time-space row, one text row per iteration)
+    and the characters per line of a text panel."""
+    xlo, xhi = x_range_m(scenario, tracks, goal)
+    ylo, yhi = y_range_m(scenario, tracks)
+    traj_h = (width_in - 1.0) * (yhi - ylo) / (xhi - xlo) + _TRAJ_EXTRA_IN
+    width_chars = chars_per_line(width_in / 2.0 - 0.2)
+    return [traj_h, _TS_ROW_IN, *iterations_height_in(records, width_chars)], width_chars
+
+
+def _default_title(scenario: ScenarioBatch) -> str:
+    speed = float(np.hypot(*scenario.ego_vxy_mps[0][len(scenario.ego_vxy_mps[0]) - 126]))
+    return (f"Scenario {scenario.scenario_id[0]} (recording {int(scenario.recording_id[0])}, ego "
+            f"{int(scenario.ego_id[0])}, {speed * 3.6:.0f} km/h at t = 0)")
+
+
 def plot_scenario(
     batch: ScenarioBatch,
     index: int,
@@ -78,13 +95,7 @@ def plot_scenario(
     goal = predicted_goal(batch, index) if goal_xy_m is None else np.asarray(goal_xy_m, dtype=np.float64)
     records = sorted(iterations or [], key=lambda r: r.iteration)
 
-    xlo, xhi = x_range_m(scenario, tracks, goal)
-    ylo, yhi = y_range_m(scenario, tracks)
-    traj_h = (width_in - 1.0) * (yhi - ylo) / (xhi - xlo) + _TRAJ_EXTRA_IN
-    panel_w = width_in / 2.0 - 0.2
-    width_chars = chars_per_line(panel_w)
-    text_heights = iterations_height_in(records, width_chars)
-    heights = [traj_h, _TS_ROW_IN, *text_heights]
+    heights, width_chars = _row_heights_in(scenario, tracks, goal, records, width_in)
     legend_h = 0.9
     with style.letspi_style():
         fig = Figure(figsize=(width_in, sum(heights) + legend_h + 0.5), layout="constrained")
@@ -102,13 +113,12 @@ def plot_scenario(
         handles = role_legend_handles([t.name for t in tracks], colours, with_goals=goal is not None,
                                       adjusted=_has_adjusted(tracks, goal))
         fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 6), frameon=False)
-        if title is None:
-            speed = float(np.hypot(*scenario.ego_vxy_mps[0][len(scenario.ego_vxy_mps[0]) - 126]))
-            title = (f"Scenario {scenario.scenario_id[0]} (recording {int(scenario.recording_id[0])}, ego "
-                     f"{int(scenario.ego_id[0])}, {speed * 3.6:.0f} km/h at t = 0)")
-        fig.suptitle(title, fontsize=style.BASE_FONT_SIZE + 3, fontweight="bold")
+        fig.suptitle(title or _default_title(scenario), fontsize=style.BASE_FONT_SIZE + 3, fontweight="bold")
         if out_png is not None:
-            path = Path(out_png)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fig.savefig(path, format="png")
+            _save_png(fig, Path(out_png))
     return fig
+
+
+def _save_png(fig: Figure, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")

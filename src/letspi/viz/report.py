@@ -361,6 +361,15 @@ def _environment() -> jinja2.Environment:
     )
 
 
+def _ablations(abl_dir: Path) -> list[dict[str, Any]]:
+    """The ablation tables stored beside the evaluation (memory size, LLM combinations), titled."""
+    ablations = [a for a in (_ablation(abl_dir / "memory_size.json", "memory"),
+                             _ablation(abl_dir / "llm_combinations.json", "llm")) if a is not None]
+    for a in ablations:
+        a["title"] = "Memory size" if a["file"] == "memory_size.json" else "LLM combinations"
+    return ablations
+
+
 def write_report(
     eval_dir: Path | str,
     out_html: Path | str | None = None,
@@ -399,12 +408,6 @@ def write_report(
     worst_anchor = {sec.name: sec.anchor for sec in worst}
     for table_row in table_rows:
         table_row["anchor"] = worst_anchor.get(str(table_row["name"]))
-    abl_dir = eval_dir / "ablations"
-    ablations = [a for a in (_ablation(abl_dir / "memory_size.json", "memory"),
-                             _ablation(abl_dir / "llm_combinations.json", "llm")) if a is not None]
-    for a in ablations:
-        a["title"] = "Memory size" if a["file"] == "memory_size.json" else "LLM combinations"
-
     run_info: dict[str, Any] = {}
     if (eval_dir / "run.json").exists():
         run_info = json.loads((eval_dir / "run.json").read_text())
@@ -420,6 +423,6 @@ def write_report(
         worst=worst,
         worst_note=worst_note,
         n_worst=n_worst,
-        ablations=ablations,
+        ablations=_ablations(eval_dir / "ablations"),
     )
     return atomic_write_text(out, page)

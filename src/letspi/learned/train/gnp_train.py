@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,7 @@ import torch
 from letspi.constants import T0_INDEX
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
-from letspi.learned.layers import EncoderConfig
+from letspi.learned.hyperparams import GnpTrainConfig
 from letspi.learned.train.data import split
 from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
 from letspi.learned.train.modules import FeatureTensors, GnpNet, export_state
@@ -40,22 +40,6 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene
 from letspi.scenario.types import ScenarioBatch
-
-
-@dataclass(frozen=True)
-class GnpTrainConfig:
-    epochs: int = 8
-    batch_size: int = 64
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    collision_weight: float = 1.0
-    val_fraction: float = 0.15
-    max_train: int | None = 6000
-    max_val: int | None = 1000
-    neighbour_mode: str = "idm"
-    seed: int = 0
-    threads: int = 1
-    encoder: EncoderConfig = field(default_factory=lambda: EncoderConfig(d_model=32, n_heads=4, n_layers=1, d_ff=64))
 
 
 class _Data:

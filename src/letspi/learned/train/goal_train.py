@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -27,28 +27,12 @@ from letspi.constants import HORIZON_S
 from letspi.learned.features import scene_features
 from letspi.learned.goal_metrics import goal_metrics, goal_truth
 from letspi.learned.goal_model import LearnedGoalPredictor
-from letspi.learned.layers import EncoderConfig
+from letspi.learned.hyperparams import GoalTrainConfig
 from letspi.learned.train.data import split
 from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
 from letspi.learned.train.modules import FeatureTensors, GoalNet, export_state
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.scenario.types import ScenarioBatch
-
-
-@dataclass(frozen=True)
-class GoalTrainConfig:
-    epochs: int = 40
-    batch_size: int = 128
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    n_goals: int = 6
-    cls_weight: float = 1.0
-    center_weight: float = 1.0
-    val_fraction: float = 0.15
-    max_train: int | None = None
-    seed: int = 0
-    threads: int = 1
-    encoder: EncoderConfig = field(default_factory=EncoderConfig)
 
 
 def wta_loss(goals: torch.Tensor, logits: torch.Tensor, truth: torch.Tensor,

@@ -114,20 +114,10 @@ class OpenAICompatBackend:
         mode = established
         skipped_no_json = False  # this request moved past a mode whose reply had no JSON
         while True:
-            payload: dict[str, Any] = {
-                "model": self.model,
-                "messages": [dict(m) for m in messages],
-                "temperature": settings.temperature,
-                "seed": settings.seed,
-                "max_tokens": settings.max_tokens,
-                "stream": False,
-            }
-            if schema is not None:
-                payload["response_format"] = _response_format(FORMAT_MODES[mode], schema)
             resp = post_json(
                 self._client,
                 url,
-                payload,
+                self._payload(messages, settings, schema, mode),
                 timeout_s=timeout_s,
                 headers=headers,
                 unreachable_hint="Is the OpenAI-compatible server running at that address?",
@@ -149,6 +139,25 @@ class OpenAICompatBackend:
             self._count_no_json(established, mode, skipped_no_json, self._reply_has_no_json(resp))
         latency = time.perf_counter() - t0
         self._raise_for_status(resp, url)
+        return self._response(resp, url, latency, FORMAT_MODES[mode] if schema is not None else None)
+
+    def _payload(self, messages: Sequence[Message], settings: DecodingSettings, schema: dict[str, Any] | None,
+                 mode: int) -> dict[str, Any]:
+        """The chat-completions request body, with the structured-output request of format ``mode``."""
+        payload: dict[str, Any] = {
+            "model": self.model,
+            "messages": [dict(m) for m in messages],
+            "temperature": settings.temperature,
+            "seed": settings.seed,
+            "max_tokens": settings.max_tokens,
+            "stream": False,
+        }
+        if schema is not None:
+            payload["response_format"] = _response_format(FORMAT_MODES[mode], schema)
+        return payload
+
+    def _response(self, resp: httpx.Response, url: str, latency: float, format_mode: str | None) -> LLMResponse:
+        """The reply text, parsed JSON and token counts of a successful response."""
         try:
             body = resp.json()
             text = body["choices"][0]["message"]["content"]
@@ -164,7 +173,7 @@ class OpenAICompatBackend:
             completion_tokens=int(usage.get("completion_tokens") or 0),
             latency_s=latency,
             model_spec=self.spec,
-            extra={"format_mode": FORMAT_MODES[mode] if schema is not None else None},
+            extra={"format_mode": format_mode},
         )
 
     def _count_no_json(self, established: int, used: int, skipped: bool, final_has_no_json: bool) -> None:
