@@ -12,7 +12,7 @@ from test_simulation_support import BrakePlanner, RecordingPlanner, SwervePlanne
 from letspi.constants import DT_S, N_FUTURE, N_TOTAL, T0_INDEX
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
-from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.build import LANE_WIDTH_M, VehicleSpec, straight_road_scenario
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.types import ScenarioBatch, concat_batches
@@ -65,6 +65,91 @@ def test_a_leaders_recorded_hard_brake_still_happens_and_the_follower_reacts() -
     v_follow = hybrid.nbr_vxy_mps[0, 1, :, 0]
     assert v_follow[-1] < 28.0 and np.all(v_follow <= batch.nbr_vxy_mps[0, 1, FUT, 0] + 1e-3)
     assert not chunk_metrics(batch, hybrid).collision.any()
+
+
+def _speed_profile(v0_mps: float, segments: list[tuple[float, float, float]]) -> np.ndarray:
+    """(N_TOTAL,) speeds: ``v0_mps`` at t = 0 plus constant accelerations (start_s, duration_s, accel_mps2)."""
+    t = (np.arange(N_TOTAL) - T0_INDEX) * DT_S
+    a = sum((np.where((t >= t0) & (t < t0 + d), acc, 0.0) for t0, d, acc in segments), np.zeros(N_TOTAL))
+    v = np.concatenate([[0.0], np.cumsum(a[:-1]) * DT_S])
+    return np.maximum(v - v[T0_INDEX] + v0_mps, 0.0)
+
+
+def _lane_change(start_s: float, end_s: float) -> np.ndarray:
+    """(N_TOTAL,) lateral offsets of a smooth change by one lane to the left between the two times."""
+    u = np.clip(((np.arange(N_TOTAL) - T0_INDEX) * DT_S - start_s) / (end_s - start_s), 0.0, 1.0)
+    return LANE_WIDTH_M * u * u * (3.0 - 2.0 * u)
+
+
+def _path(x0_m: float, v_mps: np.ndarray) -> np.ndarray:
+    """(N_TOTAL,) positions along the speeds ``v_mps`` (trapezoidal), ``x0_m`` at t = 0."""
+    x = np.concatenate([[0.0], np.cumsum((v_mps[1:] + v_mps[:-1]) / 2 * DT_S)])
+    return x - x[T0_INDEX] + x0_m
+
+
+def _drive(batch: ScenarioBatch, slot: int | None, v_mps: np.ndarray, y_m: np.ndarray | None = None) -> ScenarioBatch:
+    """``batch`` (one scenario) with the ego (``slot`` None) or neighbour ``slot`` driving at ``v_mps``
+    along x (same x at t = 0) and, if given, at lateral offsets ``y_m``."""
+    if slot is None:
+        x, y = _path(0.0, v_mps), np.zeros(N_TOTAL) if y_m is None else y_m
+        vy = np.gradient(y, DT_S)
+        axy = np.stack([np.gradient(v_mps, DT_S), np.gradient(vy, DT_S)], -1)
+        return replace(batch, ego_xy_m=np.stack([x, y], -1)[None].astype(np.float32),
+                       ego_vxy_mps=np.stack([v_mps, vy], -1)[None].astype(np.float32),
+                       ego_axy_mps2=axy[None].astype(np.float32))
+    xy, vxy = batch.nbr_xy_m.copy(), batch.nbr_vxy_mps.copy()
+    xy[0, slot, :, 0], vxy[0, slot, :, 0] = _path(float(xy[0, slot, T0_INDEX, 0]), v_mps), v_mps
+    if y_m is not None:
+        xy[0, slot, :, 1], vxy[0, slot, :, 1] = y_m, np.gradient(y_m, DT_S)
+    return replace(batch, nbr_xy_m=xy.astype(np.float32), nbr_vxy_mps=vxy.astype(np.float32))
+
+
+def _scripted_stress_batch() -> tuple[ScenarioBatch, np.ndarray]:
+    """Three recorded human drives through scripted events, and the mask of the events' actors:
+    0: the leader (20.5 m ahead) brakes at 7 m/s^2 for 2 s from t = 1 s, the human 0.8 s later, the
+       follower (1 s behind) 0.8 s after the human;
+    1: a slower car 10 m ahead in the left lane cuts in over 2 s from t = 0.5 s, the human brakes at
+       3 m/s^2 for 2 s from t = 1 s, its follower (1.2 s behind) 0.8 s later;
+    2: the human changes into the left lane 20 m ahead of a faster car there, which brakes at 2 m/s^2."""
+    v = 30.0
+    brake = straight_road_scenario(
+        neighbours=[VehicleSpec(x0_m=25.0, speed_mps=v), VehicleSpec(x0_m=-34.5, speed_mps=v)], scenario_id="brake")
+    brake = _drive(brake, 0, _speed_profile(v, [(1.0, 2.0, -7.0)]))
+    brake = _drive(brake, None, _speed_profile(v, [(1.8, 2.0, -7.0)]))
+    brake = _drive(brake, 1, _speed_profile(v, [(2.6, 2.0, -7.0)]))
+    cut_in = straight_road_scenario(neighbours=[VehicleSpec(x0_m=14.5, speed_mps=26.0, lane_offset=1),
+                                                VehicleSpec(x0_m=-40.5, speed_mps=v)], scenario_id="cut-in")
+    cut_in = _drive(cut_in, 0, np.full(N_TOTAL, 26.0), LANE_WIDTH_M - _lane_change(0.5, 2.5))
+    cut_in = _drive(cut_in, None, _speed_profile(v, [(1.0, 2.0, -3.0)]))
+    cut_in = _drive(cut_in, 1, _speed_profile(v, [(1.8, 2.0, -3.0)]))
+    merge = straight_road_scenario(
+        ego_speed_mps=27.0, neighbours=[VehicleSpec(x0_m=-24.5, speed_mps=32.0, lane_offset=1)], scenario_id="merge")
+    merge = _drive(merge, None, _speed_profile(27.0, [(0.5, 3.0, 1.0)]), _lane_change(0.5, 3.0))
+    merge = _drive(merge, 0, _speed_profile(32.0, [(1.5, 2.0, -2.0)]))
+    batch = concat_batches([brake, cut_in, merge])
+    scripted = np.zeros(batch.nbr_id.shape, dtype=bool)
+    scripted[0, 0] = scripted[1, 0] = True  # the braking leader, the car cutting in
+    return batch, scripted
+
+
+def test_the_human_on_a_scripted_stress_batch_is_not_at_fault_and_its_critical_encounters_stay() -> None:
+    """The human's recorded drives replayed among neighbours of the hybrid mode: no contact (at fault
+    or not), the same critical encounters as log replay (min TTC < 3 s), where closed-loop-reactive
+    loses them; the followers are SUMO's (from t = 0, or once the ego's box enters their lane)."""
+    batch, scripted = _scripted_stress_batch()
+    human = PlannerSpec.of("human")
+    log = chunk_metrics(batch, _run(human, batch, LOG))
+    critical = log.min_ttc_s < 3.0
+    assert critical.tolist() == [True, True, False] and not log.collision.any()
+    hybrid_ch = _run(human, batch, HYBRID, scripted_nbr=scripted)
+    hybrid = chunk_metrics(batch, hybrid_ch)
+    assert not hybrid.collision.any() and not hybrid.collision_at_fault.any()
+    np.testing.assert_allclose(hybrid.min_ttc_s[critical], log.min_ttc_s[critical], rtol=1e-3)  # events as recorded
+    np.testing.assert_allclose(hybrid_ch.nbr_xy_m[scripted], batch.nbr_xy_m[:, :, FUT][scripted], atol=1e-3)
+    assert hybrid_ch.nbr_handover_step[:2, 1].tolist() == [0, 0]
+    assert hybrid_ch.nbr_handover_step[2, 0] > 0  # the car in the left lane: once the ego's box enters it
+    reactive = chunk_metrics(batch, _run(human, batch, REACTIVE))
+    assert (reactive.min_ttc_s[critical] >= 3.0).all()
 
 
 @pytest.mark.parametrize("headway_s", [0.6, 1.0, 1.5])
