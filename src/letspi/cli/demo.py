@@ -102,7 +102,10 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
         stats = collect(phase, to_collect, bank, progress=lambda st: bar.update(task, completed=st.done, run=st))
     console.print(f"memory: {stats.stored} new ({stats.validated} validated, {stats.fallback_results} fell back), "
                   f"{stats.skipped} reused -> {memory} (configuration {phase_config.key()})")
-    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key(), shield=shield)
+    # no response cache in the head-to-head: the fast phase's prompt can equal the memory phase's
+    # first one, and a cache hit would hide the fast phase's latency (LLM planners are timed uncached)
+    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key(), shield=shield,
+                             llm_cache=False)
     planners: list[BuiltPlanner] = build_planners(["human", "idm", "sf", "sf-opt", "gnp", "letspi-memory",
                                                    "letspi-fast"], options, builder=builder)
     eval_dir = out / "evaluation-llm"
