@@ -57,13 +57,15 @@ PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
     "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "4837d44ce3fd3247",
     "letspi-memory": "4984fea987f2f707", "letspi-fast": "f90ce24f92b9d0f2", "letspi-fs": "25c830276057e54c",
-    "frenet": "9fc587996ab3901a",  # added with the kind (frenet branch), from the shipped weights
+    # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
+    # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
+    "frenet": "fe73b79fa4e18c4a",
 }
 PINNED_VARIANT_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
     "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "f443273dff45cf4c",
     "letspi-memory": "361e8f0baa7d6973", "letspi-fast": "4e6e0c3caf9fd1ac", "letspi-fs": "a6173c0084f4597f",
-    "frenet": "e14605040dda47b8",
+    "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
 }
 PINNED_COLLECTION_KEYS = {"default": "8ac4ebef35350119", "variant": "3607d3dad6dcab50"}
 
