@@ -646,8 +646,9 @@ class _PairChecks:
 def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: FrenetFollowing,
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Neighbour x and vx (B, F, N) of the cautious prediction (``FrenetFollowing``): the IDM prediction or
-    the extrapolation of the t = 0 state (constant velocity, or constant deceleration to a stop for a
-    neighbour braking harder than ``leader_braking_min_mps2``), whichever is further back."""
+    the extrapolation of the t = 0 state (constant velocity, or, for a neighbour braking harder than
+    ``leader_braking_min_mps2``, that deceleration until it stops or for ``leader_braking_max_s``, then
+    constant speed), whichever is further back."""
     k = max(1, round(fol.leader_braking_window_s / DT_S))
     v_now = batch.nbr_vxy_mps[:, :, T0_INDEX, 0].astype(np.float64)
     v_then = batch.nbr_vxy_mps[:, :, T0_INDEX - k, 0].astype(np.float64)
