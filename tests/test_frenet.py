@@ -9,7 +9,11 @@ from letspi.bench.physics import synthetic_batch
 from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.frenet import (
+    LON_BRAKE,
+    LON_SPEED,
+    FrenetFollowing,
     FrenetPlanner,
+    FrenetSafety,
     FrenetSettings,
     FrenetWeights,
     evaluate_held,
@@ -84,16 +88,17 @@ def test_keeps_its_lane_behind_a_slower_leader_at_a_safe_gap_when_the_other_lane
     assert plan.vxy_mps[0, -1, 0] < 23.0
 
 
-@pytest.mark.parametrize(("leader_x_m", "leader_mps", "weights"), [(120.0, 5.0, None), (45.0, 20.0, FrenetWeights())])
-def test_overtakes_when_the_adjacent_lane_is_free(leader_x_m, leader_mps, weights):
-    # the fitted (shipped) weights price a lane change high (lateral jerk): they pass a 5 m/s leader but follow
-    # a 10-20 m/s one; the hand-set starting weights also pass a 20 m/s leader
+@pytest.mark.parametrize(("leader_x_m", "leader_mps"), [(120.0, 5.0), (45.0, 20.0)])
+def test_overtakes_when_the_adjacent_lane_is_free(leader_x_m, leader_mps):
+    # with the hand-set starting weights (FrenetWeights()); the fitted (shipped) ones price a lane change's
+    # lateral jerk high (k_jerk_lat 30: ~97 for the gentlest change) and, behind the 5 m/s leader 120 m ahead,
+    # prefer braking at 3 m/s² (~63: mean-speed deficit, onset jerk, RSS deficit)
+    weights = FrenetWeights()
     right_platoon = [VehicleSpec(x0_m=x, speed_mps=leader_mps, lane_offset=-1) for x in (-20.0, 5.0, 30.0, 55.0)]
     leader = VehicleSpec(x0_m=leader_x_m, speed_mps=leader_mps)
     batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=[leader, *right_platoon], n_lanes=3,
                                    ego_lane_index=1)
-    planner = FrenetPlanner() if weights is None else FrenetPlanner(settings=FrenetSettings(weights=weights))
-    plan = planner.plan(batch.history())
+    plan = FrenetPlanner(settings=FrenetSettings(weights=weights)).plan(batch.history())
     assert plan.info["target_lane"][0] == 1 and plan.info["found_safe"][0]
     assert plan.xy_m[0, -1, 1] > 0.5 * LANE_WIDTH_M  # ends in the left lane
     assert plan.xy_m[0, -1, 0] > leader_x_m + leader_mps * 5.0  # passed the leader
@@ -115,10 +120,14 @@ def test_never_chooses_a_colliding_candidate_when_a_safe_one_exists():
     # the independent check (letspi.safety, the same prediction) agrees: no contact, on the road
     check = check_plans(batch, plan.xy_m, plan.vxy_mps, predict_neighbours(batch, NeighbourPredictionMode.IDM))
     assert not check.collision[safe_exists].any() and not check.off_road[safe_exists].any()
-    # without a safe candidate: the least-contact one among those that exist
+    # without a safe candidate: the least unsafe one among those that exist (latest first contact, a lane
+    # change into an occupied lane counting earlier); the penalty applies to lane changes only
     unsafe = ~safe_exists
-    best = np.where(lattice.pair_ok, lattice.contact, np.inf).reshape(len(batch), -1).min(axis=1)
-    assert np.array_equal(lattice.contact[rows, i, j][unsafe], best[unsafe])
+    best = np.where(lattice.pair_ok, lattice.unsafe_rank, np.inf).reshape(len(batch), -1).min(axis=1)
+    assert np.array_equal(lattice.unsafe_rank[rows, i, j][unsafe], best[unsafe])
+    assert not lattice.occupied[:, :, lattice.lat_lane == 0].any() and lattice.occupied.any()
+    penalised = lattice.unsafe_rank - lattice.contact
+    assert (penalised[lattice.occupied] > 0).all() and (penalised[~lattice.occupied] == 0).all()
 
 
 def test_a_cheaper_colliding_candidate_loses_to_a_safe_one():
@@ -180,3 +189,76 @@ def test_weights_round_trip_and_reject_a_bad_file(tmp_path):
         load_frenet_weights(tmp_path / "bad.json")
     with pytest.raises(FileNotFoundError, match="letspi fit frenet"):
         load_frenet_weights(tmp_path / "missing.json")
+
+
+def _braking_leader(gap_m=12.0, speed_mps=14.0, decel_mps2=8.0):
+    """One lane; a leader at the ego's speed that has been braking at ``decel_mps2`` and goes on to a stop."""
+    leader = VehicleSpec(x0_m=gap_m + 4.5, speed_mps=speed_mps, accel_mps2=-decel_mps2)
+    return straight_road_scenario(ego_speed_mps=speed_mps, neighbours=[leader], n_lanes=1, ego_lane_index=0)
+
+
+def test_behind_a_leader_braking_hard_from_t0_it_brakes_and_keeps_a_gap():
+    # the leader (14 m/s, 12 m ahead, braking at 8 m/s²) stops after 1.75 s and 12.25 m: only hard braking
+    # from t = 0 keeps a gap. The shared IDM prediction lets the leader re-accelerate towards its history's
+    # top speed (38 m/s); the cautious one extrapolates its braking.
+    batch = _braking_leader()
+    planner = FrenetPlanner()
+    plan = planner.plan(batch.history())
+    assert plan.info["found_safe"][0] and plan.info["lon_mode"][0] == LON_BRAKE
+    gap = _gap_to(plan.xy_m, batch, 0)
+    assert gap.min() >= 2.0  # against the recorded (braking) future, not only the prediction
+    assert plan.vxy_mps[0, -1, 0] < 0.5
+    # a braking candidate's jerk term is its step at t = 0 as a ramp over brake_onset_s: (a0 + d)² / onset
+    lattice = planner.lattice(batch.history())
+    brake = lattice.lon_mode == LON_BRAKE
+    decels = np.array(planner.settings.sampling.brake_decels_mps2)
+    assert np.allclose(lattice.lon_jerk[0, brake], decels**2 / planner.settings.sampling.brake_onset_s)
+    # braking at d from 14 m/s stops after 14 / d s (the candidate's horizon) and 14² / (2 d) m
+    assert np.allclose(lattice.lon_horizon_s[0, brake], np.minimum(14.0 / decels, 5.0))
+    x_end = lattice.plans(np.flatnonzero(brake)[[2]], np.array([0]))[0][0, -1, 0]
+    assert x_end == pytest.approx(14.0**2 / (2 * decels[2]), abs=1e-6)
+    # without the cautious prediction and the following terms (the planner before them) it runs out of gap
+    trusting = FrenetSettings(weights=planner.settings.weights.model_copy(update={"k_headway": 0.0, "k_rss": 0.0}),
+                              safety=FrenetSafety(cautious_check=False))
+    old = FrenetPlanner(settings=trusting).plan(batch.history())
+    assert _gap_to(old.xy_m, batch, 0).min() < 2.0
+
+
+def test_a_candidate_unsafe_under_the_cautious_prediction_is_not_picked_when_a_safe_one_exists():
+    batch = _braking_leader().history()
+    planner = FrenetPlanner()
+    cautious = planner.lattice(batch)
+    trusting = FrenetPlanner(settings=planner.settings.model_copy(
+        update={"safety": FrenetSafety(cautious_check=False)})).lattice(batch)
+    only_cautious = (cautious.violation > 0) & (trusting.violation == 0) & cautious.pair_ok & cautious.feasible
+    assert only_cautious.any()  # pairs that only the cautious prediction marks as unsafe
+    # the IDM check alone would take one of them (the cheapest pair clear of the IDM prediction)
+    w = planner.settings.weights
+    i_old, j_old, _, n_old = trusting.choose(w)
+    assert n_old[0] > 0 and only_cautious[0, i_old[0], j_old[0]]
+    i, j, _, n_valid = cautious.choose(w)
+    assert n_valid[0] > 0 and cautious.violation[0, i[0], j[0]] == 0 and not only_cautious[0, i[0], j[0]]
+    # the cautious check only adds unsafe pairs (never clears one the IDM check marks)
+    assert not ((trusting.violation > 0) & (cautious.violation == 0)).any()
+
+
+@pytest.mark.parametrize(("gap_m", "headway_levels", "rss_levels"), [(24.0, 1, 2), (16.0, 2, 2), (40.0, 0, 0)])
+def test_following_terms_count_the_graded_deficit_of_the_gap(gap_m, headway_levels, rss_levels):
+    # a leader at the ego's 20 m/s, gap_m bumper to bumper, held: desired distance 2 + 1.5 x 20 = 32 m, RSS
+    # distance 2 + 20 x 0.5 + 20² / 8 - 20² / 16 = 37 m. Levels k / 3 above the gap ratio: 24 m -> 0.75 of
+    # 32 (level 1) and 0.65 of 37 (levels 2/3, 1); 16 m -> 0.5 and 0.43 (2 and 2); 40 m: none. Each level
+    # counts dt / 3 per frame over the 5 s plan.
+    batch = straight_road_scenario(ego_speed_mps=20.0, neighbours=[VehicleSpec(x0_m=gap_m + 4.5, speed_mps=20.0)],
+                                   n_lanes=1, ego_lane_index=0).history()
+    settings = FrenetSettings(following=FrenetFollowing())
+    lattice = FrenetPlanner(settings=settings).lattice(batch)
+    held = ((lattice.lon_mode == LON_SPEED) & (np.abs(lattice.lon_target_speed_mps[0] - 20.0) < 1e-9)
+            & (lattice.lon_jerk[0] < 1e-12))
+    centre = (lattice.lat_lane == 0) & (lattice.lat_offset_m == 0.0)
+    assert held.any() and centre.any()
+    pairs = np.ix_(held, centre)
+    assert np.allclose(lattice.headway_deficit_s[0][pairs], headway_levels * 5.0 / 3)
+    assert np.allclose(lattice.rss_deficit_s[0][pairs], rss_levels * 5.0 / 3)
+    # a candidate that drops back has a smaller deficit
+    slower = lattice.lon_mean_speed_mps[0] < 17.0
+    assert (lattice.rss_deficit_s[0][np.ix_(slower, centre)] <= rss_levels * 5.0 / 3).all()

@@ -59,13 +59,15 @@ PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
     "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "d2f86acc63383123",
     "letspi-memory": "7888058c6fe80e5c", "letspi-fast": "4e76d45509a7831d", "letspi-fs": "fa19c2e729efa07c",
-    "frenet": "9fc587996ab3901a",  # added with the kind (frenet branch), from the shipped weights
+    # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
+    # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
+    "frenet": "fe73b79fa4e18c4a",
 }
 PINNED_VARIANT_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
     "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "8b044cb7aa3fbaa4",
     "letspi-memory": "b990114e7952b187", "letspi-fast": "27ae453b4559b8a3", "letspi-fs": "0d959d74e5b9deb0",
-    "frenet": "e14605040dda47b8",
+    "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
 }
 PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf863542"}
 

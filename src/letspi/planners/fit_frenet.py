@@ -40,7 +40,7 @@ from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.types import ScenarioBatch
 
 #: weights searched (k_speed is the unit) and their grid (log-spaced)
-SEARCHED: tuple[str, ...] = ("k_jerk_lon", "k_jerk_lat", "k_time", "k_offset", "k_goal_lane")
+SEARCHED: tuple[str, ...] = ("k_jerk_lon", "k_jerk_lat", "k_time", "k_offset", "k_goal_lane", "k_headway", "k_rss")
 DEFAULT_GRID: tuple[float, ...] = (0.0, 0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 
 

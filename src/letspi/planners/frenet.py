@@ -13,6 +13,9 @@ The road is straight in the ego frame, so the Frenet coordinates are the scenari
   - following: quintic polynomials to a point ``follow_gap_m + headway x v_leader`` behind the
     *predicted* leader of a target lane (the closest neighbour ahead in that lane at t = 0) at T,
     at the leader's predicted speed, ax = 0; paired only with lateral candidates into that lane;
+  - braking: constant deceleration ``brake_decels_mps2`` from t = 0 to a stop (or to 5 s), then held
+    (the emergency option a polynomial to a target speed cannot give: a quartic stop from 30 m/s in 5 s
+    peaks at 9 m/s²);
 * after its horizon a candidate holds its end state (constant speed, constant y) up to the
   planning horizon of 5 s (125 frames at 25 Hz), so all candidates are judged over the same 5 s.
 
@@ -20,10 +23,17 @@ Candidates are the pairs (i, j). Cost (Werling's terms; weights in ``FrenetWeigh
 
     k_jerk_lon ∫ x'''² dt + k_jerk_lat ∫ y'''² dt + k_time (T_lon + T_lat)
     + k_offset (y_T - centre of the target lane)² + k_goal_lane |target lane - goal lane|
-    + k_speed (mean speed over 5 s - v_des)²
+    + k_speed (mean speed over 5 s - v_des)² + k_headway D_headway + k_rss D_rss
 
 with the goal (from the goal predictor, as ``sf`` and ``gnp`` use it) giving the preferred lane (the
-goal's lane) and the desired speed ``v_des`` = goal progress / 5 s.
+goal's lane) and the desired speed ``v_des`` = goal progress / 5 s. D_headway and D_rss [s] are soft
+following terms (``FrenetFollowing``): about ∫ Σ_n max(0, 1 - gap_n / distance) dt over the neighbours
+ahead in the ego's path, with the desired distance ``standstill_gap_m + desired_headway_s × v`` and the
+RSS distance (the ego reacts and brakes comfortably behind a leader that brakes hard), against the
+*cautious* prediction: every neighbour is at the smaller x of the shared IDM prediction and of an
+extrapolation of its t = 0 state (constant speed; constant deceleration to a stop when it is braking),
+because IDM lets a braking leader re-accelerate towards the top speed of its history. A braking
+candidate's jerk term prices its step in acceleration at t = 0 as a ramp over ``brake_onset_s``.
 
 Rejected (not *valid*):
 
@@ -35,11 +45,15 @@ Rejected (not *valid*):
   ego's path (boxes overlapping laterally with ``lat_margin_m`` added) and closer bumper to bumper than
   ``front_gap_m`` (ahead) / ``rear_gap_m`` (behind) or than ``ttc_s`` times the closing speed (a
   1-D TTC below ``ttc_s``: the thresholds ``sf-opt`` and LetsPi's reflection use). Contact (plain box
-  overlap) is a special case.
+  overlap) is a special case. With ``cautious_check`` (default) a pair is unsafe when it is so against the
+  IDM prediction *or* the cautious one.
 
 The cheapest valid candidate wins. When none is valid, the *least unsafe* one: the latest first
-contact with a predicted neighbour (then the fewest contact (neighbour, frame) pairs), then feasible
-before infeasible, then the latest and fewest margin violations, then cost.
+contact with a predicted neighbour (then the fewest contact (neighbour, frame) pairs), where a lane
+change with a margin violation against a neighbour in its target lane counts as if its first contact
+came ``occupied_lane_change_penalty_s`` earlier (without a predicted contact: that long before the end;
+an escape into an occupied lane rarely completes), then feasible before infeasible, then the latest and
+fewest margin violations, then cost.
 
 Batched: the lattice is evaluated as arrays (B, I, F) and (B, J, F); the pair checks need no
 (B, I, J, F) float array because a pair overlaps a neighbour at a frame exactly when its longitudinal
@@ -72,7 +86,7 @@ from letspi.scenario.types import ScenarioBatch
 SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
 #: lower bound of the speed in the curvature bound [m/s] (the bound is 1 / v²; a standing car cannot steer sideways)
 CURVATURE_SPEED_FLOOR_MPS = 0.5
-LON_SPEED, LON_FOLLOW = 0, 1
+LON_SPEED, LON_FOLLOW, LON_BRAKE = 0, 1, 2
 ANY_LANE = -9  # lane code of longitudinal candidates that pair with every lateral candidate
 
 
@@ -83,7 +97,8 @@ class FrenetWeights(BaseModel):
     Units: k_jerk_lon, k_jerk_lat per (m²/s⁵) (the integral of squared jerk over the horizon);
     k_time per s of horizon; k_offset per m² of end offset from the target lane's centre; k_goal_lane
     per lane between the target lane and the goal's lane; k_speed per (m/s)² of mean-speed deviation
-    from the desired speed. Only ratios matter (the argmin is
+    from the desired speed; k_headway and k_rss per second of full deficit of the desired following
+    distance and of the RSS distance (``FrenetFollowing``). Only ratios matter (the argmin is
     unchanged when all are scaled), so ``k_speed`` is the unit the others are measured in.
     """
 
@@ -95,6 +110,8 @@ class FrenetWeights(BaseModel):
     k_offset: float = Field(default=1.0, ge=0)
     k_goal_lane: float = Field(default=10.0, ge=0)
     k_speed: float = Field(default=1.0, ge=0)
+    k_headway: float = Field(default=1.0, ge=0)
+    k_rss: float = Field(default=1.0, ge=0)
 
 
 WEIGHT_NAMES: tuple[str, ...] = tuple(FrenetWeights.model_fields)
@@ -103,7 +120,8 @@ WEIGHT_NAMES: tuple[str, ...] = tuple(FrenetWeights.model_fields)
 class FrenetSampling(BaseModel):
     """The lattice (the same for every scenario). Defaults: horizons 3, 4, 5 s; current, left and right
     lane, centre and ±0.5 m; goal speed ±2 m/s; current speed -8, -4, 0, +2 m/s; a stop (0 m/s);
-    following at 1 and 2 s, 3 m behind the leader (more than the safety check's front gap)."""
+    following at 1 and 2 s, 3 m behind the leader (more than the safety check's front gap); braking at
+    a constant 3, 5 and 8 m/s² from t = 0 (to a stop, or to 5 s)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -115,6 +133,9 @@ class FrenetSampling(BaseModel):
     absolute_speeds_mps: tuple[float, ...] = (0.0,)  # e.g. stopping
     follow_headways_s: tuple[float, ...] = (1.0, 2.0)
     follow_gap_m: float = Field(default=3.0, ge=0)  # > the safety check's front gap
+    brake_decels_mps2: tuple[float, ...] = (3.0, 5.0, 8.0)  # constant deceleration from t = 0 to a stop
+    #: a braking candidate's acceleration steps at t = 0; its jerk cost is that of a linear ramp over this time
+    brake_onset_s: float = Field(default=0.5, gt=0)
 
 
 class FrenetLimits(BaseModel):
@@ -127,6 +148,10 @@ class FrenetLimits(BaseModel):
     max_lat_accel_mps2: float = Field(default=3.5, gt=0)
     max_curvature_1pm: float = Field(default=0.2, gt=0)
     min_speed_mps: float = -0.1  # below: the candidate drives backwards
+    #: candidates start from the t = 0 acceleration but brake at most this hard (braking may be released at
+    #: once; the braking candidates brake harder when needed). 3 m/s²: the metric's comfort bound, beyond
+    #: which braking without need makes a rear-end contact the ego's fault
+    max_start_decel_mps2: float = Field(default=3.0, gt=0)
 
 
 class FrenetSafety(BaseModel):
@@ -138,6 +163,43 @@ class FrenetSafety(BaseModel):
     rear_gap_m: float = Field(default=0.5, ge=0)
     ttc_s: float = Field(default=1.5, ge=0)
     lat_margin_m: float = Field(default=0.3, ge=0)
+    #: check against the cautious prediction too (``FrenetFollowing``: no re-acceleration, braking goes on)
+    cautious_check: bool = True
+
+
+class FrenetFollowing(BaseModel):
+    """The soft following terms and the fallback rule (module doc).
+
+    Desired following distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS distance (Shalev-Shwartz
+    et al. 2017, without the acceleration during the reaction) ``standstill_gap_m + max(0, v_ego ×
+    rss_reaction_s + v_ego² / (2 rss_ego_decel_mps2) - v_lead² / (2 rss_leader_decel_mps2))``: the ego,
+    reacting after ``rss_reaction_s`` and braking comfortably, stops behind a leader that brakes hard. Both
+    deficits are graded in ``levels`` steps (the bumper gap below 1/K, 2/K, .. K/K of the distance).
+    Leaders are taken from a *cautious* prediction beside the IDM one: every neighbour is at the smaller x
+    of the IDM prediction and of its constant-velocity extrapolation, or, when it brakes harder than
+    ``leader_braking_min_mps2`` at t = 0 (its mean deceleration over the last ``leader_braking_window_s`` of
+    history), of its constant-deceleration extrapolation to a stop or for ``leader_braking_max_s`` and then at
+    constant speed (IDM lets a braking or slow leader
+    re-accelerate towards the top speed of its history). With ``FrenetSafety.cautious_check`` the safety
+    check runs against both predictions.
+    When no candidate is valid, a lane change into an occupied target lane (a margin violation with a
+    neighbour in that lane) counts as if its first contact came ``occupied_lane_change_penalty_s`` earlier.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    desired_headway_s: float = Field(default=1.5, ge=0)
+    standstill_gap_m: float = Field(default=2.0, ge=0)
+    rss_reaction_s: float = Field(default=0.5, ge=0)
+    rss_ego_decel_mps2: float = Field(default=4.0, gt=0)
+    rss_leader_decel_mps2: float = Field(default=8.0, gt=0)
+    levels: int = Field(default=3, ge=1, le=8)
+    leader_braking_window_s: float = Field(default=0.4, gt=0, le=2.0)
+    leader_braking_min_mps2: float = Field(default=1.0, ge=0)
+    leader_braking_max_s: float = Field(default=2.0, gt=0)  # the extrapolated braking lasts at most this long
+    occupied_lane_change_penalty_s: float = Field(default=1.0, ge=0)
+    #: the following terms are summed over every n-th frame (5: a 0.2 s grid)
+    frame_stride: int = Field(default=5, ge=1, le=25)
 
 
 class FrenetSettings(BaseModel):
@@ -149,6 +211,7 @@ class FrenetSettings(BaseModel):
     sampling: FrenetSampling = Field(default_factory=FrenetSampling)
     limits: FrenetLimits = Field(default_factory=FrenetLimits)
     safety: FrenetSafety = Field(default_factory=FrenetSafety)
+    following: FrenetFollowing = Field(default_factory=FrenetFollowing)
 
 
 class FrenetConfig(Config):
@@ -251,15 +314,18 @@ def evaluate_held(c: np.ndarray, horizon_s: np.ndarray, t_s: np.ndarray) -> tupl
 class Lattice:
     """Weight-independent part of the planner for B scenarios: candidates, their checks and cost terms.
 
-    Longitudinal (B, I): ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (I,), ``lon_mode`` (I,) (0 speed, 1
-    follow), ``lon_lane`` (I,) lane change the candidate pairs with (``ANY_LANE`` for all),
+    Longitudinal (B, I): ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (B, I) (a braking candidate ends when it
+    stops), ``lon_mode`` (I,) (0 speed, 1 follow, 2 brake), ``lon_lane`` (I,) lane change the candidate
+    pairs with (``ANY_LANE`` for all),
     ``lon_target_speed_mps``, ``lon_exists``, ``lon_feasible``, ``lon_jerk``, ``lon_mean_speed_mps``.
     Lateral (B, J): ``lat_coef`` (B, J, 6), ``lat_horizon_s`` (J,), ``lat_lane`` (J,), ``lat_offset_m``
     (J,), ``lat_target_y_m``, ``lat_exists``, ``lat_feasible``, ``lat_jerk``, ``lat_lanes_from_goal`` (lanes
     between the target lane and the goal's lane).
     Pairs (B, I, J): ``pair_ok`` (both exist and pair), ``feasible`` (with the curvature bound),
     ``contact`` and ``violation`` (unsafety scores of predicted contacts / margin violations, 0 = none;
-    ``_pair_counts``).
+    ``_pair_checks``), ``occupied`` (a lane change with a margin violation against a neighbour in its
+    target lane), ``unsafe_rank`` (``contact`` with the occupied-lane penalty: the fallback's first key),
+    ``headway_deficit_s`` and ``rss_deficit_s`` (the following terms, s; ``FrenetFollowing``).
     Per scenario (B,): ``v_des_mps``, ``goals_xy_m`` (B, 2).
     """
 
@@ -285,6 +351,10 @@ class Lattice:
     feasible: np.ndarray
     contact: np.ndarray
     violation: np.ndarray
+    occupied: np.ndarray
+    unsafe_rank: np.ndarray
+    headway_deficit_s: np.ndarray
+    rss_deficit_s: np.ndarray
     v_des_mps: np.ndarray
     goals_xy_m: np.ndarray
 
@@ -299,11 +369,12 @@ class Lattice:
 
     def cost(self, w: FrenetWeights) -> np.ndarray:
         """(B, I, J) cost of every pair (module doc); inf for pairs that do not exist."""
-        lon = (w.k_jerk_lon * self.lon_jerk + w.k_time * self.lon_horizon_s[None, :]
+        lon = (w.k_jerk_lon * self.lon_jerk + w.k_time * self.lon_horizon_s
                + w.k_speed * (self.lon_mean_speed_mps - self.v_des_mps[:, None]) ** 2)
         lat = (w.k_jerk_lat * self.lat_jerk + w.k_time * self.lat_horizon_s[None, :]
                + w.k_offset * self.lat_offset_m[None, :] ** 2 + w.k_goal_lane * self.lat_lanes_from_goal)
-        total = lon[:, :, None] + lat[:, None, :]
+        total = (lon[:, :, None] + lat[:, None, :] + w.k_headway * self.headway_deficit_s
+                 + w.k_rss * self.rss_deficit_s)
         return np.where(self.pair_ok, total, np.inf)
 
     def choose(self, w: FrenetWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -313,10 +384,11 @@ class Lattice:
         valid = self.valid.reshape(b, -1)
         n_valid = valid.sum(axis=1)
         best_valid = np.argmin(np.where(valid, cost, np.inf), axis=1)
-        # least unsafe: fewest weighted contacts, then feasible, then fewest margin violations, then cost
+        # least unsafe: latest first contact (a lane change into an occupied lane counts earlier), then the
+        # fewest contacts, then feasible, then the fewest margin violations, then cost
         ok = self.pair_ok.reshape(b, -1)
         pick = ok.copy()
-        for key in (self.contact.reshape(b, -1), ~self.feasible.reshape(b, -1), self.violation.reshape(b, -1)):
+        for key in (self.unsafe_rank.reshape(b, -1), ~self.feasible.reshape(b, -1), self.violation.reshape(b, -1)):
             k = np.where(pick, key.astype(np.float64), np.inf)
             pick &= k <= k.min(axis=1, keepdims=True)
         best_unsafe = np.argmin(np.where(pick, cost, np.inf), axis=1)
@@ -328,25 +400,27 @@ class Lattice:
         """Positions and velocities (B, F, 2) of pair (i[b], j[b]) of every scenario, t = dt .. F dt."""
         rows = np.arange(len(self))
         t_s = np.arange(1, N_FUTURE + 1) * DT_S
-        x, vx, _ = evaluate_held(self.lon_coef[rows, i], self.lon_horizon_s[i], t_s)
+        x, vx, _ = evaluate_held(self.lon_coef[rows, i], self.lon_horizon_s[rows, i], t_s)
         y, vy, _ = evaluate_held(self.lat_coef[rows, j], self.lat_horizon_s[j], t_s)
         return np.stack([x, y], axis=-1), np.stack([vx, vy], axis=-1)
 
     def take(self, index: np.ndarray) -> Lattice:
         """The lattice of scenarios ``index`` (candidate-axis arrays are shared)."""
-        shared = {"lon_horizon_s", "lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
+        shared = {"lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
         return Lattice(**{name: (value if name in shared else value[index])
                           for name, value in self.__dict__.items()})
 
 
 def _lon_grid(s: FrenetSampling) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per longitudinal candidate: horizon, mode, lane change (following) and a parameter (speed offset
-    or headway) and its kind (0 goal speed, 1 current speed, 2 following, 3 absolute speed), (I, 2)."""
+    headway or deceleration) and its kind (0 goal speed, 1 current speed, 2 following, 3 absolute speed,
+    4 braking), (I, 2). A braking candidate's horizon is a placeholder (5 s; it stops earlier)."""
     rows: list[tuple[float, int, int, float, int]] = []  # horizon, mode, lane, value, kind
     for t in s.horizons_s:
         rows += [(t, LON_SPEED, ANY_LANE, d, 0) for d in s.goal_speed_offsets_mps]
         rows += [(t, LON_SPEED, ANY_LANE, d, 1) for d in s.current_speed_offsets_mps]
         rows += [(t, LON_SPEED, ANY_LANE, v, 3) for v in s.absolute_speeds_mps]
+    rows += [(HORIZON_S, LON_BRAKE, ANY_LANE, d, 4) for d in s.brake_decels_mps2]
     for lane in s.lane_changes:
         for t in s.horizons_s:
             rows += [(t, LON_FOLLOW, lane, h, 2) for h in s.follow_headways_s]
@@ -408,7 +482,7 @@ def build_lattice(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: n
 
 
 def _concat(parts: list[Lattice]) -> Lattice:
-    shared = {"lon_horizon_s", "lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
+    shared = {"lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
     first = parts[0]
     return Lattice(**{name: (getattr(first, name) if name in shared
                              else np.concatenate([getattr(p, name) for p in parts], axis=0))
@@ -444,7 +518,7 @@ def _start(batch: ScenarioBatch, goals_xy_m: np.ndarray, lim: FrenetLimits) -> _
     cur = lane_index_of(y0, marks)  # (B,), -1 without lanes
     progress, v_des, goal_lane = _goal_terms(batch, goals_xy_m, x0, vx0, cur)
     return _Start(x0=x0, y0=y0, vx0=vx0, vy0=np.nan_to_num(batch.ego_vxy0_mps[:, 1].astype(np.float64)),
-                  ax0=np.clip(a_now[:, 0], -lim.max_decel_mps2, lim.max_accel_mps2),
+                  ax0=np.clip(a_now[:, 0], -min(lim.max_start_decel_mps2, lim.max_decel_mps2), lim.max_accel_mps2),
                   ay0=np.clip(a_now[:, 1], -lim.max_lat_accel_mps2, lim.max_lat_accel_mps2), marks=marks,
                   centres=centres, n_lanes=np.isfinite(centres).sum(axis=1), cur=cur, progress=progress, v_des=v_des,
                   goal_lane=goal_lane)
@@ -477,7 +551,7 @@ def _lateral(batch: ScenarioBatch, st: _Start, s: FrenetSampling, lim: FrenetLim
             "peak_ay": peak_ay, "peak_vy": np.abs(vy).max(axis=2),
             "feasible": exists & ~leaves_road & (peak_ay <= lim.max_lat_accel_mps2),
             "jerk": jerk_integral(coef, lat_t[None, :]),
-            "from_goal": np.abs(target_idx - st.goal_lane[:, None]).astype(np.float64)}
+            "from_goal": np.abs(target_idx - st.goal_lane[:, None]).astype(np.float64), "target": target_idx}
 
 
 def _longitudinal(batch: ScenarioBatch, pred: NeighbourPrediction, st: _Start, s: FrenetSampling,
@@ -510,14 +584,22 @@ def _longitudinal(batch: ScenarioBatch, pred: NeighbourPrediction, st: _Start, s
     zeros = np.zeros((b, len(lon_t)))
     coef_speed = quartic_coefficients(x0, vx0, ax0, v_speed, zeros, tt)
     coef_follow = quintic_coefficients(x0, vx0, ax0, s1, lead_v, zeros, tt)
-    coef = np.where(follow[None, :, None], coef_follow, coef_speed)
+    # braking: x0 + v0 t - d t² / 2 to a stop (or to 5 s), then held; no jerk after the step at t = 0, which
+    # is priced as a linear ramp from a0 to -d over brake_onset_s (else braking would be free of jerk cost)
+    brake = lon_mode == LON_BRAKE
+    decel = np.where(brake, value, 1.0)[None, :]
+    horizon = np.where(brake[None, :], np.minimum(vx0 / decel, HORIZON_S), tt)  # (B, I)
+    onset_jerk = np.where(brake[None, :], (ax0 + decel) ** 2 / s.brake_onset_s, 0.0)
+    coef_brake = np.stack(np.broadcast_arrays(x0, vx0, -0.5 * decel, zeros, zeros, zeros), axis=-1)
+    coef = np.where(follow[None, :, None], coef_follow, np.where(brake[None, :, None], coef_brake, coef_speed))
     exists = np.where(follow[None, :], lead_ok, True)
-    x, vx, ax = evaluate_held(coef, np.broadcast_to(lon_t, (b, len(lon_t))), t_s)  # (B, I, F)
+    x, vx, ax = evaluate_held(coef, horizon, t_s)  # (B, I, F)
     feasible = (exists & (ax.max(axis=2) <= lim.max_accel_mps2 + 1e-9)
                 & (ax.min(axis=2) >= -lim.max_decel_mps2 - 1e-9) & (vx.min(axis=2) >= lim.min_speed_mps))
-    return {"t": lon_t, "mode": lon_mode, "lane": lon_lane, "coef": coef, "x": x, "vx": vx,
-            "target_speed": np.where(follow[None, :], lead_v, v_speed), "exists": exists, "feasible": feasible,
-            "jerk": jerk_integral(coef, tt), "mean_speed": (x[:, :, -1] - st.x0[:, None]) / HORIZON_S,
+    target = np.where(follow[None, :], lead_v, np.where(brake[None, :], vx[:, :, -1], v_speed))
+    return {"t": horizon, "mode": lon_mode, "lane": lon_lane, "coef": coef, "x": x, "vx": vx,
+            "target_speed": target, "exists": exists, "feasible": feasible,
+            "jerk": jerk_integral(coef, horizon) + onset_jerk, "mean_speed": (x[:, :, -1] - st.x0[:, None]) / HORIZON_S,
             "v_min": vx.min(axis=2), "peak_ax": np.abs(ax).max(axis=2)}
 
 
@@ -534,66 +616,180 @@ def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np
     v_min = np.maximum(lon["v_min"], CURVATURE_SPEED_FLOOR_MPS)[:, :, None]
     kappa = lat["peak_ay"][:, None, :] / v_min**2 + lat["peak_vy"][:, None, :] * lon["peak_ax"][:, :, None] / v_min**3
     feasible = lon["feasible"][:, :, None] & lat["feasible"][:, None, :] & (kappa <= lim.max_curvature_1pm)
-    contact, violation = _pair_counts(batch, pred, lon["x"], lon["vx"], lat["y"], settings.safety)
+    checks = _pair_checks(batch, pred, lon["x"], lon["vx"], lat["y"], lat["target"], lat["lane"] != 0, settings)
     return Lattice(
         lon_coef=lon["coef"], lon_horizon_s=lon["t"], lon_mode=lon["mode"], lon_lane=lon["lane"],
         lon_target_speed_mps=lon["target_speed"], lon_exists=lon["exists"], lon_feasible=lon["feasible"],
         lon_jerk=lon["jerk"], lon_mean_speed_mps=lon["mean_speed"], lat_coef=lat["coef"], lat_horizon_s=lat["t"],
         lat_lane=lat["lane"], lat_offset_m=lat["off"], lat_target_y_m=lat["y1"], lat_exists=lat["exists"],
         lat_feasible=lat["feasible"], lat_jerk=lat["jerk"], lat_lanes_from_goal=lat["from_goal"], pair_ok=pair_ok,
-        feasible=feasible, contact=contact, violation=violation, v_des_mps=st.v_des,
+        feasible=feasible, contact=checks.contact, violation=checks.violation, occupied=checks.occupied,
+        unsafe_rank=checks.unsafe_rank, headway_deficit_s=checks.headway_deficit_s,
+        rss_deficit_s=checks.rss_deficit_s, v_des_mps=st.v_des,
         goals_xy_m=np.asarray(goals_xy_m, dtype=np.float64),
     )
 
 
-def _pair_counts(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray, vx: np.ndarray, y: np.ndarray,
-                 safety: FrenetSafety) -> tuple[np.ndarray, np.ndarray]:
-    """Unsafety scores (B, I, J) int64 of every pair: contacts and margin violations with the predicted
-    neighbours; 0 = none.
+@dataclass(frozen=True)
+class _PairChecks:
+    """Per pair (B, I, J) (``Lattice``): contact, violation, unsafe_rank (int64 scores), occupied (bool),
+    headway_deficit_s and rss_deficit_s (float64)."""
+
+    contact: np.ndarray
+    violation: np.ndarray
+    occupied: np.ndarray
+    unsafe_rank: np.ndarray
+    headway_deficit_s: np.ndarray
+    rss_deficit_s: np.ndarray
+
+
+def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: FrenetFollowing,
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbour x and vx (B, F, N) of the cautious prediction (``FrenetFollowing``): the IDM prediction or
+    the extrapolation of the t = 0 state (constant velocity, or, for a neighbour braking harder than
+    ``leader_braking_min_mps2``, that deceleration until it stops or for ``leader_braking_max_s``, then
+    constant speed), whichever is further back."""
+    k = max(1, round(fol.leader_braking_window_s / DT_S))
+    v_now = batch.nbr_vxy_mps[:, :, T0_INDEX, 0].astype(np.float64)
+    v_then = batch.nbr_vxy_mps[:, :, T0_INDEX - k, 0].astype(np.float64)
+    seen = (batch.nbr_valid[:, :, T0_INDEX] & batch.nbr_valid[:, :, T0_INDEX - k] & np.isfinite(v_now)
+            & np.isfinite(v_then))
+    accel = np.where(seen, (np.nan_to_num(v_now) - np.nan_to_num(v_then)) / (k * DT_S), 0.0)
+    decel = np.where(accel < -fol.leader_braking_min_mps2, -accel, 0.0)[..., None]  # (B, N, 1)
+    v0 = np.maximum(np.nan_to_num(v_now), 0.0)[..., None]
+    t_s = np.arange(1, N_FUTURE + 1) * DT_S
+    # braking lasts until the stop or leader_braking_max_s, then the speed is held
+    t_brake = np.minimum(t_s, np.minimum(v0 / np.maximum(decel, 1e-9), fol.leader_braking_max_s))  # (B, N, F)
+    v_ext = v0 - decel * t_brake
+    x_ext = (np.nan_to_num(batch.nbr_xy_m[:, :, T0_INDEX, 0].astype(np.float64))[..., None]
+             + t_brake * (v0 - 0.5 * decel * t_brake) + v_ext * (t_s - t_brake))
+    x_idm, v_idm = pred.xy_m[..., 0], pred.vxy_mps[..., 0]
+    now = batch.nbr_valid[:, :, T0_INDEX] & np.isfinite(batch.nbr_xy_m[:, :, T0_INDEX, 0]) & np.isfinite(v_now)
+    use = now[..., None] & (x_ext < x_idm)  # a neighbour unseen at t = 0 keeps its IDM prediction
+    x = np.where(use, x_ext, x_idm)
+    v = np.where(use, v_ext, v_idm)
+    return x.transpose(0, 2, 1), v.transpose(0, 2, 1)
+
+
+def _pair_checks(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray, vx: np.ndarray, y: np.ndarray,
+                 target_lane: np.ndarray, lane_change: np.ndarray, settings: FrenetSettings) -> _PairChecks:
+    """The safety check and the following terms of every pair against the predicted neighbours.
 
     A pair (i, j) overlaps neighbour n at frame f iff candidate i overlaps it longitudinally and j
-    laterally. The per-candidate flags are packed into bits ((frame, neighbour) order, 8 frames of 8
+    laterally. The per-candidate flags are packed into bits ((frame, neighbour) order, 64 / N frames of N
     neighbours per 64-bit word), so a pair's overlaps are the AND of two bit strings: no (B, I, J, F)
-    array and no BLAS call (whose threads stall on a busy machine). Score = (W - first word with an
-    overlap) x 1,000,000 + number of overlapping (neighbour, frame) pairs, W = words per plan: an
-    earlier first overlap (0.32 s resolution) is worse, then a longer or wider one.
-    x, vx: (B, I, F) longitudinal candidates; y: (B, J, F) lateral candidates; float32 arithmetic
-    (positions within a few hundred metres: sub-millimetre resolution).
+    array and no BLAS call (whose threads stall on a busy machine). Contact/violation score = (W - first
+    word with an overlap) x 1,000,000 + number of overlapping (neighbour, frame) pairs, W = words per
+    plan: an earlier first overlap (0.32 s resolution) is worse, then a longer or wider one.
+    Following terms: for each level k = 1..K the (frame, neighbour) pairs with a neighbour ahead in the
+    ego's path (the lateral margin) closer than k/K of the desired (RSS) distance, counted the same way
+    on every ``frame_stride``-th frame, times stride dt / K: about ∫ Σ_n max(0, 1 - gap / distance) dt [s].
+    x, vx: (B, I, F) longitudinal candidates; y: (B, J, F) lateral candidates; target_lane: (B, J) lane
+    index of each lateral candidate; lane_change: (J,) it changes lanes. float32 arithmetic (positions
+    within a few hundred metres: sub-millimetre resolution).
     """
+    safety, fol = settings.safety, settings.following
+    f32 = np.float32
     valid = (pred.valid & np.isfinite(pred.xy_m).all(axis=-1)).transpose(0, 2, 1)[:, None]  # (B, 1, F, N)
-    xn = pred.xy_m[..., 0].astype(np.float32).transpose(0, 2, 1)[:, None]
-    yn = pred.xy_m[..., 1].astype(np.float32).transpose(0, 2, 1)[:, None]
-    vn = pred.vxy_mps[..., 0].astype(np.float32).transpose(0, 2, 1)[:, None]
-    half_len = (0.5 * (batch.ego_length_m[:, None] + np.nan_to_num(batch.nbr_length_m))).astype(np.float32)
-    half_wid = (0.5 * (batch.ego_width_m[:, None] + np.nan_to_num(batch.nbr_width_m))).astype(np.float32)
+    xn = pred.xy_m[..., 0].astype(f32).transpose(0, 2, 1)[:, None]
+    yn = pred.xy_m[..., 1].astype(f32).transpose(0, 2, 1)[:, None]
+    vn = pred.vxy_mps[..., 0].astype(f32).transpose(0, 2, 1)[:, None]
+    half_len = (0.5 * (batch.ego_length_m[:, None] + np.nan_to_num(batch.nbr_length_m))).astype(f32)
+    half_wid = (0.5 * (batch.ego_width_m[:, None] + np.nan_to_num(batch.nbr_width_m))).astype(f32)
     half_len = half_len[:, None, None, :]  # (B, 1, 1, N)
     half_wid = half_wid[:, None, None, :]
 
-    xe = x.astype(np.float32)[..., None]  # (B, I, F, 1)
-    dx = xn - xe  # (B, I, F, N), > 0: the neighbour is ahead
-    closing = vx.astype(np.float32)[..., None] - vn  # ego faster: closing on a vehicle ahead
-    front = half_len + np.maximum(np.float32(safety.front_gap_m), np.float32(safety.ttc_s) * closing)
-    rear = half_len + np.maximum(np.float32(safety.rear_gap_m), np.float32(safety.ttc_s) * -closing)
-    lon_contact = (np.abs(dx) < half_len) & valid
-    lon_margin = (dx < front) & (dx > -rear) & valid
-    dy = np.abs(yn - y.astype(np.float32)[..., None])  # (B, J, F, N)
-    lat_contact = dy < half_wid
-    lat_margin = dy < half_wid + np.float32(safety.lat_margin_m)
-    return _and_score(_bits(lon_contact), _bits(lat_contact)), _and_score(_bits(lon_margin), _bits(lat_margin))
+    xe = x.astype(f32)[..., None]  # (B, I, F, 1)
+    ve = vx.astype(f32)[..., None]
+    xl, vl = (a.astype(f32)[:, None] for a in _cautious_prediction(batch, pred, fol))  # (B, 1, F, N)
+
+    hl = half_len
+    front_reach, rear_reach = hl + f32(safety.front_gap_m), -hl - f32(safety.rear_gap_m)
+
+    def lon_flags(x_nbr: np.ndarray, v_nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Contact and margin flags (B, I, F, N), not masked by ``valid``. The margin ahead is
+        dx < hl + max(front_gap, ttc closing), i.e. dx < hl + front_gap or u < hl with u = dx - ttc closing
+        (the gap left after ttc s at the current closing speed); behind likewise: fewer array passes."""
+        dx = x_nbr - xe  # (B, I, F, N), > 0: the neighbour is ahead
+        u = dx - f32(safety.ttc_s) * (ve - v_nbr)  # ve - v_nbr > 0: closing on a vehicle ahead
+        ahead_ok = (dx < front_reach) | (u < hl)
+        behind_ok = (dx > rear_reach) | (u > -hl)
+        return np.abs(dx) < hl, ahead_ok & behind_ok
+
+    contact_flags, margin_flags = lon_flags(xn, vn)
+    if safety.cautious_check:  # a pair is unsafe when it is under either prediction
+        cautious_contact, cautious_margin = lon_flags(xl, vl)
+        contact_flags |= cautious_contact
+        margin_flags |= cautious_margin
+    contact_flags &= valid
+    margin_flags &= valid
+    lon_contact, lon_margin = _bits(contact_flags), _bits(margin_flags)
+    dy = np.abs(yn - y.astype(f32)[..., None])  # (B, J, F, N)
+    lat_margin_flags = dy < half_wid + f32(safety.lat_margin_m)
+    lat_margin = _bits(lat_margin_flags)
+    contact = _and_score(lon_contact, _bits(dy < half_wid))
+    violation = _and_score(lon_margin, lat_margin)
+
+    # occupied target lane: the margin violations of a lane change with the neighbours in its target lane
+    nbr_lane = lane_index_of_many(np.nan_to_num(pred.xy_m[..., 1]).transpose(0, 2, 1).reshape(len(batch), -1),
+                                  batch.marking_y_m).reshape(valid.shape[0], 1, *valid.shape[2:])  # (B, 1, F, N)
+    in_target = (nbr_lane == target_lane[:, :, None, None]) & lane_change[None, :, None, None]
+    occupied = _and_any(lon_margin, _bits(lat_margin_flags & in_target))
+    words_s = DT_S * 64.0 / valid.shape[3]  # frames per 64-bit word x dt
+    penalty = round(fol.occupied_lane_change_penalty_s / words_s) * 1_000_000
+    unsafe_rank = contact + np.where(occupied, penalty, 0)
+
+    # following terms, against the cautious prediction, on every ``frame_stride``-th frame (gaps change slowly)
+    sub = slice(fol.frame_stride - 1, None, fol.frame_stride)
+    xe_s, ve_s, xl_s, vl_s = xe[:, :, sub], ve[:, :, sub], xl[:, :, sub], vl[:, :, sub]
+    lat_margin_s = _bits(lat_margin_flags[:, :, sub])
+    gap = xl_s - xe_s - half_len  # bumper to bumper, (B, I, F', N)
+    ahead = (xl_s > xe_s) & valid[:, :, sub]
+    speed = np.maximum(ve_s, f32(0.0))
+    desired = f32(fol.standstill_gap_m) + f32(fol.desired_headway_s) * speed  # (B, I, F', 1)
+    rss = f32(fol.standstill_gap_m) + np.maximum(
+        speed * f32(fol.rss_reaction_s) + speed**2 / f32(2.0 * fol.rss_ego_decel_mps2)
+        - np.maximum(vl_s, f32(0.0))**2 / f32(2.0 * fol.rss_leader_decel_mps2), f32(0.0))  # (B, I, F', N)
+    never = f32(np.inf)
+    ratio_desired = np.where(ahead, gap / desired, never)
+    ratio_rss = np.where(ahead, gap / rss, never)
+    headway = np.zeros(contact.shape, dtype=np.int64)
+    rss_count = np.zeros(contact.shape, dtype=np.int64)
+    for k in range(1, fol.levels + 1):  # K <= 8 levels, each one AND per pair
+        level = f32(k / fol.levels)
+        headway += _and_count(_bits(ratio_desired < level), lat_margin_s)
+        rss_count += _and_count(_bits(ratio_rss < level), lat_margin_s)
+    scale = DT_S * fol.frame_stride / fol.levels
+    return _PairChecks(contact=contact, violation=violation, occupied=occupied, unsafe_rank=unsafe_rank,
+                       headway_deficit_s=headway * scale, rss_deficit_s=rss_count * scale)
 
 
 def _bits(flags: np.ndarray) -> np.ndarray:
-    """(B, K, F, N) bool -> (B, K, W) uint64 bit strings (frame-major, zero padded)."""
+    """(B, K, F, N) bool -> (B, K, W) uint64 bit strings (frame-major, zero padded; 64 / N frames per word).
+    Packed along the flattened (F N) axis: 40x faster than packing each frame's N flags."""
     b, k = flags.shape[:2]
-    packed = np.packbits(flags, axis=-1).reshape(b, k, -1)  # (B, K, F * ceil(N / 8)) bytes
+    packed = np.packbits(flags.reshape(b, k, -1), axis=-1)  # (B, K, ceil(F N / 8)) bytes
     pad = (-packed.shape[2]) % 8
     if pad:
         packed = np.concatenate([packed, np.zeros((b, k, pad), dtype=np.uint8)], axis=2)
     return np.ascontiguousarray(packed).view(np.uint64)
 
 
+def _and_count(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
+    """Number of common set bits (B, I, J) of every pair of (B, I, W) and (B, J, W) bit strings."""
+    out: np.ndarray = np.bitwise_count(lon_bits[:, :, None, :] & lat_bits[:, None, :, :]).sum(axis=3,
+                                                                                             dtype=np.int64)
+    return out
+
+
+def _and_any(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
+    """Whether every pair of (B, I, W) and (B, J, W) bit strings has a common set bit, (B, I, J)."""
+    out: np.ndarray = ((lon_bits[:, :, None, :] & lat_bits[:, None, :, :]) != 0).any(axis=3)
+    return out
+
+
 def _and_score(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
-    """Scores (B, I, J) of the pairwise ANDs of (B, I, W) and (B, J, W) bit strings (``_pair_counts``)."""
+    """Scores (B, I, J) of the pairwise ANDs of (B, I, W) and (B, J, W) bit strings (``_pair_checks``)."""
     both = lon_bits[:, :, None, :] & lat_bits[:, None, :, :]  # (B, I, J, W)
     hit = both != 0
     n_words = both.shape[3]
@@ -617,7 +813,7 @@ def shipped_settings() -> FrenetSettings:
 class FrenetPlanner:
     """Planner ``frenet`` (module doc); by default with the shipped weights. ``info`` per scenario: the chosen
     candidate's lane change (``target_lane``: -1 right, 0 keep, +1 left), lateral offset, longitudinal mode
-    (0 speed, 1 follow), target speed, both horizons, its cost, ``n_safe`` (valid candidates) and
+    (0 speed, 1 follow, 2 brake), target speed, both horizons, its cost, ``n_safe`` (valid candidates) and
     ``found_safe``."""
 
     settings: FrenetSettings = field(default_factory=shipped_settings)
@@ -647,7 +843,7 @@ def plan_from_lattice(lat: Lattice, weights: FrenetWeights) -> PlanBatch:
         "lateral_horizon_s": lat.lat_horizon_s[j],
         "lon_mode": lat.lon_mode[i].astype(np.int64),
         "target_speed_mps": lat.lon_target_speed_mps[rows, i],
-        "lon_horizon_s": lat.lon_horizon_s[i],
+        "lon_horizon_s": lat.lon_horizon_s[rows, i],
         "cost": cost,
         "n_safe": n_valid.astype(np.int64),
         "found_safe": n_valid > 0,
