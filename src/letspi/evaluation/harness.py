@@ -23,11 +23,12 @@ directory and ``config.json`` are written with the first stored part (the keys a
 planning), so a planner that fails before storing a scenario (server down, disk full, Ctrl-C) leaves
 nothing; the planners finished before a failure are still merged into metrics.json / metrics.md.
 
-Concurrency: planners that plan one scenario per call and are thread-safe (the LLM planners) keep
-``concurrency`` scenarios in flight (``letspi.evaluation.concurrent``; default per LLM backend); one
-thread writes their rows in scenario order, so the concurrency never changes stored results and is
-not part of any key. A scenario whose LLM requests failed in transport is not stored: that planner's
-metrics are not aggregated and ``evaluate`` ends with ``ScenariosFailedError`` (rerun to complete).
+Concurrency: planners that call a model per scenario and are thread-safe (the LLM planners) keep
+``concurrency`` scenarios' proposals in flight (``letspi.evaluation.concurrent``; default per LLM
+backend); one thread simulates, scores and writes their rows per part in scenario order, so the
+concurrency never changes stored results and is not part of any key. A scenario whose LLM requests
+failed in transport is not stored: that planner's metrics are not aggregated and ``evaluate`` ends
+with ``ScenariosFailedError`` (rerun to complete).
 
 Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log`` and
 ``closed-loop-reactive`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
