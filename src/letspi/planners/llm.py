@@ -45,7 +45,7 @@ from letspi.llm.client import ParamAdvisor
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
-from letspi.method.reflection import IterationRecord, Proposal, safety_report, simulate_proposal
+from letspi.method.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
@@ -90,6 +90,8 @@ Alternative = tuple[int, SocialForceParams, float, float]  # (shield_source, par
 #: order), lon_factor and lane_factor, best first; NaN rows where fewer than K were retrieved
 MEMORY_ALTERNATIVES = "memory_alternatives"
 _ALTERNATIVE_COLUMNS = len(PARAM_NAMES) + 2
+#: alternatives per failing plan simulated first (the retrieved memories and the fitted parameters)
+SHIELD_FIRST_STAGE = 4
 
 
 @dataclass(frozen=True)
@@ -118,15 +120,19 @@ def shield_plans(
     alternatives: Sequence[Sequence[Alternative]],
     context: PlanningContext,
     thresholds: ReflectionThresholds,
+    *,
+    first_stage: int = SHIELD_FIRST_STAGE,
 ) -> ShieldedPlans:
     """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by its safest
     alternative.
 
-    alternatives[i]: (source, params, lon_factor, lane_factor) of scenario i, tried in order (the first
-    safe one wins; else the least unsafe one if it is less unsafe than the plan itself). The
-    alternatives of every failing plan are simulated and checked in one batch, and only theirs.
-    goals_xy_m (B, 2): the plans' goals; ``context.goals_xy_m``: the unadjusted goals the
-    alternatives' factors apply to.
+    alternatives[i]: (source, params, lon_factor, lane_factor) of scenario i, tried in order: the first
+    safe one wins; if none is, the least unsafe one, if it is less unsafe than the plan itself. The
+    alternatives are simulated and checked batched over every failing plan, in two stages: the first
+    ``first_stage`` of each (retrieved memories, fitted parameters), then the rest only for the plans
+    none of those made safe. The outcome is that of checking all of them (a plan's rollout and
+    check do not depend on its batch). goals_xy_m (B, 2): the plans' goals; ``context.goals_xy_m``:
+    the unadjusted goals the alternatives' factors apply to.
     """
     b = len(batch)
     reports = safety_report(batch, plans_xy_m, plans_vxy_mps, context.neighbours, thresholds)
@@ -136,32 +142,33 @@ def shield_plans(
     shielded = np.zeros(b, dtype=bool)
     safe = np.array([r.safe for r in reports], dtype=bool)
     source = np.zeros(b, dtype=np.int64)
-    failing = [i for i in range(b) if not reports[i].safe and alternatives[i]]
-    if not failing:
-        return ShieldedPlans(xy, vxy, goals, shielded, safe, source)
-    counts = [len(alternatives[i]) for i in failing]
-    rows = np.repeat(np.asarray(failing), counts)  # alternative row r belongs to scenario rows[r]
-    flat = [a for i in failing for a in alternatives[i]]
-    big = batch.take(rows)
-    big_context = context.take(rows)
-    sim = simulate_proposal(big, SocialForceParams.stack([a[1] for a in flat]), np.array([a[2] for a in flat]),
-                            np.array([a[3] for a in flat]), big_context.goals_xy_m, big_context.neighbours)
-    alt_reports = safety_report(big, sim.xy_m, sim.vxy_mps, big_context.neighbours, thresholds)
-    start = 0
-    for i, k in zip(failing, counts, strict=True):
-        own = alt_reports[start : start + k]
-        first_safe = next((j for j, r in enumerate(own) if r.safe), None)
+    # per failing scenario: every alternative checked so far, as (alternative index, plan, report)
+    tried: dict[int, list[tuple[int, np.ndarray, np.ndarray, np.ndarray, SafetyReport]]] = {
+        i: [] for i in range(b) if not reports[i].safe and alternatives[i]}
+    for lo, hi in ((0, first_stage), (first_stage, None)):
+        todo = [(i, j) for i in tried if not any(t[4].safe for t in tried[i])
+                for j in range(len(alternatives[i]))[lo:hi]]
+        if not todo:
+            continue
+        rows = np.array([i for i, _ in todo])
+        chosen = [alternatives[i][j] for i, j in todo]
+        big, big_context = batch.take(rows), context.take(rows)
+        sim = simulate_proposal(big, SocialForceParams.stack([a[1] for a in chosen]),
+                                np.array([a[2] for a in chosen]), np.array([a[3] for a in chosen]),
+                                big_context.goals_xy_m, big_context.neighbours)
+        checked = safety_report(big, sim.xy_m, sim.vxy_mps, big_context.neighbours, thresholds)
+        for r, (i, j) in enumerate(todo):
+            tried[i].append((j, sim.xy_m[r], sim.vxy_mps[r], sim.goals_xy_m[r], checked[r]))
+    for i, options in tried.items():
+        first_safe = next((t for t in options if t[4].safe), None)
         if first_safe is None:
-            best = min(range(k), key=lambda j: own[j].severity())
-            if own[best].severity() >= reports[i].severity():
-                start += k
+            best = min(options, key=lambda t: t[4].severity())  # all were checked; ties: the earlier
+            if best[4].severity() >= reports[i].severity():
                 continue  # nothing is less unsafe than the plan itself
         else:
             best = first_safe
-        r = start + best
-        xy[i], vxy[i], goals[i] = sim.xy_m[r], sim.vxy_mps[r], sim.goals_xy_m[r]
-        shielded[i], safe[i], source[i] = True, own[best].safe, flat[r][0]
-        start += k
+        j, xy[i], vxy[i], goals[i] = best[0], best[1], best[2], best[3]
+        shielded[i], safe[i], source[i] = True, best[4].safe, alternatives[i][j][0]
     return ShieldedPlans(xy, vxy, goals, shielded, safe, source)
 
 
