@@ -211,6 +211,14 @@ def memory_alternatives(row: np.ndarray) -> list[Alternative]:
 _UNSHIELDED = {"shielded": 0.0, "shield_checked": 0.0, "shield_safe": float("nan"), "shield_source": 0.0}
 
 
+def fitted_proposal(advisor: ParamAdvisor, r_col_m: float) -> Proposal:
+    """The parameters a planner falls back to (the advisor's fallback reply: the fitted ``sf``
+    parameters, neutral goal), as a proposal that made no LLM call."""
+    reply = advisor.fallback_reply
+    return Proposal(params=SocialForceParams(**reply.params(), r_col_m=r_col_m), lon_factor=reply.lon_factor,
+                    lane_factor=reply.lane_factor, rationale="no LLM answer in force: the fitted parameters")
+
+
 def _one(batch: ScenarioBatch, i: int) -> ScenarioBatch:
     return batch if len(batch) == 1 else batch.take([i])
 
@@ -275,6 +283,12 @@ class LetsPiMemoryPlanner:
             rows.append((final, _info(final, [it.proposal for it in result.iterations], extra), {}))
         return _proposals(rows)
 
+    def default_proposals(self, batch: ScenarioBatch) -> Proposals:
+        """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
+        p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
+        extra = {"iterations": 0.0, "validated": 0.0, **_UNSHIELDED}
+        return _proposals([(p, _info(p, [], extra), {})] * len(batch))
+
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
                                 context.goals_xy_m, context.neighbours)
@@ -327,6 +341,14 @@ class LetsPiFastPlanner:
             rows.append((proposal, _info(proposal, [proposal], extra),
                          {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
         return _proposals(rows)
+
+    def default_proposals(self, batch: ScenarioBatch) -> Proposals:
+        """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
+        p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
+        k = self.phase.retriever.k if self.phase.retriever is not None else 0
+        extra = {"n_retrieved": 0.0, "top_similarity": float("nan"), **_UNSHIELDED}
+        return _proposals([(p, _info(p, [], extra), {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})]
+                          * len(batch))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
