@@ -277,12 +277,17 @@ def run_ordered(
         _InlineExecutor() if config.concurrency == 1 else
         ThreadPoolExecutor(max_workers=config.concurrency, thread_name_prefix="letspi-scenario"))
     interrupted = False
+
+    def submit() -> None:
+        nonlocal next_submit
+        while (first_error is None and next_submit < n and len(pending) < config.concurrency
+               and next_submit - next_write < config.concurrency + config.reorder_window):
+            pending[executor.submit(timed, indices[next_submit])] = next_submit
+            next_submit += 1
+
     try:
         while next_write < n:
-            while (first_error is None and next_submit < n and len(pending) < config.concurrency
-                   and next_submit - next_write < config.concurrency + config.reorder_window):
-                pending[executor.submit(timed, indices[next_submit])] = next_submit
-                next_submit += 1
+            submit()
             if pending:
                 finished, _ = wait(list(pending), timeout=PROGRESS_INTERVAL_S, return_when=FIRST_COMPLETED)
                 for fut in finished:
@@ -295,6 +300,8 @@ def run_ordered(
                     except Exception as exc:
                         stop(exc)
                         buffer[pos] = _Done(stopped=True)
+                if config.concurrency > 1:
+                    submit()  # refill the freed slots before writing: a write may take a while (a part's physics)
             while next_write in buffer and not buffer[next_write].stopped:
                 done = buffer.pop(next_write)
                 if done.failed is not None:
