@@ -141,3 +141,14 @@ def test_measured_latency_applies_an_answer_at_the_first_replan_after_it_arrived
     schedule.close()
     assert all(k_np[s] == (50.0 if s >= applied_at else 20.0) for s in k_np), k_np
     assert elapsed >= delay_s  # it waited for the answer (paced), it did not run ahead of it
+
+
+def test_a_period_of_2_5_s_with_0_2_s_replans_asks_twice_per_5_s_scenario() -> None:
+    """Calls at the first replan at or after each multiple of the period: t = 0 and t = 2.6 s."""
+    planner, view = _fast(), _scenes(1)
+    schedule = DualRateSchedule(planner, 1, DualRateConfig(llm_period_s=2.5, llm_latency_s=1.0))
+    out = _run(schedule, planner, view, range(0, 125, 5))
+    asked = [s for s, _, info in out if info["llm_calls"][0] > 0]
+    assert asked == [0, 65]
+    applied = [s for s, _, info in out if np.isfinite(info["llm_answer_latency_s"][0])]
+    assert applied == [25, 90]  # 1.0 s = 25 frames later

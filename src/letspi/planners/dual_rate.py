@@ -65,9 +65,10 @@ class DualRateConfig:
         return self.llm_latency_s is None
 
     @property
-    def period_steps(self) -> int:
-        """LLM period in frames (at least one)."""
-        return max(1, round(self.llm_period_s / DT_S))
+    def period_frames(self) -> float:
+        """LLM period in frames (not rounded: calls are made at the first replan at or after each
+        multiple of it, so a 2.5 s period asks at t = 0 and at the first replan from 2.5 s on)."""
+        return self.llm_period_s / DT_S
 
     @property
     def latency_steps(self) -> int:
@@ -122,6 +123,7 @@ class DualRateSchedule:
     _origin: np.ndarray = field(init=False)  # (K,) step of the call whose answer is in force, NaN = fitted
     _calls: list[_Call] = field(init=False, default_factory=list)
     _pool: ThreadPoolExecutor | None = field(init=False, default=None)
+    _next_call: float = field(init=False, default=0.0)  # frames after t = 0 of the next LLM call
 
     def __post_init__(self) -> None:
         self._in_force = [None] * self.k
@@ -136,8 +138,10 @@ class DualRateSchedule:
         info = {key: np.zeros(self.k) for key in CALL_INFO_KEYS}
         info["llm_cached"] = np.full(self.k, np.nan)
         info["llm_answer_latency_s"] = np.full(self.k, np.nan)
-        if step % self.config.period_steps == 0:
+        if step >= self._next_call - 1e-9:
             self._ask(step, view, context, info)
+            while self._next_call <= step + 1e-9:
+                self._next_call += self.config.period_frames
         self._arrivals(step, info)
         defaults: Proposals | None = None
         rows: list[Proposals] = []
@@ -150,6 +154,18 @@ class DualRateSchedule:
         info["llm_in_force"] = np.isfinite(self._origin).astype(np.float64)
         info["params_age_s"] = (step - self._origin) * DT_S
         return Proposals.concat(rows), info
+
+    def finish(self, info: dict[str, np.ndarray]) -> None:
+        """At the last replan: count the calls whose answers came too late to take effect (those that
+        finished with their own counts, those still running as one call each). Nothing waits."""
+        for call in self._calls:
+            if call.future is None:
+                continue  # fixed latency: counted when the call was made
+            if call.future.done() and call.future.exception() is None:
+                _record_call(info, call.row, call.future.result()[0])
+            else:
+                info["llm_calls"][call.row] += 1.0
+        self._calls = []
 
     def close(self) -> None:
         """Stop waiting for answers still outstanding (they are dropped)."""
