@@ -425,6 +425,13 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
         out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
         out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
+    for column, key in (("info_planner_cpu_ms_mean_over_replans", "planner_cpu_ms_per_replan"),
+                        ("info_params_age_s_mean_over_replans", "llm_params_age_s"),
+                        ("info_llm_in_force_mean_over_replans", "llm_in_force_pct")):
+        if column in frame and len(frame):  # closed loop: planner CPU per scenario and replan; dual rate
+            values = np.asarray(frame[column], dtype=np.float64)
+            mean = float(np.nanmean(values)) if np.isfinite(values).any() else None
+            out[key] = None if mean is None else (100.0 * mean if key.endswith("_pct") else mean)
     if "info_shielded" in frame:  # the LLM planners' safety shield replaced the plan
         out["shielded_pct"] = float(100.0 * np.asarray(frame["info_shielded"], dtype=np.float64).mean())
     return out
