@@ -75,6 +75,37 @@ class _Proposed:
     seconds: float  # proposal time + share of the block's context time
 
 
+class _Parts:
+    """The writer's side: proposals pooled in scenario order, simulated, scored and written per part."""
+
+    def __init__(self, planner: ProposingPlanner, batch: ScenarioBatch, seen: ScenarioBatch, measure: Measure,
+                 write_part: WritePart, contexts: BlockCache[PlanningContext]) -> None:
+        self.planner, self.batch, self.seen = planner, batch, seen
+        self.measure, self.write_part, self.contexts = measure, write_part, contexts
+        self.rows: list[_Proposed] = []
+        self.last_flush = time.perf_counter()
+        self.physics_cpu_s = 0.0  # simulate + metrics, in this thread
+
+    def add(self, proposed: _Proposed) -> None:
+        self.rows.append(proposed)
+        if len(self.rows) >= PART_SCENARIOS or time.perf_counter() - self.last_flush >= PART_FLUSH_S:
+            self.flush()
+
+    def flush(self) -> None:
+        rows = self.rows
+        if rows:
+            idx = np.array([r.index for r in rows])
+            t0, c0 = time.perf_counter(), time.thread_time()
+            plan = self.planner.simulate(self.seen.take(idx), PlanningContext.concat([r.context for r in rows]),
+                                         Proposals.concat([r.proposals for r in rows]))
+            share = (time.perf_counter() - t0) / len(rows)
+            metrics = self.measure(self.batch.take(idx), plan)
+            self.physics_cpu_s += time.thread_time() - c0
+            self.write_part(metrics, idx, plan, np.array([r.seconds + share for r in rows]))
+            self.contexts.discard_below(int(idx[-1]) + 1)
+        self.rows, self.last_flush = [], time.perf_counter()
+
+
 def plan_concurrently(
     planner: ProposingPlanner,
     batch: ScenarioBatch,
@@ -91,23 +122,7 @@ def plan_concurrently(
     seen_all = batch if planner.reads_future else batch.history()
     contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
                                                        lambda rows: planner.context(seen_all.take(rows)))
-    rows: list[_Proposed] = []
-    last_flush = time.perf_counter()
-    physics_cpu_s = 0.0  # simulate + metrics, in this thread
-
-    def flush() -> None:
-        nonlocal rows, last_flush, physics_cpu_s
-        if rows:
-            idx = np.array([r.index for r in rows])
-            t0, c0 = time.perf_counter(), time.thread_time()
-            plan = planner.simulate(seen_all.take(idx), PlanningContext.concat([r.context for r in rows]),
-                                    Proposals.concat([r.proposals for r in rows]))
-            share = (time.perf_counter() - t0) / len(rows)
-            metrics = measure(batch.take(idx), plan)
-            physics_cpu_s += time.thread_time() - c0
-            write_part(metrics, idx, plan, np.array([r.seconds + share for r in rows]))
-            contexts.discard_below(int(idx[-1]) + 1)
-        rows, last_flush = [], time.perf_counter()
+    parts = _Parts(planner, batch, seen_all, measure, write_part, contexts)
 
     def work(i: int) -> _Proposed:
         block, offset, context_s = contexts.get(i)
@@ -115,11 +130,6 @@ def plan_concurrently(
         t0 = time.perf_counter()
         proposals = planner.propose(seen_all.take([i]), own)
         return _Proposed(i, own, proposals, time.perf_counter() - t0 + context_s)
-
-    def write(i: int, proposed: _Proposed) -> None:
-        rows.append(proposed)
-        if len(rows) >= PART_SCENARIOS or time.perf_counter() - last_flush >= PART_FLUSH_S:
-            flush()
 
     reported = 0
 
@@ -133,8 +143,8 @@ def plan_concurrently(
         return bool(np.asarray(proposed.proposals.info.get("fallback", [False]))[0])
 
     try:
-        stats = run_ordered(todo, work, write, config=runner, advisor=planner_advisor(planner),
-                            is_fallback=is_fallback, progress=on_status)
+        stats = run_ordered(todo, work, lambda i, proposed: parts.add(proposed), config=runner,
+                            advisor=planner_advisor(planner), is_fallback=is_fallback, progress=on_status)
     finally:
-        flush()
-    return replace(stats, physics_cpu_s=physics_cpu_s + contexts.cpu_s)
+        parts.flush()
+    return replace(stats, physics_cpu_s=parts.physics_cpu_s + contexts.cpu_s)
