@@ -1,5 +1,5 @@
 """``letspi train llm``: a few LoRA steps on a handful of labelled scenarios; the exported adapter
-loads in llama.cpp and changes the embedded model's answer (slow: loads the model in torch and llama.cpp)."""
+loads in llama.cpp and makes the trained reply more likely there (slow: loads the model in torch and llama.cpp)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,7 @@ from letspi.finetune.data import LABELS_FORMAT, build_examples, split_examples
 from letspi.finetune.export import read_adapter_gguf
 from letspi.llm.compact import compact_reply_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
-from letspi.llm.parse import parse_reply
-from letspi.llm.schema import NUMERIC_FIELDS, reply_json_schema
-from letspi.llm.types import DecodingSettings
+from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import dataset_digest, scenario_digests
@@ -85,12 +83,11 @@ def test_examples_are_compact_prompts_with_the_label_as_reply(tmp_path: Path) ->
 
 
 @pytest.mark.slow
-def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_changes_the_answer(tmp_path: Path) -> None:
+def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_towards_the_label(tmp_path: Path) -> None:
     pytest.importorskip("torch")
     pytest.importorskip("peft")
     pytest.importorskip("transformers")
     pytest.importorskip("llama_cpp")
-    from letspi.llm.backends.llamacpp import LlamaCppBackend
 
     labels, _, batch = _labels(tmp_path)
     out = tmp_path / "w"
@@ -112,14 +109,31 @@ def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_changes_the
     assert len(tensors) == 4 * 7 * 2 and all(n.startswith("blk.") for n in tensors)  # no embeddings, no head
     assert {int(n.split(".")[1]) for n in tensors} == {26, 27, 28, 29}  # the last four layers
 
+    # the adapter moves llama.cpp towards the label it was trained on: the label reply of a training
+    # example is more likely with the adapter than without (a greedy, schema-constrained answer is too
+    # coarse a probe after six steps: on one CI machine it stayed the same)
+    from letspi.finetune.train import prompt_text
+    from letspi.llm.backends.llamacpp import open_llama
+    from letspi.llm.models import locate_model
+
     goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]
     msgs = render_compact_prompt(describe_scenario(batch.take([0]), goal))
-    settings = DecodingSettings(temperature=0.0, seed=0, max_tokens=80)
-    replies = {}
+    from transformers import AutoTokenizer
+    base_gguf = locate_model("smollm2-135m")
+    tokenizer = AutoTokenizer.from_pretrained(base_gguf.parent, gguf_file=base_gguf.name)
+    prompt_ids = tokenizer(prompt_text(tokenizer, msgs), add_special_tokens=False)["input_ids"]
+    reply_ids = tokenizer(compact_reply_text(TARGET), add_special_tokens=False)["input_ids"]
+    log_likelihood = {}
     for name, lora in (("base", None), ("tuned", out / "adapter.gguf")):
-        backend = LlamaCppBackend("smollm2-135m", n_ctx=1024, lora_path=lora)
-        resp = backend.complete(msgs, schema=reply_json_schema("fast"), settings=settings, timeout_s=120)
-        replies[name] = parse_reply(resp.text).reply
-    assert replies["tuned"] != replies["base"]
-    # not asserted: that six steps move the schema-constrained answer towards the label (measured: they
-    # did not; base k_np 1, tuned 0 — through the backend's batched prompt evaluation, see the note)
+        llm = open_llama(base_gguf, n_ctx=1024, n_threads=2, lora_path=lora, logits_all=True)
+        try:
+            llm.reset()
+            llm.eval(list(prompt_ids) + list(reply_ids))
+            logits = np.asarray(llm.scores[: llm.n_tokens], dtype=np.float64)
+        finally:
+            llm.close()
+        rows = logits[len(prompt_ids) - 1: len(prompt_ids) - 1 + len(reply_ids)]
+        log_probs = rows - np.log(np.exp(rows - rows.max(axis=1, keepdims=True)).sum(axis=1, keepdims=True)) \
+            - rows.max(axis=1, keepdims=True)
+        log_likelihood[name] = float(log_probs[np.arange(len(reply_ids)), reply_ids].sum())
+    assert log_likelihood["tuned"] > log_likelihood["base"] + 1.0, log_likelihood

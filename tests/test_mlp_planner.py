@@ -14,6 +14,7 @@ from letspi.learned.param_mlp import OUTPUT_FIELDS, OUTPUT_RANGES, ParamMlp
 from letspi.learned.weights import WeightsError, save_weights
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.features import scenario_features
+from letspi.scenario.split import split_by_key
 from letspi.scenario.types import concat_batches
 
 torch = pytest.importorskip("torch")
@@ -73,3 +74,14 @@ def test_mlp_planner_plans_and_its_key_pins_the_weights(tmp_path: Path) -> None:
         Resolver(PlannerOptions(goals="kinematic"), env={}).planner("mlp")
     with pytest.raises(WeightsError, match="nowhere"):
         Resolver(replace(opts, mlp_weights=tmp_path / "nowhere")).planner("mlp")
+
+
+def test_the_split_keeps_each_vehicle_on_one_side() -> None:
+    """Overlapping windows of one vehicle (same key) never straddle train and validation."""
+    keys = np.repeat([f"rec/{i}" for i in range(50)], 4)  # 4 windows per vehicle
+    train, val = split_by_key(keys, 0.8, seed=3)
+    assert len(train) + len(val) == len(keys) and len(val) == 40  # 10 of 50 vehicles
+    assert set(keys[train]).isdisjoint(set(keys[val]))
+    feats, targets, _ = _data(200)
+    res = train_mlp(feats, targets, keys, MlpTrainConfig(epochs=3, seed=3))
+    assert res.manifest["data"]["n_val_vehicles"] == 10 and res.manifest["data"]["n_train_vehicles"] == 40

@@ -33,6 +33,7 @@ from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.base import Planner
 from letspi.planners.config import Config, GoalsConfig, PlannerConfig
 from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
+from letspi.planners.frenet import FrenetConfig, FrenetPlanner, FrenetSettings, load_frenet_weights
 from letspi.planners.gnp import GnpConfig, GnpPlanner
 from letspi.planners.human import HumanConfig, HumanPlanner
 from letspi.planners.idm import IdmConfig, IdmPlanner
@@ -102,6 +103,13 @@ def _resolve_gnp(r: Resolver) -> GnpConfig:
     return GnpConfig(neighbours=r.neighbours, goals=r.goals, gnp=r.gnp_weights)
 
 
+def _resolve_frenet(r: Resolver) -> FrenetConfig:
+    path = r.options.frenet_weights_file
+    weights, _ = load_frenet_weights(path)
+    return FrenetConfig(neighbours=r.neighbours, goals=r.goals, frenet=FrenetSettings(weights=weights),
+                        weights_source="shipped" if path is None else str(path))
+
+
 def _resolve_mlp(r: Resolver) -> MlpConfig:
     if r.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
         raise ValueError("mlp must roll out with predicted neighbours (idm or constant_velocity)")
@@ -141,6 +149,11 @@ def _build_gnp(b: Builder, c: GnpConfig, label: str) -> tuple[Planner, float]:
                       neighbour_mode=c.neighbours, name=label), 0.0
 
 
+def _build_frenet(b: Builder, c: FrenetConfig, label: str) -> tuple[Planner, float]:
+    return FrenetPlanner(settings=c.frenet, goal_predictor=b.goal_predictor(c.goals), neighbour_mode=c.neighbours,
+                         name=label), 0.0
+
+
 def _build_mlp(b: Builder, c: MlpConfig, label: str) -> tuple[Planner, float]:
     return ParamMlpPlanner(model=ParamMlp.from_dir(Path(c.mlp.weights_dir)), goal_predictor=b.goal_predictor(c.goals),
                            r_col_m=float(c.sf_params.values["r_col_m"]), neighbour_mode=c.neighbours,
@@ -159,7 +172,8 @@ def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, 
     return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label), load_s
 
 
-def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | MlpConfig | FastPlannerConfig) -> PredictionInputs:
+def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig,
+                          ) -> PredictionInputs:
     return c.goals, c.neighbours
 
 
@@ -181,6 +195,9 @@ PLANNER_TABLE: tuple[PlannerKind[Any], ...] = (
                 _build_sf_opt, inputs=_goals_and_neighbours),
     PlannerKind("gnp", "Goal-based Neural Physics: learned tau and neighbour weights, learned goals", GnpConfig,
                 _resolve_gnp, _build_gnp, inputs=_goals_and_neighbours),
+    PlannerKind("frenet", "Werling-style lattice: quintic/quartic candidates to lanes, speeds and predicted leaders; "
+                "the cheapest one clear of the predicted neighbours (weights from `letspi fit frenet`)", FrenetConfig,
+                _resolve_frenet, _build_frenet, inputs=_goals_and_neighbours),
     PlannerKind("mlp", "regressor ablation: an MLP maps matching features to the eight LLM answers (needs "
                 "--mlp-weights)", MlpConfig, _resolve_mlp, _build_mlp, inputs=_goals_and_neighbours),
     PlannerKind("llm", "single-shot LLM: physics-informed prompt, no reflection, no memory", MemoryPlannerConfig,

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from letspi.assembly.planner_table import planner_kind
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
+from letspi.llm.backends.llamacpp import LlamaRuntime
 from letspi.llm.client import RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
@@ -43,8 +44,8 @@ from letspi.planners.sf_params import load_sf_params
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
 GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
 MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
-DEFAULT_LLM = "llamacpp:smollm2-135m"
-DEFAULT_FAST_LLM = "llamacpp:smollm2-135m"
+DEFAULT_LLM = "llamacpp:smollm2-135m-letspi"
+DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
 GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
 #: The modules whose code writes prompt text; their source is part of the prompt fingerprint.
 PROMPT_CODE_MODULES: tuple[str, ...] = ("describe.py", "prompts.py", "schema.py", "compact.py")
@@ -72,6 +73,7 @@ class PlannerOptions:
     shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
     mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
     prompt_style: str | None = None  # paper | compact; None: compact for a fine-tuned model, else paper
+    frenet_weights_file: Path | None = None  # frenet cost weights (default: the shipped fit)
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -182,8 +184,9 @@ class Resolver:
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
         parsed = parse_spec(spec)
-        model_sha = model_path = adapter_sha = adapter_path = None
+        model_sha = model_path = adapter_sha = adapter_path = runtime = None
         if parsed.kind == "llamacpp":
+            runtime = LlamaRuntime.from_env(dict(self.env)).identity()
             path = locate_model(parsed.model)
             model_sha, model_path = file_sha256(path), str(path)
             adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
@@ -195,7 +198,8 @@ class Resolver:
         if style not in PROMPT_STYLES:
             raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
-                         adapter_sha256=adapter_sha, adapter_path=adapter_path, prompt_style=style,  # type: ignore[arg-type]
+                         adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
+                         prompt_style=style,  # type: ignore[arg-type]
                          prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
                          timeout_s=self.options.llm_timeout_s)
 

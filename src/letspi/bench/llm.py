@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from letspi.llm.backends.llamacpp import LlamaCppBackend, shared_llama
+from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.describe import ScenarioDescription, describe_scenario
@@ -60,7 +60,7 @@ def _latency(
     model: str, variant: Variant, descs: dict[str, ScenarioDescription], repeats: int, settings: DecodingSettings
 ) -> dict[str, Any]:
     backend = LlamaCppBackend(model)
-    llm, _lock = shared_llama(backend.model_path)
+    llm = backend.loaded().llm  # the instance complete() uses
     a, b = descs["far_leader"], descs["close_leader"]
     cold: list[float] = []
     warm: list[float] = []

@@ -22,6 +22,7 @@ from letspi.physics.neighbours import predict_constant_velocity  # noqa: E402
 from letspi.physics.params import DEFAULT_PARAMS, PARAM_NAMES, PARAM_RANGES, SocialForceParams  # noqa: E402
 from letspi.physics.reference import rollout_social_force_reference  # noqa: E402
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene  # noqa: E402
+from letspi.planners.frenet import FrenetPlanner, load_frenet_weights  # noqa: E402
 from letspi.scenario.build import VehicleSpec, straight_road_scenario  # noqa: E402
 from letspi.scenario.types import ScenarioBatch, concat_batches  # noqa: E402
 
@@ -108,6 +109,28 @@ def bench_rollout(n_scenarios: int = 10_000, seed: int = 0, n_reference: int = 1
         "loop_scenarios_per_s": loop_rate,
         "speedup": batched_rate / loop_rate,
         "max_abs_diff_m": float(np.abs(batched.xy_m[idx] - ref.xy_m).max()),
+    }
+
+
+def bench_frenet(n_scenarios: int = 1000, seed: int = 0, repeats: int = 3) -> dict[str, float]:
+    """CPU and wall time of one batched ``frenet`` plan call per scenario (IDM neighbour prediction and
+    the kinematic goal included; the shipped weights), best of ``repeats`` after a warm-up."""
+    batch = synthetic_batch(n_scenarios, seed).history()
+    planner = FrenetPlanner(settings=FrenetPlanner().settings.model_copy(update={"weights": load_frenet_weights()[0]}),
+                            batch_size=n_scenarios)
+    planner.plan(batch.take(np.arange(min(32, n_scenarios))))  # warm-up
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c0, w0 = time.process_time(), time.perf_counter()
+        plan = planner.plan(batch)
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    return {
+        "n_scenarios": float(n_scenarios),
+        "cpu_ms_per_scenario": 1e3 * min(cpu) / n_scenarios,
+        "wall_ms_per_scenario": 1e3 * min(wall) / n_scenarios,
+        "found_safe_pct": 100.0 * float(np.mean(plan.info["found_safe"])),
+        "candidates_per_scenario": float(np.mean(planner.lattice(batch.take([0])).pair_ok.sum())),
     }
 
 

@@ -13,13 +13,14 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
-from letspi.assembly.resolve import DEFAULT_LLM
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
+from letspi.bench.llm_runtime import CONFIGS, bench_runtime
 from letspi.bench.metrics import bench_metrics
-from letspi.bench.physics import bench_rollout
+from letspi.bench.physics import bench_frenet, bench_rollout
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
@@ -73,16 +74,40 @@ def data_cmd(
 def physics_cmd(
     n: Annotated[int, typer.Option(help="Scenarios (x 8 neighbours x 125 steps).")] = 10_000,
     n_reference: Annotated[int, typer.Option(help="Scenarios run through the plain Python loops.")] = 100,
+    frenet_n: Annotated[int, typer.Option(help="Scenarios of the batched frenet planner timing (0: skip).")] = 1000,
     seed: int = 0,
     as_json: JsonOpt = False,
 ) -> None:
-    """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio)."""
+    """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio); CPU ms per
+    scenario of one batched frenet plan."""
     # the bench functions print progress lines of their own; keep stdout clean for --json
     with contextlib.redirect_stdout(io.StringIO()):
         rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference)
         metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference)
-    result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()}}
+        frenet = bench_frenet(n_scenarios=frenet_n, seed=seed) if frenet_n > 0 else {}
+    result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()},
+              **{f"frenet_{k}": v for k, v in frenet.items()}}
     _emit(result, as_json, "letspi bench physics")
+
+
+def _runtime_table(result: dict[str, Any]) -> None:
+    table = Table(title=f"letspi bench llm --contention {result['hogs']}: {result['model']}, uncached planning "
+                        f"request (median of {result['repeats']})")
+    for col in ("configuration", "quiet s", "busy s", "busy / quiet", "threads quiet / busy"):
+        table.add_column(col, justify="left" if col == "configuration" else "right")
+    for name in CONFIGS:
+        entry = result.get(name)
+        if not isinstance(entry, dict) or "quiet" not in entry:
+            continue
+        q, b = entry["quiet"], entry["busy"]
+        table.add_row(name, format_number(q["median_s"]), format_number(b["median_s"]),
+                      format_number(entry["busy_over_quiet"]),
+                      f"{max(q['threads'])} / {max(b['threads'])}")
+    Console().print(table)
+    off = result["flash_attention_off"]
+    console.print(f"flash attention off (quiet): {format_number(off['median_s'])} s "
+                  f"({format_number(result['flash_attention_off_over_on'])}x on); "
+                  f"{result['letspi']['quiet']['self_check']}; load average at start {result['loadavg_start']}")
 
 
 def _levels(text: str, option: str) -> tuple[int, ...]:
@@ -127,11 +152,21 @@ def llm_cmd(
     real_server: Annotated[bool, typer.Option(help="--concurrency: also against `python -m llama_cpp.server` "
                                                    "(SmolLM2), with its prefix reuse.")] = True,
     real_concurrency: Annotated[str, typer.Option(help="--concurrency: levels against the real server.")] = "1,4",
+    contention: Annotated[int | None, typer.Option(
+        help="Instead: the embedded model's uncached latency on a quiet machine and beside N CPU-bound "
+             "processes (letspi's runtime vs 2 spinning threads), its self-check, and flash attention off.")] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences.
     With --concurrency: scenarios/s at each concurrency (JSON: concurrency -> scenarios_per_s)."""
+    if contention is not None:
+        runtime = bench_runtime((model or [DEFAULT_FAST_LLM.partition(":")[2]])[0], hogs=contention, repeats=repeats)
+        if as_json:
+            typer.echo(json.dumps(runtime, indent=2, default=float))
+        else:
+            _runtime_table(runtime)
+        return
     if concurrency is not None:
         conc = bench_concurrency(_levels(concurrency, "--concurrency"), server_latency_ms, pipeline=pipeline,
                                  projection_scenarios=projection_scenarios, real_server=real_server,

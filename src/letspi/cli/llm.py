@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from typing import Annotated
 
 import typer
 
 from letspi.bench.llm import bench_models, bench_scenarios
+from letspi.bench.llm_runtime import standard_messages
+from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
-from letspi.llm.models import EMBEDDED_MODELS
+from letspi.llm.models import EMBEDDED_MODELS, is_fine_tuned
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
 from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
 
@@ -25,8 +28,9 @@ _TINY_USER = (
 def check(
     spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b.")],
     prompt: Annotated[
-        str, typer.Option(help="tiny | fast | physics (the last two on a close-leader scenario).")
-    ] = "tiny",
+        str, typer.Option(help="auto | tiny | fast | physics | compact (fast, physics and compact on a close-leader "
+                               "scenario; auto: compact for the fine-tuned model, else tiny).")
+    ] = "auto",
     no_cache: Annotated[bool, typer.Option("--no-cache", help="Do not read or write the response cache.")] = False,
     timeout: Annotated[float, typer.Option(help="Per-call timeout in seconds.")] = RetryPolicy.timeout_s,
     attempts: Annotated[int, typer.Option(help="Maximum calls (1 = no retry).")] = RetryPolicy.max_attempts,
@@ -34,10 +38,15 @@ def check(
 ) -> None:
     """Load SPEC, send one prompt, print latency, tokens and the parsed reply as JSON.
 
-    Exit code 0: the model gave a valid reply; 1: it fell back to defaults; 2: configuration error.
+    For embedded models also the load-time self-check (batched vs token-by-token prompt evaluation) and
+    the llama.cpp runtime. Exit code 0: the model gave a valid reply; 1: it fell back to defaults;
+    2: configuration error (including a failed strict self-check).
     """
-    if prompt not in ("tiny", "fast", "physics"):
-        raise typer.BadParameter("prompt must be tiny, fast or physics")
+    if prompt not in ("auto", "tiny", "fast", "physics", "compact"):
+        raise typer.BadParameter("prompt must be auto, tiny, fast, physics or compact")
+    if prompt == "auto":
+        name = spec.partition(":")[2]
+        prompt = "compact" if spec.startswith("llamacpp:") and is_fine_tuned(name) else "tiny"
     try:
         adv = ParamAdvisor(
             spec,
@@ -48,6 +57,8 @@ def check(
         if prompt == "tiny":
             msgs = [message("system", system_prompt("fast")), message("user", _TINY_USER)]
             variant = "fast"
+        elif prompt == "compact":
+            msgs, variant = standard_messages(), "fast"
         else:
             desc = bench_scenarios()["close_leader"]
             msgs = render_fast_prompt(desc) if prompt == "fast" else render_physics_prompt(desc)
@@ -61,6 +72,11 @@ def check(
         raise typer.Exit(code=2) from exc
     out = advice.summary()
     out["prompt"] = prompt
+    if isinstance(adv.backend, LlamaCppBackend):
+        loaded = adv.backend.loaded()
+        out["self_check"] = {"summary": loaded.check.summary(), **asdict(loaded.check)}
+        out["runtime"] = adv.backend.runtime.identity()
+        out["threads_used"] = loaded.threads_used
     out["reply_text"] = advice.attempts[-1].text if advice.attempts else None
     out["attempt_errors"] = [a.error for a in advice.attempts if not a.ok]
     typer.echo(json.dumps(out, indent=2, ensure_ascii=False))

@@ -181,14 +181,14 @@ def train_mlp_cmd(
     with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
             raise ValueError("--epochs must be >= 1")
-        feats, targets, digests, infos = load_training_rows(data)
+        feats, targets, vehicles, infos = load_training_rows(data)
         if len(feats) < 10:
             raise ValueError(f"{', '.join(map(str, data))}: only {len(feats)} safe propose labels; need >= 10")
         sf = infos[0].get("sf_params") or {}
         defaults = np.array([float(sf.get(f, np.nan)) if f in sf else (0.4 if f == "lon_factor" else 0.0)
                              for f in NUMERIC_FIELDS])
         cfg = MlpTrainConfig(hidden=hidden, epochs=epochs, seed=seed, threads=threads)
-        res = train_mlp(feats, targets, digests, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
+        res = train_mlp(feats, targets, vehicles, cfg, defaults=defaults if np.isfinite(defaults).all() else None)
         res.manifest["data"]["labels"] = infos
         res.manifest["training"]["command"] = command_line()
         save_weights(out, res.arrays, res.manifest)
@@ -200,10 +200,30 @@ def train_mlp_cmd(
         console.print(f"  {f}: {v:.3f}" + (f" (sf defaults {base:.3f})" if base is not None else ""))
 
 
+def _llm_examples(data: list[Path], scenarios: Path | None,
+                  max_scenarios: int | None) -> tuple[list[Any], dict[str, Any]]:
+    """The chat examples of one or several label directories (``letspi.finetune.data``)."""
+    from letspi.finetune.data import build_examples, build_examples_many
+
+    goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
+    if scenarios is not None and len(data) > 1:
+        raise ValueError("--scenarios names the scenario file of one labels directory; with several --data "
+                         "each directory's manifest names its own")
+    if len(data) == 1:
+        examples, info = build_examples(data[0], goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
+    else:
+        examples, info = build_examples_many(data, goal_predictor, max_scenarios=max_scenarios)
+    if not examples:
+        raise ValueError(f"{', '.join(map(str, data))}: no safe labels to train on")
+    return list(examples), info
+
+
 @app.command("llm")
 def train_llm(
-    data: Annotated[Path, typer.Option("--data", help="Labels directory from `letspi train llm-data`.")],
-    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/).")],
+    data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
+                                             "(repeat for several; split by ego vehicle).")],
+    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
+                                      "resumes from its checkpoint when the same command is run again.")],
     epochs: Annotated[float, typer.Option(help="Passes over the training examples (fractions allowed).")] = 1.0,
     lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, warm-up then linear decay).")] = 3e-4,
     rank: Annotated[int, typer.Option(help="LoRA rank.")] = 8,
@@ -220,22 +240,24 @@ def train_llm(
     threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
     layers: Annotated[int | None, typer.Option(help="Adapt only the last N of the 30 layers (cheaper).")] = None,
     max_val: Annotated[int, typer.Option(help="Validation examples scored before and after training.")] = 48,
+    precision: Annotated[str, typer.Option(
+        help="auto (bf16 autocast where the CPU has native bf16 and the first batch's loss matches fp32), "
+             "fp32 or bf16.")] = "auto",
+    checkpoint_every_s: Annotated[float, typer.Option(
+        help="Seconds of training between resumable checkpoints.")] = 300.0,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
     export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
     LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
     _require_torch()
-    from letspi.finetune.data import build_examples
     from letspi.finetune.train import LoraTrainConfig, train_lora
 
     with user_errors(), writer_lock(out, command_line()):
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
-                              layers=layers, max_val=max_val)
-        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
-        examples, info = build_examples(data, goal_predictor, scenarios=scenarios, max_scenarios=max_scenarios)
-        if not examples:
-            raise ValueError(f"{data}: no safe labels to train on")
+                              layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
+                              checkpoint_every_s=checkpoint_every_s)
+        examples, info = _llm_examples(data, scenarios, max_scenarios)
         with progress_bar() as bar:
             task = bar.add_task("fine-tuning", total=None)
 
@@ -247,7 +269,8 @@ def train_llm(
     t = manifest["training"]
     check = manifest.get("export_check") or {}
     console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "
-                  f"{t['steps']} steps, {t['elapsed_s']:.0f} s); {manifest['data']['n_train']} train / "
+                  f"{t['steps']} steps, {t['train_s']:.0f} s training, {t['precision']}); "
+                  f"{manifest['data']['n_train']} train / "
                   f"{manifest['data']['n_val']} val examples; val loss {t['val_loss_before']:.3f} -> "
                   f"{t['val_loss_after']:.3f}; torch vs llama.cpp greedy agree on "
                   f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")

@@ -6,8 +6,9 @@ training what it sees when planning) and the label in the compact wire format. `
 carry the rejected proposal and the facts of its safety check. Rows whose label failed the checks
 (``label_safe`` False) are left out: the model is only taught answers the physics verified.
 
-The train/validation split is by scenario (a hash of the scenario digest), so the two refine
-examples and the propose example of one scenario stay on one side.
+The train/validation split is **by ego vehicle** (``letspi.scenario.split.split_by_key`` on the
+recording key and ego id of each example's scenario): overlapping windows of one vehicle, and the
+propose and refine examples of one scenario, all land on one side.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.llm.types import Message
 from letspi.physics.goals import GoalPredictor
 from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import split_by_key, vehicle_keys
 from letspi.scenario.store import load_scenarios
 
 LABELS_FORMAT = FORMAT
@@ -44,6 +46,8 @@ class ChatExample:
     reply: str
     kind: str
     scenario_digest: str
+    #: the scenario's ego vehicle (``letspi.scenario.split.vehicle_keys``): the unit of the split
+    vehicle_key: str = ""
 
 
 def labels_sha256(directory: Path) -> str:
@@ -65,19 +69,11 @@ def read_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     return df, manifest
 
 
-def is_validation(digest: str, fraction: float) -> bool:
-    """Whether the scenario with this digest belongs to the validation split (stable across runs)."""
-    if fraction <= 0:
-        return False
-    h = int(hashlib.sha256(f"letspi-finetune-split:{digest}".encode()).hexdigest()[:8], 16)
-    return h / 0xFFFFFFFF < fraction
-
-
 def _values(row: pd.Series, prefix: str = "") -> dict[str, float]:
     return {f: float(row[prefix + f]) for f in NUMERIC_FIELDS}
 
 
-def example_of_row(row: pd.Series, desc: Any) -> ChatExample:
+def example_of_row(row: pd.Series, desc: Any, vehicle_key: str = "") -> ChatExample:
     """The chat example of one label row, its scenario described by ``desc`` (``ScenarioDescription``)."""
     if row["kind"] == "refine":
         rejected = _values(row, "proposal_")
@@ -89,7 +85,7 @@ def example_of_row(row: pd.Series, desc: Any) -> ChatExample:
     else:
         messages = render_compact_prompt(desc)
     return ChatExample(tuple(messages), compact_reply_text(_values(row)), str(row["kind"]),
-                       str(row["scenario_digest"]))
+                       str(row["scenario_digest"]), vehicle_key)
 
 
 def build_examples(
@@ -120,6 +116,7 @@ def build_examples(
         df = df[df["scenario_index"].isin(indices)]
     batch = load_scenarios(path, indices)
     digests = scenario_digests(batch)
+    vehicles = vehicle_keys(batch)
     pos = {int(k): j for j, k in enumerate(indices)}
     goals = goal_predictor.predict_goals(batch).top
     descs: dict[int, Any] = {}
@@ -133,7 +130,7 @@ def build_examples(
             descs[j] = describe_scenario(batch.take([j]), goals[j])
             if progress is not None:
                 progress(1)
-        examples.append(example_of_row(row, descs[j]))
+        examples.append(example_of_row(row, descs[j], str(vehicles[j])))
     info = {
         "labels_dir": str(directory),
         "labels_sha256": labels_sha256(directory),
@@ -149,9 +146,34 @@ def build_examples(
     return examples, info
 
 
-def split_examples(examples: Sequence[ChatExample], val_fraction: float) -> tuple[list[ChatExample],
-                                                                                   list[ChatExample]]:
-    """(train, validation) by scenario digest (``is_validation``)."""
-    train = [e for e in examples if not is_validation(e.scenario_digest, val_fraction)]
-    val = [e for e in examples if is_validation(e.scenario_digest, val_fraction)]
-    return train, val
+def build_examples_many(
+    directories: Iterable[Path],
+    goal_predictor: GoalPredictor,
+    *,
+    safe_only: bool = True,
+    max_scenarios: int | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[list[ChatExample], dict[str, Any]]:
+    """``build_examples`` over several label directories (each with the scenario file its manifest
+    names), concatenated; the description lists each directory's provenance."""
+    examples: list[ChatExample] = []
+    infos: list[dict[str, Any]] = []
+    for d in directories:
+        ex, info = build_examples(Path(d), goal_predictor, safe_only=safe_only, max_scenarios=max_scenarios,
+                                  progress=progress)
+        examples += ex
+        infos.append(info)
+    info = {"sources": infos, "n_examples": len(examples),
+            "labels_sha256": [i["labels_sha256"] for i in infos],
+            "n_scenarios": int(sum(i["n_scenarios"] for i in infos))}
+    return examples, info
+
+
+def split_examples(examples: Sequence[ChatExample], val_fraction: float,
+                   seed: int = 0) -> tuple[list[ChatExample], list[ChatExample]]:
+    """(train, validation) by ego vehicle: ``val_fraction`` of the vehicles (seeded) are validation."""
+    if val_fraction <= 0:
+        return list(examples), []
+    keys = np.array([e.vehicle_key or e.scenario_digest for e in examples], dtype=object)
+    train_idx, val_idx = split_by_key(keys, 1.0 - val_fraction, seed)
+    return [examples[i] for i in train_idx], [examples[i] for i in val_idx]

@@ -2,15 +2,16 @@
 
 Data: the ``propose`` rows with a safe label of one or more label directories (``letspi train
 llm-data``); inputs are the matching features of each row's scenario, read from the scenario file
-the labels name (its dataset digest must match the manifest). Split by scenario digest (80 / 20,
-seeded); loss: mean squared error of the outputs normalised to [0, 1] by the field ranges.
+the labels name (its dataset digest must match the manifest). Split by ego vehicle (80 / 20, seeded,
+``letspi.scenario.split.split_by_key``: overlapping windows of one vehicle never straddle the split);
+loss: mean squared error of the outputs normalised to [0, 1] by the field ranges; trained with the
+shared loop (``letspi.learned.train.loop.fit``: AdamW, the epoch with the best validation loss kept).
 Validation reports the per-field RMSE of the regressor next to that of always answering the fitted
 ``sf`` defaults (the label search's regularisation centre), so a regressor that learnt nothing shows.
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,8 +23,10 @@ from torch import nn
 
 from letspi.finetune.labels import load_labels
 from letspi.learned.param_mlp import MODEL_NAME, OUTPUT_FIELDS, OUTPUT_RANGES
+from letspi.learned.train.loop import fit
 from letspi.scenario.features import FEATURE_NAMES, scenario_features
 from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import split_by_key, vehicle_keys
 from letspi.scenario.store import load_scenarios
 
 
@@ -46,8 +49,8 @@ class MlpResult:
 
 
 def load_training_rows(label_dirs: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
-    """Features (R, 6), targets (R, 8), scenario digests (R,) and per-directory provenance."""
-    feats, targets, digests, infos = [], [], [], []
+    """Features (R, 6), targets (R, 8), ego-vehicle keys (R,) and per-directory provenance."""
+    feats, targets, vehicles, infos = [], [], [], []
     for d in label_dirs:
         df, manifest = load_labels(d)
         rows = df[(df["kind"] == "propose") & df["label_safe"]]
@@ -62,20 +65,14 @@ def load_training_rows(label_dirs: list[Path]) -> tuple[np.ndarray, np.ndarray, 
         idx = rows["scenario_index"].to_numpy(dtype=np.int64)
         feats.append(scenario_features(batch.take(idx).history()))
         targets.append(rows[list(OUTPUT_FIELDS)].to_numpy(dtype=np.float64))
-        digests.append(rows["scenario_digest"].to_numpy(dtype=object))
+        vehicles.append(vehicle_keys(batch.take(idx)))
         infos.append({"dir": str(d), "labels_sha256": manifest.get("labels_sha256"),
                       "dataset_digest": manifest["dataset_digest"], "n_rows": len(rows),
                       "sf_params": manifest.get("sf_params")})
-    return np.concatenate(feats), np.concatenate(targets), np.concatenate(digests), infos
+    return np.concatenate(feats), np.concatenate(targets), np.concatenate(vehicles), infos
 
 
-def _split(digests: np.ndarray, share: float, seed: int) -> np.ndarray:
-    """(R,) bool validation mask, by scenario digest (a scenario never lands on both sides)."""
-    keys = np.array([int(hashlib.sha256(f"{seed}:{d}".encode()).hexdigest()[:8], 16) for d in digests])
-    return (keys / 0xFFFFFFFF) < share
-
-
-def train_mlp(features: np.ndarray, targets: np.ndarray, digests: np.ndarray, cfg: MlpTrainConfig,
+def train_mlp(features: np.ndarray, targets: np.ndarray, vehicles: np.ndarray, cfg: MlpTrainConfig,
               defaults: np.ndarray | None = None) -> MlpResult:
     """Fit the regressor; returns weight arrays (names as ``ParamMlp`` expects) and a manifest."""
     t0 = time.perf_counter()
@@ -85,24 +82,27 @@ def train_mlp(features: np.ndarray, targets: np.ndarray, digests: np.ndarray, cf
     high = np.array([OUTPUT_RANGES[f][1] for f in OUTPUT_FIELDS])
     x = np.nan_to_num(features.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     y = (np.clip(targets, low, high) - low) / (high - low)
-    val = _split(digests, cfg.val_share, cfg.seed)
+    val = np.zeros(len(features), dtype=bool)
+    val[split_by_key(vehicles, 1.0 - cfg.val_share, cfg.seed)[1]] = True
     mean = x[~val].mean(axis=0)
     std = np.maximum(x[~val].std(axis=0), 1e-6)
     z = (x - mean) / std
     net = nn.Sequential(nn.Linear(x.shape[1], cfg.hidden), nn.ReLU(), nn.Linear(cfg.hidden, cfg.hidden), nn.ReLU(),
                         nn.Linear(cfg.hidden, len(OUTPUT_FIELDS)))
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     xt = torch.tensor(z[~val], dtype=torch.float32)
     yt = torch.tensor(y[~val], dtype=torch.float32)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    for _ in range(cfg.epochs):
-        perm = torch.randperm(len(xt), generator=gen)
-        for start in range(0, len(xt), cfg.batch_size):
-            sel = perm[start:start + cfg.batch_size]
-            loss = ((torch.sigmoid(net(xt[sel])) - yt[sel]) ** 2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+    xv = torch.tensor(z[val], dtype=torch.float32)
+    yv = torch.tensor(y[val], dtype=torch.float32)
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        return ((torch.sigmoid(net(xt[idx])) - yt[idx]) ** 2).mean()
+
+    def val_loss() -> float:
+        return float(((torch.sigmoid(net(xv)) - yv) ** 2).mean()) if len(xv) else float("nan")
+
+    history = fit(net, n_train=len(xt), epochs=cfg.epochs, batch_size=cfg.batch_size, lr=cfg.lr,
+                  weight_decay=cfg.weight_decay, seed=cfg.seed, batch_loss=batch_loss,
+                  val_loss=val_loss if len(xv) else None)
     arrays = {k: v.detach().numpy().astype(np.float64) for k, v in net.state_dict().items()}
     arrays = {f"net.{k}": v for k, v in arrays.items()}
     arrays.update(feat_mean=mean, feat_std=std, low=low, high=high)
@@ -121,9 +121,13 @@ def train_mlp(features: np.ndarray, targets: np.ndarray, digests: np.ndarray, cf
     manifest = {
         "model": MODEL_NAME,
         "config": {"hidden": cfg.hidden, "features": list(FEATURE_NAMES), "outputs": list(OUTPUT_FIELDS)},
-        "data": {"n_train": int((~val).sum()), "n_val": int(val.sum()), "split": "by scenario digest"},
+        "data": {"n_train": int((~val).sum()), "n_val": int(val.sum()),
+                 "split": f"by ego vehicle, {100 * (1 - cfg.val_share):.0f} % train, seed {cfg.seed}",
+                 "n_train_vehicles": len(np.unique(vehicles[~val].astype(str))),
+                 "n_val_vehicles": len(np.unique(vehicles[val].astype(str)))},
         "validation": validation,
-        "training": {"epochs": cfg.epochs, "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed,
+        "training": {"epochs": cfg.epochs, "best_val_loss": history.best_val,
+                     "lr": cfg.lr, "weight_decay": cfg.weight_decay, "seed": cfg.seed,
                      "batch_size": cfg.batch_size, "seconds": time.perf_counter() - t0,
                      "torch": torch.__version__},
     }

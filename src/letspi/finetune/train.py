@@ -21,8 +21,10 @@ Runs on CPU with ``threads`` torch threads; deterministic for a given seed and t
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import platform
 import time
 from collections.abc import Callable, Sequence
@@ -30,7 +32,7 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Literal
 
 import numpy as np
 
@@ -38,7 +40,8 @@ from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text
-from letspi.llm.backends.llamacpp import _import_llama_cpp, without_extra_buffer_types
+from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
+from letspi.llm.backends.llamacpp import open_llama
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"
@@ -48,6 +51,8 @@ MANIFEST_FORMAT: Final = "letspi-llm-adapter/1"
 TARGET_MODULES: Final[tuple[str, ...]] = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
 END_OF_TURN: Final = "<|im_end|>"
 IGNORE_INDEX: Final = -100
+#: bf16 autocast is used only when the first batch's loss stays within this relative distance of float32's
+BF16_LOSS_TOLERANCE: Final = 0.02
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class LoraTrainConfig:
     max_val: int = 48  # validation examples evaluated (teacher-forced loss before and after)
     threads: int = 2
     layers: int | None = None  # adapt only the last N transformer layers (None: all)
+    precision: Literal["auto", "fp32", "bf16"] = "auto"  # bf16 autocast of the forward pass (``choose_precision``)
+    checkpoint_every_s: float = 300.0  # resumable checkpoint period (training seconds)
 
     def __post_init__(self) -> None:
         if self.rank < 1 or self.batch_size < 1 or self.lr <= 0 or self.epochs <= 0:
@@ -76,6 +83,10 @@ class LoraTrainConfig:
             raise ValueError("--max-steps must be >= 1")
         if self.layers is not None and self.layers < 1:
             raise ValueError("--layers must be >= 1")
+        if self.precision not in ("auto", "fp32", "bf16"):
+            raise ValueError(f"--precision must be auto, fp32 or bf16, got {self.precision!r}")
+        if self.checkpoint_every_s <= 0:
+            raise ValueError("--checkpoint-every-s must be positive")
 
 
 def load_base(gguf_path: Path) -> tuple[Any, Any]:
@@ -190,13 +201,9 @@ def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Pat
     Returns per prompt whether the token sequences agree and the length of their common prefix,
     and whether both tokenizers give the same prompt ids (llama.cpp's chat completion tokenizes the
     prompt with its own tokenizer)."""
-    llama_mod = _import_llama_cpp()
-    # n_batch=1: prompt evaluated token by token. With llama-cpp-python 0.3.36 on this machine (AVX2,
-    # Q4_1 base) a batched prompt evaluation gives different greedy answers than torch and than
-    # token-by-token evaluation of the same prompt (notes/finetune.md); this check is about the adapter.
-    with without_extra_buffer_types(llama_mod):
-        llm = llama_mod.Llama(model_path=str(base_gguf), lora_path=str(adapter_gguf), n_ctx=1024, n_threads=2,
-                              n_threads_batch=2, n_batch=1, n_ubatch=1, seed=0, verbose=False)
+    # the production settings (flash attention: batched prompt evaluation equals token by token, see
+    # letspi.llm.backends.llamacpp), so the check covers the path planners use
+    llm = open_llama(Path(base_gguf), n_ctx=1024, n_threads=2, lora_path=Path(adapter_gguf))
     eos = int(tokenizer.convert_tokens_to_ids(END_OF_TURN))
     rows = []
     try:
@@ -215,6 +222,47 @@ def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Pat
     return {"n": len(rows), "agree": sum(r["agree"] for r in rows), "prompts": rows}
 
 
+def cpu_supports_bf16() -> bool:
+    """Whether the CPU has native bfloat16 arithmetic (AVX512_BF16 or AMX-BF16), from /proc/cpuinfo."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            flags = next((line for line in fh if line.startswith("flags")), "")
+    except OSError:
+        return False
+    return " avx512_bf16" in flags or " amx_bf16" in flags
+
+
+def choose_precision(config: LoraTrainConfig, model: Any, first: tuple[Any, Any, Any, int]) -> dict[str, Any]:
+    """``fp32`` or ``bf16`` autocast for the forward pass, and the evidence: ``auto`` takes bf16 only on
+    a CPU with native bf16 when the first batch's loss under autocast is within ``BF16_LOSS_TOLERANCE``
+    (relative) of float32's."""
+    import torch
+
+    if config.precision == "fp32" or (config.precision == "auto" and not cpu_supports_bf16()):
+        return {"precision": "fp32", "reason": "requested" if config.precision == "fp32" else "no native bf16"}
+    ids, labels, mask, tail = first
+    model.eval()
+    with torch.no_grad():
+        fp32 = float(_reply_loss(model, ids, labels, mask, tail))
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            bf16 = float(_reply_loss(model, ids, labels, mask, tail))
+    rel = abs(bf16 - fp32) / max(abs(fp32), 1e-9)
+    chosen = "bf16" if config.precision == "bf16" or rel <= BF16_LOSS_TOLERANCE else "fp32"
+    return {"precision": chosen, "first_batch_loss_fp32": fp32, "first_batch_loss_bf16": bf16,
+            "relative_difference": rel, "tolerance": BF16_LOSS_TOLERANCE}
+
+
+def run_fingerprint(config: LoraTrainConfig, base_sha256: str, train: Sequence[ChatExample]) -> dict[str, Any]:
+    """What identifies a training run for its checkpoint (threads and checkpoint period excluded: they
+    change speed, not the result)."""
+    h = hashlib.sha256()
+    for e in train:
+        h.update(json.dumps([list(map(dict, e.messages)), e.reply], sort_keys=True).encode())
+    hyper = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every_s", "max_val")}
+    return {"hyperparameters": hyper, "base_sha256": base_sha256, "train_examples_sha256": h.hexdigest(),
+            "n_train": len(train)}
+
+
 def train_lora(
     examples: Sequence[ChatExample],
     config: LoraTrainConfig,
@@ -228,103 +276,177 @@ def train_lora(
 ) -> dict[str, Any]:
     """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
 
+    Resumable: ``out_dir/checkpoint.pt`` is written every ``config.checkpoint_every_s`` seconds of
+    training (``letspi.learned.train.loop.run_steps``); rerunning the same command continues from it,
+    and a run whose manifest already records this fingerprint returns that manifest at once.
     ``progress(step, total_steps, loss)`` after every optimiser step. ``verify``: prompts of the
     validation split (else training) on which torch and llama.cpp greedy outputs are compared.
     """
     import torch
-    from peft import LoraConfig, get_peft_model, get_peft_model_state_dict
+    from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
-    t_start = time.perf_counter()
+    t_start = time.perf_counter()  # steps: split and fingerprint, encode, LoRA model, run_steps, export
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
 
-    train, val = split_examples(examples, config.val_fraction)
-    if not train:
-        raise ValueError("no training examples (all in the validation split?)")
-    val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
-
+    train, val, val_eval = _split(examples, config)
+    base_sha = file_sha256(Path(base_gguf))
+    fingerprint = run_fingerprint(config, base_sha, train)
+    done = _finished_manifest(out_dir, fingerprint)
+    if done is not None:
+        return done
     base, tokenizer = load_base(base_gguf)
-    n_head, n_kv_head = int(base.config.num_attention_heads), int(base.config.num_key_value_heads)
     pad_id = int(tokenizer.pad_token_id if tokenizer.pad_token_id is not None else tokenizer.eos_token_id)
     enc_train = [encode_example(tokenizer, e) for e in train]
     enc_val = [encode_example(tokenizer, e) for e in val_eval]
     load_s = time.perf_counter() - t_start
 
-    n_layers = int(base.config.num_hidden_layers)
-    layers = list(range(n_layers - min(config.layers, n_layers), n_layers)) if config.layers else None
-    lora = LoraConfig(r=config.rank, lora_alpha=config.alpha, lora_dropout=config.dropout,
-                      target_modules=list(TARGET_MODULES), layers_to_transform=layers, bias="none",
-                      task_type="CAUSAL_LM")
-    model: Any = get_peft_model(base, lora)
+    model = lora_model(base, config)
     n_trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    precision = choose_precision(config, model, _collate(enc_train[: config.batch_size], pad_id))
     val_before = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
     steps_per_epoch = math.ceil(len(enc_train) / config.batch_size)
     total = max(1, math.ceil(config.epochs * steps_per_epoch))
     if config.max_steps is not None:
         total = min(total, config.max_steps)
-    params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=config.lr, weight_decay=config.weight_decay)
+    batch_loss = _batch_loss(model, enc_train, pad_id, autocast=precision["precision"] == "bf16")
+    history = run_steps(
+        model, [p for p in model.parameters() if p.requires_grad], n_train=len(enc_train), total_steps=total,
+        batch_size=config.batch_size, lr=config.lr, weight_decay=config.weight_decay, seed=config.seed,
+        batch_loss=batch_loss, lr_factor=lr_schedule(config, total), clip_norm=1.0,
+        trainable_state=lambda: {k: v.detach().clone() for k, v in get_peft_model_state_dict(model).items()},
+        load_trainable_state=lambda state: set_peft_model_state_dict(model, state),
+        checkpoint_dir=out_dir, checkpoint_every_s=config.checkpoint_every_s, fingerprint=fingerprint,
+        progress=progress)
+    val_after = _mean_loss(model, enc_val, pad_id, config.batch_size)
 
-    def lr_at(step: int) -> float:  # linear warm-up, then linear decay to 10 %
+    adapter_record, check = _export(model, tokenizer, base_gguf, out_dir, config, (val_eval or train)[:verify])
+    manifest: dict[str, Any] = {
+        "format": MANIFEST_FORMAT,
+        "model": "smollm2-135m-letspi",
+        "fingerprint": fingerprint,
+        "base_model": {"path": str(base_gguf), "sha256": base_sha},
+        "adapter": {**adapter_record, "trainable_parameters": int(n_trainable)},
+        "prompt_style": "compact",
+        "hyperparameters": asdict(config),
+        "data": {**(data_info or {}), **_data_record(config, train, val, val_eval, enc_train)},
+        "training": {**_training_record(config, history, steps_per_epoch, len(enc_train)),
+                     "val_loss_before": val_before, "val_loss_after": val_after, **precision,
+                     "load_s": load_s, "elapsed_s_this_process": time.perf_counter() - t_start, "command": command},
+        "export_check": check,
+        "versions": _versions(),
+    }
+    atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
+    (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)  # the adapter and manifest now say it all
+    return manifest
+
+
+def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[list[ChatExample],
+                                                                             list[ChatExample], list[ChatExample]]:
+    """(train, validation, the ``max_val`` validation examples scored before and after training)."""
+    train, val = split_examples(examples, config.val_fraction, config.seed)
+    if not train:
+        raise ValueError("no training examples (all in the validation split?)")
+    rng = np.random.default_rng(config.seed)
+    val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
+    return train, val, val_eval
+
+
+def _export(model: Any, tokenizer: Any, base_gguf: Path, out_dir: Path, config: LoraTrainConfig,
+            verify_examples: Sequence[ChatExample]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Write the PEFT adapter (reference) and the llama.cpp adapter GGUF; compare torch and llama.cpp
+    greedy outputs on ``verify_examples``. Returns (the manifest's adapter record, the check or None)."""
+    from peft import get_peft_model_state_dict
+
+    model.save_pretrained(str(out_dir / PEFT_DIR))
+    cfg = model.base_model.model.config
+    tensors = adapter_tensors(get_peft_model_state_dict(model), n_head=int(cfg.num_attention_heads),
+                              n_kv_head=int(cfg.num_key_value_heads))
+    adapter = write_adapter_gguf(out_dir / ADAPTER_FILE, tensors, alpha=config.alpha)
+    check = verify_export(model, tokenizer, base_gguf, adapter, verify_examples) if verify_examples else None
+    record = {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
+              "n_tensors": len(tensors), "target_modules": list(TARGET_MODULES)}
+    return record, check
+
+
+def lora_model(base: Any, config: LoraTrainConfig) -> Any:
+    """``base`` with LoRA on ``TARGET_MODULES`` of every layer, or of the last ``config.layers``."""
+    from peft import LoraConfig, get_peft_model
+
+    n_layers = int(base.config.num_hidden_layers)
+    layers = list(range(n_layers - min(config.layers, n_layers), n_layers)) if config.layers else None
+    lora = LoraConfig(r=config.rank, lora_alpha=config.alpha, lora_dropout=config.dropout,
+                      target_modules=list(TARGET_MODULES), layers_to_transform=layers, bias="none",
+                      task_type="CAUSAL_LM")
+    return get_peft_model(base, lora)
+
+
+def lr_schedule(config: LoraTrainConfig, total: int) -> Callable[[int], float]:
+    """Learning-rate factor per step: linear warm-up over ``warmup_steps``, then linear decay to 10 %."""
+
+    def factor(step: int) -> float:
         if step < config.warmup_steps:
             return (step + 1) / config.warmup_steps
         frac = (step - config.warmup_steps) / max(1, total - config.warmup_steps)
         return max(0.1, 1.0 - 0.9 * frac)
 
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_at)
-    order: list[int] = []
-    losses: list[float] = []
-    t_train = time.perf_counter()
-    model.train()
-    for step in range(total):
-        if len(order) < config.batch_size:
-            order += [int(i) for i in rng.permutation(len(enc_train))]
-        idx, order = order[: config.batch_size], order[config.batch_size :]
-        ids, labels, mask, tail = _collate([enc_train[i] for i in idx], pad_id)
-        loss = _reply_loss(model, ids, labels, mask, tail)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(params, 1.0)
-        opt.step()
-        sched.step()
-        losses.append(float(loss))
-        if progress is not None:
-            progress(step + 1, total, float(loss))
-    train_s = time.perf_counter() - t_train
-    val_after = _mean_loss(model, enc_val, pad_id, config.batch_size)
+    return factor
 
-    # export: the PEFT adapter (reference) and the llama.cpp adapter GGUF
-    model.save_pretrained(str(out_dir / PEFT_DIR))
-    tensors = adapter_tensors(get_peft_model_state_dict(model), n_head=n_head, n_kv_head=n_kv_head)
-    adapter = write_adapter_gguf(out_dir / ADAPTER_FILE, tensors, alpha=config.alpha)
-    check = verify_export(model, tokenizer, base_gguf, adapter, (val_eval or train)[:verify]) if verify else None
 
-    last10 = losses[-min(len(losses), 10):]
-    manifest: dict[str, Any] = {
-        "format": MANIFEST_FORMAT,
-        "model": "smollm2-135m-letspi",
-        "base_model": {"path": str(base_gguf), "sha256": file_sha256(Path(base_gguf))},
-        "adapter": {"file": ADAPTER_FILE, "sha256": file_sha256(adapter), "bytes": adapter.stat().st_size,
-                    "n_tensors": len(tensors), "trainable_parameters": int(n_trainable),
-                    "target_modules": list(TARGET_MODULES)},
-        "prompt_style": "compact",
-        "hyperparameters": asdict(config),
-        "data": {**(data_info or {}), "n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
-                 "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
-                 "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))},
-        "training": {"steps": total, "examples_seen": total * config.batch_size,
-                     "epochs_done": total * config.batch_size / len(enc_train),
-                     "first_loss": losses[0], "final_loss_mean10": float(np.mean(last10)),
-                     "val_loss_before": val_before, "val_loss_after": val_after,
-                     "load_s": load_s, "train_s": train_s, "elapsed_s": time.perf_counter() - t_start,
-                     "threads": config.threads, "command": command,
-                     "created": datetime.now(UTC).isoformat(timespec="seconds")},
-        "export_check": check,
-        "versions": _versions(),
-    }
-    atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
-    return manifest
+def _batch_loss(model: Any, encoded: Sequence[tuple[list[int], list[int]]], pad_id: int,
+                *, autocast: bool) -> Callable[[list[int]], Any]:
+    """The reply loss of the training examples at some indices (forward under bf16 autocast if asked)."""
+    import torch
+
+    def loss(idx: list[int]) -> Any:
+        ids, labels, mask, tail = _collate([encoded[i] for i in idx], pad_id)
+        if autocast:
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                return _reply_loss(model, ids, labels, mask, tail)
+        return _reply_loss(model, ids, labels, mask, tail)
+
+    return loss
+
+
+def _data_record(config: LoraTrainConfig, train: Sequence[ChatExample], val: Sequence[ChatExample],
+                 val_eval: Sequence[ChatExample], enc_train: Sequence[tuple[list[int], list[int]]]) -> dict[str, Any]:
+    """The manifest's data section: split, sizes, kinds and token counts."""
+    return {"n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
+            "split": f"by ego vehicle, {100 * config.val_fraction:.0f} % validation, seed {config.seed}",
+            "train_vehicles": len({e.vehicle_key for e in train}),
+            "val_vehicles": len({e.vehicle_key for e in val}),
+            "train_kinds": {k: sum(e.kind == k for e in train) for k in sorted({e.kind for e in train})},
+            "train_reply_tokens": int(sum(sum(t != IGNORE_INDEX for t in y) for _, y in enc_train)),
+            "mean_prompt_tokens": float(np.mean([sum(t == IGNORE_INDEX for t in y) for _, y in enc_train]))}
+
+
+def _training_record(config: LoraTrainConfig, history: StepHistory, steps_per_epoch: int,
+                     n_train: int) -> dict[str, Any]:
+    """The manifest's training section: steps, losses, timing, resume and the machine's load."""
+    losses, total = history.losses, history.steps
+    epoch_len = max(1, steps_per_epoch)
+    return {"steps": total, "examples_seen": total * config.batch_size,
+            "epochs_done": total * config.batch_size / n_train,
+            "first_loss": losses[0], "final_loss_mean10": float(np.mean(losses[-min(len(losses), 10):])),
+            "epoch_mean_loss": [float(np.mean(losses[k:k + epoch_len])) for k in range(0, len(losses), epoch_len)],
+            "resumed_from_step": history.resumed_from, "checkpoints_written": history.checkpoints_written,
+            "train_s": history.train_s, "s_per_step": history.train_s / max(total, 1),
+            "threads": config.threads, "cpu": platform.processor() or platform.machine(),
+            "loadavg_end": list(os.getloadavg()), "created": datetime.now(UTC).isoformat(timespec="seconds")}
+
+
+def _finished_manifest(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
+    """The manifest of a finished run with this fingerprint in ``out_dir`` (a rerun is then a no-op)."""
+    path = out_dir / MANIFEST_FILE
+    if not path.is_file() or not (out_dir / ADAPTER_FILE).is_file():
+        return None
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if manifest.get("fingerprint") != json.loads(json.dumps(fingerprint)):
+        return None
+    return dict(manifest)

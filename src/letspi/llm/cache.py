@@ -1,6 +1,7 @@
 """Persistent response cache (SQLite in WAL mode; safe for concurrent threads and processes).
 
-The key is a SHA-256 of the model spec, the full message list, the decoding settings and the
+The key is a SHA-256 of the backend identity (spec; for the embedded model also the weights, LoRA adapter
+and llama.cpp runtime: ``backend_identity``), the full message list, the decoding settings and the
 JSON schema, so at temperature 0 a rerun returns byte-identical replies for free. Only
 successful transport results are stored (parse failures included: the retry re-asks with
 different messages, hence a different key, so a rerun replays the same sequence).
@@ -46,6 +47,12 @@ def default_cache_dir() -> Path:
     """``$LETSPI_CACHE_DIR`` or ``~/.cache/letspi``."""
     env = os.environ.get("LETSPI_CACHE_DIR")
     return Path(env).expanduser() if env else Path.home() / ".cache" / "letspi"
+
+
+def backend_identity(backend: Any) -> str:
+    """What a reply depends on besides the request: the backend's ``cache_identity`` when it has one (the
+    embedded backend: weights, LoRA adapter and llama.cpp runtime), else its spec (a server's model name)."""
+    return str(getattr(backend, "cache_identity", None) or backend.spec)
 
 
 def cache_key(

