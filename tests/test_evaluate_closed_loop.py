@@ -37,7 +37,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 
 pytestmark = pytest.mark.sumo
 runner = CliRunner()
-LOG, REACTIVE = "closed-loop-log", "closed-loop-reactive"
+LOG, REACTIVE, HYBRID = "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid"
 
 
 @pytest.fixture(scope="module")
@@ -134,6 +134,21 @@ def test_modes_and_periods_are_never_mixed_in_one_directory(tmp_path: Path, traf
                              load_scenarios(traffic_file, np.arange(4)), out2, ClosedLoopSettings(REACTIVE))
 
 
+def test_hybrid_mode_records_its_settings_and_refuses_other_ones(tmp_path: Path, traffic_file: Path) -> None:
+    out = tmp_path / "hy"
+    base = ["--scenarios", str(traffic_file), "--limit", "4", "--planner", "cv", "--out", str(out)]
+    code, text = _evaluate(*base, "--mode", HYBRID)
+    assert code == 0, text
+    assert "scripted events: none" in " ".join(text.split())  # the file has no provenance to find events by
+    settings = json.loads((out / "run.json").read_text())["identity"]["mode_settings"]
+    assert settings["handover"] == {"lanes": 0, "behind_m": 0.0, "follow_log_speed": True}
+    assert settings["scripted"] == {"n": 0, "digest": "none"} and settings["driver"]["decel_mps2"] == 3.0
+    m = _metrics(out)["cv"]
+    assert m["n"] == 4 and m["nbr_reactive_per_scenario"] >= 0.0
+    code, text = _evaluate(*base, "--mode", HYBRID, "--handover-lanes", "1")
+    assert code == 2 and "mode_settings.handover.lanes: 0 -> 1" in " ".join(text.split()), text
+
+
 def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, traffic_file: Path,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
     base = ["--scenarios", str(traffic_file), "--limit", "2", "--out", str(tmp_path / "ev"), "--planner", "cv"]
@@ -145,6 +160,9 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
         (["--mode", LOG, "--concurrency", "4"], "--concurrency applies to open loop"),
+        (["--mode", LOG, "--events", "none"], "--events applies to --mode closed-loop-hybrid only"),
+        (["--mode", REACTIVE, "--handover-lanes", "1"], "--handover-lanes applies to --mode closed-loop-hybrid"),
+        (["--mode", HYBRID, "--events", str(tmp_path / "nowhere")], "not a directory"),
     ]
     for extra, message in cases:
         code, text = _evaluate(*base, *extra)

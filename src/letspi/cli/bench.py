@@ -194,7 +194,8 @@ def closed_loop_cmd(
     scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
     n: Annotated[int, typer.Option(help="Scenarios per measurement.")] = 256,
     planner: Annotated[str, typer.Option(help="Planner name.")] = "sf",
-    mode: Annotated[str, typer.Option(help="closed-loop-log or closed-loop-reactive.")] = "closed-loop-log",
+    mode: Annotated[str, typer.Option(
+        help="closed-loop-log, closed-loop-reactive or closed-loop-hybrid (no scripted events).")] = "closed-loop-log",
     replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
     workers: Annotated[int, typer.Option(help="Worker processes compared with 1 worker (>= 2).")] = 2,
     chunk_size: Annotated[int, typer.Option(

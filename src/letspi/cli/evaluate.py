@@ -24,13 +24,21 @@ from letspi.cli.common import (
     run_progress,
     user_errors,
 )
-from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop, parse_replan_options
+from letspi.evaluation.closed_loop import (
+    ClosedLoopSettings,
+    ScriptedNeighbours,
+    evaluate_closed_loop,
+    events_directory,
+    parse_replan_options,
+    scripted_for,
+)
 from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import HandoverConfig
 
 PlannerOpt = Annotated[list[str], typer.Option(help=planner_help())]
 
@@ -43,8 +51,15 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
 
 ModeOpt = Annotated[str, typer.Option(
     help="open-loop (the paper's protocol: one plan at t = 0, neighbours replay the log), closed-loop-log (the "
-         "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log) or "
-         "closed-loop-reactive (neighbours are driven by SUMO's IDM from t = 0 and react to the ego).")]
+         "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log), "
+         "closed-loop-reactive (every neighbour is driven by SUMO's IDM from t = 0 and reacts to the ego; the "
+         "recorded hard brakes and cut-ins are lost) or closed-loop-hybrid (neighbours replay the log while "
+         "ahead of the ego and are handed to SUMO's IDM, capped at their recorded speed, once behind it in a lane "
+         "its box covers; actors of scripted events, see --events, replay the log throughout).")]
+EventsOpt = Annotated[str | None, typer.Option(
+    "--events", help="closed-loop-hybrid: HighD directory with the NN_events.csv of the scenarios' recordings "
+                     "(their actors keep the log), or 'none'. Default: the directory the scenario file was cut "
+                     "from (its provenance), if it still exists.")]
 ReplanOpt = Annotated[list[str] | None, typer.Option(
     "--replan-s", help="Closed loop: replanning period [s] of every planner (S, default 1.0; 5 plans once) or of "
                        "one planner (LABEL=S); repeatable. LLM planners call their model at every replan.")]
@@ -60,6 +75,9 @@ ChunkSizeOpt = Annotated[int, typer.Option(
          "results agree to float rounding; smaller chunks lose less when a run is killed).")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
+HandoverLanesOpt = Annotated[int | None, typer.Option(
+    help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
+         "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
 
 
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
@@ -87,7 +105,8 @@ MlpWeightsOpt = Annotated[Path | None, typer.Option(
 
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
                          ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
-                         concurrency: int | None = None) -> ClosedLoopSettings | None:
+                         concurrency: int | None = None,
+                         handover_lanes: int | None = None) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
     ``ray``: None (no Ray), ``local`` or a cluster address."""
     if mode not in EVALUATION_MODES:
@@ -96,8 +115,8 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
         given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
                                        ("--ray", ray is not None), ("--sumo-gui", sumo_gui)) if on]
         if given:
-            raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log or "
-                             "closed-loop-reactive)")
+            raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
+                             "closed-loop-reactive or closed-loop-hybrid)")
         return None
     if concurrency is not None:
         raise ValueError("--concurrency applies to open loop; in closed loop scenarios run in parallel with --workers "
@@ -105,8 +124,26 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
     default, own = parse_replan_options(replan_s, labels)
     if chunk_size < 1:
         raise ValueError(f"--chunk-size must be >= 1, got {chunk_size}")
+    if handover_lanes is not None and mode != "closed-loop-hybrid":
+        raise ValueError(f"--handover-lanes applies to --mode closed-loop-hybrid only, not {mode}")
+    handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
     return ClosedLoopSettings(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                              sumo_gui=sumo_gui, chunk_size=chunk_size)
+                              sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover)
+
+
+def scripted_neighbours_of(mode: str, events: str | None, scenarios: Path,
+                           batch: ScenarioBatch) -> ScriptedNeighbours | None:
+    """closed-loop-hybrid: the scripted neighbours (``--events`` DIR, ``none``, or the scenario file's source
+    directory); None in the other modes, where ``--events`` is refused."""
+    if mode != "closed-loop-hybrid":
+        if events is not None:
+            raise ValueError(f"--events applies to --mode closed-loop-hybrid only, not {mode}")
+        return None
+    if events == "none":
+        return scripted_for(batch, None)
+    if events is not None:
+        return scripted_for(batch, Path(events))
+    return scripted_for(batch, events_directory(scenarios), required=False)
 
 
 def progress_factory(bar: Progress) -> ProgressFactory:
@@ -142,6 +179,8 @@ def evaluate(
     ray_address: RayAddressOpt = None,
     sumo_gui: SumoGuiOpt = ClosedLoopSettings.sumo_gui,
     chunk_size: ChunkSizeOpt = ClosedLoopSettings.chunk_size,
+    events: EventsOpt = None,
+    handover_lanes: HandoverLanesOpt = None,
     shield: ShieldOpt = PLANNER_DEFAULTS.shield,
     mlp_weights: MlpWeightsOpt = None,
 ) -> None:
@@ -150,8 +189,11 @@ def evaluate(
     with user_errors(), writer_lock(out, command_line()):
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
                                       ray_address or ("local" if ray else None), sumo_gui, chunk_size,
-                                      concurrency)
+                                      concurrency, handover_lanes)
         batch = load_limited(scenarios, limit)
+        scripted = scripted_neighbours_of(mode, events, scenarios, batch)
+        if scripted is not None:
+            console.print(scripted.describe())
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
@@ -161,7 +203,8 @@ def evaluate(
         with progress_bar() as bar:
             if closed is not None:
                 results = evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
-                                               progress_factory=progress_factory(bar))
+                                               progress_factory=progress_factory(bar),
+                                               scripted_nbr=None if scripted is None else scripted.mask)
             else:
                 results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
                                          progress_factory=progress_factory(bar), concurrency=concurrency,

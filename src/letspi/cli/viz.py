@@ -10,6 +10,7 @@ import typer
 from letspi.assembly.build import build_planners
 from letspi.assembly.resolve import PlannerOptions
 from letspi.cli.common import PLANNER_DEFAULTS, console, user_errors
+from letspi.evaluation.closed_loop import events_directory, scripted_for
 from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
 from letspi.scenario.store import load_scenarios
@@ -37,7 +38,8 @@ def plot(
     fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
     mode: Annotated[str, typer.Option(
-        help="open-loop (default: the diagrams above) or closed-loop-log / closed-loop-reactive: simulate the "
+        help="open-loop (default: the diagrams above) or closed-loop-log / -reactive / -hybrid (actors of "
+             "scripted events from the scenario file's source directory, if it exists): simulate the "
              "scenario in SUMO and draw the closed-loop panel (open-loop plan above, every replan and the "
              "simulated paths below; one PNG per planner, OUT-LABEL.png when several).")] = "open-loop",
     replan_s: Annotated[float, typer.Option("--replan-s", help="Closed loop: replanning period [s].")] = 1.0,
@@ -56,9 +58,11 @@ def plot(
                                  memory=memory)
         built = build_planners(list(planner) if planner else ["sf"], options)
         if mode != "open-loop":
+            scripted = (scripted_for(batch, events_directory(scenarios), required=False).mask
+                        if mode == "closed-loop-hybrid" else None)
             for b in built:
                 target = out if len(built) == 1 else out.with_name(f"{out.stem}-{planner_dir_name(b.name)}{out.suffix}")
-                fig = simulate_panel(batch, b.planner, b.name, mode, replan_s)
+                fig = simulate_panel(batch, b.planner, b.name, mode, replan_s, scripted_nbr=scripted)
                 target.parent.mkdir(parents=True, exist_ok=True)
                 fig.savefig(target, dpi=110)
                 console.print(f"scenario {batch.scenario_id[0]}, {b.name}, {mode} -> {target}")

@@ -5,7 +5,8 @@ same results directory (``run.json``, ``per_scenario/<label>/``, ``metrics.json`
 the same metric code and tables, resumable per chunk and keyed by scenario digest. What differs:
 
 * ``run.json``'s identity holds the mode and ``mode_settings`` (the simulation settings that change
-  answers and, in ``closed-loop-reactive``, the driver model), so a directory never mixes modes;
+  answers; with SUMO-driven neighbours the driver model; in ``closed-loop-hybrid`` also the hand-over
+  rule and the digest of the scripted-neighbour mask), so a directory never mixes modes;
 * each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period);
 * a part's rows are scored on the simulated trajectories (``letspi.simulation.chunk_metrics``) and
   add SUMO's collision flag, replans, simulation time (``letspi.simulation.store.chunk_frame``);
@@ -46,6 +47,8 @@ from letspi.method.runner import RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
+from letspi.scenario.scripted import recording_events, scripted_neighbours
+from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import (
     CLOSED_LOOP_MODES,
@@ -56,7 +59,8 @@ from letspi.simulation import (
     chunk_metrics,
     run_closed_loop,
 )
-from letspi.simulation.config import DEFAULT_REPLAN_S, validate_replan_s
+from letspi.simulation.config import DEFAULT_REPLAN_S, ClosedLoopMode, HandoverConfig, validate_replan_s
+from letspi.simulation.handover import hybrid_settings
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import chunk_frame
 from letspi.sumo.binaries import sumo_home
@@ -78,7 +82,7 @@ class ClosedLoopSettings:
     """How ``letspi evaluate`` runs a closed-loop mode.
 
     Attributes:
-        mode: ``closed-loop-log`` or ``closed-loop-reactive``.
+        mode: ``closed-loop-log``, ``closed-loop-reactive`` or ``closed-loop-hybrid``.
         replan_s: replanning period of every planner [s] (1.0; 5.0 plans once).
         planner_replan_s: label -> its own period [s] (e.g. a slower period for an LLM planner).
         workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
@@ -86,7 +90,8 @@ class ClosedLoopSettings:
         sumo_gui: watch the simulation in ``sumo-gui`` (TraCI; slow: for debugging a few scenarios).
         chunk_size: scenarios simulated together in one SUMO network (not part of any key: measured,
             chunk sizes 3 and 32 give the same plans to 1e-12 m).
-        driver: driver model of reactive neighbours (part of the key in ``closed-loop-reactive``).
+        driver: driver model of SUMO-driven neighbours (part of the key in the reactive and hybrid modes).
+        handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO (part of its key).
     """
 
     mode: str
@@ -97,6 +102,7 @@ class ClosedLoopSettings:
     sumo_gui: bool = False
     chunk_size: int = 32
     driver: DriverModelConfig = field(default_factory=DriverModelConfig)
+    handover: HandoverConfig = field(default_factory=HandoverConfig)
 
     def __post_init__(self) -> None:
         if self.mode not in CLOSED_LOOP_MODES:
@@ -113,20 +119,24 @@ class ClosedLoopSettings:
     def engine_config(self) -> ClosedLoopConfig:
         return ClosedLoopConfig(mode=self.mode, replan_s=self.replan_s, chunk_size=self.chunk_size,  # type: ignore[arg-type]
                                 sumo_backend="traci" if self.sumo_gui else "libsumo", sumo_gui=self.sumo_gui,
-                                driver=self.driver)
+                                driver=self.driver, handover=self.handover)
 
     def replan_s_of(self, label: str) -> float:
         """The replanning period of the planner labelled ``label`` [s]."""
         return float(self.planner_replan_s.get(label, self.replan_s))
 
-    def mode_settings(self) -> dict[str, Any]:
-        """What of the simulation changes answers (``run.json``): road and sublane model, and the
-        driver model in ``closed-loop-reactive`` (log-replayed neighbours have none)."""
+    def mode_settings(self, scripted_nbr: np.ndarray | None = None) -> dict[str, Any]:
+        """What of the simulation changes answers (``run.json``): road and sublane model; the driver
+        model where SUMO drives neighbours (log-replayed neighbours have none); in
+        ``closed-loop-hybrid`` the hand-over rule and the scripted neighbours (count and digest of
+        ``scripted_nbr``, the run's (B, N) mask)."""
         cfg = self.engine_config()
         out: dict[str, Any] = {"lateral_resolution_m": cfg.lateral_resolution_m, "road_behind_m": cfg.road_behind_m,
                                "road_ahead_m": cfg.road_ahead_m}
-        if self.mode == "closed-loop-reactive":
+        if cfg.mode.has_drivers:
             out["driver"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.driver).items()}
+        if cfg.mode is ClosedLoopMode.HYBRID:
+            out.update(hybrid_settings(cfg, scripted_nbr))
         return out
 
     def planner_evaluation(self, label: str) -> dict[str, Any]:
@@ -156,6 +166,69 @@ def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[f
         else:
             own[label] = period
     return default, own
+
+
+@dataclass(frozen=True)
+class ScriptedNeighbours:
+    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``).
+
+    Attributes:
+        mask: (B, N) bool, the slots that keep their recorded behaviour.
+        source: the HighD directory whose ``NN_events.csv`` were read, or None.
+        matched: scenarios whose recording has an events file there.
+    """
+
+    mask: np.ndarray
+    source: Path | None
+    matched: int
+
+    def describe(self) -> str:
+        if self.source is None:
+            return "scripted events: none (no events directory; every neighbour follows the hand-over rule)"
+        return (f"scripted events from {self.source}: {self.matched} scenarios of their recordings, "
+                f"{int(self.mask.sum())} scripted neighbour slots in {int(self.mask.any(axis=1).sum())} scenarios")
+
+
+def events_directory(scenarios_file: Path | None) -> Path | None:
+    """The HighD directory a scenario file was cut from (its provenance ``source``), if it still exists:
+    as recorded (relative paths from the current directory), else relative to the file's directory."""
+    if scenarios_file is None:
+        return None
+    try:
+        provenance = read_scenario_meta(Path(scenarios_file)).get("provenance")
+    except (ValueError, OSError):
+        return None
+    source = provenance.get("source") if isinstance(provenance, dict) else None
+    if not source:
+        return None
+    for candidate in (Path(str(source)), Path(scenarios_file).parent / str(source)):
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def scripted_for(batch: ScenarioBatch, events_dir: Path | None, *, required: bool = True) -> ScriptedNeighbours:
+    """Scripted neighbours of ``batch`` from the ``NN_events.csv`` of ``events_dir`` (None: none).
+
+    Raises ``ClosedLoopSetupError`` when ``required`` and the directory has no events file of any of
+    the batch's recordings (events of another dataset would silently script nothing); without
+    ``required`` (a directory found from the scenario file's provenance) that means none."""
+    none = ScriptedNeighbours(np.zeros(batch.nbr_id.shape, dtype=bool), None, 0)
+    if events_dir is None:
+        return none
+    if not Path(events_dir).is_dir():
+        raise ClosedLoopSetupError(f"--events {events_dir}: not a directory")
+    events = recording_events(Path(events_dir))
+    keys = np.asarray(batch.recording_key).astype(str)
+    matched = int(np.isin(keys, list(events)).sum())
+    if matched == 0 and not required:
+        return none
+    if matched == 0:
+        raise ClosedLoopSetupError(f"--events {events_dir}: no NN_events.csv of the scenarios' recordings there "
+                                   f"({len(events)} recordings with events, none of the {len(np.unique(keys))} "
+                                   "the scenarios were cut from); pass the directory the scenarios came from, "
+                                   "or --events none")
+    return ScriptedNeighbours(scripted_neighbours(batch, events), Path(events_dir), matched)
 
 
 def check_setup(settings: ClosedLoopSettings) -> None:
@@ -256,9 +329,11 @@ def planner_spec(built: BuiltPlanner, settings: ClosedLoopSettings) -> PlannerSp
 
 @dataclass
 class ClosedLoopRunner:
-    """``harness.PlannerRunner`` of the closed-loop modes (see the module docstring)."""
+    """``harness.PlannerRunner`` of the closed-loop modes (see the module docstring). ``scripted_nbr``:
+    (B, N) bool over the evaluated batch, the neighbours that keep their log in ``closed-loop-hybrid``."""
 
     settings: ClosedLoopSettings
+    scripted_nbr: np.ndarray | None = None
 
     def __call__(self, built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, out_dir: Path,
                  config: MetricsConfig, progress: ProgressCallback | None,
@@ -274,7 +349,7 @@ class ClosedLoopRunner:
                 chunks = run_closed_loop(planner_spec(built, settings), batch, settings.mode,
                                          replan_s=settings.replan_s_of(built.name), workers=settings.workers,
                                          config=settings.engine_config(), indices=todo,
-                                         ray_address=settings.ray_address)
+                                         ray_address=settings.ray_address, scripted_nbr=self.scripted_nbr)
                 for chunk in chunks:
                     metrics = chunk_metrics(batch, chunk, config)
                     goals = (chunk.plan_goal_xy_m[:, 0] if chunk.plan_goal_xy_m.shape[1]
@@ -299,12 +374,19 @@ def evaluate_closed_loop(
     scenarios_file: str = "",
     config: MetricsConfig | None = None,
     progress_factory: ProgressFactory | None = None,
+    scripted_nbr: np.ndarray | None = None,
 ) -> dict[str, dict[str, AggValue]]:
-    """``harness.evaluate`` in a closed-loop mode (same outputs; module docstring for the differences)."""
+    """``harness.evaluate`` in a closed-loop mode (same outputs; module docstring for the differences).
+
+    scripted_nbr: (B, N) bool over ``batch``, neighbours that keep their recorded behaviour in
+    ``closed-loop-hybrid`` (``scripted_for``); ignored by the other modes."""
     check_setup(settings)
     unknown = sorted(set(settings.planner_replan_s) - {b.name for b in planners})
     if unknown:
         raise ClosedLoopSetupError(f"--replan-s for unknown planner label(s): {', '.join(unknown)}")
+    if settings.mode != ClosedLoopMode.HYBRID:
+        scripted_nbr = None
     return evaluate(planners, batch, Path(out_dir), scenarios_file=scenarios_file, config=config,
-                    mode=settings.mode, progress_factory=progress_factory, mode_settings=settings.mode_settings(),
-                    runner=ClosedLoopRunner(settings))
+                    mode=settings.mode, progress_factory=progress_factory,
+                    mode_settings=settings.mode_settings(scripted_nbr),
+                    runner=ClosedLoopRunner(settings, scripted_nbr))

@@ -30,8 +30,8 @@ concurrency never changes stored results and is not part of any key. A scenario 
 failed in transport is not stored: that planner's metrics are not aggregated and ``evaluate`` ends
 with ``ScenariosFailedError`` (rerun to complete).
 
-Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log`` and
-``closed-loop-reactive`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
+Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log``, ``closed-loop-reactive``
+and ``closed-loop-hybrid`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
 ``evaluate``) into the same layout: the mode and its settings join ``run.json``'s identity and each
 planner's key gets ``evaluation = {mode, replan_s}``, so one directory never mixes modes or periods.
 
@@ -73,7 +73,7 @@ from letspi.scenario.types import ScenarioBatch
 
 RUN_FORMAT: Final = 2
 #: open loop (the paper's protocol, this module) and the closed-loop modes (``letspi.evaluation.closed_loop``)
-EVALUATION_MODES: Final = ("open-loop", "closed-loop-log", "closed-loop-reactive")
+EVALUATION_MODES: Final = ("open-loop", "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid")
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
 #: prefix of the large per-scenario array columns of closed-loop parts (replan plans, simulated
 #: neighbours); read only with ``with_plans``
@@ -116,8 +116,9 @@ def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, c
                mode: str, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
     """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields.
 
-    ``mode_settings``: what else of the mode changes answers (closed loop: the simulation and, in
-    ``closed-loop-reactive``, the driver model); absent in open loop, so open-loop keys are unchanged.
+    ``mode_settings``: what else of the mode changes answers (closed loop: the simulation; with SUMO-driven
+    neighbours the driver model; in ``closed-loop-hybrid`` the hand-over rule and scripted neighbours);
+    absent in open loop, so open-loop keys are unchanged.
     """
     identity: dict[str, Any] = {
         "format": RUN_FORMAT,
@@ -425,6 +426,8 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
         out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
         out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
+        if "nbr_reactive" in frame:  # neighbours SUMO drove (hand-overs), per scenario
+            out["nbr_reactive_per_scenario"] = float(np.nanmean(np.asarray(frame["nbr_reactive"], dtype=np.float64)))
     for column, key in (("info_planner_cpu_ms_mean_over_replans", "planner_cpu_ms_per_replan"),
                         ("info_params_age_s_mean_over_replans", "llm_params_age_s"),
                         ("info_llm_in_force_mean_over_replans", "llm_in_force_pct")):

@@ -51,6 +51,7 @@ __all__ = [
     "FLOAT_DECIMALS",
     "list_recording_ids",
     "read_recording",
+    "read_recording_meta",
     "read_recordings",
     "validate_recording",
     "write_recording",
@@ -315,11 +316,8 @@ def read_recording(directory: Path, recording_id: int) -> Recording:
     tm_path = directory / tracks_meta_file(recording_id)
     tr_path = directory / tracks_file(recording_id)
 
-    rm, rm_line = _read_table(rm_path, _RECORDING_META)
-    validate_recording_meta(rm, recording_id, rm_path, rm_line)
+    rm, rm_line, tm, tm_line = _read_metas(directory, recording_id)
     markings = markings_of(rm_path, rm, rm_line)
-    tm, tm_line = _read_table(tm_path, _TRACKS_META)
-    validate_tracks_meta(tm, tm_path, tm_line)
     tracks, tr_line = _read_table(tr_path, _TRACKS)
     tracks, order = _sort_tracks(tracks)
     validate_tracks(tracks, tm, markings, tr_path, tm_path, _composed(tr_line, order), tm_line)
@@ -327,6 +325,25 @@ def read_recording(directory: Path, recording_id: int) -> Recording:
 
     meta = {col: _scalar(rm[col].iloc[0], col) for col in RECORDING_META_COLUMNS}
     return Recording(recording_id=recording_id, meta=meta, tracks_meta=tm, tracks=tracks)
+
+
+def _read_metas(directory: Path, recording_id: int) -> tuple[pd.DataFrame, _LineOf, pd.DataFrame, _LineOf]:
+    """The validated recording meta and tracks meta tables of a recording, with their line maps."""
+    rm_path = directory / recording_meta_file(recording_id)
+    tm_path = directory / tracks_meta_file(recording_id)
+    rm, rm_line = _read_table(rm_path, _RECORDING_META)
+    validate_recording_meta(rm, recording_id, rm_path, rm_line)
+    tm, tm_line = _read_table(tm_path, _TRACKS_META)
+    validate_tracks_meta(tm, tm_path, tm_line)
+    return rm, rm_line, tm, tm_line
+
+
+def read_recording_meta(directory: Path, recording_id: int) -> tuple[dict[str, object], pd.DataFrame]:
+    """``(meta, tracks_meta)`` of a recording without its tracks (two small files; validated as in
+    :func:`read_recording`, except the checks that need the tracks): what a recording's identity
+    (``letspi.scenario.extract.recording_key_of``) is computed from."""
+    rm, _, tm, _ = _read_metas(Path(directory), recording_id)
+    return {col: _scalar(rm[col].iloc[0], col) for col in RECORDING_META_COLUMNS}, tm
 
 
 def read_recordings(directory: Path, ids: Sequence[int] | None = None) -> list[Recording]:

@@ -220,9 +220,14 @@ class _RecordingArrays:
 def recording_key(rec: Recording) -> str:
     """A short content hash of a recording (its meta and every vehicle's meta row): the same
     recording gives the same key wherever it is read from, another recording another key."""
+    return recording_key_of(rec.meta, rec.tracks_meta)
+
+
+def recording_key_of(meta: Mapping[str, object], tracks_meta: pd.DataFrame) -> str:
+    """``recording_key`` from a recording's meta and tracks meta (``letspi.highd.io.read_recording_meta``)."""
     h = hashlib.blake2b(digest_size=8)
-    h.update(repr(sorted((str(k), str(v)) for k, v in rec.meta.items())).encode())
-    h.update(pd.util.hash_pandas_object(rec.tracks_meta, index=False).to_numpy().tobytes())
+    h.update(repr(sorted((str(k), str(v)) for k, v in meta.items())).encode())
+    h.update(pd.util.hash_pandas_object(tracks_meta, index=False).to_numpy().tobytes())
     return h.hexdigest()
 
 

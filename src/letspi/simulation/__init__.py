@@ -1,4 +1,4 @@
-"""Closed-loop evaluation in SUMO: log-replay and reactive traffic, receding-horizon replanning.
+"""Closed-loop evaluation in SUMO: log-replay, reactive and hybrid traffic, receding-horizon replanning.
 
 Public API:
 
@@ -7,11 +7,19 @@ Public API:
 * ``chunk_metrics`` / ``scored_batch``: the open-loop metric code on the simulated trajectories;
 * ``run_closed_loop_to_dir`` / ``ClosedLoopStore``: resumable per-chunk output;
 * ``PlannerSpec`` / ``build_planner``: the picklable planner description workers build from;
-* ``ClosedLoopConfig``, ``ClosedLoopMode``, ``DriverModelConfig``.
+* ``ClosedLoopConfig``, ``ClosedLoopMode``, ``DriverModelConfig``, ``HandoverConfig``;
+* ``Replanner`` / ``Replan`` / ``PeriodicReplanner``: the engine's replanning step (``letspi.simulation.replan``).
 """
 
-from letspi.simulation.config import CLOSED_LOOP_MODES, ClosedLoopConfig, ClosedLoopMode, DriverModelConfig
+from letspi.simulation.config import (
+    CLOSED_LOOP_MODES,
+    ClosedLoopConfig,
+    ClosedLoopMode,
+    DriverModelConfig,
+    HandoverConfig,
+)
 from letspi.simulation.pool import ClosedLoopWorkerError
+from letspi.simulation.replan import PeriodicReplanner, Replan, Replanner
 from letspi.simulation.result import ClosedLoopChunk, chunk_metrics, scored_batch
 from letspi.simulation.run import run_closed_loop
 from letspi.simulation.spec import PlannerSpec, build_planner
@@ -26,7 +34,11 @@ __all__ = [
     "ClosedLoopStoreError",
     "ClosedLoopWorkerError",
     "DriverModelConfig",
+    "HandoverConfig",
+    "PeriodicReplanner",
     "PlannerSpec",
+    "Replan",
+    "Replanner",
     "build_planner",
     "chunk_metrics",
     "run_closed_loop",

@@ -6,7 +6,17 @@ Modes
   the ego follows its planner and replans from the simulated history.
 * ``closed-loop-reactive``: up to t = 0 every vehicle replays the log; from then on the neighbours
   are driven by SUMO's car-following (IDM) and sublane lane-change (SL2015) models, with a desired
-  speed and a time headway estimated from each one's history, and react to the ego.
+  speed and a time headway estimated from each one's history, and react to the ego (nuPlan's
+  reactive agents). The recorded events (hard brakes, cut-ins) that made a window critical are
+  gone: the released leader drives on at its desired speed.
+* ``closed-loop-hybrid``: the log where the ego cannot influence it, reactive where it can. A
+  neighbour replays its log while it is ahead of the ego (or beside it, or in a lane the ego does
+  not cover); once it is behind the ego in a lane the ego's box covers (``HandoverConfig``) it is
+  handed to SUMO for good (same driver model as ``closed-loop-reactive``, capped at its recorded
+  speed so that it deviates from the log only to react to the ego). The actors of
+  scripted events (``NN_events.csv``, the ``scripted_nbr`` mask of a run) replay their log all
+  along, wherever they are. So a leader's recorded hard brake still happens, and a follower reacts
+  to what the ego does instead of rear-ending it on the recorded path.
 
 Open loop (the paper's protocol) is not a mode of this package: it is the existing harness.
 """
@@ -23,6 +33,12 @@ from letspi.constants import DT_S, N_FUTURE
 class ClosedLoopMode(StrEnum):
     LOG = "closed-loop-log"
     REACTIVE = "closed-loop-reactive"
+    HYBRID = "closed-loop-hybrid"
+
+    @property
+    def has_drivers(self) -> bool:
+        """Whether some neighbours are driven by SUMO's driver models (the driver model changes answers)."""
+        return self is not ClosedLoopMode.LOG
 
 
 CLOSED_LOOP_MODES: tuple[str, ...] = tuple(m.value for m in ClosedLoopMode)
@@ -33,7 +49,7 @@ OFF_ROAD_MARGIN_M = 15.0
 
 @dataclass(frozen=True)
 class DriverModelConfig:
-    """SUMO driver parameters of released neighbours in ``closed-loop-reactive``.
+    """SUMO driver parameters of released neighbours (``closed-loop-reactive`` and ``closed-loop-hybrid``).
 
     Fixed for everyone: IDM with ``accel_mps2`` / ``decel_mps2`` (comfortable), braking up to
     ``emergency_decel_mps2``, standstill gap ``min_gap_m``, no driver imperfection.
@@ -71,6 +87,43 @@ class DriverModelConfig:
 
 
 @dataclass(frozen=True)
+class HandoverConfig:
+    """When ``closed-loop-hybrid`` hands a log-replayed neighbour to SUMO (``letspi.simulation.handover``).
+
+    Checked every frame after t = 0 on the previous frame's simulated positions. A neighbour that is
+    not a scripted-event actor is handed over when both hold:
+
+    * its lane (lane of its centre) is one the ego's box covers (the ego's lane; during a lane
+      change also the lane it moves into), or at most ``lanes`` lanes beside those (``lanes = 1``:
+      the adjacent lanes too);
+    * its front bumper is at least ``behind_m`` behind the ego's rear bumper (0: fully behind; a
+      vehicle beside the ego keeps replaying its log: the ego's lane change into it is the ego's fault).
+
+    The hand-over is final (no return to the log: the log position would jump), so no hysteresis
+    band is needed; position and speed stay continuous (SUMO starts from the vehicle's place and
+    its last speed).
+
+    ``follow_log_speed``: a handed-over vehicle keeps driving at its recorded speed of each frame
+    unless SUMO's car following (the ego or another simulated vehicle ahead) needs it slower
+    (``setSpeed`` under speed mode 25: the safe speed bounds the commanded one, acceleration and
+    deceleration bounds do not); SUMO's lane-change model moves it laterally. Without it the
+    vehicle drives at its estimated desired speed, and a vehicle that a car outside the simulated
+    neighbour slots held back in the log then speeds up beyond anything recorded. Once its log
+    ends (it left the recorded road section) SUMO's driver model alone drives it.
+    """
+
+    lanes: int = 0
+    behind_m: float = 0.0
+    follow_log_speed: bool = True
+
+    def __post_init__(self) -> None:
+        if self.lanes < 0:
+            raise ValueError(f"handover lanes must be >= 0, got {self.lanes}")
+        if self.behind_m < 0:
+            raise ValueError(f"handover behind_m must be >= 0, got {self.behind_m}")
+
+
+@dataclass(frozen=True)
 class ClosedLoopConfig:
     """How a closed-loop run simulates.
 
@@ -91,7 +144,8 @@ class ClosedLoopConfig:
         sumo_backend: ``libsumo`` (in-process, fast; one simulation per process) or ``traci``
             (a SUMO subprocess over a socket; needed for the GUI).
         sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
-        driver: parameters of reactive neighbours.
+        driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
+        handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
     """
 
     mode: ClosedLoopMode = ClosedLoopMode.LOG
@@ -104,6 +158,7 @@ class ClosedLoopConfig:
     sumo_backend: Literal["libsumo", "traci"] = "libsumo"
     sumo_gui: bool = False
     driver: DriverModelConfig = field(default_factory=DriverModelConfig)
+    handover: HandoverConfig = field(default_factory=HandoverConfig)
 
     def __post_init__(self) -> None:
         try:

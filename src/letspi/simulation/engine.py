@@ -1,68 +1,75 @@
 """The closed-loop simulation of one chunk: K scenarios side by side in one SUMO network, in lockstep.
 
 Per scenario, one road (slot) carries the ego and its neighbours (the batch's neighbour slots).
-Frame by frame (0.04 s), over the scenario's 200 frames:
+Frame by frame (0.04 s), over the scenario's 200 frames, ``simulate_group`` runs five named steps:
 
-* history (frames 0..74): every vehicle is placed on its recorded position (``moveToXY``,
-  keepRoute 2: exact position, lateral offset included), inserted when it appears in the log and
-  removed when it leaves it;
-* at t = 0 and every ``replan_s`` after it the planner sees a batch built from the simulated
-  history (``letspi.simulation.replan``), all K scenarios in one call (split by the planner's
-  ``batch_size``); the ego then follows the plan frame by frame until the next replan;
-* ``closed-loop-log``: the neighbours keep replaying the log; ``closed-loop-reactive``: at t = 0
-  they are released to SUMO (IDM + SL2015, desired speed and headway from their history); vehicles
-  that enter the log later are inserted at their recorded state and released one frame after.
+1. **who drives** (``_Lockstep.who_drives``): every vehicle is placed on its log up to t = 0; after
+   it the ego follows its plan and each neighbour either replays its log or is driven by SUMO
+   (IDM + SL2015, desired speed and headway estimated from its history, ``_Lockstep.hand_over``):
+
+   * ``closed-loop-log``: every neighbour replays the log;
+   * ``closed-loop-reactive``: every neighbour is handed to SUMO at t = 0; vehicles that enter
+     the log later are inserted at their recorded state and handed over one frame after;
+   * ``closed-loop-hybrid``: a neighbour is handed over once it is behind the ego in a lane the
+     ego's box covers (``letspi.simulation.handover``), except the actors of scripted events
+     (``scripted_nbr``), which replay their log all along; a handed-over vehicle is commanded its
+     recorded speed, which SUMO lowers where its car following needs (``HandoverConfig``);
+
+2. **vehicle bookkeeping** (``_Lockstep.bookkeeping``): log-driven vehicles are inserted when they
+   appear in the log (one frame early, at their back-extrapolated position, because SUMO does not
+   check collisions in a vehicle's insertion step) and removed when they leave it;
+3. **simulation step** (``_Lockstep.simulation_step``): log-driven vehicles and the ego are placed
+   (``moveToXY``, keepRoute 2: exact position, lateral offset included), SUMO advances one step,
+   and every vehicle's state is read back;
+4. **contact check** (``_Lockstep.contact_check``): SUMO's collisions of the ego, per neighbour slot;
+5. **replanning** (``letspi.simulation.replan.Replanner``): at the frames it chooses (today: t = 0
+   and every ``replan_s``) the planner sees a batch built from the simulated history, all K
+   scenarios in one call; the ego then follows the plan frame by frame (``_Lockstep.follow``).
 
 Geometry convention shared with the metrics: vehicles are axis-aligned boxes; SUMO's front bumper
 is the box centre plus half a length along x (SUMO's own collision check works in lane
-coordinates, i.e. on the same boxes). A vehicle is inserted one frame before it is recorded (at its
-back-extrapolated position), because SUMO does not check collisions in a vehicle's insertion step.
-Collisions are read from ``simulation.getCollisions()`` (``--collision.mingap-factor 0``: contact
-only; ``--collision.action warn``: nobody is removed, an overlap is reported every frame it lasts).
+coordinates, i.e. on the same boxes). Collisions are read from ``simulation.getCollisions()``
+(``--collision.mingap-factor 0``: contact only; ``--collision.action warn``: nobody is removed, an
+overlap is reported every frame it lasts).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from letspi.constants import DT_S, N_TOTAL, T0_INDEX
-from letspi.planners.base import PlanBatch, Planner
+from letspi.planners.base import Planner
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig, ClosedLoopMode
 from letspi.simulation.drivers import estimate_driver_params
+from letspi.simulation.handover import within_reach
 from letspi.simulation.network import VTYPE_ID, SlotNetwork, layout_keys
-from letspi.simulation.replan import FuturePolicy, SimulatedStates, lane_ids_from_y, replanning_batch
+from letspi.simulation.replan import (
+    FuturePolicy,
+    PeriodicReplanner,
+    Replan,
+    Replanner,
+    SimulatedStates,
+    lane_ids_from_y,
+    plan_in_batches,
+    replan_frames_of,
+)
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.session import SumoSession
 
+__all__ = ["plan_in_batches", "replan_frames_of", "simulate_group"]
+
 SPEED_MODE_ALL_CHECKS = 31
+SPEED_MODE_SAFE_SPEED_ONLY = 25  # a commanded speed is bounded by the safe speed, not by accel/decel limits
 LANE_CHANGE_MODE_NONE = 0
 LANE_CHANGE_MODE_DEFAULT = 1621
 MIN_HEADING_SPEED_MPS = 0.5
-
-
-def replan_frames_of(replan_every: int) -> list[int]:
-    """Frames (source indexing) at which plans are made: t = 0, then every ``replan_every``."""
-    return list(range(T0_INDEX, N_TOTAL - 1, replan_every))
-
-
-def plan_in_batches(planner: Planner, batch: ScenarioBatch) -> PlanBatch:
-    """``planner.plan`` over ``batch`` in sub-batches of ``planner.batch_size``."""
-    step = max(1, int(planner.batch_size))
-    if len(batch) <= step:
-        return planner.plan(batch)
-    parts = [planner.plan(batch.take(slice(s, s + step))) for s in range(0, len(batch), step)]
-    info_keys = set.intersection(*(set(p.info) for p in parts))
-    return PlanBatch(
-        xy_m=np.concatenate([p.xy_m for p in parts]),
-        vxy_mps=np.concatenate([p.vxy_mps for p in parts]),
-        goals_xy_m=np.concatenate([p.goals_xy_m for p in parts]),
-        info={k: np.concatenate([np.asarray(p.info[k]) for p in parts]) for k in sorted(info_keys)},
-    )
 
 
 class _Group:
@@ -97,6 +104,8 @@ class _Group:
         self.sumo_id: list[str] = [""] * v
         self.present = np.zeros(v, dtype=bool)
         self.released = np.zeros(v, dtype=bool)
+        self.released_at = np.full(v, -1, dtype=np.int64)  # frame from which SUMO drives it
+        self.log_capped = np.zeros(v, dtype=bool)  # SUMO-driven, but not faster than its log (hybrid)
         self.rec_xy = np.full((v, N_TOTAL, 2), np.nan)
         self.rec_vxy = np.full((v, N_TOTAL, 2), np.nan)
         self.rec_valid = np.zeros((v, N_TOTAL), dtype=bool)
@@ -123,6 +132,351 @@ class _Group:
         )
 
 
+@dataclass(frozen=True)
+class _Drive:
+    """Who drives each of the V vehicles in one frame (all (V,) bool).
+
+    log: placed on its log this frame (everyone up to t = 0; after it the neighbours not yet handed
+    over); want_log: log-driven and recorded at this frame; preroll: log-driven, recorded only from
+    the next frame on (inserted one frame early); plan: the ego following its plan (after t = 0).
+    """
+
+    log: np.ndarray
+    want_log: np.ndarray
+    preroll: np.ndarray
+    plan: np.ndarray
+
+
+class _Lockstep:
+    """One lockstep simulation of K scenarios in a SUMO network: the per-frame steps of ``simulate_group``."""
+
+    def __init__(
+        self, session: SumoSession, batch: ScenarioBatch, config: ClosedLoopConfig, run_tag: str,
+        scripted_nbr: np.ndarray | None,
+    ) -> None:  # fmt: skip
+        widths = set(layout_keys(batch.marking_y_m))
+        if len(widths) != 1:
+            raise ValueError(f"simulate_group needs one lane layout, got {len(widths)}")
+        net = session.open(widths.pop(), max(len(batch), config.chunk_size))
+        self.api: Any = session.api
+        self.tc = self.api.constants
+        self.config = config
+        self.mode = config.mode
+        self.batch = batch
+        self.g = g = _Group(batch, net, run_tag)
+        scripted = np.zeros((g.k, g.n), dtype=bool) if scripted_nbr is None else np.asarray(scripted_nbr, dtype=bool)
+        if scripted.shape != (g.k, g.n):
+            raise ValueError(f"scripted_nbr must be (K, N) = {(g.k, g.n)}, got {scripted.shape}")
+        self.scripted = np.concatenate([np.zeros((g.k, 1), dtype=bool), scripted], axis=1).reshape(-1)
+        self.id_to_row: dict[str, int] = {}
+        self.lengths = g.length.tolist()
+        self.widths = g.width.tolist()
+        self.road_y = np.stack([np.nanmin(batch.marking_y_m, axis=1), np.nanmax(batch.marking_y_m, axis=1)], axis=1)
+        n_future = N_TOTAL - T0_INDEX - 1
+        self.contact = np.zeros((g.k, g.n, n_future), dtype=bool)
+        self.nbr_collisions = np.zeros(g.k, dtype=np.int64)
+        self.nonfinite = np.zeros(g.k, dtype=bool)
+
+    # --- 1. who drives ---------------------------------------------------------------------------
+    def who_drives(self, f: int) -> _Drive:
+        """Hand neighbours over to SUMO where the mode says so, then who is driven how in frame f."""
+        g = self.g
+        if f > T0_INDEX and self.mode.has_drivers:
+            self.hand_over(f)
+        log = np.ones_like(g.is_ego) if f <= T0_INDEX else ~g.is_ego & ~g.released
+        want_log = log & g.log_valid[:, f]
+        nxt = g.log_valid[:, f + 1] if f + 1 < N_TOTAL else np.zeros_like(want_log)
+        preroll = log & ~want_log & nxt & ~g.present
+        return _Drive(log=log, want_log=want_log, preroll=preroll, plan=g.is_ego & (f > T0_INDEX))
+
+    def hand_over(self, f: int) -> None:
+        """Hand to SUMO's driver models the neighbours, recorded at frame f - 1 and still replayed,
+        that the mode releases: all of them (reactive) or those within the ego's reach (hybrid)."""
+        g = self.g
+        rows = np.flatnonzero(~g.is_ego & g.present & ~g.released & g.rec_valid[:, f - 1])
+        if self.mode is ClosedLoopMode.HYBRID:
+            rows = rows[~self.scripted[rows]]
+        if self.mode is ClosedLoopMode.HYBRID and rows.size:
+            ego = g.ego_rows[g.scn[rows]]
+            reach = within_reach(
+                g.rec_xy[ego, f - 1], g.length[ego], g.width[ego], g.rec_xy[rows, f - 1][:, None],
+                g.length[rows][:, None],
+                self.batch.marking_y_m[g.scn[rows]], self.config.handover,
+            )[:, 0]  # fmt: skip
+            rows = rows[reach]
+        if rows.size:
+            self._release(rows, f)
+
+    def _release(self, rows: np.ndarray, f: int) -> None:
+        """Driver parameters from the history up to frame f - 1, then SUMO takes ``rows`` over from
+        where they are, at the speed they had (position and speed stay continuous)."""
+        g = self.g
+        scenarios = np.unique(g.scn[rows])
+        hist = slice(0, f)
+
+        def per_scenario(a: np.ndarray) -> np.ndarray:
+            return a.reshape(g.k, g.per, *a.shape[1:])[scenarios]
+
+        desired, headway = estimate_driver_params(
+            per_scenario(g.rec_xy)[:, :, hist], per_scenario(g.rec_vxy)[:, :, hist, 0],
+            per_scenario(g.rec_valid)[:, :, hist], per_scenario(g.length), per_scenario(g.width), self.config.driver,
+        )  # fmt: skip
+        pos = np.searchsorted(scenarios, g.scn[rows]) * g.per + (g.nbr_slot[rows] + 1)
+        desired, headway = desired.reshape(-1)[pos], headway.reshape(-1)[pos]
+        capped = self.mode is ClosedLoopMode.HYBRID and self.config.handover.follow_log_speed
+        for r, v0, tau in zip(rows.tolist(), desired.tolist(), headway.tolist(), strict=True):
+            vid = g.sumo_id[r]
+            self.api.vehicle.setMaxSpeed(vid, float(v0))
+            self.api.vehicle.setTau(vid, float(tau))
+            self.api.vehicle.setPreviousSpeed(vid, float(np.hypot(*g.rec_vxy[r, f - 1])))
+            self.api.vehicle.setSpeedMode(vid, SPEED_MODE_SAFE_SPEED_ONLY if capped else SPEED_MODE_ALL_CHECKS)
+            self.api.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_DEFAULT)
+        g.released[rows] = True
+        g.released_at[rows] = f
+        g.log_capped[rows] = capped
+
+    def _cap_to_log(self, f: int) -> None:
+        """Log-capped vehicles: command their recorded speed of frame f (SUMO's safe speed may lower
+        it); once their log has ended, SUMO's driver model alone (speed mode back to all checks)."""
+        g = self.g
+        rows = np.flatnonzero(g.log_capped & g.present)
+        if rows.size == 0:
+            return
+        ended = ~g.log_valid[rows, f]
+        speed = np.hypot(*g.log_vxy[rows, f].T)
+        for r, done, v in zip(rows.tolist(), ended.tolist(), speed.tolist(), strict=True):
+            if done:
+                self.api.vehicle.setSpeed(g.sumo_id[r], -1.0)
+                self.api.vehicle.setSpeedMode(g.sumo_id[r], SPEED_MODE_ALL_CHECKS)
+            else:
+                self.api.vehicle.setSpeed(g.sumo_id[r], v)
+        g.log_capped[rows[ended]] = False
+
+    # --- 2. vehicle bookkeeping --------------------------------------------------------------------
+    def bookkeeping(self, drive: _Drive) -> None:
+        """Remove log-driven vehicles that left the log; insert those (about to be) in it and the ego."""
+        g, api = self.g, self.api
+        to_remove = np.flatnonzero(g.present & drive.log & ~drive.want_log & ~drive.preroll)
+        to_add = np.flatnonzero((drive.want_log | drive.preroll | drive.plan) & ~g.present)
+        for r in to_remove.tolist():
+            api.vehicle.unsubscribe(g.sumo_id[r])  # libsumo fails the next step on a removed subscriber
+            api.vehicle.remove(g.sumo_id[r])
+            del self.id_to_row[g.sumo_id[r]]
+            g.present[r] = False
+        sub_vars = (self.tc.VAR_POSITION, self.tc.VAR_SPEED)
+        for r in to_add.tolist():
+            vid = f"{g.prefix}.{r}.{int(g.generation[r])}"
+            g.generation[r] += 1
+            api.vehicle.add(vid, g.route[r], VTYPE_ID, depart="now")
+            api.vehicle.setLength(vid, self.lengths[r])
+            api.vehicle.setWidth(vid, self.widths[r])
+            api.vehicle.setSpeedMode(vid, 0)
+            api.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_NONE)
+            api.vehicle.subscribe(vid, sub_vars)
+            g.sumo_id[r] = vid
+            self.id_to_row[vid] = r
+            g.present[r] = True
+
+    # --- 3. simulation step --------------------------------------------------------------------------
+    def simulation_step(self, f: int, drive: _Drive) -> None:
+        """Place the log-driven vehicles and the ego, advance SUMO one step, read every state back."""
+        self._command(f, drive)
+        self.api.simulationStep()
+        self._read_back(f, drive)
+
+    def _command(self, f: int, drive: _Drive) -> None:
+        g = self.g
+        self._cap_to_log(f)
+        rows_log = np.flatnonzero(drive.want_log | drive.preroll)
+        if rows_log.size:
+            xy = g.log_xy[rows_log, f].copy()
+            vxy = g.log_vxy[rows_log, f].copy()
+            pre = drive.preroll[rows_log]
+            if pre.any():
+                xy[pre] = g.log_xy[rows_log[pre], f + 1] - g.log_vxy[rows_log[pre], f + 1] * DT_S
+                vxy[pre] = g.log_vxy[rows_log[pre], f + 1]
+            self._move(rows_log, xy, vxy)
+        if f > T0_INDEX:
+            rows_ego = g.ego_rows
+            if self.mode.has_drivers:  # SUMO's followers brake for the speed the ego had, not 0
+                prev = np.hypot(*g.cmd_vxy[:, f - 1].T) if f - 1 > T0_INDEX else np.hypot(*g.rec_vxy[rows_ego, f - 1].T)
+                for r, s in zip(rows_ego.tolist(), prev.tolist(), strict=True):
+                    self.api.vehicle.setPreviousSpeed(g.sumo_id[r], s)
+            self._move(rows_ego, g.cmd_xy[:, f], g.cmd_vxy[:, f])
+
+    def _move(self, rows: np.ndarray, xy: np.ndarray, vxy: np.ndarray) -> None:
+        g = self.g
+        xs, ys, angles = _front_and_angle(xy, vxy, g.length[rows], g.x_off[rows], g.y_off[rows])
+        for r, x, y, a in zip(rows.tolist(), xs, ys, angles, strict=True):
+            self.api.vehicle.moveToXY(g.sumo_id[r], "", -1, x, y, a, 2)
+
+    def _read_back(self, f: int, drive: _Drive) -> None:
+        g, tc = self.g, self.tc
+        results = self.api.vehicle.getAllSubscriptionResults()
+        for r in np.flatnonzero(g.present).tolist():
+            res = results.get(g.sumo_id[r])
+            if res is None:  # SUMO removed it (end of the road)
+                del self.id_to_row[g.sumo_id[r]]
+                g.present[r] = False
+                continue
+            px, py = res[tc.VAR_POSITION]
+            g.rec_xy[r, f, 0] = px - g.x_off[r] - 0.5 * self.lengths[r]
+            g.rec_xy[r, f, 1] = py - g.y_off[r]
+            if g.released[r]:
+                prev_y = g.rec_xy[r, f - 1, 1]
+                vy = (g.rec_xy[r, f, 1] - prev_y) / DT_S if math.isfinite(prev_y) else 0.0
+                g.rec_vxy[r, f] = (res[tc.VAR_SPEED], vy)
+        g.rec_valid[:, f] = g.present & ~drive.preroll
+        logged = g.rec_valid[:, f] & drive.want_log
+        g.rec_vxy[logged, f] = g.log_vxy[logged, f]
+        if f > T0_INDEX:
+            g.rec_vxy[g.ego_rows, f] = g.cmd_vxy[:, f]
+            g.ego_axy[:, f] = (g.cmd_vxy[:, f] - g.rec_vxy[g.ego_rows, f - 1]) / DT_S
+        g.rec_xy[~g.rec_valid[:, f], f] = np.nan
+        g.rec_vxy[~g.rec_valid[:, f], f] = np.nan
+        simulated = g.rec_valid[:, f] & ~drive.want_log
+        if simulated.any():
+            rows = np.flatnonzero(simulated)
+            marks = self.batch.marking_y_m[g.scn[rows]]
+            ids = lane_ids_from_y(marks, self.batch.lane_ids[g.scn[rows]], g.rec_xy[rows, f, 1:2])
+            g.rec_lane[rows, f] = ids[:, 0]
+        g.rec_lane[~g.rec_valid[:, f], f] = 0
+
+    # --- 4. contact check ----------------------------------------------------------------------------
+    def contact_check(self, f: int) -> None:
+        """SUMO's collisions of this step: ego contacts per neighbour slot, neighbour pairs counted."""
+        if f <= T0_INDEX:
+            return
+        g = self.g
+        for col in self.api.simulation.getCollisions():
+            a, b = self.id_to_row.get(col.collider), self.id_to_row.get(col.victim)
+            if a is None or b is None or g.scn[a] != g.scn[b]:
+                continue
+            if g.is_ego[a] or g.is_ego[b]:
+                other = b if g.is_ego[a] else a
+                self.contact[g.scn[a], g.nbr_slot[other], f - T0_INDEX - 1] = True
+            else:
+                self.nbr_collisions[g.scn[a]] += 1
+
+    # --- 5. following a plan ----------------------------------------------------------------------
+    def follow(self, f: int, replan: Replan) -> None:
+        """The ego commands of the scenarios that replanned at frame f, up to each plan's last frame.
+
+        A plan that is not finite, or leaves the simulated area, where it is followed is not: the ego
+        keeps its velocity instead and the scenario is flagged (``plan_nonfinite``).
+        """
+        g = self.g
+        rows = np.asarray(replan.rows, dtype=np.int64)
+        until = np.asarray(replan.follow_until, dtype=np.int64)
+        for stop in np.unique(until).tolist():
+            sel = until == stop
+            r = rows[sel]
+            n_use = stop - f
+            use_xy = replan.xy_m[sel, :n_use].copy()
+            use_vxy = replan.vxy_mps[sel, :n_use].copy()
+            bad = ~(np.isfinite(use_xy).all(axis=(1, 2)) & np.isfinite(use_vxy).all(axis=(1, 2)))
+            with np.errstate(invalid="ignore"):
+                bad |= ~_inside(use_xy, self.road_y[r], self.config).all(axis=1)
+            if bad.any():
+                self.nonfinite[r[bad]] = True
+                centre = g.rec_xy[g.ego_rows[r[bad]], f]
+                v0 = g.rec_vxy[g.ego_rows[r[bad]], f]
+                steps = np.arange(1, n_use + 1)[None, :, None] * DT_S
+                use_xy[bad] = centre[:, None, :] + v0[:, None, :] * steps
+                use_vxy[bad] = v0[:, None, :]
+            g.cmd_xy[r, f + 1 : stop + 1] = use_xy
+            g.cmd_vxy[r, f + 1 : stop + 1] = use_vxy
+
+
+class _PlanLog:
+    """Every plan made, per scenario and replanning slot (the frames a replanner may plan at)."""
+
+    def __init__(self, k: int, frames: Sequence[int]) -> None:
+        self.frames = list(frames)
+        self.slot = {f: i for i, f in enumerate(self.frames)}
+        n_future = N_TOTAL - T0_INDEX - 1
+        self.xy = np.full((k, len(self.frames), n_future, 2), np.nan)
+        self.goals = np.full((k, len(self.frames), 2), np.nan)
+        self.info: dict[str, np.ndarray] = {}
+        self.plan_s = 0.0
+
+    def add(self, f: int, replan: Replan) -> None:
+        i = self.slot[f]
+        rows = np.asarray(replan.rows, dtype=np.int64)
+        self.xy[rows, i] = replan.xy_m
+        self.goals[rows, i] = replan.goals_xy_m
+        for key, arr in replan.info.items():
+            self.info.setdefault(key, np.full(self.goals.shape[:2], np.nan))[rows, i] = arr
+        self.plan_s += replan.plan_s
+
+
+def simulate_group(
+    session: SumoSession,
+    planner: Planner,
+    batch: ScenarioBatch,
+    config: ClosedLoopConfig,
+    *,
+    replan_every: int,
+    future: FuturePolicy,
+    run_tag: str = "g",
+    scripted_nbr: np.ndarray | None = None,
+    replanner: Replanner | None = None,
+) -> ClosedLoopChunk:
+    """Simulate K scenarios of one lane layout together (module doc). The chunk's ``indices`` are 0..K-1.
+
+    scripted_nbr: (K, N) bool, neighbour slots that replay their log all along in
+    ``closed-loop-hybrid`` (actors of scripted events). replanner: the replanning step (default:
+    ``PeriodicReplanner(planner, batch, replan_every, future)``).
+    """
+    t_start = time.perf_counter()
+    cpu_start = time.process_time()
+    sim = _Lockstep(session, batch, config, run_tag, scripted_nbr)
+    replanner = replanner or PeriodicReplanner(planner, batch, replan_every, future)
+    plans = _PlanLog(sim.g.k, replanner.frames)
+    for f in range(N_TOTAL):
+        drive = sim.who_drives(f)
+        sim.bookkeeping(drive)
+        sim.simulation_step(f, drive)
+        sim.contact_check(f)
+        replan = replanner.plans(f, sim.g.states())
+        if replan is not None:
+            plans.add(f, replan)
+            sim.follow(f, replan)
+    return _chunk(sim, plans, planner, replan_every, time.perf_counter() - t_start, time.process_time() - cpu_start)
+
+
+def _chunk(sim: _Lockstep, plans: _PlanLog, planner: Planner, replan_every: int, wall_s: float,
+           cpu_s: float) -> ClosedLoopChunk:
+    g = sim.g
+    states = g.states()
+    fut = slice(T0_INDEX + 1, N_TOTAL)
+    released_at = g.released_at.reshape(g.k, g.per)[:, 1:]
+    return ClosedLoopChunk(
+        indices=np.arange(g.k),
+        scenario_id=np.asarray(sim.batch.scenario_id),
+        planner=str(planner.name),
+        mode=str(sim.mode.value),
+        replan_s=replan_every * DT_S,
+        ego_xy_m=states.ego_xy_m[:, fut].copy(),
+        ego_vxy_mps=states.ego_vxy_mps[:, fut].copy(),
+        nbr_xy_m=states.nbr_xy_m[:, :, fut].copy(),
+        nbr_vxy_mps=states.nbr_vxy_mps[:, :, fut].copy(),
+        nbr_valid=states.nbr_valid[:, :, fut].copy(),
+        nbr_lane_id=states.nbr_lane_id[:, :, fut].astype(np.int8),
+        nbr_handover_step=np.where(released_at >= 0, released_at - T0_INDEX - 1, -1),
+        replan_step=np.asarray(plans.frames, dtype=np.int64) - T0_INDEX,
+        plan_xy_m=plans.xy,
+        plan_goal_xy_m=plans.goals,
+        plan_nonfinite=sim.nonfinite,
+        sumo_contact=sim.contact,
+        sumo_nbr_collisions=sim.nbr_collisions,
+        plan_s=np.full(g.k, plans.plan_s / g.k),
+        sim_s=np.full(g.k, (wall_s - plans.plan_s) / g.k),
+        cpu_s=np.full(g.k, cpu_s / g.k),
+        plan_info=plans.info,
+    )
+
+
 def _front_and_angle(
     xy: np.ndarray, vxy: np.ndarray, length: np.ndarray, x_off: np.ndarray, y_off: np.ndarray
 ) -> tuple[list[float], list[float], list[float]]:
@@ -135,235 +489,9 @@ def _front_and_angle(
     return x.tolist(), y.tolist(), angle.tolist()
 
 
-def simulate_group(
-    session: SumoSession,
-    planner: Planner,
-    batch: ScenarioBatch,
-    config: ClosedLoopConfig,
-    *,
-    replan_every: int,
-    future: FuturePolicy,
-    run_tag: str = "g",
-) -> ClosedLoopChunk:
-    """Simulate K scenarios of one lane layout together (module doc). ``indices`` are 0..K-1."""
-    t_start = time.perf_counter()
-    cpu_start = time.process_time()
-    widths = set(layout_keys(batch.marking_y_m))
-    if len(widths) != 1:
-        raise ValueError(f"simulate_group needs one lane layout, got {len(widths)}")
-    net = session.open(widths.pop(), max(len(batch), config.chunk_size))
-    api: Any = session.api
-    tc = api.constants
-    sub_vars = (tc.VAR_POSITION, tc.VAR_SPEED)
-    g = _Group(batch, net, run_tag)
-    reactive = config.mode == ClosedLoopMode.REACTIVE
-    id_to_row: dict[str, int] = {}
-    replans = replan_frames_of(replan_every)
-    n_future = N_TOTAL - T0_INDEX - 1
-    plans_xy = np.full((g.k, len(replans), n_future, 2), np.nan)
-    goals_xy = np.full((g.k, len(replans), 2), np.nan)
-    info: dict[str, np.ndarray] = {}
-    nonfinite = np.zeros(g.k, dtype=bool)
-    contact = np.zeros((g.k, g.n, n_future), dtype=bool)
-    nbr_collisions = np.zeros(g.k, dtype=np.int64)
-    plan_s = 0.0
-    lengths = g.length.tolist()
-    widths_v = g.width.tolist()
-    road_y = np.stack([np.nanmin(batch.marking_y_m, axis=1), np.nanmax(batch.marking_y_m, axis=1)], axis=1)
-
-    for f in range(N_TOTAL):
-        # --- who is driven how in this frame -----------------------------------------------
-        if reactive and f > T0_INDEX:
-            _release(api, g, f, config)
-        if f <= T0_INDEX:
-            log_driven = np.ones_like(g.is_ego)
-        else:  # the ego follows its plan; reactive neighbours replay only until released
-            log_driven = ~g.is_ego & ~g.released if reactive else ~g.is_ego
-        want_log = log_driven & g.log_valid[:, f]
-        nxt = g.log_valid[:, f + 1] if f + 1 < N_TOTAL else np.zeros_like(want_log)
-        preroll = log_driven & ~want_log & nxt & ~g.present
-        plan_driven = g.is_ego & (f > T0_INDEX)
-        to_remove = np.flatnonzero(g.present & log_driven & ~want_log & ~preroll)
-        to_add = np.flatnonzero((want_log | preroll | plan_driven) & ~g.present)
-
-        for r in to_remove.tolist():
-            api.vehicle.unsubscribe(g.sumo_id[r])  # libsumo fails the next step on a removed subscriber
-            api.vehicle.remove(g.sumo_id[r])
-            del id_to_row[g.sumo_id[r]]
-            g.present[r] = False
-        for r in to_add.tolist():
-            vid = f"{g.prefix}.{r}.{int(g.generation[r])}"
-            g.generation[r] += 1
-            api.vehicle.add(vid, g.route[r], VTYPE_ID, depart="now")
-            api.vehicle.setLength(vid, lengths[r])
-            api.vehicle.setWidth(vid, widths_v[r])
-            api.vehicle.setSpeedMode(vid, 0)
-            api.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_NONE)
-            api.vehicle.subscribe(vid, sub_vars)
-            g.sumo_id[r] = vid
-            id_to_row[vid] = r
-            g.present[r] = True
-
-        # --- commands ------------------------------------------------------------------------
-        rows_log = np.flatnonzero(want_log | preroll)
-        if rows_log.size:
-            xy = g.log_xy[rows_log, f].copy()
-            vxy = g.log_vxy[rows_log, f].copy()
-            pre = preroll[rows_log]
-            if pre.any():
-                xy[pre] = g.log_xy[rows_log[pre], f + 1] - g.log_vxy[rows_log[pre], f + 1] * DT_S
-                vxy[pre] = g.log_vxy[rows_log[pre], f + 1]
-            _move(api, g, rows_log, xy, vxy)
-        if f > T0_INDEX:
-            rows_ego = g.ego_rows
-            xy = g.cmd_xy[:, f]
-            vxy = g.cmd_vxy[:, f]
-            if reactive:
-                prev = np.hypot(*g.cmd_vxy[:, f - 1].T) if f - 1 > T0_INDEX else np.hypot(*g.rec_vxy[rows_ego, f - 1].T)
-                for r, s in zip(rows_ego.tolist(), prev.tolist(), strict=True):
-                    api.vehicle.setPreviousSpeed(g.sumo_id[r], s)
-            _move(api, g, rows_ego, xy, vxy)
-
-        api.simulationStep()
-
-        # --- read back -------------------------------------------------------------------------
-        results = api.vehicle.getAllSubscriptionResults()
-        for r in np.flatnonzero(g.present).tolist():
-            res = results.get(g.sumo_id[r])
-            if res is None:  # SUMO removed it (end of the road)
-                del id_to_row[g.sumo_id[r]]
-                g.present[r] = False
-                continue
-            px, py = res[tc.VAR_POSITION]
-            g.rec_xy[r, f, 0] = px - g.x_off[r] - 0.5 * lengths[r]
-            g.rec_xy[r, f, 1] = py - g.y_off[r]
-            if g.released[r]:
-                prev_y = g.rec_xy[r, f - 1, 1]
-                vy = (g.rec_xy[r, f, 1] - prev_y) / DT_S if math.isfinite(prev_y) else 0.0
-                g.rec_vxy[r, f] = (res[tc.VAR_SPEED], vy)
-        g.rec_valid[:, f] = g.present & ~preroll
-        logged = g.rec_valid[:, f] & want_log
-        g.rec_vxy[logged, f] = g.log_vxy[logged, f]
-        if f > T0_INDEX:
-            g.rec_vxy[g.ego_rows, f] = g.cmd_vxy[:, f]
-            g.ego_axy[:, f] = (g.cmd_vxy[:, f] - g.rec_vxy[g.ego_rows, f - 1]) / DT_S
-        g.rec_xy[~g.rec_valid[:, f], f] = np.nan
-        g.rec_vxy[~g.rec_valid[:, f], f] = np.nan
-        simulated = g.rec_valid[:, f] & ~want_log
-        if simulated.any():
-            rows = np.flatnonzero(simulated)
-            marks = batch.marking_y_m[g.scn[rows]]
-            g.rec_lane[rows, f] = lane_ids_from_y(marks, batch.lane_ids[g.scn[rows]], g.rec_xy[rows, f, 1:2])[:, 0]
-        g.rec_lane[~g.rec_valid[:, f], f] = 0
-        if f > T0_INDEX:
-            for col in api.simulation.getCollisions():
-                a, b = id_to_row.get(col.collider), id_to_row.get(col.victim)
-                if a is None or b is None or g.scn[a] != g.scn[b]:
-                    continue
-                if g.is_ego[a] or g.is_ego[b]:
-                    other = b if g.is_ego[a] else a
-                    contact[g.scn[a], g.nbr_slot[other], f - T0_INDEX - 1] = True
-                else:
-                    nbr_collisions[g.scn[a]] += 1
-
-        # --- replanning --------------------------------------------------------------------------
-        if f in replans:
-            r_idx = replans.index(f)
-            t0 = time.perf_counter()
-            view, centre = replanning_batch(batch, g.states(), f, future)
-            plan = plan_in_batches(planner, view)
-            plan_s += time.perf_counter() - t0
-            _check_plan(plan, g.k, n_future, planner)
-            xy = np.asarray(plan.xy_m, dtype=np.float64) + centre[:, None, :]
-            vxy = np.asarray(plan.vxy_mps, dtype=np.float64)
-            plans_xy[:, r_idx] = xy
-            goals_xy[:, r_idx] = np.asarray(plan.goals_xy_m, dtype=np.float64) + centre
-            for key, val in plan.info.items():
-                arr = np.asarray(val)
-                if arr.ndim == 1 and arr.dtype.kind in "biuf":
-                    info.setdefault(key, np.full((g.k, len(replans)), np.nan))[:, r_idx] = arr
-            stop = min(f + replan_every, N_TOTAL - 1)
-            n_use = stop - f
-            use_xy, use_vxy = xy[:, :n_use], vxy[:, :n_use]
-            bad = ~(np.isfinite(use_xy).all(axis=(1, 2)) & np.isfinite(use_vxy).all(axis=(1, 2)))
-            with np.errstate(invalid="ignore"):
-                bad |= ~_inside(use_xy, road_y, config).all(axis=1)
-            if bad.any():
-                nonfinite |= bad
-                v0 = g.rec_vxy[g.ego_rows[bad], f]
-                steps = np.arange(1, n_use + 1)[None, :, None] * DT_S
-                use_xy[bad] = centre[bad, None, :] + v0[:, None, :] * steps
-                use_vxy[bad] = v0[:, None, :]
-            g.cmd_xy[:, f + 1 : stop + 1] = use_xy
-            g.cmd_vxy[:, f + 1 : stop + 1] = use_vxy
-
-    states = g.states()
-    fut = slice(T0_INDEX + 1, N_TOTAL)
-    elapsed = time.perf_counter() - t_start
-    return ClosedLoopChunk(
-        indices=np.arange(g.k),
-        scenario_id=np.asarray(batch.scenario_id),
-        planner=str(planner.name),
-        mode=str(config.mode.value),
-        replan_s=replan_every * DT_S,
-        ego_xy_m=states.ego_xy_m[:, fut].copy(),
-        ego_vxy_mps=states.ego_vxy_mps[:, fut].copy(),
-        nbr_xy_m=states.nbr_xy_m[:, :, fut].copy(),
-        nbr_vxy_mps=states.nbr_vxy_mps[:, :, fut].copy(),
-        nbr_valid=states.nbr_valid[:, :, fut].copy(),
-        nbr_lane_id=states.nbr_lane_id[:, :, fut].astype(np.int8),
-        replan_step=np.asarray(replans, dtype=np.int64) - T0_INDEX,
-        plan_xy_m=plans_xy,
-        plan_goal_xy_m=goals_xy,
-        plan_nonfinite=nonfinite,
-        sumo_contact=contact,
-        sumo_nbr_collisions=nbr_collisions,
-        plan_s=np.full(g.k, plan_s / g.k),
-        sim_s=np.full(g.k, (elapsed - plan_s) / g.k),
-        cpu_s=np.full(g.k, (time.process_time() - cpu_start) / g.k),
-        plan_info=info,
-    )
-
-
-def _move(api: Any, g: _Group, rows: np.ndarray, xy: np.ndarray, vxy: np.ndarray) -> None:
-    xs, ys, angles = _front_and_angle(xy, vxy, g.length[rows], g.x_off[rows], g.y_off[rows])
-    for r, x, y, a in zip(rows.tolist(), xs, ys, angles, strict=True):
-        api.vehicle.moveToXY(g.sumo_id[r], "", -1, x, y, a, 2)
-
-
-def _release(api: Any, g: _Group, f: int, config: ClosedLoopConfig) -> None:
-    """Hand neighbours recorded at frame f - 1 and still unreleased over to SUMO's driver models."""
-    rows = np.flatnonzero(~g.is_ego & g.present & ~g.released & g.rec_valid[:, f - 1])
-    if rows.size == 0:
-        return
-    hist = slice(0, f)
-    xy = g.rec_xy.reshape(g.k, g.per, N_TOTAL, 2)[:, :, hist]
-    vx = g.rec_vxy.reshape(g.k, g.per, N_TOTAL, 2)[:, :, hist, 0]
-    valid = g.rec_valid.reshape(g.k, g.per, N_TOTAL)[:, :, hist]
-    desired, headway = estimate_driver_params(
-        xy, vx, valid, g.length.reshape(g.k, g.per), g.width.reshape(g.k, g.per), config.driver
-    )
-    desired, headway = desired.reshape(-1), headway.reshape(-1)
-    for r in rows.tolist():
-        vid = g.sumo_id[r]
-        api.vehicle.setMaxSpeed(vid, float(desired[r]))
-        api.vehicle.setTau(vid, float(headway[r]))
-        api.vehicle.setPreviousSpeed(vid, float(np.hypot(*g.rec_vxy[r, f - 1])))
-        api.vehicle.setSpeedMode(vid, SPEED_MODE_ALL_CHECKS)
-        api.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_DEFAULT)
-        g.released[r] = True
-
-
 def _inside(xy: np.ndarray, road_y: np.ndarray, config: ClosedLoopConfig) -> np.ndarray:
     """(K, S) whether planned positions (K, S, 2) lie in the simulated area: on the road's length and
     within ``OFF_ROAD_MARGIN_M`` of its edges (further out SUMO cannot place a vehicle sensibly)."""
     x_ok = (xy[..., 0] > -config.road_behind_m + 50.0) & (xy[..., 0] < config.road_ahead_m - 50.0)
     y_ok = (xy[..., 1] > road_y[:, :1] - OFF_ROAD_MARGIN_M) & (xy[..., 1] < road_y[:, 1:] + OFF_ROAD_MARGIN_M)
     return np.asarray(x_ok & y_ok)
-
-
-def _check_plan(plan: PlanBatch, k: int, n_future: int, planner: Planner) -> None:
-    if plan.xy_m.shape != (k, n_future, 2):
-        raise ValueError(
-            f"planner {planner.name!r} returned plans of shape {plan.xy_m.shape}, expected {(k, n_future, 2)}"
-        )

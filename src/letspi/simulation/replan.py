@@ -12,16 +12,31 @@ count) is windowed, anything else is copied. Then the simulated states overwrite
 frames of the ego and neighbour fields. Future frames are NaN / invalid / 0 for planners that must
 not see them (``future="none"``), or the recorded log from ``c`` on (``future="log"``, for
 ``human`` and oracle modes), NaN beyond the end of the recording.
+
+The replanning step of the engine
+---------------------------------
+The engine (``letspi.simulation.engine``) asks a ``Replanner`` after every simulated frame for
+plans: ``replanner.plans(frame, states)`` returns a ``Replan`` (plans for the scenarios due at that
+frame, in the source scenario's ego frame, and until which frame each is followed) or None. The
+engine only follows plans; *when* to plan, with what, and at what cost is the replanner's business.
+``PeriodicReplanner`` is the one used today: every scenario at t = 0 and then every
+``replan_every`` frames, one batched planner call. A replanner with another schedule (e.g. a slow
+LLM that sets parameters every few seconds beside a physics planner replanning every 0.2 s) only
+has to implement the same two members; ``frames`` lists the frames at which plans may be made
+(the slots of ``ClosedLoopChunk.plan_xy_m``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-from typing import Literal
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Literal, Protocol
 
 import numpy as np
 
-from letspi.constants import T0_INDEX
+from letspi.constants import N_FUTURE, N_TOTAL, T0_INDEX
+from letspi.planners.base import PlanBatch, Planner
 from letspi.scenario.queries import OFF_ROAD, lane_index_of
 from letspi.scenario.types import CONTEXT_FIELDS, ScenarioBatch
 
@@ -144,3 +159,108 @@ def replanning_batch(
     if future == "none":  # context vehicles are future-only ground truth: never part of a planner's view
         out.update({name: out[name][:, :0] for name in CONTEXT_FIELDS})
     return ScenarioBatch(**out), centre
+
+
+# ------------------------------------------------------------------------------------------------
+# The replanning step
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Replan:
+    """Plans made at one frame for D of the K scenarios of a lockstep group.
+
+    Attributes:
+        rows: (D,) int positions (0..K-1) of the scenarios that got a plan.
+        xy_m, vxy_mps: (D, F, 2) planned ego centres / velocities in the *source* scenario's ego
+            frame (already moved back from the replanning view's frame); point i is frame + 1 + i.
+        goals_xy_m: (D, 2) the goals the plans aimed at (source ego frame), NaN if none.
+        follow_until: (D,) int: the last frame each plan is followed (a later plan takes over from its
+            own frame on); at most ``frame + F`` and ``N_TOTAL - 1``.
+        info: per-scenario numbers of the planner (name -> (D,)), recorded per replan.
+        plan_s: wall time spent planning [s] (all D scenarios).
+    """
+
+    rows: np.ndarray
+    xy_m: np.ndarray
+    vxy_mps: np.ndarray
+    goals_xy_m: np.ndarray
+    follow_until: np.ndarray
+    info: dict[str, np.ndarray] = field(default_factory=dict)
+    plan_s: float = 0.0
+
+
+class Replanner(Protocol):
+    """The engine's replanning step: plans for the scenarios due at a frame (module docstring).
+
+    ``frames``: every frame (source indexing, >= ``T0_INDEX``) at which ``plans`` may return plans,
+    ascending. ``plans(frame, states)``: called after each simulated frame with the states
+    simulated so far (frames <= ``frame`` filled); returns None when nothing is due.
+    """
+
+    @property
+    def frames(self) -> Sequence[int]: ...
+
+    def plans(self, frame: int, states: SimulatedStates) -> Replan | None: ...
+
+
+def replan_frames_of(replan_every: int) -> list[int]:
+    """Frames (source indexing) at which plans are made: t = 0, then every ``replan_every``."""
+    return list(range(T0_INDEX, N_TOTAL - 1, replan_every))
+
+
+def plan_in_batches(planner: Planner, batch: ScenarioBatch) -> PlanBatch:
+    """``planner.plan`` over ``batch`` in sub-batches of ``planner.batch_size``."""
+    step = max(1, int(planner.batch_size))
+    if len(batch) <= step:
+        return planner.plan(batch)
+    parts = [planner.plan(batch.take(slice(s, s + step))) for s in range(0, len(batch), step)]
+    info_keys = set.intersection(*(set(p.info) for p in parts))
+    return PlanBatch(
+        xy_m=np.concatenate([p.xy_m for p in parts]),
+        vxy_mps=np.concatenate([p.vxy_mps for p in parts]),
+        goals_xy_m=np.concatenate([p.goals_xy_m for p in parts]),
+        info={k: np.concatenate([np.asarray(p.info[k]) for p in parts]) for k in sorted(info_keys)},
+    )
+
+
+class PeriodicReplanner:
+    """Every scenario at t = 0 and every ``replan_every`` frames after it, one batched planner call.
+
+    ``future``: what the planner sees of the recorded future (``replanning_batch``). Only
+    one-dimensional numeric ``PlanBatch.info`` entries are kept (one number per scenario and replan).
+    """
+
+    def __init__(self, planner: Planner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy) -> None:
+        self.planner = planner
+        self.batch = batch
+        self.replan_every = int(replan_every)
+        self.future: FuturePolicy = future
+        self._frames = replan_frames_of(self.replan_every)
+        self._due = set(self._frames)
+
+    @property
+    def frames(self) -> list[int]:
+        return self._frames
+
+    def plans(self, frame: int, states: SimulatedStates) -> Replan | None:
+        if frame not in self._due:
+            return None
+        k = len(self.batch)
+        t0 = time.perf_counter()
+        view, centre = replanning_batch(self.batch, states, frame, self.future)
+        plan = plan_in_batches(self.planner, view)
+        plan_s = time.perf_counter() - t0
+        if plan.xy_m.shape != (k, N_FUTURE, 2):
+            raise ValueError(f"planner {self.planner.name!r} returned plans of shape {plan.xy_m.shape}, "
+                             f"expected {(k, N_FUTURE, 2)}")
+        info = {key: np.asarray(val) for key, val in plan.info.items()}
+        return Replan(
+            rows=np.arange(k),
+            xy_m=np.asarray(plan.xy_m, dtype=np.float64) + centre[:, None, :],
+            vxy_mps=np.asarray(plan.vxy_mps, dtype=np.float64),
+            goals_xy_m=np.asarray(plan.goals_xy_m, dtype=np.float64) + centre,
+            follow_until=np.full(k, min(frame + self.replan_every, N_TOTAL - 1), dtype=np.int64),
+            info={key: arr for key, arr in info.items() if arr.ndim == 1 and arr.dtype.kind in "biuf"},
+            plan_s=plan_s,
+        )

@@ -26,6 +26,8 @@ class ClosedLoopChunk:
         ego_xy_m, ego_vxy_mps: (K, F, 2) the simulated ego.
         nbr_xy_m, nbr_vxy_mps: (K, N, F, 2) the simulated (or replayed) neighbours, NaN when absent;
             nbr_valid: (K, N, F); nbr_lane_id: (K, N, F) HighD lane ids (0 when absent/off road).
+        nbr_handover_step: (K, N) int, the first future step (0 = the first frame after t = 0) at which
+            SUMO's driver model drove the neighbour; -1 = it replayed its log throughout (or was absent).
         replan_step: (R,) frames after t = 0 at which plans were made (0, 25, ... for 1 s).
         plan_xy_m: (K, R, F, 2) every plan, in the same frame; plan_goal_xy_m: (K, R, 2).
         plan_info: per-replan planner extras, each (K, R) (1-D ``PlanBatch.info`` entries).
@@ -51,6 +53,7 @@ class ClosedLoopChunk:
     nbr_vxy_mps: np.ndarray
     nbr_valid: np.ndarray
     nbr_lane_id: np.ndarray
+    nbr_handover_step: np.ndarray
     replan_step: np.ndarray
     plan_xy_m: np.ndarray
     plan_goal_xy_m: np.ndarray

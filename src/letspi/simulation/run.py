@@ -20,9 +20,9 @@ import numpy as np
 
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode, replan_frames
-from letspi.simulation.engine import replan_frames_of
 from letspi.simulation.pool import run_in_processes
 from letspi.simulation.ray_backend import run_on_ray
+from letspi.simulation.replan import replan_frames_of
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.spec import PlannerSpecLike, spec_replan_s
 from letspi.simulation.worker import ChunkWorker, make_tasks
@@ -49,21 +49,25 @@ def run_closed_loop(
     indices: Sequence[int] | np.ndarray | None = None,
     ray_address: str | None = None,
     max_worker_restarts: int = 2,
+    scripted_nbr: np.ndarray | None = None,
 ) -> Iterator[ClosedLoopChunk]:
     """Simulate ``batch`` (or its rows ``indices``) closed loop; yield one ``ClosedLoopChunk`` per chunk.
 
     planner_spec: a ``PlannerSpec`` (built inside each worker) or a picklable planner object.
-    mode: ``closed-loop-log`` or ``closed-loop-reactive``. replan_s: replanning period [s]
+    mode: ``closed-loop-log``, ``closed-loop-reactive`` or ``closed-loop-hybrid`` (``ClosedLoopMode``).
+    replan_s: replanning period [s]
     (default: the planner spec's own, else ``config.replan_s``, 1.0). workers: 0 = this process,
     N >= 1 = N worker processes. ray_address: run on Ray instead ("local" starts a local instance
     unless Ray is already initialised, "auto" or an address joins a cluster); ``workers`` actors.
     max_worker_restarts: worker processes (or actors) that may die and be replaced before the run
     fails; their unfinished chunks are simulated again, so nothing is lost or duplicated.
+    scripted_nbr: (B, N) bool over ``batch``: neighbour slots that keep their recorded (scripted)
+    behaviour in ``closed-loop-hybrid`` (``letspi.scenario.scripted.scripted_neighbours``); None = none.
     """
     cfg = effective_config(planner_spec, mode, replan_s, config)
     if workers < 0:
         raise ValueError(f"workers must be >= 0, got {workers}")
-    tasks = make_tasks(batch, cfg, indices)
+    tasks = make_tasks(batch, cfg, indices, scripted_nbr)
     if not tasks:
         return
     if ray_address is not None:

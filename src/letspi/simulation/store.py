@@ -30,6 +30,7 @@ from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode
+from letspi.simulation.handover import hybrid_settings
 from letspi.simulation.result import ClosedLoopChunk, chunk_metrics
 from letspi.simulation.run import effective_config, run_closed_loop
 from letspi.simulation.spec import PlannerSpecLike, spec_name
@@ -37,8 +38,8 @@ from letspi.simulation.spec import PlannerSpecLike, spec_name
 _PART = re.compile(r"^(part|traj)-(\d{5})\.(parquet|npz)$")
 _TRAJ_FIELDS = (
     "indices", "scenario_id", "ego_xy_m", "ego_vxy_mps", "nbr_xy_m", "nbr_vxy_mps", "nbr_valid", "nbr_lane_id",
-    "replan_step", "plan_xy_m", "plan_goal_xy_m", "plan_nonfinite", "sumo_contact", "sumo_nbr_collisions",
-    "plan_s", "sim_s", "cpu_s",
+    "nbr_handover_step", "replan_step", "plan_xy_m", "plan_goal_xy_m", "plan_nonfinite", "sumo_contact",
+    "sumo_nbr_collisions", "plan_s", "sim_s", "cpu_s",
 )  # fmt: skip
 
 
@@ -62,6 +63,7 @@ def chunk_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics) -> pd.DataFram
     frame["sumo_collision_step"] = chunk.sumo_collision_step
     frame["sumo_nbr_collisions"] = chunk.sumo_nbr_collisions
     frame["plan_nonfinite"] = chunk.plan_nonfinite
+    frame["nbr_reactive"] = (np.asarray(chunk.nbr_handover_step) >= 0).sum(axis=1)
     frame["n_replans"] = len(chunk.replan_step)
     frame["inference_s"] = chunk.plan_s
     frame["sim_s"] = chunk.sim_s
@@ -94,8 +96,11 @@ class ClosedLoopStore:
 
     @classmethod
     def for_run(
-        cls, directory: Path, planner: str, mode: str, replan_s: float, batch: ScenarioBatch
+        cls, directory: Path, planner: str, mode: str, replan_s: float, batch: ScenarioBatch,
+        mode_settings: dict[str, object] | None = None,
     ) -> ClosedLoopStore:
+        """``mode_settings``: what else of the mode changes answers (``closed-loop-hybrid``: hand-over
+        rule and scripted neighbours); absent from the record when None."""
         record: dict[str, object] = {
             "planner": planner,
             "mode": mode,
@@ -103,6 +108,8 @@ class ClosedLoopStore:
             "n_scenarios": len(batch),
             "fingerprint": scenario_fingerprint(batch.scenario_id),
         }
+        if mode_settings:
+            record["mode_settings"] = mode_settings
         return cls(directory, record)
 
     def _indices(self) -> list[int]:
@@ -147,13 +154,16 @@ class ClosedLoopStore:
         for part in self.parts():
             with np.load(part.with_name(part.name.replace("part-", "traj-").replace(".parquet", ".npz"))) as z:
                 info = {k[len("info__") :]: z[k] for k in z.files if k.startswith("info__")}
+                arrays = {name: z[name] for name in _TRAJ_FIELDS if name in z.files}
+                if "nbr_handover_step" not in arrays:  # written before hand-overs were recorded
+                    arrays["nbr_handover_step"] = np.full(arrays["nbr_valid"].shape[:2], -1, dtype=np.int64)
                 chunks.append(
                     ClosedLoopChunk(
                         planner=str(self.record["planner"]),
                         mode=str(self.record["mode"]),
                         replan_s=float(str(self.record["replan_s"])),
                         plan_info=info,
-                        **{name: z[name] for name in _TRAJ_FIELDS},
+                        **arrays,
                     )
                 )
         if not chunks:
@@ -173,6 +183,7 @@ def run_closed_loop_to_dir(
     metrics_config: MetricsConfig | None = None,
     ray_address: str | None = None,
     progress: Callable[[int], None] | None = None,
+    scripted_nbr: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows.
 
@@ -180,7 +191,8 @@ def run_closed_loop_to_dir(
     (first with those found from an earlier run).
     """
     cfg = effective_config(planner_spec, mode, replan_s, config)
-    store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch)
+    settings = hybrid_settings(cfg, scripted_nbr) if cfg.mode is ClosedLoopMode.HYBRID else None
+    store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch, settings)
     done = store.done_ids()
     todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
     if progress is not None and len(batch) - len(todo):
@@ -188,7 +200,7 @@ def run_closed_loop_to_dir(
     if len(todo):
         for chunk in run_closed_loop(
             planner_spec, batch, cfg.mode, replan_s=cfg.replan_s, workers=workers, config=cfg, indices=todo,
-            ray_address=ray_address,
+            ray_address=ray_address, scripted_nbr=scripted_nbr,
         ):  # fmt: skip
             store.write(chunk, chunk_frame(chunk, chunk_metrics(batch, chunk, metrics_config)))
             if progress is not None:

@@ -20,11 +20,13 @@ from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorde
 
 @dataclass(frozen=True)
 class ChunkTask:
-    """One unit of work: scenarios ``indices`` of the run's batch, already taken (``batch``)."""
+    """One unit of work: scenarios ``indices`` of the run's batch, already taken (``batch``), and their
+    scripted neighbour slots (``scripted_nbr`` (K, N) bool, None = none)."""
 
     task_id: int
     indices: np.ndarray
     batch: ScenarioBatch
+    scripted_nbr: np.ndarray | None = None
 
 
 def plan_chunks(
@@ -62,6 +64,7 @@ def simulate_chunk(
             replan_every=config.replan_frames,
             future=future,
             run_tag=f"t{task.task_id}.{len(parts)}",
+            scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],
         )
         parts.append(part)
         rows_all.append(rows)
@@ -87,9 +90,15 @@ class ChunkWorker:
 
 
 def make_tasks(
-    batch: ScenarioBatch, config: ClosedLoopConfig, indices: Sequence[int] | np.ndarray | None = None
+    batch: ScenarioBatch, config: ClosedLoopConfig, indices: Sequence[int] | np.ndarray | None = None,
+    scripted_nbr: np.ndarray | None = None,
 ) -> list[ChunkTask]:
+    """The run's chunks; ``scripted_nbr`` (B, N) bool rows follow their scenarios."""
+    if scripted_nbr is not None and np.shape(scripted_nbr) != (len(batch), batch.n_neighbours):
+        raise ValueError(f"scripted_nbr must be (B, N) = {(len(batch), batch.n_neighbours)}, "
+                         f"got {np.shape(scripted_nbr)}")
     return [
-        ChunkTask(task_id=i, indices=rows, batch=batch.take(rows))
+        ChunkTask(task_id=i, indices=rows, batch=batch.take(rows),
+                  scripted_nbr=None if scripted_nbr is None else np.asarray(scripted_nbr, dtype=bool)[rows])
         for i, rows in enumerate(plan_chunks(batch, config.chunk_size, indices))
     ]

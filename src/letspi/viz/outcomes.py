@@ -97,16 +97,18 @@ def closed_loop_report_figure(scenario: ScenarioBatch, rec: Mapping[str, Any], n
 
 
 def simulate_panel(scenario: ScenarioBatch, planner: Planner, name: str, mode: str, replan_s: float,
-                   config: MetricsConfig | None = None) -> Figure:
+                   config: MetricsConfig | None = None, scripted_nbr: np.ndarray | None = None) -> Figure:
     """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel: the
-    planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``)."""
+    planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``).
+    ``scripted_nbr`` (1, N): neighbours that keep their log in ``closed-loop-hybrid``."""
     seen = scenario if planner.reads_future else scenario.history()
     plan = planner.plan(seen)
     m = compute_metrics(scenario, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
     open_rec = {k: m[k][0] for k in ("collision", "collision_at_fault", "min_ttc_s", "min_box_gap_m",
                                      "collision_step", "collision_nbr")}
     open_rec["plan_xy_m"] = plan.xy_m[0]
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, scenario, mode, replan_s=replan_s)))
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, scenario, mode, replan_s=replan_s,
+                                                        scripted_nbr=scripted_nbr)))
     cm = chunk_metrics(scenario, chunk, config)
     closed = LoopOutcome(f"{mode} (replanning every {replan_s:g} s)", chunk.ego_xy_m[0], chunk.nbr_xy_m[0],
                          chunk.nbr_valid[0], chunk.plan_xy_m[0], chunk.replan_step, int(cm["collision_step"][0]),

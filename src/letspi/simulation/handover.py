@@ -1,0 +1,73 @@
+"""``closed-loop-hybrid``: which log-replayed neighbours the ego's actions now reach.
+
+A neighbour ahead of the ego cannot be influenced by it (in a real car-following world it drives as
+recorded unless the ego overtakes it), so replaying its log keeps the recorded events, such as a
+leader's hard brake or a cut-in, exactly. A neighbour behind the ego in a lane the ego's box covers
+is where the ego's braking or lane change reaches it: replayed, it would rear-end an ego that brakes
+earlier or harder than the human did, so it is handed to SUMO's driver model. The rule is in
+``HandoverConfig``; this module evaluates it, vectorised over scenarios and neighbour slots.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from letspi.scenario.queries import OFF_ROAD, lane_index_of
+from letspi.simulation.config import ClosedLoopConfig, HandoverConfig
+
+
+def within_reach(
+    ego_xy_m: np.ndarray,
+    ego_length_m: np.ndarray,
+    ego_width_m: np.ndarray,
+    nbr_xy_m: np.ndarray,
+    nbr_length_m: np.ndarray,
+    marking_y_m: np.ndarray,
+    config: HandoverConfig,
+) -> np.ndarray:
+    """(K, N) bool: neighbour boxes behind the ego in a lane its box covers, or ``config.lanes`` lanes
+    beside those.
+
+    ego_xy_m: (K, 2) ego box centres; ego_length_m, ego_width_m: (K,); nbr_xy_m: (K, N, 2)
+    neighbour centres (NaN = absent: never within reach); nbr_length_m: (K, N); marking_y_m: (K, M)
+    lane markings (ascending, NaN padded), all in one frame of reference. The ego covers the lanes
+    its box overlaps (one, or two during a lane change; an ego beyond a road edge covers the edge
+    lane); a neighbour is in the lane of its centre (off the road: none, never within reach).
+    """
+    ego_xy = np.asarray(ego_xy_m, dtype=np.float64)
+    nbr_xy = np.asarray(nbr_xy_m, dtype=np.float64)
+    marks = np.asarray(marking_y_m, dtype=np.float64)
+    inner = 1e-6  # a box edge exactly on a marking does not cover the lane beyond it
+    lo_y = np.nanmin(marks, axis=1) + inner
+    hi_y = np.nanmax(marks, axis=1) - inner
+    half_w = 0.5 * np.asarray(ego_width_m, dtype=np.float64)
+    ego_lo = lane_index_of(marks, np.clip(ego_xy[:, 1] - half_w + inner, lo_y, hi_y))  # (K,)
+    ego_hi = lane_index_of(marks, np.clip(ego_xy[:, 1] + half_w - inner, lo_y, hi_y))
+    nbr_lane = lane_index_of(marks, nbr_xy[..., 1])  # (K, N)
+    near = (nbr_lane != OFF_ROAD) & np.isfinite(ego_xy[:, 1:2])
+    near &= (nbr_lane >= ego_lo[:, None] - config.lanes) & (nbr_lane <= ego_hi[:, None] + config.lanes)
+    nbr_front = nbr_xy[..., 0] + 0.5 * np.asarray(nbr_length_m, dtype=np.float64)
+    ego_rear = ego_xy[:, 0] - 0.5 * np.asarray(ego_length_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        behind = nbr_front <= ego_rear[:, None] - config.behind_m
+    return np.asarray(near & behind)
+
+
+def scripted_summary(scripted_nbr: np.ndarray | None) -> dict[str, Any]:
+    """What of a run's scripted-neighbour mask (B, N) changes answers, for keys: the number of
+    scripted slots and a digest of the mask ("none" without a scripted slot)."""
+    if scripted_nbr is None or not np.any(scripted_nbr):
+        return {"n": 0, "digest": "none"}
+    mask = np.ascontiguousarray(np.asarray(scripted_nbr, dtype=bool))
+    digest = hashlib.blake2b(f"{mask.shape}".encode() + mask.tobytes(), digest_size=8).hexdigest()
+    return {"n": int(mask.sum()), "digest": digest}
+
+
+def hybrid_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None) -> dict[str, Any]:
+    """The settings of ``closed-loop-hybrid`` that change answers (beside the driver model): the
+    hand-over rule and the scripted neighbours."""
+    return {"handover": asdict(config.handover), "scripted": scripted_summary(scripted_nbr)}
