@@ -87,6 +87,13 @@ class DualRatePlanner(ProposingPlanner, Protocol):
     def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
 
 
+def is_dual_rate(planner: object) -> bool:
+    """Whether the closed loop runs ``planner`` dual-rate: it proposes by a model call per scenario
+    (the LLM planners) and can say what is in force before the first answer (``default_proposals``)."""
+    return (isinstance(planner, ProposingPlanner) and bool(getattr(planner, "proposes_per_scenario", False))
+            and callable(getattr(planner, "default_proposals", None)))
+
+
 @dataclass
 class _Call:
     """An LLM call for one scenario: made at ``step`` (frames after t = 0)."""
