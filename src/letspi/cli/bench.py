@@ -220,10 +220,11 @@ def closed_loop_cmd(
 ) -> None:
     """Closed-loop throughput in-process and per worker, the N-worker speed-up over 1 worker (same run),
     lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags. With an LLM planner
-    (dual rate): real time, i.e. the wall time per 5 s scenario simulated alone, LLM calls included."""
+    (dual rate): real time, i.e. the wall time per 5 s scenario simulated alone, LLM calls included (no response
+    cache: every call runs the model)."""
     with user_errors():
         if planner_kind(planner).config_class in (MemoryPlannerConfig, FastPlannerConfig):
-            options = PlannerOptions(memory=memory, fast_llm=fast_llm, llm=llm, shield=shield)
+            options = PlannerOptions(memory=memory, fast_llm=fast_llm, llm=llm, shield=shield, llm_cache=False)
             dual_rate = DualRateConfig(llm_period_s, llm_latency_s)
             result = bench_real_time(scenarios=scenarios, n=8 if n is None else n, planner=planner, options=options,
                                      mode=mode, replan_s=replan_s, dual_rate=dual_rate, warmup=warmup,
