@@ -163,6 +163,10 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
         (["--mode", LOG, "--events", "none"], "--events applies to --mode closed-loop-hybrid only"),
         (["--mode", REACTIVE, "--handover-lanes", "1"], "--handover-lanes applies to --mode closed-loop-hybrid"),
         (["--mode", HYBRID, "--events", str(tmp_path / "nowhere")], "not a directory"),
+        (["--llm-period-s", "2"], "--llm-period-s apply to the closed-loop modes only"),
+        (["--llm-latency-s", "0"], "--llm-latency-s apply to the closed-loop modes only"),
+        (["--mode", LOG, "--llm-latency-s", "-1"], "--llm-latency-s must be >= 0 seconds"),
+        (["--mode", LOG, "--llm-period-s", "0"], "--llm-period-s must be a positive number of seconds"),
     ]
     for extra, message in cases:
         code, text = _evaluate(*base, *extra)
@@ -297,11 +301,23 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     assert (tmp_path / "p.png").stat().st_size > 10_000
 
 
-def test_llm_planners_call_their_model_at_every_replan(tmp_path: Path, traffic_file: Path) -> None:
+def test_llm_planners_run_dual_rate_with_their_period_and_fixed_latency_in_the_key(tmp_path: Path,
+                                                                                   traffic_file: Path) -> None:
     out = tmp_path / "ev"
-    code, text = _evaluate("--scenarios", str(traffic_file), "--limit", "2", "--planner", "llm", "--llm",
-                           "scripted:default", "--no-cache", "--out", str(out), "--mode", LOG, "--replan-s", "llm=2.5")
+    base = ["--scenarios", str(traffic_file), "--limit", "2", "--llm", "scripted:default", "--no-cache", "--out",
+            str(out), "--mode", LOG, "--replan-s", "0.2", "--llm-period-s", "2.5"]
+    code, text = _evaluate(*base, "--planner", "llm", "--planner", "cv", "--llm-latency-s", "0.4")
     assert code == 0, text
+    assert "LLM planners ask their model every 2.5 s, answers in force after 0.4 s" in " ".join(text.split())
     m = _metrics(out)["llm"]
-    assert m["replans_per_scenario"] == 3.0  # t = 0, 2.48 s, 4.96 s (62 whole frames apart)
-    assert m["llm_calls_per_scenario"] == 3.0 and m["inference_n"] == 2
+    assert m["replans_per_scenario"] == 25.0  # the physics every 0.2 s
+    assert m["llm_calls_per_scenario"] == 2.0 and m["inference_n"] == 2  # the model at t = 0 and 2.6 s
+    assert m["llm_in_force_pct"] == pytest.approx(100.0 * 23 / 25)  # the fitted parameters for the first 0.4 s
+    assert 0.4 <= m["llm_params_age_s"] < 2.8 and m["planner_cpu_ms_per_replan"] > 0
+    assert _metrics(out)["cv"]["planner_cpu_ms_per_replan"] > 0 and "llm_params_age_s" not in _metrics(out)["cv"]
+    cfg = json.loads((out / "per_scenario" / "llm" / "config.json").read_text())
+    assert cfg["evaluation"] == {"mode": LOG, "replan_s": 0.2,
+                                 "dual_rate": {"llm_period_s": 2.5, "llm_latency_s": 0.4}}
+    assert "dual_rate" not in json.loads((out / "per_scenario" / "cv" / "config.json").read_text())["evaluation"]
+    code, text = _evaluate(*base, "--planner", "llm", "--llm-latency-s", "1")  # another latency, another key
+    assert code == 2 and "llm_latency_s" in text, text

@@ -13,7 +13,8 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.assembly.planner_table import planner_kind
+from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.bench.data import bench_data
 from letspi.bench.llm import bench_models
@@ -21,10 +22,13 @@ from letspi.bench.llm_concurrency import bench_concurrency
 from letspi.bench.llm_runtime import CONFIGS, bench_runtime
 from letspi.bench.metrics import bench_metrics
 from letspi.bench.physics import bench_frenet, bench_rollout
+from letspi.bench.realtime import bench_real_time
 from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
 from letspi.evaluation.closed_loop import ClosedLoopSettings
+from letspi.planners.dual_rate import DEFAULT_LLM_PERIOD_S, DualRateConfig
+from letspi.planners.llm import FastPlannerConfig, MemoryPlannerConfig
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -193,7 +197,8 @@ def llm_cmd(
 @app.command("closed-loop")
 def closed_loop_cmd(
     scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
-    n: Annotated[int, typer.Option(help="Scenarios per measurement.")] = 256,
+    n: Annotated[int | None, typer.Option(
+        help="Scenarios per measurement (default 256; LLM planners: 8, each simulated alone).")] = None,
     planner: Annotated[str, typer.Option(help="Planner name.")] = "sf",
     mode: Annotated[str, typer.Option(
         help="closed-loop-log, closed-loop-reactive or closed-loop-hybrid (no scripted events).")] = "closed-loop-log",
@@ -203,12 +208,32 @@ def closed_loop_cmd(
         help="Scenarios simulated together in one SUMO network.")] = ClosedLoopSettings.chunk_size,
     minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
     seed: int = 0,
+    memory: Annotated[Path | None, typer.Option(help="LLM planners: memory bank of letspi-fast / letspi-fs.")] = None,
+    fast_llm: Annotated[str, typer.Option(help="LLM planners: model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
+    llm: Annotated[str, typer.Option(help="LLM planners: model of llm / letspi-memory.")] = DEFAULT_LLM,
+    llm_period_s: Annotated[float, typer.Option(
+        "--llm-period-s", help="LLM planners: the model at t = 0 and every this many seconds.")] = DEFAULT_LLM_PERIOD_S,
+    llm_latency_s: Annotated[float | None, typer.Option(
+        "--llm-latency-s", help="LLM planners: a fixed latency [s] instead of the measured one.")] = None,
+    warmup: Annotated[int, typer.Option(help="LLM planners: scenarios simulated first and not counted.")] = 1,
+    shield: Annotated[bool, typer.Option(help="LLM planners: the safety shield.")] = True,
     as_json: JsonOpt = False,
 ) -> None:
     """Closed-loop throughput in-process and per worker, the N-worker speed-up over 1 worker (same run),
-    lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags."""
-    result = bench_closed_loop(scenarios=scenarios, n=n, planner=planner, mode=mode, replan_s=replan_s,
-                               workers=workers, chunk_size=chunk_size, minutes=minutes, seed=seed)
+    lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags. With an LLM planner
+    (dual rate): real time, i.e. the wall time per 5 s scenario simulated alone, LLM calls included (no response
+    cache: every call runs the model)."""
+    with user_errors():
+        if planner_kind(planner).config_class in (MemoryPlannerConfig, FastPlannerConfig):
+            options = PlannerOptions(memory=memory, fast_llm=fast_llm, llm=llm, shield=shield, llm_cache=False)
+            dual_rate = DualRateConfig(llm_period_s, llm_latency_s)
+            result = bench_real_time(scenarios=scenarios, n=8 if n is None else n, planner=planner, options=options,
+                                     mode=mode, replan_s=replan_s, dual_rate=dual_rate, warmup=warmup,
+                                     minutes=minutes, seed=seed)
+        else:
+            result = bench_closed_loop(scenarios=scenarios, n=256 if n is None else n, planner=planner, mode=mode,
+                                       replan_s=replan_s, workers=workers, chunk_size=chunk_size, minutes=minutes,
+                                       seed=seed)
     _emit(result, as_json, "letspi bench closed-loop")  # type: ignore[arg-type]
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.progress import Progress
 
-from letspi.assembly.build import build_planners, parse_planner_arg
+from letspi.assembly.build import BuiltPlanner, build_planners, parse_planner_arg
 from letspi.assembly.planner_table import planner_help
 from letspi.assembly.resolve import PlannerOptions
 from letspi.cli.common import (
@@ -36,6 +36,7 @@ from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, Progre
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import render_markdown_table
+from letspi.planners.dual_rate import DEFAULT_LLM_PERIOD_S, DualRateConfig, is_dual_rate
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import HandoverConfig
@@ -62,7 +63,8 @@ EventsOpt = Annotated[str | None, typer.Option(
                      "from (its provenance), if it still exists.")]
 ReplanOpt = Annotated[list[str] | None, typer.Option(
     "--replan-s", help="Closed loop: replanning period [s] of every planner (S, default 1.0; 5 plans once) or of "
-                       "one planner (LABEL=S); repeatable. LLM planners call their model at every replan.")]
+                       "one planner (LABEL=S); repeatable. LLM planners replan their physics at this period and ask "
+                       "their model every --llm-period-s.")]
 WorkersOpt = Annotated[int, typer.Option(
     help="Closed loop: worker processes (one SUMO each; 0 = this process). With --ray: Ray actors.")]
 RayOpt = Annotated[bool, typer.Option(
@@ -75,6 +77,15 @@ ChunkSizeOpt = Annotated[int, typer.Option(
          "results agree to float rounding; smaller chunks lose less when a run is killed).")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
+LlmPeriodOpt = Annotated[float | None, typer.Option(
+    "--llm-period-s", help="Closed loop, LLM planners (dual rate): ask the model at t = 0 and then every this many "
+                           f"seconds (default {DEFAULT_LLM_PERIOD_S:g}: two calls per 5 s scenario; 5: at t = 0 only); "
+                           "meanwhile the physics and the shield replan every --replan-s with the answer in force. "
+                           "In the LLM planners' keys.")]
+LlmLatencyOpt = Annotated[float | None, typer.Option(
+    "--llm-latency-s", help="Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after "
+                            "its call: reproducible, in the key. Default: the measured latency (the model runs beside "
+                            "the simulation, which waits for the wall clock while an answer is out).")]
 HandoverLanesOpt = Annotated[int | None, typer.Option(
     help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
          "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
@@ -106,14 +117,17 @@ MlpWeightsOpt = Annotated[Path | None, typer.Option(
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
                          ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
                          concurrency: int | None = None,
-                         handover_lanes: int | None = None) -> ClosedLoopSettings | None:
+                         handover_lanes: int | None = None, llm_period_s: float | None = None,
+                         llm_latency_s: float | None = None) -> ClosedLoopSettings | None:
     """The closed-loop settings of the options (None in open loop, where they are refused).
     ``ray``: None (no Ray), ``local`` or a cluster address."""
     if mode not in EVALUATION_MODES:
         raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
     if mode == "open-loop":
         given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
-                                       ("--ray", ray is not None), ("--sumo-gui", sumo_gui)) if on]
+                                       ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
+                                       ("--llm-period-s", llm_period_s is not None),
+                                       ("--llm-latency-s", llm_latency_s is not None)) if on]
         if given:
             raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
                              "closed-loop-reactive or closed-loop-hybrid)")
@@ -127,8 +141,20 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
     if handover_lanes is not None and mode != "closed-loop-hybrid":
         raise ValueError(f"--handover-lanes applies to --mode closed-loop-hybrid only, not {mode}")
     handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
+    dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s)
     return ClosedLoopSettings(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                              sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover)
+                              sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate)
+
+
+def closed_loop_line(closed: ClosedLoopSettings, planners: list[BuiltPlanner]) -> str:
+    """The mode, each planner's replanning period and, with LLM planners, when they ask their model."""
+    line = f"Mode: {closed.mode}, replanning every " + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})"
+                                                                 for p in planners)
+    if any(is_dual_rate(p.planner) for p in planners):
+        dual = closed.dual_rate
+        line += (f"; LLM planners ask their model every {dual.llm_period_s:g} s, answers in force after "
+                 + ("the measured latency" if dual.measured else f"{dual.llm_latency_s:g} s"))
+    return line
 
 
 def scripted_neighbours_of(mode: str, events: str | None, scenarios: Path,
@@ -181,6 +207,8 @@ def evaluate(
     chunk_size: ChunkSizeOpt = ClosedLoopSettings.chunk_size,
     events: EventsOpt = None,
     handover_lanes: HandoverLanesOpt = None,
+    llm_period_s: LlmPeriodOpt = None,
+    llm_latency_s: LlmLatencyOpt = None,
     shield: ShieldOpt = PLANNER_DEFAULTS.shield,
     mlp_weights: MlpWeightsOpt = None,
 ) -> None:
@@ -189,7 +217,7 @@ def evaluate(
     with user_errors(), writer_lock(out, command_line()):
         closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
                                       ray_address or ("local" if ray else None), sumo_gui, chunk_size,
-                                      concurrency, handover_lanes)
+                                      concurrency, handover_lanes, llm_period_s, llm_latency_s)
         batch = load_limited(scenarios, limit)
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)
         if scripted is not None:
@@ -210,8 +238,7 @@ def evaluate(
                                          progress_factory=progress_factory(bar), concurrency=concurrency,
                                          on_run=print_run)
     if closed is not None:
-        typer.echo(f"Mode: {closed.mode}, replanning every "
-                   + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})" for p in planners) + "\n")
+        typer.echo(closed_loop_line(closed, planners) + "\n")
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
     console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/; keys in run.json and "
                   "per_scenario/*/config.json)")

@@ -7,7 +7,9 @@ the same metric code and tables, resumable per chunk and keyed by scenario diges
 * ``run.json``'s identity holds the mode and ``mode_settings`` (the simulation settings that change
   answers; with SUMO-driven neighbours the driver model; in ``closed-loop-hybrid`` also the hand-over
   rule and the digest of the scripted-neighbour mask), so a directory never mixes modes;
-* each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period);
+* each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period) and,
+  for the LLM planners, ``dual_rate = {llm_period_s, llm_latency_s}`` (a fixed latency, or
+  ``measured``);
 * a part's rows are scored on the simulated trajectories (``letspi.simulation.chunk_metrics``) and
   add SUMO's collision flag, replans, simulation time (``letspi.simulation.store.chunk_frame``);
 * the plan columns hold what was scored: ``plan_xy_m`` / ``plan_vxy_mps`` the simulated ego,
@@ -16,8 +18,10 @@ the same metric code and tables, resumable per chunk and keyed by scenario diges
   frames, and the simulated (or replayed) neighbours.
 
 Planners run in this process (``workers=0``: the planner built by the CLI is used as is), in N
-worker processes or on Ray actors (each builds its planner from the configuration). LLM planners
-call their backend at every replan: about ``5 / replan_s`` times the open-loop cost.
+worker processes or on Ray actors (each builds its planner from the configuration). LLM planners run
+dual-rate (``letspi.simulation.dual_rate``): their model is asked at t = 0 and every
+``--llm-period-s`` (default 2.5 s: two calls per 5 s scenario), the physics and the shield replan
+every ``--replan-s`` with the parameters in force.
 """
 
 from __future__ import annotations
@@ -47,6 +51,8 @@ from letspi.method.runner import RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
+from letspi.planners.base import Planner
+from letspi.planners.dual_rate import DualRateConfig, is_dual_rate
 from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
@@ -92,6 +98,8 @@ class ClosedLoopSettings:
             chunk sizes 3 and 32 give the same plans to 1e-12 m).
         driver: driver model of SUMO-driven neighbours (part of the key in the reactive and hybrid modes).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO (part of its key).
+        dual_rate: when the LLM planners ask their model and when the answers take effect (part of
+            their keys; other planners ignore it).
     """
 
     mode: str
@@ -103,6 +111,7 @@ class ClosedLoopSettings:
     chunk_size: int = 32
     driver: DriverModelConfig = field(default_factory=DriverModelConfig)
     handover: HandoverConfig = field(default_factory=HandoverConfig)
+    dual_rate: DualRateConfig = field(default_factory=DualRateConfig)
 
     def __post_init__(self) -> None:
         if self.mode not in CLOSED_LOOP_MODES:
@@ -119,7 +128,7 @@ class ClosedLoopSettings:
     def engine_config(self) -> ClosedLoopConfig:
         return ClosedLoopConfig(mode=self.mode, replan_s=self.replan_s, chunk_size=self.chunk_size,  # type: ignore[arg-type]
                                 sumo_backend="traci" if self.sumo_gui else "libsumo", sumo_gui=self.sumo_gui,
-                                driver=self.driver, handover=self.handover)
+                                driver=self.driver, handover=self.handover, dual_rate=self.dual_rate)
 
     def replan_s_of(self, label: str) -> float:
         """The replanning period of the planner labelled ``label`` [s]."""
@@ -139,9 +148,13 @@ class ClosedLoopSettings:
             out.update(hybrid_settings(cfg, scripted_nbr))
         return out
 
-    def planner_evaluation(self, label: str) -> dict[str, Any]:
-        """What joins the planner's configuration key: the mode and its replanning period."""
-        return {"mode": self.mode, "replan_s": round(self.replan_s_of(label), 6)}
+    def planner_evaluation(self, label: str, planner: Planner | None = None) -> dict[str, Any]:
+        """What joins the planner's configuration key: the mode and its replanning period; for an LLM
+        planner (``is_dual_rate``) also its LLM period and fixed latency (or ``measured``)."""
+        out: dict[str, Any] = {"mode": self.mode, "replan_s": round(self.replan_s_of(label), 6)}
+        if planner is not None and is_dual_rate(planner):
+            out["dual_rate"] = self.dual_rate.identity()
+        return out
 
     def uses_processes(self) -> bool:
         return self.workers > 0 or self.ray_address is not None
@@ -339,7 +352,7 @@ class ClosedLoopRunner:
                  config: MetricsConfig, progress: ProgressCallback | None,
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
-        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name), before_write)
+        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name, built.planner), before_write)
         done = writer.done()
         todo = np.flatnonzero([d not in done for d in digests])
         if progress is not None and len(batch) - len(todo):

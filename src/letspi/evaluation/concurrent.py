@@ -1,43 +1,57 @@
-"""Per-scenario planners (the LLM planners) in the harness: N scenarios in flight, parts in scenario order.
+"""Planners that call a model per scenario (the LLM planners) in the harness: proposals made N at a
+time, physics and metrics batched per part, parts written in scenario order.
 
-A planner that plans one scenario per call and says its ``plan`` is thread-safe (``concurrent_safe``)
-runs through ``letspi.method.runner``: each scenario is one task (plan on the history-only view unless
-the planner reads the future, then its metrics against the full scenario), and the calling thread
-collects the results in scenario order and writes them as part files of up to ``PART_SCENARIOS``
-rows, or sooner when ``PART_FLUSH_S`` passed since the last part (so a killed run loses at most a few
-seconds of work; the table is built once per part, not per scenario). Every row's values are those of
-its own scenario alone (metrics are computed per scenario), so neither the concurrency nor the part
-boundaries change what is stored; ``inference_s`` is the scenario's own wall time in its task (with N
-in flight it includes waiting in the server's queue).
+A ``ProposingPlanner`` whose ``propose`` calls a model once per scenario (``proposes_per_scenario``)
+and is thread-safe (``concurrent_safe``) runs through ``letspi.method.runner``:
+
+* each scenario's *proposal* is one task (prompt, LLM call(s), reflection rounds), ``concurrency``
+  in flight. Its context (goal and predicted neighbours, what the prompt and the rollout need) is
+  computed batched for a fixed block of ``CONTEXT_BLOCK`` dataset positions, by the first task of
+  the block to need it;
+* the calling thread collects the proposals in scenario order and, per part of up to
+  ``PART_SCENARIOS`` rows (or sooner, when ``PART_FLUSH_S`` passed since the last part, so a killed
+  run loses at most a few seconds of model work), runs the planner's ``simulate`` (social force
+  rollout and safety shield) and the metrics once over the whole part, then writes it.
+
+Neither the concurrency, nor the part boundaries, nor an interrupted and resumed run change what is
+stored: a scenario's context comes from its fixed block, and the physics and the metrics of a
+scenario do not depend on which other scenarios share the batch (tested to the bit,
+``tests/test_propose_simulate.py``). ``inference_s`` is the scenario's own proposal time in its task
+(with N in flight it includes waiting in the server's queue) plus its share of the batched context
+and physics.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TypeGuard
 
 import numpy as np
 
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
-from letspi.method.runner import RunnerConfig, RunStats, RunStatus, run_ordered
+from letspi.method.runner import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.metrics.compute import ScenarioMetrics
-from letspi.planners.base import PlanBatch, Planner
+from letspi.planners.base import PlanBatch, Planner, PlanningContext, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch
 
 PART_SCENARIOS = 64
 PART_FLUSH_S = 5.0
+#: dataset positions whose contexts (goals, predicted neighbours) are computed in one batch
+CONTEXT_BLOCK = 64
 
-#: (one scenario with its future, its plan) -> its metrics
+#: (k scenarios with their future, their plans) -> their metrics
 Measure = Callable[[ScenarioBatch, PlanBatch], ScenarioMetrics]
 #: (metrics of k scenarios, their indices, their plans stacked, their planning times [s]) -> one part written
 WritePart = Callable[[ScenarioMetrics, np.ndarray, PlanBatch, np.ndarray], object]
 
 
-def runs_per_scenario(planner: Planner) -> bool:
-    """Whether the harness runs ``planner`` through the concurrent per-scenario path."""
-    return int(planner.batch_size) == 1 and bool(getattr(planner, "concurrent_safe", False))
+def runs_per_scenario(planner: Planner) -> TypeGuard[ProposingPlanner]:
+    """Whether the harness runs ``planner`` through this module (proposals per scenario, concurrently)."""
+    return (isinstance(planner, ProposingPlanner) and bool(getattr(planner, "proposes_per_scenario", False))
+            and bool(getattr(planner, "concurrent_safe", False)))
 
 
 def planner_advisor(planner: Planner) -> ParamAdvisor | None:
@@ -54,21 +68,46 @@ def planner_concurrency(planner: Planner, requested: int | None) -> int:
 
 
 @dataclass
-class _Scored:
+class _Proposed:
     index: int
-    metrics: ScenarioMetrics
-    plan: PlanBatch
-    seconds: float
+    context: PlanningContext
+    proposals: Proposals
+    seconds: float  # proposal time + share of the block's context time
 
 
-def _stack(plans: Sequence[PlanBatch]) -> PlanBatch:
-    info = {k: np.concatenate([np.asarray(p.info[k]) for p in plans]) for k in plans[0].info}
-    return PlanBatch(xy_m=np.concatenate([p.xy_m for p in plans]), vxy_mps=np.concatenate([p.vxy_mps for p in plans]),
-                     goals_xy_m=np.concatenate([p.goals_xy_m for p in plans]), info=info)
+class _Parts:
+    """The writer's side: proposals pooled in scenario order, simulated, scored and written per part."""
+
+    def __init__(self, planner: ProposingPlanner, batch: ScenarioBatch, seen: ScenarioBatch, measure: Measure,
+                 write_part: WritePart, contexts: BlockCache[PlanningContext]) -> None:
+        self.planner, self.batch, self.seen = planner, batch, seen
+        self.measure, self.write_part, self.contexts = measure, write_part, contexts
+        self.rows: list[_Proposed] = []
+        self.last_flush = time.perf_counter()
+        self.physics_cpu_s = 0.0  # simulate + metrics, in this thread
+
+    def add(self, proposed: _Proposed) -> None:
+        self.rows.append(proposed)
+        if len(self.rows) >= PART_SCENARIOS or time.perf_counter() - self.last_flush >= PART_FLUSH_S:
+            self.flush()
+
+    def flush(self) -> None:
+        rows = self.rows
+        if rows:
+            idx = np.array([r.index for r in rows])
+            t0, c0 = time.perf_counter(), time.thread_time()
+            plan = self.planner.simulate(self.seen.take(idx), PlanningContext.concat([r.context for r in rows]),
+                                         Proposals.concat([r.proposals for r in rows]))
+            share = (time.perf_counter() - t0) / len(rows)
+            metrics = self.measure(self.batch.take(idx), plan)
+            self.physics_cpu_s += time.thread_time() - c0
+            self.write_part(metrics, idx, plan, np.array([r.seconds + share for r in rows]))
+            self.contexts.discard_below(int(idx[-1]) + 1)
+        self.rows, self.last_flush = [], time.perf_counter()
 
 
 def plan_concurrently(
-    planner: Planner,
+    planner: ProposingPlanner,
     batch: ScenarioBatch,
     todo: Sequence[int],
     *,
@@ -77,31 +116,20 @@ def plan_concurrently(
     runner: RunnerConfig,
     progress: Callable[[int, RunStatus | None], None] | None = None,
 ) -> RunStats:
-    """Plan and score ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; parts are
-    written in scenario order by this thread (module docstring). Raises what ``run_ordered`` raises,
-    after writing every row it accepted."""
-    rows: list[_Scored] = []
-    last_flush = time.perf_counter()
+    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score
+    and write them per part in scenario order, in this thread (module docstring). Raises what
+    ``run_ordered`` raises, after writing every row it accepted."""
+    seen_all = batch if planner.reads_future else batch.history()
+    contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
+                                                       lambda rows: planner.context(seen_all.take(rows)))
+    parts = _Parts(planner, batch, seen_all, measure, write_part, contexts)
 
-    def flush() -> None:
-        nonlocal rows, last_flush
-        if rows:
-            write_part(ScenarioMetrics.concat([r.metrics for r in rows]), np.array([r.index for r in rows]),
-                       _stack([r.plan for r in rows]), np.array([r.seconds for r in rows]))
-        rows, last_flush = [], time.perf_counter()
-
-    def work(i: int) -> _Scored:
-        one = batch.take([i])
-        seen = one if planner.reads_future else one.history()
+    def work(i: int) -> _Proposed:
+        block, offset, context_s = contexts.get(i)
+        own = block.take([offset])
         t0 = time.perf_counter()
-        plan = planner.plan(seen)
-        elapsed = time.perf_counter() - t0
-        return _Scored(i, measure(one, plan), plan, elapsed)
-
-    def write(i: int, scored: _Scored) -> None:
-        rows.append(scored)
-        if len(rows) >= PART_SCENARIOS or time.perf_counter() - last_flush >= PART_FLUSH_S:
-            flush()
+        proposals = planner.propose(seen_all.take([i]), own)
+        return _Proposed(i, own, proposals, time.perf_counter() - t0 + context_s)
 
     reported = 0
 
@@ -111,11 +139,12 @@ def plan_concurrently(
             progress(status.done - reported, status)
             reported = status.done
 
-    def is_fallback(scored: _Scored) -> bool:
-        return bool(np.asarray(scored.plan.info.get("fallback", [False]))[0])
+    def is_fallback(proposed: _Proposed) -> bool:
+        return bool(np.asarray(proposed.proposals.info.get("fallback", [False]))[0])
 
     try:
-        return run_ordered(todo, work, write, config=runner, advisor=planner_advisor(planner),
-                           is_fallback=is_fallback, progress=on_status)
+        stats = run_ordered(todo, work, lambda i, proposed: parts.add(proposed), config=runner,
+                            advisor=planner_advisor(planner), is_fallback=is_fallback, progress=on_status)
     finally:
-        flush()
+        parts.flush()
+    return replace(stats, physics_cpu_s=parts.physics_cpu_s + contexts.cpu_s)

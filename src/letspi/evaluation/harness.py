@@ -23,11 +23,12 @@ directory and ``config.json`` are written with the first stored part (the keys a
 planning), so a planner that fails before storing a scenario (server down, disk full, Ctrl-C) leaves
 nothing; the planners finished before a failure are still merged into metrics.json / metrics.md.
 
-Concurrency: planners that plan one scenario per call and are thread-safe (the LLM planners) keep
-``concurrency`` scenarios in flight (``letspi.evaluation.concurrent``; default per LLM backend); one
-thread writes their rows in scenario order, so the concurrency never changes stored results and is
-not part of any key. A scenario whose LLM requests failed in transport is not stored: that planner's
-metrics are not aggregated and ``evaluate`` ends with ``ScenariosFailedError`` (rerun to complete).
+Concurrency: planners that call a model per scenario and are thread-safe (the LLM planners) keep
+``concurrency`` scenarios' proposals in flight (``letspi.evaluation.concurrent``; default per LLM
+backend); one thread simulates, scores and writes their rows per part in scenario order, so the
+concurrency never changes stored results and is not part of any key. A scenario whose LLM requests
+failed in transport is not stored: that planner's metrics are not aggregated and ``evaluate`` ends
+with ``ScenariosFailedError`` (rerun to complete).
 
 Modes: ``open-loop`` (the paper's protocol) is run here; ``closed-loop-log``, ``closed-loop-reactive``
 and ``closed-loop-hybrid`` run through ``letspi.evaluation.closed_loop`` (a ``PlannerRunner`` passed to
@@ -427,6 +428,13 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
         if "nbr_reactive" in frame:  # neighbours SUMO drove (hand-overs), per scenario
             out["nbr_reactive_per_scenario"] = float(np.nanmean(np.asarray(frame["nbr_reactive"], dtype=np.float64)))
+    for column, key in (("info_planner_cpu_ms_mean_over_replans", "planner_cpu_ms_per_replan"),
+                        ("info_params_age_s_mean_over_replans", "llm_params_age_s"),
+                        ("info_llm_in_force_mean_over_replans", "llm_in_force_pct")):
+        if column in frame and len(frame):  # closed loop: planner CPU per scenario and replan; dual rate
+            values = np.asarray(frame[column], dtype=np.float64)
+            mean = float(np.nanmean(values)) if np.isfinite(values).any() else None
+            out[key] = None if mean is None else (100.0 * mean if key.endswith("_pct") else mean)
     if "info_shielded" in frame:  # the LLM planners' safety shield replaced the plan
         out["shielded_pct"] = float(100.0 * np.asarray(frame["info_shielded"], dtype=np.float64).mean())
     return out

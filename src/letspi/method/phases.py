@@ -34,14 +34,18 @@ from letspi.llm.types import Message
 from letspi.method.matching import TOP_K, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
 from letspi.method.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
-from letspi.method.runner import RunnerConfig, RunStats, RunStatus, run_ordered
+from letspi.method.runner import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
+from letspi.physics.types import NeighbourPrediction
 from letspi.scenario.features import FEATURE_NAMES, scenario_features
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
+
+#: scenarios whose goals and predicted neighbours ``collect`` computes in one batch (fixed positions)
+CONTEXT_BLOCK = 64
 
 
 def messages_text(messages: Sequence[Message]) -> str:
@@ -124,13 +128,21 @@ class MemoryPhase:
     goal_adjustment: bool = True
     prompt_style: PromptStyle = "paper"
 
-    def run(self, scenario: ScenarioBatch) -> ReflectionResult:
-        """Reflection loop on a batch of one."""
-        base_goal = self.goal_predictor.predict_goals(scenario).top[0]
-        pred = predict_neighbours(scenario, self.neighbour_mode)
+    def run(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None = None,
+            prediction: NeighbourPrediction | None = None) -> ReflectionResult:
+        """Reflection loop on a batch of one. ``base_goal_xy_m`` (2,) / ``prediction`` (1, N, F, ...):
+        the scenario's goal and predicted neighbours when the caller computed them for many scenarios
+        at once (default: predicted here)."""
+        base_goal = (self.goal_predictor.predict_goals(scenario).top[0] if base_goal_xy_m is None
+                     else np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2))
+        pred = predict_neighbours(scenario, self.neighbour_mode) if prediction is None else prediction
         proposer = LlmProposer(self.advisor, self.r_col_m, prompt_style=self.prompt_style)
         return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
                        neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
+
+    def context(self, batch: ScenarioBatch) -> tuple[np.ndarray, NeighbourPrediction]:
+        """Goals (B, 2) and predicted neighbours of ``batch``, batched (what ``run`` takes per scenario)."""
+        return self.goal_predictor.predict_goals(batch).top, predict_neighbours(batch, self.neighbour_mode)
 
     def experience(self, scenario: ScenarioBatch, result: ReflectionResult, scenario_digest: str) -> Experience:
         return Experience.from_reflection(result, scenario, scenario_digest=scenario_digest,
@@ -172,7 +184,9 @@ def collect(
     committed one at a time in scenario order by this thread, so the bank's rows (ids included) do
     not depend on the concurrency or on which scenario finished first, and a killed run resumed
     gives the bank of an uninterrupted one. A scenario whose LLM requests failed in transport is not
-    stored (the run ends with ``ScenariosFailedError``; rerunning retries it); a server that cannot be
+    stored (the run ends with ``ScenariosFailedError``; rerunning retries it). Goals and predicted
+    neighbours are computed batched for fixed blocks of ``CONTEXT_BLOCK`` scenarios (the reflection
+    rounds' rollouts stay per scenario: each needs the previous round's answer). A server that cannot be
     reached, or too many failures in a row, stops the run (``BackendUnavailableError``,
     ``RunStoppedError``) with what finished stored."""
     t0 = time.perf_counter()
@@ -183,11 +197,20 @@ def collect(
     counts = {"stored": 0, "validated": 0, "fallback_results": 0, "fallback_replies": 0, "refinements": 0,
               "calls": 0, "cached": 0}
 
+    # goals and predicted neighbours batched per fixed block of scenarios (the reflection rounds are per scenario)
+    contexts: BlockCache[tuple[np.ndarray, NeighbourPrediction]] = BlockCache(
+        CONTEXT_BLOCK, len(batch), lambda rows: phase.context(batch.take(rows)))
+
     def work(i: int) -> tuple[ScenarioBatch, ReflectionResult]:
         one = batch.take([i])
-        return one, phase.run(one)
+        (goals, pred), k, _ = contexts.get(i)
+        return one, phase.run(one, goals[k], NeighbourPrediction(*(np.asarray(a)[k : k + 1] for a in pred)))
 
     def write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
+        _write(i, done_)
+        contexts.discard_below(i + 1)
+
+    def _write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
         one, result = done_
         exp = phase.experience(one, result, str(digests[i]))
         counts["stored"] += int(bank.add(exp))
@@ -292,6 +315,13 @@ class FastPhase:
     prompt_style: PromptStyle = "paper"
 
     def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
+        """One LLM call for a batch of one: the proposal and the retrieved memories (scenario id, similarity)."""
+        proposal, retrieved = self.propose_retrieved(scenario, base_goal_xy_m)
+        return proposal, [(e.scenario_id, s) for e, s in retrieved]
+
+    def propose_retrieved(self, scenario: ScenarioBatch,
+                          base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[Experience, float]]]:
+        """``propose`` returning the retrieved experiences themselves (the shield falls back to them)."""
         retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
         desc = describe_scenario(scenario, base_goal_xy_m)
         if self.prompt_style == "compact":  # the fine-tuned model: no few-shot examples in its prompt
@@ -300,4 +330,4 @@ class FastPhase:
             examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
             messages = render_fast_prompt(desc, memories=examples)
         proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
-        return proposal, [(e.scenario_id, s) for e, s in retrieved]
+        return proposal, retrieved

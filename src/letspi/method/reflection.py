@@ -235,6 +235,14 @@ class SafetyReport:
     def safe(self) -> bool:
         return not self.violations
 
+    def severity(self) -> tuple[float, ...]:
+        """Sort key, smaller is less unsafe: contact, off-road, number of violations, then the margins
+        (min front/rear TTC capped at 10 s, min in-path gap capped at 50 m), negated."""
+        m = self.metrics
+        ttc = min(m["min_ttc_s"], m["min_rear_ttc_s"], 10.0)
+        gap = min(m["min_path_gap_m"], 50.0)
+        return (m["collision"], m["off_road"], float(len(self.violations)), -ttc, -gap)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly (non-finite floats stay floats; see ``letspi.method.memory`` for storage)."""
         return {
@@ -651,14 +659,6 @@ class ReflectionResult:
 Proposer = Callable[[ReflectionContext], Proposal]
 
 
-def _severity(report: SafetyReport) -> tuple[float, ...]:
-    """Sort key: smaller is less unsafe (contact, off-road, number of violations, then margins)."""
-    m = report.metrics
-    ttc = min(m["min_ttc_s"], m["min_rear_ttc_s"], 10.0)
-    gap = min(m["min_path_gap_m"], 50.0)
-    return (m["collision"], m["off_road"], float(len(report.violations)), -ttc, -gap)
-
-
 def _goal_and_prediction(scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None,
                          neighbour_prediction: NeighbourPrediction | None) -> tuple[np.ndarray, NeighbourPrediction]:
     """The goal before adjustment (2,) and the neighbour prediction, the planners' defaults where not given
@@ -743,4 +743,4 @@ def _final_index(history: list[IterationRecord], unsafe_choice: Literal["best", 
         return safe_idx[0]
     if unsafe_choice == "last":
         return len(history) - 1
-    return min(range(len(history)), key=lambda i: (_severity(history[i].report), -i))
+    return min(range(len(history)), key=lambda i: (history[i].report.severity(), -i))

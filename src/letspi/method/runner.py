@@ -28,6 +28,7 @@ Design (issue 13)
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
@@ -41,6 +42,7 @@ from letspi.llm.guard import RequestSnapshot, default_failure_budget
 from letspi.llm.types import LLMTransportError, RequestFailedError
 
 R = TypeVar("R")
+T = TypeVar("T")
 
 #: How often (s) the progress callback hears from a run even when nothing finishes.
 PROGRESS_INTERVAL_S = 0.5
@@ -111,6 +113,7 @@ class RunStats:
     concurrency: int
     scenario_s: tuple[float, ...] = ()
     requests: RequestSnapshot | None = None
+    physics_cpu_s: float | None = None  # CPU time of the batched physics and metrics, when the run had them
 
     @property
     def scenarios_per_s(self) -> float | None:
@@ -141,7 +144,16 @@ class RunStats:
             "request_p95_s": None if req is None else _r(req.latency_p95_s),
             "tokens_per_s": None if req is None else _r(req.tokens_per_s),
             "completion_tokens_per_s": None if req is None else _r(req.completion_tokens_per_s),
+            "physics_cpu_ms_per_scenario": _r(self.physics_cpu_ms_per_scenario),
         }
+
+    @property
+    def physics_cpu_ms_per_scenario(self) -> float | None:
+        """CPU time of the batched physics (goals, neighbour prediction, rollout, shield, metrics) per
+        written scenario [ms], when the run pooled its physics (``letspi.evaluation.concurrent``)."""
+        if self.physics_cpu_s is None or not self.written:
+            return None
+        return 1000.0 * self.physics_cpu_s / self.written
 
     def summary_line(self) -> str:
         """One line for the end of a run: throughput, latency percentiles, tokens/s, fallbacks."""
@@ -158,6 +170,8 @@ class RunStats:
                    if req.latency_p50_s is not None else "")
             parts.append(f"{req.requests} requests ({req.cached} cached, {req.failed} failed{lat}); "
                          f"{_fmt(req.tokens_per_s)} tokens/s over {live} live requests")
+        if self.physics_cpu_ms_per_scenario is not None:
+            parts.append(f"physics {_fmt(self.physics_cpu_ms_per_scenario)} ms CPU per scenario")
         parts.append(f"{self.fallbacks} fallbacks, {self.failed} failed (not stored)")
         return "; ".join(parts)
 
@@ -263,12 +277,17 @@ def run_ordered(
         _InlineExecutor() if config.concurrency == 1 else
         ThreadPoolExecutor(max_workers=config.concurrency, thread_name_prefix="letspi-scenario"))
     interrupted = False
+
+    def submit() -> None:
+        nonlocal next_submit
+        while (first_error is None and next_submit < n and len(pending) < config.concurrency
+               and next_submit - next_write < config.concurrency + config.reorder_window):
+            pending[executor.submit(timed, indices[next_submit])] = next_submit
+            next_submit += 1
+
     try:
         while next_write < n:
-            while (first_error is None and next_submit < n and len(pending) < config.concurrency
-                   and next_submit - next_write < config.concurrency + config.reorder_window):
-                pending[executor.submit(timed, indices[next_submit])] = next_submit
-                next_submit += 1
+            submit()
             if pending:
                 finished, _ = wait(list(pending), timeout=PROGRESS_INTERVAL_S, return_when=FIRST_COMPLETED)
                 for fut in finished:
@@ -281,6 +300,8 @@ def run_ordered(
                     except Exception as exc:
                         stop(exc)
                         buffer[pos] = _Done(stopped=True)
+                if config.concurrency > 1:
+                    submit()  # refill the freed slots before writing: a write may take a while (a part's physics)
             while next_write in buffer and not buffer[next_write].stopped:
                 done = buffer.pop(next_write)
                 if done.failed is not None:
@@ -316,3 +337,54 @@ def run_ordered(
             f"{counts.failed} of {n} scenarios got no answer from the LLM server and were not stored "
             f"(first: {counts.failures[0]}); rerun the same command to retry them", stats=stats)
     return stats
+
+
+class BlockCache(Generic[T]):
+    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), on first use,
+    by whichever thread asks first (the others wait for it); thread-safe.
+
+    Tasks that run one scenario each use it for what is cheaper batched (goal and neighbour prediction
+    of a block of scenarios). The blocks are fixed positions of the whole input, not of the work left
+    or of the order tasks run in, so a value never depends on the concurrency, on timing or on what
+    an interrupted run already stored. ``compute(positions)`` gets a slice of positions.
+    """
+
+    def __init__(self, size: int, n: int, compute: Callable[[slice], T]) -> None:
+        if size < 1:
+            raise ValueError(f"block size must be >= 1, got {size}")
+        self.size, self.n = size, n
+        self._compute = compute
+        self._values: dict[int, tuple[T, float]] = {}
+        self._locks: dict[int, threading.Lock] = {}
+        self._guard = threading.Lock()
+        self.cpu_s = 0.0  # CPU time spent computing blocks (their threads' CPU time) [s]
+
+    def block_of(self, position: int) -> tuple[int, int]:
+        """(block index, offset of ``position`` in it)."""
+        return divmod(int(position), self.size)
+
+    def block_len(self, block: int) -> int:
+        return min(self.size, self.n - block * self.size)
+
+    def get(self, position: int) -> tuple[T, int, float]:
+        """(the value of ``position``'s block, the offset in it, its computing time per position [s])."""
+        block, offset = self.block_of(position)
+        with self._guard:
+            lock = self._locks.setdefault(block, threading.Lock())
+        with lock:
+            if block not in self._values:
+                start = self.size * block
+                t0, c0 = time.perf_counter(), time.thread_time()
+                value = self._compute(slice(start, start + self.block_len(block)))
+                self._values[block] = (value, (time.perf_counter() - t0) / self.block_len(block))
+                with self._guard:
+                    self.cpu_s += time.thread_time() - c0
+            value, seconds = self._values[block]
+        return value, offset, seconds
+
+    def discard_below(self, position: int) -> None:
+        """Forget the blocks that end at or before ``position`` (positions below it are done)."""
+        with self._guard:
+            for block in [b for b in self._values if self.size * (b + 1) <= position]:
+                del self._values[block]
+                self._locks.pop(block, None)

@@ -15,10 +15,10 @@ import numpy as np
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
 from letspi.physics.goals import GoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import Config, GoalsConfig, WeightsConfig
 from letspi.scenario.types import ScenarioBatch
 
@@ -44,6 +44,7 @@ class GnpPlanner:
     name: str = "gnp"
     batch_size: int = 1024
     reads_future: bool = False
+    proposes_per_scenario: bool = False
 
     def __post_init__(self) -> None:
         self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)
@@ -51,13 +52,23 @@ class GnpPlanner:
             raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
                              "not the recorded future")
 
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        goals = self.goal_predictor.predict_goals(batch).top
-        neighbours = predict_neighbours(batch, self.neighbour_mode)
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        """Learned tau and neighbour weights (``extra["nbr_weight"]`` (B, N)); goals as predicted."""
         tau, weights = self.model.predict(scene_features(batch))
         params = self.model.params_batch(tau)
-        scene = SocialForceScene.from_batch(batch, neighbours)
-        roll = rollout_weighted(scene, params, goals, weights)
+        b = len(batch)
         info = {name: np.asarray(getattr(params, name), dtype=np.float64) for name in PARAM_NAMES}
         info["nbr_weight"] = weights
-        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)
+        return Proposals(params, np.full(b, np.nan), np.full(b, np.nan), info, extra={"nbr_weight": weights})
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        scene = SocialForceScene.from_batch(batch, context.neighbours)
+        roll = rollout_weighted(scene, proposals.params, context.goals_xy_m, proposals.extra["nbr_weight"])
+        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=context.goals_xy_m,
+                         info=dict(proposals.info))
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)

@@ -2,10 +2,14 @@
 ``letspi-fast`` (fast-inference phase with retrieved memories) and ``letspi-fs`` (the FS ablation:
 the fast prompt with three static examples instead of retrieval).
 
-They plan one scenario per call (``batch_size = 1``) so the harness times each LLM call honestly,
-and ``plan`` is thread-safe (``concurrent_safe``): the harness keeps ``--concurrency`` scenarios in
-flight (``letspi.method.runner``), all asking the planner's one ``advisor``. ``last_*`` attributes
-describe the most recent call to finish (for ``letspi plan``, one scenario).
+They are ``ProposingPlanner``s (``letspi.planners.base``): ``propose`` makes the LLM call(s) of one
+scenario at a time (``proposes_per_scenario``) and is thread-safe (``concurrent_safe``): the harness
+keeps ``--concurrency`` scenarios in flight (``letspi.method.runner``), all asking the planner's one
+``advisor``, and pools their proposals. ``simulate`` runs the social force rollout and the safety
+shield batched over every proposal it is given (a part of an evaluation, a chunk of the closed
+loop); a scenario's plan does not depend on which others share the batch. ``plan`` does both (any
+batch size: the proposals one by one, the physics at once). ``last_*`` attributes describe the most
+recent proposal to finish (for ``letspi plan``, one scenario).
 Per-scenario extras (``PlanBatch.info``) record the LLM side: tokens, fallbacks, clamps, reflection
 iterations, whether the final plan was validated, and the timing honesty columns:
 
@@ -19,16 +23,17 @@ Safety shield (beyond the paper; on by default, ``--no-shield`` is the paper-fai
 before a plan is returned, the reflection checks run once more against the *predicted* neighbours
 (the planner's own prediction from history; no LLM call, milliseconds). If the plan fails, the
 alternatives (the retrieved memories' parameters for ``letspi-fast``, the fitted ``sf`` parameters,
-then ``sf-opt``'s candidate grid around them, cheapest first) are simulated and checked in one batch,
-and the safest one is returned instead: the first safe alternative in that order, else the least
-unsafe plan of all (possibly the original). Info columns: ``shielded`` (the plan was replaced),
-``shield_checked`` (the shield ran), ``shield_safe`` (the returned plan passes the checks),
-``shield_source`` (0 = the LLM's plan, 1..k = retrieved memory k, -1 = the fitted ``sf``
-parameters, -2 = a grid candidate).
+then ``sf-opt``'s candidate grid around them, cheapest first) are simulated and checked in one batch
+(those of every failing plan of the batch together), and the safest one is returned instead: the
+first safe alternative in that order, else the least unsafe plan of all (possibly the original).
+Info columns: ``shielded`` (the plan was replaced), ``shield_checked`` (the shield ran),
+``shield_safe`` (the returned plan passes the checks), ``shield_source`` (0 = the LLM's plan, 1..k =
+retrieved memory k, -1 = the fitted ``sf`` parameters, -2 = a grid candidate).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -38,15 +43,14 @@ from pydantic import Field
 
 from letspi.llm.client import ParamAdvisor
 from letspi.method.matching import TOP_K
-from letspi.method.memory import MemoryBank
+from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
 from letspi.method.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
-from letspi.physics.types import NeighbourPrediction
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import Config, GoalsConfig, LlmConfig, MemoryPhaseConfig, MemoryRef, SfParamsConfig
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
@@ -82,73 +86,90 @@ def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float
 SF_SOURCE = -1  # shield_source of the fitted sf parameters
 GRID_SOURCE = -2  # shield_source of a candidate of sf-opt's grid
 Alternative = tuple[int, SocialForceParams, float, float]  # (shield_source, params, lon_factor, lane_factor)
+#: ``Proposals.extra`` key of letspi-fast: (B, K, 9) the retrieved memories' parameters (``PARAM_NAMES``
+#: order), lon_factor and lane_factor, best first; NaN rows where fewer than K were retrieved
+MEMORY_ALTERNATIVES = "memory_alternatives"
+_ALTERNATIVE_COLUMNS = len(PARAM_NAMES) + 2
+#: alternatives per failing plan simulated first (the retrieved memories and the fitted parameters)
+SHIELD_FIRST_STAGE = 4
 
 
 @dataclass(frozen=True)
-class ShieldResult:
-    """The plan to return (F, 2 each), its goal (2,) and the info columns of the shield."""
+class ShieldedPlans:
+    """The plans to return, (B, F, 2) each, their goals (B, 2), and per scenario whether the shield
+    replaced the plan, whether the returned plan passes the checks and where it came from."""
 
     xy_m: np.ndarray
     vxy_mps: np.ndarray
-    goal_xy_m: np.ndarray
-    shielded: bool
-    safe: bool
-    source: int
-    params: SocialForceParams
-    lon_factor: float
-    lane_factor: float
+    goals_xy_m: np.ndarray
+    shielded: np.ndarray
+    safe: np.ndarray
+    source: np.ndarray
 
-    def info(self) -> dict[str, float]:
-        return {"shielded": float(self.shielded), "shield_checked": 1.0, "shield_safe": float(self.safe),
-                "shield_source": float(self.source)}
+    def info(self) -> dict[str, np.ndarray]:
+        b = len(self.shielded)
+        return {"shielded": self.shielded.astype(np.float64), "shield_checked": np.ones(b),
+                "shield_safe": self.safe.astype(np.float64), "shield_source": self.source.astype(np.float64)}
 
 
-def _severity(report: SafetyReport) -> tuple[float, ...]:
-    """Smaller is less unsafe: contact, off-road, number of violations, then (negated) margins."""
-    m = report.metrics
-    ttc = min(m["min_ttc_s"], m["min_rear_ttc_s"], 10.0)
-    return (m["collision"], m["off_road"], float(len(report.violations)), -ttc, -min(m["min_path_gap_m"], 50.0))
-
-
-def shield_plan(
-    scenario: ScenarioBatch,
-    plan_xy_m: np.ndarray,
-    plan_vxy_mps: np.ndarray,
-    goal_xy_m: np.ndarray,
-    proposal: Proposal,
-    alternatives: list[Alternative],
-    base_goal_xy_m: np.ndarray,
-    prediction: NeighbourPrediction,
+def shield_plans(
+    batch: ScenarioBatch,
+    plans_xy_m: np.ndarray,
+    plans_vxy_mps: np.ndarray,
+    goals_xy_m: np.ndarray,
+    alternatives: Sequence[Sequence[Alternative]],
+    context: PlanningContext,
     thresholds: ReflectionThresholds,
-) -> ShieldResult:
-    """Check the plan (F, 2) of ``proposal`` against the predicted neighbours; replace it by the safest
-    alternative when it fails.
+    *,
+    first_stage: int = SHIELD_FIRST_STAGE,
+) -> ShieldedPlans:
+    """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by its safest
+    alternative.
 
-    alternatives: (source, params, lon_factor, lane_factor) tried in order (first safe one wins);
-    all are simulated and checked in one batch, and only when the plan fails.
+    alternatives[i]: (source, params, lon_factor, lane_factor) of scenario i, tried in order: the first
+    safe one wins; if none is, the least unsafe one, if it is less unsafe than the plan itself. The
+    alternatives are simulated and checked batched over every failing plan, in two stages: the first
+    ``first_stage`` of each (retrieved memories, fitted parameters), then the rest only for the plans
+    none of those made safe. The outcome is that of checking all of them (a plan's rollout and
+    check do not depend on its batch). goals_xy_m (B, 2): the plans' goals; ``context.goals_xy_m``:
+    the unadjusted goals the alternatives' factors apply to.
     """
-    report = safety_report(scenario, plan_xy_m[None], plan_vxy_mps[None], prediction, thresholds)[0]
-    keep = ShieldResult(plan_xy_m, plan_vxy_mps, np.asarray(goal_xy_m, dtype=np.float64), False, report.safe, 0,
-                        proposal.params, proposal.lon_factor, proposal.lane_factor)
-    if report.safe or not alternatives:
-        return keep
-    k = len(alternatives)
-    one = scenario.take(np.zeros(k, dtype=np.int64))
-    pred_k = NeighbourPrediction(*(np.repeat(np.asarray(a), k, axis=0) for a in prediction))
-    sim = simulate_proposal(one, SocialForceParams.stack([a[1] for a in alternatives]),
-                            np.array([a[2] for a in alternatives]), np.array([a[3] for a in alternatives]),
-                            np.repeat(np.asarray(base_goal_xy_m, dtype=np.float64).reshape(1, 2), k, axis=0), pred_k)
-    reports = safety_report(one, sim.xy_m, sim.vxy_mps, pred_k, thresholds)
-    safe = [i for i, r in enumerate(reports) if r.safe]
-    if safe:
-        best = safe[0]
-    else:
-        best = min(range(k), key=lambda i: _severity(reports[i]))
-        if _severity(reports[best]) >= _severity(report):
-            return keep  # nothing is less unsafe than the LLM's own plan
-    src, params, lon, lane = alternatives[best]
-    return ShieldResult(sim.xy_m[best], sim.vxy_mps[best], sim.goals_xy_m[best], True, reports[best].safe, src,
-                        params, lon, lane)
+    b = len(batch)
+    reports = safety_report(batch, plans_xy_m, plans_vxy_mps, context.neighbours, thresholds)
+    xy = np.array(plans_xy_m, dtype=np.float64)
+    vxy = np.array(plans_vxy_mps, dtype=np.float64)
+    goals = np.array(goals_xy_m, dtype=np.float64).reshape(b, 2)
+    shielded = np.zeros(b, dtype=bool)
+    safe = np.array([r.safe for r in reports], dtype=bool)
+    source = np.zeros(b, dtype=np.int64)
+    # per failing scenario: every alternative checked so far, as (alternative index, plan, report)
+    tried: dict[int, list[tuple[int, np.ndarray, np.ndarray, np.ndarray, SafetyReport]]] = {
+        i: [] for i in range(b) if not reports[i].safe and alternatives[i]}
+    for lo, hi in ((0, first_stage), (first_stage, None)):
+        todo = [(i, j) for i in tried if not any(t[4].safe for t in tried[i])
+                for j in range(len(alternatives[i]))[lo:hi]]
+        if not todo:
+            continue
+        rows = np.array([i for i, _ in todo])
+        chosen = [alternatives[i][j] for i, j in todo]
+        big, big_context = batch.take(rows), context.take(rows)
+        sim = simulate_proposal(big, SocialForceParams.stack([a[1] for a in chosen]),
+                                np.array([a[2] for a in chosen]), np.array([a[3] for a in chosen]),
+                                big_context.goals_xy_m, big_context.neighbours)
+        checked = safety_report(big, sim.xy_m, sim.vxy_mps, big_context.neighbours, thresholds)
+        for r, (i, j) in enumerate(todo):
+            tried[i].append((j, sim.xy_m[r], sim.vxy_mps[r], sim.goals_xy_m[r], checked[r]))
+    for i, options in tried.items():
+        first_safe = next((t for t in options if t[4].safe), None)
+        if first_safe is None:
+            best = min(options, key=lambda t: t[4].severity())  # all were checked; ties: the earlier
+            if best[4].severity() >= reports[i].severity():
+                continue  # nothing is less unsafe than the plan itself
+        else:
+            best = first_safe
+        j, xy[i], vxy[i], goals[i] = best[0], best[1], best[2], best[3]
+        shielded[i], safe[i], source[i] = True, best[4].safe, alternatives[i][j][0]
+    return ShieldedPlans(xy, vxy, goals, shielded, safe, source)
 
 
 def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None) -> list[Alternative]:
@@ -167,7 +188,53 @@ def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None)
     return out
 
 
+def pack_memory_alternatives(retrieved: Sequence[tuple[Experience, float]], k: int) -> np.ndarray:
+    """The retrieved memories' parameters and goal factors as one (1, k, 9) row of ``MEMORY_ALTERNATIVES``."""
+    out = np.full((1, k, _ALTERNATIVE_COLUMNS), np.nan)
+    for j, (e, _) in enumerate(retrieved[:k]):
+        out[0, j] = [*e.params.as_array(), float(e.lon_factor), float(e.lane_factor)]
+    return out
+
+
+def memory_alternatives(row: np.ndarray) -> list[Alternative]:
+    """``pack_memory_alternatives``' row (k, 9) back as alternatives (source = rank + 1)."""
+    out: list[Alternative] = []
+    for j, values in enumerate(np.asarray(row, dtype=np.float64).reshape(-1, _ALTERNATIVE_COLUMNS)):
+        if np.isnan(values).all():
+            continue
+        params = SocialForceParams(**dict(zip(PARAM_NAMES, (float(v) for v in values[: len(PARAM_NAMES)]),
+                                              strict=True)))
+        out.append((j + 1, params, float(values[-2]), float(values[-1])))
+    return out
+
+
 _UNSHIELDED = {"shielded": 0.0, "shield_checked": 0.0, "shield_safe": float("nan"), "shield_source": 0.0}
+
+
+def fitted_proposal(advisor: ParamAdvisor, r_col_m: float) -> Proposal:
+    """The parameters a planner falls back to (the advisor's fallback reply: the fitted ``sf``
+    parameters, neutral goal), as a proposal that made no LLM call."""
+    reply = advisor.fallback_reply
+    return Proposal(params=SocialForceParams(**reply.params(), r_col_m=r_col_m), lon_factor=reply.lon_factor,
+                    lane_factor=reply.lane_factor, rationale="no LLM answer in force: the fitted parameters")
+
+
+def _one(batch: ScenarioBatch, i: int) -> ScenarioBatch:
+    return batch if len(batch) == 1 else batch.take([i])
+
+
+_Row = tuple[Proposal, dict[str, np.ndarray], dict[str, np.ndarray]]  # (final proposal, info, extra) of one scenario
+
+
+def _proposals(rows: Sequence[_Row]) -> Proposals:
+    """(final proposal, info of one row, extra of one row) per scenario -> ``Proposals``."""
+    return Proposals(
+        params=SocialForceParams.stack([p.params for p, _, _ in rows]),
+        lon_factor=np.array([p.lon_factor for p, _, _ in rows], dtype=np.float64),
+        lane_factor=np.array([p.lane_factor for p, _, _ in rows], dtype=np.float64),
+        info={k: np.concatenate([info[k] for _, info, _ in rows]) for k in rows[0][1]},
+        extra={k: np.concatenate([extra[k] for _, _, extra in rows]) for k in rows[0][2]},
+    )
 
 
 @dataclass
@@ -176,15 +243,18 @@ class LetsPiMemoryPlanner:
 
     ``phase.thresholds.max_iterations == 0`` makes it the single-shot ``llm`` planner (and the
     "w/o reflection" ablation); ``phase.goal_adjustment = False`` the "w/o goal adjustment" one.
+    ``propose`` runs the reflection loop of each scenario (its LLM calls and one simulation per round);
+    ``simulate`` rolls the final proposals out and shields them, batched.
     """
 
     phase: MemoryPhase
     bank: MemoryBank | None = None
     shield_params: SocialForceParams | None = None  # the fitted sf parameters; None = no shield
     name: str = "letspi-memory"
-    batch_size: int = 1
+    batch_size: int = 64
     reads_future: bool = False
     last_iterations: tuple[IterationRecord, ...] = ()
+    proposes_per_scenario: bool = True
 
     @property
     def advisor(self) -> ParamAdvisor:
@@ -195,28 +265,44 @@ class LetsPiMemoryPlanner:
         """Without a ``bank``: storing inside ``plan`` would follow completion order, not scenario order."""
         return self.bank is None
 
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.phase.goal_predictor, self.phase.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        rows: list[_Row] = []
+        for i in range(len(batch)):
+            one = _one(batch, i)
+            own = context.take([i])
+            result = self.phase.run(one, own.goals_xy_m[0], own.neighbours)
+            if self.bank is not None:
+                self.bank.add(self.phase.experience(one, result, str(scenario_digests(one)[0])))
+            self.last_iterations = result.iterations
+            final = result.final.proposal
+            validated = result.validated and not final.fallback
+            extra = {"iterations": float(len(result.iterations)), "validated": float(validated), **_UNSHIELDED}
+            rows.append((final, _info(final, [it.proposal for it in result.iterations], extra), {}))
+        return _proposals(rows)
+
+    def default_proposals(self, batch: ScenarioBatch) -> Proposals:
+        """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
+        p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
+        extra = {"iterations": 0.0, "validated": 0.0, **_UNSHIELDED}
+        return _proposals([(p, _info(p, [], extra), {})] * len(batch))
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
+                                context.goals_xy_m, context.neighbours)
+        info = dict(proposals.info)
+        if self.shield_params is None:
+            return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
+        fallback = _sf_alternatives(self.shield_params)
+        shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, [fallback] * len(batch), context,
+                              self.phase.thresholds)
+        info.update(shield.info())
+        return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
+
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        if len(batch) != 1:
-            raise ValueError(f"{self.name} plans one scenario per call, got {len(batch)}")
-        result = self.phase.run(batch)
-        if self.bank is not None:
-            self.bank.add(self.phase.experience(batch, result, str(scenario_digests(batch)[0])))
-        self.last_iterations = result.iterations
-        final = result.final
-        validated = result.validated and not final.proposal.fallback
-        extra = {"iterations": float(len(result.iterations)), "validated": float(validated), **_UNSHIELDED}
-        xy, vxy, goal = final.plan_xy_m, final.plan_vxy_mps, np.asarray(final.goal_xy_m, dtype=np.float64)
-        if self.shield_params is not None:
-            # the reflection loop already checked the final plan against the same prediction
-            base_goal = self.phase.goal_predictor.predict_goals(batch).top[0]
-            pred = predict_neighbours(batch, self.phase.neighbour_mode)
-            shield = shield_plan(batch, xy, vxy, goal, final.proposal, sf_alternatives(self.shield_params),
-                                 base_goal, pred, self.phase.thresholds)
-            xy, vxy, goal = shield.xy_m, shield.vxy_mps, shield.goal_xy_m
-            extra.update(shield.info())
-        info = _info(final.proposal, [it.proposal for it in result.iterations], extra)
-        return PlanBatch(xy_m=np.asarray(xy, dtype=np.float64)[None], vxy_mps=np.asarray(vxy, dtype=np.float64)[None],
-                         goals_xy_m=goal.reshape(1, 2), info=info)
+        return plan_by_proposals(self, batch)
 
 
 @dataclass
@@ -228,48 +314,63 @@ class LetsPiFastPlanner:
     shield_params: SocialForceParams | None = None  # the fitted sf parameters; None = no shield
     thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
     name: str = "letspi-fast"
-    batch_size: int = 1
+    batch_size: int = 64
     reads_future: bool = False
     last_retrieved: tuple[tuple[str, float], ...] = ()
     last_proposal: Proposal | None = None
     concurrent_safe: bool = True
+    proposes_per_scenario: bool = True
 
     @property
     def advisor(self) -> ParamAdvisor:
         return self.phase.advisor
 
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        if len(batch) != 1:
-            raise ValueError(f"{self.name} plans one scenario per call, got {len(batch)}")
-        base_goal = self.phase.goal_predictor.predict_goals(batch).top
-        proposal, retrieved = self.phase.propose(batch, base_goal[0])
-        proposal = proposal.normalised()
-        self.last_retrieved, self.last_proposal = tuple(retrieved), proposal
-        pred = predict_neighbours(batch, self.neighbour_mode)
-        sim = simulate_proposal(
-            batch, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
-            np.array([proposal.lane_factor]), base_goal, pred,
-        )
-        extra = {"n_retrieved": float(len(retrieved)),
-                 "top_similarity": float(retrieved[0][1]) if retrieved else float("nan"), **_UNSHIELDED}
-        if self.shield_params is None:
-            info = _info(proposal, [proposal], extra)
-            return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
-        shield = shield_plan(batch, sim.xy_m[0], sim.vxy_mps[0], sim.goals_xy_m[0], proposal,
-                             [*self._memory_alternatives(batch), *sf_alternatives(self.shield_params)],
-                             base_goal[0], pred, self.thresholds)
-        extra.update(shield.info())
-        info = _info(proposal, [proposal], extra)
-        return PlanBatch(xy_m=shield.xy_m[None], vxy_mps=shield.vxy_mps[None], goals_xy_m=shield.goal_xy_m[None],
-                         info=info)
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.phase.goal_predictor, self.neighbour_mode)
 
-    def _memory_alternatives(self, batch: ScenarioBatch) -> list[Alternative]:
-        """The retrieved memories' parameters (retrieval is repeated here: milliseconds, bank reads only)."""
-        retriever = self.phase.retriever
-        if retriever is None:
-            return []
-        return [(k + 1, e.params, float(e.lon_factor), float(e.lane_factor))
-                for k, (e, _) in enumerate(retriever.retrieve(batch))]
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        k = self.phase.retriever.k if self.phase.retriever is not None else 0
+        rows: list[_Row] = []
+        for i in range(len(batch)):
+            proposal, retrieved = self.phase.propose_retrieved(_one(batch, i), context.goals_xy_m[i])
+            proposal = proposal.normalised()
+            self.last_retrieved = tuple((e.scenario_id, s) for e, s in retrieved)
+            self.last_proposal = proposal
+            extra = {"n_retrieved": float(len(retrieved)),
+                     "top_similarity": float(retrieved[0][1]) if retrieved else float("nan"), **_UNSHIELDED}
+            rows.append((proposal, _info(proposal, [proposal], extra),
+                         {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
+        return _proposals(rows)
+
+    def default_proposals(self, batch: ScenarioBatch) -> Proposals:
+        """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
+        p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
+        k = self.phase.retriever.k if self.phase.retriever is not None else 0
+        extra = {"n_retrieved": 0.0, "top_similarity": float("nan"), **_UNSHIELDED}
+        return _proposals([(p, _info(p, [], extra), {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})]
+                          * len(batch))
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
+                                context.goals_xy_m, context.neighbours)
+        info = dict(proposals.info)
+        if self.shield_params is None:
+            return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
+        fallback = _sf_alternatives(self.shield_params)
+        memories = proposals.extra.get(MEMORY_ALTERNATIVES)
+        alternatives = [[*(memory_alternatives(memories[i]) if memories is not None else []), *fallback]
+                        for i in range(len(batch))]
+        shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, self.thresholds)
+        info.update(shield.info())
+        return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)
+
+
+@functools.lru_cache(maxsize=8)
+def _sf_alternatives(params: SocialForceParams) -> tuple[Alternative, ...]:
+    return tuple(sf_alternatives(params))
 
 
 class MemoryPlannerConfig(Config):

@@ -16,9 +16,9 @@ import numpy as np
 from letspi.learned.param_mlp import OUTPUT_FIELDS, ParamMlp
 from letspi.method.reflection import simulate_proposal
 from letspi.physics.goals import GoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import SocialForcePlannerFields, WeightsConfig
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import ScenarioBatch
@@ -46,14 +46,23 @@ class ParamMlpPlanner:
     name: str = "mlp"
     batch_size: int = 256
     reads_future: bool = False
+    proposes_per_scenario: bool = False
 
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
         values = self.model.predict(scenario_features(batch))  # (B, 8)
         b = len(batch)
         params = SocialForceParams(**{f: values[:, i].copy() for i, f in enumerate(OUTPUT_FIELDS[:6])},
                                    r_col_m=np.full(b, self.r_col_m))
-        goals = self.goal_predictor.predict_goals(batch).top
-        sim = simulate_proposal(batch, params, values[:, 6], values[:, 7], goals,
-                                predict_neighbours(batch, self.neighbour_mode))
         info = {f: values[:, i].copy() for i, f in enumerate(OUTPUT_FIELDS)}
-        return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
+        return Proposals(params, values[:, 6].copy(), values[:, 7].copy(), info)
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
+                                context.goals_xy_m, context.neighbours)
+        return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=dict(proposals.info))
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)

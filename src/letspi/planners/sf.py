@@ -9,10 +9,10 @@ from typing import Literal
 import numpy as np
 
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import SocialForcePlannerFields
 from letspi.scenario.types import ScenarioBatch
 
@@ -29,10 +29,21 @@ class SocialForcePlanner:
     name: str = "sf"
     batch_size: int = 4096
     reads_future: bool = False
+    proposes_per_scenario: bool = False
+
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        """The fitted parameters for every scenario; the predicted goal as it is (NaN factors)."""
+        b = len(batch)
+        info = {name: np.full(b, getattr(self.params, name)) for name in PARAM_NAMES}
+        return Proposals(self.params.broadcast(b), np.full(b, np.nan), np.full(b, np.nan), info)
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        roll = rollout_social_force(batch, proposals.params, context.goals_xy_m, context.neighbours)
+        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=context.goals_xy_m,
+                         info=dict(proposals.info))
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        goals = self.goal_predictor.predict_goals(batch).top
-        params = self.params.broadcast(len(batch))
-        roll = rollout_social_force(batch, params, goals, predict_neighbours(batch, self.neighbour_mode))
-        info = {name: np.full(len(batch), getattr(self.params, name)) for name in PARAM_NAMES}
-        return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=goals, info=info)
+        return plan_by_proposals(self, batch)

@@ -22,11 +22,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
-from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
+from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import SocialForcePlannerFields
 from letspi.safety.plan_check import check_plans
 from letspi.scenario.types import ScenarioBatch
@@ -70,17 +70,27 @@ class SocialForceSearchPlanner:
     name: str = "sf-opt"
     batch_size: int = 256
     reads_future: bool = False
+    proposes_per_scenario: bool = False
 
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        """The fitted parameters: the centre of every scenario's search (the search is physics)."""
+        b = len(batch)
+        return Proposals(self.params.broadcast(b), np.full(b, NEUTRAL_LON_FACTOR), np.zeros(b))
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        """The candidate grid around each scenario's proposed parameters, rolled out and checked at once."""
         b = len(batch)
         grid = self.space.grid()
         c = len(grid)
-        goals = self.goal_predictor.predict_goals(batch).top  # (B, 2)
-        pred = predict_neighbours(batch, self.neighbour_mode)
+        goals = context.goals_xy_m  # (B, 2)
+        pred = context.neighbours
         rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
         big = batch.take(rep)
         k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
-        base = self.params.broadcast(b * c)
+        base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rep])
         params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
         cand_goals = adjust_goals(goals[rep], big.ego_xy0_m.astype(np.float64), lon, lane, big.marking_y_m)
         big_pred = _repeat_prediction(pred, c)
@@ -104,3 +114,6 @@ class SocialForceSearchPlanner:
             "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
         }
         return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)

@@ -28,6 +28,7 @@ from enum import StrEnum
 from typing import Literal
 
 from letspi.constants import DT_S, N_FUTURE
+from letspi.planners.dual_rate import DualRateConfig
 
 
 class ClosedLoopMode(StrEnum):
@@ -146,6 +147,9 @@ class ClosedLoopConfig:
         sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
         driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
+        dual_rate: LLM planners (``letspi.planners.dual_rate.is_dual_rate``): the LLM at t = 0 and
+            every ``llm_period_s``, its answers in force after their latency, the physics and the
+            shield every ``replan_s`` (``letspi.simulation.dual_rate``); other planners ignore it.
     """
 
     mode: ClosedLoopMode = ClosedLoopMode.LOG
@@ -159,6 +163,7 @@ class ClosedLoopConfig:
     sumo_gui: bool = False
     driver: DriverModelConfig = field(default_factory=DriverModelConfig)
     handover: HandoverConfig = field(default_factory=HandoverConfig)
+    dual_rate: DualRateConfig = field(default_factory=DualRateConfig)
 
     def __post_init__(self) -> None:
         try:

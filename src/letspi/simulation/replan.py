@@ -19,11 +19,11 @@ The engine (``letspi.simulation.engine``) asks a ``Replanner`` after every simul
 plans: ``replanner.plans(frame, states)`` returns a ``Replan`` (plans for the scenarios due at that
 frame, in the source scenario's ego frame, and until which frame each is followed) or None. The
 engine only follows plans; *when* to plan, with what, and at what cost is the replanner's business.
-``PeriodicReplanner`` is the one used today: every scenario at t = 0 and then every
-``replan_every`` frames, one batched planner call. A replanner with another schedule (e.g. a slow
-LLM that sets parameters every few seconds beside a physics planner replanning every 0.2 s) only
-has to implement the same two members; ``frames`` lists the frames at which plans may be made
-(the slots of ``ClosedLoopChunk.plan_xy_m``).
+``PeriodicReplanner``: every scenario at t = 0 and then every ``replan_every`` frames, one batched
+planner call. ``letspi.simulation.dual_rate.DualRateReplanner`` (the LLM planners): the LLM sets
+parameters at t = 0 and every ``llm_period_s``, the physics replans every ``replan_every`` frames
+with the parameters in force. ``frames`` lists the frames at which plans may be made (the slots of
+``ClosedLoopChunk.plan_xy_m``). Both record ``planner_cpu_ms`` per scenario and replan.
 """
 
 from __future__ import annotations
@@ -249,12 +249,15 @@ class PeriodicReplanner:
         k = len(self.batch)
         t0 = time.perf_counter()
         view, centre = replanning_batch(self.batch, states, frame, self.future)
+        cpu0 = time.thread_time()
         plan = plan_in_batches(self.planner, view)
+        cpu_ms = 1e3 * (time.thread_time() - cpu0) / max(k, 1)
         plan_s = time.perf_counter() - t0
         if plan.xy_m.shape != (k, N_FUTURE, 2):
             raise ValueError(f"planner {self.planner.name!r} returned plans of shape {plan.xy_m.shape}, "
                              f"expected {(k, N_FUTURE, 2)}")
         info = {key: np.asarray(val) for key, val in plan.info.items()}
+        info["planner_cpu_ms"] = np.full(k, cpu_ms)  # CPU of this thread per scenario (model calls included)
         return Replan(
             rows=np.arange(k),
             xy_m=np.asarray(plan.xy_m, dtype=np.float64) + centre[:, None, :],

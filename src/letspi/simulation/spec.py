@@ -27,7 +27,7 @@ class PlannerSpec:
             identifies the planner in results.
         name: the label of its results (default: the configuration's kind).
         replan_s: this planner's replanning period [s]; None = the run's ``replan_s``. LLM
-            planners call their backend at every replan, so a longer period bounds their cost.
+            planners replan their physics at it and ask their model every ``llm_period_s`` (dual rate).
     """
 
     config: PlannerConfig

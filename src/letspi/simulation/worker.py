@@ -7,12 +7,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from letspi.llm.client import ParamAdvisor
+from letspi.llm.spec import default_concurrency
 from letspi.planners.base import Planner
+from letspi.planners.dual_rate import is_dual_rate
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig
+from letspi.simulation.dual_rate import DualRateReplanner
 from letspi.simulation.engine import simulate_group
 from letspi.simulation.network import layout_keys
-from letspi.simulation.replan import FuturePolicy
+from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replanner
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.session import SumoSession
 from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorded_future
@@ -47,6 +51,23 @@ def plan_chunks(
     return chunks
 
 
+def llm_concurrency(planner: Planner) -> int:
+    """LLM calls a dual-rate planner keeps in flight at once: its backend's default
+    (``letspi.llm.spec.default_concurrency``: 1 for the embedded model), 1 without an LLM."""
+    advisor = getattr(planner, "advisor", None)
+    return default_concurrency(advisor.backend.spec) if isinstance(advisor, ParamAdvisor) else 1
+
+
+def replanner_for(planner: Planner, batch: ScenarioBatch, config: ClosedLoopConfig,
+                  future: FuturePolicy) -> Replanner:
+    """The replanning step of a lockstep group: dual rate for the LLM planners (``config.dual_rate``),
+    else the whole planner every ``replan_s``."""
+    if is_dual_rate(planner):
+        return DualRateReplanner(planner, batch, config.replan_frames, future, config.dual_rate,  # type: ignore[arg-type]
+                                 concurrency=llm_concurrency(planner))
+    return PeriodicReplanner(planner, batch, config.replan_frames, future)
+
+
 def simulate_chunk(
     session: SumoSession, planner: Planner, task: ChunkTask, config: ClosedLoopConfig, future: FuturePolicy
 ) -> ClosedLoopChunk:
@@ -56,16 +77,24 @@ def simulate_chunk(
     rows_all: list[np.ndarray] = []
     for key in dict.fromkeys(keys):
         rows = np.asarray([i for i, k in enumerate(keys) if k == key], dtype=np.int64)
-        part = simulate_group(
-            session,
-            planner,
-            task.batch.take(rows),
-            config,
-            replan_every=config.replan_frames,
-            future=future,
-            run_tag=f"t{task.task_id}.{len(parts)}",
-            scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],
-        )
+        group = task.batch.take(rows)
+        replanner = replanner_for(planner, group, config, future)
+        try:
+            part = simulate_group(
+                session,
+                planner,
+                group,
+                config,
+                replan_every=config.replan_frames,
+                future=future,
+                run_tag=f"t{task.task_id}.{len(parts)}",
+                scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],
+                replanner=replanner,
+            )
+        finally:
+            close = getattr(replanner, "close", None)
+            if close is not None:
+                close()  # LLM calls still outstanding are dropped
         parts.append(part)
         rows_all.append(rows)
     out = parts[0] if len(parts) == 1 else ClosedLoopChunk.concat(parts)

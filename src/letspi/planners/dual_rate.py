@@ -1,0 +1,253 @@
+"""Dual-rate, asynchronous LetsPi: the LLM sets the strategy slowly, the physics replans fast.
+
+The real-time form of the paper's fast phase (AsyncDriver, which the paper cites, runs its LLM beside
+a fast planner the same way). In closed loop, for a ``ProposingPlanner`` whose proposals come from an
+LLM (``letspi-fast``, ``llm``, ``letspi-memory``):
+
+* the LLM is asked for social force parameters and goal adjustments at t = 0 and then every
+  ``llm_period_s``, about the scene observed at that instant;
+* an answer takes effect only after its latency: a fixed ``llm_latency_s`` (reproducible: the LLM is
+  called synchronously and its answer applied that much later in simulated time; part of the
+  results' key), or the measured one (``llm_latency_s = None``: the call runs in a background
+  thread while the simulation goes on, paced to real time while an answer is outstanding, and the
+  answer applies at the first replan after it arrived);
+* until the first answer is in force, the planner's fitted parameters are (``default_proposals``);
+* the physics replans every ``replan_s`` with the parameters in force, against the neighbours
+  observed at that instant (``simulate``: goal prediction, rollout and, when on, the safety shield
+  at every replan).
+
+``DualRateSchedule`` keeps the parameters in force per scenario and says, per replan, which LLM calls
+were made and how old the parameters in force are; ``letspi.simulation`` drives it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Final, Protocol
+
+import numpy as np
+
+from letspi.constants import DT_S
+from letspi.planners.base import PlanningContext, Proposals, ProposingPlanner
+from letspi.scenario.types import ScenarioBatch
+
+DEFAULT_LLM_PERIOD_S: Final = 2.5
+#: ``info`` keys that describe the LLM calls *made* at a replan (0 / NaN at replans without a call)
+CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_original_latency_s",
+                         "prompt_tokens", "completion_tokens")
+
+
+@dataclass(frozen=True)
+class DualRateConfig:
+    """How often the LLM is asked and when its answers take effect (module docstring).
+
+    Attributes:
+        llm_period_s: LLM calls at t = 0 and every this many seconds (>= the horizon: t = 0 only).
+        llm_latency_s: None = the measured latency (asynchronous, real-time pacing; not
+            reproducible); a number >= 0 = this fixed latency (reproducible; in the key).
+    """
+
+    llm_period_s: float = DEFAULT_LLM_PERIOD_S
+    llm_latency_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.llm_period_s) and self.llm_period_s > 0):
+            raise ValueError(f"--llm-period-s must be a positive number of seconds, got {self.llm_period_s}")
+        if self.llm_latency_s is not None and not (math.isfinite(self.llm_latency_s) and self.llm_latency_s >= 0):
+            raise ValueError(f"--llm-latency-s must be >= 0 seconds, got {self.llm_latency_s}")
+
+    @property
+    def measured(self) -> bool:
+        return self.llm_latency_s is None
+
+    @property
+    def period_frames(self) -> float:
+        """LLM period in frames (not rounded: calls are made at the first replan at or after each
+        multiple of it, so a 2.5 s period asks at t = 0 and at the first replan from 2.5 s on)."""
+        return self.llm_period_s / DT_S
+
+    @property
+    def latency_steps(self) -> int:
+        """Fixed latency in frames, rounded up (an answer never takes effect early)."""
+        return math.ceil((self.llm_latency_s or 0.0) / DT_S - 1e-9)
+
+    def identity(self) -> dict[str, Any]:
+        """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``."""
+        latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
+        return {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
+
+
+class DualRatePlanner(ProposingPlanner, Protocol):
+    """A ``ProposingPlanner`` that can say what is in force before its first answer."""
+
+    def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
+
+
+def is_dual_rate(planner: object) -> bool:
+    """Whether the closed loop runs ``planner`` dual-rate: it proposes by a model call per scenario
+    (the LLM planners) and can say what is in force before the first answer (``default_proposals``)."""
+    return (isinstance(planner, ProposingPlanner) and bool(getattr(planner, "proposes_per_scenario", False))
+            and callable(getattr(planner, "default_proposals", None)))
+
+
+@dataclass
+class _Call:
+    """An LLM call for one scenario: made at ``step`` (frames after t = 0)."""
+
+    row: int
+    step: int
+    ready_step: int | None = None  # fixed latency: when the answer takes effect
+    proposals: Proposals | None = None  # fixed latency: the answer
+    future: Future[tuple[Proposals, float]] | None = None  # measured: (answer, wall time of arrival)
+    start_s: float = 0.0
+
+
+@dataclass
+class DualRateSchedule:
+    """The parameters in force for K scenarios simulated in lockstep (module docstring).
+
+    ``step(step, view, context)`` is called at every physics replan (``step``: frames after t = 0,
+    ascending) with the planner's view of the K scenarios at that instant and its context; it makes
+    the LLM calls due, applies the answers whose latency has passed and returns the proposals in
+    force (K) and per-scenario info: ``CALL_INFO_KEYS`` of the calls made (or, measured, arrived) at
+    this replan, ``llm_in_force`` (1 once an LLM answer is in force), ``params_age_s`` (time since
+    the call whose answer is in force was made; NaN while the fitted parameters are), and
+    ``llm_answer_latency_s`` (the latency of an answer applied at this replan, NaN otherwise).
+    ``concurrency``: LLM calls in flight at once (the K calls of one instant; 1 for the embedded
+    model). ``clock`` / ``wait`` are injectable for tests. Call ``close()`` at the end.
+    """
+
+    planner: DualRatePlanner
+    k: int
+    config: DualRateConfig = field(default_factory=DualRateConfig)
+    concurrency: int = 1
+    clock: Callable[[], float] = time.perf_counter
+    _in_force: list[Proposals | None] = field(init=False)
+    _origin: np.ndarray = field(init=False)  # (K,) step of the call whose answer is in force, NaN = fitted
+    _calls: list[_Call] = field(init=False, default_factory=list)
+    _pool: ThreadPoolExecutor | None = field(init=False, default=None)
+    _next_call: float = field(init=False, default=0.0)  # frames after t = 0 of the next LLM call
+
+    def __post_init__(self) -> None:
+        self._in_force = [None] * self.k
+        self._origin = np.full(self.k, np.nan)
+        if self.concurrency < 1:
+            raise ValueError(f"concurrency must be >= 1, got {self.concurrency}")
+
+    # -- public ------------------------------------------------------------------------------------
+    def step(self, step: int, view: ScenarioBatch, context: PlanningContext) -> tuple[Proposals, dict[str, np.ndarray]]:
+        if len(view) != self.k:
+            raise ValueError(f"DualRateSchedule of {self.k} scenarios got a view of {len(view)}")
+        info = {key: np.zeros(self.k) for key in CALL_INFO_KEYS}
+        info["llm_cached"] = np.full(self.k, np.nan)
+        info["llm_answer_latency_s"] = np.full(self.k, np.nan)
+        if step >= self._next_call - 1e-9:
+            self._ask(step, view, context, info)
+            while self._next_call <= step + 1e-9:
+                self._next_call += self.config.period_frames
+        self._arrivals(step, info)
+        defaults: Proposals | None = None
+        rows: list[Proposals] = []
+        for p in self._in_force:
+            if p is None:
+                if defaults is None:
+                    defaults = self.planner.default_proposals(view.take([0]))
+                p = defaults
+            rows.append(p)
+        info["llm_in_force"] = np.isfinite(self._origin).astype(np.float64)
+        info["params_age_s"] = (step - self._origin) * DT_S
+        return Proposals.concat(rows), info
+
+    def finish(self, info: dict[str, np.ndarray]) -> None:
+        """At the last replan: count the calls whose answers came too late to take effect (those that
+        finished with their own counts, those still running as one call each). Nothing waits."""
+        for call in self._calls:
+            if call.future is None:
+                continue  # fixed latency: counted when the call was made
+            if call.future.done() and call.future.exception() is None:
+                _record_call(info, call.row, call.future.result()[0])
+            else:
+                info["llm_calls"][call.row] += 1.0
+        self._calls = []
+
+    def close(self) -> None:
+        """Stop waiting for answers still outstanding (they are dropped)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    # -- calls -------------------------------------------------------------------------------------
+    def _propose_one(self, view: ScenarioBatch, context: PlanningContext, row: int) -> Proposals:
+        return self.planner.propose(view.take([row]), context.take([row]))
+
+    def _ask(self, step: int, view: ScenarioBatch, context: PlanningContext, info: dict[str, np.ndarray]) -> None:
+        rows = range(self.k)
+        if self.config.measured:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=self.concurrency, thread_name_prefix="letspi-llm")
+            start = self.clock()
+            for row in rows:
+                fut = self._pool.submit(self._timed, view, context, row)
+                self._calls.append(_Call(row, step, future=fut, start_s=start))
+            return
+        if self.concurrency == 1:
+            answers = [self._propose_one(view, context, row) for row in rows]
+        else:
+            with ThreadPoolExecutor(max_workers=self.concurrency, thread_name_prefix="letspi-llm") as pool:
+                answers = list(pool.map(lambda r: self._propose_one(view, context, r), rows))
+        for row, answer in zip(rows, answers, strict=True):
+            self._calls.append(_Call(row, step, ready_step=step + self.config.latency_steps, proposals=answer))
+            _record_call(info, row, answer)
+
+    def _timed(self, view: ScenarioBatch, context: PlanningContext, row: int) -> tuple[Proposals, float]:
+        answer = self._propose_one(view, context, row)
+        return answer, self.clock()
+
+    def _arrivals(self, step: int, info: dict[str, np.ndarray]) -> None:
+        still: list[_Call] = []
+        for call in self._calls:
+            if call.future is None:  # fixed latency
+                if call.ready_step is not None and call.ready_step <= step:
+                    self._apply(call, call.proposals, step, info, (call.ready_step - call.step) * DT_S)
+                else:
+                    still.append(call)
+                continue
+            # measured: simulated time since the call may not run ahead of the wall time since it
+            due_s = call.start_s + (step - call.step) * DT_S
+            remaining = due_s - self.clock()
+            if remaining > 0 and not call.future.done():
+                try:
+                    call.future.result(timeout=remaining)
+                except TimeoutError:
+                    pass
+            if call.future.done():
+                answer, arrived_s = call.future.result()  # raises what the call raised
+                latency_s = arrived_s - call.start_s
+                if latency_s <= (step - call.step) * DT_S + 1e-9:
+                    _record_call(info, call.row, answer)
+                    self._apply(call, answer, step, info, latency_s)
+                    continue
+            still.append(call)
+        self._calls = still
+
+    def _apply(self, call: _Call, answer: Proposals | None, step: int, info: dict[str, np.ndarray],
+               latency_s: float) -> None:
+        if answer is None:
+            return
+        if np.isfinite(self._origin[call.row]) and self._origin[call.row] > call.step:
+            return  # a newer answer is already in force
+        self._in_force[call.row] = answer
+        self._origin[call.row] = call.step
+        info["llm_answer_latency_s"][call.row] = latency_s
+
+
+def _record_call(info: dict[str, np.ndarray], row: int, answer: Proposals) -> None:
+    for key in CALL_INFO_KEYS:
+        if key in answer.info:
+            info[key][row] += float(np.asarray(answer.info[key], dtype=np.float64)[0])
+    if "llm_cached" in answer.info:
+        info["llm_cached"][row] = float(np.asarray(answer.info["llm_cached"], dtype=np.float64)[0])
