@@ -35,7 +35,7 @@ from letspi.evaluation.closed_loop import (
 from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
-from letspi.metrics.aggregate import render_markdown_table
+from letspi.metrics.aggregate import AggValue, render_markdown_table
 from letspi.planners.dual_rate import DEFAULT_LLM_PERIOD_S, DualRateConfig, is_dual_rate
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
@@ -179,6 +179,19 @@ def progress_factory(bar: Progress) -> ProgressFactory:
     return factory
 
 
+def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path, closed: ClosedLoopSettings | None,
+                  scenarios: Path, scripted: ScriptedNeighbours | None,
+                  concurrency: int | None) -> dict[str, dict[str, AggValue]]:
+    """Open or closed loop, with progress bars: the results per planner name."""
+    with progress_bar() as bar:
+        if closed is not None:
+            return evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
+                                        progress_factory=progress_factory(bar),
+                                        scripted_nbr=None if scripted is None else scripted.mask)
+        return run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
+                              progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
+
+
 def evaluate(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     planner: PlannerOpt,
@@ -228,15 +241,7 @@ def evaluate(
                                  allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
                                  shield=shield, mlp_weights=mlp_weights)
         planners = build_planners(planner, options)
-        with progress_bar() as bar:
-            if closed is not None:
-                results = evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
-                                               progress_factory=progress_factory(bar),
-                                               scripted_nbr=None if scripted is None else scripted.mask)
-            else:
-                results = run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
-                                         progress_factory=progress_factory(bar), concurrency=concurrency,
-                                         on_run=print_run)
+        results = _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency)
     if closed is not None:
         typer.echo(closed_loop_line(closed, planners) + "\n")
     typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
