@@ -69,9 +69,6 @@ class SlotNetwork:
     x_origin_m: float
     left_edge_y_m: np.ndarray
 
-    def edge_id(self, slot: int) -> str:
-        return f"s{slot}"
-
     def route_id(self, slot: int) -> str:
         return f"r{slot}"
 

@@ -19,10 +19,9 @@ from dataclasses import replace
 import numpy as np
 
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode, replan_frames
+from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode
 from letspi.simulation.pool import run_in_processes
 from letspi.simulation.ray_backend import run_on_ray
-from letspi.simulation.replan import replan_frames_of
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.spec import PlannerSpecLike, spec_replan_s
 from letspi.simulation.worker import ChunkWorker, make_tasks
@@ -83,7 +82,3 @@ def run_closed_loop(
         return
     yield from run_in_processes(planner_spec, tasks, cfg, workers, max_worker_restarts)
 
-
-def replan_count(replan_s: float) -> int:
-    """Plans made per scenario at this replanning period (t = 0 included)."""
-    return len(replan_frames_of(replan_frames(replan_s)))
