@@ -156,3 +156,18 @@ def test_llm_planner_rows_say_whether_the_cache_answered(tmp_path: Path) -> None
     assert again.info["llm_latency_s"][0] == 0.0
     assert again.info["llm_original_latency_s"][0] == pytest.approx(first.info["llm_latency_s"][0], abs=1e-3)
     np.testing.assert_array_equal(first.xy_m, again.xy_m)
+
+
+def test_a_configuration_without_the_cache_never_gets_a_cached_answer_from_a_shared_builder(tmp_path: Path) -> None:
+    """The demo built its head-to-head (``llm_cache=False``) with the collect phase's builder and got
+    the cached advisor back: letspi-fast was never timed. The cache switch is not in the key, so the
+    builder must tell them apart itself."""
+    batch = straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)])
+    builder = Builder(cache=ResponseCache(tmp_path / "cache.sqlite"))
+    cached = replace(OPTS, llm_cache=True, max_iterations=0)
+    uncached = replace(OPTS, llm_cache=False, max_iterations=0)
+    first = builder.planner(Resolver(cached).planner("llm")).planner.plan(batch.history())
+    assert Resolver(cached).planner("llm").key() == Resolver(uncached).planner("llm").key()
+    again = builder.planner(Resolver(uncached).planner("llm")).planner.plan(batch.history())
+    assert not first.info["llm_cached"][0] and not again.info["llm_cached"][0]
+    np.testing.assert_array_equal(first.xy_m, again.xy_m)

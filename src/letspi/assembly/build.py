@@ -60,7 +60,7 @@ class Builder:
     """
 
     cache: ResponseCache | str | None = "default"
-    _advisors: dict[tuple[str, str], tuple[ParamAdvisor, float]] = field(default_factory=dict)
+    _advisors: dict[tuple[str, str, bool], tuple[ParamAdvisor, float]] = field(default_factory=dict)
     _goals: dict[str, GoalPredictor] = field(default_factory=dict)
     _default_cache: ResponseCache | None = None
 
@@ -89,7 +89,9 @@ class Builder:
     def advisor_with_load_time(self, llm: LlmConfig, fallback: SfParamsConfig) -> tuple[ParamAdvisor, float]:
         """The advisor for ``llm`` whose fallback reply is ``fallback``'s parameters, and how long its
         model took to load (the first time; 0 afterwards)."""
-        key = (llm.key(), fallback.key())
+        # the cache switch is left out of the key (it cannot change an answer) but not out of this one:
+        # a configuration that asks for no cache must not get an advisor built with one
+        key = (llm.key(), fallback.key(), llm.cache)
         if key in self._advisors:
             return self._advisors[key][0], 0.0
         t0 = time.perf_counter()
