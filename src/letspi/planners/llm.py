@@ -290,16 +290,8 @@ class LetsPiMemoryPlanner:
         return _proposals([(p, _info(p, [], extra), {})] * len(batch))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
-        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
-                                context.goals_xy_m, context.neighbours)
-        info = dict(proposals.info)
-        if self.shield_params is None:
-            return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
-        fallback = _sf_alternatives(self.shield_params)
-        shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, [fallback] * len(batch), context,
-                              self.phase.thresholds)
-        info.update(shield.info())
-        return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
+        return simulate_and_shield(batch, context, proposals, self.shield_params, self.phase.thresholds,
+                                   with_memories=False)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
@@ -351,21 +343,30 @@ class LetsPiFastPlanner:
                           * len(batch))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
-        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
-                                context.goals_xy_m, context.neighbours)
-        info = dict(proposals.info)
-        if self.shield_params is None:
-            return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
-        fallback = _sf_alternatives(self.shield_params)
-        memories = proposals.extra.get(MEMORY_ALTERNATIVES)
-        alternatives = [[*(memory_alternatives(memories[i]) if memories is not None else []), *fallback]
-                        for i in range(len(batch))]
-        shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, self.thresholds)
-        info.update(shield.info())
-        return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
+        return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
+                                   with_memories=True)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
+
+
+def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
+                        shield_params: SocialForceParams | None, thresholds: ReflectionThresholds, *,
+                        with_memories: bool) -> PlanBatch:
+    """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield
+    each plan with the alternatives: the retrieved memories' (``with_memories``) and the fitted ones."""
+    sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
+                            context.goals_xy_m, context.neighbours)
+    info = dict(proposals.info)
+    if shield_params is None:
+        return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
+    fallback = _sf_alternatives(shield_params)
+    memories = proposals.extra.get(MEMORY_ALTERNATIVES) if with_memories else None
+    alternatives = [[*(memory_alternatives(memories[i]) if memories is not None else []), *fallback]
+                    for i in range(len(batch))]
+    shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds)
+    info.update(shield.info())
+    return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
 
 
 @functools.lru_cache(maxsize=8)

@@ -21,13 +21,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from letspi.constants import N_FUTURE, N_TOTAL, T0_INDEX
+from letspi.constants import T0_INDEX
 from letspi.planners.dual_rate import DualRateConfig, DualRatePlanner, DualRateSchedule
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.replan import FuturePolicy, Replan, SimulatedStates, replan_frames_of, replanning_batch
+from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replan, SimulatedStates, replanning_batch
 
 
-class DualRateReplanner:
+class DualRateReplanner(PeriodicReplanner):
     """LLM at the schedule's instants, physics every ``replan_every`` frames (module docstring).
 
     ``concurrency``: LLM calls in flight at once (the K scenarios' calls of one instant).
@@ -37,17 +37,9 @@ class DualRateReplanner:
     def __init__(self, planner: DualRatePlanner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy,
                  config: DualRateConfig, *, concurrency: int = 1,
                  clock: Callable[[], float] = time.perf_counter) -> None:
-        self.planner = planner
-        self.batch = batch
-        self.replan_every = int(replan_every)
-        self.future: FuturePolicy = future
+        super().__init__(planner, batch, replan_every, future)
+        self.planner: DualRatePlanner = planner
         self.schedule = DualRateSchedule(planner, len(batch), config, concurrency, clock)
-        self._frames = replan_frames_of(self.replan_every)
-        self._due = set(self._frames)
-
-    @property
-    def frames(self) -> list[int]:
-        return self._frames
 
     def plans(self, frame: int, states: SimulatedStates) -> Replan | None:
         if frame not in self._due:
@@ -64,23 +56,8 @@ class DualRateReplanner:
         cpu1 = time.thread_time()
         plan = self.planner.simulate(view, context, proposals)
         cpu_physics = cpu_context + time.thread_time() - cpu1
-        plan_s = time.perf_counter() - t0
-        if plan.xy_m.shape != (k, N_FUTURE, 2):
-            raise ValueError(f"planner {self.planner.name!r} returned plans of shape {plan.xy_m.shape}, "
-                             f"expected {(k, N_FUTURE, 2)}")
-        info = {key: np.asarray(val) for key, val in plan.info.items()}
-        info = {key: arr for key, arr in info.items() if arr.ndim == 1 and arr.dtype.kind in "biuf"}
-        info.update(schedule_info)
-        info["planner_cpu_ms"] = np.full(k, 1e3 * cpu_physics / max(k, 1))
-        return Replan(
-            rows=np.arange(k),
-            xy_m=np.asarray(plan.xy_m, dtype=np.float64) + centre[:, None, :],
-            vxy_mps=np.asarray(plan.vxy_mps, dtype=np.float64),
-            goals_xy_m=np.asarray(plan.goals_xy_m, dtype=np.float64) + centre,
-            follow_until=np.full(k, min(frame + self.replan_every, N_TOTAL - 1), dtype=np.int64),
-            info=info,
-            plan_s=plan_s,
-        )
+        schedule_info["planner_cpu_ms"] = np.full(k, 1e3 * cpu_physics / max(k, 1))
+        return self._replan(plan, centre, frame, schedule_info, time.perf_counter() - t0)
 
     def close(self) -> None:
         self.schedule.close()

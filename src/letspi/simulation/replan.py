@@ -252,12 +252,19 @@ class PeriodicReplanner:
         cpu0 = time.thread_time()
         plan = plan_in_batches(self.planner, view)
         cpu_ms = 1e3 * (time.thread_time() - cpu0) / max(k, 1)
-        plan_s = time.perf_counter() - t0
+        # CPU of this thread per scenario (model calls included)
+        return self._replan(plan, centre, frame, {"planner_cpu_ms": np.full(k, cpu_ms)}, time.perf_counter() - t0)
+
+    def _replan(self, plan: PlanBatch, centre: np.ndarray, frame: int, extra_info: dict[str, np.ndarray],
+                plan_s: float) -> Replan:
+        """The ``Replan`` of a chunk's plans made in the ego-centred view: positions back to the
+        simulation frame, followed until the next replan; only 1-D numeric info kept (plan's + ``extra_info``)."""
+        k = len(self.batch)
         if plan.xy_m.shape != (k, N_FUTURE, 2):
             raise ValueError(f"planner {self.planner.name!r} returned plans of shape {plan.xy_m.shape}, "
                              f"expected {(k, N_FUTURE, 2)}")
         info = {key: np.asarray(val) for key, val in plan.info.items()}
-        info["planner_cpu_ms"] = np.full(k, cpu_ms)  # CPU of this thread per scenario (model calls included)
+        info.update(extra_info)
         return Replan(
             rows=np.arange(k),
             xy_m=np.asarray(plan.xy_m, dtype=np.float64) + centre[:, None, :],
