@@ -21,11 +21,11 @@ from letspi.assembly.resolve import Resolver
 from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.cli.app import app
 from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.execution.ordered import RunnerConfig, ScenariosFailedError, run_ordered
 from letspi.llm.client import RetryPolicy
 from letspi.llm.guard import CircuitBreaker
 from letspi.llm.types import BackendUnavailableError, LLMTransportError, RequestFailedError, RunStoppedError
 from letspi.method.memory import MemoryBank
-from letspi.method.runner import RunnerConfig, ScenariosFailedError, run_ordered
 from letspi.scenario.store import save_scenarios
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")

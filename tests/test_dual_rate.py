@@ -17,10 +17,10 @@ from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanningContext, Proposals
-from letspi.planners.dual_rate import DualRateConfig, DualRateSchedule
 from letspi.planners.llm import LetsPiFastPlanner
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi.simulation.schedule import DualRateConfig, DualRateSchedule
 
 FITTED = SocialForceParams(tau_s=1.7, k_np=33.0, k_nf=4.0, k_nl=0.6, k_boundary=1.1, k_cline=0.4, r_col_m=9.0)
 

@@ -7,9 +7,9 @@ import pytest
 
 from letspi.assembly.build import build_planners
 from letspi.assembly.resolve import PlannerOptions
+from letspi.fitting.sf import fit_sf_params
 from letspi.metrics.compute import compute_metrics
 from letspi.physics.params import SocialForceParams
-from letspi.planners.fit_sf import fit_sf_params
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.planners.sf_params import load_sf_params, save_sf_params

@@ -19,7 +19,7 @@ from letspi.assembly.resolve import PlannerOptions
 from letspi.bench.llm_server import LlmTestServer
 from letspi.evaluation import concurrent
 from letspi.evaluation.harness import evaluate
-from letspi.method.runner import BlockCache
+from letspi.execution.ordered import BlockCache
 from letspi.planners.base import PlanBatch, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch
 

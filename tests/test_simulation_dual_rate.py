@@ -21,7 +21,6 @@ from letspi.llm.schema import fallback_reply_from_params
 from letspi.method.phases import FastPhase
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.params import SocialForceParams
-from letspi.planners.dual_rate import DualRateConfig, is_dual_rate
 from letspi.planners.llm import LetsPiFastPlanner
 from letspi.planners.sf import SocialForcePlanner
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -30,6 +29,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, run_closed_loop
 from letspi.simulation.dual_rate import DualRateReplanner
 from letspi.simulation.replan import PeriodicReplanner, Replan, SimulatedStates, replanning_batch
+from letspi.simulation.schedule import DualRateConfig, is_dual_rate
 
 FITTED = SocialForceParams(tau_s=1.7, k_np=33.0, k_nf=4.0, k_nl=0.6, k_boundary=1.1, k_cline=0.4, r_col_m=9.0)
 

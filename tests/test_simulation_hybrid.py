@@ -21,7 +21,7 @@ from letspi.simulation.config import HandoverConfig
 from letspi.simulation.engine import simulate_group
 from letspi.simulation.replan import PeriodicReplanner, Replan, SimulatedStates
 from letspi.simulation.session import SumoSession
-from letspi.sumo.generate import generate_highd
+from letspi.trafficgen.generate import generate_highd
 
 pytestmark = pytest.mark.sumo
 LOG, REACTIVE, HYBRID = "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid"

@@ -15,7 +15,7 @@ from letspi.highd.io import read_recordings
 from letspi.planners.base import PlanBatch
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.sumo.generate import generate_highd
+from letspi.trafficgen.generate import generate_highd
 
 
 def generated_batch(directory: Path, n: int = 48, seed: int = 3, minutes: float = 1.0,

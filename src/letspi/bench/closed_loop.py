@@ -29,7 +29,7 @@ from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
 from letspi.simulation.run import effective_config
 from letspi.simulation.worker import ChunkWorker, make_tasks
-from letspi.sumo.generate import generate_highd
+from letspi.trafficgen.generate import generate_highd
 
 
 def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -> ScenarioBatch:

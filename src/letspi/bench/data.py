@@ -12,7 +12,7 @@ from letspi.highd.io import read_recordings
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import concat_batches
-from letspi.sumo.generate import generate_highd
+from letspi.trafficgen.generate import generate_highd
 
 
 def bench_data(minutes: float = 10.0, seed: int = 0, n_load: int = 10_000) -> dict[str, float]:

@@ -46,6 +46,7 @@ from letspi.assembly.build import Builder, build_planners
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.bench.llm_server import latency_for, request_keys
 from letspi.evaluation.harness import evaluate
+from letspi.execution.ordered import RunnerConfig, RunStats, run_ordered
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.models import locate_model
@@ -53,7 +54,6 @@ from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics
 from letspi.llm.schema import PlannerReply
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
-from letspi.method.runner import RunnerConfig, RunStats, run_ordered
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 

@@ -24,8 +24,8 @@ import numpy as np
 from letspi.assembly.resolve import PlannerOptions
 from letspi.bench.closed_loop import bench_scenarios
 from letspi.constants import DT_S, HORIZON_S
-from letspi.planners.dual_rate import DualRateConfig, is_dual_rate
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec
+from letspi.simulation.schedule import DualRateConfig, is_dual_rate
 from letspi.simulation.worker import ChunkTask, ChunkWorker, make_tasks
 
 

@@ -27,8 +27,8 @@ from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import bench_robustness
 from letspi.cli.common import console, user_errors
 from letspi.evaluation.closed_loop import ClosedLoopSettings
-from letspi.planners.dual_rate import DEFAULT_LLM_PERIOD_S, DualRateConfig
 from letspi.planners.llm import FastPlannerConfig, MemoryPlannerConfig
+from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
                   no_args_is_help=True, rich_markup_mode=None)

@@ -36,10 +36,10 @@ from rich.progress import (
 from rich.text import Text
 
 from letspi.assembly.resolve import PlannerOptions
+from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
-from letspi.method.runner import RunStats, RunStatus
 
 console = Console(stderr=True)
 DEBUG_ENV = "LETSPI_DEBUG"

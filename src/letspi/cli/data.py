@@ -17,9 +17,9 @@ from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
 from letspi.scenario.extract import critical_windows, enumerate_windows, extract_scenarios
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
-from letspi.sumo.config import traffic_preset, with_overrides
-from letspi.sumo.generate import generate_highd
-from letspi.sumo.ssm import ssm_check
+from letspi.trafficgen.config import traffic_preset, with_overrides
+from letspi.trafficgen.generate import generate_highd
+from letspi.trafficgen.ssm import ssm_check
 
 app = typer.Typer(help="HighD data: generate with SUMO, extract scenarios, inspect.",
                   no_args_is_help=True, rich_markup_mode=None)

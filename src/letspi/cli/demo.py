@@ -22,7 +22,7 @@ from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.sumo.generate import generate_highd
+from letspi.trafficgen.generate import generate_highd
 from letspi.viz.report import write_report
 
 BASELINES: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp")

@@ -36,10 +36,10 @@ from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, Progre
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue, render_markdown_table
-from letspi.planners.dual_rate import DEFAULT_LLM_PERIOD_S, DualRateConfig, is_dual_rate
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import HandoverConfig
+from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig, is_dual_rate
 
 PlannerOpt = Annotated[list[str], typer.Option(help=planner_help())]
 

@@ -11,8 +11,8 @@ import typer
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.planners.fit_frenet import DEFAULT_GRID, fit_frenet_weights
-from letspi.planners.fit_sf import fit_sf_params
+from letspi.fitting.frenet import DEFAULT_GRID, fit_frenet_weights
+from letspi.fitting.sf import fit_sf_params
 from letspi.planners.frenet import FrenetSettings, save_frenet_weights
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.store import load_scenarios, read_scenario_meta

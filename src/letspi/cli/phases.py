@@ -29,6 +29,7 @@ from letspi.cli.common import (
 )
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+from letspi.execution.ordered import RunnerConfig, ScenariosFailedError
 from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
@@ -36,7 +37,6 @@ from letspi.llm.spec import default_concurrency
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import Retriever, memory_example, messages_text
 from letspi.method.phases import collect as run_collect
-from letspi.method.runner import RunnerConfig, ScenariosFailedError
 from letspi.metrics.aggregate import render_markdown_table
 from letspi.metrics.compute import compute_metrics
 from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner

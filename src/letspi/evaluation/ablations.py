@@ -25,11 +25,11 @@ from typing import Any
 from letspi.assembly.build import Builder, BuiltPlanner
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.evaluation.harness import ProgressFactory, evaluate
+from letspi.execution.ordered import RunnerConfig, RunStats
 from letspi.fsutil import atomic_write_text
 from letspi.llm.spec import default_concurrency
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
-from letspi.method.runner import RunnerConfig, RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.scenario.types import ScenarioBatch
 

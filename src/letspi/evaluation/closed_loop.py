@@ -47,12 +47,11 @@ from letspi.evaluation.harness import (
     evaluate,
     load_planner_results,
 )
-from letspi.method.runner import RunStats
+from letspi.execution.ordered import RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import Planner
-from letspi.planners.dual_rate import DualRateConfig, is_dual_rate
 from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
@@ -67,9 +66,10 @@ from letspi.simulation import (
 )
 from letspi.simulation.config import DEFAULT_REPLAN_S, ClosedLoopMode, HandoverConfig, validate_replan_s
 from letspi.simulation.handover import hybrid_settings
+from letspi.simulation.schedule import DualRateConfig, is_dual_rate
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import chunk_frame
-from letspi.sumo.binaries import sumo_home
+from letspi.trafficgen.binaries import sumo_home
 
 #: closed-loop per-scenario array columns (flat float32 in the parts; shapes per row)
 CL_PLAN_XY = "cl_plan_xy_m"  # (R, F, 2) every plan, in the scenario's ego frame at t = 0

@@ -2,7 +2,7 @@
 time, physics and metrics batched per part, parts written in scenario order.
 
 A ``ProposingPlanner`` whose ``propose`` calls a model once per scenario (``proposes_per_scenario``)
-and is thread-safe (``concurrent_safe``) runs through ``letspi.method.runner``:
+and is thread-safe (``concurrent_safe``) runs through ``letspi.execution.ordered``:
 
 * each scenario's *proposal* is one task (prompt, LLM call(s), reflection rounds), ``concurrency``
   in flight. Its context (goal and predicted neighbours, what the prompt and the rollout need) is
@@ -30,9 +30,9 @@ from typing import TypeGuard
 
 import numpy as np
 
+from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
-from letspi.method.runner import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.planners.base import PlanBatch, Planner, PlanningContext, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch

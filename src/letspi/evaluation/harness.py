@@ -62,8 +62,8 @@ import pyarrow.parquet as pq
 from letspi.assembly.build import BuiltPlanner
 from letspi.constants import N_FUTURE
 from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
+from letspi.execution.ordered import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
-from letspi.method.runner import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig

@@ -9,7 +9,7 @@ tokens (``letspi.learned.layers``) into
   ``sf`` fit's strength: on calm generated traffic the trajectory loss rewards switching repulsion
   off (measured: with weights in (0, 4) they fell to 0.05 on average, with (0.5, 4) they sat at the
   floor, and in both cases the planner drove into a slower leader 40 m ahead), the same degeneracy
-  ``letspi.planners.fit_sf`` bounds its parameters against. GNP may be more cautious than ``sf``
+  ``letspi.fitting.sf`` bounds its parameters against. GNP may be more cautious than ``sf``
   per neighbour, never less.
 
 The weight multiplies the class strength of the fixed social force model (``k_np`` / ``k_nf`` /

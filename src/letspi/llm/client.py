@@ -24,7 +24,7 @@ a ``BackendUnavailableError`` when *every* attempt found the server unreachable;
 ``RetryPolicy.max_retry_after_s``; ``RunStoppedError`` when the advisor's run-wide circuit breaker
 (``letspi.llm.guard``, shared by every request in flight) has tripped, checked before every attempt.
 
-Thread-safe: a run calls one advisor from many threads (``letspi.method.runner``); ``stats`` counts
+Thread-safe: a run calls one advisor from many threads (``letspi.execution.ordered``); ``stats`` counts
 their requests. Backoff waits end at once when the breaker trips.
 """
 

@@ -1,6 +1,6 @@
 """Run-level state shared by every request of one ``ParamAdvisor``: a circuit breaker and request counters.
 
-A run keeps N scenarios in flight, each asking the same advisor (``letspi.method.runner``). Two things
+A run keeps N scenarios in flight, each asking the same advisor (``letspi.execution.ordered``). Two things
 must be shared across them, and both are thread-safe:
 
 * ``CircuitBreaker``: counts *consecutive* transport failures over all requests (any answer from the

@@ -19,7 +19,7 @@ Error taxonomy (what the caller does with it):
   the request falls back at once.
 * Run level (``letspi.llm.guard``): ``RunStoppedError`` when the shared circuit breaker trips
   (a bounded number of consecutive transport failures across all requests in flight);
-  ``letspi.method.runner.ScenariosFailedError`` at the end of a run that left scenarios unstored.
+  ``letspi.execution.ordered.ScenariosFailedError`` at the end of a run that left scenarios unstored.
 * ``ReplyParseError``: the model answered but the reply is not a valid parameter set. Retried with
   a corrective message, then the fallback.
 """

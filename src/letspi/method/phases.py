@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from letspi.constants import N_TOTAL
+from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
@@ -34,7 +35,6 @@ from letspi.llm.types import Message
 from letspi.method.matching import TOP_K, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
 from letspi.method.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
-from letspi.method.runner import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
@@ -180,7 +180,7 @@ def collect(
     """The memory collection phase over ``batch``; resumable: scenarios with a real (non-fallback)
     result under this configuration are skipped.
 
-    ``runner.concurrency`` scenarios run at once (``letspi.method.runner``); their experiences are
+    ``runner.concurrency`` scenarios run at once (``letspi.execution.ordered``); their experiences are
     committed one at a time in scenario order by this thread, so the bank's rows (ids included) do
     not depend on the concurrency or on which scenario finished first, and a killed run resumed
     gives the bank of an uninterrupted one. A scenario whose LLM requests failed in transport is not

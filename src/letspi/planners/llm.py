@@ -4,7 +4,7 @@ the fast prompt with three static examples instead of retrieval).
 
 They are ``ProposingPlanner``s (``letspi.planners.base``): ``propose`` makes the LLM call(s) of one
 scenario at a time (``proposes_per_scenario``) and is thread-safe (``concurrent_safe``): the harness
-keeps ``--concurrency`` scenarios in flight (``letspi.method.runner``), all asking the planner's one
+keeps ``--concurrency`` scenarios in flight (``letspi.execution.ordered``), all asking the planner's one
 ``advisor``, and pools their proposals. ``simulate`` runs the social force rollout and the safety
 shield batched over every proposal it is given (a part of an evaluation, a chunk of the closed
 loop); a scenario's plan does not depend on which others share the batch. ``plan`` does both (any

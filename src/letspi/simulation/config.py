@@ -28,7 +28,7 @@ from enum import StrEnum
 from typing import Literal
 
 from letspi.constants import DT_S, N_FUTURE
-from letspi.planners.dual_rate import DualRateConfig
+from letspi.simulation.schedule import DualRateConfig
 
 
 class ClosedLoopMode(StrEnum):
@@ -147,7 +147,7 @@ class ClosedLoopConfig:
         sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
         driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
-        dual_rate: LLM planners (``letspi.planners.dual_rate.is_dual_rate``): the LLM at t = 0 and
+        dual_rate: LLM planners (``letspi.simulation.schedule.is_dual_rate``): the LLM at t = 0 and
             every ``llm_period_s``, its answers in force after their latency, the physics and the
             shield every ``replan_s`` (``letspi.simulation.dual_rate``); other planners ignore it.
     """

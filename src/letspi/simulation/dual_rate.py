@@ -3,7 +3,7 @@
 ``DualRateReplanner`` is a ``letspi.simulation.replan.Replanner``. At t = 0 and every ``replan_every``
 frames (e.g. 0.2 s) it builds the planner's view from the simulated history, derives the context
 (goal prediction, neighbour prediction) and asks the ``DualRateSchedule``
-(``letspi.planners.dual_rate``) for the proposals in force, which makes the LLM calls that are due
+(``letspi.simulation.schedule``) for the proposals in force, which makes the LLM calls that are due
 (t = 0, then every ``llm_period_s``) and applies the answers whose latency has passed. The physics
 (``planner.simulate``: rollout and, when on, the safety shield) then plans every scenario of the
 group with those proposals, in one batched call.
@@ -22,9 +22,9 @@ from collections.abc import Callable
 import numpy as np
 
 from letspi.constants import T0_INDEX
-from letspi.planners.dual_rate import DualRateConfig, DualRatePlanner, DualRateSchedule
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replan, SimulatedStates, replanning_batch
+from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule
 
 
 class DualRateReplanner(PeriodicReplanner):

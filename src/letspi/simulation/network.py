@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from letspi.simulation.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig
-from letspi.sumo.binaries import sumo_binary
+from letspi.trafficgen.binaries import sumo_binary
 
 LayoutKey = tuple[float, ...]
 VTYPE_ID = "cl"

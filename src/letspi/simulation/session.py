@@ -25,7 +25,7 @@ from typing import Any
 from letspi.constants import DT_S
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.network import LayoutKey, NetworkCache, SlotNetwork
-from letspi.sumo.binaries import sumo_binary
+from letspi.trafficgen.binaries import sumo_binary
 
 
 class SumoSessionError(RuntimeError):

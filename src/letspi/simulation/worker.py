@@ -10,7 +10,6 @@ import numpy as np
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
 from letspi.planners.base import Planner
-from letspi.planners.dual_rate import is_dual_rate
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.dual_rate import DualRateReplanner
@@ -18,6 +17,7 @@ from letspi.simulation.engine import simulate_group
 from letspi.simulation.network import layout_keys
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replanner
 from letspi.simulation.result import ClosedLoopChunk
+from letspi.simulation.schedule import is_dual_rate
 from letspi.simulation.session import SumoSession
 from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorded_future
 

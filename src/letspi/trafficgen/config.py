@@ -56,7 +56,7 @@ class DriverConfig:
             its centre crosses into the lane (when HighD assigns it the lane) and react after
             their reaction time; SUMO's followers would brake from the first moment of the
             change. Applies to every lane change into the recorded window (natural or
-            scripted); see :mod:`letspi.sumo.reactions`.
+            scripted); see :mod:`letspi.trafficgen.reactions`.
         epsilon_acc_mps2: EIDM ``epsilonacc``: between two decision points (every reaction time)
             a driver reacts at once only when its desired deceleration grows by more than this
             [m/s²] (SUMO's default 1); larger values make the reaction time apply to sharper
@@ -224,7 +224,7 @@ class TrafficConfig:
         layout: road layout.
         truck_share: share of trucks in the demand.
         max_attempts: simulations tried (seed, then derived sub-seeds) until one has no contact;
-            see :mod:`letspi.sumo.generate`.
+            see :mod:`letspi.trafficgen.generate`.
     """
 
     name: str = "highd"

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from letspi.sumo.convert import smooth_lane_changes
+from letspi.trafficgen.convert import smooth_lane_changes
 
 WINDOW_M = 420.0
 DT_S = 0.04
@@ -89,7 +89,7 @@ def test_smooth_lane_change_leaves_unanchored_ramps() -> None:
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path]]:
     pytest.importorskip("sumo")
-    from letspi.sumo.generate import generate_highd
+    from letspi.trafficgen.generate import generate_highd
 
     out = tmp_path_factory.mktemp("sumo_rec")
     fractions: list[float] = []
@@ -209,7 +209,7 @@ def test_calm_traffic_has_close_interactions(recording) -> None:  # type: ignore
 @pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_deterministic_per_seed(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
-    from letspi.sumo.generate import generate_highd
+    from letspi.trafficgen.generate import generate_highd
 
     runs = {}
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
@@ -225,7 +225,7 @@ def test_deterministic_per_seed(tmp_path: Path) -> None:
 def test_two_lanes_and_split_recordings(tmp_path: Path) -> None:
     pytest.importorskip("sumo")
     from letspi.highd.io import read_recording
-    from letspi.sumo.generate import generate_highd
+    from letspi.trafficgen.generate import generate_highd
 
     paths = generate_highd(tmp_path, minutes=1.0, seed=1, lanes_per_direction=2,
                            flow_veh_per_h=1500, recording_minutes=0.4).paths
@@ -244,7 +244,7 @@ def test_two_lanes_and_split_recordings(tmp_path: Path) -> None:
 
 @pytest.mark.sumo
 def test_invalid_arguments(tmp_path: Path) -> None:
-    from letspi.sumo.generate import generate_highd
+    from letspi.trafficgen.generate import generate_highd
 
     with pytest.raises(ValueError):
         generate_highd(tmp_path, minutes=0.5, lanes_per_direction=4)

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.sumo.binaries import sumo_binary
-from letspi.sumo.config import LayoutConfig
+from letspi.trafficgen.binaries import sumo_binary
+from letspi.trafficgen.config import LayoutConfig
 
 EASTBOUND_EDGE = "E"  # HighD drivingDirection 2 (towards +x, lower lanes): first edge of the route
 WESTBOUND_EDGE = "W"  # HighD drivingDirection 1 (towards -x, upper lanes)

@@ -38,9 +38,9 @@ import pandas as pd
 
 from letspi.highd.derive import build_recording
 from letspi.highd.io import write_recording
-from letspi.sumo.config import TrafficConfig
-from letspi.sumo.generate import FRAME_RATE_HZ, simulate_recordings
-from letspi.sumo.simulate import STEP_S
+from letspi.trafficgen.config import TrafficConfig
+from letspi.trafficgen.generate import FRAME_RATE_HZ, simulate_recordings
+from letspi.trafficgen.simulate import STEP_S
 
 _FOLLOWING_TYPES = {2: "ego", 3: "foe"}  # encounter type -> who is the follower
 SSM_TTC_THRESHOLD_S = 5.0  # the device's TTC threshold set in simulate.run_sumo

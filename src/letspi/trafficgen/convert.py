@@ -4,7 +4,7 @@ Conventions:
 - SUMO FCD ``x, y`` is the **front-bumper centre**, SUMO y points **up**.
 - HighD image axes: x right, y **down**; ``x, y`` is the top-left corner of the axis-aligned box,
   ``width`` = vehicle length, ``height`` = vehicle width. Image x = SUMO x - window start,
-  image y = ``image_y_ref_m`` - SUMO y (see :mod:`letspi.sumo.network`).
+  image y = ``image_y_ref_m`` - SUMO y (see :mod:`letspi.trafficgen.network`).
 - Box centre = front centre minus half the length along the heading; the heading is taken from
   the (smoothed) front trajectory so that it is as smooth as the trajectory itself.
 - Velocities/accelerations are time derivatives (central differences, one-sided at track ends)
@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from letspi.highd.schema import DRIVING_DIRECTION_LOWER, DRIVING_DIRECTION_UPPER
-from letspi.sumo.demand import VehicleSpec
-from letspi.sumo.network import HighwayNetwork
-from letspi.sumo.simulate import STEP_S
+from letspi.trafficgen.demand import VehicleSpec
+from letspi.trafficgen.network import HighwayNetwork
+from letspi.trafficgen.simulate import STEP_S
 
 STATE_COLUMNS = ("frame", "id", "x", "y", "width", "height",
                  "xVelocity", "yVelocity", "xAcceleration", "yAcceleration")
@@ -121,7 +121,7 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
     """Convert SUMO FCD (front centre, y up) to HighD image-axis boxes with derivatives.
 
     Args:
-        fcd: output of :func:`letspi.sumo.simulate.read_fcd` (sorted by id, time).
+        fcd: output of :func:`letspi.trafficgen.simulate.read_fcd` (sorted by id, time).
         specs: the inserted vehicles (dimensions, class, direction).
         network: geometry and image transform.
     """

@@ -14,7 +14,7 @@ overtaking on the right) with per-driver eagerness, cooperativeness and assertiv
 but labelled "Car", exactly as HighD labels them.
 
 Per-driver reaction time, headways, assertive and impatient drivers follow a
-:class:`~letspi.sumo.config.DriverConfig`; the reaction time is EIDM's ``treaction`` (SUMO's docs
+:class:`~letspi.trafficgen.config.DriverConfig`; the reaction time is EIDM's ``treaction`` (SUMO's docs
 say EIDM must not be combined with ``actionStepLength``) and ``tau`` is at least the reaction time.
 """
 
@@ -27,8 +27,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from letspi.sumo.config import DriverConfig
-from letspi.sumo.network import Entry
+from letspi.trafficgen.config import DriverConfig
+from letspi.trafficgen.network import Entry
 
 Kind = Literal["car", "van", "truck"]
 

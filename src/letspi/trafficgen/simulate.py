@@ -1,7 +1,7 @@
 """Run SUMO through libsumo (in-process) and read its floating-car-data (FCD) output.
 
 SUMO itself writes the trajectories (FCD as CSV, parsed with pyarrow: faster than per-step
-queries); Python only steps the simulation so that :mod:`letspi.sumo.events` can inject
+queries); Python only steps the simulation so that :mod:`letspi.trafficgen.events` can inject
 scripted events. Between events the simulation advances many steps per call
 (``simulationStep(t)``), so stepping from Python costs next to nothing.
 
@@ -25,7 +25,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from letspi.sumo.binaries import sumo_binary
+from letspi.trafficgen.binaries import sumo_binary
 
 STEP_S = 0.04  # 25 Hz, the HighD frame rate
 _PROGRESS_CHUNK_S = 10.0  # longest single advance, so progress is reported regularly

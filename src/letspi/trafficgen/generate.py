@@ -40,12 +40,18 @@ from letspi.highd.contacts import overlapping_boxes
 from letspi.highd.derive import build_recording
 from letspi.highd.events import EVENTS_COLUMNS, write_events
 from letspi.highd.io import write_recording
-from letspi.sumo.config import TrafficConfig, traffic_preset
-from letspi.sumo.convert import ImageTracks, clip_to_window, fcd_to_image
-from letspi.sumo.demand import DEFAULT_FLOW_PER_LANE_VEH_PER_H, DemandConfig, VehicleSpec, sample_demand, write_routes
-from letspi.sumo.events import EventInjector, EventRecord, VehicleInfo, Window
-from letspi.sumo.network import HighwayGeometry, HighwayNetwork, build_network
-from letspi.sumo.simulate import STEP_S, Collision, SimulationResult, run_sumo
+from letspi.trafficgen.config import TrafficConfig, traffic_preset
+from letspi.trafficgen.convert import ImageTracks, clip_to_window, fcd_to_image
+from letspi.trafficgen.demand import (
+    DEFAULT_FLOW_PER_LANE_VEH_PER_H,
+    DemandConfig,
+    VehicleSpec,
+    sample_demand,
+    write_routes,
+)
+from letspi.trafficgen.events import EventInjector, EventRecord, VehicleInfo, Window
+from letspi.trafficgen.network import HighwayGeometry, HighwayNetwork, build_network
+from letspi.trafficgen.simulate import STEP_S, Collision, SimulationResult, run_sumo
 
 FRAME_RATE_HZ = 25
 _TAIL_S = 6.0  # > lane-change duration (4 s)
@@ -161,7 +167,7 @@ def simulate_recordings(
     """Simulate and cut recordings in memory (no derived columns). See :func:`generate_highd`.
 
     ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
-    output remains; see :mod:`letspi.sumo.ssm`).
+    output remains; see :mod:`letspi.trafficgen.ssm`).
     """
     _check_request(minutes, lanes_per_direction, recording_minutes)
     cfg = traffic or traffic_preset("highd")

@@ -13,7 +13,7 @@ from letspi.highd.criticality import profile_directory
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recording
 from letspi.highd.types import Recording
-from letspi.sumo.config import traffic_preset, with_overrides
+from letspi.trafficgen.config import traffic_preset, with_overrides
 
 pytestmark = pytest.mark.sumo
 DT_S = 0.04
@@ -21,7 +21,7 @@ DT_S = 0.04
 
 def _generate(out: Path, preset: str = "highd", minutes: float = 1.5, seed: int = 3, **settings: str):  # type: ignore[no-untyped-def]
     pytest.importorskip("sumo")
-    from letspi.sumo.generate import generate_highd
+    from letspi.trafficgen.generate import generate_highd
 
     cfg = with_overrides(traffic_preset(preset), {k.replace("__", "."): v for k, v in settings.items()})
     return generate_highd(out, minutes=minutes, seed=seed, traffic=cfg)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from letspi.sumo.ssm import read_ssm_ttc
+from letspi.trafficgen.ssm import read_ssm_ttc
 
 SSM_XML = """<SSMLog>
   <conflict begin="10.00" end="10.12" ego="a" foe="b">
@@ -43,8 +43,8 @@ def test_read_ssm_ttc_keeps_following_encounters_once(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_recorded_ttc_agrees_with_sumo_ssm() -> None:
     pytest.importorskip("sumo")
-    from letspi.sumo.config import traffic_preset
-    from letspi.sumo.ssm import ssm_check
+    from letspi.trafficgen.config import traffic_preset
+    from letspi.trafficgen.ssm import ssm_check
 
     c = ssm_check(minutes=2.0, seed=0, traffic=traffic_preset("highd"))
     assert c.frames_both > 50 and c.vehicles_below_3s_both >= 1

@@ -1,6 +1,6 @@
 """Scripted critical events and lane-change perception, injected through libsumo while stepping.
 
-Three kinds of scripted events (knobs in :class:`letspi.sumo.config.EventConfig`):
+Three kinds of scripted events (knobs in :class:`letspi.trafficgen.config.EventConfig`):
 
 - ``hard_brake``: a leader with a close follower brakes at 4-8 m/s² for 1.5-3 s
   (``slowDown`` with speed mode 27 = default without the deceleration bound), keeps the lower
@@ -15,7 +15,7 @@ Three kinds of scripted events (knobs in :class:`letspi.sumo.config.EventConfig`
 Lane-change perception (``DriverConfig.lane_change_perception``): for *every* lane change into
 the recorded window, natural or scripted, the follower on the target lane that is closing in
 perceives the changer only when its centre crosses into the lane, and reacts after its reaction
-time (:mod:`letspi.sumo.reactions`); SUMO's followers would otherwise brake from the first
+time (:mod:`letspi.trafficgen.reactions`); SUMO's followers would otherwise brake from the first
 moment of the change.
 
 Timing: ``on_step(t)`` gets SUMO's current time t, the time of the *next* step (the state read
@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from letspi.sumo.config import EventConfig
-from letspi.sumo.reactions import LC_MODE_DEFAULT, LC_MODE_FORCED, SPEED_MODE_DEFAULT, STEP_S, Hold, Reactions
+from letspi.trafficgen.config import EventConfig
+from letspi.trafficgen.reactions import LC_MODE_DEFAULT, LC_MODE_FORCED, SPEED_MODE_DEFAULT, STEP_S, Hold, Reactions
 
 _SPEED_MODE_NO_DECEL_BOUND = 27  # 31 minus bit 2 (regard maximum deceleration)
 _LANE_CENTRED_M = 0.2  # a vehicle further from its lane centre is (still) changing lanes

@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from letspi.sumo.config import (
+from letspi.trafficgen.config import (
     CALM,
     HIGHD,
     STRESS,
@@ -17,7 +17,7 @@ from letspi.sumo.config import (
     traffic_preset,
     with_overrides,
 )
-from letspi.sumo.reactions import required_decel
+from letspi.trafficgen.reactions import required_decel
 
 
 def test_presets_are_instances_and_ordered_by_criticality() -> None:
