@@ -1,0 +1,237 @@
+"""Uncertainty of evaluation figures: Wilson intervals, exact McNemar tests, vehicle (cluster) bootstrap.
+
+Every rate and mean letspi reports carries a 95 % interval, and every comparison of two planners on
+the same windows is paired. The functions here are the statistics; ``letspi.metrics.uncertainty``
+applies them to the metrics of ``letspi.metrics.registry`` with the same definition as each point value.
+
+* Rates: ``wilson_interval`` (scipy's ``binomtest(k, n).proportion_ci(method="wilson")``).
+* Means: ``bootstrap_mean_interval``, a percentile bootstrap that resamples whole **groups** (the ego
+  vehicle of a window, ``letspi.scenario.split.vehicle_keys``), never single windows: windows of one
+  vehicle overlap (stride 20 frames of 200) and share its traffic, so they are not independent.
+  Non-finite values (+inf "no conflict", NaN) are left out of the mean, as ``finite_mean`` does,
+  while their groups are still resampled (a ratio estimator: sum of the finite values over their count).
+* Paired comparisons of two planners on the same windows: ``paired_rate`` (discordant counts, the
+  exact McNemar p of ``mcnemar_exact``, and the vehicle-bootstrap interval of the difference in
+  percentage points) and ``paired_mean`` (difference over the finite pairs and its interval).
+
+Reproducibility: the bootstrap draws its resamples from ``numpy.random.default_rng(seed)`` over the
+groups in sorted order, so the same inputs give the same draws; interval ends are rounded to
+``SIGNIFICANT_DIGITS`` significant digits (far below the bootstrap's own Monte-Carlo error, about
+1 % of the interval's width at 2,000 resamples) so that results written to JSON are byte-identical
+across runs and BLAS builds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+from scipy.stats import binomtest
+
+LEVEL: Final = 0.95
+N_RESAMPLES: Final = 2000
+SEED: Final = 0
+#: interval ends are rounded to this many significant digits (module doc)
+SIGNIFICANT_DIGITS: Final = 6
+
+Interval = tuple[float, float]
+NAN_INTERVAL: Final[Interval] = (math.nan, math.nan)
+
+
+def rounded(x: float, digits: int = SIGNIFICANT_DIGITS) -> float:
+    """``x`` rounded to ``digits`` significant digits (NaN and inf unchanged)."""
+    if not math.isfinite(x) or x == 0.0:
+        return float(x)
+    return float(f"{x:.{digits}g}")
+
+
+def _check_level(level: float) -> None:
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+
+
+def wilson_interval(k: int, n: int, level: float = LEVEL) -> Interval:
+    """Wilson score interval (no continuity correction) of a proportion with ``k`` successes in ``n``
+    trials, as fractions in [0, 1]; (NaN, NaN) when ``n`` is 0."""
+    _check_level(level)
+    k, n = int(k), int(n)
+    if n < 0 or not 0 <= k <= max(n, 0):
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if n == 0:
+        return NAN_INTERVAL
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
+    return rounded(float(ci.low)), rounded(float(ci.high))
+
+
+def mcnemar_exact(n_only_a: int, n_only_b: int) -> float:
+    """Two-sided exact McNemar p of paired binary outcomes: the binomial test of the discordant pairs,
+    ``n_only_a`` of ``n_only_a + n_only_b`` against 1/2 (1.0 when there are none)."""
+    b, c = int(n_only_a), int(n_only_b)
+    if b < 0 or c < 0:
+        raise ValueError(f"discordant counts must be >= 0, got {b}, {c}")
+    if b + c == 0:
+        return 1.0
+    return float(binomtest(b, b + c, 0.5).pvalue)
+
+
+# ------------------------------------------------------------------------------------------------
+# Vehicle (cluster) bootstrap
+# ------------------------------------------------------------------------------------------------
+
+
+def group_index(groups: np.ndarray | Sequence[Any]) -> tuple[np.ndarray, int]:
+    """(n,) int index of each row's group in the sorted unique groups, and their number G."""
+    keys = np.asarray(groups).astype(str)
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    return inverse.reshape(-1), len(uniq)
+
+
+#: resamples drawn per chunk (bounds memory at about 16 * RESAMPLE_CHUNK * G bytes; part of the seeded stream)
+RESAMPLE_CHUNK: Final = 250
+
+
+def resample_counts(n_groups: int, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> Iterator[np.ndarray]:
+    """Chunks (r, G) float64 of, per resample, how often each of ``n_groups`` groups is drawn in
+    ``n_groups`` draws with replacement; ``n_resamples`` rows in all, from one seeded stream."""
+    if n_resamples < 1:
+        raise ValueError(f"n_resamples must be >= 1, got {n_resamples}")
+    rng = np.random.default_rng(seed)
+    for start in range(0, n_resamples, RESAMPLE_CHUNK):
+        r = min(RESAMPLE_CHUNK, n_resamples - start)
+        draws = rng.integers(0, n_groups, size=(r, n_groups))
+        flat = (draws + n_groups * np.arange(r)[:, None]).ravel()
+        yield np.bincount(flat, minlength=r * n_groups).reshape(r, n_groups).astype(np.float64)
+
+
+def bootstrap_mean_intervals(values: np.ndarray, groups: np.ndarray | Sequence[Any], level: float = LEVEL,
+                             n_resamples: int = N_RESAMPLES, seed: int = SEED) -> np.ndarray:
+    """Vehicle-bootstrap percentile intervals of the finite means of K columns at once.
+
+    values: (n, K) float (or (n,)); non-finite entries are left out of their column's mean.
+    groups: (n,) group of each row (any values; compared as strings).
+    Returns (K, 2) [low, high], NaN for a column with fewer than 2 groups holding a finite value
+    (the spread between vehicles cannot be estimated). The K columns share the resamples.
+    """
+    _check_level(level)
+    v = np.asarray(values, dtype=np.float64)
+    v2 = v.reshape(len(v), -1)
+    inverse, n_groups = group_index(groups)
+    if len(inverse) != len(v2):
+        raise ValueError(f"values has {len(v2)} rows, groups {len(inverse)}")
+    out = np.full((v2.shape[1], 2), np.nan)
+    if not len(v2):
+        return out
+    finite = np.isfinite(v2)
+    sums = np.zeros((n_groups, v2.shape[1]))
+    counts = np.zeros((n_groups, v2.shape[1]))
+    np.add.at(sums, inverse, np.where(finite, v2, 0.0))
+    np.add.at(counts, inverse, finite.astype(np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN where a resample has no finite value
+        means = np.concatenate([(w @ sums) / (w @ counts) for w in resample_counts(n_groups, n_resamples, seed)])
+    alpha = 1.0 - level
+    estimable = (counts > 0).sum(axis=0) >= 2
+    if estimable.any():
+        q = np.nanquantile(means[:, estimable], [alpha / 2, 1 - alpha / 2], axis=0)  # (2, K')
+        out[estimable] = q.T
+    return np.vectorize(rounded, otypes=[np.float64])(out) if out.size else out
+
+
+def bootstrap_mean_interval(values: np.ndarray | Sequence[float], groups: np.ndarray | Sequence[Any],
+                            level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> Interval:
+    """Vehicle-bootstrap percentile interval of the mean of the finite ``values`` (n,), resampling
+    whole ``groups`` (n,); (NaN, NaN) with fewer than 2 groups holding a finite value."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 1:
+        raise ValueError(f"values must be 1-D, got shape {v.shape}")
+    low, high = bootstrap_mean_intervals(v[:, None], groups, level, n_resamples, seed)[0]
+    return float(low), float(high)
+
+
+# ------------------------------------------------------------------------------------------------
+# Paired comparisons
+# ------------------------------------------------------------------------------------------------
+
+
+def _json_float(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class PairedRate:
+    """Paired comparison of a rate of A and B on the same windows.
+
+    n_only_a: windows where A's flag is set and B's is not (for CR: only A collides); diff: rate of
+    A minus rate of B in percentage points; diff_ci95: its vehicle-bootstrap interval.
+    """
+
+    n_pairs: int
+    n_only_a: int
+    n_only_b: int
+    n_both: int
+    p_mcnemar: float
+    diff: float
+    diff_ci95: Interval
+
+    def record(self) -> dict[str, Any]:
+        """The ``metrics.json`` entry, A being the planner and B the reference (NaN -> None)."""
+        return {"n_pairs": self.n_pairs, "n_only_planner": self.n_only_a, "n_only_reference": self.n_only_b,
+                "n_both": self.n_both, "p_mcnemar": rounded(self.p_mcnemar), "diff": _json_float(self.diff),
+                "diff_ci95": [_json_float(self.diff_ci95[0]), _json_float(self.diff_ci95[1])]}
+
+
+@dataclass(frozen=True)
+class PairedMean:
+    """Paired comparison of a mean of A and B on the same windows: over the pairs where both are
+    finite, the mean of A - B and its vehicle-bootstrap interval."""
+
+    n_pairs: int
+    diff: float
+    diff_ci95: Interval
+
+    def record(self) -> dict[str, Any]:
+        """The ``metrics.json`` entry (NaN -> None)."""
+        return {"n_pairs": self.n_pairs, "diff": _json_float(self.diff),
+                "diff_ci95": [_json_float(self.diff_ci95[0]), _json_float(self.diff_ci95[1])]}
+
+
+def _same_length(*arrays: np.ndarray) -> None:
+    if len({len(a) for a in arrays}) != 1:
+        raise ValueError(f"paired inputs differ in length: {[len(a) for a in arrays]}")
+
+
+def paired_rate(fail_a: np.ndarray | Sequence[bool], fail_b: np.ndarray | Sequence[bool],
+                groups: np.ndarray | Sequence[Any], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
+                seed: int = SEED) -> PairedRate:
+    """Paired comparison of two (n,) boolean outcomes on the same windows (row i of both is one
+    window; ``groups`` (n,) its vehicle): discordant counts, exact McNemar p, difference of the rates
+    in percentage points (A - B) with its vehicle-bootstrap interval."""
+    a = np.asarray(fail_a, dtype=bool)
+    b = np.asarray(fail_b, dtype=bool)
+    g = np.asarray(groups)
+    _same_length(a, b, g)
+    only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
+    d = 100.0 * (a.astype(np.float64) - b.astype(np.float64))
+    diff = float(d.mean()) if len(d) else math.nan
+    ci = bootstrap_mean_interval(d, g, level, n_resamples, seed) if len(d) else NAN_INTERVAL
+    return PairedRate(n_pairs=len(a), n_only_a=only_a, n_only_b=only_b, n_both=int((a & b).sum()),
+                      p_mcnemar=mcnemar_exact(only_a, only_b), diff=diff, diff_ci95=ci)
+
+
+def paired_mean(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float], groups: np.ndarray | Sequence[Any],
+                level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> PairedMean:
+    """Paired comparison of two (n,) per-window values: mean of A - B over the pairs where both are
+    finite, and its vehicle-bootstrap interval (pairs with a non-finite side are left out; their
+    vehicles are still resampled)."""
+    va = np.asarray(a, dtype=np.float64)
+    vb = np.asarray(b, dtype=np.float64)
+    g = np.asarray(groups)
+    _same_length(va, vb, g)
+    ok = np.isfinite(va) & np.isfinite(vb)
+    d = np.where(ok, va - vb, np.nan)
+    n = int(ok.sum())
+    diff = float(d[ok].mean()) if n else math.nan
+    ci = bootstrap_mean_interval(d, g, level, n_resamples, seed) if n else NAN_INTERVAL
+    return PairedMean(n_pairs=n, diff=diff, diff_ci95=ci)
