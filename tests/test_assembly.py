@@ -5,13 +5,11 @@ from __future__ import annotations
 import json
 import shutil
 from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from letspi.assembly import resolve
 from letspi.assembly.build import Builder, ConfigurationChangedError, build_planners, parse_planner_arg
 from letspi.assembly.resolve import GNP_WEIGHTS_ENV, GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
 from letspi.learned.weights import shipped_weights_dir
@@ -75,20 +73,6 @@ def test_goal_and_gnp_weight_environment_variables_are_part_of_the_key(tmp_path:
     manifest = json.loads((other_gnp / "manifest.json").read_text())
     (other_gnp / "manifest.json").write_text(json.dumps({**manifest, "note": "retrained"}))
     assert _key("gnp", env={GNP_WEIGHTS_ENV: str(other_gnp)}) != _key("gnp")
-
-
-def test_prompt_template_text_is_part_of_the_key(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """0.1 versioned prompts with a hand-bumped constant: editing a template left the key unchanged."""
-    before = resolve.prompt_sha256()
-    package = tmp_path / "letspi"
-    shutil.copytree(Path(str(resources.files("letspi"))) / "prompts", package / "prompts")
-    shutil.copytree(Path(str(resources.files("letspi"))) / "llm", package / "llm")
-    assert before == resolve.prompt_sha256()
-    monkeypatch.setattr(resolve.resources, "files", lambda name: package)
-    assert resolve.prompt_sha256() == before  # an identical copy: the same fingerprint
-    template = package / "prompts" / "refinement.j2"
-    template.write_text(template.read_text() + "\nBe brief.")
-    assert resolve.prompt_sha256() != before
 
 
 def test_model_weights_fingerprint_for_local_models(tmp_path: Path) -> None:

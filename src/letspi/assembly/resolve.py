@@ -16,7 +16,6 @@ import hashlib
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 from letspi.assembly.planner_table import planner_kind
@@ -24,10 +23,12 @@ from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, lo
 from letspi.llm.backends.llamacpp import LlamaRuntime
 from letspi.llm.client import RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
+from letspi.llm.fingerprint import prompt_fingerprint
 from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
 from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
+from letspi.method.prompt_samples import prompt_text_samples
 from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.config import (
@@ -47,8 +48,6 @@ MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
 DEFAULT_LLM = "llamacpp:smollm2-135m-letspi"
 DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
 GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
-#: The modules whose code writes prompt text; their source is part of the prompt fingerprint.
-PROMPT_CODE_MODULES: tuple[str, ...] = ("describe.py", "prompts.py", "schema.py", "compact.py")
 
 
 @dataclass(frozen=True)
@@ -104,20 +103,8 @@ def weights_sha256(model_dir: Path) -> str:
 
 
 def prompt_sha256() -> str:
-    """Fingerprint of the prompt text: every template file and the code that renders scenes into them."""
-    h = hashlib.sha256()
-    templates = sorted(resources.files("letspi").joinpath("prompts").iterdir(), key=lambda t: t.name)
-    for t in templates:
-        if t.name.endswith(".j2"):
-            h.update(t.name.encode())
-            h.update(t.read_bytes())
-    llm_pkg = resources.files("letspi").joinpath("llm")
-    for name in PROMPT_CODE_MODULES:
-        module = llm_pkg.joinpath(name)
-        if module.is_file():
-            h.update(name.encode())
-            h.update(module.read_bytes())
-    return h.hexdigest()
+    """Fingerprint of the prompt text as rendered (``letspi.llm.fingerprint``, ``letspi.method.prompt_samples``)."""
+    return prompt_fingerprint(prompt_text_samples())
 
 
 class Resolver:
