@@ -28,7 +28,7 @@ from letspi.highd.schema import (
 )
 from letspi.highd.types import Recording
 
-TOL = 1e-6  # files keep 6 decimals
+TOL = 0.005 + 1e-9  # files keep 2 decimals, as real HighD
 
 
 @pytest.fixture(scope="module")
@@ -513,3 +513,29 @@ def test_invalid_lane_in_memory_writes_nothing(tmp_path: Path, rec: Recording) -
         write_recording(replace(rec, tracks=tracks), tmp_path)
     assert (info.value.path.name, info.value.column, info.value.line) == ("01_tracks.csv", "laneId", 9)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_floats_are_written_with_two_decimals_like_real_highd(tmp_path: Path, rec: Recording) -> None:
+    tracks = rec.tracks.copy()
+    tracks.loc[0, "xAcceleration"] = -0.004  # rounds to zero: no "-0.00"
+    tracks.loc[1, "xAcceleration"] = -1.0
+    tracks.loc[2, "xAcceleration"] = 215.032057
+    write_recording(replace(rec, tracks=tracks), tmp_path)
+    lines = (tmp_path / tracks_file(1)).read_text().splitlines()
+    column = lines[0].split(",").index("xAcceleration")
+    assert [line.split(",")[column] for line in lines[1:4]] == ["0.00", "-1.00", "215.03"]
+    meta_line = (tmp_path / "01_recordingMeta.csv").read_text().splitlines()[1].split(",")
+    assert len(meta_line[RECORDING_META_COLUMNS.index("speedLimit")].split(".")[1]) == 2
+
+
+def test_generation_record_round_trip_and_errors(tmp_path: Path) -> None:
+    from letspi.highd.generation import generation_file, read_generation, write_generation
+
+    assert read_generation(tmp_path, 1) is None
+    write_generation({"seed": 1003, "minutes": 2.0}, tmp_path, 1)
+    assert read_generation(tmp_path, 1) == {"seed": 1003, "minutes": 2.0}
+    with pytest.raises(ValueError, match="integer 'seed'"):
+        write_generation({"seed": "x"}, tmp_path, 2)
+    (tmp_path / generation_file(3)).write_text("{not json")
+    with pytest.raises(ValueError, match="03_generation.json: not valid JSON"):
+        read_generation(tmp_path, 3)

@@ -158,14 +158,16 @@ def test_no_overlapping_boxes(recording) -> None:  # type: ignore[no-untyped-def
 @pytest.mark.sumo
 def test_velocities_match_positions(recording) -> None:  # type: ignore[no-untyped-def]
     tr = recording.tracks.sort_values(["id", "frame"])
+    ids = tr["id"].to_numpy()
+    k = 5  # frames: over 0.2 s the 2-decimal positions (±5 mm) err by at most 0.05 m/s
+    same = ids[k:] == ids[:-k]
     for pos, vel in (("x", "xVelocity"), ("y", "yVelocity")):
-        rate = _per_vehicle_diff(tr, pos) / DT_S
-        # Central-difference velocities: mean of the two frames matches the position step.
-        v = tr[vel].to_numpy()
-        same = (tr["id"].to_numpy()[1:] == tr["id"].to_numpy()[:-1])
-        mid = 0.5 * (v[1:] + v[:-1])[same]
-        assert np.abs(rate - mid).max() < 0.1
-        assert np.abs(rate - v[1:][same]).max() < 0.3
+        p, v = tr[pos].to_numpy(), tr[vel].to_numpy()
+        rate = ((p[k:] - p[:-k]) / (k * DT_S))[same]
+        # Central-difference velocities: the trapezoid of the velocities matches the displacement.
+        trapezoid = np.stack([0.5 * (v[j:len(v) - k + j] + v[j + 1:len(v) - k + j + 1]) for j in range(k)]).mean(axis=0)
+        assert np.abs(rate - trapezoid[same]).max() < 0.1 + 0.05 + 0.005
+        assert np.abs(rate - v[k:][same]).max() < 0.6
 
 
 @pytest.mark.sumo

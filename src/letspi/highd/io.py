@@ -18,13 +18,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+import matplotlib.image as plt_image
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 
+from letspi.fsutil import atomic_write
 from letspi.highd.errors import HighDFormatError
 from letspi.highd.schema import (
+    HIGHWAY_IMAGE_M_PER_PX,
     RECORDING_META_COLUMNS,
     RECORDING_META_INT_COLUMNS,
     RECORDING_META_STR_COLUMNS,
@@ -33,6 +37,7 @@ from letspi.highd.schema import (
     TRACKS_META_COLUMNS,
     TRACKS_META_INT_COLUMNS,
     TRACKS_META_STR_COLUMNS,
+    highway_image_file,
     recording_meta_file,
     tracks_file,
     tracks_meta_file,
@@ -54,13 +59,16 @@ __all__ = [
     "read_recording_meta",
     "read_recordings",
     "validate_recording",
+    "write_highway_image",
     "write_recording",
 ]
 
-#: Floats are rounded to this many decimals on write and printed in their shortest round-trip
-#: form (``51.2``, ``0``, ``-1``), so a write→read round trip is exact to 5e-7. 6 decimals keep
-#: positions differentiated twice at 25 Hz well below 1e-3 m/s² of quantisation noise.
-FLOAT_DECIMALS = 6
+#: Floats are written as real HighD files print them: fixed-point with 2 decimals (``51.20``,
+#: ``0.00``, ``-1.00``) in every file and column, so readers that infer column types from the first
+#: rows (``lxd-io``, polars) see floats. A write→read round trip is exact to 0.005: 5 mm for
+#: positions, 0.005 m/s for velocities (a velocity differenced over one 0.04 s frame carries up to
+#: 0.25 m/s² of quantisation noise, as real HighD does).
+FLOAT_DECIMALS = 2
 
 _FILE_RE = re.compile(r"^(\d+)_(?:tracks|tracksMeta|recordingMeta)\.csv$")
 _INT_RE = r"\s*[+-]?\d+\s*"
@@ -426,20 +434,32 @@ def validate_recording(rec: Recording) -> None:
     _prepare(rec, Path())
 
 
+def _fixed_point(values: np.ndarray) -> pa.Array:
+    """``values`` (N,) float64 as text with ``FLOAT_DECIMALS`` decimals (``-0.50``, ``0.00``, ``12.34``).
+
+    Vectorised in Arrow through integer hundredths: ``str.format`` per value would take ~10 s per
+    million rows. Values rounding to zero print without a sign (never ``-0.00``)."""
+    scale = 10**FLOAT_DECIMALS
+    units = np.round(values * scale).astype(np.int64)
+    magnitude = np.abs(units)
+    whole = pc.cast(pa.array(magnitude // scale), pa.string())
+    frac = pc.utf8_lpad(pc.cast(pa.array(magnitude % scale), pa.string()), width=FLOAT_DECIMALS, padding="0")
+    sign = pa.array(np.where(units < 0, "-", ""))
+    return pc.binary_join_element_wise(sign, whole, ".", frac, "")
+
+
 def _write_csv(frame: pd.DataFrame, fh: IO[bytes]) -> None:
     """Write ``frame`` (already coerced: int64/float64/str columns) as a HighD CSV.
 
     pyarrow's writer is ~8x faster than ``DataFrame.to_csv`` with a float format (1M tracks
-    rows: ~1 s instead of ~10 s). Strings are never quoted (validation rejects ',', '"' and
-    newlines in them), matching the unquoted official files.
+    rows: ~1 s instead of ~10 s); floats are formatted beforehand (:func:`_fixed_point`). Strings
+    are never quoted (validation rejects ',', '"' and newlines in them), matching the unquoted
+    official files.
     """
-    out = frame.copy()
-    floats = [c for c in out.columns if out[c].dtype == np.float64]
-    if floats:
-        # "+ 0.0" turns -0.0 into 0.0 so values rounding to zero are not written as "-0"
-        out[floats] = np.round(out[floats].to_numpy(), FLOAT_DECIMALS) + 0.0
-    fh.write((",".join(out.columns) + "\n").encode("utf-8"))
-    table = pa.Table.from_pandas(out, preserve_index=False)
+    columns = {c: _fixed_point(frame[c].to_numpy()) if frame[c].dtype == np.float64
+               else pa.array(frame[c].to_numpy()) for c in frame.columns}
+    fh.write((",".join(frame.columns) + "\n").encode("utf-8"))
+    table = pa.table(columns)
     pa_csv.write_csv(table, fh, pa_csv.WriteOptions(include_header=False, quoting_style="none"))
 
 
@@ -481,3 +501,24 @@ def write_recording(rec: Recording, directory: Path) -> list[Path]:
             tmp_path.unlink(missing_ok=True)
         raise
     return paths
+
+
+def write_highway_image(directory: Path, recording_id: int, upper_markings_y_m: Sequence[float],
+                        lower_markings_y_m: Sequence[float], length_m: float) -> Path:
+    """Draw the road of a recording as its ``NN_highway.png`` (real HighD ships the aerial view there).
+
+    Grey carriageways between their edge markings and white lane lines, image axes as the tracks
+    (x right, y down) at ``HIGHWAY_IMAGE_M_PER_PX``, so tools that draw tracks over HighD's image
+    (and ``lxd-io``, which needs the file to list a recording) work on generated recordings.
+    """
+    upper, lower = np.sort(np.asarray(upper_markings_y_m)), np.sort(np.asarray(lower_markings_y_m))
+    height_px = int(np.ceil((lower[-1] + upper[0]) / HIGHWAY_IMAGE_M_PER_PX))
+    width_px = int(np.ceil(length_m / HIGHWAY_IMAGE_M_PER_PX))
+    image = np.full((height_px, width_px, 3), (0.35, 0.55, 0.3))  # verge
+    rows = (np.arange(height_px) + 0.5) * HIGHWAY_IMAGE_M_PER_PX  # (H,) image y of each pixel row [m]
+    for markings in (upper, lower):
+        image[(rows >= markings[0]) & (rows <= markings[-1])] = (0.42, 0.42, 0.42)
+        for y_m in markings:
+            image[min(height_px - 1, int(y_m / HIGHWAY_IMAGE_M_PER_PX))] = (1.0, 1.0, 1.0)
+    path = Path(directory) / highway_image_file(recording_id)
+    return atomic_write(path, lambda tmp: plt_image.imsave(tmp, image, format="png"))

@@ -61,3 +61,13 @@ def tracks_meta_file(recording_id: int) -> str:
 
 def recording_meta_file(recording_id: int) -> str:
     return f"{recording_id:02d}_recordingMeta.csv"
+
+
+def highway_image_file(recording_id: int) -> str:
+    """The recording's background image (real HighD: the aerial view; generated: the drawn road)."""
+    return f"{recording_id:02d}_highway.png"
+
+
+#: metres per pixel of ``NN_highway.png``: HighD's images are 0.1 m per pixel scaled down by 4
+#: (the factor readers such as ``lxd-io`` divide image coordinates by)
+HIGHWAY_IMAGE_M_PER_PX: Final = 0.4

@@ -38,7 +38,7 @@ NEIGHBOUR_COLUMNS = (
     "precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
     "rightPrecedingId", "rightAlongsideId", "rightFollowingId",
 )  # fmt: skip
-#: Sizes in tracks and tracksMeta are written with 6 decimals from the same value.
+#: Sizes in tracks and tracksMeta are written with 2 decimals from the same value.
 _SIZE_TOLERANCE_M = 1e-6
 
 

@@ -32,14 +32,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from letspi import __version__
 from letspi.highd.contacts import overlapping_boxes
 from letspi.highd.derive import build_recording
 from letspi.highd.events import EVENTS_COLUMNS, write_events
-from letspi.highd.io import write_recording
+from letspi.highd.generation import write_generation
+from letspi.highd.io import write_highway_image, write_recording
 from letspi.trafficgen.config import TrafficConfig, traffic_preset
 from letspi.trafficgen.convert import ImageTracks, clip_to_window, fcd_to_image
 from letspi.trafficgen.demand import (
@@ -316,8 +319,10 @@ class GenerationReport:
         return self.simulated_minutes / self.wall_time_s if self.wall_time_s > 0 else float("nan")
 
 
-def _write_recordings(sim: SimulatedRecordings, out: Path, report: Callable[[float], None]) -> tuple[list[Path], int]:
-    """Derive and write each recording and its events file; (the recordingMeta paths, events written)."""
+def _write_recordings(sim: SimulatedRecordings, out: Path, report: Callable[[float], None],
+                      generation: dict[str, Any]) -> tuple[list[Path], int]:
+    """Derive and write each recording, its events file, its road image and its generation record
+    (``generation`` plus the recording's first simulation step); (the recordingMeta paths, events written)."""
     written: list[Path] = []
     n_events = 0
     for k, ((states, vehicles), table) in enumerate(zip(sim.chunks, sim.events, strict=True), start=1):
@@ -333,6 +338,9 @@ def _write_recordings(sim: SimulatedRecordings, out: Path, report: Callable[[flo
         paths = write_recording(rec, out)
         events = _highd_events(table, vehicles, states, sim.network)
         write_events(events, out, k)
+        write_highway_image(out, k, sim.network.upper_markings_y_m.tolist(), sim.network.lower_markings_y_m.tolist(),
+                            sim.network.geometry.window_m)
+        write_generation({**generation, "recording": k, "first_step": sim.first_steps[k - 1]}, out, k)
         n_events += len(events)
         written.extend(p for p in paths if p.name.endswith("_recordingMeta.csv"))
         report(0.9 + 0.1 * k / len(sim.chunks))
@@ -383,10 +391,15 @@ def generate_highd(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = progress or (lambda _f: None)
+    cfg = traffic or traffic_preset(criticality)
     sim = simulate_recordings(minutes=minutes, seed=seed, lanes_per_direction=lanes_per_direction,
                               flow_veh_per_h=flow_veh_per_h, recording_minutes=recording_minutes,
-                              traffic=traffic or traffic_preset(criticality), progress=lambda f: report(0.9 * f))
-    written, n_events = _write_recordings(sim, out, report)
+                              traffic=cfg, progress=lambda f: report(0.9 * f))
+    generation = {"generator": "letspi.trafficgen", "letspi_version": __version__, "seed": seed,
+                  "minutes": minutes, "lanes_per_direction": lanes_per_direction,
+                  "flow_veh_per_h": flow_veh_per_h, "recording_minutes": recording_minutes,
+                  "attempt": sim.attempt, "traffic": cfg.to_dict()}
+    written, n_events = _write_recordings(sim, out, report, generation)
     return GenerationReport(paths=written, simulated_minutes=float(minutes), wall_time_s=time.perf_counter() - started,
                             sumo_wall_time_s=sim.sim_wall_time_s, sumo_cpu_time_s=sim.sim_cpu_time_s,
                             attempt=sim.attempt, rejected=sim.rejected, events_written=n_events,
