@@ -14,6 +14,7 @@ from letspi.cli.app import app
 from letspi.highd.derive import build_recording
 from letspi.highd.events import EVENTS_COLUMNS, write_events
 from letspi.highd.io import write_recording
+from letspi.scenario.store import read_scenario_meta
 
 runner = CliRunner()
 
@@ -80,4 +81,9 @@ def test_generate_writes_events_and_prints_speed(tmp_path: Path) -> None:
     text = " ".join(result.output.split())
     assert "sim-min per wall s" in text and "scripted events" in text
     assert {p.name for p in out.iterdir()} == {"01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv",
-                                               "01_events.csv"}
+                                               "01_events.csv", "01_highway.png", "01_generation.json"}
+    scenarios = tmp_path / "s.arrow"
+    result = runner.invoke(app, ["data", "scenarios", "--highd", str(out), "--out", str(scenarios), "--max", "5"])
+    assert result.exit_code == 0, result.output
+    generation = read_scenario_meta(scenarios)["provenance"]["generation"]  # type: ignore[index]
+    assert [(g["recording"], g["seed"], g["traffic"]["events"]["cut_in_per_min"]) for g in generation] == [(1, 1, 6.0)]

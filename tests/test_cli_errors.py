@@ -314,3 +314,36 @@ def test_debug_shows_the_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     result = runner.invoke(app, ["--debug", "plan", "--scenarios", str(path), "--index", "0", "--llm", "olama:x"])
     assert result.exit_code != 0 and result.exception is not None
     assert not isinstance(result.exception, SystemExit)
+
+
+# ------------------------------------------------------------------------------------------------
+# Benchmark-suite traffic (generator seeds 1000-1999) is never fitted or labelled on
+# ------------------------------------------------------------------------------------------------
+
+
+def _file_from_seeds(tmp_path: Path, *seeds: int) -> Path:
+    batch = concat_batches([straight_road_scenario(scenario_id=f"s{i}", neighbours=[VehicleSpec(25.0, 27.0)])
+                            for i in range(4)])
+    generation = [{"seed": s, "recording": k + 1, "minutes": 1.0} for k, s in enumerate(seeds)]
+    return save_scenarios(batch, tmp_path / f"seeds{'_'.join(map(str, seeds))}.arrow",
+                          extra_meta={"provenance": {"source": "gen", "generation": generation}})
+
+
+@pytest.mark.parametrize("command", [["fit", "sf", "--evaluations", "1"], ["fit", "frenet", "--rounds", "0"],
+                                     ["train", "llm-data", "--n-random", "1", "--n-rounds", "0"]])
+def test_fitting_and_labelling_refuse_suite_traffic(tmp_path: Path, command: list[str]) -> None:
+    path = _file_from_seeds(tmp_path, 7, 1003)
+    out = tmp_path / "out"
+    result = runner.invoke(app, [*command, "--scenarios", str(path), "--out", str(out)])
+    _one_clear_error(result, path.name, "seed(s) 1003", "reserved for the benchmark suites (1000-1999)")
+    assert not out.exists()
+
+
+def test_suite_seed_check_reads_the_recorded_seeds(tmp_path: Path) -> None:
+    from letspi.scenario.provenance import generator_seeds, refuse_suite_traffic
+    from letspi.scenario.store import read_scenario_meta
+
+    meta = read_scenario_meta(_file_from_seeds(tmp_path, 999, 2000, 999))
+    assert generator_seeds(meta) == [999, 2000]
+    refuse_suite_traffic(Path("x.arrow"), meta)  # just outside the reserved range on both sides: accepted
+    assert generator_seeds(read_scenario_meta(_scenario_file(tmp_path))) == []  # real HighD / older files

@@ -16,6 +16,7 @@ from letspi.highd.criticality import profile_directory, profile_table
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
 from letspi.scenario.extract import critical_windows, enumerate_windows, extract_scenarios
+from letspi.scenario.provenance import generation_records
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
 from letspi.trafficgen.config import traffic_preset, with_overrides
 from letspi.trafficgen.generate import generate_highd
@@ -157,6 +158,7 @@ def scenarios(
             "source": str(highd), "recordings": [r.recording_id for r in recs], "stride_frames": stride,
             "max": max, "seed": seed, "windows_available": total, "focus": focus, "critical_share": share,
             "critical_windows_available": n_critical,
+            "generation": generation_records(highd, [r.recording_id for r in recs]),
         }
         save_scenarios(batch, out, extra_meta={"provenance": provenance})
     console.print(f"wrote {len(batch)} of {total} scenarios to {out} ({n_critical} windows have a conflict "

@@ -15,6 +15,7 @@ from letspi.fitting.frenet import DEFAULT_GRID, fit_frenet_weights
 from letspi.fitting.sf import fit_sf_params
 from letspi.planners.frenet import FrenetSettings, save_frenet_weights
 from letspi.planners.sf_params import save_sf_params
+from letspi.scenario.provenance import refuse_suite_traffic
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
@@ -33,8 +34,9 @@ def fit_sf(
 ) -> None:
     """Fit the fixed social-force parameters of the `sf` baseline (ADE + weighted collisions)."""
     with user_errors():
-        batch = load_scenarios(scenarios)
         meta = read_scenario_meta(scenarios)
+        refuse_suite_traffic(scenarios, meta)
+        batch = load_scenarios(scenarios)
         with progress_bar() as bar:
             task = bar.add_task("fitting sf", total=evaluations + 1)
             res = fit_sf_params(batch, seed=seed, max_train=max_train, max_evaluations=evaluations,
@@ -83,6 +85,8 @@ def fit_frenet(
         if goals == "oracle":
             raise ValueError("fit the weights with the goals the planner will use (learned or kinematic), "
                              "not the oracle")
+        for f in scenarios:
+            refuse_suite_traffic(f, read_scenario_meta(f))
         batch = _load_unique(scenarios)
         resolver = Resolver(PlannerOptions(goals=goals))
         goal_predictor = Builder(cache=None).goal_predictor(resolver.goals)

@@ -18,7 +18,8 @@ from letspi.learned.weights import save_weights
 from letspi.llm.models import locate_model
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
-from letspi.scenario.store import load_scenarios
+from letspi.scenario.provenance import refuse_suite_traffic
+from letspi.scenario.store import load_scenarios, read_scenario_meta
 
 app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -147,6 +148,7 @@ def train_llm_data(
         if goals not in ("learned", "kinematic"):
             raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
         search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
+        refuse_suite_traffic(scenarios, read_scenario_meta(scenarios))
         batch = load_scenarios(scenarios)
         if max_scenarios is not None:
             batch = batch.take(slice(0, max_scenarios))
