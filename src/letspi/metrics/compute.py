@@ -130,17 +130,25 @@ def _success(batch: ScenarioBatch, inp: MetricInputs, kin: KinematicsResult, off
                    marking_y_m=batch.marking_y_m.astype(np.float64))
 
 
-def _compute_chunk(
-    batch: ScenarioBatch,
-    inp: MetricInputs,
-    goals_xy_m: np.ndarray | None,
-    config: MetricsConfig,
-) -> ScenarioMetrics:
+@dataclass(frozen=True)
+class _Core:
+    """The groups every outcome needs (shared by ``compute_metrics`` and ``compute_outcomes``)."""
+
+    ttc: TTCResult
+    dr: DRACResult
+    coll: CollisionResult
+    kin: KinematicsResult
+    offr: np.ndarray
+    truth_xy: np.ndarray
+    fault: FaultResult
+    ok: SuccessResult
+
+
+def _core(batch: ScenarioBatch, inp: MetricInputs, goals_xy_m: np.ndarray | None, config: MetricsConfig) -> _Core:
     ttc = ttc_1d(inp)
     dr = drac(inp, ttc.preceding)
     coll = collisions(inp, threshold_m=config.collision_2m_m, mode=config.collision_2m_mode)
     truth_xy = batch.ego_xy_m[:, batch.future_slice].astype(np.float64)
-    ade, fde = ade_fde(inp.ego_xy_m, truth_xy)
     kin = finite_difference_kinematics(
         inp.ego_vxy_mps,
         batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64),
@@ -148,32 +156,84 @@ def _compute_chunk(
         dt_s=config.dt_s,
     )
     marks = batch.marking_y_m.astype(np.float64)
-    y0 = batch.ego_xy_m[:, T0_INDEX, 1].astype(np.float64)
     offr = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, marks, batch.marking_is_edge, config.off_road_tol_m)
+    return _Core(ttc=ttc, dr=dr, coll=coll, kin=kin, offr=offr, truth_xy=truth_xy,
+                 fault=_fault(inp, coll, kin, dr, ttc, config),
+                 ok=_success(batch, inp, kin, offr, coll, truth_xy, goals_xy_m, config))
+
+
+def _compute_chunk(
+    batch: ScenarioBatch,
+    inp: MetricInputs,
+    goals_xy_m: np.ndarray | None,
+    config: MetricsConfig,
+) -> ScenarioMetrics:
+    core = _core(batch, inp, goals_xy_m, config)
+    ade, fde = ade_fde(inp.ego_xy_m, core.truth_xy)
+    marks = batch.marking_y_m.astype(np.float64)
+    y0 = batch.ego_xy_m[:, T0_INDEX, 1].astype(np.float64)
     groups: dict[str, Any] = {
-        "ttc": ttc,
+        "ttc": core.ttc,
         "rear": rear_ttc_1d(inp),
         "ttc2d": ttc_2d(inp),
         "pet": pet_grid(inp, cell_m=config.pet_cell_m, dt_s=config.dt_s),
-        "drac": dr,
+        "drac": core.dr,
         "dist": distances(inp),
-        "coll": coll,
-        "fault": _fault(inp, coll, kin, dr, ttc, config),
-        "kin": kin,
+        "coll": core.coll,
+        "fault": core.fault,
+        "kin": core.kin,
         "route": _Route(
             ade_m=ade,
             fde_m=fde,
             n_lane_changes=count_lane_changes(y0, inp.ego_xy_m[..., 1], marks),
-            off_road=offr,
-            low_ttc=ttc.min_ttc_s < config.low_ttc_s,
+            off_road=core.offr,
+            low_ttc=core.ttc.min_ttc_s < config.low_ttc_s,
         ),
-        "ok": _success(batch, inp, kin, offr, coll, truth_xy, goals_xy_m, config),
+        "ok": core.ok,
     }
     columns: dict[str, np.ndarray] = {}
     for m in computed_metrics():
         group, attr = str(m.source).split(".", 1)
         columns[m.name] = np.asarray(attrgetter(attr)(groups[group]), dtype=_NUMPY_DTYPES[m.dtype])
     return ScenarioMetrics(columns, config)
+
+
+@dataclass(frozen=True)
+class PlanOutcomes:
+    """(B,) each: the outcome columns of ``compute_metrics`` a search over many candidate plans needs,
+    with the same values (``collision``, ``collision_at_fault``, ``success``, ``min_ttc_s``), and
+    ``progress_m``, the planned end position along the road [m] (x of the last frame; ego frame)."""
+
+    collision: np.ndarray
+    collision_at_fault: np.ndarray
+    success: np.ndarray
+    min_ttc_s: np.ndarray
+    progress_m: np.ndarray
+
+
+def compute_outcomes(
+    batch: ScenarioBatch,
+    ego_future_xy_m: np.ndarray,
+    ego_future_vxy_mps: np.ndarray,
+    config: MetricsConfig | None = None,
+) -> PlanOutcomes:
+    """``PlanOutcomes`` of planned ego futures (B, F, 2) against the batch's ground truth: the subset of
+    ``compute_metrics`` (and only the computations it needs: about half the cost), chunked alike."""
+    cfg = config if config is not None else MetricsConfig()
+    xy = np.asarray(ego_future_xy_m, dtype=np.float64)
+    vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)
+    parts: list[tuple[np.ndarray, ...]] = []
+    for start in range(0, max(len(batch), 1), cfg.chunk_size):
+        sl = slice(start, min(start + cfg.chunk_size, len(batch)))
+        sub = batch.take(sl)
+        inp = MetricInputs.from_batch(sub, xy[sl], vxy[sl])
+        core = _core(sub, inp, None, cfg)
+        parts.append((core.coll.collision, core.fault.collision_at_fault, core.ok.success, core.ttc.min_ttc_s,
+                      xy[sl, -1, 0] if xy.shape[1] else np.zeros(len(sub))))
+    cols = [np.concatenate([p[k] for p in parts]) for k in range(5)]
+    return PlanOutcomes(collision=cols[0].astype(bool), collision_at_fault=cols[1].astype(bool),
+                        success=cols[2].astype(bool), min_ttc_s=cols[3].astype(np.float64),
+                        progress_m=cols[4].astype(np.float64))
 
 
 def compute_metrics(
