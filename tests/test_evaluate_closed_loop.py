@@ -30,10 +30,12 @@ from letspi.evaluation.closed_loop import (
     evaluate_closed_loop,
 )
 from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results
+from letspi.metrics.config import MetricsConfig
 from letspi.planners.cv import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi.viz.compare import compare_dirs
 
 pytestmark = pytest.mark.sumo
 runner = CliRunner()
@@ -278,9 +280,13 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
                                  str(tmp_path / "cmp")])
     assert result.exit_code == 0, result.output
     assert "A = " in result.output and "(open-loop)" in result.output and "(closed-loop-reactive)" in result.output
-    assert "| brake | 2 | 100.00 → 0.00 (-100.00) |" in result.output
+    # both collide in open loop only: 2 discordant windows, Δ −100 points, McNemar p = 2 / 2² = 0.5
+    assert "| brake | CR % | 2 | 100.00 (34.24–100.00) | 0.00 (0.00–65.76) | -100.00" in result.output
+    assert "| 2 | 0 | 0 | 0.500 |" in result.output
     data = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert len(data["collides_only_a"]["brake"]) == 2 and data["collides_only_b"]["brake"] == []
+    cr = data["paired"]["planners"]["brake"]["cr_pct"]
+    assert (cr["n_only_reference"], cr["n_only_planner"], cr["p_mcnemar"], cr["diff"]) == (2, 0, 0.5, -100.0)
     page = (tmp_path / "cmp" / "compare.html").read_text()
     assert page.count("<img src='data:image/png;base64,") == 2 and "collides in A only" in page
     # the report of a closed-loop directory draws the panel for its worst scenarios
@@ -289,11 +295,21 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     report = (tmp_path / "reactive" / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 3  # distributions + 2 worst scenarios
     assert "mode <strong>closed-loop-reactive</strong>" in report
-    # a directory of other scenarios is refused, naming why
+    # a directory of a subset is compared on the windows both hold; one of other scenarios is refused
+    subset = tmp_path / "subset"
+    evaluate([built], batch.take(np.array([0])), subset)
+    assert compare_dirs(tmp_path / "open", subset).n_common == {"brake": 1}
     other = tmp_path / "other"
-    evaluate([built], batch.take(np.array([0])), other)
+    evaluate([built], concat_batches([straight_road_scenario(ego_speed_mps=25.0, scenario_id="other")]), other)
     result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(other)])
-    assert result.exit_code == 2 and "other scenarios" in result.output
+    assert result.exit_code == 2 and "share no scenario" in result.output
+    # and so are other metrics configurations, or other planners in another mode
+    strict = tmp_path / "strict"
+    evaluate([built], batch, strict, config=MetricsConfig(low_ttc_s=3.0))
+    result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(strict)])
+    assert result.exit_code == 2 and "different metrics configurations" in result.output
+    result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(tmp_path / "reactive"), "--reference", "brake"])
+    assert result.exit_code == 2 and "same mode" in result.output
     # letspi plot --mode simulates one scenario and draws the panel
     result = runner.invoke(app, ["plot", "--scenarios", str(traffic_file), "--index", "1", "--planner", "cv",
                                  "--mode", LOG, "--out", str(tmp_path / "p.png")])

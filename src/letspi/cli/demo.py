@@ -12,11 +12,10 @@ from letspi.assembly.build import Builder, BuiltPlanner, build_planners
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import PLANNER_DEFAULTS, ShieldOpt, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
-from letspi.evaluation.harness import evaluate
+from letspi.evaluation.harness import evaluate, read_summary, summary_markdown
 from letspi.highd.io import list_recording_ids, read_recordings
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
-from letspi.metrics.aggregate import render_markdown_table
 from letspi.scenario.extract import count_windows, extract_scenarios
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
@@ -70,9 +69,9 @@ def demo(
         console.print(f"[green]{len(batch)} scenarios[/green] from {len(recs)} recording(s) -> {scenarios_file}")
         planners = build_planners(list(BASELINES), PlannerOptions())
         with progress_bar() as bar:
-            results = evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
-                               progress_factory=progress_factory(bar))
-        typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+            evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
+                     progress_factory=progress_factory(bar))
+        typer.echo(summary_markdown(read_summary(eval_dir), [p.name for p in planners]))
         report = write_report(eval_dir)
         outputs = [f"{highd_dir}/ (HighD CSV)", str(scenarios_file), f"{eval_dir}/metrics.json, metrics.md, "
                    "per_scenario/ (with the plans)", str(report)]
@@ -110,11 +109,11 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
                                                    "letspi-fast"], options, builder=builder)
     eval_dir = out / "evaluation-llm"
     with progress_bar() as bar:
-        results = evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=str(eval_file),
-                           progress_factory=progress_factory(bar))
+        evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=str(eval_file),
+                 progress_factory=progress_factory(bar))
     typer.echo(f"\nLetsPi with {llm} on {len(eval_rows)} scenarios of held-back ego vehicles "
                f"(memory from {len(collect_rows)} scenarios of other vehicles):")
-    typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+    typer.echo(summary_markdown(read_summary(eval_dir), [p.name for p in planners]))
     report = write_report(eval_dir)
     return [str(memory), str(collect_file), str(eval_file), f"{eval_dir}/metrics.json, metrics.md, per_scenario/",
             str(report)]

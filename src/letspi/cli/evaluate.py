@@ -32,10 +32,16 @@ from letspi.evaluation.closed_loop import (
     parse_replan_options,
     scripted_for,
 )
-from letspi.evaluation.harness import EVALUATION_MODES, ProgressCallback, ProgressFactory
+from letspi.evaluation.harness import (
+    EVALUATION_MODES,
+    ProgressCallback,
+    ProgressFactory,
+    read_summary,
+    summary_markdown,
+)
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
-from letspi.metrics.aggregate import AggValue, render_markdown_table
+from letspi.metrics.aggregate import AggValue
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import HandoverConfig
@@ -91,6 +97,10 @@ HandoverLanesOpt = Annotated[int | None, typer.Option(
          "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
 
 
+ReferenceOpt = Annotated[str | None, typer.Option(
+    help="Planner label every other planner of the directory is compared with, on the same windows (metrics.json "
+         "\"paired\", metrics.md): differences with 95 % intervals, windows only one of them fails, exact McNemar "
+         "p. Default: sf when the directory has it, else the first --planner.")]
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
                                                 "configuration or planner configuration is refused).")]
 NeighboursOpt = Annotated[str, typer.Option(
@@ -181,15 +191,16 @@ def progress_factory(bar: Progress) -> ProgressFactory:
 
 def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path, closed: ClosedLoopSettings | None,
                   scenarios: Path, scripted: ScriptedNeighbours | None,
-                  concurrency: int | None) -> dict[str, dict[str, AggValue]]:
+                  concurrency: int | None, reference: str | None = None) -> dict[str, dict[str, AggValue]]:
     """Open or closed loop, with progress bars: the results per planner name."""
     with progress_bar() as bar:
         if closed is not None:
             return evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
                                         progress_factory=progress_factory(bar),
-                                        scripted_nbr=None if scripted is None else scripted.mask)
+                                        scripted_nbr=None if scripted is None else scripted.mask, reference=reference)
         return run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
-                              progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
+                              progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run,
+                              reference=reference)
 
 
 def evaluate(
@@ -224,6 +235,7 @@ def evaluate(
     llm_latency_s: LlmLatencyOpt = None,
     shield: ShieldOpt = PLANNER_DEFAULTS.shield,
     mlp_weights: MlpWeightsOpt = None,
+    reference: ReferenceOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
@@ -241,9 +253,9 @@ def evaluate(
                                  allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
                                  shield=shield, mlp_weights=mlp_weights)
         planners = build_planners(planner, options)
-        results = _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency)
+        _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency, reference)
     if closed is not None:
         typer.echo(closed_loop_line(closed, planners) + "\n")
-    typer.echo(render_markdown_table({p.name: results[p.name] for p in planners}))
+    typer.echo(summary_markdown(read_summary(out), [p.name for p in planners]))
     console.print(f"results in {out}/ (metrics.json, metrics.md, per_scenario/; keys in run.json and "
                   "per_scenario/*/config.json)")

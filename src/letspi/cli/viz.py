@@ -95,12 +95,17 @@ def compare(
     b: Annotated[Path, typer.Argument(help="Results directory B of the same scenarios (e.g. closed loop).")],
     out: Annotated[Path | None, typer.Option(help="Output directory (default: B/compare).")] = None,
     examples: Annotated[int, typer.Option(help="Scenarios drawn per planner whose collision outcome differs.")] = 3,
+    reference: Annotated[str | None, typer.Option(
+        help="A planner label of A: compare every planner of B with it (same evaluation mode required). "
+             "Default: each planner with the planner of the same label.")] = None,
 ) -> None:
-    """Compare two evaluations of the same scenarios (e.g. open loop vs closed loop): metric deltas per
-    planner (compare.md, compare.json) and compare.html with open- vs closed-loop panels of the
-    scenarios whose outcome differs."""
+    """Compare two evaluations on the scenarios both hold (e.g. open loop vs closed loop, or your planner
+    vs sf with --reference): per planner and metric, A and B with 95 % intervals, the paired difference
+    with its interval, and for rates the windows only A / only B fail with the exact McNemar p
+    (compare.md, compare.json), and compare.html with panels of the scenarios whose outcome differs.
+    Refused when the metrics configurations differ."""
     with user_errors():
         target = out if out is not None else Path(b) / "compare"
-        cmp = write_comparison(a, b, target, n_examples=examples)
+        cmp = write_comparison(a, b, target, n_examples=examples, reference=reference)
     typer.echo(cmp.markdown())
     console.print(f"comparison in {target}/ (compare.md, compare.json, compare.html)")

@@ -51,8 +51,10 @@ from letspi.execution.ordered import RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
+from letspi.metrics.uncertainty import GROUP_COLUMN
 from letspi.planners.base import Planner
 from letspi.scenario.scripted import recording_events, scripted_neighbours
+from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import (
@@ -264,13 +266,16 @@ def check_setup(settings: ClosedLoopSettings) -> None:
 # ------------------------------------------------------------------------------------------------
 
 
-def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.ndarray) -> pd.DataFrame:
-    """The harness's row layout (id, digest, row, metrics, ``inference_s``, info) plus the closed-loop
-    columns of ``chunk_frame`` (SUMO collision, replans, simulation time)."""
+def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.ndarray,
+               vehicles: np.ndarray) -> pd.DataFrame:
+    """The harness's row layout (id, digest, row, ego vehicle, metrics, ``inference_s``, info) plus the
+    closed-loop columns of ``chunk_frame`` (SUMO collision, replans, simulation time). ``digests``,
+    ``vehicles``: (B,) of the evaluated batch."""
     idx = np.asarray(chunk.indices, dtype=np.int64)
     frame = chunk_frame(chunk, metrics)
     frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
     frame.insert(2, "row", idx)
+    frame.insert(3, GROUP_COLUMN, [str(v) for v in vehicles[idx]])
     if "llm_calls" in chunk.plan_info:  # model calls of all replans (``info_llm_calls``: the t = 0 plan's)
         frame["info_llm_calls_total"] = np.nansum(np.asarray(chunk.plan_info["llm_calls"], dtype=np.float64), axis=1)
     if "llm_cached" in chunk.plan_info:  # a row's time is "cached" only if no replan called the model
@@ -358,6 +363,7 @@ class ClosedLoopRunner:
         if progress is not None and len(batch) - len(todo):
             progress(len(batch) - len(todo), None)
         if len(todo):
+            vehicles = vehicle_keys(batch)
             try:
                 chunks = run_closed_loop(planner_spec(built, settings), batch, settings.mode,
                                          replan_s=settings.replan_s_of(built.name), workers=settings.workers,
@@ -367,7 +373,7 @@ class ClosedLoopRunner:
                     metrics = chunk_metrics(batch, chunk, config)
                     goals = (chunk.plan_goal_xy_m[:, 0] if chunk.plan_goal_xy_m.shape[1]
                              else np.full((len(chunk), 2), np.nan))
-                    writer.write(part_frame(chunk, metrics, digests), chunk.ego_xy_m, chunk.ego_vxy_mps,
+                    writer.write(part_frame(chunk, metrics, digests, vehicles), chunk.ego_xy_m, chunk.ego_vxy_mps,
                                  goals, trajectory_arrays(chunk))
                     if progress is not None:
                         progress(len(chunk), None)
@@ -388,6 +394,7 @@ def evaluate_closed_loop(
     config: MetricsConfig | None = None,
     progress_factory: ProgressFactory | None = None,
     scripted_nbr: np.ndarray | None = None,
+    reference: str | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """``harness.evaluate`` in a closed-loop mode (same outputs; module docstring for the differences).
 
@@ -402,4 +409,4 @@ def evaluate_closed_loop(
     return evaluate(planners, batch, Path(out_dir), scenarios_file=scenarios_file, config=config,
                     mode=settings.mode, progress_factory=progress_factory,
                     mode_settings=settings.mode_settings(scripted_nbr),
-                    runner=ClosedLoopRunner(settings, scripted_nbr))
+                    runner=ClosedLoopRunner(settings, scripted_nbr), reference=reference)

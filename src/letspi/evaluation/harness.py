@@ -67,8 +67,20 @@ from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporar
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig
+from letspi.metrics.uncertainty import (
+    GROUP_COLUMN,
+    Statistic,
+    align,
+    intervals,
+    metric_statistics,
+    n_groups,
+    paired,
+    rate_statistic,
+    statistics_record,
+)
 from letspi.planners.config import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import vehicle_keys
 from letspi.scenario.types import ScenarioBatch
 
 RUN_FORMAT: Final = 2
@@ -320,11 +332,12 @@ def load_plans(out_dir: Path, planner_name: str) -> dict[str, tuple[np.ndarray, 
 
 
 def _scored_frame(metrics: ScenarioMetrics, scenario_ids: np.ndarray, idx: np.ndarray, digests: np.ndarray,
-                  info: dict[str, np.ndarray], inference_s: float | np.ndarray) -> pd.DataFrame:
-    """The stored rows of scenarios ``idx``: ids, metrics, planning time per scenario, plan info."""
+                  vehicles: np.ndarray, info: dict[str, np.ndarray], inference_s: float | np.ndarray) -> pd.DataFrame:
+    """The stored rows of scenarios ``idx``: ids, ego vehicle, metrics, planning time per scenario, plan info."""
     frame = metrics.to_frame()
     columns: dict[str, Any] = {"scenario_id": [str(s) for s in scenario_ids],
-                               "scenario_digest": [str(d) for d in digests[idx]], "row": idx.astype(np.int64)}
+                               "scenario_digest": [str(d) for d in digests[idx]], "row": idx.astype(np.int64),
+                               GROUP_COLUMN: [str(v) for v in vehicles[idx]]}
     tail: dict[str, Any] = {"inference_s": np.broadcast_to(np.asarray(inference_s, dtype=np.float64), (len(idx),)),
                             **_info_columns(info)}
     return pd.concat([pd.DataFrame(columns), frame, pd.DataFrame(tail)], axis=1)
@@ -364,13 +377,14 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
                     config: MetricsConfig, progress: ProgressCallback | None, concurrency: int | None,
                     store_part: Callable[[pd.DataFrame, np.ndarray, np.ndarray, np.ndarray], Path]) -> RunStats | None:
     planner = built.planner
+    vehicles = vehicle_keys(batch)
     run: RunStats | None = None
     if runs_per_scenario(planner):
         run = plan_concurrently(
             planner, batch, [int(i) for i in todo],
             measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
             write_part=lambda metrics, idx, plan, seconds: store_part(
-                _scored_frame(metrics, batch.scenario_id[idx], idx, digests, plan.info, seconds),
+                _scored_frame(metrics, batch.scenario_id[idx], idx, digests, vehicles, plan.info, seconds),
                 plan.xy_m, plan.vxy_mps, plan.goals_xy_m),
             runner=RunnerConfig(concurrency=planner_concurrency(planner, concurrency)), progress=progress)
     else:
@@ -383,7 +397,7 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
             plan = planner.plan(seen)
             elapsed_s = time.perf_counter() - t0
             metrics = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
-            frame = _scored_frame(metrics, sub.scenario_id, idx, digests, plan.info, elapsed_s / len(idx))
+            frame = _scored_frame(metrics, sub.scenario_id, idx, digests, vehicles, plan.info, elapsed_s / len(idx))
             store_part(frame, plan.xy_m, plan.vxy_mps, plan.goals_xy_m)
             if progress is not None:
                 progress(len(idx), None)
@@ -440,21 +454,128 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
     return out
 
 
+#: rates of ``timing_summary`` that carry an interval: (key, per-scenario 0/1 column)
+TIMING_RATES: Final = (("fallback_pct", "info_fallback"), ("sumo_cr_pct", "sumo_collision"),
+                       ("shielded_pct", "info_shielded"))
+
+
+def planner_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None) -> dict[str, Statistic]:
+    """The per-scenario values behind every rate and mean of one planner's aggregate (its interval and
+    paired comparisons use them): the metric keys (``inference_s`` over the rows that really ran the
+    model, as ``timing_summary``) and the rates of ``TIMING_RATES``."""
+    if "inference_s" in frame:
+        timed = np.where(_cached(frame), np.nan, np.asarray(frame["inference_s"], dtype=np.float64))
+        frame = frame.assign(inference_s=timed)
+    out = metric_statistics(frame, config)
+    for key, column in TIMING_RATES:
+        if column in frame and len(frame):
+            try:
+                out[key] = rate_statistic(key, frame[column])
+            except ValueError:  # not a 0/1 flag per scenario: no interval
+                pass
+    return out
+
+
+def paired_record(frame: pd.DataFrame, reference: pd.DataFrame, config: MetricsConfig | None = None
+                  ) -> dict[str, dict[str, Any]]:
+    """Key -> the paired comparison of a planner's rows with a reference's (``letspi.metrics.uncertainty``),
+    over the scenario digests both have; both frames need ``GROUP_COLUMN``."""
+    mine, theirs = align(frame, reference)
+    return paired(planner_statistics(mine, config), planner_statistics(theirs, config),
+                  mine[GROUP_COLUMN].to_numpy())
+
+
+def choose_reference(names: Sequence[str], requested: str | None, first: str | None = None) -> str | None:
+    """The planner every other is compared with: ``requested``, else ``sf`` when present, else ``first``
+    (the first planner of this run), else the first name; None with fewer than two planners."""
+    if requested is not None:
+        if requested not in names:
+            raise ValueError(f"--reference {requested!r} is not among the planners ({', '.join(names) or 'none'})")
+        return requested if len(names) > 1 else None
+    if len(names) < 2:
+        return None
+    if "sf" in names:
+        return "sf"
+    return first if first in names else names[0]
+
+
+def uncertainty_summary(frames: dict[str, pd.DataFrame], config: MetricsConfig | None,
+                        reference: str | None) -> dict[str, Any]:
+    """metrics.json's "intervals", "paired" (when there is a reference) and "statistics" of the planners'
+    stored rows (``frames``, each with ``GROUP_COLUMN``)."""
+    stats = {name: planner_statistics(f, config) for name, f in frames.items()}
+    out: dict[str, Any] = {
+        "intervals": {name: intervals(stats[name], f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()}}
+    if reference is not None and reference in frames:
+        out["paired"] = {"reference": reference,
+                         "planners": {name: paired_record(f, frames[reference], config)
+                                      for name, f in frames.items() if name != reference}}
+    keys: dict[str, Statistic] = {}
+    for s in stats.values():
+        keys.update({k: v for k, v in s.items() if k not in keys})
+    out["statistics"] = {**statistics_record(keys=keys),
+                         "n_vehicles": {name: n_groups(f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()}}
+    return out
+
+
+def stored_vehicles(frame: pd.DataFrame) -> tuple[np.ndarray, int]:
+    """(n,) ego vehicle of each stored row (its ``GROUP_COLUMN``) and how many rows lacked it (stored by
+    an older letspi): those get the recording and ego id of their scenario id (``r01_v5_f100`` ->
+    ``r01_v5``), exact within one recording, while recording ids can repeat across generated datasets."""
+    ids = frame["scenario_id"].astype(str).str.rsplit("_f", n=1).str[0].to_numpy(dtype=object)
+    if GROUP_COLUMN not in frame:
+        return ids, len(frame)
+    column = frame[GROUP_COLUMN]
+    missing = column.isna().to_numpy()
+    return np.where(missing, ids, column.astype(str).to_numpy(dtype=object)), int(missing.sum())
+
+
+def read_summary(out_dir: Path) -> dict[str, Any]:
+    """The contents of ``out_dir/metrics.json`` (FileNotFoundError naming it when absent)."""
+    path = Path(out_dir) / "metrics.json"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no metrics.json; is {out_dir} an evaluation directory?")
+    data: dict[str, Any] = json.loads(path.read_text())
+    return data
+
+
+def summary_markdown(summary: dict[str, Any], names: Sequence[str] | None = None) -> str:
+    """The tables of a metrics.json (``read_summary``) with intervals and the paired comparison, for
+    ``names`` (default: every planner; the reference's comparisons are kept for the others)."""
+    planners: dict[str, dict[str, AggValue]] = summary.get("planners", {})
+    chosen = list(planners) if names is None else [n for n in names if n in planners]
+    pairs = summary.get("paired")
+    if isinstance(pairs, dict):
+        pairs = {**pairs, "planners": {n: v for n, v in pairs.get("planners", {}).items() if n in chosen}}
+    mode = summary.get("run", {}).get("mode", "open-loop")
+    mode_line = (f"Mode: {mode} (per planner replanning period: per_scenario/*/config.json)\n\n"
+                 if mode != "open-loop" else "")
+    return mode_line + render_markdown_table({n: planners[n] for n in chosen}, intervals=summary.get("intervals"),
+                                             paired=pairs)
+
+
 def _write_summary(out_dir: Path, record: dict[str, Any], results: dict[str, dict[str, AggValue]],
-                   write_run_file: Callable[[], None]) -> dict[str, dict[str, AggValue]]:
-    """Merge ``results`` into metrics.json / metrics.md (planners of earlier runs kept); returns all."""
+                   write_run_file: Callable[[], None], vehicles: np.ndarray, config: MetricsConfig,
+                   reference: str | None = None, first: str | None = None) -> dict[str, dict[str, AggValue]]:
+    """Merge ``results`` into metrics.json / metrics.md (planners of earlier runs kept), with the
+    intervals and paired comparisons of every stored planner (``vehicles``: (B,) vehicle of each
+    dataset row); returns all aggregates."""
     write_run_file()
     metrics_file = out_dir / "metrics.json"
     merged: dict[str, dict[str, AggValue]] = {}
     if metrics_file.exists():
         merged = json.loads(metrics_file.read_text()).get("planners", {})
     merged.update(results)
-    payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged}
+    frames = {}
+    for name in merged:
+        frame = load_planner_results(out_dir, name)
+        if len(frame):  # the dataset's vehicles, also for rows stored before parts had the column
+            frames[name] = frame.assign(**{GROUP_COLUMN: vehicles[frame["row"].to_numpy(dtype=np.int64)]})
+    summary = uncertainty_summary(frames, config, choose_reference(list(frames), reference, first))
+    payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged,
+               **summary}
     atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
-    mode = record["identity"]["mode"]
-    mode_line = (f"Mode: {mode} (per planner replanning period: per_scenario/*/config.json)\n\n"
-                 if mode != "open-loop" else "")
-    atomic_write_text(out_dir / "metrics.md", mode_line + render_markdown_table(merged) + "\n")
+    atomic_write_text(out_dir / "metrics.md", summary_markdown(payload) + "\n")
     return merged
 
 
@@ -471,6 +592,7 @@ def evaluate(
     on_run: Callable[[str, RunStats], None] | None = None,
     mode_settings: dict[str, Any] | None = None,
     runner: PlannerRunner | None = None,
+    reference: str | None = None,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
@@ -481,6 +603,8 @@ def evaluate(
     ``ScenariosFailedError`` at the end if some planner left scenarios unstored (the others' metrics
     are written; rerun to complete). ``mode_settings`` joins the run's identity; ``runner`` replaces
     ``run_planner`` (closed-loop modes need one: use ``letspi.evaluation.closed_loop.evaluate_closed_loop``).
+    ``reference``: the planner label every other is compared with in metrics.json's "paired" (default:
+    ``sf`` when the directory has it, else the first of ``planners``; ``choose_reference``).
     """
     if mode not in EVALUATION_MODES:
         raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
@@ -491,6 +615,11 @@ def evaluate(
     digests = scenario_digests(batch)
     record = run_record(batch, digests, scenarios_file, config, mode, mode_settings)
     run_pending = _check_run_file(out_dir, record)
+    if reference is not None:  # refused before anything runs
+        stored = read_summary(out_dir).get("planners", {}) if (out_dir / "metrics.json").exists() else {}
+        choose_reference([*stored, *(b.name for b in planners if b.name not in stored)], reference)
+    vehicles = vehicle_keys(batch)
+    first_planner = planners[0].name if planners else None
 
     def write_run_file() -> None:  # with the first stored results: no run.json for a run that stored nothing
         nonlocal run_pending
@@ -517,7 +646,7 @@ def evaluate(
         except BaseException:
             # stopped (server down, disk full, Ctrl-C): the planners finished so far stay scored
             if results:
-                _write_summary(out_dir, record, results, write_run_file)
+                _write_summary(out_dir, record, results, write_run_file, vehicles, config, reference, first_planner)
             elif wrote_run_file and not run_pending and not any(out_dir.glob("per_scenario/*/part-*.parquet")):
                 (out_dir / "run.json").unlink(missing_ok=True)
             _remove_empty_dirs(out_dir / "per_scenario", out_dir)
@@ -527,7 +656,7 @@ def evaluate(
         timing = timing_summary(frame, built.load_s)
         agg = aggregate_metrics(frame, inference_time_s=live_inference_s(frame), config=config)
         results[built.name] = {**agg, **timing, "config_key": built.key}  # type: ignore[dict-item]
-    merged = _write_summary(out_dir, record, results, write_run_file)
+    merged = _write_summary(out_dir, record, results, write_run_file, vehicles, config, reference, first_planner)
     if failures:
         first = failures[0]
         message = str(first) if len(failures) == 1 else f"{len(failures)} planners left scenarios unstored; {first}"

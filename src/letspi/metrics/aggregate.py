@@ -27,6 +27,7 @@ import pandas as pd
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.registry import CONFIG_COLUMNS, METRICS, Agg, reference_markdown
+from letspi.metrics.stats import N_RESAMPLES
 
 __doc__ = (__doc__ or "") + reference_markdown()
 
@@ -70,29 +71,49 @@ def _pct(flags: np.ndarray) -> float | None:
     return float(100.0 * np.asarray(flags, dtype=bool).mean()) if flags.size else None
 
 
-def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
-    """One aggregation of one (n,) column (``registry.HOW_DOC``)."""
+#: aggregations that are a share of scenarios (``pct``) or a mean over scenarios: the figures that
+#: carry an interval (``letspi.metrics.uncertainty``); the others are counts
+RATE_HOWS: tuple[str, ...] = ("pct", "pct_below", "pct_above", "pct_equal")
+MEAN_HOWS: tuple[str, ...] = ("finite_mean", "capped_mean")
+
+
+def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.ndarray:
+    """The (n,) per-scenario values behind a rate or mean key: bool for a rate (its share is the
+    key's value), float64 for a mean (the mean of the finite entries is the key's value; a capped
+    mean has no non-finite entry left). The one definition of what a rate or mean key averages."""
     t = agg.threshold_value(config)
     if agg.how == "pct_equal":
-        return _pct(values.astype(str) == str(t))
+        return np.asarray(values.astype(str) == str(t))
     if agg.how == "pct":
-        return _pct(values.astype(bool))
+        return values.astype(bool)
     v = values.astype(np.float64)
     if agg.how == "finite_mean":
-        return finite_mean(v)[0]
+        return v
+    assert isinstance(t, float | int), agg
+    if agg.how == "capped_mean":  # NaN, like +inf, counts as the cap
+        return np.fmin(v, t)
+    if agg.how == "pct_below":
+        return np.asarray(v < t)
+    if agg.how == "pct_above":
+        return np.asarray(v > t)
+    raise ValueError(f"{agg.key}: {agg.how!r} is neither a rate nor a mean")
+
+
+def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
+    """One aggregation of one (n,) column (``registry.HOW_DOC``)."""
+    if agg.how in RATE_HOWS:
+        return _pct(scenario_values(agg, values, config))
+    if agg.how in MEAN_HOWS:
+        return finite_mean(scenario_values(agg, values, config))[0]
+    v = values.astype(np.float64)
     if agg.how == "finite_n":
         return finite_mean(v)[1]
     if agg.how == "inf_n":
         return int(np.isinf(v).sum())
+    t = agg.threshold_value(config)
     assert isinstance(t, float | int), agg
-    if agg.how == "capped_mean":  # NaN, like +inf, counts as the cap
-        return float(np.fmin(v, t).mean()) if v.size else None
     if agg.how == "n_at_or_above":
         return int((v >= t).sum())
-    if agg.how == "pct_below":
-        return _pct(v < t)
-    if agg.how == "pct_above":
-        return _pct(v > t)
     raise ValueError(f"unknown aggregation {agg.how!r}")
 
 
@@ -123,7 +144,8 @@ def recorded_config(frame: pd.DataFrame) -> MetricsConfig | None:
     return configs[0]
 
 
-def _config_in_effect(df: pd.DataFrame, config: MetricsConfig | None) -> MetricsConfig:
+def config_in_effect(df: pd.DataFrame, config: MetricsConfig | None) -> MetricsConfig:
+    """The configuration to aggregate ``df`` with: ``config``, else the recorded one (module doc)."""
     recorded = recorded_config(df)
     if config is None:
         if recorded is None:
@@ -167,7 +189,7 @@ def aggregate_metrics(
         twice = int(df["scenario_digest"].duplicated().sum())
         raise ValueError(f"{twice} scenario(s) appear more than once in the rows to aggregate (one row per "
                          "scenario digest expected): were two processes writing the same results?")
-    cfg = _config_in_effect(df, config)
+    cfg = config_in_effect(df, config)
     out: dict[str, AggValue] = {"n": len(df)}
     for m in METRICS:
         if m.name == "inference_s" and inference_time_s is not None:
@@ -194,16 +216,85 @@ def _fmt(value: AggValue, digits: int) -> str:
         return value
     if isinstance(value, int | np.integer) and not isinstance(value, bool):
         return str(value)
+    if value and abs(float(value)) < 10.0 ** (1 - digits):  # e.g. planning times of 1 ms: 2 significant digits
+        return f"{float(value):.{digits}g}"
     return f"{float(value):.{digits}f}"
 
 
+#: an interval as metrics.json stores it: [low, high], or None when not estimable
+StoredInterval = Sequence[float] | None
+#: {planner: {key: interval}}: metrics.json's "intervals"
+IntervalsByPlanner = Mapping[str, Mapping[str, StoredInterval]]
+
+
+def format_with_interval(value: AggValue, interval: StoredInterval, digits: int = 2) -> str:
+    """``3.67 (2.06–6.45)``, ``-1.62 (-2.91 to -0.16)``: a value and its 95 % interval (the value alone
+    without one)."""
+    text = _fmt(value, digits)
+    if interval is None or value is None or isinstance(value, str) or len(interval) != 2:
+        return text
+    low, high = float(interval[0]), float(interval[1])
+    sep = " to " if low < 0 else "–"  # "-2.91–-0.16" reads badly
+    return f"{text} ({_fmt(low, digits)}{sep}{_fmt(high, digits)})"
+
+
 def _table(
-    results: Mapping[str, Mapping[str, AggValue]], columns: tuple[tuple[str, str], ...], digits: int
+    results: Mapping[str, Mapping[str, AggValue]], columns: tuple[tuple[str, str], ...], digits: int,
+    intervals: IntervalsByPlanner | None = None,
 ) -> list[str]:
     lines = ["| Model | " + " | ".join(label for label, _ in columns) + " |", "|---|" + "---:|" * len(columns)]
     for name, agg in results.items():
-        lines.append(f"| {name} | " + " | ".join(_fmt(agg.get(key), digits) for _, key in columns) + " |")
+        own = (intervals or {}).get(name, {})
+        lines.append(f"| {name} | " + " | ".join(format_with_interval(agg.get(key), own.get(key), digits)
+                                                 for _, key in columns) + " |")
     return lines
+
+
+def _p_value(p: object) -> str:
+    if not isinstance(p, int | float):
+        return "–"
+    return "< 0.001" if p < 0.001 else f"{float(p):.3f}"
+
+
+def paired_rows(paired: Mapping[str, object], columns: tuple[tuple[str, str], ...] = TABLE_COLUMNS,
+                digits: int = 2) -> list[list[str]]:
+    """Rows (planner, metric, n, Δ with interval, only planner, only reference, both, McNemar p) of
+    metrics.json's "paired" entry, per planner and metric of ``columns``; counts and p are "–" for means."""
+    planners = paired.get("planners")
+    rows: list[list[str]] = []
+    for name, keys in (planners.items() if isinstance(planners, Mapping) else ()):
+        for label, key in columns:
+            rec = keys.get(key) if isinstance(keys, Mapping) else None
+            if not isinstance(rec, Mapping):
+                continue
+            diff = rec.get("diff")
+            ci = rec.get("diff_ci95")
+            cell = format_with_interval(diff, ci if isinstance(ci, list) and None not in ci else None, digits)
+            if isinstance(diff, int | float) and diff > 0:
+                cell = "+" + cell
+            counts = [str(rec[c]) if c in rec else "–" for c in ("n_only_planner", "n_only_reference", "n_both")]
+            p_value = _p_value(rec.get("p_mcnemar"))
+            rows.append([str(name), label, str(rec.get("n_pairs", "n/a")), cell, *counts, p_value])
+    return rows
+
+
+def paired_caption(reference: str) -> str:
+    """What the paired table shows."""
+    return (f"Paired with {reference} (the same windows; Δ = planner − {reference} with its 95 % interval, a "
+            "bootstrap over ego vehicles; rates: windows where only the planner, only the reference or both "
+            "have the event (for SR: succeed), and the exact McNemar p)")
+
+
+def render_paired_table(paired: Mapping[str, object], columns: tuple[tuple[str, str], ...] = TABLE_COLUMNS,
+                        digits: int = 2) -> list[str]:
+    """Markdown lines of metrics.json's "paired" entry (``paired_rows``); empty without comparisons."""
+    reference = str(paired.get("reference"))
+    rows = paired_rows(paired, columns, digits)
+    if not rows:
+        return []
+    return [paired_caption(reference) + ":", "",
+            f"| Model | metric | n | Δ (95 % CI) | only planner | only {reference} | both | p |",
+            "|---|---|---:|---:|---:|---:|---:|---:|", *("| " + " | ".join(r) + " |" for r in rows)]
 
 
 def _num(agg: Mapping[str, AggValue], key: str, default: float) -> str:
@@ -211,7 +302,9 @@ def _num(agg: Mapping[str, AggValue], key: str, default: float) -> str:
     return f"{float(value):g}" if isinstance(value, int | float) else f"{default:g}"
 
 
-def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2) -> str:
+def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2,
+                          intervals: IntervalsByPlanner | None = None,
+                          paired: Mapping[str, object] | None = None) -> str:
     """Paper-style markdown tables (one row per planner) from ``{planner: aggregate_metrics(...)}``.
 
     The headline table holds the paper's columns plus CR at fault; a safety detail table follows
@@ -230,8 +323,8 @@ def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits:
         if key == default.key()
         else f"tolerances of metrics configuration {key}"
     )
-    lines = _table(results, TABLE_COLUMNS, digits)
-    lines += ["", "Safety detail:", "", *_table(results, DETAIL_COLUMNS, digits), "", "Notes:"]
+    lines = _table(results, TABLE_COLUMNS, digits, intervals)
+    lines += ["", "Safety detail:", "", *_table(results, DETAIL_COLUMNS, digits, intervals), "", "Notes:"]
     lines += [
         f"- TTC: mean over all scenarios of min(minimum 1-D TTC, {cap} s); a scenario without a closing "
         f"vehicle counts as {cap} s. Rear TTC: the same for the vehicle behind in the ego's path. "
@@ -251,9 +344,15 @@ def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits:
         for name, agg in results.items()
     )
     lines.append(f"- Scenarios with a finite value (finite/total): {counts}.")
+    if intervals:
+        lines.append("- In brackets: 95 % intervals; rates (%): Wilson; means: a bootstrap over ego vehicles (all "
+                     f"windows of a vehicle resampled together; {N_RESAMPLES:,} resamples, percentile).")
     keys = {str(agg.get("metrics_config_key")) for agg in results.values()}
     if len(keys) > 1:
         lines.append(
             f"- Warning: the rows were aggregated with different metrics configurations ({', '.join(sorted(keys))})."
         )
+    if paired:
+        table = render_paired_table(paired, TABLE_COLUMNS, digits)
+        lines += ["", *table] if table else []
     return "\n".join(lines) + "\n"

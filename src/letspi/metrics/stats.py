@@ -36,6 +36,8 @@ N_RESAMPLES: Final = 2000
 SEED: Final = 0
 #: interval ends are rounded to this many significant digits (module doc)
 SIGNIFICANT_DIGITS: Final = 6
+#: a paired mean difference (or interval end) within this fraction of the values' magnitude is 0 (float noise)
+FLOAT_NOISE_REL: Final = 1e-9
 
 Interval = tuple[float, float]
 NAN_INTERVAL: Final[Interval] = (math.nan, math.nan)
@@ -230,8 +232,13 @@ def paired_mean(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]
     g = np.asarray(groups)
     _same_length(va, vb, g)
     ok = np.isfinite(va) & np.isfinite(vb)
-    d = np.where(ok, va - vb, np.nan)
+    with np.errstate(invalid="ignore"):  # inf - inf: left out anyway
+        d = np.where(ok, va - vb, np.nan)
     n = int(ok.sum())
     diff = float(d[ok].mean()) if n else math.nan
     ci = bootstrap_mean_interval(d, g, level, n_resamples, seed) if n else NAN_INTERVAL
+    if n:  # float noise of two computations of the same value (e.g. 1e-13 m) is no difference
+        noise = FLOAT_NOISE_REL * float(np.max(np.abs(np.concatenate([va[ok], vb[ok]]))))
+        diff = 0.0 if abs(diff) <= noise else diff
+        ci = (0.0 if abs(ci[0]) <= noise else ci[0], 0.0 if abs(ci[1]) <= noise else ci[1])
     return PairedMean(n_pairs=n, diff=diff, diff_ci95=ci)

@@ -4,7 +4,9 @@ Reads the layout written by ``letspi.evaluation.harness`` (``metrics.json``, ``p
 ``run.json``) and, when present, ablation results. The page embeds every image as a base64 PNG
 (no external files, scripts or fonts) and has these sections (absent inputs skip theirs):
 
-1. Metrics table: one row per planner of ``metrics.json`` (paper columns plus n and min gap).
+1. Metrics table: one row per planner of ``metrics.json`` (paper columns plus n and min gap), each
+   rate and mean with its 95 % interval ("intervals"), then the paired comparison of every planner
+   with the reference ("paired"; ``letspi.metrics.uncertainty``).
 2. Distributions: per planner, box plots of the per-scenario minimum TTC (capped at
    ``MetricsConfig.ttc_cap_s``; no closing leader counts as the cap), minimum box gap and minimum
    PET (finite values only), with the mean marked.
@@ -52,7 +54,7 @@ from letspi.constants import N_FUTURE
 from letspi.evaluation.closed_loop import CL_PLAN_XY
 from letspi.evaluation.harness import load_planner_results
 from letspi.fsutil import atomic_write_text
-from letspi.metrics.aggregate import TABLE_COLUMNS
+from letspi.metrics.aggregate import TABLE_COLUMNS, format_with_interval, paired_caption, paired_rows
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch
 from letspi.scenario.identity import scenario_digests
@@ -370,6 +372,21 @@ def _ablations(abl_dir: Path) -> list[dict[str, Any]]:
     return ablations
 
 
+def _metrics_tables(eval_dir: Path, metrics: Mapping[str, Mapping[str, Any]], columns: Sequence[tuple[str, str]]
+                    ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The metrics table's rows (values with their intervals) and the paired table's template fields."""
+    summary = json.loads((eval_dir / "metrics.json").read_text())
+    intervals: dict[str, dict[str, Any]] = summary.get("intervals") or {}
+    pairs: dict[str, Any] = summary.get("paired") or {}
+    rows: list[dict[str, Any]] = [
+        {"name": name, "cells": [format_with_interval(agg.get(key), intervals.get(name, {}).get(key))
+                                 for _, key in columns]}
+        for name, agg in metrics.items()]
+    return rows, {"with_intervals": bool(intervals), "paired_reference": pairs.get("reference"),
+                  "paired_caption": paired_caption(str(pairs.get("reference"))) if pairs else "",
+                  "paired_rows": paired_rows(pairs) if pairs else []}
+
+
 def write_report(
     eval_dir: Path | str,
     out_html: Path | str | None = None,
@@ -393,10 +410,8 @@ def write_report(
     metrics = read_metrics(eval_dir)
     frames = {name: load_planner_results(eval_dir, name) for name in metrics}
     frames = {name: f for name, f in frames.items() if len(f)}
-
     columns = [*TABLE_COLUMNS, *EXTRA_COLUMNS]
-    table_rows: list[dict[str, Any]] = [{"name": name, "cells": [_fmt(agg.get(key)) for _, key in columns]}
-                  for name, agg in metrics.items()]
+    table_rows, tables = _metrics_tables(eval_dir, metrics, columns)
     dist_fig = distributions_figure(frames, config.ttc_cap_s)
     worst: list[PlannerSection] = []
     worst_note = None
@@ -418,6 +433,7 @@ def write_report(
         run=run_info,
         header=[label for label, _ in columns],
         table_rows=table_rows,
+        **tables,
         distributions=figure_to_data_uri(dist_fig) if dist_fig is not None else None,
         ttc_cap_s=config.ttc_cap_s,
         worst=worst,

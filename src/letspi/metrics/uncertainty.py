@@ -1,0 +1,156 @@
+"""Intervals and paired comparisons of the aggregated metrics: ``metrics.json``'s "intervals" and "paired".
+
+Each rate and mean key of ``aggregate_metrics`` is the average of one per-scenario value
+(``letspi.metrics.aggregate.scenario_values``: e.g. ``lt_pct`` averages ``min_ttc_s < low_ttc_s``,
+``ttc_s`` averages ``min(min_ttc_s, ttc_cap_s)``, ``pet_s`` the finite ``min_pet_s``). Its interval and
+its paired difference are computed from exactly those values, so they describe the figure printed:
+
+* a rate (``*_pct``): 95 % Wilson interval of its k of n scenarios; paired: windows where only the
+  planner / only the reference / both have the event, exact McNemar p, and the vehicle-bootstrap
+  interval of the difference in percentage points;
+* a mean: 95 % vehicle-bootstrap interval (``letspi.metrics.stats``) of the mean of the finite
+  values; paired: the mean difference over the windows where both are finite, with its interval.
+
+Counts (``*_n``) carry no interval. The frames passed need a ``vehicle_key`` column (the group of
+the bootstrap: the window's ego vehicle) and, to be paired, ``scenario_digest``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from letspi.metrics.aggregate import MEAN_HOWS, RATE_HOWS, config_in_effect, scenario_values
+from letspi.metrics.config import MetricsConfig
+from letspi.metrics.registry import METRICS
+from letspi.metrics.stats import (
+    LEVEL,
+    N_RESAMPLES,
+    SEED,
+    bootstrap_mean_intervals,
+    group_index,
+    paired_mean,
+    paired_rate,
+    rounded,
+    wilson_interval,
+)
+
+#: the per-row column holding the group of the vehicle bootstrap
+GROUP_COLUMN = "vehicle_key"
+#: how the interval of each kind of key is made ("statistics.interval_methods" of metrics.json)
+METHODS: Mapping[str, str] = {"rate": "wilson", "mean": "vehicle-bootstrap"}
+
+StatKind = Literal["rate", "mean"]
+JsonInterval = list[float] | None
+
+
+@dataclass(frozen=True)
+class Statistic:
+    """The per-scenario values behind one key: (n,) bool for a rate (its share in percent is the
+    key's value), float64 for a mean (the mean of the finite entries)."""
+
+    key: str
+    kind: StatKind
+    values: np.ndarray
+
+    @property
+    def method(self) -> str:
+        return METHODS[self.kind]
+
+
+def rate_statistic(key: str, flags: np.ndarray | pd.Series) -> Statistic:
+    """A rate key from (n,) 0/1 flags (bool or 0.0/1.0; anything else is refused)."""
+    v = np.asarray(flags)
+    if v.dtype != bool:
+        f = v.astype(np.float64)
+        if not np.isin(f, (0.0, 1.0)).all():
+            raise ValueError(f"{key}: a rate needs 0/1 flags per scenario")
+        v = f > 0.5
+    return Statistic(key, "rate", v)
+
+
+def mean_statistic(key: str, values: np.ndarray | pd.Series) -> Statistic:
+    """A mean key from (n,) values (non-finite ones are left out of the mean)."""
+    return Statistic(key, "mean", np.asarray(values, dtype=np.float64))
+
+
+def metric_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None) -> dict[str, Statistic]:
+    """The rate and mean keys of ``aggregate_metrics`` with their per-scenario values, for the columns
+    present in ``frame`` (``inference_s``: the frame's column; pass NaN for rows not to be timed)."""
+    cfg = config_in_effect(frame, config)
+    out: dict[str, Statistic] = {}
+    for m in METRICS:
+        if m.name not in frame:
+            continue
+        column = frame[m.name].to_numpy()
+        for a in m.aggregates:
+            if a.how in RATE_HOWS:
+                out[a.key] = Statistic(a.key, "rate", scenario_values(a, column, cfg))
+            elif a.how in MEAN_HOWS:
+                out[a.key] = Statistic(a.key, "mean", scenario_values(a, column, cfg))
+    return out
+
+
+def _json_interval(low: float, high: float) -> JsonInterval:
+    return [low, high] if np.isfinite(low) and np.isfinite(high) else None
+
+
+def intervals(statistics: Mapping[str, Statistic], groups: np.ndarray, level: float = LEVEL,
+              n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, JsonInterval]:
+    """Key -> [low, high] (percent for rates, the key's unit for means), None when not estimable
+    (no scenario; a mean with fewer than 2 vehicles holding a finite value). ``groups``: (n,) vehicle
+    of each row. The means share one set of resamples."""
+    out: dict[str, JsonInterval] = {}
+    means = [s for s in statistics.values() if s.kind == "mean"]
+    if means:
+        ends = bootstrap_mean_intervals(np.stack([s.values for s in means], axis=1), groups, level, n_resamples, seed)
+        out.update({s.key: _json_interval(float(lo), float(hi)) for s, (lo, hi) in zip(means, ends, strict=True)})
+    for s in statistics.values():
+        if s.kind == "rate":
+            lo, hi = wilson_interval(int(s.values.sum()), len(s.values), level)
+            out[s.key] = _json_interval(rounded(100.0 * lo), rounded(100.0 * hi))
+    return {key: out[key] for key in statistics}
+
+
+def paired(planner: Mapping[str, Statistic], reference: Mapping[str, Statistic], groups: np.ndarray,
+           level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, dict[str, Any]]:
+    """Key -> the paired record of the planner against the reference (``PairedRate`` / ``PairedMean``
+    ``.record()``), for the keys both have; row i of every statistic is the same window."""
+    out: dict[str, dict[str, Any]] = {}
+    for key, a in planner.items():
+        b = reference.get(key)
+        if b is None or b.kind != a.kind:
+            continue
+        if a.kind == "rate":
+            out[key] = paired_rate(a.values, b.values, groups, level, n_resamples, seed).record()
+        else:
+            out[key] = paired_mean(a.values, b.values, groups, level, n_resamples, seed).record()
+    return out
+
+
+def statistics_record(level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED,
+                      keys: Mapping[str, Statistic] | None = None) -> dict[str, Any]:
+    """The "statistics" entry of ``metrics.json``: level, bootstrap settings and the method per key."""
+    return {"level": level,
+            "interval_methods": {k: s.method for k, s in (keys or {}).items()},
+            "bootstrap": {"resamples": n_resamples, "seed": seed, "groups": "ego vehicle (recording, ego id)",
+                          "interval": "percentile"},
+            "paired": "rates: exact McNemar p of the discordant windows; every difference: vehicle-bootstrap "
+                      "interval of the per-window difference (means: windows where both are finite)"}
+
+
+def n_groups(groups: np.ndarray) -> int:
+    """Number of distinct vehicles among ``groups``."""
+    return group_index(groups)[1]
+
+
+def align(frame_a: pd.DataFrame, frame_b: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The rows of both frames for the scenario digests they share, in ``frame_a``'s order."""
+    shared = frame_a["scenario_digest"].isin(set(frame_b["scenario_digest"]))
+    a = frame_a[shared].reset_index(drop=True)
+    b = frame_b.set_index("scenario_digest").loc[a["scenario_digest"]].reset_index()
+    return a, b
