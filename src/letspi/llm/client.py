@@ -277,66 +277,18 @@ class ParamAdvisor:
         schema = reply_json_schema(variant) if self.use_schema else None
         base = list(messages)
         current = list(base)
-        attempts: list[Attempt] = []
-        transport_failures = 0
-        last_response: LLMResponse | None = None
+        log = _AttemptLog()
         for i in range(self.retry.max_attempts):
             self.breaker.check()
-            t0 = time.perf_counter()
-            self.stats.begin()
-            try:
-                resp = self.complete(current, schema=schema)
-            except RequestRejectedError as exc:
-                self.stats.end(ok=True)  # answered, but without a reply: no latency to count
-                self.breaker.record_success()
-                attempts.append(Attempt(i, "rejected", str(exc), time.perf_counter() - t0))
-                break  # the same request would be refused again
-            except LLMTransportError as exc:
-                self.stats.end(ok=False)
-                attempts.append(Attempt(i, _transport_kind(exc), str(exc), time.perf_counter() - t0))
-                transport_failures += 1
-                retry_after = exc.retry_after_s
-                if retry_after is not None and not retry_after <= self.retry.max_retry_after_s:
-                    raise ServerBusyError(
-                        f"{exc}; the server asks to wait {retry_after:.0f} s, longer than the "
-                        f"{self.retry.max_retry_after_s:g} s letspi waits per request: stopping instead of "
-                        "falling back (run again later; finished results are kept)",
-                        status=exc.status,
-                        retry_after_s=retry_after,
-                    ) from exc
-                if i + 1 < self.retry.max_attempts:
-                    self.breaker.record_failure(exc)  # raises RunStoppedError when the budget is spent
-                    with self._rng_lock:
-                        u = self._rng.random()
-                    self._sleep(self.retry.wait_s(transport_failures, retry_after, u))
-                elif all(a.error_kind == "unavailable" for a in attempts):
-                    raise
-                else:
-                    self.breaker.record_failure(exc)
+            resp = self._send(i, current, schema, log)
+            if resp is None:  # a transport failure (waited) or a rejection (final) is in the log
+                if log.attempts[-1].error_kind == "rejected":
+                    break  # the same request would be refused again
                 continue
-            except BaseException:
-                self.stats.end(ok=False)
-                raise
-            self.stats.end(ok=True, cached=resp.cached, latency_s=resp.latency_s, prompt_tokens=resp.prompt_tokens,
-                           completion_tokens=resp.completion_tokens)
-            self.breaker.record_success()
-            last_response = resp
             try:
                 parsed = parse_reply(resp.text)
             except ReplyParseError as exc:
-                attempts.append(
-                    Attempt(
-                        i,
-                        f"parse:{exc.reason}",
-                        str(exc),
-                        resp.latency_s,
-                        resp.cached,
-                        resp.prompt_tokens,
-                        resp.completion_tokens,
-                        resp.text,
-                        resp.extra.get("original_latency_s") if resp.cached else None,
-                    )
-                )
+                log.attempts.append(_response_attempt(i, resp, f"parse:{exc.reason}", str(exc)))
                 # Re-ask from the original prompt with only the latest bad reply echoed: short
                 # requests, and the static prefix stays cached.
                 current = [
@@ -345,30 +297,86 @@ class ParamAdvisor:
                     message("user", corrective_message(exc, variant)),
                 ]
                 continue
-            attempts.append(
-                Attempt(
-                    i, None, None, resp.latency_s, resp.cached, resp.prompt_tokens, resp.completion_tokens, resp.text,
-                    resp.extra.get("original_latency_s") if resp.cached else None,
-                )
-            )
-            return Advice(
-                reply=parsed.reply,
-                fallback=False,
-                clamped=parsed.clamped,
-                attempts=tuple(attempts),
-                response=resp,
-                model_spec=self.backend.spec,
-            )
-        failed = [a for a in attempts if a.error_kind in TRANSPORT_KINDS]
+            log.attempts.append(_response_attempt(i, resp))
+            return Advice(reply=parsed.reply, fallback=False, clamped=parsed.clamped, attempts=tuple(log.attempts),
+                          response=resp, model_spec=self.backend.spec)
+        return self._without_valid_reply(log)
+
+    def _send(self, i: int, messages: list[Message], schema: dict[str, Any] | None,
+              log: _AttemptLog) -> LLMResponse | None:
+        """Attempt ``i``, counted in ``stats``: the response, or None after a rejection or a transport
+        failure (both recorded in ``log``; after a transport failure the backoff wait is over)."""
+        t0 = time.perf_counter()
+        self.stats.begin()
+        try:
+            resp = self.complete(messages, schema=schema)
+        except RequestRejectedError as exc:
+            self.stats.end(ok=True)  # answered, but without a reply: no latency to count
+            self.breaker.record_success()
+            log.attempts.append(Attempt(i, "rejected", str(exc), time.perf_counter() - t0))
+            return None
+        except LLMTransportError as exc:
+            self.stats.end(ok=False)
+            log.attempts.append(Attempt(i, _transport_kind(exc), str(exc), time.perf_counter() - t0))
+            log.transport_failures += 1
+            if not self._wait_after_transport_failure(i, exc, log):
+                raise
+            return None
+        except BaseException:
+            self.stats.end(ok=False)
+            raise
+        self.stats.end(ok=True, cached=resp.cached, latency_s=resp.latency_s, prompt_tokens=resp.prompt_tokens,
+                       completion_tokens=resp.completion_tokens)
+        self.breaker.record_success()
+        log.last_response = resp
+        return resp
+
+    def _wait_after_transport_failure(self, i: int, exc: LLMTransportError, log: _AttemptLog) -> bool:
+        """Backoff before the next attempt; False when the caller re-raises ``exc`` (the last attempt,
+        and every attempt found the server unreachable). A ``Retry-After`` beyond the limit raises
+        ``ServerBusyError``; a spent breaker budget ``RunStoppedError``."""
+        retry_after = exc.retry_after_s
+        if retry_after is not None and not retry_after <= self.retry.max_retry_after_s:
+            raise ServerBusyError(
+                f"{exc}; the server asks to wait {retry_after:.0f} s, longer than the "
+                f"{self.retry.max_retry_after_s:g} s letspi waits per request: stopping instead of "
+                "falling back (run again later; finished results are kept)",
+                status=exc.status,
+                retry_after_s=retry_after,
+            ) from exc
+        if i + 1 < self.retry.max_attempts:
+            self.breaker.record_failure(exc)  # raises RunStoppedError when the budget is spent
+            with self._rng_lock:
+                u = self._rng.random()
+            self._sleep(self.retry.wait_s(log.transport_failures, retry_after, u))
+        elif all(a.error_kind == "unavailable" for a in log.attempts):
+            return False
+        else:
+            self.breaker.record_failure(exc)
+        return True
+
+    def _without_valid_reply(self, log: _AttemptLog) -> Advice:
+        """After the last attempt: the fallback if the model answered every attempt, else ``RequestFailedError``."""
+        failed = [a for a in log.attempts if a.error_kind in TRANSPORT_KINDS]
         if failed:
-            kinds = ", ".join(a.error_kind or "" for a in attempts)
+            kinds = ", ".join(a.error_kind or "" for a in log.attempts)
             raise RequestFailedError(
-                f"{self.backend.spec}: no valid reply in {len(attempts)} attempts ({kinds}); last transport "
+                f"{self.backend.spec}: no valid reply in {len(log.attempts)} attempts ({kinds}); last transport "
                 f"error: {failed[-1].error}")
-        return Advice(
-            reply=self.fallback_reply,
-            fallback=True,
-            attempts=tuple(attempts),
-            response=last_response,
-            model_spec=self.backend.spec,
-        )
+        return Advice(reply=self.fallback_reply, fallback=True, attempts=tuple(log.attempts),
+                      response=log.last_response, model_spec=self.backend.spec)
+
+
+@dataclass
+class _AttemptLog:
+    """What ``ParamAdvisor.advise`` has tried for one prompt so far."""
+
+    attempts: list[Attempt] = field(default_factory=list)
+    transport_failures: int = 0
+    last_response: LLMResponse | None = None
+
+
+def _response_attempt(i: int, resp: LLMResponse, error_kind: str | None = None, error: str | None = None) -> Attempt:
+    """The record of attempt ``i`` that got a response (``error_kind`` ``parse:<reason>`` for an invalid one)."""
+    return Attempt(i, error_kind, error, resp.latency_s, resp.cached, resp.prompt_tokens, resp.completion_tokens,
+                   resp.text, resp.extra.get("original_latency_s") if resp.cached else None)

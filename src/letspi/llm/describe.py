@@ -153,15 +153,19 @@ class ScenarioDescription:
         )
 
     def to_text(self, *, detail: str = "full") -> str:
-        """Render for a prompt. ``detail="brief"`` drops histories (fast prompt)."""
+        """Render for a prompt. ``detail="brief"`` drops histories and markings (fast prompt)."""
         full = detail == "full"
-        out: list[str] = []
+        return "\n".join([
+            *self._road_lines(full),
+            *self._ego_lines(full),
+            f"## Neighbours at t=0 ({len(self.neighbours)})",
+            *(["None within range."] if not self.neighbours else []),
+            *(_neighbour_line(n, full) for n in self.neighbours),
+            *self._goal_lines(),
+        ])
+
+    def _road_lines(self, full: bool) -> list[str]:
         limit = "none" if self.speed_limit_mps is None else f"{_f(self.speed_limit_mps)} m/s"
-        out.append("## Scenario summary")
-        out.append(
-            f"Scenario {self.scenario_id}, location {self.location_id}: {len(self.lanes)} lanes in the "
-            f"ego's direction, speed limit {limit}."
-        )
         lanes_l2r = list(reversed(self.lanes))
         lane_txt = ", ".join(
             f"{ln.lane_id} (y {_f(ln.right_y)}..{_f(ln.left_y)}, centre {_f(ln.centre_y)}"
@@ -169,18 +173,24 @@ class ScenarioDescription:
             + ")"
             for ln in lanes_l2r
         )
-        out.append(f"Lanes left to right: {lane_txt}.")
+        out = [
+            "## Scenario summary",
+            f"Scenario {self.scenario_id}, location {self.location_id}: {len(self.lanes)} lanes in the "
+            f"ego's direction, speed limit {limit}.",
+            f"Lanes left to right: {lane_txt}.",
+        ]
         if full:
-            marks = []
-            for ln in lanes_l2r:
-                marks.append((ln.left_y, ln.left_is_edge))
+            marks = [(ln.left_y, ln.left_is_edge) for ln in lanes_l2r]
             marks.append((lanes_l2r[-1].right_y, lanes_l2r[-1].right_is_edge))
             out.append(
                 "Markings: "
                 + ", ".join(f"y={_f(y)} {'edge (never cross)' if e else 'line (crossable)'}" for y, e in marks)
                 + "."
             )
-        out.append(f"## Ego ({self.ego_class} {_f(self.ego_length)}x{_f(self.ego_width)} m)")
+        return out
+
+    def _ego_lines(self, full: bool) -> list[str]:
+        out = [f"## Ego ({self.ego_class} {_f(self.ego_length)}x{_f(self.ego_width)} m)"]
         if full and self.ego_history:
             out.append(
                 "History t: (x, y) lane: "
@@ -190,32 +200,32 @@ class ScenarioDescription:
             f"Now t=0: pos ({_f(self.ego_x)}, {_f(self.ego_y)}), vel ({_f(self.ego_vx)}, {_f(self.ego_vy)}) m/s, "
             f"acc {_f(self.ego_ax)} m/s^2, lane {self.ego_lane}."
         )
-        out.append(f"## Neighbours at t=0 ({len(self.neighbours)})")
-        if not self.neighbours:
-            out.append("None within range.")
-        for n in self.neighbours:
-            line = (
-                f"#{n.vehicle_id} {n.vehicle_class} {_f(n.length)} m, {n.relation}, lane {n.lane}: "
-                f"pos ({_f(n.x)}, {_f(n.y)}), vel ({_f(n.vx)}, {_f(n.vy)}), rel vel ({_f(n.rel_vx)}, {_f(n.rel_vy)})"
-            )
-            if n.relation in ("ahead", "behind", "alongside"):
-                line += f", gap {_f(n.gap_m)} m"
-                line += f", TTC {_f(n.ttc_s)} s" if n.ttc_s is not None else ", not closing"
-            if full and n.history:
-                line += "; past " + ", ".join(f"{_f(p.t)} s ({_f(p.x)}, {_f(p.y)})" for p in n.history)
-            out.append(line)
-        out.append("## Goal")
-        out.append(
-            f"Predicted goal at t={_f(self.horizon_s)} s: ({_f(self.goal_x)}, {_f(self.goal_y)}), "
-            f"lane {self.goal_lane}."
-        )
+        return out
+
+    def _goal_lines(self) -> list[str]:
         left = self.lane_left_of(self.goal_lane)
         right = self.lane_right_of(self.goal_lane)
-        out.append(
+        return [
+            "## Goal",
+            f"Predicted goal at t={_f(self.horizon_s)} s: ({_f(self.goal_x)}, {_f(self.goal_y)}), "
+            f"lane {self.goal_lane}.",
             f"Goal lane shift: lane=-1 -> lane {left if left is not None else 'none (do not go left)'}, "
-            f"lane=+1 -> lane {right if right is not None else 'none (do not go right)'}."
-        )
-        return "\n".join(out)
+            f"lane=+1 -> lane {right if right is not None else 'none (do not go right)'}.",
+        ]
+
+
+def _neighbour_line(n: NeighbourInfo, full: bool) -> str:
+    """One neighbour for ``ScenarioDescription.to_text``."""
+    line = (
+        f"#{n.vehicle_id} {n.vehicle_class} {_f(n.length)} m, {n.relation}, lane {n.lane}: "
+        f"pos ({_f(n.x)}, {_f(n.y)}), vel ({_f(n.vx)}, {_f(n.vy)}), rel vel ({_f(n.rel_vx)}, {_f(n.rel_vy)})"
+    )
+    if n.relation in ("ahead", "behind", "alongside"):
+        line += f", gap {_f(n.gap_m)} m"
+        line += f", TTC {_f(n.ttc_s)} s" if n.ttc_s is not None else ", not closing"
+    if full and n.history:
+        line += "; past " + ", ".join(f"{_f(p.t)} s ({_f(p.x)}, {_f(p.y)})" for p in n.history)
+    return line
 
 
 def targeted_guidance(desc: ScenarioDescription) -> list[str]:
@@ -252,7 +262,22 @@ def targeted_guidance(desc: ScenarioDescription) -> list[str]:
 # --- construction ---------------------------------------------------------------------------
 
 
-def _lanes(batch: ScenarioBatch, index: int) -> tuple[tuple[LaneInfo, ...], np.ndarray]:
+@dataclass(frozen=True)
+class _Road:
+    """The ego's carriageway of one scenario: its lanes (right to left) and the marking positions."""
+
+    lanes: tuple[LaneInfo, ...]
+    marking_y: np.ndarray  # (L + 1,) finite marking y [m], right to left
+
+    def lane_index(self, y: float) -> int:
+        """Index of the lane (0 = rightmost) containing y, clipped to the road."""
+        return int(np.clip(np.searchsorted(self.marking_y, y, side="right") - 1, 0, len(self.marking_y) - 2))
+
+    def lane_id(self, y: float) -> int:
+        return self.lanes[self.lane_index(y)].lane_id
+
+
+def _road(batch: ScenarioBatch, index: int) -> _Road:
     ys = np.asarray(batch.marking_y_m[index], dtype=float)
     ok = np.isfinite(ys)
     ys = ys[ok]
@@ -264,12 +289,7 @@ def _lanes(batch: ScenarioBatch, index: int) -> tuple[tuple[LaneInfo, ...], np.n
     )
     if not lanes:
         raise ValueError(f"scenario {batch.scenario_id[index]}: needs at least two lane markings")
-    return lanes, ys
-
-
-def _lane_index(ys: np.ndarray, y: float) -> int:
-    """Index of the lane (0 = rightmost) containing y, clipped to the road."""
-    return int(np.clip(np.searchsorted(ys, y, side="right") - 1, 0, len(ys) - 2))
+    return _Road(lanes, ys)
 
 
 def _relation(offset: int, dx: float, overlap_half: float) -> str:
@@ -294,6 +314,66 @@ def _sample_indices(step_s: float) -> list[int]:
     return out[::-1]
 
 
+def _track(road: _Road, xy: np.ndarray, frames: list[int], seen: np.ndarray) -> tuple[TrackPoint, ...]:
+    """Past positions ``xy`` (T, 2) at ``frames`` where ``seen`` (T,) and finite, with their lanes."""
+    return tuple(
+        TrackPoint((i - T0_INDEX) * DT_S, float(xy[i, 0]), float(xy[i, 1]), road.lane_id(float(xy[i, 1])))
+        for i in frames
+        if seen[i] and np.all(np.isfinite(xy[i]))
+    )
+
+
+@dataclass(frozen=True)
+class _Ego:
+    """The ego at t = 0: position (m), velocity (m/s), lane index on the road, box (m)."""
+
+    x: float
+    y: float
+    vx: float
+    vy: float
+    lane_index: int
+    length: float
+
+
+def _neighbour(batch: ScenarioBatch, index: int, j: int, road: _Road, ego: _Ego,
+               history_frames: list[int]) -> NeighbourInfo | None:
+    """Neighbour slot ``j`` at t = 0 relative to the ego (None when it is not visible then)."""
+    t0 = T0_INDEX
+    valid = np.asarray(batch.nbr_valid[index][j], dtype=bool)
+    nxy = np.asarray(batch.nbr_xy_m[index][j], dtype=float)
+    nv = np.asarray(batch.nbr_vxy_mps[index][j], dtype=float)
+    if not valid[t0] or not np.all(np.isfinite(nxy[t0])):
+        return None
+    x, y = float(nxy[t0, 0]), float(nxy[t0, 1])
+    vx, vy = (float(nv[t0, 0]), float(nv[t0, 1])) if np.all(np.isfinite(nv[t0])) else (0.0, 0.0)
+    length, width = float(batch.nbr_length_m[index][j]), float(batch.nbr_width_m[index][j])
+    k = road.lane_index(y)
+    dx, dy = x - ego.x, y - ego.y
+    half = 0.5 * (ego.length + length)
+    gap = abs(dx) - half
+    closing = (ego.vx - vx) if dx > 0 else (vx - ego.vx)
+    ttc = gap / closing if (k == ego.lane_index and gap > 0 and closing > 1e-6) else None
+    if k == ego.lane_index and gap <= 0:
+        ttc = 0.0  # overlapping boxes in one lane: contact now
+    return NeighbourInfo(
+        vehicle_id=int(batch.nbr_id[index][j]),
+        vehicle_class=VEHICLE_CLASS_NAMES.get(int(batch.nbr_class[index][j]), "vehicle").lower(),
+        relation=_relation(k - ego.lane_index, dx, half),
+        lane=road.lanes[k].lane_id,
+        x=dx,
+        y=dy,
+        vx=vx,
+        vy=vy,
+        length=length,
+        width=width,
+        gap_m=gap,
+        ttc_s=ttc,
+        history=_track(road, nxy, history_frames, valid),
+        rel_vx=vx - ego.vx,
+        rel_vy=vy - ego.vy,
+    )
+
+
 def describe_scenario(
     batch: ScenarioBatch,
     goal_xy: tuple[float, float] | np.ndarray,
@@ -307,93 +387,36 @@ def describe_scenario(
 
     Uses only frames up to t = 0 (the future is for evaluation).
     """
-    lanes, ys = _lanes(batch, index)
-    lane_ids = [ln.lane_id for ln in lanes]
+    road = _road(batch, index)
     t0 = T0_INDEX
     ego_xy = np.asarray(batch.ego_xy_m[index], dtype=float)
     ego_v = np.asarray(batch.ego_vxy_mps[index], dtype=float)
     ego_a = np.asarray(batch.ego_axy_mps2[index], dtype=float)
-    ex, ey = float(ego_xy[t0, 0]), float(ego_xy[t0, 1])
-    evx, evy = float(ego_v[t0, 0]), float(ego_v[t0, 1])
-    ego_k = _lane_index(ys, ey)
-    ego_len, ego_wid = float(batch.ego_length_m[index]), float(batch.ego_width_m[index])
-
-    def t_of(idx: int) -> float:
-        return (idx - t0) * DT_S
-
-    ego_hist = tuple(
-        TrackPoint(t_of(i), float(ego_xy[i, 0]), float(ego_xy[i, 1]), lane_ids[_lane_index(ys, float(ego_xy[i, 1]))])
-        for i in _sample_indices(history_step_s)
-        if np.all(np.isfinite(ego_xy[i]))
-    )
-
-    nbrs: list[NeighbourInfo] = []
-    valid = np.asarray(batch.nbr_valid[index], dtype=bool)
-    nxy = np.asarray(batch.nbr_xy_m[index], dtype=float)
-    nv = np.asarray(batch.nbr_vxy_mps[index], dtype=float)
-    for j in range(valid.shape[0]):
-        if not valid[j, t0] or not np.all(np.isfinite(nxy[j, t0])):
-            continue
-        x, y = float(nxy[j, t0, 0]), float(nxy[j, t0, 1])
-        vx, vy = (float(nv[j, t0, 0]), float(nv[j, t0, 1])) if np.all(np.isfinite(nv[j, t0])) else (0.0, 0.0)
-        length, width = float(batch.nbr_length_m[index][j]), float(batch.nbr_width_m[index][j])
-        k = _lane_index(ys, y)
-        dx, dy = x - ex, y - ey
-        half = 0.5 * (ego_len + length)
-        rel = _relation(k - ego_k, dx, half)
-        gap = abs(dx) - half
-        closing = (evx - vx) if dx > 0 else (vx - evx)
-        ttc = gap / closing if (k == ego_k and gap > 0 and closing > 1e-6) else None
-        if k == ego_k and gap <= 0:
-            ttc = 0.0  # overlapping boxes in one lane: contact now
-        hist = tuple(
-            TrackPoint(
-                t_of(i), float(nxy[j, i, 0]), float(nxy[j, i, 1]), lane_ids[_lane_index(ys, float(nxy[j, i, 1]))]
-            )
-            for i in _sample_indices(neighbour_history_step_s)[-2:]  # short: the last two samples
-            if valid[j, i] and np.all(np.isfinite(nxy[j, i]))
-        )
-        cls = VEHICLE_CLASS_NAMES.get(int(batch.nbr_class[index][j]), "vehicle").lower()
-        nbrs.append(
-            NeighbourInfo(
-                vehicle_id=int(batch.nbr_id[index][j]),
-                vehicle_class=cls,
-                relation=rel,
-                lane=lane_ids[k],
-                x=dx,
-                y=dy,
-                vx=vx,
-                vy=vy,
-                length=length,
-                width=width,
-                gap_m=gap,
-                ttc_s=ttc,
-                history=hist,
-                rel_vx=vx - evx,
-                rel_vy=vy - evy,
-            )
-        )
-    nbrs.sort(key=lambda n: math.hypot(n.x, n.y))
+    ego = _Ego(float(ego_xy[t0, 0]), float(ego_xy[t0, 1]), float(ego_v[t0, 0]), float(ego_v[t0, 1]),
+               road.lane_index(float(ego_xy[t0, 1])), float(batch.ego_length_m[index]))
+    nbr_frames = _sample_indices(neighbour_history_step_s)[-2:]  # short: the last two samples
+    found = (_neighbour(batch, index, j, road, ego, nbr_frames) for j in range(batch.nbr_valid[index].shape[0]))
+    nbrs = sorted((n for n in found if n is not None), key=lambda n: math.hypot(n.x, n.y))
     gx, gy = float(goal_xy[0]), float(goal_xy[1])
     limit = float(batch.speed_limit_mps[index])
     return ScenarioDescription(
         scenario_id=str(batch.scenario_id[index]),
         location_id=int(batch.location_id[index]),
         speed_limit_mps=limit if math.isfinite(limit) and limit > 0 else None,
-        lanes=lanes,
-        ego_lane=lane_ids[ego_k],
+        lanes=road.lanes,
+        ego_lane=road.lanes[ego.lane_index].lane_id,
         ego_class=VEHICLE_CLASS_NAMES.get(int(batch.ego_class[index]), "vehicle").lower(),
-        ego_length=ego_len,
-        ego_width=ego_wid,
-        ego_history=ego_hist,
-        ego_x=ex,
-        ego_y=ey,
-        ego_vx=evx,
-        ego_vy=evy,
+        ego_length=ego.length,
+        ego_width=float(batch.ego_width_m[index]),
+        ego_history=_track(road, ego_xy, _sample_indices(history_step_s), np.ones(len(ego_xy), dtype=bool)),
+        ego_x=ego.x,
+        ego_y=ego.y,
+        ego_vx=ego.vx,
+        ego_vy=ego.vy,
         ego_ax=float(ego_a[t0, 0]) if np.isfinite(ego_a[t0, 0]) else 0.0,
         neighbours=tuple(nbrs),
         goal_x=gx,
         goal_y=gy,
-        goal_lane=lane_ids[_lane_index(ys, gy)],
+        goal_lane=road.lane_id(gy),
         horizon_s=horizon_s,
     )
