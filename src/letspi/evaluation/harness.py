@@ -71,10 +71,11 @@ from letspi.metrics.uncertainty import (
     GROUP_COLUMN,
     Statistic,
     align,
-    intervals,
+    intervals_of,
     metric_statistics,
     n_groups,
     paired,
+    paired_of,
     rate_statistic,
     statistics_record,
 )
@@ -461,11 +462,14 @@ TIMING_RATES: Final = (("fallback_pct", "info_fallback"), ("sumo_cr_pct", "sumo_
 
 def planner_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None) -> dict[str, Statistic]:
     """The per-scenario values behind every rate and mean of one planner's aggregate (its interval and
-    paired comparisons use them): the metric keys (``inference_s`` over the rows that really ran the
-    model, as ``timing_summary``) and the rates of ``TIMING_RATES``."""
+    paired comparisons use them): the metric keys and the rates of ``TIMING_RATES``. ``inference_s``
+    averages the rows that really ran the model, as ``timing_summary``, and only when most rows were
+    timed one by one: a batch planner's rows share their batch's mean time, whose spread says nothing."""
     if "inference_s" in frame:
         timed = np.where(_cached(frame), np.nan, np.asarray(frame["inference_s"], dtype=np.float64))
-        frame = frame.assign(inference_s=timed)
+        live = timed[np.isfinite(timed)]
+        frame = frame.assign(inference_s=timed) if 2 * len(np.unique(live)) > len(live) else frame.drop(
+            columns="inference_s")
     out = metric_statistics(frame, config)
     for key, column in TIMING_RATES:
         if column in frame and len(frame):
@@ -476,13 +480,17 @@ def planner_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None)
     return out
 
 
+def _paired_subject(frame: pd.DataFrame, reference: pd.DataFrame, config: MetricsConfig | None
+                    ) -> tuple[dict[str, Statistic], dict[str, Statistic], np.ndarray]:
+    mine, theirs = align(frame, reference)
+    return planner_statistics(mine, config), planner_statistics(theirs, config), mine[GROUP_COLUMN].to_numpy()
+
+
 def paired_record(frame: pd.DataFrame, reference: pd.DataFrame, config: MetricsConfig | None = None
                   ) -> dict[str, dict[str, Any]]:
     """Key -> the paired comparison of a planner's rows with a reference's (``letspi.metrics.uncertainty``),
     over the scenario digests both have; both frames need ``GROUP_COLUMN``."""
-    mine, theirs = align(frame, reference)
-    return paired(planner_statistics(mine, config), planner_statistics(theirs, config),
-                  mine[GROUP_COLUMN].to_numpy())
+    return paired(*_paired_subject(frame, reference, config))
 
 
 def choose_reference(names: Sequence[str], requested: str | None, first: str | None = None) -> str | None:
@@ -505,11 +513,10 @@ def uncertainty_summary(frames: dict[str, pd.DataFrame], config: MetricsConfig |
     stored rows (``frames``, each with ``GROUP_COLUMN``)."""
     stats = {name: planner_statistics(f, config) for name, f in frames.items()}
     out: dict[str, Any] = {
-        "intervals": {name: intervals(stats[name], f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()}}
+        "intervals": intervals_of({name: (stats[name], f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()})}
     if reference is not None and reference in frames:
-        out["paired"] = {"reference": reference,
-                         "planners": {name: paired_record(f, frames[reference], config)
-                                      for name, f in frames.items() if name != reference}}
+        out["paired"] = {"reference": reference, "planners": paired_of(
+            {name: _paired_subject(f, frames[reference], config) for name, f in frames.items() if name != reference})}
     keys: dict[str, Statistic] = {}
     for s in stats.values():
         keys.update({k: v for k, v in s.items() if k not in keys})

@@ -204,22 +204,66 @@ def _same_length(*arrays: np.ndarray) -> None:
         raise ValueError(f"paired inputs differ in length: {[len(a) for a in arrays]}")
 
 
+def _rate_columns(fail_a: np.ndarray | Sequence[bool], fail_b: np.ndarray | Sequence[bool]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    a = np.asarray(fail_a, dtype=bool)
+    b = np.asarray(fail_b, dtype=bool)
+    _same_length(a, b)
+    return a, b, 100.0 * (a.astype(np.float64) - b.astype(np.float64))
+
+
+def _mean_columns(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    va = np.asarray(a, dtype=np.float64)
+    vb = np.asarray(b, dtype=np.float64)
+    _same_length(va, vb)
+    ok = np.isfinite(va) & np.isfinite(vb)
+    with np.errstate(invalid="ignore"):  # inf - inf: left out anyway
+        return va, vb, np.where(ok, va - vb, np.nan)
+
+
+def paired_comparisons(pairs: Sequence[tuple[str, np.ndarray | Sequence[Any], np.ndarray | Sequence[Any]]],
+                       groups: np.ndarray | Sequence[Any], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
+                       seed: int = SEED) -> list[PairedRate | PairedMean]:
+    """``paired_rate`` / ``paired_mean`` of many metrics of the same windows at once, their differences
+    sharing one set of vehicle resamples. pairs: ("rate" or "mean", A (n,), B (n,)) each."""
+    g = np.asarray(groups)
+    columns = [(kind, *(_rate_columns(a, b) if kind == "rate" else _mean_columns(a, b))) for kind, a, b in pairs]
+    for _, a, _, _ in columns:
+        _same_length(a, g)
+    if not columns:
+        return []
+    diffs = np.stack([d for *_, d in columns], axis=1)
+    ends = (bootstrap_mean_intervals(diffs, g, level, n_resamples, seed) if len(g)
+            else np.full((len(columns), 2), np.nan))
+    out: list[PairedRate | PairedMean] = []
+    for (kind, a, b, d), (low, high) in zip(columns, ends, strict=True):
+        ok = np.isfinite(d)
+        n = int(ok.sum())
+        diff = float(d[ok].mean()) if n else math.nan
+        ci = (float(low), float(high))
+        if kind == "rate":
+            only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
+            out.append(PairedRate(n_pairs=len(a), n_only_a=only_a, n_only_b=only_b, n_both=int((a & b).sum()),
+                                  p_mcnemar=mcnemar_exact(only_a, only_b), diff=diff, diff_ci95=ci))
+            continue
+        if n:  # float noise of two computations of the same value (e.g. 1e-13 m) is no difference
+            noise = FLOAT_NOISE_REL * float(max(np.abs(a[ok]).max(), np.abs(b[ok]).max()))
+            diff = 0.0 if abs(diff) <= noise else diff
+            ci = (0.0 if abs(ci[0]) <= noise else ci[0], 0.0 if abs(ci[1]) <= noise else ci[1])
+        out.append(PairedMean(n_pairs=n, diff=diff, diff_ci95=ci))
+    return out
+
+
 def paired_rate(fail_a: np.ndarray | Sequence[bool], fail_b: np.ndarray | Sequence[bool],
                 groups: np.ndarray | Sequence[Any], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
                 seed: int = SEED) -> PairedRate:
     """Paired comparison of two (n,) boolean outcomes on the same windows (row i of both is one
     window; ``groups`` (n,) its vehicle): discordant counts, exact McNemar p, difference of the rates
     in percentage points (A - B) with its vehicle-bootstrap interval."""
-    a = np.asarray(fail_a, dtype=bool)
-    b = np.asarray(fail_b, dtype=bool)
-    g = np.asarray(groups)
-    _same_length(a, b, g)
-    only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
-    d = 100.0 * (a.astype(np.float64) - b.astype(np.float64))
-    diff = float(d.mean()) if len(d) else math.nan
-    ci = bootstrap_mean_interval(d, g, level, n_resamples, seed) if len(d) else NAN_INTERVAL
-    return PairedRate(n_pairs=len(a), n_only_a=only_a, n_only_b=only_b, n_both=int((a & b).sum()),
-                      p_mcnemar=mcnemar_exact(only_a, only_b), diff=diff, diff_ci95=ci)
+    result = paired_comparisons([("rate", fail_a, fail_b)], groups, level, n_resamples, seed)[0]
+    assert isinstance(result, PairedRate)
+    return result
 
 
 def paired_mean(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float], groups: np.ndarray | Sequence[Any],
@@ -227,18 +271,6 @@ def paired_mean(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float]
     """Paired comparison of two (n,) per-window values: mean of A - B over the pairs where both are
     finite, and its vehicle-bootstrap interval (pairs with a non-finite side are left out; their
     vehicles are still resampled)."""
-    va = np.asarray(a, dtype=np.float64)
-    vb = np.asarray(b, dtype=np.float64)
-    g = np.asarray(groups)
-    _same_length(va, vb, g)
-    ok = np.isfinite(va) & np.isfinite(vb)
-    with np.errstate(invalid="ignore"):  # inf - inf: left out anyway
-        d = np.where(ok, va - vb, np.nan)
-    n = int(ok.sum())
-    diff = float(d[ok].mean()) if n else math.nan
-    ci = bootstrap_mean_interval(d, g, level, n_resamples, seed) if n else NAN_INTERVAL
-    if n:  # float noise of two computations of the same value (e.g. 1e-13 m) is no difference
-        noise = FLOAT_NOISE_REL * float(np.max(np.abs(np.concatenate([va[ok], vb[ok]]))))
-        diff = 0.0 if abs(diff) <= noise else diff
-        ci = (0.0 if abs(ci[0]) <= noise else ci[0], 0.0 if abs(ci[1]) <= noise else ci[1])
-    return PairedMean(n_pairs=n, diff=diff, diff_ci95=ci)
+    result = paired_comparisons([("mean", a, b)], groups, level, n_resamples, seed)[0]
+    assert isinstance(result, PairedMean)
+    return result

@@ -33,8 +33,7 @@ from letspi.metrics.stats import (
     SEED,
     bootstrap_mean_intervals,
     group_index,
-    paired_mean,
-    paired_rate,
+    paired_comparisons,
     rounded,
     wilson_interval,
 )
@@ -99,37 +98,72 @@ def _json_interval(low: float, high: float) -> JsonInterval:
     return [low, high] if np.isfinite(low) and np.isfinite(high) else None
 
 
+def _buckets(groups: Mapping[str, np.ndarray]) -> list[list[str]]:
+    """Names whose (n,) group arrays are equal, together: their columns can share one set of resamples."""
+    buckets: list[list[str]] = []
+    for name, g in groups.items():
+        for bucket in buckets:
+            if np.array_equal(groups[bucket[0]], g):
+                bucket.append(name)
+                break
+        else:
+            buckets.append([name])
+    return buckets
+
+
+def intervals_of(subjects: Mapping[str, tuple[Mapping[str, Statistic], np.ndarray]], level: float = LEVEL,
+                 n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, dict[str, JsonInterval]]:
+    """``intervals`` of several planners, {name: (statistics, groups)} -> {name: {key: interval}}; planners
+    holding the same windows share one bootstrap call (the same intervals, computed once)."""
+    out: dict[str, dict[str, JsonInterval]] = {name: {} for name in subjects}
+    for bucket in _buckets({name: g for name, (_, g) in subjects.items()}):
+        means = [(name, st) for name in bucket for st in subjects[name][0].values() if st.kind == "mean"]
+        if means:
+            ends = bootstrap_mean_intervals(np.stack([st.values for _, st in means], axis=1), subjects[bucket[0]][1],
+                                            level, n_resamples, seed)
+            for (name, st), (lo, hi) in zip(means, ends, strict=True):
+                out[name][st.key] = _json_interval(float(lo), float(hi))
+    for name, (stats, _) in subjects.items():
+        for st in stats.values():
+            if st.kind == "rate":
+                lo, hi = wilson_interval(int(st.values.sum()), len(st.values), level)
+                out[name][st.key] = _json_interval(rounded(100.0 * lo), rounded(100.0 * hi))
+        out[name] = {key: out[name][key] for key in stats}
+    return out
+
+
 def intervals(statistics: Mapping[str, Statistic], groups: np.ndarray, level: float = LEVEL,
               n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, JsonInterval]:
     """Key -> [low, high] (percent for rates, the key's unit for means), None when not estimable
     (no scenario; a mean with fewer than 2 vehicles holding a finite value). ``groups``: (n,) vehicle
     of each row. The means share one set of resamples."""
-    out: dict[str, JsonInterval] = {}
-    means = [s for s in statistics.values() if s.kind == "mean"]
-    if means:
-        ends = bootstrap_mean_intervals(np.stack([s.values for s in means], axis=1), groups, level, n_resamples, seed)
-        out.update({s.key: _json_interval(float(lo), float(hi)) for s, (lo, hi) in zip(means, ends, strict=True)})
-    for s in statistics.values():
-        if s.kind == "rate":
-            lo, hi = wilson_interval(int(s.values.sum()), len(s.values), level)
-            out[s.key] = _json_interval(rounded(100.0 * lo), rounded(100.0 * hi))
-    return {key: out[key] for key in statistics}
+    return intervals_of({"": (statistics, groups)}, level, n_resamples, seed)[""]
+
+
+PairSubject = tuple[Mapping[str, Statistic], Mapping[str, Statistic], np.ndarray]
+
+
+def paired_of(subjects: Mapping[str, PairSubject], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
+              seed: int = SEED) -> dict[str, dict[str, dict[str, Any]]]:
+    """``paired`` of several planners, {name: (planner statistics, reference statistics, groups)} ->
+    {name: {key: record}}; planners holding the same windows share one bootstrap call."""
+    out: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in subjects}
+    for bucket in _buckets({name: g for name, (_, _, g) in subjects.items()}):
+        keys = [(name, k) for name in bucket for k, a in subjects[name][0].items()
+                if k in subjects[name][1] and subjects[name][1][k].kind == a.kind]
+        pairs = [(subjects[n][0][k].kind, subjects[n][0][k].values, subjects[n][1][k].values) for n, k in keys]
+        results = paired_comparisons(pairs, subjects[bucket[0]][2], level, n_resamples, seed)
+        for (name, k), r in zip(keys, results, strict=True):
+            out[name][k] = r.record()
+    return out
 
 
 def paired(planner: Mapping[str, Statistic], reference: Mapping[str, Statistic], groups: np.ndarray,
            level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, dict[str, Any]]:
     """Key -> the paired record of the planner against the reference (``PairedRate`` / ``PairedMean``
-    ``.record()``), for the keys both have; row i of every statistic is the same window."""
-    out: dict[str, dict[str, Any]] = {}
-    for key, a in planner.items():
-        b = reference.get(key)
-        if b is None or b.kind != a.kind:
-            continue
-        if a.kind == "rate":
-            out[key] = paired_rate(a.values, b.values, groups, level, n_resamples, seed).record()
-        else:
-            out[key] = paired_mean(a.values, b.values, groups, level, n_resamples, seed).record()
-    return out
+    ``.record()``), for the keys both have; row i of every statistic is the same window. All keys
+    share one set of vehicle resamples."""
+    return paired_of({"": (planner, reference, groups)}, level, n_resamples, seed)[""]
 
 
 def statistics_record(level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED,
