@@ -23,7 +23,7 @@ Objective (higher is better; ``LabelSearch`` holds the weights):
   min(TTC, 6) / 6 - w_reg * distance to the defaults`` (normalised by the ranges). The pull towards
   the defaults makes the label unique where many candidates are equally good (a learnable target).
 
-Rows (directory format: ``/work/brief/labels_format.md``, ``LABEL_COLUMNS``):
+Rows (``LABEL_COLUMNS``; the directory format is in docs/finetuning.md, "The labels directory"):
 
 * ``propose``: scene -> best candidate (``label_safe`` False when no candidate was safe);
 * ``refine``: scene + a rejected proposal (the defaults when they are unsafe, and one random unsafe
