@@ -19,7 +19,13 @@ from letspi.assembly.resolve import PlannerOptions
 from letspi.cli.app import app
 from letspi.evaluation.harness import evaluate, load_planner_results, stored_vehicles
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.stats import bootstrap_mean_interval, mcnemar_exact, wilson_interval
+from letspi.metrics.stats import (
+    bootstrap_mean_interval,
+    design_effect,
+    mcnemar_exact,
+    vehicle_wilson_interval,
+    wilson_ends,
+)
 from letspi.planners.cv import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import vehicle_keys
@@ -58,7 +64,7 @@ def test_metrics_json_has_an_interval_for_every_rate_and_mean_and_pairs_with_sf(
     evaluate(_planners(), batch, tmp_path, scenarios_file="mem")
     summary = json.loads((tmp_path / "metrics.json").read_text())
     methods = summary["statistics"]["interval_methods"]
-    assert methods["cr_pct"] == "wilson" and methods["ttc_s"] == "vehicle-bootstrap"
+    assert methods["cr_pct"] == "vehicle-wilson" and methods["ttc_s"] == "vehicle-bootstrap"
     assert methods["pet_s"] == "vehicle-bootstrap" and "ttc_finite_n" not in methods  # counts carry none
     assert summary["statistics"]["n_vehicles"] == {"sf": 5, "cv": 5, "brake": 5}
     for name, agg in summary["planners"].items():
@@ -73,8 +79,11 @@ def test_metrics_json_has_an_interval_for_every_rate_and_mean_and_pairs_with_sf(
     # the brake planner is run into from behind in every third window: CR 6 of 16, Wilson
     hit = frames["brake"]["collision"].to_numpy(dtype=bool)
     assert hit.sum() == 6 and summary["planners"]["brake"]["cr_pct"] == pytest.approx(100 * 6 / 16)
-    low, high = wilson_interval(6, 16)
+    low, high = vehicle_wilson_interval(hit, groups)  # Wilson with 16 windows / design effect of 5 vehicles
     assert summary["intervals"]["brake"]["cr_pct"] == pytest.approx([100 * low, 100 * high], rel=1e-5)
+    deff = summary["statistics"]["design_effects"]["brake"]["cr_pct"]
+    assert deff == pytest.approx(design_effect(hit, groups), abs=1e-3)
+    assert (low, high) == wilson_ends(6 / 16, 16 / design_effect(hit, groups))
     # TTC: the vehicle bootstrap of the capped per-window TTC, the point value's own definition
     capped = np.fmin(frames["brake"]["min_ttc_s"].to_numpy(), MetricsConfig().ttc_cap_s)
     assert summary["intervals"]["brake"]["ttc_s"] == list(bootstrap_mean_interval(capped, groups))

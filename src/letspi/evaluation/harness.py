@@ -71,6 +71,7 @@ from letspi.metrics.uncertainty import (
     GROUP_COLUMN,
     Statistic,
     align,
+    design_effects,
     intervals_of,
     metric_statistics,
     n_groups,
@@ -521,7 +522,9 @@ def uncertainty_summary(frames: dict[str, pd.DataFrame], config: MetricsConfig |
     for s in stats.values():
         keys.update({k: v for k, v in s.items() if k not in keys})
     out["statistics"] = {**statistics_record(keys=keys),
-                         "n_vehicles": {name: n_groups(f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()}}
+                         "n_vehicles": {name: n_groups(f[GROUP_COLUMN].to_numpy()) for name, f in frames.items()},
+                         "design_effects": {name: design_effects(stats[name], f[GROUP_COLUMN].to_numpy())
+                                            for name, f in frames.items()}}
     return out
 
 

@@ -26,7 +26,7 @@ import pandas as pd
 
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.registry import CONFIG_COLUMNS, METRICS, Agg, reference_markdown
+from letspi.metrics.registry import CONFIG_COLUMNS, MEAN_HOWS, METRICS, RATE_HOWS, Agg, reference_markdown
 from letspi.metrics.stats import N_RESAMPLES
 
 __doc__ = (__doc__ or "") + reference_markdown()
@@ -69,12 +69,6 @@ def finite_mean(values: np.ndarray | pd.Series) -> tuple[float | None, int]:
 
 def _pct(flags: np.ndarray) -> float | None:
     return float(100.0 * np.asarray(flags, dtype=bool).mean()) if flags.size else None
-
-
-#: aggregations that are a share of scenarios (``pct``) or a mean over scenarios: the figures that
-#: carry an interval (``letspi.metrics.uncertainty``); the others are counts
-RATE_HOWS: tuple[str, ...] = ("pct", "pct_below", "pct_above", "pct_equal")
-MEAN_HOWS: tuple[str, ...] = ("finite_mean", "capped_mean")
 
 
 def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.ndarray:
@@ -345,7 +339,8 @@ def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits:
     )
     lines.append(f"- Scenarios with a finite value (finite/total): {counts}.")
     if intervals:
-        lines.append("- In brackets: 95 % intervals; rates (%): Wilson; means: a bootstrap over ego vehicles (all "
+        lines.append("- In brackets: 95 % intervals; rates (%): Wilson with the effective sample size of windows "
+                     "grouped by ego vehicle; means: a bootstrap over ego vehicles (all "
                      f"windows of a vehicle resampled together; {N_RESAMPLES:,} resamples, percentile).")
     keys = {str(agg.get("metrics_config_key")) for agg in results.values()}
     if len(keys) > 1:

@@ -26,11 +26,18 @@ from types import MappingProxyType
 from typing import Literal
 
 from letspi.metrics.config import MetricsConfig
+from letspi.metrics.stats import N_RESAMPLES, SEED
 
 AggHow = Literal[
     "finite_mean", "finite_n", "capped_mean", "n_at_or_above", "inf_n", "pct", "pct_below", "pct_above", "pct_equal"
 ]
 Dtype = Literal["float64", "int64", "bool", "str"]
+
+#: aggregations that are a share of scenarios, or a mean over scenarios: the figures that carry a 95 %
+#: interval (``letspi.metrics.uncertainty``): Wilson (vehicles) for a share, a bootstrap over ego vehicles for a
+#: mean; the others are counts
+RATE_HOWS: tuple[str, ...] = ("pct", "pct_below", "pct_above", "pct_equal")
+MEAN_HOWS: tuple[str, ...] = ("finite_mean", "capped_mean")
 
 #: what each aggregation does, for the generated documentation
 HOW_DOC: MappingProxyType[str, str] = MappingProxyType({
@@ -245,8 +252,9 @@ def aggregate_keys() -> tuple[str, ...]:
 def reference_markdown() -> str:
     """Markdown reference of the per-scenario columns and the ``metrics.json`` keys."""
     lines = [
-        "Per-scenario columns (``compute_metrics(...).to_frame()``; also `scenario_id`, "
-        "`metrics_config_key` and `metrics_config` (the configuration as JSON) in the harness's parts):",
+        "Per-scenario columns (``compute_metrics(...).to_frame()``; also `scenario_id`, `vehicle_key` (the ego "
+        "vehicle: recording content key / ego id), `metrics_config_key` and `metrics_config` (the configuration "
+        "as JSON) in the harness's parts):",
         "",
         "| column | unit | dtype | meaning |",
         "|---|---|---|---|",
@@ -257,15 +265,27 @@ def reference_markdown() -> str:
         "Aggregate keys (``aggregate_metrics``, the entries of `metrics.json`); values are float, int, "
         "str or None (None = no scenario had a value; never NaN or inf):",
         "",
-        "| key | unit | from | how |",
-        "|---|---|---|---|",
-        "| `n` | count | | number of scenarios aggregated |",
+        "| key | unit | from | how | 95 % interval |",
+        "|---|---|---|---|---|",
+        "| `n` | count | | number of scenarios aggregated | |",
     ]
     for m in METRICS:
         for a in m.aggregates:
             how = HOW_DOC[a.how].format(t=a.threshold)
             doc = f"{how}; {a.doc}" if a.doc else how
-            lines.append(f"| `{a.key}` | {a.unit(m.unit)} | `{m.name}` | {doc} |")
-    lines.append("| `metrics_config_key` | | | ``MetricsConfig.key()`` of the configuration aggregated with |")
-    lines += [f"| `{f}` | | | the ``MetricsConfig.{f}`` applied |" for f in MetricsConfig.AGGREGATE_FIELDS]
+            interval = "Wilson (vehicles)" if a.how in RATE_HOWS else "vehicle bootstrap" if a.how in MEAN_HOWS else ""
+            lines.append(f"| `{a.key}` | {a.unit(m.unit)} | `{m.name}` | {doc} | {interval} |")
+    lines.append("| `metrics_config_key` | | | ``MetricsConfig.key()`` of the configuration aggregated with | |")
+    lines += [f"| `{f}` | | | the ``MetricsConfig.{f}`` applied | |" for f in MetricsConfig.AGGREGATE_FIELDS]
+    lines += [
+        "",
+        "95 % intervals (`metrics.json` \"intervals\", ``letspi.metrics.uncertainty``) use the per-scenario values "
+        "of the key's own definition: Wilson for a share (k of n scenarios) with the effective sample size of "
+        "windows grouped by ego vehicle (n / design effect: a vehicle's windows overlap); for a mean a percentile "
+        "bootstrap "
+        f"({N_RESAMPLES:,} resamples, seed {SEED}) that resamples whole ego vehicles, leaving non-finite values "
+        "out as the mean does. Paired comparisons (\"paired\") of the same keys: for shares the windows only one "
+        "planner or both have the event with the exact McNemar p, and for every key the vehicle-bootstrap interval "
+        "of the per-window difference (means: over the windows where both are finite).",
+    ]
     return "\n".join(lines) + "\n"

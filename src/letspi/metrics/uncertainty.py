@@ -5,9 +5,10 @@ Each rate and mean key of ``aggregate_metrics`` is the average of one per-scenar
 ``ttc_s`` averages ``min(min_ttc_s, ttc_cap_s)``, ``pet_s`` the finite ``min_pet_s``). Its interval and
 its paired difference are computed from exactly those values, so they describe the figure printed:
 
-* a rate (``*_pct``): 95 % Wilson interval of its k of n scenarios; paired: windows where only the
-  planner / only the reference / both have the event, exact McNemar p, and the vehicle-bootstrap
-  interval of the difference in percentage points;
+* a rate (``*_pct``): 95 % Wilson interval of its k of n scenarios, with the effective sample size
+  of windows grouped by vehicle (``vehicle_wilson_interval``: n / design effect; plain Wilson with one
+  window per vehicle); paired: windows where only the planner / only the reference / both have the
+  event, exact McNemar p, and the vehicle-bootstrap interval of the difference in percentage points;
 * a mean: 95 % vehicle-bootstrap interval (``letspi.metrics.stats``) of the mean of the finite
   values; paired: the mean difference over the windows where both are finite, with its interval.
 
@@ -24,24 +25,25 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from letspi.metrics.aggregate import MEAN_HOWS, RATE_HOWS, config_in_effect, scenario_values
+from letspi.metrics.aggregate import config_in_effect, scenario_values
 from letspi.metrics.config import MetricsConfig
-from letspi.metrics.registry import METRICS
+from letspi.metrics.registry import MEAN_HOWS, METRICS, RATE_HOWS
 from letspi.metrics.stats import (
     LEVEL,
     N_RESAMPLES,
     SEED,
     bootstrap_mean_intervals,
+    design_effect,
     group_index,
     paired_comparisons,
     rounded,
-    wilson_interval,
+    vehicle_wilson_interval,
 )
 
 #: the per-row column holding the group of the vehicle bootstrap
 GROUP_COLUMN = "vehicle_key"
 #: how the interval of each kind of key is made ("statistics.interval_methods" of metrics.json)
-METHODS: Mapping[str, str] = {"rate": "wilson", "mean": "vehicle-bootstrap"}
+METHODS: Mapping[str, str] = {"rate": "vehicle-wilson", "mean": "vehicle-bootstrap"}
 
 StatKind = Literal["rate", "mean"]
 JsonInterval = list[float] | None
@@ -123,10 +125,10 @@ def intervals_of(subjects: Mapping[str, tuple[Mapping[str, Statistic], np.ndarra
                                             level, n_resamples, seed)
             for (name, st), (lo, hi) in zip(means, ends, strict=True):
                 out[name][st.key] = _json_interval(float(lo), float(hi))
-    for name, (stats, _) in subjects.items():
+    for name, (stats, groups) in subjects.items():
         for st in stats.values():
             if st.kind == "rate":
-                lo, hi = wilson_interval(int(st.values.sum()), len(st.values), level)
+                lo, hi = vehicle_wilson_interval(st.values, groups, level)
                 out[name][st.key] = _json_interval(rounded(100.0 * lo), rounded(100.0 * hi))
         out[name] = {key: out[name][key] for key in stats}
     return out
@@ -173,8 +175,15 @@ def statistics_record(level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed
             "interval_methods": {k: s.method for k, s in (keys or {}).items()},
             "bootstrap": {"resamples": n_resamples, "seed": seed, "groups": "ego vehicle (recording, ego id)",
                           "interval": "percentile"},
+            "wilson": "effective sample size n / design effect of the windows grouped by ego vehicle "
+                      "(design_effects; 1 = independent windows)",
             "paired": "rates: exact McNemar p of the discordant windows; every difference: vehicle-bootstrap "
                       "interval of the per-window difference (means: windows where both are finite)"}
+
+
+def design_effects(statistics: Mapping[str, Statistic], groups: np.ndarray) -> dict[str, float]:
+    """Rate key -> its ``design_effect`` (how much the vehicles' grouping widens its interval, squared)."""
+    return {k: round(design_effect(st.values, groups), 3) for k, st in statistics.items() if st.kind == "rate"}
 
 
 def n_groups(groups: np.ndarray) -> int:

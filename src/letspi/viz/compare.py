@@ -124,7 +124,8 @@ class Comparison:
         pairing = (f"every planner of B against {self.reference} of A" if self.reference
                    else "each planner against itself")
         lines = [f"A = {self.a} ({self.mode_a}), B = {self.b} ({self.mode_b}): {pairing}, on the windows both hold. "
-                 "Values with 95 % intervals (rates: Wilson; means: bootstrap over ego vehicles); Δ = B − A, paired, "
+                 "Values with 95 % intervals (rates: Wilson, windows grouped by ego vehicle; means: bootstrap over ego "
+                 "vehicles); Δ = B − A, paired, "
                  "with its vehicle-bootstrap interval; rates: windows only A / only B / both have the event (for "
                  "SR: succeed) and the exact McNemar p."]
         if self.vehicles_from_ids:
