@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from letspi.cli import bench, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
+from letspi.cli import bench, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
 from letspi.cli.common import DEBUG_ENV
 from letspi.evaluation.harness import letspi_version
 
@@ -41,6 +41,7 @@ def main_options(
 
 app.add_typer(data.app, name="data")
 app.add_typer(bench.app, name="bench")
+app.add_typer(benchmark.app, name="benchmark")
 app.add_typer(fit.app, name="fit")
 app.add_typer(export.app, name="export")
 app.add_typer(train.app, name="train")

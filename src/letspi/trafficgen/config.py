@@ -20,7 +20,7 @@ from typing import Literal
 
 Layout = Literal["straight", "on_ramp", "lane_drop"]
 LAYOUTS: tuple[str, ...] = typing.get_args(Layout)
-PRESET_NAMES: tuple[str, ...] = ("calm", "highd", "stress")
+PRESET_NAMES: tuple[str, ...] = ("calm", "highd", "stress", "realistic")
 
 
 def _check_range(name: str, value: tuple[float, float], lo: float, hi: float) -> None:
@@ -57,6 +57,10 @@ class DriverConfig:
             their reaction time; SUMO's followers would brake from the first moment of the
             change. Applies to every lane change into the recorded window (natural or
             scripted); see :mod:`letspi.trafficgen.reactions`.
+        lc_speed_gain_scale: multiplies every driver's drawn LC2013 ``lcSpeedGain`` (eagerness to
+            change lanes for speed; < 1 = fewer overtaking lane changes). 1 keeps the drawn values.
+        lc_keep_right_scale: multiplies every driver's drawn ``lcKeepRight`` (eagerness to return
+            to the right lane; < 1 = fewer keep-right lane changes).
         epsilon_acc_mps2: EIDM ``epsilonacc``: between two decision points (every reaction time)
             a driver reacts at once only when its desired deceleration grows by more than this
             [m/s²] (SUMO's default 1); larger values make the reaction time apply to sharper
@@ -72,6 +76,8 @@ class DriverConfig:
     impatient_share: float = 0.1
     lane_change_perception: bool = True
     epsilon_acc_mps2: float = 100.0
+    lc_speed_gain_scale: float = 1.0
+    lc_keep_right_scale: float = 1.0
 
     def __post_init__(self) -> None:
         _check_range("drivers.reaction_time_s", self.reaction_time_s, 0.04, 3.0)
@@ -82,6 +88,9 @@ class DriverConfig:
         _check_share("drivers.assertive_share", self.assertive_share)
         _check_range("drivers.assertive_range", self.assertive_range, 1.0, 20.0)
         _check_share("drivers.impatient_share", self.impatient_share)
+        for name in ("lc_speed_gain_scale", "lc_keep_right_scale"):
+            if not 0.0 <= getattr(self, name) <= 10.0:
+                raise ValueError(f"drivers.{name} must be in [0, 10], got {getattr(self, name)}")
         if not 0.1 <= self.epsilon_acc_mps2 <= 100.0:
             raise ValueError(f"drivers.epsilon_acc_mps2 must be in [0.1, 100], got {self.epsilon_acc_mps2}")
 
@@ -258,11 +267,20 @@ STRESS = TrafficConfig(
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
                        cut_in_ttc_s=(0.4, 3.0)),
 )
-_PRESETS: Mapping[str, TrafficConfig] = MappingProxyType({"calm": CALM, "highd": HIGHD, "stress": STRESS})
+#: Calibrated against HighD's published marginals (docs/data.md, "realistic"): lane-change share about
+#: 5 % of vehicles (LC2013 eagerness scaled down), few scripted events.
+REALISTIC = TrafficConfig(
+    name="realistic",
+    drivers=DriverConfig(impatient_share=0.03, lc_speed_gain_scale=0.15, lc_keep_right_scale=0.5),
+    events=EventConfig(hard_brake_per_min=0.6, cut_in_per_min=1.0, truck_pullout_per_min=0.2),
+    truck_share=0.18,
+)
+_PRESETS: Mapping[str, TrafficConfig] = MappingProxyType(
+    {"calm": CALM, "highd": HIGHD, "stress": STRESS, "realistic": REALISTIC})
 
 
 def traffic_preset(name: str) -> TrafficConfig:
-    """The preset ``calm``, ``highd`` or ``stress``."""
+    """The preset ``calm``, ``highd``, ``stress`` or ``realistic``."""
     try:
         return _PRESETS[name]
     except KeyError:

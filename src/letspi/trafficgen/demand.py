@@ -217,6 +217,8 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig)
     reaction = max(_STEP_S, round(drawn / _STEP_S + 1e-9) * _STEP_S)  # 0.5 / 0.04 is 12.4999...
     params["reaction_time_s"] = reaction
     params["epsilon_acc_mps2"] = drivers.epsilon_acc_mps2
+    params["lc_speed_gain"] = float(params["lc_speed_gain"]) * drivers.lc_speed_gain_scale
+    params["lc_keep_right"] = float(params["lc_keep_right"]) * drivers.lc_keep_right_scale
     params["headway_s"] = max(float(params["headway_s"]), reaction)
     return params
 

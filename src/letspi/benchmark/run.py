@@ -1,0 +1,114 @@
+"""Run a suite: its data (cached), every planner in each of its modes (resumable), the leaderboard.
+
+Layout of a suite's results directory::
+
+    OUT/leaderboard.json, leaderboard.md, leaderboard.html
+    OUT/timing.json                     wall time of each stage (data, each mode), load average
+    OUT/<mode slug>/                    a ``letspi evaluate`` results directory (+ report.html)
+
+Rerunning resumes every mode where it stopped and reuses the cached data; more planners join.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from letspi.assembly.build import BuiltPlanner, build_planners, parse_planner_arg
+from letspi.assembly.planner_table import PLANNER_TABLE
+from letspi.assembly.resolve import PlannerOptions
+from letspi.benchmark.data import SuiteData, prepare_data
+from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
+from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
+from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop
+from letspi.evaluation.harness import ProgressFactory
+from letspi.evaluation.harness import evaluate as evaluate_open_loop
+from letspi.fsutil import atomic_write_text
+from letspi.planners.llm import FastPlannerConfig, MemoryPlannerConfig
+from letspi.planners.mlp import MlpConfig
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import vehicle_keys
+from letspi.scenario.store import load_scenarios
+from letspi.simulation.schedule import DualRateConfig
+from letspi.viz.report import write_report
+
+
+def default_planners() -> list[str]:
+    """Every built-in planner that runs without a language model or files a default install lacks (``mlp``
+    needs weights from ``letspi train mlp``), in the planner table's order."""
+    needs_more = (MemoryPlannerConfig, FastPlannerConfig, MlpConfig)
+    return [k.name for k in PLANNER_TABLE if not issubclass(k.config_class, needs_more)]
+
+
+@dataclass(frozen=True)
+class SuiteRun:
+    """What ``run_suite`` wrote and how long each stage took (wall seconds)."""
+
+    out: Path
+    board: dict[str, Any]
+    data: SuiteData
+    timing: dict[str, float]
+
+
+def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopSettings:
+    assert mode.replan_s is not None and mode.llm_period_s is not None
+    return ClosedLoopSettings(mode=mode.mode, replan_s=mode.replan_s, workers=workers,
+                              dual_rate=DualRateConfig(mode.llm_period_s, mode.llm_latency_s))
+
+
+def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: PlannerOptions | None = None,
+              highd_dir: Path | None = None, allow_other_files: bool = False, workers: int = 2,
+              reports: bool = True, progress_factory: ProgressFactory | None = None,
+              log: Callable[[str], None] = print) -> SuiteRun:
+    """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode, write the leaderboard."""
+    out = Path(out)
+    labels = [parse_planner_arg(a)[0] for a in planner_args]
+    timing: dict[str, float] = {}
+    started = time.perf_counter()
+    data = prepare_data(suite, highd_dir=highd_dir, allow_other_files=allow_other_files, workers=workers, log=log)
+    timing["generation_s"], timing["extraction_s"] = data.generation_s, data.extraction_s
+    full = load_scenarios(data.scenarios_file)
+    digests = scenario_digests(full)
+    groups_of = dict(zip(digests.tolist(), vehicle_keys(full).tolist(), strict=True))
+    planners: list[BuiltPlanner] = build_planners(list(planner_args), options or PlannerOptions())
+    boards: dict[str, dict[str, Any]] = {}
+    report_links: dict[str, str] = {}
+    for mode in suite.modes:
+        eval_dir = out / mode.slug
+        t0 = time.perf_counter()
+        if mode.n_windows is not None and mode.n_windows < len(full):
+            pick = np.random.default_rng(suite.extraction.seed).choice(len(full), mode.n_windows, replace=False)
+            batch = full.take(np.sort(pick))
+        else:
+            batch = full
+        if mode.mode == "open-loop":
+            evaluate_open_loop(planners, batch, eval_dir, scenarios_file=str(data.scenarios_file), config=suite.metrics,
+                               progress_factory=progress_factory)
+        else:
+            evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers),
+                                 scenarios_file=str(data.scenarios_file), config=suite.metrics,
+                                 progress_factory=progress_factory)
+        timing[f"{mode.slug}_s"] = time.perf_counter() - t0
+        reference = REFERENCE_PLANNER if REFERENCE_PLANNER in labels else None
+        boards[mode.slug] = mode_board(eval_dir, labels, groups_of, reference)
+        if reports:
+            t0 = time.perf_counter()
+            write_report(eval_dir, with_diagrams=False, config=suite.metrics)
+            report_links[mode.slug] = f"{mode.slug}/report.html"
+            timing[f"{mode.slug}_report_s"] = time.perf_counter() - t0
+    board = leaderboard(suite, boards, dataset_digest(digests), data.file_digests)
+    atomic_write_text(out / "leaderboard.json", to_json(board))
+    atomic_write_text(out / "leaderboard.md", to_markdown(board))
+    atomic_write_text(out / "leaderboard.html", to_html(board, report_links))
+    timing["total_s"] = time.perf_counter() - started
+    record = {"suite": suite.suite_id, "planners": labels, "data_reused": data.reused, "workers": workers,
+              "load_average_end": list(np.round(os.getloadavg(), 2)), **{k: round(v, 2) for k, v in timing.items()}}
+    atomic_write_text(out / "timing.json", json.dumps(record, indent=2) + "\n")
+    return SuiteRun(out=out, board=board, data=data, timing=timing)

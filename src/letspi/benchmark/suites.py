@@ -1,0 +1,268 @@
+"""The benchmark suites: one table, one entry per suite; everything that makes a result is in the entry.
+
+A :class:`Suite` pins
+
+* the traffic: generator preset (resolved to its full :class:`~letspi.trafficgen.config.TrafficConfig`
+  plus overrides), layout, seeds, minutes, lanes, flow; or, for real HighD, the recording ids and
+  the content digests of their files;
+* the extraction: focus, critical share, number of windows, sampling seed, stride;
+* the evaluation modes and their replanning periods (and, for LLM planners, the dual-rate period and
+  a fixed answer latency, so closed-loop results do not depend on the machine);
+* the metrics configuration.
+
+Its id is ``NAME@vVERSION-DIGEST8``: the digest is the first 8 hex digits of the BLAKE2b hash of the
+canonical JSON of :meth:`Suite.definition`, so any change to a suite's content (including a changed
+preset default or metrics threshold) changes its id; ``tests/test_benchmark.py`` pins every digest.
+Generator seeds of suites are in ``letspi.scenario.provenance.SUITE_SEEDS`` (1000-1999), which
+``letspi fit`` and ``letspi train llm-data`` refuse.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Final
+
+from letspi.constants import DEFAULT_STRIDE_FRAMES
+from letspi.metrics.config import MetricsConfig
+from letspi.scenario.provenance import SUITE_SEEDS
+from letspi.trafficgen.config import LAYOUTS, TrafficConfig, traffic_preset, with_overrides
+
+#: evaluation modes a suite may use (the harness' names)
+SUITE_MODES: Final = ("open-loop", "closed-loop-log")
+#: the planner every other is compared with, paired
+REFERENCE_PLANNER: Final = "sf"
+
+
+@dataclass(frozen=True)
+class GeneratedTraffic:
+    """Traffic made by letspi's SUMO generator: one run per seed, each cut into recordings.
+
+    preset: ``letspi data generate --criticality``; overrides: ``--set KEY=VALUE`` pairs;
+    layout: road layout; seeds: generator seeds (in ``SUITE_SEEDS``); minutes: recorded minutes per
+    seed; recording_minutes: length of each recording; lanes_per_direction; flow_veh_per_h (None: the
+    generator's default).
+    """
+
+    preset: str
+    layout: str
+    seeds: tuple[int, ...]
+    minutes: float
+    recording_minutes: float = 10.0
+    overrides: tuple[tuple[str, str], ...] = ()
+    lanes_per_direction: int = 3
+    flow_veh_per_h: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
+        outside = [s for s in self.seeds if s not in SUITE_SEEDS]
+        if outside or not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"suite seeds must be distinct and in {SUITE_SEEDS.start}-{SUITE_SEEDS.stop - 1}, "
+                             f"got {self.seeds}")
+
+    def traffic_config(self) -> TrafficConfig:
+        """The full traffic configuration (the preset, its layout and overrides applied)."""
+        return with_overrides(traffic_preset(self.preset), {"layout.kind": self.layout, **dict(self.overrides)})
+
+    def definition(self) -> dict[str, Any]:
+        return {"source": "generated", "preset": self.preset, "overrides": [list(o) for o in self.overrides],
+                "seeds": list(self.seeds), "minutes": self.minutes, "recording_minutes": self.recording_minutes,
+                "lanes_per_direction": self.lanes_per_direction, "flow_veh_per_h": self.flow_veh_per_h,
+                "traffic": self.traffic_config().to_dict()}
+
+
+@dataclass(frozen=True)
+class RealHighD:
+    """Real HighD recordings from the user's licensed copy, chosen by id.
+
+    file_digests: recording id -> SHA-256 (first 16 hex digits) of its three CSV files as the suite
+    expects them (``letspi benchmark run`` prints the digests it sees; a run on other files is refused,
+    or only warned about with ``--allow-other-files``). Empty: not pinned yet, the leaderboard records
+    the digests seen so results can still be matched between users.
+    """
+
+    recording_ids: tuple[int, ...]
+    file_digests: Mapping[int, str] = field(default_factory=dict)
+
+    def definition(self) -> dict[str, Any]:
+        return {"source": "highd", "recording_ids": list(self.recording_ids),
+                "file_digests": {str(k): v for k, v in sorted(self.file_digests.items())}}
+
+
+@dataclass(frozen=True)
+class Extraction:
+    """How windows are cut (``letspi data scenarios``): focus uniform or critical (``critical_share`` of the
+    windows drawn from those with a conflict of the ego in their recorded future), ``n_windows`` sampled
+    by ``seed``."""
+
+    focus: str
+    n_windows: int
+    seed: int
+    critical_share: float = 0.0
+    stride_frames: int = DEFAULT_STRIDE_FRAMES
+
+    def __post_init__(self) -> None:
+        if self.focus not in ("uniform", "critical"):
+            raise ValueError(f"focus must be uniform or critical, got {self.focus!r}")
+        if (self.focus == "critical") != (self.critical_share > 0):
+            raise ValueError("critical_share > 0 exactly with focus critical")
+
+    def definition(self) -> dict[str, Any]:
+        return {"focus": self.focus, "n_windows": self.n_windows, "seed": self.seed,
+                "critical_share": self.critical_share, "stride_frames": self.stride_frames}
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One evaluation mode of a suite. Closed loop: every planner replans every ``replan_s``; LLM planners
+    ask their model every ``llm_period_s`` and an answer takes effect ``llm_latency_s`` after its call
+    (fixed, so results do not depend on the machine). ``n_windows``: evaluate a random subset of this
+    many of the suite's windows (drawn with the extraction seed; None: all of them)."""
+
+    mode: str
+    replan_s: float | None = None
+    llm_period_s: float | None = None
+    llm_latency_s: float | None = None
+    n_windows: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in SUITE_MODES:
+            raise ValueError(f"mode must be one of {', '.join(SUITE_MODES)}, got {self.mode!r}")
+        closed = self.mode != "open-loop"
+        if closed != (self.replan_s is not None) or closed != (self.llm_period_s is not None):
+            raise ValueError("replan_s and llm_period_s are given exactly for the closed-loop modes")
+
+    @property
+    def slug(self) -> str:
+        """Directory name of the mode's results."""
+        return self.mode if self.replan_s is None else f"{self.mode}-{self.replan_s:g}s"
+
+    def definition(self) -> dict[str, Any]:
+        return {"mode": self.mode, "replan_s": self.replan_s, "llm_period_s": self.llm_period_s,
+                "llm_latency_s": self.llm_latency_s, "n_windows": self.n_windows}
+
+
+OPEN_LOOP: Final = Mode("open-loop")
+#: issue 28's closed loop: physics replans every 0.2 s, the LLM is asked every 2.5 s; 2,000 of the windows
+CLOSED_LOOP_DUAL_RATE: Final = Mode("closed-loop-log", replan_s=0.2, llm_period_s=2.5, llm_latency_s=1.5,
+                                    n_windows=2000)
+
+
+@dataclass(frozen=True)
+class Suite:
+    """One benchmark suite (module docstring). ``scripted``: what the reader must know about the events
+    in the traffic (scripted or not, and how many), shown by ``list``/``show`` and in the leaderboard."""
+
+    name: str
+    version: int
+    description: str
+    data: GeneratedTraffic | RealHighD
+    extraction: Extraction
+    modes: tuple[Mode, ...]
+    scripted: str
+    sizing: str
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
+
+    def definition(self) -> dict[str, Any]:
+        """Everything that makes a result of this suite (what the digest is computed over)."""
+        return {"name": self.name, "version": self.version, "data": self.data.definition(),
+                "extraction": self.extraction.definition(), "modes": [m.definition() for m in self.modes],
+                "metrics": self.metrics.recorded(), "reference": REFERENCE_PLANNER}
+
+    @property
+    def digest(self) -> str:
+        text = json.dumps(self.definition(), sort_keys=True, separators=(",", ":"))
+        return hashlib.blake2b(text.encode("utf-8"), digest_size=16).hexdigest()[:8]
+
+    @property
+    def suite_id(self) -> str:
+        return f"{self.name}@v{self.version}-{self.digest}"
+
+    @property
+    def generated(self) -> bool:
+        return isinstance(self.data, GeneratedTraffic)
+
+
+_CRITICAL_SIZING = ("3,000 windows in open loop: a 1-point CR difference is detected by exact McNemar (alpha "
+                    "0.05, power 0.8) up to a discordance of 3.5 % of windows; 2,000 of them in closed loop, where "
+                    "CRs and discordance are about 1 % (power > 0.95); docs/benchmark.md. Issue 28 needs >= 2,000 "
+                    "critical-focus windows in both modes")
+
+#: THE table of suites (one entry per suite; seeds are never shared between suites)
+SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
+    Suite(
+        name="highway-uniform", version=1,
+        description="straight 3+3-lane highway, realistic traffic, windows drawn uniformly (the paper's protocol)",
+        data=GeneratedTraffic(preset="realistic", layout="straight", seeds=(1001, 1002), minutes=20.0),
+        extraction=Extraction(focus="uniform", n_windows=3000, seed=1001),
+        modes=(OPEN_LOOP,),
+        scripted="few scripted events (the realistic preset's rates); most windows hold no conflict",
+        sizing="3,000 windows: open-loop CRs here are about 1 %, so discordance stays under 2 % and "
+               "a 1-point difference is detected with power > 0.9 (docs/benchmark.md)",
+    ),
+    Suite(
+        name="highway-critical", version=1,
+        description="straight highway, the default (highd) traffic, half the windows with a conflict of the ego",
+        data=GeneratedTraffic(preset="highd", layout="straight", seeds=(1011, 1012), minutes=20.0),
+        extraction=Extraction(focus="critical", n_windows=3000, seed=1011, critical_share=0.5),
+        modes=(OPEN_LOOP,),
+        scripted="scripted events: about 3 hard brakes, 5 cut-ins and 1 truck pull-out per simulated minute",
+        sizing=_CRITICAL_SIZING,
+    ),
+    Suite(
+        name="stress-closed-loop", version=1,
+        description="straight highway, stress traffic, critical windows, open loop and closed-loop-log "
+                    "(replanning every 0.2 s; LLM planners dual-rate: the model every 2.5 s, 1.5 s latency)",
+        data=GeneratedTraffic(preset="stress", layout="straight", seeds=(1021, 1022), minutes=20.0),
+        extraction=Extraction(focus="critical", n_windows=3000, seed=1021, critical_share=0.5),
+        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
+        scripted="scripted events: about 5 hard brakes, 7 cut-ins and 2 truck pull-outs per simulated minute",
+        sizing=_CRITICAL_SIZING,
+    ),
+    Suite(
+        name="on-ramp-critical", version=1,
+        description="on-ramp (acceleration lane ending in the window), default traffic, critical windows, "
+                    "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
+        data=GeneratedTraffic(preset="highd", layout="on_ramp", seeds=(1031, 1032), minutes=20.0),
+        extraction=Extraction(focus="critical", n_windows=3000, seed=1031, critical_share=0.5),
+        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
+        scripted="scripted events as highway-critical, plus merges from the ramp (not scripted)",
+        sizing=_CRITICAL_SIZING,
+    ),
+    Suite(
+        name="lane-drop-critical", version=1,
+        description="lane drop (the right lane ends in the window), default traffic, critical windows, "
+                    "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
+        data=GeneratedTraffic(preset="highd", layout="lane_drop", seeds=(1041, 1042), minutes=20.0),
+        extraction=Extraction(focus="critical", n_windows=3000, seed=1041, critical_share=0.5),
+        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
+        scripted="scripted events as highway-critical, plus forced merges where the lane ends (not scripted)",
+        sizing=_CRITICAL_SIZING,
+    ),
+    Suite(
+        name="highd-real", version=1,
+        description="your licensed HighD copy: 6 recordings spread over the 60 (ids 1, 7, 13, 25, 45, 60), "
+                    "windows drawn uniformly; give the directory with --highd",
+        data=RealHighD(recording_ids=(1, 7, 13, 25, 45, 60)),
+        extraction=Extraction(focus="uniform", n_windows=3000, seed=1051),
+        modes=(OPEN_LOOP,),
+        scripted="real traffic: nothing is scripted",
+        sizing="3,000 windows, as highway-uniform",
+    ),
+)})
+
+
+def get_suite(name: str) -> Suite:
+    """The suite called ``name`` (its bare name, or its full id, whose digest must match)."""
+    bare = name.split("@", 1)[0]
+    suite = SUITES.get(bare)
+    if suite is None:
+        raise ValueError(f"unknown benchmark suite {name!r}; available: {', '.join(SUITES)}")
+    if "@" in name and name != suite.suite_id:
+        raise ValueError(f"{name} is not this letspi's {bare}: its definition is {suite.suite_id} "
+                         "(another version or digest; results of the two are not comparable)")
+    return suite

@@ -1,0 +1,136 @@
+"""``letspi benchmark``: versioned suites (``list``, ``show``, ``run``); windows a paired test needs (``power``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from letspi.assembly.planner_table import planner_help
+from letspi.assembly.resolve import PlannerOptions
+from letspi.benchmark.leaderboard import to_markdown
+from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
+from letspi.benchmark.run import default_planners, run_suite
+from letspi.benchmark.suites import SUITES, GeneratedTraffic, get_suite
+from letspi.cli.common import PLANNER_DEFAULTS, command_line, console, progress_bar, user_errors
+from letspi.cli.evaluate import progress_factory
+from letspi.fsutil import writer_lock
+
+app = typer.Typer(help="Versioned benchmark suites: list, show, run; power of a paired comparison.",
+                  no_args_is_help=True, rich_markup_mode=None)
+
+
+@app.command("list")
+def list_suites() -> None:
+    """Every suite: its id (name@version-digest), windows, modes and what is scripted in its traffic."""
+    for suite in SUITES.values():
+        modes = ", ".join(m.slug + (f" ({m.n_windows:,d})" if m.n_windows else "") for m in suite.modes)
+        typer.echo(f"{suite.suite_id:34s} {suite.extraction.n_windows:>6,d} windows  {modes}")
+        typer.echo(f"    {suite.description}; {suite.scripted}")
+
+
+@app.command("show")
+def show(
+    suite: Annotated[str, typer.Argument(help="Suite name (or its full id).")],
+    as_json: Annotated[bool, typer.Option("--json", help="The full definition as JSON.")] = False,
+) -> None:
+    """Everything a suite pins: traffic (resolved configuration), extraction, modes, metrics, digest."""
+    with user_errors():
+        s = get_suite(suite)
+    if as_json:
+        typer.echo(json.dumps({"id": s.suite_id, **s.definition()}, indent=2, sort_keys=True))
+        return
+    typer.echo(f"{s.suite_id}: {s.description}")
+    data = s.data
+    if isinstance(data, GeneratedTraffic):
+        typer.echo(f"traffic: preset {data.preset}, layout {data.layout}, seeds {', '.join(map(str, data.seeds))}, "
+                   f"{data.minutes:g} min each (recordings of {data.recording_minutes:g} min), "
+                   f"{data.lanes_per_direction} lanes per direction"
+                   + (f", overrides {dict(data.overrides)}" if data.overrides else ""))
+    else:
+        typer.echo(f"traffic: your HighD recordings {', '.join(f'{r:02d}' for r in data.recording_ids)} "
+                   f"(file digests {'pinned' if data.file_digests else 'not pinned yet'})")
+    typer.echo(f"events: {s.scripted}")
+    ex = s.extraction
+    typer.echo(f"windows: {ex.n_windows}, focus {ex.focus}" + (f" (share {ex.critical_share:g} with a conflict)"
+                                                              if ex.critical_share else "")
+               + f", seed {ex.seed}, stride {ex.stride_frames} frames")
+    for m in s.modes:
+        extra = "" if m.replan_s is None else (
+            f": replanning every {m.replan_s:g} s; LLM planners ask their model every {m.llm_period_s:g} s, "
+            f"answers in force after {m.llm_latency_s:g} s")
+        typer.echo(f"mode: {m.mode}{extra}")
+    typer.echo(f"size: {s.sizing}")
+    typer.echo(f"metrics: {json.dumps(s.metrics.recorded(), sort_keys=True)}")
+    typer.echo("full definition (what the digest covers): letspi benchmark show " + s.name + " --json")
+
+
+@app.command("run")
+def run(
+    suite: Annotated[str, typer.Argument(help="Suite name (or its full id).")],
+    planner: Annotated[list[str] | None, typer.Option(help="Planner (repeatable; default: every built-in planner "
+                                                           "without a language model). " + planner_help())] = None,
+    out: Annotated[Path | None, typer.Option(help="Results directory (default: benchmark/SUITE-ID).")] = None,
+    highd: Annotated[Path | None, typer.Option(
+        help="Real-data suites: your HighD directory (NN_tracks.csv, ...).")] = None,
+    allow_other_files: Annotated[bool, typer.Option(
+        help="Real-data suites: run even if your files differ from those the suite pins (warns).")] = False,
+    workers: Annotated[int, typer.Option(min=1, help="Processes for generation and closed-loop simulation.")] = 2,
+    reports: Annotated[bool, typer.Option(help="Write each mode's report.html.")] = True,
+    llm: Annotated[str, typer.Option(help="Model of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
+    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = PLANNER_DEFAULTS.fast_llm,
+    memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast / letspi-fs.")] = None,
+    mlp_weights: Annotated[Path | None, typer.Option(help="Weights of the mlp planner.")] = None,
+) -> None:
+    """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
+    (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
+    with user_errors():
+        s = get_suite(suite)
+        planners = planner or default_planners()
+        target = out or Path("benchmark") / s.suite_id
+        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, mlp_weights=mlp_weights)
+        with writer_lock(target, command_line()), progress_bar() as bar:
+            result = run_suite(s, planners, target, options=options, highd_dir=highd,
+                               allow_other_files=allow_other_files, workers=workers, reports=reports,
+                               progress_factory=progress_factory(bar), log=bar.console.print)
+    typer.echo(to_markdown(result.board))
+    t = result.timing
+    console.print(f"data: {'reused from the cache' if result.data.reused else 'made'} (generation "
+                  f"{t['generation_s']:.1f} s, extraction {t['extraction_s']:.1f} s); total {t['total_s']:.1f} s; "
+                  f"results in {target}/ (leaderboard.json, leaderboard.md, leaderboard.html, timing.json)")
+
+
+@app.command("power")
+def power(
+    results: Annotated[Path | None, typer.Argument(
+        help="A suite's results directory (its leaderboard.json): the discordance each planner measured "
+             "against the reference.")] = None,
+    discordance_pct: Annotated[list[float] | None, typer.Option(
+        "--discordance-pct", help="Or given discordances [% of windows] (repeatable).")] = None,
+    difference_pts: Annotated[float, typer.Option(help="Difference of the CRs to detect [points].")] = 1.0,
+    target_power: Annotated[float, typer.Option("--power", help="Power to reach.")] = 0.8,
+    alpha: Annotated[float, typer.Option(help="Level of the two-sided exact McNemar test.")] = 0.05,
+) -> None:
+    """Windows a paired comparison needs to detect a CR difference (exact McNemar power)."""
+    with user_errors():
+        rows: list[tuple[str, float, int | None]] = []
+        if results is not None:
+            board = json.loads((results / "leaderboard.json").read_text())
+            for slug, mode in board["modes"].items():
+                for name, entry in mode["paired"]["planners"].items():
+                    cr = entry["cr_pct"]
+                    psi = (cr["n_only_planner"] + cr["n_only_reference"]) / max(cr["n_pairs"], 1)
+                    rows.append((f"{slug} {name} vs {mode['paired']['reference']} (n {cr['n_pairs']})", psi,
+                                 cr["n_pairs"]))
+        rows += [(f"discordance {d:g} %", d / 100.0, None) for d in discordance_pct or []]
+        if not rows:
+            raise ValueError("give a results directory or --discordance-pct")
+    d = difference_pts / 100.0
+    typer.echo(f"| comparison | discordance % | windows for power {target_power:g} | power at its n |")
+    typer.echo("|---|---:|---:|---:|")
+    for label, psi, n in rows:
+        need = windows_needed(psi, d, target_power, alpha)
+        at_n = f"{mcnemar_power(n, *alternative(psi, d), alpha):.2f}" if n else "–"
+        typer.echo(f"| {label} | {100 * psi:.2f} | {need if need is not None else '> 200,000'} | {at_n} |")
