@@ -3,13 +3,15 @@ the reference planner, as JSON (byte-identical for identical results), Markdown 
 
 Computed from the per-scenario rows the harness stored, on the windows every listed planner has:
 
-* rates (``*_pct``, from a per-window flag): value in %, Wilson interval;
+* rates (``*_pct``, from a per-window flag): value in %, Wilson interval at the effective sample size of
+  windows grouped by ego vehicle (``vehicle_wilson_interval``, as ``metrics.json``);
 * means (``ade_m``, ``fde_m``): mean of the finite values, vehicle-bootstrap interval (windows of one
   ego vehicle resampled together, ``letspi.metrics.stats``);
 * paired, each planner against the reference on the same windows: rates get the windows only the
   planner fails (``n_only_planner``), only the reference fails, both fail, the exact McNemar p and the
-  vehicle-bootstrap interval of the difference (planner - reference, points); means the difference
-  and its interval.
+  vehicle-bootstrap interval of the difference (planner - reference, points) and the design effect of
+  the discordant windows (``discordant_design_effect``: variance inflation from windows of one vehicle);
+  means the difference and its interval.
 
 Nothing that varies between identical runs (wall times, dates, paths) enters ``leaderboard.json``;
 timings go to ``timing.json``. Floats are rounded to 6 significant digits.
@@ -31,10 +33,11 @@ from letspi.benchmark.suites import Suite
 from letspi.evaluation.harness import load_planner_results
 from letspi.metrics.stats import (
     bootstrap_mean_interval,
+    design_effect,
     paired_mean,
     paired_rate,
     rounded,
-    wilson_interval,
+    vehicle_wilson_interval,
 )
 
 #: (leaderboard key, per-scenario flag column, label)
@@ -74,7 +77,7 @@ def mode_board(eval_dir: Path, planners: Sequence[str], groups_of: Mapping[str, 
         row: dict[str, Any] = {"n": len(frame)}
         for key, col, _ in RATES:
             flags = frame[col].to_numpy(dtype=bool)
-            low, high = wilson_interval(int(flags.sum()), len(flags))
+            low, high = vehicle_wilson_interval(flags, groups)
             row[key] = _num(100.0 * flags.mean()) if len(flags) else None
             row[f"{key}_ci95"] = [_num(100.0 * low), _num(100.0 * high)]
         for key, col, _ in MEANS:
@@ -92,8 +95,11 @@ def mode_board(eval_dir: Path, planners: Sequence[str], groups_of: Mapping[str, 
                 continue
             entry: dict[str, Any] = {}
             for key, col, _ in RATES:
-                entry[key] = paired_rate(frame[col].to_numpy(dtype=bool), ref[col].to_numpy(dtype=bool),
-                                         groups).record()
+                a, b = frame[col].to_numpy(dtype=bool), ref[col].to_numpy(dtype=bool)
+                # how much the vehicle clustering of the discordant windows inflates the variance of a
+                # count of them (1 = independent windows); ``letspi benchmark power`` sizes with it
+                entry[key] = {**paired_rate(a, b, groups).record(),
+                              "discordant_design_effect": _num(design_effect(a != b, groups))}
             for key, col, _ in MEANS:
                 entry[key] = paired_mean(frame[col].to_numpy(dtype=np.float64), ref[col].to_numpy(dtype=np.float64),
                                          groups).record()
@@ -165,7 +171,8 @@ def to_markdown(board: Mapping[str, Any]) -> str:
                   "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]
         lines.append("")
-    lines.append("Rates: Wilson 95 % intervals; means and paired differences: vehicle bootstrap (2,000 resamples); "
+    lines.append("Rates: Wilson 95 % intervals (effective n of windows grouped by vehicle); means and paired "
+                 "differences: vehicle bootstrap (2,000 resamples); "
                  "p: exact McNemar on the windows only one of the two fails.")
     return "\n".join(lines) + "\n"
 

@@ -113,9 +113,11 @@ def power(
     target_power: Annotated[float, typer.Option("--power", help="Power to reach.")] = 0.8,
     alpha: Annotated[float, typer.Option(help="Level of the two-sided exact McNemar test.")] = 0.05,
 ) -> None:
-    """Windows a paired comparison needs to detect a CR difference (exact McNemar power)."""
+    """Windows a paired comparison needs to detect a CR difference (exact McNemar power; windows of one
+    vehicle are correlated, so the count is multiplied by the measured design effect of the discordant
+    windows, and the power at a run's n is that of n / design effect independent windows)."""
     with user_errors():
-        rows: list[tuple[str, float, int | None]] = []
+        rows: list[tuple[str, float, int | None, float]] = []
         if results is not None:
             board = json.loads((results / "leaderboard.json").read_text())
             for slug, mode in board["modes"].items():
@@ -123,14 +125,17 @@ def power(
                     cr = entry["cr_pct"]
                     psi = (cr["n_only_planner"] + cr["n_only_reference"]) / max(cr["n_pairs"], 1)
                     rows.append((f"{slug} {name} vs {mode['paired']['reference']} (n {cr['n_pairs']})", psi,
-                                 cr["n_pairs"]))
-        rows += [(f"discordance {d:g} %", d / 100.0, None) for d in discordance_pct or []]
+                                 cr["n_pairs"], cr.get("discordant_design_effect") or 1.0))
+        rows += [(f"discordance {d:g} %", d / 100.0, None, 1.0) for d in discordance_pct or []]
         if not rows:
             raise ValueError("give a results directory or --discordance-pct")
     d = difference_pts / 100.0
-    typer.echo(f"| comparison | discordance % | windows for power {target_power:g} | power at its n |")
-    typer.echo("|---|---:|---:|---:|")
-    for label, psi, n in rows:
+    typer.echo(f"| comparison | discordance % | windows for power {target_power:g} (independent) | design effect "
+               "| windows x design effect | power at its n / design effect |")
+    typer.echo("|---|---:|---:|---:|---:|---:|")
+    for label, psi, n, deff in rows:
         need = windows_needed(psi, d, target_power, alpha)
-        at_n = f"{mcnemar_power(n, *alternative(psi, d), alpha):.2f}" if n else "–"
-        typer.echo(f"| {label} | {100 * psi:.2f} | {need if need is not None else '> 200,000'} | {at_n} |")
+        scaled = "–" if need is None else f"{round(need * max(deff, 1.0)):,d}"
+        at_n = f"{mcnemar_power(round(n / max(deff, 1.0)), *alternative(psi, d), alpha):.2f}" if n else "–"
+        typer.echo(f"| {label} | {100 * psi:.2f} | {need if need is not None else '> 200,000'} | {deff:.2f} "
+                   f"| {scaled} | {at_n} |")
