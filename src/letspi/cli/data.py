@@ -15,6 +15,7 @@ from letspi.fsutil import writer_lock
 from letspi.highd.criticality import profile_directory, profile_table
 from letspi.highd.events import read_events
 from letspi.highd.io import read_recordings
+from letspi.highd.marginals import compare_table, traffic_marginals
 from letspi.scenario.extract import critical_windows, enumerate_windows, extract_scenarios
 from letspi.scenario.provenance import generation_records
 from letspi.scenario.store import load_scenarios, read_scenario_meta, save_scenarios
@@ -55,7 +56,8 @@ def generate(
     recording_minutes: Annotated[
         float | None, typer.Option(help="Split into recordings of this many minutes (default: one).")] = None,
     criticality: Annotated[
-        str, typer.Option(help="Traffic preset: calm (no scripted events), highd (default), stress.")] = "highd",
+        str, typer.Option(help="Traffic preset: calm (no scripted events), highd (default), stress, realistic "
+                               "(calibrated to highD's published marginals).")] = "highd",
     layout: Annotated[
         str | None, typer.Option(help="Road layout: straight, on_ramp, lane_drop (= --set layout.kind=...).")] = None,
     settings: Annotated[list[str] | None, typer.Option(
@@ -171,6 +173,9 @@ def info(
     criticality: Annotated[bool, typer.Option(
         "--criticality", help="HighD directories: per-vehicle minTTC/minTHW/minDHW shares, DRAC, lane changes, "
                               "flow per lane, trucks, contacts, events (several directories side by side).")] = False,
+    compare_highd: Annotated[bool, typer.Option(
+        "--compare-highd", help="HighD directories: lane changes, truck share, time in view, speed by class and "
+                                "lane, time headway, beside the values the highD authors published.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """Summarise a scenario file, or the criticality profile of HighD directories."""
@@ -179,8 +184,14 @@ def info(
         if dirs:
             if len(dirs) != len(paths):
                 raise ValueError("give either one scenario file or HighD directories, not both")
+            if compare_highd:
+                measured = {str(d): traffic_marginals(read_recordings(d)) for d in dirs}
+                typer.echo(json.dumps(measured, indent=2) if as_json else compare_table(measured))
+                return
             _info_highd(dirs, criticality=criticality, as_json=as_json)
             return
+        if compare_highd:
+            raise ValueError("--compare-highd needs HighD directories (NN_tracks.csv, ...), not a scenario file")
         if criticality:
             raise ValueError("--criticality needs HighD directories (NN_tracks.csv, ...), not a scenario file")
         if len(paths) != 1:
