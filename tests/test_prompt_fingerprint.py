@@ -155,3 +155,18 @@ def test_a_change_in_the_scene_set_changes_the_fingerprint(monkeypatch: pytest.M
     scenes["busy"] = lambda: (replace(build()[0], location_id=build()[0].location_id + 1), build()[1])
     monkeypatch.setattr(fingerprint, "FINGERPRINT_SCENES", scenes)
     assert resolve.prompt_sha256() != before
+
+
+def test_the_cli_prints_the_fingerprint_and_writes_every_sample(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from letspi.cli.app import app
+
+    result = CliRunner().invoke(app, ["llm", "fingerprint", "--out", str(tmp_path / "samples")])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip().splitlines()[-1] == resolve.prompt_sha256()
+    written = {str(p.relative_to(tmp_path / "samples")) for p in (tmp_path / "samples").rglob("*.txt")}
+    expected = {f"{name}.txt" for name in [*fingerprint.prompt_samples(), *prompt_samples.prompt_text_samples()]}
+    assert written == expected
+    turn = (tmp_path / "samples" / "busy" / "paper" / "physics+memories+turn.txt").read_text()
+    assert turn.startswith("[system]\n") and "[assistant]\n" in turn and "## Refinement" in turn

@@ -1,22 +1,28 @@
-"""``letspi llm``: check LLM backends, list embedded models, benchmark them."""
+"""``letspi llm``: check LLM backends, list embedded models, benchmark them, show the prompt fingerprint."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import asdict
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from letspi.assembly.resolve import prompt_sha256
 from letspi.bench.llm import bench_models, bench_scenarios
 from letspi.bench.llm_runtime import standard_messages
+from letspi.fsutil import atomic_write_text
 from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.fingerprint import prompt_samples
 from letspi.llm.models import EMBEDDED_MODELS, is_fine_tuned
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
 from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
+from letspi.method.phases import messages_text
+from letspi.method.prompt_samples import prompt_text_samples
 
-app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark.",
+app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark; the prompt fingerprint.",
                   no_args_is_help=True, rich_markup_mode=None)
 
 _TINY_USER = (
@@ -99,6 +105,26 @@ def models(
                 row["error"] = str(exc)
         rows.append(row)
     typer.echo(json.dumps(rows, indent=2))
+
+
+@app.command("fingerprint")
+def fingerprint(
+    out: Annotated[Path | None, typer.Option(help="Also write every sample prompt the fingerprint hashes as a text "
+                                                  "file into this directory (diff two such directories to see "
+                                                  "what a prompt change changes).")] = None,
+) -> None:
+    """Print the prompt fingerprint: the SHA-256 of the prompts as rendered for fixed synthetic scenes by every
+    prompt style (``letspi.llm.fingerprint``). It is part of every LLM configuration key: when it changes,
+    stored LLM results and memory collections no longer match the configuration."""
+    if out is not None:
+        texts = {name: s if isinstance(s, str) else messages_text(s) for name, s in prompt_samples().items()}
+        texts.update(prompt_text_samples())
+        for name, text in texts.items():
+            path = out / f"{name}.txt"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, text + "\n")
+        typer.echo(f"wrote {len(texts)} sample prompts to {out}", err=True)
+    typer.echo(prompt_sha256())
 
 
 @app.command("bench")
