@@ -29,6 +29,7 @@ from letspi.cli.common import (
 )
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+from letspi.evaluation.harness import read_summary, summary_markdown
 from letspi.execution.ordered import RunnerConfig, ScenariosFailedError
 from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario
@@ -37,7 +38,6 @@ from letspi.llm.spec import default_concurrency
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import Retriever, memory_example, messages_text
 from letspi.method.phases import collect as run_collect
-from letspi.metrics.aggregate import render_markdown_table
 from letspi.metrics.compute import compute_metrics
 from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
 from letspi.scenario.identity import dataset_digest, scenario_digests
@@ -242,7 +242,7 @@ def ablate(
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=_pairs(combo),
                                    progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run)
-    typer.echo(render_markdown_table(results))
+    typer.echo(summary_markdown(read_summary(out / "ablations" / kind), list(results)))
 
 
 def prompt(
