@@ -240,3 +240,29 @@ def test_retry_policy_validation() -> None:
     for bad in ({"jitter": 1.5}, {"jitter": -0.1}, {"max_retry_after_s": -1.0}, {"backoff_s": -1.0}):
         with pytest.raises(ValueError):
             RetryPolicy(**bad)  # type: ignore[arg-type]
+
+
+OPTIONS = {"default": DEFAULT_REPLY, "keep-gap": DEFAULT_REPLY.model_copy(update={"k_np": 40.0, "lon_factor": 0.7})}
+
+
+def test_choose_returns_the_named_option_and_constrains_the_reply_to_the_names() -> None:
+    be = ScriptedBackend(['{"option": "keep-gap"}'])
+    adv, _ = advisor(be)
+    a = adv.choose(MSGS, OPTIONS)
+    assert a.choice == "keep-gap" and not a.fallback and a.reply.k_np == 40.0 and a.reply.lon_factor == 0.7
+    assert be.schemas[0] is not None and be.schemas[0]["properties"]["option"]["enum"] == ["default", "keep-gap"]
+    assert a.summary()["choice"] == "keep-gap"
+
+
+def test_choose_re_asks_after_an_unknown_name_and_falls_back_to_the_first_option() -> None:
+    be = ScriptedBackend(['{"option": "brake"}', '{"option": "keep-gap"}'])
+    adv, _ = advisor(be)
+    a = adv.choose(MSGS, OPTIONS)
+    assert a.choice == "keep-gap" and [x.error_kind for x in a.attempts] == ["parse:bad_value", None]
+    assert "one of: default, keep-gap" in be.calls[1][-1]["content"]  # the corrective message names them
+    be = ScriptedBackend(["no json", '{"o": 1}'])
+    adv, _ = advisor(be, attempts=2)
+    a = adv.choose(MSGS, OPTIONS)
+    assert a.fallback and a.choice == "default" and a.reply == DEFAULT_REPLY
+    with pytest.raises(ValueError, match="at least one option"):
+        adv.choose(MSGS, {})

@@ -17,7 +17,7 @@ import pytest
 import letspi
 from letspi.assembly import resolve
 from letspi.assembly.resolve import PlannerOptions, Resolver
-from letspi.llm import compact, describe, fingerprint, prompts
+from letspi.llm import choice, compact, describe, fingerprint, prompts
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.schema import VARIANTS
 from letspi.method import prompt_samples, reflection
@@ -30,6 +30,7 @@ def _clear_prompt_caches() -> None:
     prompts.prompt_environment.cache_clear()
     prompts.system_prompt.cache_clear()
     compact.compact_system_prompt.cache_clear()
+    choice.choice_system_prompt.cache_clear()
 
 
 @pytest.fixture

@@ -54,9 +54,10 @@ from pydantic import BaseModel, ConfigDict
 from letspi.constants import DT_S
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
+from letspi.method.decide import defaults_vector, params_of
 from letspi.method.reflection import Proposal, safety_report, simulate_proposal
 from letspi.method.thresholds import ReflectionThresholds
-from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR, GoalPredictor
+from letspi.physics.goals import GoalPredictor
 from letspi.physics.lanes import lane_width_m
 from letspi.physics.neighbours import NeighbourPredictionMode, ground_truth_oracle, predict_neighbours
 from letspi.physics.params import SocialForceParams
@@ -106,19 +107,6 @@ class LabelSearch(BaseModel):
     w_reg: float = 0.6
     refine_tolerance: float = 0.5
     chunk: int = 16
-
-
-def defaults_vector(params: SocialForceParams) -> np.ndarray:
-    """(8,) the fitted parameters with the neutral goal factors, in ``NUMERIC_FIELDS`` order."""
-    values = {**params.as_dict(), "lon_factor": NEUTRAL_LON_FACTOR, "lane_factor": NEUTRAL_LANE_FACTOR}
-    return np.clip(np.array([float(values[f]) for f in NUMERIC_FIELDS]), _LOW, _HIGH)
-
-
-def params_of(values: np.ndarray, r_col_m: float) -> SocialForceParams:
-    """(C, 8) candidate rows -> a (C,) parameter batch (``r_col_m`` fixed: the LLM does not choose it)."""
-    v = np.asarray(values, dtype=np.float64).reshape(-1, len(NUMERIC_FIELDS))
-    cols = {f: v[:, i].copy() for i, f in enumerate(NUMERIC_FIELDS[:6])}
-    return SocialForceParams(**cols, r_col_m=np.full(len(v), float(r_col_m)))
 
 
 def _repeat(pred: NeighbourPrediction, c: int) -> NeighbourPrediction:

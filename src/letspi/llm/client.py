@@ -33,11 +33,12 @@ from __future__ import annotations
 import random
 import threading
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal, TypeVar
 
 from letspi.llm.cache import CachedEntry, ResponseCache, backend_identity, cache_key
+from letspi.llm.choice import CHOICE_KEY, choice_json_schema, parse_choice
 from letspi.llm.guard import CircuitBreaker, RequestStats
 from letspi.llm.parse import parse_reply, try_parse_json
 from letspi.llm.schema import DEFAULT_REPLY, WIRE_KEYS, PlannerReply, Variant, reply_json_schema
@@ -134,6 +135,7 @@ class Advice:
     attempts: tuple[Attempt, ...] = ()
     response: LLMResponse | None = None
     model_spec: str = ""
+    choice: str | None = None  # ``choose``: the option's name
 
     @property
     def latency_s(self) -> float:
@@ -182,6 +184,7 @@ class Advice:
             "live_completion_tokens": sum(a.completion_tokens for a in self.attempts if not a.cached),
             "cached": self.cached,
             "cached_attempts": sum(int(a.cached) for a in self.attempts),
+            **({"choice": self.choice} if self.choice is not None else {}),
         }
 
 
@@ -194,6 +197,13 @@ def corrective_message(error: ReplyParseError, variant: Variant) -> str:
     )
 
 
+def choice_corrective_message(error: ReplyParseError, names: Sequence[str]) -> str:
+    """The short user message sent after an invalid choice reply."""
+    return (f"Your reply was not valid ({error}). Reply again with only one JSON object with the key "
+            f"{CHOICE_KEY} and one of: {', '.join(names)}.")
+
+
+T = TypeVar("T")
 CacheArg = ResponseCache | None | Literal["default"]
 
 
@@ -275,6 +285,34 @@ class ParamAdvisor:
     def advise(self, messages: Sequence[Message], *, variant: Variant = "physics") -> Advice:
         """Parameters for one prompt; a bad reply falls back, a failed transport raises (module docstring)."""
         schema = reply_json_schema(variant) if self.use_schema else None
+        parsed, resp, log = self._ask(messages, schema, parse_reply, lambda exc: corrective_message(exc, variant))
+        if parsed is None or resp is None:
+            return self._without_valid_reply(log)
+        return Advice(reply=parsed.reply, fallback=False, clamped=parsed.clamped, attempts=tuple(log.attempts),
+                      response=resp, model_spec=self.backend.spec)
+
+    def choose(self, messages: Sequence[Message], options: Mapping[str, PlannerReply]) -> Advice:
+        """One of ``options`` (option name -> the answer it stands for) for one prompt
+        (``letspi.llm.choice``): ``Advice.choice`` names it and ``Advice.reply`` is its answer. A model
+        that gives no valid name in ``max_attempts`` falls back to the first option; a failed
+        transport raises, as in ``advise``."""
+        names = list(options)
+        if not names:
+            raise ValueError("choose needs at least one option")
+        schema = choice_json_schema(names) if self.use_schema else None
+        name, resp, log = self._ask(messages, schema, lambda text: parse_choice(text, names),
+                                    lambda exc: choice_corrective_message(exc, names))
+        if name is None or resp is None:
+            return replace(self._without_valid_reply(log), reply=options[names[0]], choice=names[0])
+        return Advice(reply=options[name], fallback=False, attempts=tuple(log.attempts), response=resp,
+                      model_spec=self.backend.spec, choice=name)
+
+    def _ask(self, messages: Sequence[Message], schema: dict[str, Any] | None, parse: Callable[[str], T],
+             corrective: Callable[[ReplyParseError], str]) -> tuple[T | None, LLMResponse | None, _AttemptLog]:
+        """Up to ``max_attempts`` calls until ``parse`` accepts a reply: (parsed, its response, the log);
+        (None, None, log) when none did. After an invalid reply the next call re-asks from the original
+        prompt with only that reply echoed and the ``corrective`` message: short requests, and the
+        static prefix stays cached."""
         base = list(messages)
         current = list(base)
         log = _AttemptLog()
@@ -286,21 +324,14 @@ class ParamAdvisor:
                     break  # the same request would be refused again
                 continue
             try:
-                parsed = parse_reply(resp.text)
+                parsed = parse(resp.text)
             except ReplyParseError as exc:
                 log.attempts.append(_response_attempt(i, resp, f"parse:{exc.reason}", str(exc)))
-                # Re-ask from the original prompt with only the latest bad reply echoed: short
-                # requests, and the static prefix stays cached.
-                current = [
-                    *base,
-                    message("assistant", resp.text[:_ECHO_CHARS]),
-                    message("user", corrective_message(exc, variant)),
-                ]
+                current = [*base, message("assistant", resp.text[:_ECHO_CHARS]), message("user", corrective(exc))]
                 continue
             log.attempts.append(_response_attempt(i, resp))
-            return Advice(reply=parsed.reply, fallback=False, clamped=parsed.clamped, attempts=tuple(log.attempts),
-                          response=resp, model_spec=self.backend.spec)
-        return self._without_valid_reply(log)
+            return parsed, resp, log
+        return None, None, log
 
     def _send(self, i: int, messages: list[Message], schema: dict[str, Any] | None,
               log: _AttemptLog) -> LLMResponse | None:

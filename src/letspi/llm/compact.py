@@ -26,10 +26,11 @@ from letspi.llm.prompts import _render, _static_context
 from letspi.llm.schema import NUMERIC_FIELDS, WIRE_KEYS, PlannerReply
 from letspi.llm.types import Message, message
 
-#: How planners prompt a model: ``paper`` (physics prompt + fast prompt with few-shot memories, Fig. 2)
-#: or ``compact`` (this module; what the fine-tuned model was trained on).
-PromptStyle = Literal["paper", "compact"]
-PROMPT_STYLES: Final[tuple[PromptStyle, ...]] = ("paper", "compact")
+#: How planners prompt a model: ``paper`` (physics prompt + fast prompt with few-shot memories, Fig. 2),
+#: ``compact`` (this module: the scene in a few lines, the eight numbers as the reply) or ``choice``
+#: (``letspi.llm.choice``: the model picks one of the checked presets).
+PromptStyle = Literal["paper", "compact", "choice"]
+PROMPT_STYLES: Final[tuple[PromptStyle, ...]] = ("paper", "compact", "choice")
 
 #: Nearest neighbours listed (sorted by distance); the rest are left out to bound the prompt.
 MAX_NEIGHBOURS: Final = 6

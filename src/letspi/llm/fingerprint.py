@@ -31,7 +31,7 @@ from typing import Final
 
 import numpy as np
 
-from letspi.llm import client, compact, prompts
+from letspi.llm import choice, client, compact, prompts
 from letspi.llm.compact import PROMPT_STYLES, PromptStyle
 from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.prompts import MemoryExample
@@ -131,10 +131,21 @@ def _compact_samples(desc: ScenarioDescription) -> Samples:
     }
 
 
+def _choice_samples(desc: ScenarioDescription) -> Samples:
+    lines = [choice.OptionLine("default", ("leader-brakes",), 141.2), choice.OptionLine("keep-gap", (), 131.0),
+             choice.OptionLine("lane-left", ("predicted", "cut-in", "follower-keeps"), float("nan"))]
+    return {
+        "choice": choice.render_choice_prompt(desc, lines),
+        "choice+refine": choice.render_choice_prompt(desc, lines, rejected="default",
+                                                     report="failed leader-brakes (contact at 2.3 s)"),
+    }
+
+
 #: Each prompt style's renderer of one scene; ``prompt_samples`` refuses a style missing here.
 STYLE_SAMPLES: Final[dict[PromptStyle, Callable[[ScenarioDescription], Samples]]] = {
     "paper": _paper_samples,
     "compact": _compact_samples,
+    "choice": _choice_samples,
 }
 
 
@@ -154,6 +165,7 @@ def prompt_samples() -> Samples:
     error = ReplyParseError("missing_keys", "no k_nl")
     for variant in VARIANTS:
         out[f"corrective/{variant}"] = client.corrective_message(error, variant)
+    out["corrective/choice"] = client.choice_corrective_message(error, ("default", "keep-gap"))
     return out
 
 

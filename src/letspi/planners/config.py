@@ -181,7 +181,7 @@ class LlmConfig(Config):
     model_path: str | None = None
     adapter_sha256: str | None = None
     adapter_path: str | None = None
-    prompt_style: Literal["paper", "compact"] = "paper"
+    prompt_style: Literal["paper", "compact", "choice"] = "paper"
     runtime: str | None = None
     temperature: float = DecodingSettings.temperature
     seed: int = DecodingSettings.seed

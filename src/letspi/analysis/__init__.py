@@ -1,0 +1,1 @@
+"""letspi.analysis: what the data says a planner could gain (``letspi analyze``)."""

@@ -1,0 +1,267 @@
+"""The decision step of LetsPi: named options, checked against what could happen, and a risk gate.
+
+* An **option** is one answer of the eight numbers the LLM chooses (the paper's six social-force
+  parameters and two goal factors, ``letspi.llm.schema.NUMERIC_FIELDS``); an ``OptionTable`` names C
+  of them, the fitted defaults first. The shipped **presets** (``letspi/data/presets.json``,
+  ``load_presets``) are a few options chosen on training traffic (``letspi.finetune.presets``).
+* ``check_options`` plans every option of a table on every scenario, as the planners plan an answer
+  (goal adjustment, social force rollout against the predicted neighbours), and checks each plan
+  against the prediction (the reflection's thresholds) and against the adverse futures
+  (``letspi.safety.adverse``): what a planner can know about each option at t = 0. Vectorised over
+  scenarios x options x futures.
+* ``rule_choice``: the choice without a model: the defaults when they pass every check, otherwise
+  the option that fails the fewest checks, then the one that keeps the most (predicted) progress.
+* ``RiskGate``: a cheap score from the scene (history risk features and the defaults' checks, a
+  logistic model with NumPy inference, ``letspi/data/risk_model.json``) that decides whether the model
+  is consulted at all; below ``threshold`` the planner plans with the defaults.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from letspi.constants import DT_S
+from letspi.learned.logistic import LogisticModel
+from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
+from letspi.method.reflection import simulate_proposal
+from letspi.method.thresholds import ReflectionThresholds
+from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
+from letspi.physics.params import SocialForceParams
+from letspi.physics.types import NeighbourPrediction
+from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
+from letspi.scenario.risk_features import RISK_FEATURE_NAMES, risk_features
+from letspi.scenario.types import ScenarioBatch
+
+DEFAULT_NAME: Final = "default"
+PRESETS_FILE: Final = "presets.json"
+RISK_MODEL_FILE: Final = "risk_model.json"
+PRESETS_FORMAT: Final = "letspi-presets/1"
+_LOW = np.array([FIELD_RANGES[f][0] for f in NUMERIC_FIELDS])
+_HIGH = np.array([FIELD_RANGES[f][1] for f in NUMERIC_FIELDS])
+
+
+def defaults_vector(params: SocialForceParams) -> np.ndarray:
+    """(8,) the fitted parameters with the neutral goal factors, in ``NUMERIC_FIELDS`` order."""
+    values = {**params.as_dict(), "lon_factor": NEUTRAL_LON_FACTOR, "lane_factor": NEUTRAL_LANE_FACTOR}
+    return np.clip(np.array([float(values[f]) for f in NUMERIC_FIELDS]), _LOW, _HIGH)
+
+
+def params_of(values: np.ndarray, r_col_m: float) -> SocialForceParams:
+    """(C, 8) option rows -> a (C,) parameter batch (``r_col_m`` fixed: the LLM does not choose it)."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1, len(NUMERIC_FIELDS))
+    cols = {f: v[:, i].copy() for i, f in enumerate(NUMERIC_FIELDS[:6])}
+    return SocialForceParams(**cols, r_col_m=np.full(len(v), float(r_col_m)))
+
+
+@dataclass(frozen=True)
+class OptionTable:
+    """C named answers, (C, 8) values in ``NUMERIC_FIELDS`` order; option 0 is the defaults."""
+
+    names: tuple[str, ...]
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.values, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != len(NUMERIC_FIELDS) or len(v) != len(self.names):
+            raise ValueError(f"an option table needs (C, {len(NUMERIC_FIELDS)}) values for its {len(self.names)} "
+                             f"names, got {v.shape}")
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"option names repeat: {self.names}")
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown option {name!r}; options: {', '.join(self.names)}") from None
+
+    def values_of(self, name: str) -> dict[str, float]:
+        """The option's eight numbers by field name."""
+        return dict(zip(NUMERIC_FIELDS, (float(x) for x in self.values[self.index(name)]), strict=True))
+
+    def sha256(self) -> str:
+        text = json.dumps({"names": list(self.names), "values": np.round(self.values, 9).tolist()}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"names": list(self.names), "fields": list(NUMERIC_FIELDS), "values": self.values.tolist()}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], source: str = "option table") -> OptionTable:
+        if list(data.get("fields", NUMERIC_FIELDS)) != list(NUMERIC_FIELDS):
+            raise ValueError(f"{source}: fields {data.get('fields')} are not {list(NUMERIC_FIELDS)}")
+        try:
+            return cls(tuple(str(n) for n in data["names"]), np.asarray(data["values"], dtype=np.float64))
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"{source}: not an option table ({exc})") from exc
+
+
+def _data_text(name: str) -> tuple[str, str]:
+    return resources.files("letspi.data").joinpath(name).read_text(), f"letspi/data/{name}"
+
+
+def load_presets(path: Path | None = None) -> tuple[OptionTable, dict[str, Any]]:
+    """The presets (shipped, or ``path``) and their whole record (provenance)."""
+    text, where = _data_text(PRESETS_FILE) if path is None else (Path(path).read_text(), str(path))
+    record = json.loads(text)
+    if record.get("format") != PRESETS_FORMAT:
+        raise ValueError(f"{where}: format {record.get('format')!r}, expected {PRESETS_FORMAT!r}")
+    table = OptionTable.from_json(record, where)
+    if table.names[0] != DEFAULT_NAME:
+        raise ValueError(f"{where}: the first preset must be {DEFAULT_NAME!r}, got {table.names[0]!r}")
+    return table, record
+
+
+def with_defaults(table: OptionTable, params: SocialForceParams) -> OptionTable:
+    """``table`` with option 0 replaced by ``params``' defaults (the shipped presets carry the shipped
+    fit's; a planner with other ``sf`` parameters keeps its own defaults)."""
+    values = np.array(table.values, dtype=np.float64)
+    values[0] = defaults_vector(params)
+    return OptionTable(table.names, values)
+
+
+@dataclass(frozen=True)
+class OptionChecks:
+    """Every option of a table planned and checked on B scenarios; (B, K) each unless said.
+
+    names (K,); adverse_names (A,). predicted_safe: the plan passes the reflection's checks against the
+    predicted neighbours (no contact, on the road, TTC, in-path gap, braking). adverse_failed (B, K, A):
+    the plan fails an adverse future (``AdverseSettings`` thresholds). progress_m: the plan's end x [m]
+    (ego frame). min_ttc_s: front and rear TTC against the prediction, the smaller. xy_m, vxy_mps
+    (B, K, F, 2) the plans; goals_xy_m (B, K, 2) their adjusted goals.
+    """
+
+    names: tuple[str, ...]
+    adverse_names: tuple[str, ...]
+    predicted_safe: np.ndarray
+    adverse_failed: np.ndarray
+    progress_m: np.ndarray
+    min_ttc_s: np.ndarray
+    xy_m: np.ndarray
+    vxy_mps: np.ndarray
+    goals_xy_m: np.ndarray
+
+    def failed_checks(self) -> np.ndarray:
+        """(B, K) how many checks each option fails (the prediction counts as one)."""
+        out: np.ndarray = self.adverse_failed.sum(axis=2) + ~self.predicted_safe
+        return out
+
+    def passes_all(self) -> np.ndarray:
+        """(B, K) the option passes the prediction and every adverse future."""
+        out: np.ndarray = self.failed_checks() == 0
+        return out
+
+    def failed_names(self, i: int, k: int) -> list[str]:
+        """The checks option ``k`` fails in scenario ``i`` ("predicted" first)."""
+        out = [] if self.predicted_safe[i, k] else ["predicted"]
+        return out + [a for a, bad in zip(self.adverse_names, self.adverse_failed[i, k], strict=True) if bad]
+
+
+def peak_braking_mps2(vx0_mps: np.ndarray, plan_vxy_mps: np.ndarray) -> np.ndarray:
+    """(R,) a plan's peak deceleration from the t = 0 speed [m/s^2] (as the reflection measures it)."""
+    vx = np.concatenate([np.asarray(vx0_mps, dtype=np.float64)[:, None], plan_vxy_mps[..., 0]], axis=1)
+    out: np.ndarray = np.nan_to_num(-np.diff(vx, axis=1) / DT_S, nan=np.inf).max(axis=1)
+    return out
+
+
+def plan_options(history: ScenarioBatch, values: np.ndarray, base_goals_xy_m: np.ndarray,
+                 prediction: NeighbourPrediction, r_col_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plans of every option (values (K, 8), or (B, K, 8) per scenario) on every scenario, in one vectorised
+    rollout: positions and velocities (B K, F, 2) and adjusted goals (B K, 2), row ``i K + k``."""
+    b = len(history)
+    v = np.asarray(values, dtype=np.float64)
+    v = np.broadcast_to(v, (b, *v.shape)) if v.ndim == 2 else v
+    k = v.shape[1]
+    rep = np.repeat(np.arange(b), k)
+    flat = v.reshape(b * k, -1)
+    pred = NeighbourPrediction(*(np.asarray(a)[rep] for a in prediction))
+    plan = simulate_proposal(history.take(rep), params_of(flat, r_col_m), flat[:, 6], flat[:, 7],
+                             np.asarray(base_goals_xy_m, dtype=np.float64)[rep], pred)
+    return plan.xy_m, plan.vxy_mps, plan.goals_xy_m
+
+
+def check_options(
+    history: ScenarioBatch,
+    base_goals_xy_m: np.ndarray,
+    prediction: NeighbourPrediction,
+    table: OptionTable,
+    r_col_m: float,
+    thresholds: ReflectionThresholds | None = None,
+    adverse: AdverseSettings | None = None,
+) -> OptionChecks:
+    """Plan and check every option of ``table`` on the B scenarios ``history`` (goals (B, 2) before
+    adjustment, predicted neighbours (B, N, F, ...))."""
+    th = thresholds or ReflectionThresholds()
+    settings = adverse or AdverseSettings()
+    b, k = len(history), len(table)
+    xy, vxy, goals = plan_options(history, table.values, base_goals_xy_m, prediction, r_col_m)
+    rep = np.repeat(np.arange(b), k)
+    futures = adverse_futures(history, prediction, settings)
+    chk = check_futures(history.take(rep), xy, vxy, NeighbourPrediction(*(np.asarray(a)[rep] for a in prediction)),
+                        futures.take(rep))
+    ok = chk.predicted_safe(th.ttc_s, th.min_dist_m)
+    if th.max_decel_mps2 is not None:
+        ok &= peak_braking_mps2(history.ego_vxy_mps[rep, -1, 0], vxy) <= th.max_decel_mps2 + 1e-9
+    f = xy.shape[1]
+    return OptionChecks(
+        names=table.names, adverse_names=tuple(chk.names[1:]), predicted_safe=ok.reshape(b, k),
+        adverse_failed=chk.failed(settings).reshape(b, k, -1), progress_m=xy[:, -1, 0].reshape(b, k),
+        min_ttc_s=np.minimum(chk.min_ttc_s[:, 0], chk.min_rear_ttc_s[:, 0]).reshape(b, k),
+        xy_m=xy.reshape(b, k, f, 2), vxy_mps=vxy.reshape(b, k, f, 2), goals_xy_m=goals.reshape(b, k, 2),
+    )
+
+
+def rule_choice(predicted_safe: np.ndarray, adverse_failed: np.ndarray, progress_m: np.ndarray) -> np.ndarray:
+    """(B,) the choice without a model: option 0 (the defaults) when it passes every check; else the option
+    failing the fewest checks, then keeping the most predicted progress. Inputs (B, K) / (B, K, A)."""
+    failed = np.asarray(adverse_failed).sum(axis=2) + ~np.asarray(predicted_safe, dtype=bool)
+    key = -failed * 1e4 + np.nan_to_num(np.asarray(progress_m, dtype=np.float64), nan=-1e3)
+    best = np.argmax(key, axis=1)
+    out: np.ndarray = np.where(failed[:, 0] == 0, 0, best)
+    return out
+
+
+#: the gate's inputs: the history's risk features and the defaults' checks
+GATE_FEATURE_NAMES: Final[tuple[str, ...]] = (*RISK_FEATURE_NAMES, "default_predicted_unsafe",
+                                              "default_failed_adverse_n", "default_min_ttc_s")
+
+
+def gate_features(history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
+    """(B, len(GATE_FEATURE_NAMES)): risk features plus the defaults' (option 0) check results."""
+    ttc = np.minimum(np.nan_to_num(checks.min_ttc_s[:, 0], posinf=10.0), 10.0)
+    return np.concatenate([risk_features(history), (~checks.predicted_safe[:, :1]).astype(np.float64),
+                           checks.adverse_failed[:, 0].sum(axis=1, keepdims=True).astype(np.float64), ttc[:, None]],
+                          axis=1)
+
+
+@dataclass(frozen=True)
+class RiskGate:
+    """Consult the model only where ``model.score`` (the probability that the defaults collide) is at
+    least ``threshold``."""
+
+    model: LogisticModel
+    threshold: float
+
+    def __post_init__(self) -> None:
+        if tuple(self.model.feature_names) != GATE_FEATURE_NAMES:
+            raise ValueError(f"the risk model's features {self.model.feature_names} are not the gate's "
+                             f"{GATE_FEATURE_NAMES}")
+
+    def scores(self, history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
+        """(B,) risk scores in [0, 1]."""
+        return self.model.score(gate_features(history, checks))
+
+
+def load_risk_model(path: Path | None = None) -> tuple[LogisticModel, str]:
+    """The gate's model (shipped, or ``path``) and its SHA-256."""
+    text, where = _data_text(RISK_MODEL_FILE) if path is None else (Path(path).read_text(), str(path))
+    return LogisticModel.from_json(json.loads(text), where), hashlib.sha256(text.encode()).hexdigest()
