@@ -10,20 +10,29 @@ import numpy as np
 import pytest
 
 from letspi.finetune.options import OptionRun, load_option_run, random_option_table, score_options
+from letspi.learned.logistic import LogisticModel
+from letspi.llm.backends.scripted import ScriptedBackend
+from letspi.llm.client import ParamAdvisor
 from letspi.method.decide import (
+    GATE_FEATURE_NAMES,
+    Decider,
     OptionTable,
+    RiskGate,
     check_options,
     defaults_vector,
     load_presets,
     plan_options,
     with_defaults,
 )
+from letspi.method.phases import FastPhase, MemoryPhase
+from letspi.method.reflection import Proposal, ReflectionContext, reflect
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.metrics.compute import compute_outcomes
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.physics.types import NeighbourPrediction
-from letspi.safety.adverse import adverse_futures, check_futures
+from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
@@ -107,3 +116,72 @@ def test_presets_file_and_own_defaults(tmp_path: Path) -> None:
     path.write_text(json.dumps({"format": "letspi-presets/1", "names": ["slow"], "values": [table.values[1].tolist()]}))
     with pytest.raises(ValueError, match="first preset must be 'default'"):
         load_presets(path)
+
+
+# --- the decision step in the phases ---------------------------------------------------------------
+
+
+def _gate(threshold: float, logit: float) -> RiskGate:
+    """A gate whose score is the constant sigmoid(logit) (zero weights)."""
+    d = len(GATE_FEATURE_NAMES)
+    model = LogisticModel(GATE_FEATURE_NAMES, ("safe", "at_fault"), np.zeros(d), np.ones(d), np.zeros((d, 2)),
+                          np.array([0.0, logit]))
+    return RiskGate(model, threshold)
+
+
+def _decider(gate: RiskGate | None, adverse: AdverseSettings | None = None) -> Decider:
+    return Decider(_table(), 5.0, ReflectionThresholds(), adverse or AdverseSettings(), gate)
+
+
+def _leader_scene():  # type: ignore[no-untyped-def]
+    return straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(22.0, 30.0)]).history()
+
+
+def test_reflection_refines_a_plan_that_fails_an_adverse_future_and_says_which() -> None:
+    scene = _leader_scene()
+    slow = Proposal(params=PARAMS, lon_factor=1.0)
+
+    def propose(ctx: ReflectionContext) -> Proposal:
+        if ctx.iteration == 0:
+            return Proposal(params=PARAMS)
+        assert ctx.adverse is not None and ctx.adverse.failed == ("leader-brakes",)
+        assert ctx.adverse.text().startswith("fails leader-brakes (")
+        return slow
+
+    result = reflect(scene, propose, base_goal_xy_m=np.array([150.0, 0.0]), adverse=AdverseSettings())
+    first = result.iterations[0]
+    assert first.predicted_safe and not first.safe and first.adverse is not None
+    assert first.to_dict()["adverse_failed"] == ["leader-brakes"]
+    assert result.validated  # in the paper's sense: safe against the prediction
+    without = reflect(scene, lambda ctx: Proposal(params=PARAMS), base_goal_xy_m=np.array([150.0, 0.0]))
+    assert without.n_refinements == 0 and without.final.adverse is None  # the paper's reflection
+
+
+def test_fast_phase_gate_keeps_the_defaults_without_a_call_or_asks_for_a_preset() -> None:
+    scene = _leader_scene()
+    goal = np.array([150.0, 0.0])
+    quiet = ScriptedBackend()  # any call would fail: the script is empty
+    phase = FastPhase(ParamAdvisor(quiet, cache=None), KinematicGoalPredictor(), 5.0, None, prompt_style="choice",
+                      decider=_decider(_gate(0.9, 0.0)))
+    proposal, _ = phase.propose_retrieved(scene, goal)
+    assert quiet.calls == [] and proposal.meta["decision"] == "default" and not proposal.meta["consulted"]
+    assert proposal.meta["risk_score"] == pytest.approx(0.5) and proposal.lon_factor == pytest.approx(0.4)
+    asked = ScriptedBackend(['{"option": "slow"}'])
+    phase = FastPhase(ParamAdvisor(asked, cache=None), KinematicGoalPredictor(), 5.0, None, prompt_style="choice",
+                      decider=_decider(_gate(0.4, 0.0)))
+    proposal, _ = phase.propose_retrieved(scene, goal)
+    assert proposal.meta["decision"] == "slow" and proposal.meta["consulted"] and proposal.lon_factor == 1.0
+    prompt = asked.calls[0][-1]["content"]
+    assert "default: leader-brakes;" in prompt and "slow: " in prompt
+    assert asked.schemas[0] is not None and asked.schemas[0]["properties"]["option"]["enum"] == list(_table().names)
+
+
+def test_memory_phase_choice_refinement_names_the_rejected_preset_and_the_failed_future() -> None:
+    scene = _leader_scene()
+    backend = ScriptedBackend(['{"option": "default"}', '{"option": "slow"}'])
+    phase = MemoryPhase(ParamAdvisor(backend, cache=None), KinematicGoalPredictor(), 5.0, "k", prompt_style="choice",
+                        decider=_decider(None))
+    result = phase.run(scene, np.array([150.0, 0.0]))
+    assert [it.proposal.meta["decision"] for it in result.iterations] == ["default", "slow"]
+    refine = backend.calls[1][-1]["content"]
+    assert "Rejected: default" in refine and "fails leader-brakes (" in refine

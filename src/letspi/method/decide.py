@@ -265,3 +265,69 @@ def load_risk_model(path: Path | None = None) -> tuple[LogisticModel, str]:
     """The gate's model (shipped, or ``path``) and its SHA-256."""
     text, where = _data_text(RISK_MODEL_FILE) if path is None else (Path(path).read_text(), str(path))
     return LogisticModel.from_json(json.loads(text), where), hashlib.sha256(text.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the decision step decided for one scenario.
+
+    option: the preset chosen (``DEFAULT_NAME`` when the gate kept the defaults), or ``CUSTOM`` for an
+    answer of free parameters; consulted: the model was asked; risk_score: the gate's score (NaN
+    without a gate); checks: every preset's checks on this scenario (a batch of one).
+    """
+
+    option: str
+    consulted: bool
+    risk_score: float
+    checks: OptionChecks
+
+
+#: ``Decision.option`` of a model's own eight numbers (not a preset)
+CUSTOM: Final = "custom"
+
+
+@dataclass(frozen=True)
+class Decider:
+    """The decision step as the phases use it: the presets, their checks, the risk gate.
+
+    ``adverse`` None checks against the prediction only (the "without adverse futures" ablation);
+    ``gate`` None consults the model on every scenario.
+    """
+
+    presets: OptionTable
+    r_col_m: float
+    thresholds: ReflectionThresholds
+    adverse: AdverseSettings | None
+    gate: RiskGate | None
+
+    @property
+    def adverse_settings(self) -> AdverseSettings:
+        return self.adverse if self.adverse is not None else AdverseSettings(futures=())
+
+    def check(self, history: ScenarioBatch, base_goals_xy_m: np.ndarray,
+              prediction: NeighbourPrediction) -> OptionChecks:
+        """Every preset planned and checked on the B scenarios ``history``."""
+        return check_options(history, base_goals_xy_m, prediction, self.presets, self.r_col_m, self.thresholds,
+                             self.adverse_settings)
+
+    def risk_scores(self, history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
+        """(B,) the gate's scores; NaN without a gate."""
+        if self.gate is None:
+            return np.full(len(history), np.nan)
+        return self.gate.scores(history, checks)
+
+    def consulted(self, risk_scores: np.ndarray) -> np.ndarray:
+        """(B,) whether the model is asked (always without a gate)."""
+        if self.gate is None:
+            return np.ones(len(risk_scores), dtype=bool)
+        out: np.ndarray = np.asarray(risk_scores) >= self.gate.threshold
+        return out
+
+    def rule(self, checks: OptionChecks) -> np.ndarray:
+        """(B,) the no-model choice (``rule_choice``) as preset indices."""
+        return rule_choice(checks.predicted_safe, checks.adverse_failed, checks.progress_m)
+
+    def preference(self, checks: OptionChecks, i: int) -> list[int]:
+        """Scenario ``i``'s presets that pass every check, the rule's order (most progress first)."""
+        ok = np.flatnonzero(checks.passes_all()[i])
+        return [int(k) for k in ok[np.argsort(-np.nan_to_num(checks.progress_m[i, ok], nan=-1e3), kind="stable")]]

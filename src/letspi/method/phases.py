@@ -19,22 +19,31 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from letspi.constants import N_TOTAL
 from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
+from letspi.llm.choice import OptionLine, render_choice_prompt
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
 from letspi.llm.types import Message
+from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, OptionChecks, OptionTable
 from letspi.method.matching import TOP_K, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
-from letspi.method.reflection import Proposal, ReflectionContext, ReflectionResult, SafetyReport, reflect
+from letspi.method.reflection import (
+    AdverseOutcome,
+    Proposal,
+    ReflectionContext,
+    ReflectionResult,
+    SafetyReport,
+    reflect,
+)
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
@@ -79,32 +88,73 @@ def _reply_values(proposal: Proposal) -> dict[str, float]:
     return {**values, "lon_factor": float(proposal.lon_factor), "lane_factor": float(proposal.lane_factor)}
 
 
+def choice_report(report: SafetyReport, adverse: AdverseOutcome | None) -> str:
+    """What the choice style's refinement says about the rejected option: the checks against the
+    prediction that failed and the adverse futures it fails (``AdverseOutcome.text``)."""
+    parts = [] if report.safe else [f"predicted: {compact_report(report)}"]
+    if adverse is not None and adverse.failed:
+        parts.append(adverse.text())
+    return "; ".join(parts) or "passes all checks"
+
+
+def option_lines(checks: OptionChecks, i: int) -> list[OptionLine]:
+    """Scenario ``i``'s presets as the choice prompt lists them."""
+    return [OptionLine(name, tuple(checks.failed_names(i, k)), float(checks.progress_m[i, k]))
+            for k, name in enumerate(checks.names)]
+
+
+def preset_replies(presets: OptionTable) -> dict[str, PlannerReply]:
+    """Each preset as the reply it stands for (``ParamAdvisor.choose``)."""
+    return {name: PlannerReply(**presets.values_of(name), rationale=f"preset {name}") for name in presets.names}
+
+
+def _with_decision(proposal: Proposal, option: str, consulted: bool, risk_score: float) -> Proposal:
+    return replace(proposal, meta={**proposal.meta, "decision": option, "consulted": consulted,
+                                   "risk_score": risk_score})
+
+
 @dataclass
 class LlmProposer:
     """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report
-    (``prompt_style="compact"``: the compact prompt, then the compact refine prompt)."""
+    (``prompt_style="compact"``: the compact prompt, then the compact refine prompt; ``"choice"``: the
+    choice prompt over ``options`` (``replies``: the answer of each), then the same with the rejected
+    option and what its checks found, adverse futures included)."""
 
     advisor: ParamAdvisor
     r_col_m: float
     memories: Sequence[MemoryExample] = ()
     prompt_style: PromptStyle = "paper"
+    options: Sequence[OptionLine] = ()
+    replies: Mapping[str, PlannerReply] = field(default_factory=dict)
 
     def __call__(self, ctx: ReflectionContext) -> Proposal:
         desc = describe_scenario(ctx.scenario, ctx.base_goal_xy_m)
+        refine = ctx.report is not None and ctx.previous is not None
+        adverse = f" Adverse futures: {ctx.adverse.text()}." if ctx.adverse is not None and ctx.adverse.failed else ""
+        if self.prompt_style == "choice":
+            if not refine or ctx.previous is None or ctx.report is None:
+                messages = render_choice_prompt(desc, self.options)
+            else:
+                rejected = str(ctx.previous.meta.get("decision", CUSTOM))
+                messages = render_choice_prompt(desc, self.options, rejected=rejected,
+                                                report=choice_report(ctx.report, ctx.adverse))
+            advice = self.advisor.choose(messages, self.replies)
+            return _with_decision(proposal_from_advice(advice, messages, self.r_col_m), advice.choice or CUSTOM,
+                                  True, float("nan"))
         if self.prompt_style == "compact":
-            if ctx.report is None or ctx.previous is None:
+            if not refine or ctx.previous is None or ctx.report is None:
                 messages = render_compact_prompt(desc)
             else:
                 messages = render_compact_prompt(desc, rejected=_reply_values(ctx.previous),
-                                                 report=compact_report(ctx.report))
+                                                 report=compact_report(ctx.report) + adverse)
             return proposal_from_advice(self.advisor.advise(messages, variant="fast"), messages, self.r_col_m)
-        if ctx.report is None or ctx.previous is None:
+        if not refine or ctx.previous is None or ctx.report is None:
             messages = render_physics_prompt(desc, memories=self.memories)
         else:
             messages = render_physics_prompt(
                 desc,
                 memories=self.memories,
-                safety_report=ctx.report.to_text(ctx.previous),
+                safety_report=ctx.report.to_text(ctx.previous) + adverse,
                 previous_reply=ctx.previous.reply or "",
             )
         return proposal_from_advice(self.advisor.advise(messages, variant="physics"), messages, self.r_col_m)
@@ -127,18 +177,24 @@ class MemoryPhase:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     goal_adjustment: bool = True
     prompt_style: PromptStyle = "paper"
+    decider: Decider | None = None  # presets and adverse futures (None: the paper's reflection)
 
     def run(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None = None,
             prediction: NeighbourPrediction | None = None) -> ReflectionResult:
         """Reflection loop on a batch of one. ``base_goal_xy_m`` (2,) / ``prediction`` (1, N, F, ...):
         the scenario's goal and predicted neighbours when the caller computed them for many scenarios
-        at once (default: predicted here)."""
+        at once (default: predicted here). With a ``decider`` every plan is also checked against the
+        adverse futures, and the choice style lists the presets with their checks."""
         base_goal = (self.goal_predictor.predict_goals(scenario).top[0] if base_goal_xy_m is None
                      else np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2))
         pred = predict_neighbours(scenario, self.neighbour_mode) if prediction is None else prediction
         proposer = LlmProposer(self.advisor, self.r_col_m, prompt_style=self.prompt_style)
+        if self.decider is not None and self.prompt_style == "choice":
+            checks = self.decider.check(scenario, base_goal[None], pred)
+            proposer = replace(proposer, options=option_lines(checks, 0), replies=preset_replies(self.decider.presets))
         return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
-                       neighbour_prediction=pred, goal_adjustment=self.goal_adjustment)
+                       neighbour_prediction=pred, goal_adjustment=self.goal_adjustment,
+                       adverse=self.decider.adverse if self.decider is not None else None)
 
     def context(self, batch: ScenarioBatch) -> tuple[np.ndarray, NeighbourPrediction]:
         """Goals (B, 2) and predicted neighbours of ``batch``, batched (what ``run`` takes per scenario)."""
@@ -313,21 +369,49 @@ class FastPhase:
     static_examples: Sequence[MemoryExample] = ()  # the "FS" ablation: fixed examples, no retrieval
     variant: Variant = "fast"
     prompt_style: PromptStyle = "paper"
+    decider: Decider | None = None  # presets, their checks and the risk gate (None: always the model, no presets)
 
     def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
         """One LLM call for a batch of one: the proposal and the retrieved memories (scenario id, similarity)."""
         proposal, retrieved = self.propose_retrieved(scenario, base_goal_xy_m)
         return proposal, [(e.scenario_id, s) for e, s in retrieved]
 
-    def propose_retrieved(self, scenario: ScenarioBatch,
-                          base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[Experience, float]]]:
-        """``propose`` returning the retrieved experiences themselves (the shield falls back to them)."""
+    def propose_retrieved(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
+                          prediction: NeighbourPrediction | None = None,
+                          ) -> tuple[Proposal, list[tuple[Experience, float]]]:
+        """``propose`` returning the retrieved experiences themselves (the shield falls back to them).
+
+        With a ``decider``: the presets are checked on the scene (``prediction``: its predicted
+        neighbours, default IDM), the gate scores it, and below the gate's threshold the defaults are
+        kept without a model call; the choice style asks the model for a preset. ``Proposal.meta``
+        records the decision (``decision``, ``consulted``, ``risk_score``)."""
         retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
+        if self.decider is None:
+            return self._ask(scenario, base_goal_xy_m, retrieved), retrieved
+        pred = prediction if prediction is not None else predict_neighbours(scenario, NeighbourPredictionMode.IDM)
+        checks = self.decider.check(scenario, np.asarray(base_goal_xy_m, dtype=np.float64).reshape(1, 2), pred)
+        risk = self.decider.risk_scores(scenario, checks)
+        risk_score = float(risk[0])
+        if not self.decider.consulted(risk)[0]:
+            reply = preset_replies(self.decider.presets)[DEFAULT_NAME]
+            kept = Proposal(params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
+                            lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
+                            rationale=f"risk {risk_score:.3f} below the gate's threshold: the defaults, no model call")
+            return _with_decision(kept, DEFAULT_NAME, False, risk_score), retrieved
+        if self.prompt_style == "choice":
+            messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0))
+            advice = self.advisor.choose(messages, preset_replies(self.decider.presets))
+            proposal = proposal_from_advice(advice, messages, self.r_col_m)
+            return _with_decision(proposal, advice.choice or CUSTOM, True, risk_score), retrieved
+        return _with_decision(self._ask(scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score), retrieved
+
+    def _ask(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
+             retrieved: Sequence[tuple[Experience, float]]) -> Proposal:
+        """One call for the model's own eight numbers (paper or compact prompt)."""
         desc = describe_scenario(scenario, base_goal_xy_m)
         if self.prompt_style == "compact":  # the fine-tuned model: no few-shot examples in its prompt
             messages = render_compact_prompt(desc)
         else:
             examples = [memory_example(e) for e, _ in retrieved] or list(self.static_examples)
             messages = render_fast_prompt(desc, memories=examples)
-        proposal = proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)
-        return proposal, retrieved
+        return proposal_from_advice(self.advisor.advise(messages, variant=self.variant), messages, self.r_col_m)

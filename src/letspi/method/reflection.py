@@ -43,6 +43,7 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
+from letspi.safety.adverse import AdverseSettings, FutureChecks, adverse_futures, check_futures
 from letspi.safety.plan_check import SafetyCheck, check_plans, predicted_inputs
 from letspi.scenario.queries import lane_id_of
 from letspi.scenario.types import ScenarioBatch
@@ -564,6 +565,33 @@ def _metrics_row(check: SafetyCheck, i: int, pet_s: np.ndarray | None, *, safe: 
 
 
 @dataclass(frozen=True)
+class AdverseOutcome:
+    """A plan against the adverse futures (``letspi.safety.adverse``): the futures it fails, in order,
+    and for each the time of the first contact [s] (NaN: no contact, a TTC or gap below the adverse
+    thresholds)."""
+
+    failed: tuple[str, ...]
+    contact_time_s: tuple[float, ...]
+
+    def text(self) -> str:
+        """``passes all adverse futures`` or ``fails leader-brakes (contact at 2.30 s), cut-in (near miss)``."""
+        if not self.failed:
+            return "passes all adverse futures"
+        parts = [f"{name} ({'near miss' if not math.isfinite(t) else f'contact at {t:.2f} s'})"
+                 for name, t in zip(self.failed, self.contact_time_s, strict=True)]
+        return "fails " + ", ".join(parts)
+
+
+def adverse_outcomes(checks: FutureChecks, settings: AdverseSettings) -> list[AdverseOutcome]:
+    """Per scenario of ``checks``, the adverse futures its plan fails."""
+    failed = checks.failed(settings)
+    names = checks.names[1:]
+    return [AdverseOutcome(tuple(names[a] for a in np.flatnonzero(row)),
+                           tuple(float(checks.contact_time_s[i, 1 + a]) for a in np.flatnonzero(row)))
+            for i, row in enumerate(failed)]
+
+
+@dataclass(frozen=True)
 class IterationRecord:
     """One proposal, its simulation and its safety report.
 
@@ -580,10 +608,21 @@ class IterationRecord:
     simulate_s: float
     plan_xy_m: np.ndarray = field(repr=False, compare=False)
     plan_vxy_mps: np.ndarray = field(repr=False, compare=False)
+    adverse: AdverseOutcome | None = None
 
     @property
     def safe(self) -> bool:
+        """Passes the checks against the prediction and, when they were checked, every adverse future."""
+        return self.report.safe and (self.adverse is None or not self.adverse.failed)
+
+    @property
+    def predicted_safe(self) -> bool:
+        """Passes the checks against the prediction (the paper's reflection)."""
         return self.report.safe
+
+    @property
+    def n_adverse_failed(self) -> int:
+        return len(self.adverse.failed) if self.adverse is not None else 0
 
     @property
     def metrics(self) -> dict[str, float]:
@@ -599,6 +638,8 @@ class IterationRecord:
             "metrics": dict(self.report.metrics),
             "violations": [v.to_dict() for v in self.report.violations],
             "report_text": self.report.to_text(self.proposal),
+            "adverse_failed": list(self.adverse.failed) if self.adverse is not None else [],
+            "adverse_text": self.adverse.text() if self.adverse is not None else "",
             "propose_s": self.propose_s,
             "simulate_s": self.simulate_s,
         }
@@ -619,14 +660,17 @@ class ReflectionContext:
     report: SafetyReport | None
     history: tuple[IterationRecord, ...]
     thresholds: ReflectionThresholds
+    adverse: AdverseOutcome | None = None  # the previous plan against the adverse futures (when checked)
 
 
 @dataclass(frozen=True)
 class ReflectionResult:
     """All iterations of one scenario; ``final_index`` points at the one to use.
 
-    validated: the final plan passes every threshold (then final = the first safe iteration).
-    Otherwise final is the least unsafe iteration (``unsafe_choice="best"``) or the last one.
+    validated: the final plan passes every threshold against the prediction (then final = the first
+    iteration safe against the prediction and, when they were checked, every adverse future, else the
+    one failing the fewest adverse futures). Otherwise final is the least unsafe iteration
+    (``unsafe_choice="best"``) or the last one.
     """
 
     scenario_id: str
@@ -688,6 +732,7 @@ def reflect(
     neighbour_prediction: NeighbourPrediction | None = None,
     goal_adjustment: bool = True,
     unsafe_choice: Literal["best", "last"] = "best",
+    adverse: AdverseSettings | None = None,
 ) -> ReflectionResult:
     """Propose, simulate, check; re-propose with the safety report until safe (paper Figure 3).
 
@@ -696,11 +741,16 @@ def reflect(
     goal_adjustment=False is the "w/o GA" ablation: refinements keep the initial proposal's goal factors
     (an override recorded in the proposal's ``meta['goal_factors_frozen']``).
     Proposals are ``normalised`` (clamped) before simulation; the recorded proposal is the clamped one.
+    ``adverse``: also check every plan against the adverse futures of the scene (``letspi.safety.adverse``);
+    a plan that fails one is refined too (its report says which future failed), and the result prefers
+    the first plan safe in all of them, else the safest against the prediction that fails the fewest.
+    ``validated`` keeps the paper's meaning: some plan passed the checks against the prediction.
     """
     if len(scenario) != 1:
         raise ValueError(f"reflect works on one scenario (a batch of one), got {len(scenario)}")
     th = thresholds or ReflectionThresholds()
     base_goal, pred = _goal_and_prediction(scenario, base_goal_xy_m, neighbour_prediction)
+    futures = adverse_futures(scenario, pred, adverse) if adverse is not None else None
 
     history: list[IterationRecord] = []
     for iteration in range(th.max_iterations + 1):
@@ -708,7 +758,7 @@ def reflect(
         ctx = ReflectionContext(
             scenario=scenario, iteration=iteration, base_goal_xy_m=base_goal.copy(),
             previous=last.proposal if last else None, report=last.report if last else None,
-            history=tuple(history), thresholds=th,
+            history=tuple(history), thresholds=th, adverse=last.adverse if last else None,
         )
         t0 = time.perf_counter()
         proposal = propose(ctx).normalised()
@@ -720,27 +770,35 @@ def reflect(
             np.array([proposal.lane_factor]), base_goal[None], pred,
         )
         report = safety_report(scenario, plan.xy_m, plan.vxy_mps, pred, th)[0]
+        outcome = None
+        if futures is not None and adverse is not None:
+            outcome = adverse_outcomes(check_futures(scenario, plan.xy_m, plan.vxy_mps, pred, futures), adverse)[0]
         t2 = time.perf_counter()
         history.append(IterationRecord(
             iteration=iteration, proposal=proposal,
             goal_xy_m=(float(plan.goals_xy_m[0, 0]), float(plan.goals_xy_m[0, 1])),
             report=report, propose_s=t1 - t0, simulate_s=t2 - t1,
-            plan_xy_m=plan.xy_m[0], plan_vxy_mps=plan.vxy_mps[0],
+            plan_xy_m=plan.xy_m[0], plan_vxy_mps=plan.vxy_mps[0], adverse=outcome,
         ))
-        if report.safe:
+        if history[-1].safe:
             break
 
     return ReflectionResult(
         scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history),
-        final_index=_final_index(history, unsafe_choice), validated=any(rec.safe for rec in history),
+        final_index=_final_index(history, unsafe_choice),
+        validated=any(rec.predicted_safe for rec in history),
     )
 
 
 def _final_index(history: list[IterationRecord], unsafe_choice: Literal["best", "last"]) -> int:
-    """The iteration that is the result: the first safe one, else the last or the least severe."""
+    """The iteration that is the result: the first safe one (prediction and adverse futures), else the
+    first safe against the prediction with the fewest adverse failures, else the last or the least severe."""
     safe_idx = [i for i, rec in enumerate(history) if rec.safe]
     if safe_idx:
         return safe_idx[0]
+    predicted = [i for i, rec in enumerate(history) if rec.predicted_safe]
+    if predicted:
+        return min(predicted, key=lambda i: (history[i].n_adverse_failed, i))
     if unsafe_choice == "last":
         return len(history) - 1
     return min(range(len(history)), key=lambda i: (history[i].report.severity(), -i))

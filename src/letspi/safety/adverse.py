@@ -218,8 +218,12 @@ def adverse_futures(batch: ScenarioBatch, base: NeighbourPrediction,
     Vectorised over scenarios and neighbours; see the module docstring for the futures.
     """
     s = settings or AdverseSettings()
-    sc = _scene(batch, base)
     valid = np.asarray(base.valid, dtype=bool)
+    xy = np.asarray(base.xy_m, dtype=np.float64)
+    if not s.futures:  # no adverse future: empty arrays (checks against the prediction only)
+        return AdverseFutures((), np.zeros((0, *xy.shape)), np.zeros((0, *xy.shape)), np.zeros((0, *valid.shape), bool),
+                              np.zeros((0, len(batch)), dtype=bool))
+    sc = _scene(batch, base)
     variants = [_VARIANTS[name](sc, batch, s) for name in s.futures]
     mask = valid[None, ..., None]
     return AdverseFutures(
@@ -252,6 +256,8 @@ class FutureChecks:
     def failed(self, settings: AdverseSettings) -> np.ndarray:
         """(B, A) bool: the plan fails adverse future a (contact, TTC or in-path gap below the adverse
         thresholds), only where the future applies."""
+        if self.collision.shape[1] == 1:
+            return np.zeros((self.collision.shape[0], 0), dtype=bool)
         ttc = np.minimum(self.min_ttc_s[:, 1:], self.min_rear_ttc_s[:, 1:])
         bad = self.collision[:, 1:] | (ttc < settings.ttc_s) | (self.min_path_gap_m[:, 1:] < settings.min_gap_m)
         return bad & self.applies[:, 1:]
