@@ -10,6 +10,7 @@ import typer
 from letspi.cli import bench, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
 from letspi.cli.common import DEBUG_ENV
 from letspi.evaluation.harness import letspi_version
+from letspi.execution import interrupt
 
 
 def _typer(help_text: str) -> typer.Typer:
@@ -59,7 +60,8 @@ app.command("compare")(viz.compare)
 
 
 def main() -> None:
-    app()
+    with interrupt.handling():  # Ctrl-C: one line, exit 130, no orphaned processes (letspi.execution.interrupt)
+        app()
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 Every anticipated failure ends in one or two lines on stderr that name the file, field or address
 and say what to do, with a non-zero exit code; ``--debug`` (or ``LETSPI_DEBUG=1``) shows the
 traceback instead. Exit codes: 2 bad input or setup (file, field, model, server, results key),
-1 an unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted.
+1 an unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted
+(Ctrl-C; 143 after SIGTERM): one line saying how much is stored (``letspi.execution.interrupt``).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from rich.progress import (
 from rich.text import Text
 
 from letspi.assembly.resolve import PlannerOptions
+from letspi.execution import interrupt
 from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError
 from letspi.highd.errors import HighDFormatError
@@ -134,10 +136,16 @@ def _fail(message: str, hint: str | None, code: int) -> typer.Exit:
 
 
 @contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn anticipated failures into one or two lines and an exit code (module docstring)."""
+def user_errors(*, resumes: bool = False) -> Iterator[interrupt.Tally]:
+    """Turn anticipated failures into one or two lines and an exit code (module docstring).
+
+    Yields the command's ``Tally``: a command that resumes (``resumes=True``) calls ``track(total,
+    count)`` once it knows its work, so that Ctrl-C prints ``interrupted: N of M stored; rerun the
+    same command to resume``; the others keep nothing partial (``interrupted: nothing stored; rerun
+    the same command to start again``)."""
+    tally = interrupt.Tally(resumes=resumes)
     try:
-        yield
+        yield tally
     except typer.Exit:
         raise
     except Exception as exc:
@@ -147,7 +155,10 @@ def user_errors() -> Iterator[None]:
     except KeyboardInterrupt as exc:
         if debug_enabled():
             raise
-        raise _fail("interrupted", "Finished work is saved; rerun the same command to resume.", 130) from exc
+        interrupt.stop_children()  # first: their last messages (e.g. Ray's) come before the line
+        console.print(escape(tally.line()), highlight=False, soft_wrap=True)
+        interrupt.mark_reported()
+        raise typer.Exit(code=interrupt.exit_code()) from exc
 
 
 #: errors of a path that cannot be created or written (PermissionError is EACCES/EPERM)

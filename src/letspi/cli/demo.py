@@ -52,7 +52,7 @@ def demo(
     highd_dir = out / "highd"
     scenarios_file = out / "scenarios.arrow"
     eval_dir = out / "evaluation"
-    with user_errors():
+    with user_errors(resumes=True):
         if highd_dir.exists() and list_recording_ids(highd_dir):
             console.print(f"reusing recordings in {highd_dir}")
         else:

@@ -37,6 +37,7 @@ from letspi.evaluation.harness import (
     ProgressCallback,
     ProgressFactory,
     read_summary,
+    stored_rows,
     summary_markdown,
 )
 from letspi.evaluation.harness import evaluate as run_evaluation
@@ -239,11 +240,12 @@ def evaluate(
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
-    with user_errors(), writer_lock(out, command_line()):
-        closed = closed_loop_settings(mode, replan_s, [parse_planner_arg(p)[0] for p in planner], workers,
-                                      ray_address or ("local" if ray else None), sumo_gui, chunk_size,
-                                      concurrency, handover_lanes, llm_period_s, llm_latency_s)
+    with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
+        labels = [parse_planner_arg(p)[0] for p in planner]
+        closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),
+                                      sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s)
         batch = load_limited(scenarios, limit)
+        tally.track(len(labels) * len(batch), lambda: min(stored_rows(out, labels), len(labels) * len(batch)))
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)
         if scripted is not None:
             console.print(scripted.describe())

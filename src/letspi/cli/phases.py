@@ -67,18 +67,20 @@ def collect(
     crash; stored experiences are kept and skipped, fallbacks are retried. --concurrency scenarios run
     at once; experiences are stored in scenario order, so the bank does not depend on it.
     """
-    with user_errors(), writer_lock(memory, command_line(), directory=False):
+    with user_errors(resumes=True) as tally, writer_lock(memory, command_line(), directory=False):
         batch = load_limited(scenarios, limit)
+        digests = scenario_digests(batch)
         options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
                                  max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
                                  llm_timeout_s=request_timeout)
         config = Resolver(options).memory_phase()
+        tally.track(len(batch), lambda: _stored_memories(memory, config.key(), digests))
         runner = RunnerConfig(concurrency=default_concurrency(config.llm.spec) if concurrency is None else concurrency)
         phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
         created = not memory.exists()
         with _removed_if_empty_on_failure(memory, created), MemoryBank.open(memory) as bank, progress_bar() as bar:
-            bank.record_dataset(dataset_digest(scenario_digests(batch)), str(scenarios), len(batch))
-            done = len(bank.done_digests(config.key()) & set(scenario_digests(batch)))
+            bank.record_dataset(dataset_digest(digests), str(scenarios), len(batch))
+            done = len(bank.done_digests(config.key()) & set(digests))
             task = bar.add_task("collecting", total=len(batch), completed=done)
             try:
                 stats = run_collect(phase, batch, bank, runner=runner,
@@ -98,6 +100,14 @@ def collect(
         f"{stats.skipped} already stored")
     console.print(f"bank {memory}: {total} experiences of this configuration, {validated} validated "
                   f"(use --memory-key {config.key()} to retrieve only these)")
+
+
+def _stored_memories(memory: Path, config_key: str, digests: np.ndarray) -> int:
+    """Scenarios of ``digests`` with a finished experience of ``config_key`` in the bank (0 without a bank)."""
+    if not memory.exists():
+        return 0
+    with MemoryBank.open(memory, readonly=True) as bank:
+        return len(bank.done_digests(config_key) & {str(d) for d in digests})
 
 
 @contextmanager
@@ -233,7 +243,7 @@ def ablate(
     shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
-    with user_errors():
+    with user_errors(resumes=True):
         batch = load_limited(scenarios, limit)
         collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
         options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,

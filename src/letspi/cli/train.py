@@ -142,9 +142,9 @@ def train_llm_data(
 ) -> None:
     """Physics-verified labels for the LLM: per scenario, search the six social-force parameters and the
     two goal factors, scored against the RECORDED future (hindsight; training only)."""
-    from letspi.finetune.labels import LabelRun, LabelSearch
+    from letspi.finetune.labels import PARTS_DIR, LabelRun, LabelSearch
 
-    with user_errors(), writer_lock(out, command_line()):
+    with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         if goals not in ("learned", "kinematic"):
             raise ValueError("--goals must be learned or kinematic (labels never use oracle goals)")
         search = LabelSearch(n_random=n_random, n_rounds=n_rounds, n_local=n_local)
@@ -152,6 +152,10 @@ def train_llm_data(
         batch = load_scenarios(scenarios)
         if max_scenarios is not None:
             batch = batch.take(slice(0, max_scenarios))
+        n = len(batch)
+        # part-<start>.parquet holds scenarios start .. start + chunk - 1 (letspi.finetune.labels)
+        tally.track(n, lambda: sum(min(search.chunk, n - int(p.stem.split("-")[1]))
+                                   for p in (out / PARTS_DIR).glob("part-*.parquet")))
         params, _ = load_sf_params(sf_params)
         goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
         labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
@@ -253,8 +257,9 @@ def train_llm(
     LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
     _require_torch()
     from letspi.finetune.train import LoraTrainConfig, train_lora
+    from letspi.learned.train.loop import checkpoint_step
 
-    with user_errors(), writer_lock(out, command_line()):
+    with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
                               layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
@@ -265,6 +270,8 @@ def train_llm(
 
             def progress(step: int, total: int, loss: float) -> None:
                 bar.update(task, completed=step, total=total, description=f"fine-tuning (loss {loss:.3f})")
+                if tally.total is None:  # stopped, it keeps the steps of its last checkpoint
+                    tally.track(total, lambda: checkpoint_step(out))
 
             manifest = train_lora(examples, cfg, locate_model("smollm2-135m"), out, data_info=info,
                                   progress=progress, verify=verify, command=command_line())

@@ -31,6 +31,7 @@ import os
 import shutil
 import sys
 from collections.abc import Callable, Mapping
+from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -365,18 +366,20 @@ class ClosedLoopRunner:
         if len(todo):
             vehicles = vehicle_keys(batch)
             try:
-                chunks = run_closed_loop(planner_spec(built, settings), batch, settings.mode,
-                                         replan_s=settings.replan_s_of(built.name), workers=settings.workers,
-                                         config=settings.engine_config(), indices=todo,
-                                         ray_address=settings.ray_address, scripted_nbr=self.scripted_nbr)
-                for chunk in chunks:
-                    metrics = chunk_metrics(batch, chunk, config)
-                    goals = (chunk.plan_goal_xy_m[:, 0] if chunk.plan_goal_xy_m.shape[1]
-                             else np.full((len(chunk), 2), np.nan))
-                    writer.write(part_frame(chunk, metrics, digests, vehicles), chunk.ego_xy_m, chunk.ego_vxy_mps,
-                                 goals, trajectory_arrays(chunk))
-                    if progress is not None:
-                        progress(len(chunk), None)
+                # closing: stopped mid-chunk (Ctrl-C), the workers stop now, not when the generator is collected
+                with closing(run_closed_loop(planner_spec(built, settings), batch, settings.mode,
+                                             replan_s=settings.replan_s_of(built.name), workers=settings.workers,
+                                             config=settings.engine_config(), indices=todo,
+                                             ray_address=settings.ray_address,
+                                             scripted_nbr=self.scripted_nbr)) as chunks:
+                    for chunk in chunks:
+                        metrics = chunk_metrics(batch, chunk, config)
+                        goals = (chunk.plan_goal_xy_m[:, 0] if chunk.plan_goal_xy_m.shape[1]
+                                 else np.full((len(chunk), 2), np.nan))
+                        writer.write(part_frame(chunk, metrics, digests, vehicles), chunk.ego_xy_m,
+                                     chunk.ego_vxy_mps, goals, trajectory_arrays(chunk))
+                        if progress is not None:
+                            progress(len(chunk), None)
             except BaseException:
                 writer.abandon()
                 raise

@@ -299,6 +299,12 @@ def done_digests(planner_dir: Path) -> set[str]:
     return done
 
 
+def stored_rows(out_dir: Path, planner_names: Sequence[str]) -> int:
+    """Scenario rows stored in ``out_dir`` for ``planner_names`` (what an interrupted run keeps; a
+    directory holds one dataset, so no digest needs computing)."""
+    return sum(len(done_digests(Path(out_dir) / "per_scenario" / planner_dir_name(n))) for n in planner_names)
+
+
 def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool = False) -> pd.DataFrame:
     """All stored rows of one planner, in dataset order (``row``), one per scenario digest.
 

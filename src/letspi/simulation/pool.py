@@ -7,6 +7,11 @@ side ever blocks on a full pipe. A worker that dies (killed, out of memory) is n
 process sentinel: its unfinished chunk goes back to the queue and a replacement starts, up to
 ``max_restarts`` times; results arrive only whole, so nothing is lost or duplicated. An exception
 inside a worker ends the run with the worker's traceback.
+
+Stopping: workers ignore Ctrl-C (``letspi.execution.interrupt``). When the run ends early (Ctrl-C in
+the parent, an error, a consumer that stops iterating) the parent terminates them at once (a worker
+closes its SUMO and removes its files on the way out); the chunks they were simulating are
+simulated again by the rerun. Only a run that finished tells its idle workers to exit and waits.
 """
 
 from __future__ import annotations
@@ -21,12 +26,15 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 
+from letspi.execution.interrupt import run_worker, start_worker
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.worker import ChunkTask, ChunkWorker
 
 JOIN_TIMEOUT_S = 5.0
+#: seconds a terminated worker gets before it is killed (a worker inside libsumo ends at once)
+TERMINATE_TIMEOUT_S = 1.0
 
 
 class ClosedLoopWorkerError(RuntimeError):
@@ -34,10 +42,15 @@ class ClosedLoopWorkerError(RuntimeError):
 
 
 def _worker_main(conn: Connection, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
-    """Entry point of a worker process: build once, then simulate chunks until told to stop."""
+    """Entry point of a worker process: build once, then simulate chunks until told to stop. Ctrl-C
+    is the parent's; its SIGTERM closes SUMO and the temporary files, then ends the process at once."""
+    run_worker(lambda: _serve(conn, planner_spec, config))
+
+
+def _serve(conn: Connection, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
     try:
         worker = ChunkWorker(planner_spec, config)
-    except BaseException:
+    except Exception:
         conn.send(("error", -1, traceback.format_exc()))
         return
     try:
@@ -52,7 +65,7 @@ def _worker_main(conn: Connection, planner_spec: PlannerSpecLike, config: Closed
                 conn.send(("error", task.task_id, traceback.format_exc()))
                 break
             conn.send(("done", task.task_id, result))
-    except (EOFError, BrokenPipeError, KeyboardInterrupt):
+    except (EOFError, BrokenPipeError):
         pass
     finally:
         worker.close()
@@ -84,7 +97,7 @@ def run_in_processes(
         proc = ctx.Process(
             target=_worker_main, args=(child, planner_spec, config), daemon=True, name="letspi-simulation-worker"
         )
-        proc.start()
+        start_worker(proc)  # the terminal's Ctrl-C is the parent's to handle, not the worker's
         child.close()
         return _Slot(proc, parent)
 
@@ -111,6 +124,7 @@ def run_in_processes(
         return start()
 
     remaining = len(tasks)
+    finished = False
     try:
         slots = [start() for _ in range(min(workers, len(tasks)))]
         while remaining:
@@ -144,14 +158,29 @@ def run_in_processes(
                     slots[i] = replace_dead(slot)
             for slot in slots:
                 feed(slot)
+        finished = True
     finally:
+        _shut_down(slots, finished)
+
+
+def _shut_down(slots: list[_Slot], finished: bool) -> None:
+    """A finished run tells its idle workers to exit and waits for them; a run that ends early
+    (Ctrl-C, an error, a consumer that stopped) terminates them at once, then kills any left."""
+    if finished:
         for slot in slots:
             with contextlib.suppress(Exception):
                 slot.conn.send(None)
+    else:
         for slot in slots:
-            slot.process.join(JOIN_TIMEOUT_S)
-            if slot.process.is_alive():
-                slot.process.terminate()
-                slot.process.join(JOIN_TIMEOUT_S)
             with contextlib.suppress(Exception):
-                slot.conn.close()
+                slot.process.terminate()
+    for slot in slots:
+        slot.process.join(JOIN_TIMEOUT_S if finished else TERMINATE_TIMEOUT_S)
+        if slot.process.is_alive():
+            if finished:
+                slot.process.terminate()
+            else:
+                slot.process.kill()
+            slot.process.join(JOIN_TIMEOUT_S)
+        with contextlib.suppress(Exception):
+            slot.conn.close()

@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
+from letspi.execution.interrupt import on_stop, received
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.pool import ClosedLoopWorkerError
 from letspi.simulation.result import ClosedLoopChunk
@@ -46,13 +47,16 @@ class RayChunkWorker:
 
 
 def ensure_ray(address: str, num_cpus: int) -> ModuleType:
-    """Ray, initialised: an existing instance is used as is; "local" starts one with ``num_cpus``."""
+    """Ray, initialised: an existing instance is used as is; "local" starts one with ``num_cpus``.
+    Ctrl-C shuts down what this call started (``letspi.execution.interrupt.on_stop``): a local
+    instance's processes, or this driver's connection to a cluster."""
     ray = import_ray()
     if not ray.is_initialized():
         if address == "local":
             ray.init(num_cpus=num_cpus, include_dashboard=False)
         else:
             ray.init(address=address)
+        on_stop(ray.shutdown)
     return ray
 
 
@@ -89,5 +93,6 @@ def run_on_ray(
             yield result
             submit(actor)
     finally:
-        for actor in actors:
-            ray.kill(actor)
+        if received() is None:  # after a stop signal the command shuts Ray down (``ensure_ray``), quietly
+            for actor in actors:
+                ray.kill(actor)

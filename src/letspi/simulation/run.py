@@ -13,7 +13,7 @@ interpreter, one libsumo each), each building its planner once from the picklabl
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -49,8 +49,11 @@ def run_closed_loop(
     ray_address: str | None = None,
     max_worker_restarts: int = 2,
     scripted_nbr: np.ndarray | None = None,
-) -> Iterator[ClosedLoopChunk]:
+) -> Generator[ClosedLoopChunk, None, None]:
     """Simulate ``batch`` (or its rows ``indices``) closed loop; yield one ``ClosedLoopChunk`` per chunk.
+
+    A caller that stops early (Ctrl-C while it writes a chunk) closes the generator
+    (``contextlib.closing``): worker processes and Ray actors stop at once, not when it is collected.
 
     planner_spec: a ``PlannerSpec`` (built inside each worker) or a picklable planner object.
     mode: ``closed-loop-log``, ``closed-loop-reactive`` or ``closed-loop-hybrid`` (``ClosedLoopMode``).

@@ -20,6 +20,7 @@ import json
 import os
 import re
 from collections.abc import Callable, Sequence
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -198,11 +199,12 @@ def run_closed_loop_to_dir(
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo))
     if len(todo):
-        for chunk in run_closed_loop(
+        with closing(run_closed_loop(
             planner_spec, batch, cfg.mode, replan_s=cfg.replan_s, workers=workers, config=cfg, indices=todo,
             ray_address=ray_address, scripted_nbr=scripted_nbr,
-        ):  # fmt: skip
-            store.write(chunk, chunk_frame(chunk, chunk_metrics(batch, chunk, metrics_config)))
-            if progress is not None:
-                progress(len(chunk))
+        )) as chunks:  # fmt: skip
+            for chunk in chunks:
+                store.write(chunk, chunk_frame(chunk, chunk_metrics(batch, chunk, metrics_config)))
+                if progress is not None:
+                    progress(len(chunk))
     return store.load_frame()

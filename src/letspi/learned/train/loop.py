@@ -198,6 +198,14 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def checkpoint_step(directory: Path) -> int:
+    """The optimiser steps the checkpoint in ``directory`` holds (0 without one): where a rerun resumes."""
+    ckpt = Path(directory) / CHECKPOINT_FILE
+    if not ckpt.is_file():
+        return 0
+    return int(torch.load(ckpt, map_location="cpu", weights_only=False)["step"])
+
+
 @dataclass
 class _StepRun:
     """The mutable state of ``run_steps`` that a checkpoint holds (besides the trainable weights)."""

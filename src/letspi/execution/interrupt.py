@@ -1,0 +1,322 @@
+"""Ctrl-C: how every long command stops. One design, used by the CLI and by the long loops.
+
+**First SIGINT (Ctrl-C) or SIGTERM.** ``handling()`` (the CLI's entry point) turns it into
+``KeyboardInterrupt`` in the main thread. It does so even when the process started with SIGINT
+*ignored*: a shell starts ``letspi ... &`` that way in a script, Python then keeps ignoring it, and
+``kill -INT`` used to be swallowed (the run went on to its end). Every long loop writes as it goes
+(a part, a chunk, a memory, a label file, a checkpoint), so what is complete is already on disk; the
+interrupt stops the rest:
+
+* the main thread's loops stop at their next Python step (a libsumo step, a token of the embedded
+  model, a batch of physics);
+* worker threads (``letspi.execution.ordered``) start no new LLM request: the runner trips the
+  advisor's breaker; the CLI does not wait for a request still in flight (its answer would be
+  dropped anyway): ``finish`` exits without joining those threads;
+* worker processes never see the terminal's Ctrl-C (``start_worker``, and ``enter_worker`` first
+  thing in the child): their parent terminates them at once
+  (``letspi.simulation.pool``), and ``stop_children`` ends anything this process started that is
+  still running: registered cleanups first (``on_stop``: Ray's local instance), then every
+  descendant process (SIGTERM, SIGKILL after a grace period);
+* the CLI prints one line (``stop_line``: ``interrupted: N of M stored; rerun the same command to
+  resume``) and exits 130 (143 after SIGTERM).
+
+**Second signal.** The process ends at once: every descendant process is killed and the process
+exits (``os._exit``) without further cleanup. What was stored before stays valid (every file is
+written atomically).
+
+Only a process inside ``handling()`` (the ``letspi`` command) ends child processes it did not
+start itself: library use and in-process tests keep Python's own Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import multiprocessing.resource_tracker
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from multiprocessing.process import BaseProcess
+from pathlib import Path
+from types import FrameType
+from typing import Final, NoReturn
+
+#: exit code after Ctrl-C (128 + SIGINT); after SIGTERM it is 143
+EXIT_INTERRUPTED: Final = 128 + signal.SIGINT
+STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
+#: seconds a child process gets to exit after SIGTERM before it is killed
+CHILD_GRACE_S: Final = 1.0
+RESUME_HINT: Final = "rerun the same command to resume"
+
+
+@dataclass
+class _State:
+    active: bool = False  # inside handling(): this process is the letspi command
+    signum: int | None = None  # the first stop signal
+    count: int = 0
+    reported: bool = False  # the stop line was printed
+    cleanups: dict[int, Callable[[], object]] = field(default_factory=dict)
+
+
+_state = _State()
+
+
+def received() -> int | None:
+    """The first stop signal this process got inside ``handling()`` (None: none)."""
+    return _state.signum
+
+
+def exit_code() -> int:
+    """128 + the first stop signal (130 for Ctrl-C, also when no signal came: a ``KeyboardInterrupt``)."""
+    return 128 + (_state.signum or signal.SIGINT)
+
+
+def stop_line(stored: int | None = None, total: int | None = None, *, resumes: bool = False) -> str:
+    """The one line an interrupted command prints: how much of its work is stored, and what to do.
+
+    ``resumes``: the command resumes where it stopped, with ``stored`` of its ``total`` units
+    stored (e.g. scenario rows; the count is left out when unknown); otherwise it keeps nothing
+    partial and starts again."""
+    if not resumes:
+        return "interrupted: nothing stored; rerun the same command to start again"
+    if stored is None or total is None:
+        return f"interrupted: {RESUME_HINT}"
+    return f"interrupted: {stored} of {total} stored; {RESUME_HINT}"
+
+
+@dataclass
+class Tally:
+    """What a running command keeps if it is stopped: its ``total`` units of work (scenario rows,
+    memories, labelled scenarios, training steps) and how to count those stored, read from disk when
+    the stop comes. ``resumes`` as in ``stop_line``."""
+
+    resumes: bool = False
+    total: int | None = None
+    count: Callable[[], int] | None = None
+
+    def track(self, total: int, count: Callable[[], int]) -> None:
+        """The command resumes; ``count()`` says how many of ``total`` units are stored."""
+        self.resumes, self.total, self.count = True, int(total), count
+
+    def line(self) -> str:
+        """``stop_line`` with the count as it stands (unknown if counting fails)."""
+        stored = None
+        if self.count is not None:
+            try:
+                stored = int(self.count())
+            except Exception:  # e.g. a part being renamed: say less rather than fail the stop
+                stored = None
+        return stop_line(stored, self.total, resumes=self.resumes)
+
+
+def mark_reported() -> None:
+    """The stop line was printed (``handling`` prints a generic one otherwise)."""
+    _state.reported = True
+
+
+def on_stop(cleanup: Callable[[], object]) -> Callable[[], None]:
+    """Run ``cleanup`` when a stop signal ends the command (``stop_children``), e.g. shutting down a
+    local Ray instance; returns a function that unregisters it."""
+    key = id(cleanup)
+    _state.cleanups[key] = cleanup
+
+    def unregister() -> None:
+        _state.cleanups.pop(key, None)
+
+    return unregister
+
+
+# ------------------------------------------------------------------------------------------------
+# Child processes
+# ------------------------------------------------------------------------------------------------
+
+
+def start_worker(process: BaseProcess) -> None:
+    """Start a worker process that the terminal's Ctrl-C does not reach: SIGINT is blocked in this
+    thread while it starts, so the child inherits the mask and a Ctrl-C during its start-up (imports,
+    unpickling) stays pending until the child ignores it (``enter_worker``, its first call); its
+    parent alone decides when it stops. A SIGINT for this process waits for the start to end."""
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        process.start()
+        return
+    # multiprocessing starts its resource tracker with the first child and then *unblocks* SIGINT in
+    # the calling thread: start it first, so the mask below holds while the worker starts
+    multiprocessing.resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        process.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def enter_worker() -> None:
+    """First call in a worker process: ignore Ctrl-C (the parent decides when the worker stops) and
+    drop one that arrived during start-up (``start_worker``); SIGTERM, the parent's stop, raises
+    ``SystemExit`` so the worker's own cleanup runs (closing SUMO, removing its temporary files)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards a pending SIGINT
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _exit_on_sigterm(signum: int, frame: FrameType | None) -> None:
+    raise SystemExit(128 + signum)
+
+
+def run_worker(body: Callable[[], object]) -> None:
+    """The whole life of a worker process: ``enter_worker``, then ``body()``; stopped by SIGTERM,
+    the body's ``finally`` blocks run and the process ends at once (``os._exit``: a spawned
+    interpreter's teardown takes a second or more under load, and the parent is waiting)."""
+    enter_worker()
+    try:
+        body()
+    except SystemExit as stop:
+        _flush()
+        os._exit(stop.code if isinstance(stop.code, int) else 1)
+
+
+def _proc_stat(pid: int) -> tuple[int, str] | None:
+    """(parent pid, state letter) of a process from /proc (None: gone, or no /proc)."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text.rsplit(")", 1)[1].split()  # the name, in parentheses, may contain spaces
+    return int(fields[1]), fields[0]
+
+
+def descendants(pid: int | None = None) -> list[int]:
+    """Every descendant process of ``pid`` (default: this process), parents before their children;
+    read from /proc (Linux), else only this process's multiprocessing children."""
+    root = os.getpid() if pid is None else pid
+    try:
+        names = os.listdir("/proc")
+    except OSError:
+        return [p.pid for p in multiprocessing.active_children() if p.pid is not None] if pid is None else []
+    children: dict[int, list[int]] = {}
+    for name in names:
+        if name.isdigit():
+            stat = _proc_stat(int(name))
+            if stat is not None:
+                children.setdefault(stat[0], []).append(int(name))
+    out: list[int] = []
+    frontier = [root]
+    while frontier:
+        kids = [k for p in frontier for k in children.get(p, [])]
+        out.extend(kids)
+        frontier = kids
+    return out
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    stat = _proc_stat(pid)
+    if stat is not None:
+        return stat[1] not in ("Z", "X")
+    if Path("/proc/self").exists():  # Linux, and no entry: gone
+        return False
+    try:
+        os.kill(pid, 0)
+    except OSError:
+        return False
+    return True
+
+
+def _resource_tracker_pid() -> int | None:
+    """multiprocessing's resource tracker: it ignores SIGTERM and exits by itself with this process."""
+    tracker = getattr(multiprocessing.resource_tracker, "_resource_tracker", None)
+    return getattr(tracker, "_pid", None)
+
+
+def _signal_all(pids: list[int], signum: int) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, signum)
+        except OSError:  # gone meanwhile
+            pass
+
+
+def stop_children(grace_s: float = CHILD_GRACE_S) -> None:
+    """End what this process started and is still running (only inside ``handling()``): the registered
+    cleanups (``on_stop``), then SIGTERM to every descendant process, SIGKILL to those still running
+    after ``grace_s``."""
+    if not _state.active:
+        return
+    cleanups = list(_state.cleanups.values())
+    _state.cleanups.clear()
+    for cleanup in cleanups:
+        try:
+            cleanup()
+        except Exception:  # a cleanup that fails must not hide the others (or the stop line)
+            pass
+    pids = [p for p in descendants() if p != _resource_tracker_pid()]
+    _signal_all(pids, signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and any(alive(p) for p in pids):
+        time.sleep(0.02)
+    _signal_all([p for p in pids if alive(p)], signal.SIGKILL)
+    multiprocessing.active_children()  # reaps the multiprocessing children just ended
+
+
+def _end_at_once() -> NoReturn:
+    """The second stop signal: kill every descendant, exit without any further cleanup."""
+    if not _state.reported:
+        os.write(2, f"interrupted again: stopped at once; {RESUME_HINT}\n".encode())
+    _signal_all(descendants(), signal.SIGKILL)
+    os._exit(exit_code())
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    _state.count += 1
+    if _state.count == 1:
+        _state.signum = signum
+        raise KeyboardInterrupt
+    _end_at_once()
+
+
+def _flush() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed, or a broken pipe
+            pass
+
+
+def finish() -> NoReturn:
+    """Leave after a stop signal: end the child processes, print the stop line if the command printed
+    none (a command without a ``Tally`` keeps nothing partial), and exit at once with ``exit_code()``."""
+    stop_children()
+    if not _state.reported:
+        sys.stderr.write(stop_line() + "\n")
+        _state.reported = True
+    _flush()
+    # not SystemExit: the interpreter would wait for worker threads still in an LLM request (their
+    # replies would be dropped anyway), and its teardown takes seconds with Ray loaded; what needs
+    # closing was closed on the way here
+    os._exit(exit_code())
+
+
+@contextmanager
+def handling() -> Iterator[None]:
+    """Stop signals for the block (in the main thread; the ``letspi`` command runs inside it): the
+    first becomes ``KeyboardInterrupt``, the second ends the process at once; after the first,
+    leaving the block ends child processes and exits (``finish``)."""
+    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    _state.active, _state.signum, _state.count, _state.reported = True, None, 0, False
+    for s in STOP_SIGNALS:
+        signal.signal(s, _on_signal)  # also over an inherited SIG_IGN (module docstring)
+    try:
+        try:
+            yield
+        except (KeyboardInterrupt, SystemExit):
+            if _state.signum is None:
+                raise
+        if _state.signum is not None:
+            finish()  # still under these handlers: a second signal ends it at once
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+        _state.active = False
