@@ -12,102 +12,39 @@ of 120 s would fail it); the seconds per mode are measured by ``letspi bench int
 from __future__ import annotations
 
 import importlib.util
-import os
-import re
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
 import pytest
 from concurrency_support import scenarios
 
-from letspi.bench.llm_concurrency import real_server_available, start_llama_server
+from letspi.bench.interrupt import Stopped, letspi_command, run_and_stop
+from letspi.bench.llm_concurrency import _child_env, real_server_available, start_llama_server
 from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.evaluation.harness import load_planner_results
-from letspi.execution.interrupt import Tally, alive, descendants, stop_line
+from letspi.execution.interrupt import Tally, stop_line
 from letspi.method.memory import MemoryBank
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import save_scenarios
 
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-LINE = re.compile(r"^interrupted: (\d+) of (\d+) stored; rerun the same command to resume$")
 #: a stopped run must be gone well before a request in flight (120 s) could have ended
 EXIT_BOUND_S = 15.0
 
 
-def _ignore_sigint() -> None:
-    """How a shell starts ``cmd &`` in a script: SIGINT ignored (the case that used to be swallowed)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-@dataclass
-class Stopped:
-    returncode: int
-    stderr: str
-    seconds: float  # from the (last) signal to the exit
-    children: list[int]  # every descendant seen while it ran
-    left: list[int]  # those still running after the exit
-
-    def stop_line(self) -> tuple[int, int]:
-        """(N, M) of the one ``interrupted:`` line; fails unless there is exactly one and nothing else
-        alarming (a traceback, a worker's KeyboardInterrupt)."""
-        assert "Traceback" not in self.stderr and "KeyboardInterrupt" not in self.stderr, self.stderr[-3000:]
-        lines = [ln for ln in self.stderr.splitlines() if "interrupted" in ln]
-        assert len(lines) == 1, self.stderr[-3000:]
-        match = LINE.match(lines[0].strip())
-        assert match, lines[0]
-        return int(match.group(1)), int(match.group(2))
-
-
-def run_and_stop(command: Sequence[str], ready: Callable[[], bool], log: Path, *, signals: int = 1,
-                 group: bool = True, ignore_sigint: bool = False, signum: int = signal.SIGINT,
-                 timeout_s: float = 300.0, stdout: Path | None = None) -> Stopped:
-    """Start ``command`` in its own session, wait for ``ready()``, send ``signum`` (to the whole process
-    group, as a terminal's Ctrl-C does, or with ``group=False`` to the process alone, as ``kill``
-    does; ``signals`` times, 0.5 s apart) and wait for the exit."""
-    with open(log, "w") as err, open(stdout or os.devnull, "w") as out:
-        proc = subprocess.Popen(list(command), env=ENV, stdout=out, stderr=err, start_new_session=True,
-                                preexec_fn=_ignore_sigint if ignore_sigint else None)
-        children: set[int] = set()
-        deadline = time.monotonic() + timeout_s
-        try:
-            while not ready():
-                if proc.poll() is not None:
-                    raise AssertionError(f"the run ended before the signal:\n{log.read_text()[-3000:]}")
-                if time.monotonic() > deadline:
-                    raise AssertionError(f"not ready in time:\n{log.read_text()[-3000:]}")
-                children.update(descendants(proc.pid))
-                time.sleep(0.02)
-            children.update(descendants(proc.pid))
-            for k in range(signals):
-                if k:
-                    time.sleep(0.5)
-                sent = time.monotonic()
-                if group:
-                    os.killpg(proc.pid, signum)
-                else:
-                    proc.send_signal(signum)
-            proc.wait(timeout=60)
-            seconds = time.monotonic() - sent
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-    time.sleep(0.3)  # a process that outlived its parent shows up as still running
-    return Stopped(proc.returncode, log.read_text(), seconds, sorted(children), [c for c in children if alive(c)])
-
-
-def letspi(*args: str) -> list[str]:
-    return [sys.executable, "-m", "letspi.cli.app", *args]
+def one_stop_line(stopped: Stopped) -> tuple[int, int]:
+    """(N, M) of the one ``interrupted: N of M stored; ...`` line; nothing alarming beside it (a
+    traceback, a worker's KeyboardInterrupt)."""
+    assert "Traceback" not in stopped.stderr and "KeyboardInterrupt" not in stopped.stderr, stopped.stderr[-3000:]
+    assert stopped.counts is not None, stopped.stderr[-3000:]
+    return stopped.counts
 
 
 def finish(command: Sequence[str]) -> None:
-    done = subprocess.run(list(command), env=ENV, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(list(command), env=_child_env(), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
 
 
@@ -164,17 +101,17 @@ def test_first_sigint_stops_at_once_with_one_line_and_no_child_left(tmp_path: Pa
     command, ready, out = _program(tmp_path, cleanup_s=0.0)
     stopped = run_and_stop(command, ready, tmp_path / "err.txt", ignore_sigint=ignore_sigint, stdout=out)
     assert stopped.returncode == 130, stopped.stderr
-    assert stopped.stop_line() == (3, 10)
+    assert one_stop_line(stopped) == (3, 10)
     assert stopped.stderr.strip() == "interrupted: 3 of 10 stored; rerun the same command to resume"
     assert stopped.seconds < EXIT_BOUND_S
-    assert len(stopped.children) >= 1 and stopped.left == []
+    assert len(stopped.children) >= 1 and stopped.left == ()
     assert out.read_text().split() == ["ready", "cleanup"]
 
 
 def test_sigterm_stops_the_same_way_with_143(tmp_path: Path) -> None:
     command, ready, out = _program(tmp_path, cleanup_s=0.0)
     stopped = run_and_stop(command, ready, tmp_path / "err.txt", signum=signal.SIGTERM, stdout=out)
-    assert stopped.returncode == 143 and stopped.stop_line() == (3, 10) and stopped.left == []
+    assert stopped.returncode == 143 and one_stop_line(stopped) == (3, 10) and stopped.left == ()
 
 
 def test_second_sigint_ends_at_once(tmp_path: Path) -> None:
@@ -184,7 +121,51 @@ def test_second_sigint_ends_at_once(tmp_path: Path) -> None:
     assert stopped.returncode == 130
     assert stopped.seconds < EXIT_BOUND_S
     assert stopped.stderr.strip() == "interrupted again: stopped at once; rerun the same command to resume"
-    assert stopped.left == [] and "cleanup" in out.read_text()
+    assert stopped.left == () and "cleanup" in out.read_text()
+
+
+_POOL_PROGRAM = r"""
+import sys, tempfile, time
+from pathlib import Path
+from letspi.execution import interrupt
+
+def item(k):
+    work = Path(tempfile.mkdtemp(prefix="letspi-pool-test-"))
+    (Path(sys.argv[1]) / f"{k}.dir").write_text(str(work))
+    try:
+        time.sleep(600)  # a long item (a seed's traffic generation)
+    finally:
+        work.rmdir()
+
+if __name__ == "__main__":
+    with interrupt.handling():
+        try:
+            with interrupt.WorkerPool(2) as pool:
+                futures = [pool.submit(item, k) for k in range(4)]
+                print("ready", flush=True)
+                for f in futures:
+                    f.result()
+        except KeyboardInterrupt:
+            interrupt.stop_children()
+            print(interrupt.stop_line(), file=sys.stderr)
+            interrupt.mark_reported()
+            raise SystemExit(interrupt.exit_code())
+"""
+
+
+def test_a_worker_pool_is_terminated_at_once_and_its_items_clean_up(tmp_path: Path) -> None:
+    """``WorkerPool`` (e.g. ``letspi benchmark run``'s traffic generation): Ctrl-C to the group while
+    two items run; the workers ignore it, the parent terminates them, each item's ``finally`` runs."""
+    script = tmp_path / "pool.py"
+    script.write_text(_POOL_PROGRAM)
+    out = tmp_path / "out.txt"
+    stopped = run_and_stop([sys.executable, str(script), str(tmp_path)],
+                           lambda: len(list(tmp_path.glob("*.dir"))) >= 2, tmp_path / "err.txt", stdout=out)
+    assert stopped.returncode == 130 and stopped.seconds < EXIT_BOUND_S
+    assert stopped.stderr.strip() == "interrupted: nothing stored; rerun the same command to start again"
+    assert len(stopped.children) >= 2 and stopped.left == ()
+    work_dirs = [Path(d.read_text()) for d in tmp_path.glob("*.dir")]
+    assert len(work_dirs) == 2 and not any(d.exists() for d in work_dirs)  # the items' finally ran
 
 
 def test_the_stop_line_says_what_is_kept() -> None:
@@ -214,14 +195,14 @@ def test_evaluate_open_loop_stops_with_requests_in_flight_and_resumes(tmp_path: 
         return None
 
     with LlmTestServer(fault=slow_after_eight) as server:
-        command = letspi("evaluate", "--scenarios", str(scenario_file), "--planner", "llm", "--llm", server.spec(),
-                         "--goals", "kinematic", "--no-cache", "--max-iterations", "0", "--concurrency", "4",
-                         "--out", str(out))
+        command = letspi_command("evaluate", "--scenarios", str(scenario_file), "--planner", "llm",
+                                 "--llm", server.spec(), "--goals", "kinematic", "--no-cache", "--max-iterations", "0",
+                                 "--concurrency", "4", "--out", str(out))
         stopped = run_and_stop(command, lambda: server.in_flight >= 4, tmp_path / "err.txt", group=False,
                                ignore_sigint=True)
         assert stopped.returncode == 130, stopped.stderr
         assert stopped.seconds < EXIT_BOUND_S
-        stored, total = stopped.stop_line()
+        stored, total = one_stop_line(stopped)
         rows = load_planner_results(out, "llm")
         assert total == n and 1 <= stored <= 8 and len(rows) == stored
         assert list(rows["row"]) == list(range(stored))  # a prefix, in scenario order
@@ -253,9 +234,9 @@ def _parts(planner_dir: Path) -> int:
 def _check_closed_loop_stop(stopped: Stopped, out: Path, total: int, command: list[str]) -> None:
     assert stopped.returncode == 130, stopped.stderr
     assert stopped.seconds < EXIT_BOUND_S
-    stored, n = stopped.stop_line()
+    stored, n = one_stop_line(stopped)
     assert n == total and 1 <= stored < total and len(load_planner_results(out, "sf")) == stored
-    assert stopped.left == [], "a worker process outlived the run"
+    assert stopped.left == (), "a worker process outlived the run"
     finish(command)
     rows = load_planner_results(out, "sf")
     raw = pd.concat([pd.read_parquet(p, columns=["scenario_digest"])
@@ -268,8 +249,8 @@ def _check_closed_loop_stop(stopped: Stopped, out: Path, total: int, command: li
 def test_closed_loop_with_workers_stops_ends_its_workers_and_resumes(tmp_path: Path, traffic_file: Path) -> None:
     """Ctrl-C to the process group (the workers get it too and must ignore it) after the first chunk."""
     out = tmp_path / "ev"
-    command = letspi("evaluate", "--scenarios", str(traffic_file), "--planner", "sf", "--mode", "closed-loop-log",
-                     "--workers", "2", "--chunk-size", "2", "--out", str(out))
+    command = letspi_command("evaluate", "--scenarios", str(traffic_file), "--planner", "sf",
+                             "--mode", "closed-loop-log", "--workers", "2", "--chunk-size", "2", "--out", str(out))
     stopped = run_and_stop(command, lambda: _parts(out / "per_scenario" / "sf") >= 1, tmp_path / "err.txt")
     assert len(stopped.children) >= 2  # the two workers (and multiprocessing's resource tracker)
     _check_closed_loop_stop(stopped, out, 24, command)
@@ -281,8 +262,9 @@ def test_closed_loop_with_workers_stops_ends_its_workers_and_resumes(tmp_path: P
                     reason="ray is not installed (optional extra: pip install 'letspi[ray]')")
 def test_closed_loop_on_ray_stops_and_shuts_ray_down(tmp_path: Path, traffic_file: Path) -> None:
     out = tmp_path / "ev"
-    command = letspi("evaluate", "--scenarios", str(traffic_file), "--planner", "sf", "--mode", "closed-loop-log",
-                     "--ray", "--workers", "2", "--chunk-size", "2", "--out", str(out))
+    command = letspi_command("evaluate", "--scenarios", str(traffic_file), "--planner", "sf",
+                             "--mode", "closed-loop-log", "--ray", "--workers", "2", "--chunk-size", "2",
+                             "--out", str(out))
     stopped = run_and_stop(command, lambda: _parts(out / "per_scenario" / "sf") >= 1, tmp_path / "err.txt")
     _check_closed_loop_stop(stopped, out, 24, command)
 
@@ -300,15 +282,15 @@ def test_collect_against_a_real_server_stops_and_resumes(tmp_path: Path) -> None
     bank = tmp_path / "bank.sqlite"
     server, url = start_llama_server(tmp_path / "server.log")
     try:
-        command = letspi("collect", "--scenarios", str(scenario_file), "--memory", str(bank),
-                         "--llm", f"openai:smollm2@{url}", "--goals", "kinematic", "--no-cache",
-                         "--max-iterations", "0", "--concurrency", "2", "--request-timeout", "600")
+        command = letspi_command("collect", "--scenarios", str(scenario_file), "--memory", str(bank),
+                                 "--llm", f"openai:smollm2@{url}", "--goals", "kinematic", "--no-cache",
+                                 "--max-iterations", "0", "--concurrency", "2", "--request-timeout", "600")
         stopped = run_and_stop(command, lambda: _bank_rows(bank) >= 1, tmp_path / "err.txt", timeout_s=900)
         assert stopped.returncode == 130, stopped.stderr
         assert stopped.seconds < EXIT_BOUND_S  # the second request may still be in the server
-        stored, total = stopped.stop_line()
+        stored, total = one_stop_line(stopped)
         assert total == n and stored == _bank_rows(bank) and 1 <= stored < n
-        assert stopped.left == []
+        assert stopped.left == ()
         assert server.proc.poll() is None
         finish(command)
     finally:

@@ -16,12 +16,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
 import os
 import shutil
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Final
@@ -29,6 +27,7 @@ from typing import Final
 import pandas as pd
 
 from letspi.benchmark.suites import GeneratedTraffic, RealHighD, Suite
+from letspi.execution.interrupt import WorkerPool
 from letspi.fsutil import atomic_write_text
 from letspi.highd.events import read_events
 from letspi.highd.io import list_recording_ids, read_recording
@@ -143,8 +142,8 @@ def generate_traffic(traffic: GeneratedTraffic, root: Path, *, workers: int,
         for d, s in todo:
             _generate_seed(str(d), s, traffic)
     else:
-        context = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: one libsumo each
-        with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context) as pool:
+        # spawned (a fresh interpreter per worker: one libsumo each); Ctrl-C terminates them at once
+        with WorkerPool(min(workers, len(todo))) as pool:
             for future in [pool.submit(_generate_seed, str(d), s, traffic) for d, s in todo]:
                 future.result()
     return dirs, time.perf_counter() - started

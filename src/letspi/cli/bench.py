@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -15,8 +16,10 @@ from rich.table import Table
 
 from letspi.assembly.planner_table import planner_kind
 from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
-from letspi.bench.closed_loop import bench_closed_loop
+from letspi.bench.closed_loop import bench_closed_loop, bench_scenarios
 from letspi.bench.data import bench_data
+from letspi.bench.interrupt import MODES as INTERRUPT_MODES
+from letspi.bench.interrupt import bench_interrupt
 from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
 from letspi.bench.llm_runtime import CONFIGS, bench_runtime
@@ -279,3 +282,43 @@ def robustness_cmd(
                   f"({format_number(result['seconds'])} s)", highlight=False)
     if result["crashes"] or result["nan_values"] or result["nan_aggregates"]:
         raise typer.Exit(code=1)
+
+
+@app.command("interrupt")
+def interrupt_cmd(
+    scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
+    n: Annotated[int, typer.Option(help="Scenarios of the evaluate modes.")] = 3000,
+    n_llm: Annotated[int, typer.Option(help="Scenarios of collect and train llm-data.")] = 40,
+    mode: Annotated[list[str] | None, typer.Option(
+        help=f"Modes to run (repeatable; default all): {', '.join(INTERRUPT_MODES)}.")] = None,
+    after_s: Annotated[float, typer.Option(help="Seconds after its start each command gets Ctrl-C.")] = 10.0,
+    resume: Annotated[bool, typer.Option(help="Rerun the resumable commands to completion and count.")] = True,
+    llm_latency_s: Annotated[float, typer.Option(help="collect: the test server's latency per request.")] = 2.0,
+    minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 7.0,
+    seed: int = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Ctrl-C: seconds from SIGINT to the exit of each long command (evaluate open and closed loop,
+    with workers and on Ray, collect, train llm-data, data generate, bench physics), its stop line,
+    child processes left running (must be 0) and the rerun's rows and duplicates."""
+    with user_errors():
+        batch = bench_scenarios(scenarios, max(n, n_llm), minutes, seed)
+        result = bench_interrupt(batch, n=n, n_llm=n_llm, modes=mode or INTERRUPT_MODES, after_s=after_s,
+                                 resume=resume, llm_latency_s=llm_latency_s,
+                                 log=lambda m: console.print(m, highlight=False, markup=False))
+    if as_json:
+        typer.echo(json.dumps(result, indent=2))
+        return
+    table = Table(title=f"letspi bench interrupt: SIGINT {format_number(after_s)} s in, {format_number(n)} scenarios "
+                        f"(load {result['loadavg_start']} -> {result['loadavg_end']})")
+    for col in ("mode", "s to exit", "exit", "kept", "left", "rerun rows", "dup"):
+        table.add_column(col, justify="left" if col in ("mode", "kept") else "right")
+    for name, row in result["modes"].items():
+        rerun = row.get("rerun") or {}
+        counted = re.match(r"interrupted: (\d+ of \d+) stored", row["stop_line"])
+        kept = counted.group(1) if counted else "nothing" if "nothing stored" in row["stop_line"] else row["stop_line"]
+        table.add_row(name, format_number(row["seconds_to_exit"]), str(row["exit_code"]), kept,
+                      format_number(row["left_running"]),
+                      f"{format_number(rerun['rows'])}/{format_number(rerun['expected_rows'])}" if rerun else "-",
+                      format_number(rerun["duplicates"]) if rerun else "-")
+    Console().print(table)

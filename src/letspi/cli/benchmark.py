@@ -86,7 +86,7 @@ def run(
 ) -> None:
     """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
     (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
-    with user_errors():
+    with user_errors(resumes=True):  # the data is cached, each mode's evaluation resumes
         s = get_suite(suite)
         planners = planner or default_planners()
         target = out or Path("benchmark") / s.suite_id

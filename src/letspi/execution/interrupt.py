@@ -37,12 +37,15 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from multiprocessing.process import BaseProcess
 from pathlib import Path
 from types import FrameType
-from typing import Final, NoReturn
+from typing import Any, Final, NoReturn, TypeVar
+
+T = TypeVar("T")
 
 #: exit code after Ctrl-C (128 + SIGINT); after SIGTERM it is 143
 EXIT_INTERRUPTED: Final = 128 + signal.SIGINT
@@ -163,6 +166,9 @@ def enter_worker() -> None:
 
 
 def _exit_on_sigterm(signum: int, frame: FrameType | None) -> None:
+    # once: a second SIGTERM (a process pool terminates all its workers when one exits) must not
+    # interrupt the cleanup the first one started; the parent's SIGKILL remains the backstop
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise SystemExit(128 + signum)
 
 
@@ -176,6 +182,55 @@ def run_worker(body: Callable[[], object]) -> None:
     except SystemExit as stop:
         _flush()
         os._exit(stop.code if isinstance(stop.code, int) else 1)
+
+
+def _in_worker(fn: Callable[..., T], *args: Any) -> T:
+    """A pool item (``WorkerPool``): stopped by SIGTERM, its ``finally`` blocks run, then the worker
+    ends at once (the pool would otherwise carry on with its next item)."""
+    try:
+        return fn(*args)
+    except SystemExit as stop:
+        _flush()
+        os._exit(stop.code if isinstance(stop.code, int) else 1)
+
+
+class WorkerPool:
+    """A pool of spawned worker processes for long items (a fresh interpreter each: one libsumo per
+    process). Its workers ignore Ctrl-C (``enter_worker``; they start while SIGINT is blocked, see
+    ``start_worker``) and, stopped by SIGTERM, run the item's cleanup and exit. Leaving the ``with``
+    block by an exception (Ctrl-C, an error) cancels the queued items and terminates the workers
+    instead of waiting for the items in flight; a block that ends normally waits for them."""
+
+    def __init__(self, max_workers: int) -> None:
+        self._pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=enter_worker)
+
+    def submit(self, fn: Callable[..., T], *args: Any) -> Future[T]:
+        """``fn(*args)`` in a worker (a worker starts here, when the pool needs one)."""
+        multiprocessing.resource_tracker.ensure_running()  # see start_worker
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if hasattr(signal, "pthread_sigmask") else None
+        try:
+            return self._pool.submit(_in_worker, fn, *args)
+        finally:
+            if old is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+    def __enter__(self) -> WorkerPool:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        if exc_type is None:
+            self._pool.shutdown(wait=True)
+            return
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        deadline = time.monotonic() + CHILD_GRACE_S
+        for process in processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.kill()
 
 
 def _proc_stat(pid: int) -> tuple[int, str] | None:
