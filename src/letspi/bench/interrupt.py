@@ -81,11 +81,12 @@ def _ignore_sigint() -> None:
 
 def run_and_stop(command: Sequence[str], ready: Callable[[], bool], log: Path, *, signals: int = 1,
                  group: bool = True, ignore_sigint: bool = False, signum: int = signal.SIGINT,
-                 timeout_s: float = 600.0, stdout: Path | None = None) -> Stopped:
+                 timeout_s: float = 600.0, exit_timeout_s: float = 120.0, stdout: Path | None = None) -> Stopped:
     """Start ``command`` in a session of its own, wait for ``ready()``, send ``signum`` ``signals``
     times 0.5 s apart (to the process group, as a terminal's Ctrl-C, or with ``group=False`` to the
     process alone, as ``kill``) and wait for the exit. ``ignore_sigint``: start it with SIGINT
-    ignored, as a shell starts ``cmd &`` in a script. Its stderr goes to ``log``."""
+    ignored, as a shell starts ``cmd &`` in a script. Its stderr goes to ``log``. A command still running
+    ``exit_timeout_s`` after the signal is killed (``subprocess.TimeoutExpired``)."""
     with open(log, "w") as err, open(stdout or os.devnull, "w") as out:
         proc = subprocess.Popen(list(command), env=_child_env(), stdout=out, stderr=err, start_new_session=True,
                                 preexec_fn=_ignore_sigint if ignore_sigint else None)
@@ -109,7 +110,7 @@ def run_and_stop(command: Sequence[str], ready: Callable[[], bool], log: Path, *
                     os.killpg(proc.pid, signum)
                 else:
                     proc.send_signal(signum)
-            proc.wait(timeout=timeout_s)
+            proc.wait(timeout=exit_timeout_s)
             seconds = time.monotonic() - sent
         finally:
             if proc.poll() is None:

@@ -46,6 +46,7 @@ from letspi.assembly.build import Builder, build_planners
 from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.bench.llm_server import latency_for, request_keys
 from letspi.evaluation.harness import evaluate
+from letspi.execution.interrupt import CHILD_GRACE_S, received
 from letspi.execution.ordered import RunnerConfig, RunStats, run_ordered
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.describe import ScenarioDescription, describe_scenario
@@ -109,8 +110,8 @@ class _Process:
 
     def close(self) -> None:
         self.proc.terminate()
-        try:
-            self.proc.wait(timeout=20)
+        try:  # after Ctrl-C a server finishing its request in flight is not waited for
+            self.proc.wait(timeout=20 if received() is None else CHILD_GRACE_S)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()

@@ -14,6 +14,7 @@ import os
 import shlex
 import sqlite3
 import sys
+import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -153,8 +154,8 @@ def user_errors(*, resumes: bool = False) -> Iterator[interrupt.Tally]:
             raise
         raise _classify(exc) from exc
     except KeyboardInterrupt as exc:
-        if debug_enabled():
-            raise
+        if debug_enabled():  # where it stopped, then the same line and exit code
+            traceback.print_exc()
         interrupt.stop_children()  # first: their last messages (e.g. Ray's) come before the line
         console.print(escape(tally.line()), highlight=False, soft_wrap=True)
         interrupt.mark_reported()
