@@ -13,7 +13,7 @@ from pathlib import Path
 import letspi
 
 HEAVY_OPTIONAL = ("torch", "transformers", "peft", "gguf", "llama_cpp", "libsumo", "traci", "sumolib", "ray",
-                  "commonroad", "commonroad_dc")
+                  "commonroad", "commonroad_dc", "sklearn")
 #: letspi packages whose modules import a heavy optional dependency (torch, commonroad) at module level
 HEAVY_PACKAGES = ("letspi.learned.train", "letspi.finetune", "letspi.interop.commonroad")
 SRC = Path(letspi.__file__).parent

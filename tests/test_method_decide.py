@@ -184,4 +184,4 @@ def test_memory_phase_choice_refinement_names_the_rejected_preset_and_the_failed
     result = phase.run(scene, np.array([150.0, 0.0]))
     assert [it.proposal.meta["decision"] for it in result.iterations] == ["default", "slow"]
     refine = backend.calls[1][-1]["content"]
-    assert "Rejected: default" in refine and "fails leader-brakes (" in refine
+    assert "Rejected: default\nCheck: failed leader-brakes" in refine

@@ -27,8 +27,8 @@ from letspi.planners.cv import CvConfig
 from letspi.planners.idm import IdmConfig
 from letspi.planners.sf_params import save_sf_params
 
-ALL_KINDS = ("human", "cv", "idm", "sf", "sf-opt", "gnp", "frenet", "mlp", "llm", "letspi-memory", "letspi-fast",
-             "letspi-fs")
+ALL_KINDS = ("human", "cv", "idm", "sf", "sf-opt", "sf-check", "gnp", "frenet", "mlp", "llm", "letspi-memory",
+             "letspi-fast", "letspi-fs")
 
 
 def _name_sha(path: object) -> str:
@@ -62,12 +62,15 @@ PINNED_KEYS = {
     # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
     # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
     "frenet": "fe73b79fa4e18c4a",
+    # issue 28: the decision step without a model; its key holds the shipped presets and risk model's SHA-256
+    "sf-check": "6283d611d7d72535",
 }
 PINNED_VARIANT_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
     "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "8b044cb7aa3fbaa4",
     "letspi-memory": "b990114e7952b187", "letspi-fast": "27ae453b4559b8a3", "letspi-fs": "0d959d74e5b9deb0",
     "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
+    "sf-check": "b82f022006b966ea",
 }
 PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf863542"}
 

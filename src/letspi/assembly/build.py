@@ -23,6 +23,7 @@ from letspi.llm.schema import fallback_reply_from_params
 from letspi.llm.spec import make_backend
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
 from letspi.planners.base import Planner
 from letspi.planners.config import GoalsConfig, LlmConfig, MemoryPhaseConfig, PlannerConfig, SfParamsConfig
@@ -113,9 +114,12 @@ class Builder:
     def memory_phase(self, config: MemoryPhaseConfig) -> tuple[MemoryPhase, float]:
         """The memory-collection phase (its experiences are stored under ``config.key()``) and model load time."""
         advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
+        decider = (config.decision.decider(config.sf_params.params(), config.reflection)
+                   if config.decision is not None else None)
         phase = MemoryPhase(advisor, self.goal_predictor(config.goals), float(config.sf_params.values["r_col_m"]),
                             config_key=config.key(), thresholds=config.reflection, neighbour_mode=config.neighbours,
-                            goal_adjustment=config.goal_adjustment, prompt_style=config.llm.prompt_style)
+                            goal_adjustment=config.goal_adjustment, prompt_style=config.llm.prompt_style,
+                            decider=decider)
         return phase, load_s
 
     def fast_phase(self, config: FastPlannerConfig) -> tuple[FastPhase, float]:
@@ -138,7 +142,10 @@ class Builder:
         if config.kind == "letspi-fast":
             retriever = Retriever(bank, k=config.top_k, config_key=ref.collection_key, allowed_ids=ids,
                                   allow_same_vehicle=ref.allow_same_vehicle)
-            return FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style), load_s
+            decider = (config.decision.decider(config.sf_params.params(), ReflectionThresholds())
+                       if config.decision is not None else None)
+            return FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style,
+                             decider=decider), load_s
         # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
         static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
         return FastPhase(advisor, goals, r_col, None, static_examples=static,

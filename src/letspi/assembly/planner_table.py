@@ -29,6 +29,7 @@ from pydantic import Field, TypeAdapter
 
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.base import Planner
 from letspi.planners.config import Config, GoalsConfig, PlannerConfig
@@ -40,6 +41,7 @@ from letspi.planners.idm import IdmConfig, IdmPlanner
 from letspi.planners.llm import FastPlannerConfig, LetsPiFastPlanner, LetsPiMemoryPlanner, MemoryPlannerConfig
 from letspi.planners.mlp import MlpConfig, ParamMlpPlanner
 from letspi.planners.sf import SfConfig, SocialForcePlanner
+from letspi.planners.sf_check import DecisionPlanner, SfCheckConfig
 from letspi.planners.sf_opt import SfOptConfig, SocialForceSearchPlanner
 
 if TYPE_CHECKING:  # both import this module at run time
@@ -126,9 +128,10 @@ def _resolve_memory(kind: str) -> Callable[[Resolver], MemoryPlannerConfig]:
 def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
     def resolve(r: Resolver) -> FastPlannerConfig:
         o = r.options
-        return FastPlannerConfig(kind=kind, llm=r.llm(o.fast_llm), goals=r.goals,  # type: ignore[arg-type]
+        llm = r.llm(o.fast_llm)
+        return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.top_k, shield=o.shield)
+                                 top_k=o.top_k, shield=o.shield, decision=r.decision(llm.prompt_style))
     return resolve
 
 
@@ -172,8 +175,22 @@ def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, 
     return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label), load_s
 
 
-def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig,
-                          ) -> PredictionInputs:
+def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
+    decision = r.decision("paper", always=True)
+    assert decision is not None
+    return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
+                         shield=r.options.shield)
+
+
+def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, float]:
+    params = c.sf_params.params()
+    return DecisionPlanner(params=params, decider=c.decision.decider(params, ReflectionThresholds()),
+                           goal_predictor=b.goal_predictor(c.goals), neighbour_mode=c.neighbours,
+                           shield_params=params if c.shield else None, name=label), 0.0
+
+
+def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig
+                          | SfCheckConfig) -> PredictionInputs:
     return c.goals, c.neighbours
 
 
@@ -193,6 +210,9 @@ PLANNER_TABLE: tuple[PlannerKind[Any], ...] = (
     PlannerKind("sf-opt", "per-scenario search over 27 social force candidates checked against predicted neighbours",
                 SfOptConfig, lambda r: SfOptConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params),
                 _build_sf_opt, inputs=_goals_and_neighbours),
+    PlannerKind("sf-check", "the decision step without a model: presets checked against the prediction and the "
+                "adverse futures, the defaults unless a check fails (where the risk gate fires), the LLM shield",
+                SfCheckConfig, _resolve_sf_check, _build_sf_check, inputs=_goals_and_neighbours),
     PlannerKind("gnp", "Goal-based Neural Physics: learned tau and neighbour weights, learned goals", GnpConfig,
                 _resolve_gnp, _build_gnp, inputs=_goals_and_neighbours),
     PlannerKind("frenet", "Werling-style lattice: quintic/quartic candidates to lanes, speeds and predicted leaders; "

@@ -24,14 +24,16 @@ from letspi.llm.backends.llamacpp import LlamaRuntime
 from letspi.llm.client import RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.fingerprint import prompt_fingerprint
-from letspi.llm.models import is_fine_tuned, locate_adapter, locate_model
+from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
+from letspi.method.decide import recommended_threshold
 from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
 from letspi.method.prompt_samples import prompt_text_samples
 from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.config import (
+    DecisionConfig,
     GoalsConfig,
     LlmConfig,
     MemoryPhaseConfig,
@@ -71,7 +73,13 @@ class PlannerOptions:
     memory_seed: int = 0
     shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
     mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
-    prompt_style: str | None = None  # paper | compact; None: compact for a fine-tuned model, else paper
+    prompt_style: str | None = None  # paper | compact | choice; None: what the fine-tuned adapter was trained on
+    decide: bool | None = None  # LetsPi's decision step (presets, adverse futures, gate); None: on for the choice style
+    presets_file: Path | None = None  # the decision step's presets (default: the shipped ones)
+    adverse: bool = True  # check against the adverse futures (False: the prediction only)
+    gate: bool = True  # the risk gate of the fast phase (False: the model is asked on every scenario)
+    gate_threshold: float | None = None  # None: the risk model's recommended threshold
+    risk_model_file: Path | None = None  # the gate's model (default: the shipped one)
     frenet_weights_file: Path | None = None  # frenet cost weights (default: the shipped fit)
 
 
@@ -180,8 +188,9 @@ class Resolver:
             if adapter is not None:
                 adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
         style = self.options.prompt_style
-        if style is None:
-            style = "compact" if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
+        if style is None:  # what the adapter was trained on (compact for an adapter that does not say)
+            trained = adapter_prompt_style(Path(adapter_path)) if adapter_path is not None else None
+            style = (trained or "compact") if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
         if style not in PROMPT_STYLES:
             raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
@@ -194,14 +203,30 @@ class Resolver:
     def _prompt_sha(self) -> str:
         return prompt_sha256()
 
+    def decision(self, prompt_style: str, *, gate: bool = True, always: bool = False) -> DecisionConfig | None:
+        """The decision step (``--decide``; default: on for the choice style, or ``always``); the gate only
+        where ``gate`` (the fast phase and ``sf-check``) and ``--gate`` allow it."""
+        o = self.options
+        on = o.decide if o.decide is not None else (always or prompt_style == "choice")
+        if prompt_style == "choice" and not on:
+            raise ValueError("the choice prompt style needs the decision step's presets (drop --no-decide)")
+        if not on:
+            return None
+        threshold = None
+        if gate and o.gate:
+            threshold = o.gate_threshold if o.gate_threshold is not None else recommended_threshold(o.risk_model_file)
+        return DecisionConfig.resolve(o.presets_file, o.adverse, threshold, o.risk_model_file)
+
     def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
                      goal_adjustment: bool | None = None) -> MemoryPhaseConfig:
         """The collection configuration (defaults from the options)."""
         iterations = self.options.max_iterations if max_iterations is None else max_iterations
+        llm = self.llm(spec or self.options.llm)
         return MemoryPhaseConfig(
-            llm=self.llm(spec or self.options.llm), goals=self.goals, neighbours=self.neighbours,
+            llm=llm, goals=self.goals, neighbours=self.neighbours,
             sf_params=self.sf_params, reflection=ReflectionThresholds(max_iterations=iterations),
             goal_adjustment=self.options.goal_adjustment if goal_adjustment is None else goal_adjustment,
+            decision=self.decision(llm.prompt_style, gate=False),
         )
 
     def memory_ref(self) -> MemoryRef:

@@ -283,3 +283,44 @@ def train_llm(
                   f"{manifest['data']['n_val']} val examples; val loss {t['val_loss_before']:.3f} -> "
                   f"{t['val_loss_after']:.3f}; torch vs llama.cpp greedy agree on "
                   f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")
+
+
+@app.command("decide")
+def train_decide(
+    scenarios: ScenariosOpt,
+    out: Annotated[Path, typer.Option(help="Output directory: pool/ (cached option outcomes), presets.json, "
+                                      "risk_model.json, labels/<file>/ (for `letspi train llm`); rerun to resume.")],
+    presets: Annotated[int, typer.Option(help="Presets to keep from the pool (the defaults included).")] = 6,
+    consult_share: Annotated[float, typer.Option(
+        help="Share of the training windows on which the risk gate consults the model (sets its threshold).")] = 0.15,
+    keep_share: Annotated[float, typer.Option(
+        help="Share of the windows the gate does not consult that become examples of keeping the defaults.")] = 0.1,
+    refine_weight: Annotated[float, typer.Option(help="Weight (repetitions) of the refinement examples.")] = 2.0,
+    sf_params: Annotated[Path | None, typer.Option(help="Fitted sf parameters (default: the shipped fit).")] = None,
+    goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
+) -> None:
+    """LetsPi's decision step from training traffic: presets, the risk gate and decision-focused labels
+    (hindsight: the recorded future decides which preset was best; never evaluation seeds)."""
+    from letspi.finetune.decide_build import build_decision_data
+
+    with user_errors(), writer_lock(out, command_line()):
+        if goals not in ("learned", "kinematic"):
+            raise ValueError("--goals must be learned or kinematic")
+        if not 0.0 < consult_share <= 1.0:
+            raise ValueError("--consult-share must be in (0, 1]")
+        for path in scenarios:
+            refuse_suite_traffic(path, read_scenario_meta(path))
+        params, _ = load_sf_params(sf_params)
+        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        with progress_bar() as bar:
+            task = bar.add_task("scoring the pool", total=None)
+            summary = build_decision_data(scenarios, out, goal_predictor, params, goals=goals, n_presets=presets,
+                                          consult_share=consult_share, keep_share=keep_share,
+                                          refine_weight=refine_weight, command=command_line(),
+                                          progress=lambda k: bar.advance(task, k))
+    console.print(f"presets -> {out / 'presets.json'}: {', '.join(summary['presets'])}")
+    gate = summary["gate"]
+    console.print(f"risk gate -> {out / 'risk_model.json'}: threshold {gate['threshold']:.3f} consults "
+                  f"{100 * gate['consult_share']:.1f} % of the training windows, {100 * gate['cv_recall']:.1f} % "
+                  f"of those where the defaults collide (cross-validated AUC {gate['cv_auc']:.3f})")
+    console.print(f"labels -> {out / 'labels'}: {summary['n_examples']} rows; option shares {summary['label_shares']}")

@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from letspi.finetune.decide_data import CHOICE_COLUMNS, CHOICE_FORMAT
 from letspi.finetune.labels import FORMAT, LABELS_FILE, MANIFEST_FILE, load_labels
+from letspi.llm.choice import OptionLine, choice_check_text, choice_reply_text, render_choice_prompt
 from letspi.llm.compact import compact_reply_text, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
 from letspi.llm.schema import NUMERIC_FIELDS
@@ -88,6 +90,39 @@ def example_of_row(row: pd.Series, desc: Any, vehicle_key: str = "") -> ChatExam
                        str(row["scenario_digest"]), vehicle_key)
 
 
+def choice_example_of_row(row: pd.Series, desc: Any, vehicle_key: str = "") -> ChatExample:
+    """The chat example of one choice label row (``letspi.finetune.decide_data``): the choice prompt over
+    the row's option lines, and for a refinement the rejected preset and the checks it failed."""
+    lines = [OptionLine(str(name), tuple(failed), float(progress)) for name, failed, progress in
+             json.loads(row["lines_json"])]
+    rejected = str(row["rejected"]) or None
+    report = None
+    if rejected is not None:
+        failed = next((line.failed for line in lines if line.name == rejected), ())
+        report = choice_check_text(failed)
+    messages = render_choice_prompt(desc, lines, risk=float(row["risk"]), rejected=rejected, report=report)
+    return ChatExample(tuple(messages), choice_reply_text(str(row["option"])), str(row["kind"]),
+                       str(row["scenario_digest"]), vehicle_key)
+
+
+def read_choice_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """``labels.parquet`` and ``manifest.json`` of a choice labels directory (``letspi train decide``)."""
+    d = Path(directory)
+    manifest = json.loads((d / MANIFEST_FILE).read_text())
+    if manifest.get("format") != CHOICE_FORMAT:
+        raise ValueError(f"{d / MANIFEST_FILE}: format {manifest.get('format')!r}, expected {CHOICE_FORMAT!r}")
+    df = pd.read_parquet(d / LABELS_FILE)
+    missing = [c for c in CHOICE_COLUMNS if c not in df.columns]
+    if missing:
+        raise ValueError(f"{d / LABELS_FILE}: missing column(s) {missing}")
+    return df, manifest
+
+
+def _is_choice(directory: Path) -> bool:
+    mfile = Path(directory) / MANIFEST_FILE
+    return mfile.is_file() and json.loads(mfile.read_text()).get("format") == CHOICE_FORMAT
+
+
 def build_examples(
     directory: Path,
     goal_predictor: GoalPredictor,
@@ -103,12 +138,13 @@ def build_examples(
     its rows must have the digests the labels recorded. ``max_scenarios``: only the first N
     labelled scenarios (by row index), for quick runs and tests.
     """
-    df, manifest = read_labels(directory)
+    choice = _is_choice(directory)
+    df, manifest = read_choice_labels(directory) if choice else read_labels(directory)
     path = Path(scenarios or manifest.get("scenarios_path", ""))
     if not path.is_file():
         raise FileNotFoundError(f"{directory}/{MANIFEST_FILE}: scenario file {path} not found (pass --scenarios)")
     n_rows = len(df)
-    if safe_only:
+    if safe_only and not choice:
         df = df[df["label_safe"].astype(bool)]
     indices = np.unique(df["scenario_index"].to_numpy(dtype=np.int64))
     if max_scenarios is not None:
@@ -130,8 +166,13 @@ def build_examples(
             descs[j] = describe_scenario(batch.take([j]), goals[j])
             if progress is not None:
                 progress(1)
-        examples.append(example_of_row(row, descs[j], str(vehicles[j])))
+        if choice:  # weights by repetition: an example of weight w appears round(w) times (at least once)
+            example = choice_example_of_row(row, descs[j], str(vehicles[j]))
+            examples += [example] * max(1, round(float(row["weight"])))
+        else:
+            examples.append(example_of_row(row, descs[j], str(vehicles[j])))
     info = {
+        "prompt_style": "choice" if choice else "compact",
         "labels_dir": str(directory),
         "labels_sha256": labels_sha256(directory),
         "labels_manifest": {k: manifest.get(k) for k in ("dataset_digest", "n_scenarios", "n_propose", "n_refine",
@@ -163,7 +204,11 @@ def build_examples_many(
                                   progress=progress)
         examples += ex
         infos.append(info)
-    info = {"sources": infos, "n_examples": len(examples),
+    styles = sorted({i["prompt_style"] for i in infos})
+    if len(styles) > 1:
+        raise ValueError(f"labels of different prompt styles ({', '.join(styles)}) cannot train one model: "
+                         f"{', '.join(str(i['labels_dir']) for i in infos)}")
+    info = {"prompt_style": styles[0] if styles else "compact", "sources": infos, "n_examples": len(examples),
             "labels_sha256": [i["labels_sha256"] for i in infos],
             "n_scenarios": int(sum(i["n_scenarios"] for i in infos))}
     return examples, info

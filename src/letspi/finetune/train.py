@@ -330,7 +330,7 @@ def train_lora(
         "fingerprint": fingerprint,
         "base_model": {"path": str(base_gguf), "sha256": base_sha},
         "adapter": {**adapter_record, "trainable_parameters": int(n_trainable)},
-        "prompt_style": "compact",
+        "prompt_style": (data_info or {}).get("prompt_style", "compact"),
         "hyperparameters": asdict(config),
         "data": {**(data_info or {}), **_data_record(config, train, val, val_eval, enc_train)},
         "training": {**_training_record(config, history, steps_per_epoch, len(enc_train)),

@@ -26,6 +26,8 @@ from letspi.llm.prompts import _render, _static_context
 from letspi.llm.types import Message, ReplyParseError, message
 
 CHOICE_KEY: Final = "option"
+#: nearest cars the choice prompt lists (fewer than the compact prompt's: the options carry the checks)
+MAX_CARS: Final = 4
 
 
 @dataclass(frozen=True)
@@ -48,22 +50,36 @@ def choice_system_prompt() -> str:
     return _render("choice_system.j2", **_static_context())
 
 
+def risk_text(risk: float) -> str:
+    """The risk line's value: a percentage, ``-`` when unknown."""
+    return f"{100 * risk:.0f} %" if math.isfinite(risk) else "-"
+
+
 def render_choice_prompt(
     desc: ScenarioDescription,
     options: Sequence[OptionLine],
     *,
+    risk: float = float("nan"),
     rejected: str | None = None,
     report: str | None = None,
 ) -> list[Message]:
-    """``[system, user]``: the scene and the options; for a refinement also the rejected option and its
-    check (both or neither)."""
+    """``[system, user]``: the scene, the estimated risk that the defaults collide (``risk`` in [0, 1],
+    the risk gate's score; the line is left out when NaN) and the options; for a refinement also the
+    rejected option and its check (both or neither)."""
     if (rejected is None) != (report is None):
         raise ValueError("a choice refinement prompt needs both the rejected option and its report")
     if not options:
         raise ValueError("a choice prompt needs at least one option")
-    user = _render("choice_user.j2", scene=compact_scene_text(desc), options=[o.context() for o in options],
-                   rejected=rejected or "", report=report or "", horizon_s=_static_context()["horizon_s"])
+    user = _render("choice_user.j2", scene=compact_scene_text(desc, max_neighbours=MAX_CARS),
+                   options=[o.context() for o in options],
+                   risk=risk_text(risk) if math.isfinite(risk) else "", rejected=rejected or "", report=report or "",
+                   horizon_s=_static_context()["horizon_s"])
     return [message("system", choice_system_prompt()), message("user", user)]
+
+
+def choice_check_text(failed: Sequence[str]) -> str:
+    """The check line of a refinement: ``failed predicted, leader-brakes`` (or ``passed every check``)."""
+    return f"failed {', '.join(failed)}" if failed else "passed every check"
 
 
 def choice_json_schema(names: Sequence[str]) -> dict[str, Any]:

@@ -136,8 +136,9 @@ def _choice_samples(desc: ScenarioDescription) -> Samples:
              choice.OptionLine("lane-left", ("predicted", "cut-in", "follower-keeps"), float("nan"))]
     return {
         "choice": choice.render_choice_prompt(desc, lines),
-        "choice+refine": choice.render_choice_prompt(desc, lines, rejected="default",
-                                                     report="failed leader-brakes (contact at 2.3 s)"),
+        "choice+risk": choice.render_choice_prompt(desc, lines, risk=0.234),
+        "choice+refine": choice.render_choice_prompt(desc, lines, risk=0.05, rejected="default",
+                                                     report=choice.choice_check_text(["predicted", "leader-brakes"])),
     }
 
 

@@ -20,6 +20,7 @@ import hashlib
 import importlib
 import importlib.resources
 import importlib.util
+import json
 import os
 import tempfile
 from collections.abc import Callable, Mapping
@@ -124,6 +125,19 @@ def is_fine_tuned(name: str) -> bool:
     """Whether ``name`` is an embedded model that needs a LoRA adapter."""
     model = EMBEDDED_MODELS.get(name)
     return bool(model and model.fine_tuned)
+
+
+def adapter_prompt_style(adapter: Path) -> str | None:
+    """The prompt style an adapter was trained on (``prompt_style`` of the ``manifest.json`` beside it;
+    None without one)."""
+    manifest = Path(adapter).parent / "manifest.json"
+    if not manifest.is_file():
+        return None
+    try:
+        style = json.loads(manifest.read_text()).get("prompt_style")
+    except (OSError, ValueError) as exc:
+        raise ModelNotFoundError(f"{manifest}: not a readable adapter manifest ({exc})") from exc
+    return str(style) if style is not None else None
 
 
 def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | None:

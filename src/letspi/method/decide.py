@@ -20,22 +20,25 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import numpy as np
 
 from letspi.constants import DT_S
 from letspi.learned.logistic import LogisticModel
+from letspi.learned.trees import FORMAT as TREES_FORMAT
+from letspi.learned.trees import TreeEnsemble
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
 from letspi.method.reflection import simulate_proposal
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.params import SocialForceParams
 from letspi.physics.types import NeighbourPrediction
-from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
+from letspi.safety.adverse import ADVERSE_FUTURES, AdverseFuture, AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.risk_features import RISK_FEATURE_NAMES, risk_features
 from letspi.scenario.types import ScenarioBatch
 
@@ -230,26 +233,42 @@ def rule_choice(predicted_safe: np.ndarray, adverse_failed: np.ndarray, progress
     return out
 
 
-#: the gate's inputs: the history's risk features and the defaults' checks
-GATE_FEATURE_NAMES: Final[tuple[str, ...]] = (*RISK_FEATURE_NAMES, "default_predicted_unsafe",
-                                              "default_failed_adverse_n", "default_min_ttc_s")
+#: the gate's inputs: the history's risk features and the defaults' checks (prediction, each adverse future)
+GATE_FEATURE_NAMES: Final[tuple[str, ...]] = (
+    *RISK_FEATURE_NAMES, "default_predicted_unsafe", *(f"default_fails_{a}" for a in ADVERSE_FUTURES))
 
 
-def gate_features(history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
-    """(B, len(GATE_FEATURE_NAMES)): risk features plus the defaults' (option 0) check results."""
-    ttc = np.minimum(np.nan_to_num(checks.min_ttc_s[:, 0], posinf=10.0), 10.0)
-    return np.concatenate([risk_features(history), (~checks.predicted_safe[:, :1]).astype(np.float64),
-                           checks.adverse_failed[:, 0].sum(axis=1, keepdims=True).astype(np.float64), ttc[:, None]],
-                          axis=1)
+def gate_features(history: ScenarioBatch, predicted_safe: np.ndarray, adverse_failed: np.ndarray,
+                  adverse_names: Sequence[str]) -> np.ndarray:
+    """(B, len(GATE_FEATURE_NAMES)): risk features plus the defaults' check results (predicted_safe (B,),
+    adverse_failed (B, A) for the futures ``adverse_names``; a future not checked counts as passed)."""
+    failed = np.zeros((len(history), len(ADVERSE_FUTURES)))
+    for a, name in enumerate(adverse_names):
+        failed[:, ADVERSE_FUTURES.index(AdverseFuture(name))] = adverse_failed[:, a]
+    unsafe = (~np.asarray(predicted_safe, dtype=bool))[:, None].astype(np.float64)
+    return np.concatenate([risk_features(history), unsafe, failed], axis=1)
+
+
+class ScoreModel(Protocol):
+    """A binary classifier with NumPy inference (``LogisticModel``, ``TreeEnsemble``)."""
+
+    @property
+    def feature_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def provenance(self) -> dict[str, Any]: ...
+
+    def score(self, x: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
 class RiskGate:
-    """Consult the model only where ``model.score`` (the probability that the defaults collide) is at
-    least ``threshold``."""
+    """The risk score of a scene (``model.score``: the probability that the defaults collide, which the
+    choice prompt shows) and the gate: consult the model only where it is at least ``threshold``
+    (None: everywhere)."""
 
-    model: LogisticModel
-    threshold: float
+    model: ScoreModel
+    threshold: float | None
 
     def __post_init__(self) -> None:
         if tuple(self.model.feature_names) != GATE_FEATURE_NAMES:
@@ -257,14 +276,28 @@ class RiskGate:
                              f"{GATE_FEATURE_NAMES}")
 
     def scores(self, history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
-        """(B,) risk scores in [0, 1]."""
-        return self.model.score(gate_features(history, checks))
+        """(B,) risk scores in [0, 1] (from the defaults' checks, option 0)."""
+        return self.model.score(gate_features(history, checks.predicted_safe[:, 0], checks.adverse_failed[:, 0],
+                                              checks.adverse_names))
 
 
-def load_risk_model(path: Path | None = None) -> tuple[LogisticModel, str]:
-    """The gate's model (shipped, or ``path``) and its SHA-256."""
+def recommended_threshold(path: Path | None = None) -> float:
+    """The gate threshold the risk model was shipped with (``provenance.threshold``)."""
+    model, _ = load_risk_model(path)
+    try:
+        return float(model.provenance["threshold"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path or 'the shipped risk model'}: no recommended threshold in its provenance; "
+                         "give --gate-threshold") from exc
+
+
+def load_risk_model(path: Path | None = None) -> tuple[ScoreModel, str]:
+    """The gate's model (shipped, or ``path``: trees or a logistic model, by its ``format``) and its SHA-256."""
     text, where = _data_text(RISK_MODEL_FILE) if path is None else (Path(path).read_text(), str(path))
-    return LogisticModel.from_json(json.loads(text), where), hashlib.sha256(text.encode()).hexdigest()
+    data = json.loads(text)
+    model: ScoreModel = (TreeEnsemble.from_json(data, where) if data.get("format") == TREES_FORMAT
+                         else LogisticModel.from_json(data, where))
+    return model, hashlib.sha256(text.encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -291,7 +324,7 @@ class Decider:
     """The decision step as the phases use it: the presets, their checks, the risk gate.
 
     ``adverse`` None checks against the prediction only (the "without adverse futures" ablation);
-    ``gate`` None consults the model on every scenario.
+    ``gate`` None (no risk model) or a gate without threshold consults the model on every scenario.
     """
 
     presets: OptionTable
@@ -317,8 +350,8 @@ class Decider:
         return self.gate.scores(history, checks)
 
     def consulted(self, risk_scores: np.ndarray) -> np.ndarray:
-        """(B,) whether the model is asked (always without a gate)."""
-        if self.gate is None:
+        """(B,) whether the model is asked (always without a gate or its threshold)."""
+        if self.gate is None or self.gate.threshold is None:
             return np.ones(len(risk_scores), dtype=bool)
         out: np.ndarray = np.asarray(risk_scores) >= self.gate.threshold
         return out

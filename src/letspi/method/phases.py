@@ -26,7 +26,7 @@ import numpy as np
 
 from letspi.constants import N_TOTAL
 from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStatus, run_ordered
-from letspi.llm.choice import OptionLine, render_choice_prompt
+from letspi.llm.choice import OptionLine, choice_check_text, render_choice_prompt
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
@@ -89,12 +89,10 @@ def _reply_values(proposal: Proposal) -> dict[str, float]:
 
 
 def choice_report(report: SafetyReport, adverse: AdverseOutcome | None) -> str:
-    """What the choice style's refinement says about the rejected option: the checks against the
-    prediction that failed and the adverse futures it fails (``AdverseOutcome.text``)."""
-    parts = [] if report.safe else [f"predicted: {compact_report(report)}"]
-    if adverse is not None and adverse.failed:
-        parts.append(adverse.text())
-    return "; ".join(parts) or "passes all checks"
+    """What the choice style's refinement says about the rejected option: the checks it failed, by the
+    names its option line uses (``predicted``, then the adverse futures), as the training labels state it."""
+    failed = ([] if report.safe else ["predicted"]) + list(adverse.failed if adverse is not None else ())
+    return choice_check_text(failed)
 
 
 def option_lines(checks: OptionChecks, i: int) -> list[OptionLine]:
@@ -126,6 +124,7 @@ class LlmProposer:
     prompt_style: PromptStyle = "paper"
     options: Sequence[OptionLine] = ()
     replies: Mapping[str, PlannerReply] = field(default_factory=dict)
+    risk: float = float("nan")  # the choice prompt's risk line (the risk model's score of the scene)
 
     def __call__(self, ctx: ReflectionContext) -> Proposal:
         desc = describe_scenario(ctx.scenario, ctx.base_goal_xy_m)
@@ -133,10 +132,10 @@ class LlmProposer:
         adverse = f" Adverse futures: {ctx.adverse.text()}." if ctx.adverse is not None and ctx.adverse.failed else ""
         if self.prompt_style == "choice":
             if not refine or ctx.previous is None or ctx.report is None:
-                messages = render_choice_prompt(desc, self.options)
+                messages = render_choice_prompt(desc, self.options, risk=self.risk)
             else:
                 rejected = str(ctx.previous.meta.get("decision", CUSTOM))
-                messages = render_choice_prompt(desc, self.options, rejected=rejected,
+                messages = render_choice_prompt(desc, self.options, risk=self.risk, rejected=rejected,
                                                 report=choice_report(ctx.report, ctx.adverse))
             advice = self.advisor.choose(messages, self.replies)
             return _with_decision(proposal_from_advice(advice, messages, self.r_col_m), advice.choice or CUSTOM,
@@ -191,7 +190,8 @@ class MemoryPhase:
         proposer = LlmProposer(self.advisor, self.r_col_m, prompt_style=self.prompt_style)
         if self.decider is not None and self.prompt_style == "choice":
             checks = self.decider.check(scenario, base_goal[None], pred)
-            proposer = replace(proposer, options=option_lines(checks, 0), replies=preset_replies(self.decider.presets))
+            proposer = replace(proposer, options=option_lines(checks, 0), replies=preset_replies(self.decider.presets),
+                               risk=float(self.decider.risk_scores(scenario, checks)[0]))
         return reflect(scenario, proposer, self.thresholds, base_goal_xy_m=base_goal,
                        neighbour_prediction=pred, goal_adjustment=self.goal_adjustment,
                        adverse=self.decider.adverse if self.decider is not None else None)
@@ -399,7 +399,8 @@ class FastPhase:
                             rationale=f"risk {risk_score:.3f} below the gate's threshold: the defaults, no model call")
             return _with_decision(kept, DEFAULT_NAME, False, risk_score), retrieved
         if self.prompt_style == "choice":
-            messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0))
+            messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0),
+                                            risk=risk_score)
             advice = self.advisor.choose(messages, preset_replies(self.decider.presets))
             proposal = proposal_from_advice(advice, messages, self.r_col_m)
             return _with_decision(proposal, advice.choice or CUSTOM, True, risk_score), retrieved

@@ -32,13 +32,16 @@ from enum import Enum
 from pathlib import Path
 from typing import Any, ClassVar, Literal, Protocol
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from letspi.llm.client import RetryPolicy
 from letspi.llm.types import DecodingSettings
+from letspi.method.decide import Decider, OptionTable, RiskGate, load_presets, load_risk_model, with_defaults
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
+from letspi.safety.adverse import AdverseSettings
 
 KEY_CHARS = 16
 
@@ -75,11 +78,13 @@ class Config(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
     #: fields that locate or label but cannot change an answer (recorded, not hashed)
     cosmetic: ClassVar[frozenset[str]] = frozenset()
+    #: fields left out of the key while they are None: a feature added later, off, keeps the keys it had
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset()
 
     def identity(self) -> dict[str, Any]:
         """What the key hashes: every non-cosmetic field, nested configurations by their identity."""
         return {name: _identity(getattr(self, name)) for name in type(self).model_fields
-                if name not in self.cosmetic}
+                if name not in self.cosmetic and not (name in self.omitted_when_none and getattr(self, name) is None)}
 
     def key(self) -> str:
         """16 hex digits identifying this configuration's answers."""
@@ -218,6 +223,49 @@ class MemoryRef(Config):
     subset_seed: int = 0
 
 
+class DecisionConfig(Config):
+    """LetsPi's decision step (``letspi.method.decide``): the preset values, the adverse futures' settings
+    (None: checks against the prediction only, the "without adverse futures" ablation), the risk model
+    (its SHA-256; its score is the gate's and the choice prompt's risk) and the gate's threshold (None:
+    the model is asked on every scenario). A planner without it plans exactly as before the decision
+    step existed, under the same key."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"presets_source", "risk_model_path"})
+
+    preset_names: tuple[str, ...]
+    preset_values: tuple[tuple[float, ...], ...]
+    presets_source: str = "shipped"
+    adverse: AdverseSettings | None = AdverseSettings()
+    risk_model_sha256: str
+    risk_model_path: str = "shipped"
+    gate_threshold: float | None = None
+
+    def table(self) -> OptionTable:
+        return OptionTable(self.preset_names, np.asarray(self.preset_values, dtype=np.float64))
+
+    @classmethod
+    def resolve(cls, presets_file: Path | None, adverse: bool, gate_threshold: float | None,
+                risk_model_file: Path | None) -> DecisionConfig:
+        """From files (default: the shipped presets and risk model) and switches."""
+        table, _ = load_presets(presets_file)
+        _, sha = load_risk_model(risk_model_file)
+        return cls(preset_names=table.names, preset_values=tuple(tuple(float(x) for x in row) for row in table.values),
+                   presets_source="shipped" if presets_file is None else str(presets_file),
+                   adverse=AdverseSettings() if adverse else None, risk_model_sha256=sha,
+                   risk_model_path="shipped" if risk_model_file is None else str(risk_model_file),
+                   gate_threshold=gate_threshold)
+
+    def decider(self, params: SocialForceParams, thresholds: ReflectionThresholds) -> Decider:
+        """The decision step for planners whose defaults are ``params``."""
+        path = None if self.risk_model_path == "shipped" else Path(self.risk_model_path)
+        model, sha = load_risk_model(path)
+        if sha != self.risk_model_sha256:
+            raise ValueError(f"the risk model {self.risk_model_path} changed since the configuration was made "
+                             f"({self.risk_model_sha256[:12]} -> {sha[:12]})")
+        return Decider(with_defaults(self.table(), params), float(params.r_col_m), thresholds, self.adverse,
+                       RiskGate(model, self.gate_threshold))
+
+
 class MemoryPhaseConfig(Config):
     """LetsPi's memory collection phase: its key identifies the experiences it stores.
 
@@ -226,12 +274,15 @@ class MemoryPhaseConfig(Config):
     the other six) and the fallback parameters of a failed call.
     """
 
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision"})
+
     llm: LlmConfig
     goals: GoalsConfig
     neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     sf_params: SfParamsConfig
     reflection: ReflectionThresholds = Field(default_factory=ReflectionThresholds)
     goal_adjustment: bool = True
+    decision: DecisionConfig | None = None  # presets and adverse futures in the reflection (None: the paper's)
 
 
 class SocialForcePlannerFields(Config):

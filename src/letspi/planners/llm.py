@@ -36,12 +36,13 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
 from letspi.llm.client import ParamAdvisor
+from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
@@ -51,7 +52,16 @@ from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import Config, GoalsConfig, LlmConfig, MemoryPhaseConfig, MemoryRef, SfParamsConfig
+from letspi.planners.config import (
+    Config,
+    DecisionConfig,
+    GoalsConfig,
+    LlmConfig,
+    MemoryPhaseConfig,
+    MemoryRef,
+    SfParamsConfig,
+)
+from letspi.planners.decision import adverse_failed_names, decision_info
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
@@ -85,6 +95,7 @@ def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float
 
 SF_SOURCE = -1  # shield_source of the fitted sf parameters
 GRID_SOURCE = -2  # shield_source of a candidate of sf-opt's grid
+PRESET_SOURCE = -3  # shield_source of a preset of the decision step (``letspi.method.decide``)
 Alternative = tuple[int, SocialForceParams, float, float]  # (shield_source, params, lon_factor, lane_factor)
 #: ``Proposals.extra`` key of letspi-fast: (B, K, 9) the retrieved memories' parameters (``PARAM_NAMES``
 #: order), lon_factor and lane_factor, best first; NaN rows where fewer than K were retrieved
@@ -122,6 +133,7 @@ def shield_plans(
     thresholds: ReflectionThresholds,
     *,
     first_stage: int = SHIELD_FIRST_STAGE,
+    reports: Sequence[SafetyReport] | None = None,
 ) -> ShieldedPlans:
     """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by its safest
     alternative.
@@ -135,7 +147,8 @@ def shield_plans(
     the unadjusted goals the alternatives' factors apply to.
     """
     b = len(batch)
-    reports = safety_report(batch, plans_xy_m, plans_vxy_mps, context.neighbours, thresholds)
+    if reports is None:  # the plans' own reports (the caller may have them already)
+        reports = safety_report(batch, plans_xy_m, plans_vxy_mps, context.neighbours, thresholds)
     xy = np.array(plans_xy_m, dtype=np.float64)
     vxy = np.array(plans_vxy_mps, dtype=np.float64)
     goals = np.array(goals_xy_m, dtype=np.float64).reshape(b, 2)
@@ -280,18 +293,27 @@ class LetsPiMemoryPlanner:
             final = result.final.proposal
             validated = result.validated and not final.fallback
             extra = {"iterations": float(len(result.iterations)), "validated": float(validated), **_UNSHIELDED}
-            rows.append((final, _info(final, [it.proposal for it in result.iterations], extra), {}))
+            info = _info(final, [it.proposal for it in result.iterations], extra)
+            if self.phase.decider is not None:
+                first = result.iterations[0].adverse
+                info.update(decision_info([str(final.meta.get("decision", CUSTOM))], np.ones(1, bool),
+                                          np.full(1, np.nan), np.array([float(result.n_refinements)])))
+                info["adverse_failed"] = np.array([",".join(first.failed) if first is not None else ""], dtype=object)
+            rows.append((final, info, {}))
         return _proposals(rows)
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals:
         """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
         p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
         extra = {"iterations": 0.0, "validated": 0.0, **_UNSHIELDED}
-        return _proposals([(p, _info(p, [], extra), {})] * len(batch))
+        info = _info(p, [], extra)
+        if self.phase.decider is not None:
+            info.update(_default_decision())
+        return _proposals([(p, info, {})] * len(batch))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.phase.thresholds,
-                                   with_memories=False)
+                                   with_memories=False, decider=self.phase.decider)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
@@ -324,14 +346,19 @@ class LetsPiFastPlanner:
         k = self.phase.retriever.k if self.phase.retriever is not None else 0
         rows: list[_Row] = []
         for i in range(len(batch)):
-            proposal, retrieved = self.phase.propose_retrieved(_one(batch, i), context.goals_xy_m[i])
+            own = context.take([i])
+            proposal, retrieved = self.phase.propose_retrieved(_one(batch, i), context.goals_xy_m[i], own.neighbours)
             proposal = proposal.normalised()
             self.last_retrieved = tuple((e.scenario_id, s) for e, s in retrieved)
             self.last_proposal = proposal
             extra = {"n_retrieved": float(len(retrieved)),
                      "top_similarity": float(retrieved[0][1]) if retrieved else float("nan"), **_UNSHIELDED}
-            rows.append((proposal, _info(proposal, [proposal], extra),
-                         {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
+            info = _info(proposal, [proposal], extra)
+            if self.phase.decider is not None:
+                m = proposal.meta
+                info.update(decision_info([str(m.get("decision", CUSTOM))], np.array([bool(m.get("consulted", True))]),
+                                          np.array([float(m.get("risk_score", np.nan))]), np.zeros(1)))
+            rows.append((proposal, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
         return _proposals(rows)
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals:
@@ -339,12 +366,14 @@ class LetsPiFastPlanner:
         p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
         k = self.phase.retriever.k if self.phase.retriever is not None else 0
         extra = {"n_retrieved": 0.0, "top_similarity": float("nan"), **_UNSHIELDED}
-        return _proposals([(p, _info(p, [], extra), {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})]
-                          * len(batch))
+        info = _info(p, [], extra)
+        if self.phase.decider is not None:
+            info.update(_default_decision())
+        return _proposals([(p, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})] * len(batch))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
-                                   with_memories=True)
+                                   with_memories=True, decider=self.phase.decider)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
@@ -352,21 +381,54 @@ class LetsPiFastPlanner:
 
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                         shield_params: SocialForceParams | None, thresholds: ReflectionThresholds, *,
-                        with_memories: bool) -> PlanBatch:
+                        with_memories: bool, decider: Decider | None = None) -> PlanBatch:
     """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield
-    each plan with the alternatives: the retrieved memories' (``with_memories``) and the fitted ones."""
+    each plan with the alternatives: the retrieved memories' (``with_memories``) and the fitted ones.
+
+    With a ``decider`` the plans are also checked against the adverse futures (info ``adverse_failed``,
+    unless the proposals carry it) and a plan the shield replaces is replaced first by the presets that
+    pass every check, the most progress first (``shield_source`` ``PRESET_SOURCE``)."""
     sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
                             context.goals_xy_m, context.neighbours)
     info = dict(proposals.info)
+    if decider is not None and "adverse_failed" not in info:
+        info["adverse_failed"] = adverse_failed_names(batch, context, sim.xy_m, sim.vxy_mps, decider.adverse)
     if shield_params is None:
         return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=info)
+    reports = safety_report(batch, sim.xy_m, sim.vxy_mps, context.neighbours, thresholds)
     fallback = _sf_alternatives(shield_params)
     memories = proposals.extra.get(MEMORY_ALTERNATIVES) if with_memories else None
-    alternatives = [[*(memory_alternatives(memories[i]) if memories is not None else []), *fallback]
-                    for i in range(len(batch))]
-    shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds)
+    failing = [i for i, r in enumerate(reports) if not r.safe]
+    presets = _preset_alternatives(batch, context, decider, failing) if decider is not None and failing else {}
+    alternatives = [[*presets.get(i, []), *(memory_alternatives(memories[i]) if memories is not None else []),
+                     *fallback] for i in range(len(batch))]
+    shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds,
+                          reports=reports)
     info.update(shield.info())
     return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
+
+
+def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider: Decider,
+                         rows: list[int]) -> dict[int, list[Alternative]]:
+    """Per scenario of ``rows``, the presets that pass every check, the most progress first."""
+    checks = decider.check(batch.take(rows), context.goals_xy_m[rows], context.take(rows).neighbours)
+    table = decider.presets
+    out: dict[int, list[Alternative]] = {}
+    for j, i in enumerate(rows):
+        out[i] = []
+        for k in decider.preference(checks, j):
+            v = table.values[k]
+            params = SocialForceParams(**dict(zip(PARAM_NAMES[:6], (float(x) for x in v[:6]), strict=True)),
+                                       r_col_m=decider.r_col_m)
+            out[i].append((PRESET_SOURCE, params, float(v[6]), float(v[7])))
+    return out
+
+
+def _default_decision() -> dict[str, np.ndarray]:
+    """The decision columns of the defaults in force before any answer (closed loop, dual rate)."""
+    info = decision_info([DEFAULT_NAME], np.zeros(1, bool), np.full(1, np.nan), np.zeros(1))
+    info["adverse_failed"] = np.array([""], dtype=object)
+    return info
 
 
 @functools.lru_cache(maxsize=8)
@@ -398,3 +460,6 @@ class FastPlannerConfig(Config):
     memory: MemoryRef
     top_k: int = Field(default=TOP_K, ge=0)
     shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
+    decision: DecisionConfig | None = None  # presets, adverse futures, risk gate (None: as before the decision step)
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision"})

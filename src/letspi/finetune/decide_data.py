@@ -1,0 +1,232 @@
+"""Training data of LetsPi's decision step: presets, the risk gate and decision-focused labels.
+
+``letspi train decide`` runs these on training traffic (never evaluation seeds):
+
+1. **Option outcomes**: a pool of candidate answers (``pool_option_table``: the fitted defaults and
+   structured variations: a shorter goal, a stronger repulsion from the leader, a lane change) scored on
+   every window in hindsight and checked at plan time (``letspi.finetune.options.OptionRun``, cached).
+2. **Presets** (``select_presets``): a greedy cover of the windows where the defaults collide, by options
+   that pass every plan-time check there *and* avoid the collision in hindsight: presets a chooser that
+   reads the checks can pick, and that fix what the defaults get wrong.
+3. **Risk gate** (``fit_gate``): a logistic model from the history's risk features and the defaults'
+   checks to "the defaults collide in hindsight", with the threshold that consults the model on a
+   given share of the windows.
+4. **Labels** (``choice_labels``): per window the preset to learn, in hindsight: the defaults where they
+   did not collide; else the best preset by ``letspi.analysis.headroom``'s utility, preferring presets
+   that pass every check. Windows are weighted by risk bucket (the rare windows where the defaults
+   collide weigh ``bad_weight``), and refinement examples (the memory phase's reflection round: the
+   defaults rejected by a check, the label among the others) are added for windows where the defaults
+   fail a check.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from letspi.finetune.gate_train import fit_trees
+from letspi.finetune.options import OptionOutcomes
+from letspi.learned.logistic import roc_auc
+from letspi.learned.trees import TreeEnsemble
+from letspi.llm.schema import NUMERIC_FIELDS
+from letspi.method.decide import DEFAULT_NAME, GATE_FEATURE_NAMES, OptionTable, defaults_vector
+from letspi.physics.params import SocialForceParams
+
+#: the hindsight utility's weights (as ``letspi.analysis.headroom``: at-fault contact, contact, success, progress)
+_W = (4.0, 2.0, 1.0, 1e-3)
+
+
+def pool_option_table(params: SocialForceParams) -> OptionTable:
+    """The candidate presets: the defaults, shorter goals (``slow``: lon factor 0.55 / 0.7 / 1.0) with the
+    fitted or a stronger leader repulsion (``gap``), and a lane change (``left`` / ``right``) at the same
+    goal shortenings; a firm lane keeper (``hold``) and a quicker relaxation (``quick``)."""
+    d = defaults_vector(params)
+    field = {f: i for i, f in enumerate(NUMERIC_FIELDS)}
+    names, rows = [DEFAULT_NAME], [d.copy()]
+
+    def add(name: str, **values: float) -> None:
+        v = d.copy()
+        for k, x in values.items():
+            v[field[k]] = x
+        names.append(name)
+        rows.append(v)
+
+    repulsions = (("", d[1]), ("-gap", 35.0), ("-gap+", 50.0))
+    for lon, (gap_name, k_np) in itertools.product((0.4, 0.55, 0.7, 1.0), repulsions):
+        if lon == 0.4 and not gap_name:
+            continue
+        add(f"slow{lon:g}{gap_name}" if lon != 0.4 else f"keep{gap_name}", lon_factor=lon, k_np=k_np)
+    for side, lane in (("left", -1.0), ("right", 1.0)):
+        for lon, (gap_name, k_np) in itertools.product((0.4, 0.7, 1.0), (("", d[1]), ("-gap", 40.0))):
+            add(f"{side}{'' if lon == 0.4 else f'-slow{lon:g}'}{gap_name}", lane_factor=lane, lon_factor=lon, k_np=k_np)
+    add("hold", k_cline=2.0, k_nl=1.5)
+    add("quick", tau_s=1.0)
+    return OptionTable(tuple(names), np.array(rows))
+
+
+def utility(o: OptionOutcomes) -> np.ndarray:
+    """(B, C) hindsight utility (higher is better)."""
+    u: np.ndarray = (-_W[0] * o.at_fault - _W[1] * o.collision + _W[2] * o.success
+                     + _W[3] * np.nan_to_num(o.progress_m))
+    return u
+
+
+def select_presets(o: OptionOutcomes, k: int) -> list[int]:
+    """K option indices, the defaults first: greedily, the option that makes the most windows where the
+    defaults collide fixable (passes every plan-time check and avoids contact in hindsight); ties broken
+    by the option's success rate over all windows."""
+    if k < 1:
+        raise ValueError("at least one preset (the defaults)")
+    bad = o.collision[:, 0]
+    fixable = (o.predicted_safe & ~o.adverse_failed.any(axis=2) & ~o.collision)[bad]
+    chosen = [0]
+    for _ in range(k - 1):
+        covered = fixable[:, chosen].any(axis=1)
+        gain = (fixable & ~covered[:, None]).sum(axis=0).astype(np.float64) + 1e-3 * o.success.mean(axis=0)
+        gain[chosen] = -np.inf
+        chosen.append(int(np.argmax(gain)))
+    return chosen
+
+
+def grouped_fold(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
+    """(B,) fold of each window; all windows of one group (ego vehicle) in one fold."""
+    uniq, inverse = np.unique(np.asarray(groups).astype(str), return_inverse=True)
+    out: np.ndarray = (np.random.default_rng(seed).permutation(len(uniq)) % folds)[inverse]
+    return out
+
+
+def fit_gate(features: np.ndarray, o: OptionOutcomes, fold: np.ndarray, *, consult_share: float,
+             provenance: dict[str, Any] | None = None) -> tuple[TreeEnsemble, np.ndarray]:
+    """The risk model: P(the defaults collide) from ``features`` (B, ``GATE_FEATURE_NAMES``), gradient-boosted
+    trees (``letspi.finetune.gate_train``), and its cross-validated scores (B,). The threshold in its
+    provenance consults ``consult_share`` of these windows by those scores (by ``fold``: what a held-out
+    window's score looks like, not the optimistic in-sample one)."""
+    positive = o.collision[:, 0]
+    oof = np.zeros(len(positive))
+    for f in np.unique(fold):
+        train, test = fold != f, fold == f
+        oof[test] = fit_trees(features[train], positive[train], feature_names=GATE_FEATURE_NAMES).score(features[test])
+    threshold = float(np.quantile(oof, 1.0 - consult_share))
+    consulted = oof >= threshold
+    stats = {"threshold": threshold, "consult_share": float(consulted.mean()), "cv_auc": roc_auc(oof, positive),
+             "cv_recall": float(consulted[positive].mean()) if positive.any() else float("nan"),
+             "positive_share": float(positive.mean()), "folds": len(np.unique(fold)),
+             "target": "the defaults collide in hindsight"}
+    model = fit_trees(features, positive, feature_names=GATE_FEATURE_NAMES, provenance={**(provenance or {}), **stats})
+    return model, oof
+
+
+@dataclass(frozen=True)
+class ChoiceLabel:
+    """One training example of the choice style: window ``row``, the preset to answer (an index into the
+    presets), its weight, the risk score its prompt shows, and for a refinement the rejected preset (else -1)."""
+
+    row: int
+    label: int
+    weight: float
+    risk: float
+    rejected: int = -1
+
+
+@dataclass(frozen=True)
+class Weights:
+    """The expected utility the labels maximise: ``-at_fault * P(at-fault contact) - contact * P(contact)
+    + P(success) + progress_per_m * (progress - the defaults' progress)``."""
+
+    at_fault: float = 8.0
+    contact: float = 2.0
+    progress_per_m: float = 0.01
+
+
+def outcome_probabilities(x: np.ndarray, o: OptionOutcomes, fold: np.ndarray) -> dict[str, np.ndarray]:
+    """Cross-validated (B, K) probabilities of each option's at-fault contact, contact and success from the
+    plan-time inputs ``x`` (B, D): every window's by the trees fitted on the other folds."""
+    out = {name: np.zeros(o.collision.shape) for name in ("at_fault", "collision", "success")}
+    for name, target in (("at_fault", o.at_fault), ("collision", o.collision), ("success", o.success)):
+        for k in range(target.shape[1]):
+            for f in np.unique(fold):
+                train, test = fold != f, fold == f
+                if target[train, k].all() or not target[train, k].any():
+                    out[name][test, k] = float(target[train, k].mean())
+                    continue
+                model = fit_trees(x[train], target[train, k], feature_names=tuple(f"x{i}" for i in range(x.shape[1])),
+                                  max_iter=80, learning_rate=0.08, min_samples_leaf=30)
+                out[name][test, k] = model.score(x[test])
+    return out
+
+
+def expected_utility(p: dict[str, np.ndarray], o: OptionOutcomes, w: Weights) -> np.ndarray:
+    """(B, K) the expected utility of each option (``Weights``) from ``outcome_probabilities``."""
+    progress = np.nan_to_num(o.progress_m)
+    eu: np.ndarray = (-w.at_fault * p["at_fault"] - w.contact * p["collision"] + p["success"]
+                      + w.progress_per_m * (progress - progress[:, :1]))
+    return eu
+
+
+def choice_labels(eu: np.ndarray, risk: np.ndarray, consulted: np.ndarray, o: OptionOutcomes, *,
+                  keep_share: float, refine_weight: float, seed: int = 0) -> list[ChoiceLabel]:
+    """Decision-focused labels (module docstring): in the windows the gate consults, the option of the
+    highest expected utility ``eu`` (B, K) when it beats the defaults, else the defaults; ``keep_share`` of
+    the other windows (sampled) as examples of keeping the defaults at low risk; and for a consulted
+    window whose best option fails a plan-time check while another passes all, a refinement example
+    (that option rejected, the best of the others as the answer)."""
+    rng = np.random.default_rng(seed)
+    best = np.argmax(eu, axis=1)
+    label = np.where(eu[np.arange(len(eu)), best] > eu[:, 0], best, 0)
+    passes = o.predicted_safe & ~o.adverse_failed.any(axis=2)
+    out = []
+    for i in range(len(eu)):
+        if consulted[i]:
+            out.append(ChoiceLabel(i, int(label[i]), 1.0, float(risk[i])))
+            if not passes[i, label[i]] and passes[i].any():
+                others = eu[i] + 1e3 * passes[i]
+                others[label[i]] = -np.inf
+                out.append(ChoiceLabel(i, int(np.argmax(others)), refine_weight, float(risk[i]), int(label[i])))
+        elif rng.random() < keep_share:
+            out.append(ChoiceLabel(i, 0, 1.0, float(risk[i])))
+    return out
+
+
+def keep_and_change_rates(choice: Sequence[int] | np.ndarray, o: OptionOutcomes) -> dict[str, float]:
+    """The issue's diversity targets for a chooser's picks (B,): kept where the defaults were
+    collision-free, changed where they collided, and each preset's share."""
+    c = np.asarray(choice)
+    bad = o.collision[:, 0]
+    return {"keep_where_safe": float((c[~bad] == 0).mean()) if (~bad).any() else float("nan"),
+            "change_where_unsafe": float((c[bad] != 0).mean()) if bad.any() else float("nan"),
+            **{f"share_{k}": float((c == k).mean()) for k in np.unique(c)}}
+
+
+CHOICE_FORMAT = "letspi-choice-labels/1"
+CHOICE_COLUMNS: tuple[str, ...] = ("scenario_index", "scenario_digest", "kind", "option", "rejected", "weight",
+                                   "risk", "lines_json", "defaults_collide")
+
+
+def option_lines_of(o: OptionOutcomes, presets: OptionTable, adverse_names: Sequence[str], i: int) -> list[list[Any]]:
+    """Window ``i``'s presets as the choice prompt lists them: [name, failed checks, progress m] each
+    (the plan-time checks and the plan's own end: nothing from the recorded future)."""
+    out: list[list[Any]] = []
+    for k, name in enumerate(presets.names):
+        failed = ([] if o.predicted_safe[i, k] else ["predicted"]) + [
+            a for a, bad in zip(adverse_names, o.adverse_failed[i, k], strict=True) if bad]
+        out.append([name, failed, float(o.progress_m[i, k])])
+    return out
+
+
+def label_frame(labels: Sequence[ChoiceLabel], o: OptionOutcomes, presets: OptionTable,
+                adverse_names: Sequence[str], digests: Sequence[str]) -> pd.DataFrame:
+    """The labels as rows (``CHOICE_COLUMNS``) of one scenario file (``digests`` of its windows)."""
+    rows = [{"risk": float(lab.risk),
+        "scenario_index": lab.row, "scenario_digest": str(digests[lab.row]),
+        "kind": "refine" if lab.rejected >= 0 else "propose", "option": presets.names[lab.label],
+        "rejected": presets.names[lab.rejected] if lab.rejected >= 0 else "", "weight": float(lab.weight),
+        "lines_json": json.dumps(option_lines_of(o, presets, adverse_names, lab.row)),
+        "defaults_collide": bool(o.collision[lab.row, 0]),
+    } for lab in labels]
+    return pd.DataFrame(rows, columns=list(CHOICE_COLUMNS))

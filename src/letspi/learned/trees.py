@@ -1,0 +1,101 @@
+"""Gradient-boosted decision trees with NumPy inference (LetsPi's risk gate).
+
+A ``TreeEnsemble`` is what a binary gradient-boosting classifier learned, as plain arrays: per tree its
+nodes (the feature each splits on, the threshold, which side missing values take, the two children,
+the leaf values), and the baseline. ``score`` walks every tree for a batch at once (one array step per
+depth level) and returns ``sigmoid(baseline + sum of leaf values)``: the probability of the positive
+class. Training happens elsewhere (``letspi.finetune.gate_train``, scikit-learn, the ``train`` extra);
+``to_json`` / ``from_json`` carry the model with its feature names and provenance.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "letspi-trees/1"
+
+
+@dataclass(frozen=True)
+class Tree:
+    """One tree, (M,) per node: feature (-1 at a leaf), threshold (go left when ``x <= threshold``),
+    missing_left (NaN goes left), left, right (child node indices), value (the leaf's contribution)."""
+
+    feature: np.ndarray
+    threshold: np.ndarray
+    missing_left: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    value: np.ndarray
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(B,) the leaf value each row of x (B, D) reaches."""
+        node = np.zeros(len(x), dtype=np.int64)
+        rows = np.arange(len(x))
+        for _ in range(len(self.feature)):  # at most as many levels as nodes
+            inner = self.feature[node] >= 0
+            if not inner.any():
+                break
+            f = np.where(inner, self.feature[node], 0)
+            v = x[rows, f]
+            go_left = np.where(np.isnan(v), self.missing_left[node], v <= self.threshold[node])
+            node = np.where(inner, np.where(go_left, self.left[node], self.right[node]), node)
+        out: np.ndarray = self.value[node]
+        return out
+
+    def to_json(self) -> dict[str, list[Any]]:
+        return {"feature": self.feature.tolist(), "threshold": self.threshold.tolist(),
+                "missing_left": self.missing_left.astype(int).tolist(), "left": self.left.tolist(),
+                "right": self.right.tolist(), "value": self.value.tolist()}
+
+    @classmethod
+    def from_json(cls, d: dict[str, list[Any]]) -> Tree:
+        return cls(np.asarray(d["feature"], dtype=np.int64), np.asarray(d["threshold"], dtype=np.float64),
+                   np.asarray(d["missing_left"], dtype=bool), np.asarray(d["left"], dtype=np.int64),
+                   np.asarray(d["right"], dtype=np.int64), np.asarray(d["value"], dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class TreeEnsemble:
+    """A binary classifier: ``sigmoid(baseline + sum of the trees)`` over inputs named ``feature_names``."""
+
+    feature_names: tuple[str, ...]
+    baseline: float
+    trees: tuple[Tree, ...]
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def raw(self, x: np.ndarray) -> np.ndarray:
+        xs = np.asarray(x, dtype=np.float64)
+        if xs.ndim != 2 or xs.shape[1] != len(self.feature_names):
+            raise ValueError(f"expected (B, {len(self.feature_names)}) inputs, got {xs.shape}")
+        total = np.full(len(xs), self.baseline)
+        for tree in self.trees:
+            total += tree.predict(xs)
+        return total
+
+    def score(self, x: np.ndarray) -> np.ndarray:
+        """(B,) the probability of the positive class."""
+        out: np.ndarray = 1.0 / (1.0 + np.exp(-self.raw(x)))
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": FORMAT, "feature_names": list(self.feature_names), "baseline": self.baseline,
+                "trees": [t.to_json() for t in self.trees], "provenance": self.provenance}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], source: str = "tree model") -> TreeEnsemble:
+        if data.get("format") != FORMAT:
+            raise ValueError(f"{source}: format {data.get('format')!r}, expected {FORMAT!r}")
+        try:
+            return cls(tuple(data["feature_names"]), float(data["baseline"]),
+                       tuple(Tree.from_json(t) for t in data["trees"]), dict(data.get("provenance", {})))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: not a tree model ({exc})") from exc
+
+    @classmethod
+    def load(cls, path: Path) -> TreeEnsemble:
+        return cls.from_json(json.loads(Path(path).read_text()), str(path))

@@ -1,0 +1,75 @@
+"""``sf-check``: the decision step's presets, checks and shield, no model (an ablation of LetsPi).
+
+How much of LetsPi's gain does the physics give without a model? The same presets and checks as
+``letspi-fast`` (``letspi.planners.decision.DecisionConfig``), the rule ``letspi.method.decide.rule_choice``
+(the defaults when they pass every check, else the preset failing the fewest, then the most
+progress) where the risk gate says the scene is risky (everywhere without a gate), and the same
+shield as the LLM planners. Batched over scenarios; no model call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from letspi.method.decide import Decider, OptionChecks
+from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.physics.params import SocialForceParams
+from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.config import DecisionConfig, SocialForcePlannerFields
+from letspi.planners.decision import decision_info
+from letspi.planners.llm import simulate_and_shield
+from letspi.scenario.types import ScenarioBatch
+
+
+class SfCheckConfig(SocialForcePlannerFields):
+    """``sf-check``: the presets, their checks, the rule and the shield; no model."""
+
+    kind: Literal["sf-check"] = "sf-check"
+    decision: DecisionConfig
+    shield: bool = True
+
+
+@dataclass
+class DecisionPlanner:
+    """``sf-check`` (module docstring): batched over scenarios, no model call."""
+
+    params: SocialForceParams
+    decider: Decider
+    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    shield_params: SocialForceParams | None = None
+    name: str = "sf-check"
+    batch_size: int = 64
+    reads_future: bool = False
+    proposes_per_scenario: bool = False
+
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                                  OptionChecks]:
+        """(preset index, consulted, risk score) per scenario and the checks they came from."""
+        checks = self.decider.check(batch, context.goals_xy_m, context.neighbours)
+        risk = self.decider.risk_scores(batch, checks)
+        consulted = self.decider.consulted(risk)
+        return np.where(consulted, self.decider.rule(checks), 0), consulted, risk, checks
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        chosen, consulted, risk, _ = self.choose(batch, context)
+        values = self.decider.presets.values[chosen]
+        names = [self.decider.presets.names[k] for k in chosen]
+        from_values = SocialForceParams.from_matrix(
+            np.concatenate([values[:, :6], np.full((len(batch), 1), self.params.r_col_m)], axis=1))
+        info = decision_info(names, consulted, risk, np.zeros(len(batch)))
+        return Proposals(params=from_values, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info)
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
+                                   with_memories=False, decider=self.decider)
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)
