@@ -127,8 +127,8 @@ def history_chooser(o: OptionOutcomes, presets: Sequence[int], features: np.ndar
 
     def fit_predict(train: np.ndarray, test: np.ndarray) -> np.ndarray:
         present = np.unique(y[train])
-        if len(present) == 1:
-            return np.full(len(test), cols[present[0]])
+        if len(present) <= 1:  # one class to learn (or no training window): that class, else the defaults
+            return np.full(len(test), cols[present[0]] if len(present) else 0)
         remap = {int(c): k for k, c in enumerate(present)}
         model = fit_logistic(features[train], np.array([remap[int(v)] for v in y[train]]),
                              classes=tuple(names[p] for p in present), feature_names=RISK_FEATURE_NAMES, l2=l2)
@@ -205,7 +205,7 @@ class HeadroomResult:
                 f"{fault:.2f} [{r['at_fault_ci95'][0]:.2f}, {r['at_fault_ci95'][1]:.2f}] | {r['success_pct']:.2f} | "
                 f"{r['progress_m']:.1f} | {r['changed_pct']:.1f} | {r['vs_defaults_only_chooser']} / "
                 f"{r['vs_defaults_only_defaults']}, p = {r['vs_defaults_p_mcnemar']:.2g} |")
-        risk = ", ".join(f"{k} {v:.3f}" for k, v in self.risk.items() if k != "n_positive")
+        risk = ", ".join(f"{k} {v:.3f}" for k, v in self.risk.items() if not k.startswith("n_positive"))
         lines += ["", f"{self.n_windows} windows; risk AUC (defaults collide at fault, "
                       f"{int(self.risk.get('n_positive', 0))} windows): {risk}"]
         return "\n".join(lines)
@@ -216,7 +216,8 @@ def _pct_interval(flags: np.ndarray) -> list[float]:
 
 
 def headroom(o: OptionOutcomes, table: OptionTable, presets: Sequence[int], features: np.ndarray,
-             groups: np.ndarray, *, folds: int = 5, seed: int = 0) -> HeadroomResult:
+             groups: np.ndarray, *, folds: int = 5, seed: int = 0, gate_scores: np.ndarray | None = None,
+             ) -> HeadroomResult:
     """Every chooser's rates on the same windows, with Wilson intervals and paired McNemar counts against
     the defaults (at-fault contacts)."""
     rows_idx = np.arange(len(o))
@@ -237,4 +238,8 @@ def headroom(o: OptionOutcomes, table: OptionTable, presets: Sequence[int], feat
             "vs_defaults_only_chooser": paired.n_only_a, "vs_defaults_only_defaults": paired.n_only_b,
             "vs_defaults_p_mcnemar": paired.p_mcnemar,
         })
-    return HeadroomResult(rows, risk_aucs(o, features, grouped_folds(groups, folds, seed)), len(o))
+    risk = risk_aucs(o, features, grouped_folds(groups, folds, seed))
+    if gate_scores is not None:  # the shipped risk model, trained on other traffic: its target is any contact
+        risk["shipped_gate_any_contact"] = roc_auc(gate_scores, o.collision[:, 0])
+        risk["n_positive_any_contact"] = float(o.collision[:, 0].sum())
+    return HeadroomResult(rows, risk, len(o))

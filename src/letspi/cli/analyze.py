@@ -15,7 +15,7 @@ from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.finetune.options import OptionOutcomes, OptionRun, random_option_table
 from letspi.fsutil import atomic_write_text
-from letspi.method.decide import OptionTable, load_presets, with_defaults
+from letspi.method.decide import OptionTable, gate_features, load_presets, load_risk_model, with_defaults
 from letspi.planners.sf_params import load_sf_params
 from letspi.safety.adverse import AdverseSettings
 from letspi.scenario.risk_features import risk_features
@@ -64,8 +64,11 @@ def headroom_cmd(
                             np.concatenate([preset_table.values, random.values[1:]]))
         outcomes = checked.with_options(free.take_options(np.arange(1, len(random))))
         hist = batch.history()
+        model, _ = load_risk_model()
+        gate = model.score(gate_features(hist, checked.predicted_safe[:, 0], checked.adverse_failed[:, 0],
+                                         [str(a) for a in AdverseSettings().futures]))
         result = headroom(outcomes, table, list(range(len(preset_table))), risk_features(hist), vehicle_keys(hist),
-                          folds=folds, seed=seed)
+                          folds=folds, seed=seed, gate_scores=gate)
         atomic_write_text(out / "headroom.json", json.dumps({**result.to_json(), "scenarios": str(scenarios),
                                                              "presets": list(preset_table.names)}, indent=2) + "\n")
         atomic_write_text(out / "headroom.md", result.to_markdown() + "\n")
