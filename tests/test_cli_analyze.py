@@ -35,3 +35,24 @@ def test_headroom_writes_its_table_and_a_rerun_reuses_the_cached_outcomes(tmp_pa
     assert again.exit_code == 0, again.output
     assert parts[0].stat().st_mtime_ns == stamp  # reused, not recomputed
     assert (out / "headroom.md").read_text().startswith("| chooser |")
+
+
+def test_decisions_pairs_a_deciding_planner_with_sf_over_two_results_directories(tmp_path: Path) -> None:
+    dirs = []
+    for k in range(2):
+        scenarios = save_scenarios(noisy_batch(12, seed=10 + k), tmp_path / f"s{k}.arrow")
+        out = tmp_path / f"ev{k}"
+        res = runner.invoke(app, ["evaluate", "--scenarios", str(scenarios), "--planner", "sf", "--planner",
+                                  "sf-check", "--goals", "kinematic", "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        dirs += ["--results", str(out)]
+    res = runner.invoke(app, ["analyze", "decisions", *dirs, "--planner", "sf-check", "--out", str(tmp_path / "d")])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "d" / "decisions.json").read_text())["reports"][0]
+    assert report["n"] == 24 and report["reference"] == "sf"
+    d = report["decisions"]
+    assert abs(sum(d["shares_pct"].values()) - 100.0) < 1e-9 and 0.0 <= d["consulted_pct"] <= 100.0
+    f = report["CR at fault"]
+    assert f["only_planner"] + f["only_reference"] + f["both"] <= 24
+    missing = runner.invoke(app, ["analyze", "decisions", *dirs, "--planner", "frenet"])
+    assert missing.exit_code != 0 and "stored results of both 'frenet' and 'sf'" in " ".join(missing.output.split())

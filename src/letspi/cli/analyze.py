@@ -9,6 +9,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from letspi.analysis.decisions import decisions_markdown, paired_rows, planner_report
 from letspi.analysis.headroom import headroom
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import PlannerOptions, Resolver
@@ -74,3 +75,24 @@ def headroom_cmd(
         atomic_write_text(out / "headroom.md", result.to_markdown() + "\n")
     console.print(result.to_markdown())
     console.print(f"-> {out / 'headroom.md'}")
+
+
+@app.command("decisions")
+def decisions_cmd(
+    results: Annotated[list[Path], typer.Option("--results", help="Results directory of `letspi evaluate` "
+                                                "(repeat: pooled, e.g. one per layout).")],
+    planner: Annotated[list[str], typer.Option(help="Planner label to report (repeat).")],
+    reference: Annotated[str, typer.Option(help="The planner every other one is paired with.")] = "sf",
+    out: Annotated[Path | None, typer.Option(help="Write decisions.json and decisions.md here.")] = None,
+) -> None:
+    """What deciding planners decided and what it bought, pooled over results directories and paired with
+    the reference: rates with McNemar counts, progress, decision shares, kept/changed where the
+    reference was safe/collided, consulted share, median live planning time."""
+    with user_errors():
+        reports = [planner_report(paired_rows(results, name, reference), name, reference) for name in planner]
+        text = decisions_markdown(reports)
+        if out is not None:
+            atomic_write_text(out / "decisions.json", json.dumps({"results": [str(r) for r in results],
+                                                                  "reports": reports}, indent=2) + "\n")
+            atomic_write_text(out / "decisions.md", text + "\n")
+    console.print(text)

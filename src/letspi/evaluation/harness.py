@@ -49,7 +49,7 @@ from __future__ import annotations
 import json
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Final
@@ -459,12 +459,24 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
             out[key] = None if mean is None else (100.0 * mean if key.endswith("_pct") else mean)
     if "info_shielded" in frame:  # the LLM planners' safety shield replaced the plan
         out["shielded_pct"] = float(100.0 * np.asarray(frame["info_shielded"], dtype=np.float64).mean())
+    if "info_consulted" in frame and len(frame):  # the decision step: the risk gate asked the model
+        out["consulted_pct"] = float(100.0 * np.asarray(frame["info_consulted"], dtype=np.float64).mean())
+    return out
+
+
+def decision_shares(frames: Mapping[str, pd.DataFrame]) -> dict[str, dict[str, float]]:
+    """Per deciding planner (per-scenario ``info_decision``), the share [%] of each decision."""
+    out: dict[str, dict[str, float]] = {}
+    for name, frame in frames.items():
+        if "info_decision" in frame and len(frame):
+            counts = frame["info_decision"].astype(str).value_counts()
+            out[name] = {str(k): float(100.0 * v / len(frame)) for k, v in sorted(counts.items())}
     return out
 
 
 #: rates of ``timing_summary`` that carry an interval: (key, per-scenario 0/1 column)
 TIMING_RATES: Final = (("fallback_pct", "info_fallback"), ("sumo_cr_pct", "sumo_collision"),
-                       ("shielded_pct", "info_shielded"))
+                       ("shielded_pct", "info_shielded"), ("consulted_pct", "info_consulted"))
 
 
 def planner_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None) -> dict[str, Statistic]:
@@ -590,6 +602,9 @@ def _write_summary(out_dir: Path, record: dict[str, Any], results: dict[str, dic
     summary = uncertainty_summary(frames, config, choose_reference(list(frames), reference, first))
     payload = {"run": {"key": record["key"], **record["identity"], "dataset": record["dataset"]}, "planners": merged,
                **summary}
+    decisions = decision_shares(frames)
+    if decisions:
+        payload["decisions"] = decisions
     atomic_write_text(metrics_file, json.dumps(payload, indent=2, allow_nan=False, default=float) + "\n")
     atomic_write_text(out_dir / "metrics.md", summary_markdown(payload) + "\n")
     return merged
