@@ -1,0 +1,193 @@
+"""The Python API: load scenarios, build planners, plan, evaluate, and read the results as DataFrames.
+
+What the CLI does, from Python, with the same keyed, resumable, timed harness underneath::
+
+    import letspi.api as lp
+
+    batch = lp.load_scenarios("data/scenarios.arrow", limit=300)
+    planners = lp.planners("sf", "frenet", goals="kinematic")   # KIND or LABEL=KIND, planner options
+    results = lp.evaluate(planners, batch, "runs/mine")         # rerun: resumes, adds planners
+    print(results.table())                # metrics.md: values with 95 % intervals, paired with sf
+    results.summary()                     # DataFrame, one row per planner: value, low, high per metric
+    results.per_scenario("frenet")        # DataFrame, one row per window: metrics, timing, plan info
+    results.paired_summary()              # DataFrame, one row per planner and metric: Δ, interval, p
+
+    plan = lp.plan(planners[0], batch.take(range(5)))           # a PlanBatch: (B, F, 2) positions ...
+
+``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``). Everything here is a
+thin layer over ``letspi.evaluation.harness`` (layout, keys, resume, timing) and
+``letspi.metrics.uncertainty`` (intervals, paired comparisons); see docs/evaluation.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from letspi.assembly.build import BuiltPlanner, build_planners
+from letspi.assembly.resolve import PlannerOptions
+from letspi.evaluation.harness import evaluate as run_evaluation
+from letspi.evaluation.harness import load_planner_results, read_summary, summary_markdown
+from letspi.metrics.aggregate import TABLE_COLUMNS
+from letspi.metrics.config import MetricsConfig
+from letspi.planners.base import PlanBatch, Planner
+from letspi.scenario.store import count_scenarios
+from letspi.scenario.store import load_scenarios as _load
+from letspi.scenario.types import ScenarioBatch
+from letspi.viz.report import write_report
+
+__all__ = ["PlanBatch", "Results", "ScenarioBatch", "evaluate", "load_scenarios", "open_results", "plan",
+           "planners"]
+
+#: the metrics of ``Results.summary`` by default: the paper's table (``letspi.metrics.aggregate.TABLE_COLUMNS``)
+SUMMARY_KEYS: tuple[str, ...] = tuple(key for _, key in TABLE_COLUMNS)
+
+
+def load_scenarios(path: str | Path, *, limit: int | None = None,
+                   rows: Sequence[int] | np.ndarray | None = None) -> ScenarioBatch:
+    """Scenarios of a file made by ``letspi data scenarios`` (checked against its digests): all of them,
+    the first ``limit``, or the ``rows`` given (0-based)."""
+    if limit is not None and rows is not None:
+        raise ValueError("give limit or rows, not both")
+    if limit is not None:
+        if limit < 0:
+            raise ValueError(f"limit must be >= 0, got {limit}")
+        rows = np.arange(min(limit, count_scenarios(Path(path))))
+    return _load(Path(path), None if rows is None else np.asarray(rows, dtype=np.int64))
+
+
+def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
+    """Build planners from ``KIND`` or ``LABEL=KIND`` specs (``letspi planners`` lists the kinds) with
+    planner options by name (``goals="kinematic"``, ``sf_params_file=...``: the fields of
+    ``PlannerOptions``, the CLI's planner flags). Models load once, here."""
+    if not specs:
+        raise ValueError("name at least one planner, e.g. planners('sf')")
+    return build_planners(list(specs), PlannerOptions(**options))
+
+
+def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
+    """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
+    unless the planner reads the recorded future (an oracle). Untimed and unscored: ``evaluate`` for that."""
+    p = planner.planner if isinstance(planner, BuiltPlanner) else planner
+    return p.plan(batch if p.reads_future else batch.history())
+
+
+def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
+             limit: int | None = None, reference: str | None = None,
+             metrics_config: MetricsConfig | None = None) -> Results:
+    """Evaluate ``planners`` open loop on ``scenarios`` (a batch, or a scenario file with an optional
+    ``limit``) into the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and
+    plans stored, keyed by dataset, metrics configuration and planner configuration; an interrupted or
+    repeated call resumes; planners of earlier calls are kept. ``reference``: the planner the others are
+    compared with (default ``sf`` when present). Returns the directory's ``Results``."""
+    if isinstance(scenarios, ScenarioBatch):
+        if limit is not None:
+            raise ValueError("limit applies to a scenario file; pass batch.take(...) instead")
+        batch, source = scenarios, ""
+    else:
+        batch, source = load_scenarios(scenarios, limit=limit), str(scenarios)
+    run_evaluation(list(planners), batch, Path(out), scenarios_file=source, config=metrics_config,
+                   reference=reference)
+    return open_results(out)
+
+
+def open_results(directory: str | Path) -> Results:
+    """The results of a results directory (``letspi evaluate --out DIR`` or ``evaluate``)."""
+    directory = Path(directory)
+    return Results(directory, read_summary(directory))
+
+
+@dataclass(frozen=True)
+class Results:
+    """One results directory: its ``metrics.json`` and its per-window rows, as Python values and DataFrames.
+
+    ``summary()`` and ``paired_summary()`` tabulate the aggregates with their 95 % intervals and the
+    paired comparisons; ``per_scenario(name)`` gives one planner's rows; ``table()`` is metrics.md's
+    text and ``report()`` writes the HTML report.
+    """
+
+    directory: Path
+    raw: dict[str, Any]
+
+    @property
+    def planners(self) -> list[str]:
+        """Planner labels, in the order of metrics.json."""
+        return list(self.raw.get("planners", {}))
+
+    @property
+    def metrics(self) -> dict[str, dict[str, Any]]:
+        """{planner: {metrics.json key: value}} (``letspi.metrics.aggregate`` and timing keys)."""
+        return dict(self.raw.get("planners", {}))
+
+    @property
+    def intervals(self) -> dict[str, dict[str, list[float] | None]]:
+        """{planner: {key: [low, high] or None}}: the 95 % intervals of every rate and mean."""
+        return dict(self.raw.get("intervals", {}))
+
+    @property
+    def reference(self) -> str | None:
+        """The planner the others are compared with (None with fewer than two planners)."""
+        paired = self.raw.get("paired")
+        return str(paired["reference"]) if isinstance(paired, dict) else None
+
+    @property
+    def run(self) -> dict[str, Any]:
+        """What the results are keyed by: mode, dataset digest, metrics configuration, dataset."""
+        return dict(self.raw.get("run", {}))
+
+    def _check(self, name: str) -> None:
+        if name not in self.raw.get("planners", {}):
+            raise KeyError(f"{self.directory} has no planner {name!r} (it has: {', '.join(self.planners) or 'none'})")
+
+    def per_scenario(self, name: str, *, with_plans: bool = False) -> pd.DataFrame:
+        """One planner's stored rows, in dataset order: ``scenario_id``, ``scenario_digest``, ``row``,
+        ``vehicle_key``, every per-window metric (docs/metrics-reference.md), ``inference_s`` and the
+        plan's ``info_*`` columns; ``with_plans`` adds the plans (flat float32 arrays)."""
+        self._check(name)
+        return load_planner_results(self.directory, name, with_plans=with_plans)
+
+    def summary(self, keys: Sequence[str] = SUMMARY_KEYS) -> pd.DataFrame:
+        """One row per planner (index ``planner``), for each key three columns: ``key``, ``key_low`` and
+        ``key_high`` (the 95 % interval; NaN where a key has none), plus ``n``."""
+        rows = []
+        for name, agg in self.metrics.items():
+            row: dict[str, Any] = {"planner": name, "n": agg.get("n")}
+            for key in keys:
+                interval = self.intervals.get(name, {}).get(key)
+                value = agg.get(key)
+                row[key] = np.nan if value is None else value
+                row[f"{key}_low"], row[f"{key}_high"] = interval if interval else (np.nan, np.nan)
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("planner") if rows else pd.DataFrame()
+
+    def paired_summary(self, keys: Sequence[str] = SUMMARY_KEYS) -> pd.DataFrame:
+        """One row per planner and key compared with the reference: ``n_pairs``, ``diff`` (planner minus
+        reference), ``diff_low``/``diff_high`` (95 %), and for rates ``n_only_planner``,
+        ``n_only_reference``, ``n_both`` and ``p_mcnemar`` (NaN for means). Empty without a reference."""
+        paired = self.raw.get("paired") or {}
+        rows = []
+        for name, entries in (paired.get("planners") or {}).items():
+            for key in keys:
+                rec = entries.get(key)
+                if rec is None:
+                    continue
+                low, high = rec.get("diff_ci95") or (None, None)
+                rows.append({"planner": name, "reference": paired.get("reference"), "key": key,
+                             "n_pairs": rec.get("n_pairs"), "diff": rec.get("diff"), "diff_low": low, "diff_high": high,
+                             **{c: rec.get(c, np.nan) for c in ("n_only_planner", "n_only_reference", "n_both",
+                                                                "p_mcnemar")}})
+        return pd.DataFrame(rows).astype({"diff": float, "diff_low": float, "diff_high": float}) if rows else (
+            pd.DataFrame())
+
+    def table(self, names: Sequence[str] | None = None) -> str:
+        """The Markdown tables of metrics.md (values with intervals, the paired comparison) for ``names``."""
+        return summary_markdown(self.raw, names)
+
+    def report(self, out: str | Path | None = None, *, n_worst: int = 3, with_diagrams: bool = True) -> Path:
+        """Write the self-contained HTML report (default ``DIR/report.html``) and return its path."""
+        return write_report(self.directory, out, n_worst=n_worst, with_diagrams=with_diagrams)
