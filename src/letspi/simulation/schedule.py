@@ -197,8 +197,11 @@ class DualRateSchedule:
         if self.concurrency == 1:
             answers = [self._propose_one(view, context, row) for row in rows]
         else:
-            with ThreadPoolExecutor(max_workers=self.concurrency, thread_name_prefix="letspi-llm") as pool:
+            pool = ThreadPoolExecutor(max_workers=self.concurrency, thread_name_prefix="letspi-llm")
+            try:
                 answers = list(pool.map(lambda r: self._propose_one(view, context, r), rows))
+            finally:  # every answer is in when it returns; after Ctrl-C a request in flight is not waited for
+                pool.shutdown(wait=False, cancel_futures=True)
         for row, answer in zip(rows, answers, strict=True):
             self._calls.append(_Call(row, step, ready_step=step + self.config.latency_steps, proposals=answer))
             _record_call(info, row, answer)
