@@ -12,9 +12,9 @@ interrupt stops the rest:
 * worker threads (``letspi.execution.ordered``) start no new LLM request: the runner trips the
   advisor's breaker; the CLI does not wait for a request still in flight (its answer would be
   dropped anyway): ``finish`` exits without joining those threads;
-* worker processes never see the terminal's Ctrl-C (``start_worker``, and ``enter_worker`` first
-  thing in the child): their parent terminates them at once
-  (``letspi.simulation.pool``), and ``stop_children`` ends anything this process started that is
+* worker processes never see the terminal's Ctrl-C (``start_worker`` and ``enter_worker``, or
+  ``WorkerPool``): their parent terminates them at once (``letspi.simulation.pool``), and each runs
+  its own cleanup on the way out; ``stop_children`` then ends anything this process started that is
   still running: registered cleanups first (``on_stop``: Ray's local instance), then every
   descendant process (SIGTERM, SIGKILL after a grace period);
 * the CLI prints one line (``stop_line``: ``interrupted: N of M stored; rerun the same command to
@@ -47,8 +47,6 @@ from typing import Any, Final, NoReturn, TypeVar
 
 T = TypeVar("T")
 
-#: exit code after Ctrl-C (128 + SIGINT); after SIGTERM it is 143
-EXIT_INTERRUPTED: Final = 128 + signal.SIGINT
 STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
 #: seconds a child process gets to exit after SIGTERM before it is killed
 CHILD_GRACE_S: Final = 1.0
@@ -180,8 +178,7 @@ def run_worker(body: Callable[[], object]) -> None:
     try:
         body()
     except SystemExit as stop:
-        _flush()
-        os._exit(stop.code if isinstance(stop.code, int) else 1)
+        _exit_now(stop)
 
 
 def _in_worker(fn: Callable[..., T], *args: Any) -> T:
@@ -190,8 +187,12 @@ def _in_worker(fn: Callable[..., T], *args: Any) -> T:
     try:
         return fn(*args)
     except SystemExit as stop:
-        _flush()
-        os._exit(stop.code if isinstance(stop.code, int) else 1)
+        _exit_now(stop)
+
+
+def _exit_now(stop: SystemExit) -> NoReturn:
+    _flush()
+    os._exit(stop.code if isinstance(stop.code, int) else 1)
 
 
 class WorkerPool:
