@@ -10,7 +10,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from letspi.learned.train.loop import CHECKPOINT_FILE, CheckpointMismatchError, run_steps  # noqa: E402
+from letspi.learned.train.loop import (  # noqa: E402
+    CHECKPOINT_FILE,
+    CheckpointMismatchError,
+    checkpoint_step,
+    run_steps,
+)
 
 N_TRAIN = 40
 
@@ -54,6 +59,7 @@ def test_killed_run_resumes_to_the_unbroken_result(tmp_path: Path) -> None:
     assert (tmp_path / CHECKPOINT_FILE).is_file()
     state = torch.load(tmp_path / CHECKPOINT_FILE, weights_only=False)
     assert state["step"] == 22  # saved after every step but the one interrupted in its callback
+    assert checkpoint_step(tmp_path) == 22 and checkpoint_step(tmp_path / "none") == 0  # Ctrl-C's count
     resumed, resumed_losses = _train(tmp_path)
     assert resumed_losses == pytest.approx(losses, abs=0, rel=1e-6)
     for a, b in zip(unbroken.parameters(), resumed.parameters(), strict=True):
