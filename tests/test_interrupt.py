@@ -172,6 +172,7 @@ def test_the_stop_line_says_what_is_kept() -> None:
     assert stop_line(7, 20, resumes=True) == "interrupted: 7 of 20 stored; rerun the same command to resume"
     assert stop_line(resumes=True) == "interrupted: rerun the same command to resume"
     assert stop_line() == "interrupted: nothing stored; rerun the same command to start again"
+    assert stop_line(resumes=None) == "interrupted: rerun the same command"  # stopped while starting
     broken = Tally()
     broken.track(5, lambda: 1 // 0)  # counting failed: the line says less, the stop still happens
     assert broken.line() == "interrupted: rerun the same command to resume"
@@ -306,3 +307,20 @@ def _bank_rows(path: Path) -> int:
             return bank.count(validated_only=False)
     except Exception:  # not created yet, or being created
         return 0
+
+
+@pytest.mark.slow
+def test_the_interrupt_benchmark_reports_each_mode(tmp_path: Path) -> None:
+    """``letspi bench interrupt`` on two modes: exit 130, one stop line whose count is what is on
+    disk, nothing left running, and a rerun that completes without duplicates."""
+    from letspi.bench.interrupt import bench_interrupt
+
+    result = bench_interrupt(scenarios(1500, seed=13), n=1500, n_llm=24, modes=["open-loop", "collect"],
+                             after_s=12.0, llm_latency_s=3.0)
+    for name in ("open-loop", "collect"):
+        row = result["modes"][name]
+        assert row["exit_code"] == 130 and row["one_stop_line"] and not row["traceback"], row
+        assert row["left_running"] == 0 and row["seconds_to_exit"] < EXIT_BOUND_S
+        assert row["stop_line"].startswith(f"interrupted: {row['stored_on_disk']} of {row['rerun']['expected_rows']} ")
+        assert row["rerun"]["exit_code"] == 0 and row["rerun"]["duplicates"] == 0
+        assert row["rerun"]["rows"] == row["rerun"]["expected_rows"]

@@ -75,12 +75,14 @@ def exit_code() -> int:
     return 128 + (_state.signum or signal.SIGINT)
 
 
-def stop_line(stored: int | None = None, total: int | None = None, *, resumes: bool = False) -> str:
+def stop_line(stored: int | None = None, total: int | None = None, *, resumes: bool | None = False) -> str:
     """The one line an interrupted command prints: how much of its work is stored, and what to do.
 
-    ``resumes``: the command resumes where it stopped, with ``stored`` of its ``total`` units
-    stored (e.g. scenario rows; the count is left out when unknown); otherwise it keeps nothing
-    partial and starts again."""
+    ``resumes``: True, the command resumes where it stopped, with ``stored`` of its ``total`` units
+    stored (e.g. scenario rows; the count is left out when unknown); False, it keeps nothing partial
+    and starts again; None, unknown (stopped before a command said, e.g. while starting)."""
+    if resumes is None:
+        return "interrupted: rerun the same command"
     if not resumes:
         return "interrupted: nothing stored; rerun the same command to start again"
     if stored is None or total is None:
@@ -343,10 +345,11 @@ def _flush() -> None:
 
 def finish() -> NoReturn:
     """Leave after a stop signal: end the child processes, print the stop line if the command printed
-    none (a command without a ``Tally`` keeps nothing partial), and exit at once with ``exit_code()``."""
+    none (stopped while starting, or a command without a ``Tally``), and exit at once with
+    ``exit_code()``."""
     stop_children()
     if not _state.reported:
-        sys.stderr.write(stop_line() + "\n")
+        sys.stderr.write(stop_line(resumes=None) + "\n")
         _state.reported = True
     _flush()
     # not SystemExit: the interpreter would wait for worker threads still in an LLM request (their
