@@ -79,4 +79,5 @@ def test_labels_take_the_best_expected_utility_where_the_gate_consults() -> None
 def test_the_pool_starts_with_the_defaults_and_names_each_option_once() -> None:
     pool = pool_option_table(SocialForceParams())
     assert pool.names[0] == DEFAULT_NAME and len(set(pool.names)) == len(pool) == 26
-    assert pool.values_of("slow0.7")["lon_factor"] == 0.7 and pool.values_of("right-slow1")["lane_factor"] == 1.0
+    assert pool.values_of("slow")["lon_factor"] == 0.7 and pool.values_of("right-brake")["lane_factor"] == 1.0
+    assert pool.values_of("ease-gap")["k_np"] == 35.0

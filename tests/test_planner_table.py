@@ -63,14 +63,14 @@ PINNED_KEYS = {
     # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
     "frenet": "fe73b79fa4e18c4a",
     # issue 28: the decision step without a model; its key holds the shipped presets and risk model's SHA-256
-    "sf-check": "6283d611d7d72535",
+    "sf-check": "4dba20068bdd2d5d",
 }
 PINNED_VARIANT_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "7ebf8bb605573595", "sf": "a767eb08059b212e",
     "sf-opt": "965ba2e5f5e7da6d", "gnp": "6a4d2b27689d4ea6", "mlp": "91a70a3ac82050db", "llm": "8b044cb7aa3fbaa4",
     "letspi-memory": "b990114e7952b187", "letspi-fast": "27ae453b4559b8a3", "letspi-fs": "0d959d74e5b9deb0",
     "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
-    "sf-check": "b82f022006b966ea",
+    "sf-check": "050b9ad37f8fcf68",
 }
 PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf863542"}
 

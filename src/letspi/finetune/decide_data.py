@@ -43,9 +43,11 @@ _W = (4.0, 2.0, 1.0, 1e-3)
 
 
 def pool_option_table(params: SocialForceParams) -> OptionTable:
-    """The candidate presets: the defaults, shorter goals (``slow``: lon factor 0.55 / 0.7 / 1.0) with the
-    fitted or a stronger leader repulsion (``gap``), and a lane change (``left`` / ``right``) at the same
-    goal shortenings; a firm lane keeper (``hold``) and a quicker relaxation (``quick``)."""
+    """The candidate presets: the defaults; a shorter goal (``ease``, ``slow``, ``brake``: lon factor 0.55,
+    0.7, 1.0, i.e. a goal 7.5, 15 and 30 % nearer) and the same with a stronger repulsion from the leader
+    (``-gap``: k_np 35, ``-gap+``: 50; ``keep-gap`` at the unchanged goal); a lane change to the ``left``
+    or ``right`` at the unchanged, ``slow`` and ``brake`` goals (``-gap``: k_np 40); a firm lane keeper
+    (``hold``) and a quicker relaxation (``quick``). Short names: the model writes one in its reply."""
     d = defaults_vector(params)
     field = {f: i for i, f in enumerate(NUMERIC_FIELDS)}
     names, rows = [DEFAULT_NAME], [d.copy()]
@@ -57,14 +59,16 @@ def pool_option_table(params: SocialForceParams) -> OptionTable:
         names.append(name)
         rows.append(v)
 
+    goals = ((0.4, "keep"), (0.55, "ease"), (0.7, "slow"), (1.0, "brake"))
     repulsions = (("", d[1]), ("-gap", 35.0), ("-gap+", 50.0))
-    for lon, (gap_name, k_np) in itertools.product((0.4, 0.55, 0.7, 1.0), repulsions):
+    for (lon, word), (gap_name, k_np) in itertools.product(goals, repulsions):
         if lon == 0.4 and not gap_name:
             continue
-        add(f"slow{lon:g}{gap_name}" if lon != 0.4 else f"keep{gap_name}", lon_factor=lon, k_np=k_np)
+        add(f"{word}{gap_name}", lon_factor=lon, k_np=k_np)
     for side, lane in (("left", -1.0), ("right", 1.0)):
-        for lon, (gap_name, k_np) in itertools.product((0.4, 0.7, 1.0), (("", d[1]), ("-gap", 40.0))):
-            add(f"{side}{'' if lon == 0.4 else f'-slow{lon:g}'}{gap_name}", lane_factor=lane, lon_factor=lon, k_np=k_np)
+        for (lon, word), (gap_name, k_np) in itertools.product(((0.4, ""), (0.7, "-slow"), (1.0, "-brake")),
+                                                                (("", d[1]), ("-gap", 40.0))):
+            add(f"{side}{word}{gap_name}", lane_factor=lane, lon_factor=lon, k_np=k_np)
     add("hold", k_cline=2.0, k_nl=1.5)
     add("quick", tau_s=1.0)
     return OptionTable(tuple(names), np.array(rows))

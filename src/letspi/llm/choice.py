@@ -27,7 +27,7 @@ from letspi.llm.types import Message, ReplyParseError, message
 
 CHOICE_KEY: Final = "option"
 #: nearest cars the choice prompt lists (fewer than the compact prompt's: the options carry the checks)
-MAX_CARS: Final = 4
+MAX_CARS: Final = 3
 
 
 @dataclass(frozen=True)
