@@ -171,6 +171,8 @@ def test_fast_phase_gate_keeps_the_defaults_without_a_call_or_asks_for_a_preset(
                       decider=_decider(_gate(0.4, 0.0)))
     proposal, _ = phase.propose_retrieved(scene, goal)
     assert proposal.meta["decision"] == "slow" and proposal.meta["consulted"] and proposal.lon_factor == 1.0
+    assert proposal.meta["reason"] == "risk 50.0 % >= gate 40.0 %; default fails leader-brakes; chose slow (passes " \
+        "every check)"
     prompt = asked.calls[0][-1]["content"]
     assert "default: leader-brakes;" in prompt and "slow: " in prompt
     assert asked.schemas[0] is not None and asked.schemas[0]["properties"]["option"]["enum"] == list(_table().names)

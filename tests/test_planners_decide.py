@@ -41,6 +41,9 @@ def test_sf_check_keeps_the_defaults_where_the_gate_does_not_fire_and_records_it
     assert ruled.info["consulted"].all()
     assert ruled.info["decision"][0] != "default"  # the defaults fail leader-brakes: the rule takes a preset
     assert ruled.info["decision"][1] == "default"  # nothing fails on a free road
+    assert "default fails leader-brakes; chose " in ruled.info["reason"][0]
+    assert ruled.info["reason"][1].endswith("default passes every check; kept default")
+    assert " < gate " in plans.info["reason"][0]
 
 
 def test_decision_off_reproduces_the_planner_and_its_key(tmp_path: Path) -> None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Final, Protocol
@@ -152,6 +152,11 @@ class OptionChecks:
     xy_m: np.ndarray
     vxy_mps: np.ndarray
     goals_xy_m: np.ndarray
+
+    def row(self, i: int) -> OptionChecks:
+        """Scenario ``i``'s checks as a batch of one."""
+        return replace(self, **{f: getattr(self, f)[i:i + 1] for f in ("predicted_safe", "adverse_failed", "progress_m",
+                                                                      "min_ttc_s", "xy_m", "vxy_mps", "goals_xy_m")})
 
     def failed_checks(self) -> np.ndarray:
         """(B, K) how many checks each option fails (the prediction counts as one)."""

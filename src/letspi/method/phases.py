@@ -106,9 +106,30 @@ def preset_replies(presets: OptionTable) -> dict[str, PlannerReply]:
     return {name: PlannerReply(**presets.values_of(name), rationale=f"preset {name}") for name in presets.names}
 
 
-def _with_decision(proposal: Proposal, option: str, consulted: bool, risk_score: float) -> Proposal:
+def _with_decision(proposal: Proposal, option: str, consulted: bool, risk_score: float,
+                   reason: str = "") -> Proposal:
     return replace(proposal, meta={**proposal.meta, "decision": option, "consulted": consulted,
-                                   "risk_score": risk_score})
+                                   "risk_score": risk_score, "reason": reason})
+
+
+def decision_reason(decider: Decider, checks: OptionChecks, option: str, consulted: bool, risk_score: float) -> str:
+    """Why, in one line: the risk against the gate, what the defaults fail, the option chosen and its checks
+    (``risk 23.1 % >= gate 6.5 %; default fails leader-brakes; chose slow (passes every check)``)."""
+
+    def verdict(k: int) -> str:
+        failed = checks.failed_names(0, k)
+        return f"fails {', '.join(failed)}" if failed else "passes every check"
+
+    gate = decider.gate.threshold if decider.gate is not None else None
+    text = "risk -" if not np.isfinite(risk_score) else f"risk {100 * risk_score:.1f} %"
+    if gate is not None:
+        text += f" {'>=' if consulted else '<'} gate {100 * gate:.1f} %"
+    text += f"; default {verdict(0)}"
+    if option == DEFAULT_NAME:
+        return text + "; kept default"
+    if option not in checks.names:
+        return text + "; the model's own numbers"
+    return text + f"; chose {option} ({verdict(checks.names.index(option))})"
 
 
 @dataclass
@@ -397,14 +418,18 @@ class FastPhase:
             kept = Proposal(params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
                             lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
                             rationale=f"risk {risk_score:.3f} below the gate's threshold: the defaults, no model call")
-            return _with_decision(kept, DEFAULT_NAME, False, risk_score), retrieved
+            return _with_decision(kept, DEFAULT_NAME, False, risk_score,
+                                  decision_reason(self.decider, checks, DEFAULT_NAME, False, risk_score)), retrieved
         if self.prompt_style == "choice":
             messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0),
                                             risk=risk_score)
             advice = self.advisor.choose(messages, preset_replies(self.decider.presets))
             proposal = proposal_from_advice(advice, messages, self.r_col_m)
-            return _with_decision(proposal, advice.choice or CUSTOM, True, risk_score), retrieved
-        return _with_decision(self._ask(scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score), retrieved
+            option = advice.choice or CUSTOM
+            return _with_decision(proposal, option, True, risk_score,
+                                  decision_reason(self.decider, checks, option, True, risk_score)), retrieved
+        return _with_decision(self._ask(scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score,
+                              decision_reason(self.decider, checks, CUSTOM, True, risk_score)), retrieved
 
     def _ask(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
              retrieved: Sequence[tuple[Experience, float]]) -> Proposal:

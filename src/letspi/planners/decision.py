@@ -6,7 +6,9 @@ futures, risk gate); without one a planner plans, and records, exactly as before
 Per-scenario info columns (``DECISION_COLUMNS``; NAMES.md "Per-scenario decision columns"):
 ``decision`` (the preset, or ``custom`` for a model's own numbers), ``consulted`` (the model, or the
 rule, was asked), ``risk_score`` (NaN without a gate), ``adverse_failed`` (the adverse futures the
-first proposal's plan fails, comma-separated), ``refinements`` (reflection rounds after the first).
+first proposal's plan fails, comma-separated), ``refinements`` (reflection rounds after the first), and
+``reason``: why, in one line (the risk against the gate, what the defaults fail, what was chosen and
+its checks; for the memory phase the trail of its rounds and the model's rationale when it gave one).
 """
 
 from __future__ import annotations
@@ -19,15 +21,16 @@ from letspi.planners.base import PlanningContext
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.types import ScenarioBatch
 
-DECISION_COLUMNS: tuple[str, ...] = ("decision", "consulted", "risk_score", "adverse_failed", "refinements")
+DECISION_COLUMNS: tuple[str, ...] = ("decision", "consulted", "risk_score", "adverse_failed", "refinements",
+                                     "reason")
 
 
 def decision_info(option: Sequence[str], consulted: np.ndarray, risk_score: np.ndarray,
-                  refinements: np.ndarray) -> dict[str, np.ndarray]:
+                  refinements: np.ndarray, reason: Sequence[str]) -> dict[str, np.ndarray]:
     """The decision columns but ``adverse_failed`` (added where the plans are checked)."""
     return {"decision": np.asarray(option, dtype=object), "consulted": np.asarray(consulted, dtype=bool),
             "risk_score": np.asarray(risk_score, dtype=np.float64),
-            "refinements": np.asarray(refinements, dtype=np.float64)}
+            "refinements": np.asarray(refinements, dtype=np.float64), "reason": np.asarray(reason, dtype=object)}
 
 
 def adverse_failed_names(batch: ScenarioBatch, context: PlanningContext, plan_xy_m: np.ndarray,

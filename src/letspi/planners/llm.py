@@ -46,7 +46,14 @@ from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
-from letspi.method.reflection import IterationRecord, Proposal, SafetyReport, safety_report, simulate_proposal
+from letspi.method.reflection import (
+    IterationRecord,
+    Proposal,
+    ReflectionResult,
+    SafetyReport,
+    safety_report,
+    simulate_proposal,
+)
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
@@ -297,7 +304,8 @@ class LetsPiMemoryPlanner:
             if self.phase.decider is not None:
                 first = result.iterations[0].adverse
                 info.update(decision_info([str(final.meta.get("decision", CUSTOM))], np.ones(1, bool),
-                                          np.full(1, np.nan), np.array([float(result.n_refinements)])))
+                                          np.full(1, np.nan), np.array([float(result.n_refinements)]),
+                                          [reflection_trail(result)]))
                 info["adverse_failed"] = np.array([",".join(first.failed) if first is not None else ""], dtype=object)
             rows.append((final, info, {}))
         return _proposals(rows)
@@ -357,7 +365,8 @@ class LetsPiFastPlanner:
             if self.phase.decider is not None:
                 m = proposal.meta
                 info.update(decision_info([str(m.get("decision", CUSTOM))], np.array([bool(m.get("consulted", True))]),
-                                          np.array([float(m.get("risk_score", np.nan))]), np.zeros(1)))
+                                          np.array([float(m.get("risk_score", np.nan))]), np.zeros(1),
+                                          [str(m.get("reason", ""))]))
             rows.append((proposal, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
         return _proposals(rows)
 
@@ -424,9 +433,21 @@ def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider
     return out
 
 
+def reflection_trail(result: ReflectionResult) -> str:
+    """The memory phase's rounds in one line: each answer and its checks, then the model's rationale."""
+    steps = []
+    for it in result.iterations:
+        failed = ([] if it.predicted_safe else ["predicted"]) + list(it.adverse.failed if it.adverse else ())
+        verdict = f"fails {', '.join(failed)}" if failed else "passes every check"
+        steps.append(f"{it.proposal.meta.get('decision', CUSTOM)}: {verdict}")
+    rationale = result.final.proposal.rationale
+    return " -> ".join(steps) + (f"; model: {rationale}" if rationale else "")
+
+
 def _default_decision() -> dict[str, np.ndarray]:
     """The decision columns of the defaults in force before any answer (closed loop, dual rate)."""
-    info = decision_info([DEFAULT_NAME], np.zeros(1, bool), np.full(1, np.nan), np.zeros(1))
+    info = decision_info([DEFAULT_NAME], np.zeros(1, bool), np.full(1, np.nan), np.zeros(1),
+                         ["no answer in force yet: the defaults"])
     info["adverse_failed"] = np.array([""], dtype=object)
     return info
 

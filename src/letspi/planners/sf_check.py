@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 
 from letspi.method.decide import Decider, OptionChecks
+from letspi.method.phases import decision_reason
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
@@ -59,12 +60,14 @@ class DecisionPlanner:
         return np.where(consulted, self.decider.rule(checks), 0), consulted, risk, checks
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
-        chosen, consulted, risk, _ = self.choose(batch, context)
+        chosen, consulted, risk, checks = self.choose(batch, context)
         values = self.decider.presets.values[chosen]
         names = [self.decider.presets.names[k] for k in chosen]
+        reasons = [decision_reason(self.decider, checks.row(i), names[i], bool(consulted[i]), float(risk[i]))
+                   for i in range(len(batch))]
         from_values = SocialForceParams.from_matrix(
             np.concatenate([values[:, :6], np.full((len(batch), 1), self.params.r_col_m)], axis=1))
-        info = decision_info(names, consulted, risk, np.zeros(len(batch)))
+        info = decision_info(names, consulted, risk, np.zeros(len(batch)), reasons)
         return Proposals(params=from_values, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info)
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
