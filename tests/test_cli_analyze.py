@@ -54,5 +54,9 @@ def test_decisions_pairs_a_deciding_planner_with_sf_over_two_results_directories
     assert abs(sum(d["shares_pct"].values()) - 100.0) < 1e-9 and 0.0 <= d["consulted_pct"] <= 100.0
     f = report["CR at fault"]
     assert f["only_planner"] + f["only_reference"] + f["both"] <= 24
+    rep = runner.invoke(app, ["report", str(tmp_path / "ev0")])
+    assert rep.exit_code == 0, rep.output
+    page = (tmp_path / "ev0" / "report.html").read_text()
+    assert '<section id="decisions">' in page and "the model was consulted on" in page
     missing = runner.invoke(app, ["analyze", "decisions", *dirs, "--planner", "frenet"])
     assert missing.exit_code != 0 and "stored results of both 'frenet' and 'sf'" in " ".join(missing.output.split())

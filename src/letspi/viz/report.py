@@ -17,7 +17,9 @@ Reads the layout written by ``letspi.evaluation.harness`` (``metrics.json``, ``p
    with a note instead of a wrong picture. Closed-loop results (``letspi evaluate --mode
    closed-loop-*``) are drawn as the closed-loop panel instead (``letspi.viz.outcomes``): the plan
    made at t = 0 against the recorded neighbours above, the simulated run with every replan below.
-4. Ablations, from ``DIR/ablations/``:
+4. Decisions of the deciding planners (``letspi.viz.decisions``): their decision shares and a few
+   scenarios where they did not keep the defaults, each with its reason and its plan beside sf's.
+5. Ablations, from ``DIR/ablations/``:
 
    ``memory_size.json``::
 
@@ -60,6 +62,7 @@ from letspi.planners.base import PlanBatch
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.viz import style
+from letspi.viz.decisions import decision_sections
 from letspi.viz.figure import plot_scenario
 from letspi.viz.outcomes import closed_loop_report_figure
 
@@ -420,6 +423,8 @@ def write_report(
             worst, worst_note = worst_sections(eval_dir, frames, n_worst)
         else:
             worst = [_listed(name, frame, n_worst) for name, frame in frames.items()]
+    decisions = (decision_sections(eval_dir, frames, _scenarios_file(eval_dir), lambda f: figure_to_data_uri(f, dpi=90))
+                 if frames and with_diagrams else [])
     worst_anchor = {sec.name: sec.anchor for sec in worst}
     for table_row in table_rows:
         table_row["anchor"] = worst_anchor.get(str(table_row["name"]))
@@ -438,6 +443,7 @@ def write_report(
         ttc_cap_s=config.ttc_cap_s,
         worst=worst,
         worst_note=worst_note,
+        decisions=decisions,
         n_worst=n_worst,
         ablations=_ablations(eval_dir / "ablations"),
     )
