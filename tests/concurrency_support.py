@@ -11,12 +11,13 @@ import numpy as np
 import pandas as pd
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import Resolver
 from letspi.evaluation.harness import load_planner_results
 from letspi.execution.ordered import RunnerConfig
 from letspi.llm.client import RetryPolicy
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import CollectStats, collect
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 

@@ -16,7 +16,8 @@ import pytest
 from concurrency_support import bank_rows, collect_into, options, scenarios, stored_results
 from typer.testing import CliRunner
 
-from letspi.assembly.build import Builder, build_planners
+from letspi.assembly.build import Builder
+from letspi.assembly.planners import build_planners
 from letspi.assembly.resolve import Resolver
 from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.cli.app import app

@@ -20,7 +20,7 @@ import pytest
 from test_simulation_support import BrakePlanner, generated_batch
 from typer.testing import CliRunner
 
-from letspi.assembly.build import BuiltPlanner
+from letspi.assembly.planners import BuiltPlanner
 from letspi.cli.app import app
 from letspi.evaluation.closed_loop import (
     ClosedLoopSettings,

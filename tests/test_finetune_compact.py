@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import Resolver
 from letspi.finetune.export import (
     AdapterExportError,
     adapter_tensors,
@@ -27,6 +27,7 @@ from letspi.llm.models import ADAPTER_ENV, locate_model
 from letspi.llm.parse import parse_reply
 from letspi.llm.schema import DEFAULT_REPLY, NUMERIC_FIELDS, WIRE_KEYS
 from letspi.llm.types import ModelNotFoundError
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
 LABEL = {"tau_s": 1.234, "k_np": 31.26, "k_nf": 9.04, "k_nl": 0.5, "k_boundary": 1.0, "k_cline": 0.33,
@@ -103,8 +104,8 @@ def test_fine_tuned_model_uses_the_compact_prompt_and_its_adapter_enters_the_key
     a.write_bytes(b"adapter one")
     b.write_bytes(b"adapter two")
     opts = PlannerOptions(llm="llamacpp:smollm2-135m-letspi")
-    ca = Resolver(opts, env={ADAPTER_ENV: str(a)}).llm(opts.llm)
-    cb = Resolver(opts, env={ADAPTER_ENV: str(b)}).llm(opts.llm)
+    ca = Resolver(opts, env={ADAPTER_ENV: str(a)}).llm("llamacpp:smollm2-135m-letspi")
+    cb = Resolver(opts, env={ADAPTER_ENV: str(b)}).llm("llamacpp:smollm2-135m-letspi")
     assert ca.prompt_style == "compact" and ca.adapter_path == str(a)
     assert ca.model_sha256 == cb.model_sha256 and ca.key() != cb.key()  # same base, another adapter
     base = Resolver(opts, env={}).llm("llamacpp:smollm2-135m")
@@ -112,7 +113,7 @@ def test_fine_tuned_model_uses_the_compact_prompt_and_its_adapter_enters_the_key
     forced = Resolver(PlannerOptions(prompt_style="compact"), env={}).llm("llamacpp:smollm2-135m")
     assert forced.prompt_style == "compact" and forced.key() != base.key()
     with pytest.raises(ModelNotFoundError, match=ADAPTER_ENV):
-        Resolver(opts, env={ADAPTER_ENV: str(tmp_path / "missing.gguf")}).llm(opts.llm)
+        Resolver(opts, env={ADAPTER_ENV: str(tmp_path / "missing.gguf")}).llm("llamacpp:smollm2-135m-letspi")
 
 
 def test_peft_names_map_to_llama_cpp_adapter_names() -> None:

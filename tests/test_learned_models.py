@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from test_learned_scenes import random_batch
 
-from letspi.assembly.build import Builder, BuiltPlanner
-from letspi.assembly.resolve import GOAL_WEIGHTS_ENV, PlannerOptions, Resolver
+from letspi.assembly.build import Builder
+from letspi.assembly.planners import BuiltPlanner
+from letspi.assembly.resolve import Resolver
 from letspi.evaluation.harness import evaluate
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel
@@ -21,8 +22,9 @@ from letspi.learned.weights import WeightsError, load_weights, save_weights, shi
 from letspi.physics.goals import GoalPrediction, KinematicGoalPredictor
 from letspi.physics.lanes import outer_lane_centres_m
 from letspi.physics.params import SocialForceParams
-from letspi.planners.config import GoalsConfig, WeightsConfig
+from letspi.planners.config import GOAL_WEIGHTS_ENV, GoalsConfig, WeightsConfig
 from letspi.planners.gnp import GnpConfig, GnpPlanner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 

@@ -7,11 +7,12 @@ import json
 
 import pytest
 
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, file_sha256
+from letspi.assembly.resolve import file_sha256
 from letspi.bench.llm_runtime import standard_messages
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.models import ADAPTER_FILE, locate_adapter, locate_model, shipped_adapter_dir
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
+from letspi.planners.llm import DEFAULT_FAST_LLM, DEFAULT_LLM
 
 MAX_ADAPTER_BYTES = 10_000_000
 

@@ -13,8 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import build_planners
 from letspi.bench.llm import bench_scenarios
 from letspi.bench.llm_concurrency import prefix_reuse, real_server_available, start_llama_server
 from letspi.evaluation.harness import evaluate, load_planner_results
@@ -22,6 +21,7 @@ from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.prompts import render_fast_prompt
 from letspi.llm.schema import reply_json_schema
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 

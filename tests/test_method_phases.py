@@ -86,8 +86,8 @@ def test_collect_is_resumable_and_fast_phase_retrieves_from_the_bank(tmp_path):
 
 def test_ablation_presets_with_a_scripted_model(tmp_path, monkeypatch):
     """Every preset runs end to end (scripted backend via the spec string) and writes its files."""
-    from letspi.assembly.resolve import PlannerOptions
     from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
+    from letspi.planners.options import PlannerOptions
 
     batch = concat_batches([_unsafe(), straight_road_scenario(scenario_id="free")])
     bank_path = tmp_path / "m.sqlite"

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planners import build_planner, resolve_planner
 from letspi.learned.param_mlp import OUTPUT_FIELDS, OUTPUT_RANGES, ParamMlp
 from letspi.learned.weights import WeightsError, save_weights
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.features import scenario_features
 from letspi.scenario.split import split_by_key
@@ -58,22 +58,22 @@ def test_mlp_planner_plans_and_its_key_pins_the_weights(tmp_path: Path) -> None:
         res = train_mlp(feats, targets, digests, MlpTrainConfig(epochs=epochs, seed=0))
         save_weights(tmp_path / name, res.arrays, res.manifest)
     opts = PlannerOptions(goals="kinematic", mlp_weights=tmp_path / "a")
-    config = Resolver(opts).planner("mlp")
-    assert config.key() != Resolver(replace(opts, mlp_weights=tmp_path / "b")).planner("mlp").key()
+    config = resolve_planner("mlp", opts)
+    assert config.key() != resolve_planner("mlp", opts.replace(mlp_weights=tmp_path / "b")).key()
     batch = concat_batches([
         straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
                                scenario_id="a"),
         straight_road_scenario(ego_speed_mps=28.0, scenario_id="b"),
     ])
-    planner = Builder(cache=None).planner(config).planner
+    planner = build_planner(config, builder=Builder(cache=None)).planner
     plan = planner.plan(batch.history())
     assert plan.xy_m.shape == (2, 125, 2) and np.isfinite(plan.xy_m).all()
     expected = ParamMlp.from_dir(tmp_path / "a").predict(scenario_features(batch.history()))
     np.testing.assert_allclose(plan.info["k_np"], expected[:, K_NP])
     with pytest.raises(ValueError, match="mlp-weights"):
-        Resolver(PlannerOptions(goals="kinematic"), env={}).planner("mlp")
+        resolve_planner("mlp", PlannerOptions(goals="kinematic"), env={})
     with pytest.raises(WeightsError, match="nowhere"):
-        Resolver(replace(opts, mlp_weights=tmp_path / "nowhere")).planner("mlp")
+        resolve_planner("mlp", opts.replace(mlp_weights=tmp_path / "nowhere"))
 
 
 def test_the_split_keeps_each_vehicle_on_one_side() -> None:

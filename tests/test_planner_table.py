@@ -4,27 +4,21 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from letspi.assembly import resolve
-from letspi.assembly.planner_table import (
-    PLANNER_KINDS,
-    PLANNER_TABLE,
-    FutureUse,
-    parse_planner_config,
-    planner_kind,
-    reads_future,
-)
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planner_table import BUILT_IN, FutureUse
+from letspi.assembly.planners import resolve_planner
+from letspi.assembly.resolve import Resolver
 from letspi.cli.app import app
 from letspi.method.memory import MemoryBank
 from letspi.physics.params import SocialForceParams
 from letspi.planners.cv import CvConfig
 from letspi.planners.idm import IdmConfig
+from letspi.planners.options import PlannerOptions
 from letspi.planners.sf_params import save_sf_params
 
 ALL_KINDS = ("human", "cv", "idm", "sf", "sf-opt", "sf-check", "gnp", "frenet", "mlp", "llm", "letspi-memory",
@@ -76,11 +70,11 @@ PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf8
 
 
 def _keys(options: PlannerOptions) -> dict[str, str]:
-    return {kind: Resolver(options, env={}).planner(kind).key() for kind in ALL_KINDS}
+    return {kind: resolve_planner(kind, options, env={}).key() for kind in ALL_KINDS}
 
 
 def test_configuration_keys_did_not_move(pinned_options: PlannerOptions) -> None:
-    variant = replace(pinned_options, **VARIANT)  # type: ignore[arg-type]
+    variant = pinned_options.replace(**VARIANT)
     assert _keys(pinned_options) == PINNED_KEYS
     assert _keys(variant) == PINNED_VARIANT_KEYS
     assert {"default": Resolver(pinned_options, env={}).memory_phase().key(),
@@ -88,22 +82,22 @@ def test_configuration_keys_did_not_move(pinned_options: PlannerOptions) -> None
 
 
 def test_every_kind_has_one_entry_and_the_kinds_derive_from_it() -> None:
-    assert PLANNER_KINDS == ALL_KINDS
-    assert len({kind.name for kind in PLANNER_TABLE}) == len(PLANNER_TABLE)
-    for kind in PLANNER_TABLE:
+    assert BUILT_IN.names == ALL_KINDS
+    assert len({kind.name for kind in BUILT_IN.kinds}) == len(BUILT_IN.kinds)
+    for kind in BUILT_IN.kinds:
         # the configuration class can stand for this kind (its `kind` literal admits the name)
         assert kind.config_class.model_fields["kind"].annotation.__args__.count(kind.name) == 1, kind.name
     with pytest.raises(ValueError, match=r"unknown planner 'sf-cv'; available: human, cv, .*, letspi-fs$"):
-        Resolver(PlannerOptions()).planner("sf-cv")
+        resolve_planner("sf-cv", PlannerOptions())
 
 
 def test_records_parse_back_into_their_configuration_class(pinned_options: PlannerOptions) -> None:
     for kind in ALL_KINDS:
-        config = Resolver(pinned_options, env={}).planner(kind)
-        again = parse_planner_config(json.loads(json.dumps(config.record())))
+        config = resolve_planner(kind, pinned_options, env={})
+        again = BUILT_IN.parse_config(json.loads(json.dumps(config.record())))
         assert type(again) is type(config) and again == config and again.key() == config.key(), kind
     with pytest.raises(ValueError, match="does not match any of the expected tags"):
-        parse_planner_config({"kind": "apollo-lattice"})
+        BUILT_IN.parse_config({"kind": "apollo-lattice"})
 
 
 def test_reads_future_follows_the_oracle_inputs(pinned_options: PlannerOptions) -> None:
@@ -111,7 +105,7 @@ def test_reads_future_follows_the_oracle_inputs(pinned_options: PlannerOptions) 
     prediction are oracles (``gnp`` and ``mlp`` refuse the oracle neighbours at resolution)."""
     def future(kind: str, **options: str) -> bool | str:
         try:
-            return reads_future(Resolver(replace(pinned_options, **options), env={}).planner(kind))  # type: ignore[arg-type]
+            return BUILT_IN.reads_future(resolve_planner(kind, pinned_options.replace(**options), env={}))
         except ValueError as exc:
             return "refused" if "predicted neighbours" in str(exc) or "learned goal" in str(exc) else str(exc)
 
@@ -121,14 +115,14 @@ def test_reads_future_follows_the_oracle_inputs(pinned_options: PlannerOptions) 
     with_oracle_neighbours = {k: future(k, neighbour_mode="ground_truth_oracle") for k in ALL_KINDS}
     assert with_oracle_neighbours == {**{k: True for k in ALL_KINDS}, "cv": False, "gnp": "refused",
                                       "mlp": "refused"}
-    assert planner_kind("human").future is FutureUse.ALWAYS and planner_kind("cv").future is FutureUse.NEVER
+    assert BUILT_IN.kind("human").future is FutureUse.ALWAYS and BUILT_IN.kind("cv").future is FutureUse.NEVER
 
 
 def test_a_configuration_of_the_wrong_class_is_refused() -> None:
     wrong = CvConfig.model_construct(kind="idm")  # type: ignore[call-arg]
     with pytest.raises(TypeError, match="expects IdmConfig"):
-        reads_future(wrong)
-    assert not reads_future(IdmConfig())
+        BUILT_IN.reads_future(wrong)
+    assert not BUILT_IN.reads_future(IdmConfig())
 
 
 def test_letspi_planners_lists_every_kind() -> None:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import build_planners
 from letspi.fitting.sf import fit_sf_params
 from letspi.metrics.compute import compute_metrics
 from letspi.physics.params import SocialForceParams
+from letspi.planners.options import PlannerOptions
 from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.planners.sf_params import load_sf_params, save_sf_params
@@ -67,8 +67,8 @@ def test_every_baseline_plans_finite_trajectories(name):
         straight_road_scenario(ego_speed_mps=0.0),  # standing still
         straight_road_scenario(n_lanes=2, ego_lane_index=0, neighbours=[VehicleSpec(-3.0, 30.0)]),
     ])
-    planner = make_planner(name)
-    plan = planner.plan(batch if planner.reads_future else batch.history())
+    built = build_planners([name], PlannerOptions())[0]
+    plan = built.planner.plan(batch if built.reads_future else batch.history())
     assert plan.xy_m.shape == (3, 125, 2) and np.isfinite(plan.xy_m).all() and np.isfinite(plan.vxy_mps).all()
 
 
@@ -179,8 +179,9 @@ def test_non_oracle_planners_never_read_the_future(kind):
     for name in ("nbr_xy_m", "nbr_vxy_mps"):
         getattr(blanked, name)[:, :, future] = np.nan
     options = PlannerOptions(llm="scripted:default", llm_cache=False)
-    planner = build_planners([kind], options)[0].planner
-    assert not planner.reads_future
+    built = build_planners([kind], options)[0]
+    planner = built.planner
+    assert not built.reads_future
     if planner.batch_size == 1:  # LLM planners: one scenario per call
         batch, blanked = batch.take([0]), blanked.take([0])
     plans = [planner.plan(b) for b in (batch, blanked, batch.history())]
@@ -190,6 +191,6 @@ def test_non_oracle_planners_never_read_the_future(kind):
 
 
 def test_oracle_options_are_declared():
-    assert build_planners(["human"], PlannerOptions())[0].planner.reads_future
-    assert build_planners(["sf"], PlannerOptions(goals="oracle"))[0].planner.reads_future
-    assert build_planners(["idm"], PlannerOptions(neighbour_mode="ground_truth_oracle"))[0].planner.reads_future
+    assert build_planners(["human"], PlannerOptions())[0].reads_future
+    assert build_planners(["sf"], PlannerOptions(goals="oracle"))[0].reads_future
+    assert build_planners(["idm"], PlannerOptions(neighbour_mode="ground_truth_oracle"))[0].reads_future

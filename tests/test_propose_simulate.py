@@ -14,13 +14,13 @@ import pandas as pd
 import pytest
 from concurrency_support import collect_into, options, scenarios, stored_results
 
-from letspi.assembly.build import BuiltPlanner, build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.bench.llm_server import LlmTestServer
 from letspi.evaluation import concurrent
 from letspi.evaluation.harness import evaluate
 from letspi.execution.ordered import BlockCache
 from letspi.planners.base import PlanBatch, Proposals, ProposingPlanner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.types import ScenarioBatch
 
 TIMING_INFO = ("llm_latency_s", "llm_original_latency_s")  # wall times of requests

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planners import build_planners, resolve_planner
+from letspi.assembly.resolve import Resolver
 from letspi.evaluation.closed_loop import ClosedLoopSettings
 from letspi.evaluation.harness import planner_record, run_record
 from letspi.learned.weights import save_weights
@@ -27,6 +27,7 @@ from letspi.metrics.config import MetricsConfig
 from letspi.physics.params import SocialForceParams
 from letspi.planners.config import key_of
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
+from letspi.planners.options import PlannerOptions
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests
@@ -129,7 +130,7 @@ def _options(files: dict[str, Path], **values: Any) -> PlannerOptions:
 
 def _key(options: PlannerOptions, kind: str) -> str:
     try:
-        return pinned_key(Resolver(options, env={}).planner(kind).identity())
+        return pinned_key(resolve_planner(kind, options, env={}).identity())
     except ValueError:
         return "refused"
 
@@ -170,7 +171,7 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
         settings = ClosedLoopSettings(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},
                                       dual_rate=dual)
         for b in built:
-            evaluation = settings.planner_evaluation(b.name, b.planner)
+            evaluation = settings.planner_evaluation(b.name, b.dual_rate)
             keys[f"{b.name} {dual.llm_latency_s}"] = pinned_key(planner_record(b, evaluation)["identity"])
     for b in built:
         keys[f"{b.name} open"] = pinned_key(planner_record(b)["identity"])

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planners import build_planner, resolve_planner
 from letspi.llm.backends.scripted import ScriptedBackend
 from letspi.llm.client import ParamAdvisor
 from letspi.method.memory import MemoryBank
@@ -21,6 +20,7 @@ from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.planners.llm import GRID_SOURCE, SF_SOURCE, LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch
 
@@ -108,10 +108,10 @@ def test_memory_planner_shield_replaces_an_unvalidated_single_shot() -> None:
 def test_the_shield_is_part_of_the_planner_key_and_the_builder_honours_it() -> None:
     opts = PlannerOptions(llm="scripted:default", fast_llm="scripted:default", llm_cache=False, goals="kinematic")
     for kind in ("llm", "letspi-memory"):
-        on, off = Resolver(opts).planner(kind), Resolver(replace(opts, shield=False)).planner(kind)
+        on, off = resolve_planner(kind, opts), resolve_planner(kind, opts.replace(shield=False))
         assert on.shield and not off.shield and on.key() != off.key()
         # the stored experiences do not depend on the shield
         assert on.phase.key() == off.phase.key()  # type: ignore[union-attr]
-    built_on = Builder(cache=None).planner(Resolver(opts).planner("llm")).planner
-    built_off = Builder(cache=None).planner(Resolver(replace(opts, shield=False)).planner("llm")).planner
+    built_on = build_planner(resolve_planner("llm", opts), builder=Builder(cache=None)).planner
+    built_off = build_planner(resolve_planner("llm", opts.replace(shield=False)), builder=Builder(cache=None)).planner
     assert built_on.shield_params is not None and built_off.shield_params is None  # type: ignore[attr-defined]

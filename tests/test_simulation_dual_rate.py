@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from letspi.assembly.planner_table import BUILT_IN
+from letspi.assembly.planners import BuiltPlanner
 from letspi.cli.app import app
 from letspi.constants import N_TOTAL, T0_INDEX
 from letspi.llm.backends.scripted import ScriptedBackend
@@ -21,7 +23,8 @@ from letspi.llm.schema import fallback_reply_from_params
 from letspi.method.phases import FastPhase
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.params import SocialForceParams
-from letspi.planners.llm import LetsPiFastPlanner
+from letspi.planners.config import GoalsConfig
+from letspi.planners.llm import FastPlannerConfig, LetsPiFastPlanner
 from letspi.planners.sf import SocialForcePlanner
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
@@ -29,7 +32,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, run_closed_loop
 from letspi.simulation.dual_rate import DualRateReplanner
 from letspi.simulation.replan import PeriodicReplanner, Replan, SimulatedStates, replanning_batch
-from letspi.simulation.schedule import DualRateConfig, is_dual_rate
+from letspi.simulation.schedule import DualRateConfig, DualRatePlanner
 
 FITTED = SocialForceParams(tau_s=1.7, k_np=33.0, k_nf=4.0, k_nl=0.6, k_boundary=1.1, k_cline=0.4, r_col_m=9.0)
 
@@ -76,7 +79,8 @@ def test_the_llm_is_asked_at_t0_and_every_period_and_the_physics_replans_with_th
     batch = _scenes(2)
     # two scenarios, asked in order at each instant: t = 0 answers k_np 44, t = 2.6 s answers k_np 60
     planner = _fast([_reply(44.0)] * 2 + [_reply(60.0)] * 2)
-    assert is_dual_rate(planner) and not is_dual_rate(SocialForcePlanner(FITTED))
+    assert isinstance(planner, DualRatePlanner) and not isinstance(SocialForcePlanner(FITTED), DualRatePlanner)
+    assert BUILT_IN.kind("letspi-fast").dual_rate and not BUILT_IN.kind("sf").dual_rate
     states = _logged_states(batch)
     replanner = DualRateReplanner(planner, batch, 5, "none", DualRateConfig(llm_period_s=2.5, llm_latency_s=1.0))
     out = _replans(replanner, states)
@@ -137,7 +141,10 @@ def test_dual_rate_letspi_in_the_engine_asks_twice_per_5_s_scenario_and_records_
     batch = _scenes(2)
     planner = _fast([])
     config = ClosedLoopConfig(dual_rate=DualRateConfig(llm_period_s=2.5, llm_latency_s=0.4))
-    chunks = list(run_closed_loop(planner, batch, mode, replan_s=0.2, config=config))
+    # the planner object as a letspi-fast of the table (its kind runs dual-rate); the configuration is a stand-in
+    built = BuiltPlanner("letspi-fast", FastPlannerConfig.model_construct(goals=GoalsConfig(source="kinematic")),
+                         planner)
+    chunks = list(run_closed_loop(built, batch, mode, replan_s=0.2, config=config))
     chunk = ClosedLoopChunk.concat(chunks)
     info = chunk.plan_info
     assert chunk.plan_xy_m.shape[1] == 25  # replans at 0, 0.2, ..., 4.8 s

@@ -9,14 +9,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_simulation_support import BrakePlanner, RecordingPlanner, SwervePlanner, WildPlanner, generated_batch
+from test_simulation_support import (
+    BrakePlanner,
+    RecordingPlanner,
+    SwervePlanner,
+    WildPlanner,
+    as_built,
+    generated_batch,
+)
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import build_planners
 from letspi.constants import N_TOTAL, T0_INDEX
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.compute import compute_metrics, human_future
 from letspi.metrics.inputs import MetricInputs
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.queries import lane_index_of
 from letspi.scenario.types import CONTEXT_FIELDS, ScenarioBatch, concat_batches
@@ -46,7 +53,7 @@ def make_planner(kind: str):
 
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, batch, mode, **kw)))  # type: ignore[arg-type]
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, mode, **kw)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))
 
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_simulation_support import BrakePlanner, RecordingPlanner, SwervePlanner
+from test_simulation_support import BrakePlanner, RecordingPlanner, SwervePlanner, as_built
 
 from letspi.constants import DT_S, N_FUTURE, N_TOTAL, T0_INDEX
 from letspi.highd.events import read_events
@@ -29,7 +29,7 @@ FUT = slice(T0_INDEX + 1, N_TOTAL)
 
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, batch, mode, **kw)))  # type: ignore[arg-type]
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, mode, **kw)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_simulation_support import FailingPlanner, generated_batch
+from test_simulation_support import FailingPlanner, as_built, generated_batch
 
 from letspi.bench.closed_loop import bench_closed_loop
 from letspi.scenario.store import save_scenarios
@@ -71,7 +71,7 @@ def test_workers_give_the_in_process_result_each_scenario_once(traffic: Scenario
 
 def test_a_failing_planner_in_a_worker_ends_the_run_with_its_traceback(traffic: ScenarioBatch) -> None:
     with pytest.raises(ClosedLoopWorkerError, match="planner bug for the test"):
-        list(run_closed_loop(FailingPlanner(), traffic.take(np.arange(4)), workers=1))
+        list(run_closed_loop(as_built(FailingPlanner()), traffic.take(np.arange(4)), workers=1))
 
 
 def test_store_resumes_and_refuses_another_run(tmp_path: Path, traffic: ScenarioBatch) -> None:

@@ -10,12 +10,24 @@ from pathlib import Path
 
 import numpy as np
 
+from letspi.assembly.planners import BuiltPlanner
 from letspi.constants import DT_S, N_FUTURE, T0_INDEX
 from letspi.highd.io import read_recordings
-from letspi.planners.base import PlanBatch
+from letspi.planners.base import PlanBatch, Planner
+from letspi.planners.cv import CvConfig
+from letspi.planners.human import HumanConfig
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.trafficgen.generate import generate_highd
+
+
+def as_built(planner: Planner | object) -> object:
+    """A test planner as the closed loop takes it: a ``BuiltPlanner`` of kind ``human`` (it gets the recorded
+    future) when it says ``reads_future``, else of kind ``cv`` (history only). Specs pass through."""
+    if not isinstance(planner, Planner) or isinstance(planner, BuiltPlanner):
+        return planner
+    config = HumanConfig() if getattr(planner, "reads_future", False) else CvConfig()
+    return BuiltPlanner(planner.name, config, planner)
 
 
 def generated_batch(directory: Path, n: int = 48, seed: int = 3, minutes: float = 1.0,

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_simulation_support import BrakePlanner
+from test_simulation_support import BrakePlanner, as_built
 
 from letspi.constants import T0_INDEX
 from letspi.metrics.compute import compute_metrics
@@ -25,7 +25,7 @@ def test_panel_shows_open_and_closed_loop_outcomes(tmp_path: Path) -> None:
     planner = BrakePlanner(8.0)
     plan = planner.plan(batch)
     opened = compute_metrics(batch, plan.xy_m, plan.vxy_mps)
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, batch, "closed-loop-reactive")))
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, "closed-loop-reactive")))
     closed = chunk_metrics(batch, chunk)
     assert opened.collision[0] and not closed.collision[0]
     fut = slice(T0_INDEX + 1, None)

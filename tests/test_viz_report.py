@@ -16,10 +16,10 @@ from matplotlib.image import imread
 from typer import Typer
 from typer.testing import CliRunner
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import build_planners
 from letspi.cli import viz as viz_cli
 from letspi.evaluation.harness import evaluate
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import concat_batches

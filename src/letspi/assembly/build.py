@@ -1,6 +1,8 @@
-"""Configurations -> objects: planners, LLM advisors, LetsPi phases (the one place that builds them).
+"""Configurations -> shared objects: goal predictors, LLM advisors, LetsPi phases.
 
-``Builder`` shares what is expensive between everything it builds: one ``ParamAdvisor`` (and so
+``Builder`` is what a planner kind's build step (``letspi.assembly.planner_table``) builds with, and
+``letspi.assembly.planners.build_planner`` the one entry that turns a configuration into a planner.
+It shares what is expensive between everything it builds: one ``ParamAdvisor`` (and so
 one loaded model) per LLM configuration, one goal predictor per goal configuration. Building an LLM
 planner loads its model at once and reports the time as ``BuiltPlanner.load_s``, so model loading
 never hides inside the first scenario's inference time.
@@ -9,13 +11,10 @@ never hides inside the first scenario's inference time.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from letspi.assembly.planner_table import kind_of
-from letspi.assembly.resolve import PlannerOptions, Resolver
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
@@ -25,31 +24,12 @@ from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
-from letspi.planners.base import Planner
-from letspi.planners.config import GoalsConfig, LlmConfig, MemoryPhaseConfig, PlannerConfig, SfParamsConfig
+from letspi.planners.config import GoalsConfig, LlmConfig, MemoryPhaseConfig, SfParamsConfig
 from letspi.planners.llm import FastPlannerConfig
 
 
 class ConfigurationChangedError(ValueError):
     """What a configuration pins (a memory snapshot) no longer matches what is on disk."""
-
-
-@dataclass
-class BuiltPlanner:
-    """A planner with the configuration it was built from.
-
-    name: the label of its results (short; ``config`` holds everything). load_s: model loading at
-    build time [s] (0 for planners without a model), reported apart from inference time.
-    """
-
-    name: str
-    config: PlannerConfig
-    planner: Planner
-    load_s: float = 0.0
-
-    @property
-    def key(self) -> str:
-        return self.config.key()
 
 
 @dataclass
@@ -150,36 +130,3 @@ class Builder:
         static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
         return FastPhase(advisor, goals, r_col, None, static_examples=static,
                          prompt_style=config.llm.prompt_style), load_s
-
-    # planners ----------------------------------------------------------------------------------
-    def planner(self, config: PlannerConfig, name: str | None = None) -> BuiltPlanner:
-        """Build the planner ``config`` describes (its entry in ``letspi.assembly.planner_table``),
-        labelled ``name`` (default: its kind)."""
-        label = name or config.kind
-        kind = kind_of(config)
-        planner, load_s = kind.build(self, config, label)
-        planner.reads_future = kind.reads_future(config)
-        return BuiltPlanner(label, config, planner, load_s)
-
-
-def parse_planner_arg(arg: str) -> tuple[str, str]:
-    """``KIND`` or ``LABEL=KIND`` (a second configuration of one kind in the same results) -> (label, kind)."""
-    label, sep, kind = arg.partition("=")
-    if not sep:
-        return arg.strip(), arg.strip()
-    if not label.strip() or not kind.strip():
-        raise ValueError(f"--planner takes KIND or LABEL=KIND, got {arg!r}")
-    return label.strip(), kind.strip()
-
-
-def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
-                   env: Mapping[str, str] | None = None) -> list[BuiltPlanner]:
-    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (models are loaded once)."""
-    resolver = Resolver(options, env)
-    builder = builder or Builder(cache="default" if options.llm_cache else None)
-    labels = [parse_planner_arg(a) for a in args]
-    seen = [label for label, _ in labels]
-    dup = sorted({x for x in seen if seen.count(x) > 1})
-    if dup:
-        raise ValueError(f"planner label(s) {', '.join(dup)} given twice; use LABEL=KIND for variants")
-    return [builder.planner(resolver.planner(kind), name=label) for label, kind in labels]

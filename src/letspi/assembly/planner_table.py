@@ -1,52 +1,73 @@
 """The one table of planner kinds: each kind is one entry, everything else is derived from it.
 
 An entry names a kind, says in one line what it is, and gives its configuration class (defined
-beside the planner, in its module under ``letspi.planners``), how ``PlannerOptions`` resolve into
-that configuration (``Resolver``: files and environment read once, fingerprinted) and how the
-configuration is built into a planner (``Builder``: models shared, load time reported). From the
-table come ``PLANNER_KINDS``, the discriminated configuration union (``parse_planner_config``),
-``Resolver.planner``, ``Builder.planner``, the CLI's ``--planner`` help, the error for an unknown
-name and ``letspi planners``.
+beside the planner, in its module under ``letspi.planners``), the options it reads (declared beside
+the planner too, ``letspi.planners.options``), how those options resolve into the configuration
+(``Resolver``: files and environment read once, fingerprinted), how the configuration is built into
+a planner (``Builder``: models shared, load time reported) and what the planner can do: whether it
+reads the recorded future and whether the closed loop runs it dual-rate. From the table come the
+kinds ``--planner`` accepts, the CLI's planner flags (``letspi.cli.options``), the discriminated
+configuration union (``PlannerTable.parse_config``), the error for an unknown name, the demo's
+and the robustness bench's planner lists and ``letspi planners``.
 
-Adding a planner: write ``letspi/planners/<name>.py`` with the planner and its ``Config`` subclass
-(a ``kind: Literal["<name>"]`` field and everything that changes its answers), then add one
-``PlannerKind`` to ``PLANNER_TABLE`` below.
+Adding a planner: write ``letspi/planners/<name>.py`` with the planner, its ``Config`` subclass (a
+``kind: Literal["<name>"]`` field and everything that changes its answers) and the
+``PlannerOption``s of its own settings, then add one ``PlannerKind`` to ``BUILT_IN_KINDS`` below;
+nothing in ``letspi.cli`` changes.
 
-``Resolver`` and ``Builder`` call into this table and the table's functions take them as arguments,
-so they are imported for type checking only (``resolve`` and ``build`` import this module).
+The table is a value, not a registry: nothing is registered on import. ``planner_table()`` is the
+table every command uses: today the built-in kinds. Planner kinds from outside letspi join there,
+on request (the hook issue 27 fills in): ``planner_table()`` returns
+``BUILT_IN.with_kinds(*discovered)``, where ``discovered`` are the ``PlannerKind`` objects named by
+the ``letspi.planners`` entry-point group of installed packages, and ``--planner mypkg.mod:NAME``
+loads one ``PlannerKind`` by its import path the same way. Such a kind is plain data like these: a
+``Config`` subclass whose fields (a version string among them) enter its result key, its
+``PlannerOption``s, and ``resolve``/``build`` functions over the public ``Resolver`` and ``Builder``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+import functools
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 from enum import Enum
-from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Generic, TypeVar, Union
+from typing import Annotated, Any, Generic, TypeVar, Union
 
 from pydantic import Field, TypeAdapter
 
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import Resolver
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.planners import frenet, gnp, idm, mlp, sf, sf_check, sf_opt
 from letspi.planners.base import Planner
-from letspi.planners.config import Config, GoalsConfig, PlannerConfig
+from letspi.planners.config import GOALS, Config, GoalsConfig, PlannerConfig
 from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
-from letspi.planners.frenet import FrenetConfig, FrenetPlanner, FrenetSettings, load_frenet_weights
+from letspi.planners.frenet import FRENET_WEIGHTS, FrenetConfig, FrenetPlanner, FrenetSettings, load_frenet_weights
 from letspi.planners.gnp import GnpConfig, GnpPlanner
 from letspi.planners.human import HumanConfig, HumanPlanner
 from letspi.planners.idm import IdmConfig, IdmPlanner
-from letspi.planners.llm import FastPlannerConfig, LetsPiFastPlanner, LetsPiMemoryPlanner, MemoryPlannerConfig
+from letspi.planners.llm import (
+    FAST_LLM,
+    FAST_OPTIONS,
+    LLM,
+    MEMORY_PLANNER_OPTIONS,
+    SHIELD,
+    SINGLE_SHOT_OPTIONS,
+    TOP_K_OPTION,
+    FastPlannerConfig,
+    LetsPiFastPlanner,
+    LetsPiMemoryPlanner,
+    MemoryPlannerConfig,
+)
 from letspi.planners.mlp import MlpConfig, ParamMlpPlanner
+from letspi.planners.options import PlannerOption, PlannerOptions, unique_options
 from letspi.planners.sf import SfConfig, SocialForcePlanner
 from letspi.planners.sf_check import DecisionPlanner, SfCheckConfig
 from letspi.planners.sf_opt import SfOptConfig, SocialForceSearchPlanner
-
-if TYPE_CHECKING:  # both import this module at run time
-    from letspi.assembly.build import Builder
-    from letspi.assembly.resolve import Resolver
 
 C = TypeVar("C", bound=Config)
 
@@ -56,7 +77,14 @@ class FutureUse(Enum):
 
     NEVER = "no"
     ALWAYS = "always"  # replays the recorded future
-    ORACLE_INPUTS = "with oracle inputs"  # --goals oracle or --neighbour-mode ground_truth_oracle
+    ORACLE_INPUTS = "with oracle inputs"  # --goals oracle or --neighbours ground_truth_oracle
+
+
+class DemoTable(Enum):
+    """The tables of ``letspi demo`` a kind is shown in."""
+
+    BASELINES = "baselines"  # every scenario, no LLM
+    HEAD_TO_HEAD = "head-to-head"  # held-back ego vehicles, beside LetsPi
 
 
 #: (goal configuration or None, neighbour prediction) of a configuration: what can leak the future
@@ -70,8 +98,11 @@ class PlannerKind(Generic[C]):
     name: the ``--planner`` name (the configuration's ``kind``). description: one line for listings.
     config_class: its configuration (several kinds may share one, told apart by ``kind``).
     resolve: options -> configuration. build: (builder, configuration, label) -> (planner, model
-    load time [s]). future: whether it reads the recorded future; for ``ORACLE_INPUTS``,
-    ``inputs`` says which goal source and neighbour prediction a configuration uses.
+    load time [s]). options: the ``PlannerOption``s ``resolve`` reads. future: whether it reads the
+    recorded future; for ``ORACLE_INPUTS``, ``inputs`` says which goal source and neighbour
+    prediction a configuration uses. dual_rate: the closed loop asks its model at t = 0 and every
+    LLM period and replans the physics in between (``letspi.simulation.dual_rate``; the planner is a
+    ``letspi.simulation.schedule.DualRatePlanner``). demo: the tables of ``letspi demo`` showing it.
     """
 
     name: str
@@ -79,12 +110,16 @@ class PlannerKind(Generic[C]):
     config_class: type[C]
     resolve: Callable[[Resolver], C]
     build: Callable[[Builder, C, str], tuple[Planner, float]]
+    options: tuple[PlannerOption[Any], ...] = ()
     future: FutureUse = FutureUse.ORACLE_INPUTS
     inputs: Callable[[C], PredictionInputs] | None = None
+    dual_rate: bool = False
+    demo: frozenset[DemoTable] = frozenset()
 
     def __post_init__(self) -> None:
         if (self.future is FutureUse.ORACLE_INPUTS) != (self.inputs is not None):
             raise ValueError(f"planner kind {self.name!r}: give inputs exactly when future is ORACLE_INPUTS")
+        unique_options([self.options])
 
     def reads_future(self, config: C) -> bool:
         """Whether a planner built from ``config`` reads the recorded future."""
@@ -94,44 +129,125 @@ class PlannerKind(Generic[C]):
         return bool((goals is not None and goals.reads_future)
                     or neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE)
 
+    @property
+    def uses_llm(self) -> bool:
+        """Whether it asks a language model (it reads a model spec)."""
+        return LLM in self.options or FAST_LLM in self.options
+
+
+@dataclass(frozen=True)
+class PlannerTable:
+    """Planner kinds by name (module docstring): a value; ``with_kinds`` makes a larger one."""
+
+    kinds: tuple[PlannerKind[Any], ...]
+    _by_name: dict[str, PlannerKind[Any]] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        names = [kind.name for kind in self.kinds]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"planner kind(s) {', '.join(dup)} given twice")
+        unique_options(kind.options for kind in self.kinds)
+        object.__setattr__(self, "_by_name", {kind.name: kind for kind in self.kinds})
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._by_name)
+
+    def with_kinds(self, *kinds: PlannerKind[Any]) -> PlannerTable:
+        return PlannerTable((*self.kinds, *kinds))
+
+    def kind(self, name: str) -> PlannerKind[Any]:
+        """The entry of ``name`` (``ValueError`` listing the kinds for an unknown one)."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise ValueError(f"unknown planner {name!r}; available: {', '.join(self.names)}") from None
+
+    def kind_of(self, config: PlannerConfig) -> PlannerKind[Any]:
+        """The entry a configuration belongs to (``TypeError`` when its class is not the entry's)."""
+        kind = self.kind(config.kind)
+        if not isinstance(config, kind.config_class):
+            raise TypeError(f"a {type(config).__name__} cannot be planner kind {kind.name!r} "
+                            f"(expects {kind.config_class.__name__})")
+        return kind
+
+    def reads_future(self, config: PlannerConfig) -> bool:
+        """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner):
+        ``human`` replays it; oracle goals or oracle neighbour prediction leak it."""
+        return self.kind_of(config).reads_future(config)
+
+    def options(self, names: Iterable[str] | None = None) -> tuple[PlannerOption[Any], ...]:
+        """The options of the kinds ``names`` (default: all), each once."""
+        kinds = self.kinds if names is None else [self.kind(n) for n in names]
+        return unique_options(kind.options for kind in kinds)
+
+    def check(self, options: PlannerOptions) -> None:
+        """``ValueError`` naming option values that no kind of the table reads."""
+        options.check(self.options())
+
+    def demo(self, table: DemoTable) -> tuple[str, ...]:
+        """The kinds ``letspi demo`` shows in ``table``, in table order."""
+        return tuple(kind.name for kind in self.kinds if table in kind.demo)
+
+    @functools.cached_property
+    def _config_adapter(self) -> TypeAdapter[Any]:
+        classes = tuple(dict.fromkeys(kind.config_class for kind in self.kinds))
+        # a union built from the table at run time: pydantic reads it, type checkers cannot
+        union: Any = Annotated[Union[classes], Field(discriminator="kind")]  # type: ignore[valid-type]  # noqa: UP007
+        return TypeAdapter(union)
+
+    def parse_config(self, record: Any) -> PlannerConfig:
+        """A planner configuration from its ``record()`` (the discriminated union of the table's classes)."""
+        config: PlannerConfig = self._config_adapter.validate_python(record)
+        return config
+
+    def planner_help(self) -> str:
+        """The CLI's ``--planner`` help: every kind."""
+        return (f"Planner KIND ({', '.join(self.names)}; `letspi planners` describes them) or LABEL=KIND for a "
+                "second configuration of one kind; repeat for several.")
+
 
 # resolution: options -> configuration --------------------------------------------------------------
-def _resolve_gnp(r: Resolver) -> GnpConfig:
-    if r.options.goals != "learned":
-        raise ValueError("gnp uses its learned goal predictor; --goals applies to the other planners")
+def _refuse_oracle_neighbours(r: Resolver, kind: str) -> NeighbourPredictionMode:
     if r.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
-        raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
+        raise ValueError(f"{kind} must roll out with predicted neighbours (idm or constant_velocity), "
                          "not the recorded future")
-    return GnpConfig(neighbours=r.neighbours, goals=r.goals, gnp=r.gnp_weights)
+    return r.neighbours
+
+
+def _resolve_gnp(r: Resolver) -> GnpConfig:
+    if r.options.get(GOALS) != "learned":
+        raise ValueError("gnp uses its learned goal predictor; --goals applies to the other planners")
+    return GnpConfig(neighbours=_refuse_oracle_neighbours(r, "gnp"), goals=r.goals, gnp=r.gnp_weights)
 
 
 def _resolve_frenet(r: Resolver) -> FrenetConfig:
-    path = r.options.frenet_weights_file
+    path = r.options.get(FRENET_WEIGHTS)
     weights, _ = load_frenet_weights(path)
     return FrenetConfig(neighbours=r.neighbours, goals=r.goals, frenet=FrenetSettings(weights=weights),
                         weights_source="shipped" if path is None else str(path))
 
 
 def _resolve_mlp(r: Resolver) -> MlpConfig:
-    if r.neighbours == NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
-        raise ValueError("mlp must roll out with predicted neighbours (idm or constant_velocity)")
-    return MlpConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, mlp=r.mlp_weights)
+    return MlpConfig(neighbours=_refuse_oracle_neighbours(r, "mlp"), goals=r.goals, sf_params=r.sf_params,
+                     mlp=r.mlp_weights)
 
 
 def _resolve_memory(kind: str) -> Callable[[Resolver], MemoryPlannerConfig]:
     def resolve(r: Resolver) -> MemoryPlannerConfig:
         phase = r.memory_phase(max_iterations=0 if kind == "llm" else None)
-        return MemoryPlannerConfig(kind=kind, phase=phase, shield=r.options.shield)  # type: ignore[arg-type]
+        return MemoryPlannerConfig(kind=kind, phase=phase, shield=r.options.get(SHIELD))  # type: ignore[arg-type]
     return resolve
 
 
 def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
     def resolve(r: Resolver) -> FastPlannerConfig:
         o = r.options
-        llm = r.llm(o.fast_llm)
+        llm = r.llm(o.get(FAST_LLM))
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.top_k, shield=o.shield, decision=r.decision(llm.prompt_style))
+                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=r.decision(llm.prompt_style))
     return resolve
 
 
@@ -179,7 +295,7 @@ def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
     decision = r.decision("paper", always=True)
     assert decision is not None
     return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
-                         shield=r.options.shield)
+                         shield=r.options.get(SHIELD))
 
 
 def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, float]:
@@ -194,86 +310,55 @@ def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig |
     return c.goals, c.neighbours
 
 
-PLANNER_TABLE: tuple[PlannerKind[Any], ...] = (
+def _phase_inputs(c: MemoryPlannerConfig) -> PredictionInputs:
+    return c.phase.goals, c.phase.neighbours
+
+
+BASELINE = frozenset({DemoTable.BASELINES, DemoTable.HEAD_TO_HEAD})
+
+BUILT_IN_KINDS: tuple[PlannerKind[Any], ...] = (
     PlannerKind("human", "ground-truth replay: the reference row, and the metrics' sanity check",
                 HumanConfig, lambda r: HumanConfig(), lambda b, c, label: (HumanPlanner(name=label), 0.0),
-                future=FutureUse.ALWAYS),
+                future=FutureUse.ALWAYS, demo=BASELINE),
     PlannerKind("cv", "constant velocity from the t = 0 state", CvConfig, lambda r: CvConfig(),
-                lambda b, c, label: (ConstantVelocityPlanner(name=label), 0.0), future=FutureUse.NEVER),
+                lambda b, c, label: (ConstantVelocityPlanner(name=label), 0.0), future=FutureUse.NEVER,
+                demo=frozenset({DemoTable.BASELINES})),
     PlannerKind("idm", "IDM car following of the in-lane leader, lateral settle into the lane it heads for",
                 IdmConfig, lambda r: IdmConfig(neighbours=r.neighbours),
-                lambda b, c, label: (IdmPlanner(neighbour_mode=c.neighbours, name=label), 0.0),
-                inputs=lambda c: (None, c.neighbours)),
+                lambda b, c, label: (IdmPlanner(neighbour_mode=c.neighbours, name=label), 0.0), idm.OPTIONS,
+                inputs=lambda c: (None, c.neighbours), demo=BASELINE),
     PlannerKind("sf", "social force with the fixed parameters of `letspi fit sf`", SfConfig,
                 lambda r: SfConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params), _build_sf,
-                inputs=_goals_and_neighbours),
+                sf.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
     PlannerKind("sf-opt", "per-scenario search over 27 social force candidates checked against predicted neighbours",
                 SfOptConfig, lambda r: SfOptConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params),
-                _build_sf_opt, inputs=_goals_and_neighbours),
+                _build_sf_opt, sf_opt.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
     PlannerKind("sf-check", "the decision step without a model: presets checked against the prediction and the "
                 "adverse futures, the defaults unless a check fails (where the risk gate fires), the LLM shield",
-                SfCheckConfig, _resolve_sf_check, _build_sf_check, inputs=_goals_and_neighbours),
+                SfCheckConfig, _resolve_sf_check, _build_sf_check, sf_check.OPTIONS, inputs=_goals_and_neighbours),
     PlannerKind("gnp", "Goal-based Neural Physics: learned tau and neighbour weights, learned goals", GnpConfig,
-                _resolve_gnp, _build_gnp, inputs=_goals_and_neighbours),
+                _resolve_gnp, _build_gnp, gnp.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
     PlannerKind("frenet", "Werling-style lattice: quintic/quartic candidates to lanes, speeds and predicted leaders; "
                 "the cheapest one clear of the predicted neighbours (weights from `letspi fit frenet`)", FrenetConfig,
-                _resolve_frenet, _build_frenet, inputs=_goals_and_neighbours),
+                _resolve_frenet, _build_frenet, frenet.OPTIONS, inputs=_goals_and_neighbours),
     PlannerKind("mlp", "regressor ablation: an MLP maps matching features to the eight LLM answers (needs "
-                "--mlp-weights)", MlpConfig, _resolve_mlp, _build_mlp, inputs=_goals_and_neighbours),
+                "--mlp-weights)", MlpConfig, _resolve_mlp, _build_mlp, mlp.OPTIONS, inputs=_goals_and_neighbours),
     PlannerKind("llm", "single-shot LLM: physics-informed prompt, no reflection, no memory", MemoryPlannerConfig,
-                _resolve_memory("llm"), _build_memory, inputs=lambda c: (c.phase.goals, c.phase.neighbours)),
+                _resolve_memory("llm"), _build_memory, SINGLE_SHOT_OPTIONS, inputs=_phase_inputs, dual_rate=True),
     PlannerKind("letspi-memory", "LetsPi's memory collection phase as a planner: prompt and reflection",
-                MemoryPlannerConfig, _resolve_memory("letspi-memory"), _build_memory,
-                inputs=lambda c: (c.phase.goals, c.phase.neighbours)),
+                MemoryPlannerConfig, _resolve_memory("letspi-memory"), _build_memory, MEMORY_PLANNER_OPTIONS,
+                inputs=_phase_inputs, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD})),
     PlannerKind("letspi-fast", "LetsPi's fast inference phase: top-k retrieved memories in the fast prompt (needs "
-                "--memory)", FastPlannerConfig, _resolve_fast("letspi-fast"), _build_fast,
-                inputs=_goals_and_neighbours),
+                "--memory)", FastPlannerConfig, _resolve_fast("letspi-fast"), _build_fast, FAST_OPTIONS,
+                inputs=_goals_and_neighbours, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD})),
     PlannerKind("letspi-fs", "the FS ablation: the fast prompt with three static examples (needs --memory)",
-                FastPlannerConfig, _resolve_fast("letspi-fs"), _build_fast, inputs=_goals_and_neighbours),
+                FastPlannerConfig, _resolve_fast("letspi-fs"), _build_fast, FAST_OPTIONS, inputs=_goals_and_neighbours,
+                dual_rate=True),
 )
-
-PLANNER_KINDS: tuple[str, ...] = tuple(kind.name for kind in PLANNER_TABLE)
-_BY_NAME: dict[str, PlannerKind[Any]] = {kind.name: kind for kind in PLANNER_TABLE}
-
-
-def planner_kind(name: str) -> PlannerKind[Any]:
-    """The entry of ``name`` (``ValueError`` listing the kinds for an unknown one)."""
-    try:
-        return _BY_NAME[name]
-    except KeyError:
-        raise ValueError(f"unknown planner {name!r}; available: {', '.join(PLANNER_KINDS)}") from None
+#: the built-in kinds
+BUILT_IN = PlannerTable(BUILT_IN_KINDS)
 
 
-def kind_of(config: PlannerConfig) -> PlannerKind[Any]:
-    """The entry a configuration belongs to (``TypeError`` when its class is not the entry's)."""
-    kind = planner_kind(config.kind)
-    if not isinstance(config, kind.config_class):
-        raise TypeError(f"a {type(config).__name__} cannot be planner kind {kind.name!r} "
-                        f"(expects {kind.config_class.__name__})")
-    return kind
-
-
-def reads_future(config: PlannerConfig) -> bool:
-    """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner):
-    ``human`` replays it; oracle goals or oracle neighbour prediction leak it."""
-    return kind_of(config).reads_future(config)
-
-
-@cache
-def _config_adapter() -> TypeAdapter[Any]:
-    classes = tuple(dict.fromkeys(kind.config_class for kind in PLANNER_TABLE))
-    # a union built from the table at run time: pydantic reads it, type checkers cannot
-    union: Any = Annotated[Union[classes], Field(discriminator="kind")]  # type: ignore[valid-type]  # noqa: UP007
-    return TypeAdapter(union)
-
-
-def parse_planner_config(record: Any) -> PlannerConfig:
-    """A planner configuration from its ``record()`` (the discriminated union of the table's classes)."""
-    config: PlannerConfig = _config_adapter().validate_python(record)
-    return config
-
-
-def planner_help() -> str:
-    """The CLI's ``--planner`` help: every kind, from the table."""
-    return (f"Planner KIND ({', '.join(PLANNER_KINDS)}; `letspi planners` describes them) or LABEL=KIND for a "
-            "second configuration of one kind; repeat for several.")
+def planner_table(extra: Sequence[PlannerKind[Any]] = ()) -> PlannerTable:
+    """The table of every kind a command offers: the built-in ones and ``extra`` (module docstring)."""
+    return BUILT_IN.with_kinds(*extra) if extra else BUILT_IN

@@ -1,12 +1,13 @@
 """Requests -> configurations: read every file and environment variable once, fingerprint them.
 
-``PlannerOptions`` is what a user asks for (CLI flags: a model spec, a goal source, a parameter
-file, ...). ``Resolver`` turns it into frozen configurations (``letspi.planners.config``; each kind's
-resolution is its entry in ``letspi.assembly.planner_table``), whose content keys identify
-results: the parameter *values* instead of a file name, the SHA-256 of the weights a goal source or
-an embedded model uses, the text of the prompts, a snapshot of the memory bank. Environment
-variables that change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``) are read here and
-nowhere else, so they always show up in a configuration.
+``PlannerOptions`` (``letspi.planners.options``) is what a user asks for (CLI flags: a model spec,
+a goal source, a parameter file, ...). ``Resolver`` turns it into the frozen building blocks of
+planner configurations (``letspi.planners.config``; each kind's configuration is assembled from
+them by its entry in ``letspi.assembly.planner_table``), whose content keys identify results: the
+parameter *values* instead of a file name, the SHA-256 of the weights a goal source or an embedded
+model uses, the text of the prompts, a snapshot of the memory bank. Environment variables that
+change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``, ``$LETSPI_MLP_WEIGHTS``) are read
+here and nowhere else, so they always show up in a configuration.
 """
 
 from __future__ import annotations
@@ -15,72 +16,57 @@ import functools
 import hashlib
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
-from letspi.assembly.planner_table import planner_kind
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
 from letspi.llm.backends.llamacpp import LlamaRuntime
-from letspi.llm.client import RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.fingerprint import prompt_fingerprint
 from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
 from letspi.method.decide import recommended_threshold
-from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
 from letspi.method.prompt_samples import prompt_text_samples
-from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
+from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.config import (
+    ADVERSE,
+    DECIDE,
+    GATE,
+    GATE_THRESHOLD,
+    GOAL_SOURCES,
+    GOAL_WEIGHTS,
+    GOAL_WEIGHTS_ENV,
+    GOALS,
+    NEIGHBOURS,
+    PRESETS,
+    RISK_MODEL,
+    SF_PARAMS,
     DecisionConfig,
     GoalsConfig,
     LlmConfig,
     MemoryPhaseConfig,
     MemoryRef,
-    PlannerConfig,
     SfParamsConfig,
     WeightsConfig,
 )
+from letspi.planners.gnp import GNP_WEIGHTS, GNP_WEIGHTS_ENV
+from letspi.planners.llm import (
+    ALLOW_SAME_VEHICLE,
+    GOAL_ADJUSTMENT,
+    LLM,
+    LLM_CACHE,
+    LLM_TIMEOUT,
+    MAX_REFINEMENTS,
+    MEMORY,
+    MEMORY_FRACTION,
+    MEMORY_KEY,
+    MEMORY_SEED,
+    PROMPT_STYLE,
+)
+from letspi.planners.mlp import MLP_WEIGHTS, MLP_WEIGHTS_ENV
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.planners.sf_params import load_sf_params
-
-GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
-GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
-MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
-DEFAULT_LLM = "llamacpp:smollm2-135m-letspi"
-DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
-GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
-
-
-@dataclass(frozen=True)
-class PlannerOptions:
-    """What the user asks for (CLI flags map onto these); ``Resolver`` makes configurations of it."""
-
-    sf_params_file: Path | None = None
-    neighbour_mode: str = "idm"
-    goals: str = "learned"  # learned (shipped transformer or $LETSPI_GOAL_WEIGHTS), kinematic, oracle
-    llm: str = DEFAULT_LLM  # memory-collection / single-shot model spec
-    fast_llm: str = DEFAULT_FAST_LLM  # fast-inference model spec
-    memory: Path | None = None  # memory bank (SQLite) for letspi-fast / letspi-fs
-    memory_key: str | None = None  # only memories collected under this configuration key (None: all)
-    top_k: int = TOP_K
-    max_iterations: int = MAX_ITERATIONS  # reflection refinements of letspi-memory (0 = "w/o reflection")
-    goal_adjustment: bool = True  # False = "w/o goal adjustment" ablation
-    llm_cache: bool = True  # persistent response cache
-    llm_timeout_s: float = RetryPolicy.timeout_s  # per-request timeout (cosmetic: not part of any key)
-    allow_same_vehicle: bool = False  # retrieval may return the query's own vehicle (a leak; labelled)
-    memory_fraction: float | None = None  # memory-size ablation: a reproducible subset
-    memory_seed: int = 0
-    shield: bool = True  # the LLM planners' safety shield (False: the paper-faithful ablation)
-    mlp_weights: Path | None = None  # the mlp regressor (default: $LETSPI_MLP_WEIGHTS)
-    prompt_style: str | None = None  # paper | compact | choice; None: what the fine-tuned adapter was trained on
-    decide: bool | None = None  # LetsPi's decision step (presets, adverse futures, gate); None: on for the choice style
-    presets_file: Path | None = None  # the decision step's presets (default: the shipped ones)
-    adverse: bool = True  # check against the adverse futures (False: the prediction only)
-    gate: bool = True  # the risk gate of the fast phase (False: the model is asked on every scenario)
-    gate_threshold: float | None = None  # None: the risk model's recommended threshold
-    risk_model_file: Path | None = None  # the gate's model (default: the shipped one)
-    frenet_weights_file: Path | None = None  # frenet cost weights (default: the shipped fit)
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -115,66 +101,82 @@ def prompt_sha256() -> str:
     return prompt_fingerprint(prompt_text_samples())
 
 
+def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str] | None = None) -> GoalsConfig:
+    """The goal source ``source`` (``learned``: the weights of ``weights``, else ``$LETSPI_GOAL_WEIGHTS``,
+    else the shipped ones, fingerprinted; without usable shipped weights it falls back to ``kinematic``
+    and says why)."""
+    if source not in GOAL_SOURCES:
+        raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
+    if source != "learned":
+        return GoalsConfig(source=source)  # type: ignore[arg-type]
+    env = os.environ if env is None else env
+    requested = str(weights) if weights is not None else env.get(GOAL_WEIGHTS_ENV)
+    chosen = Path(requested) if requested else shipped_weights_dir("goal")
+    try:
+        load_weights(chosen, expected_model="goal")
+    except (WeightsError, OSError) as exc:
+        if requested:  # an explicit request that does not load is an error, never a silent swap
+            origin = f"--goal-weights {weights}" if weights is not None else f"${GOAL_WEIGHTS_ENV}={requested}"
+            raise WeightsError(f"{origin}: {exc}") from exc
+        return GoalsConfig(source="kinematic", fallback_reason=f"no usable shipped goal weights ({exc})")
+    return GoalsConfig(source="learned", weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+
+
 class Resolver:
-    """Turns ``PlannerOptions`` into configurations (see the module docstring).
+    """Turns ``PlannerOptions`` into the building blocks of configurations (see the module docstring).
 
     ``env`` defaults to ``os.environ``; tests pass a dict. Fingerprints are computed once per resolver.
     """
 
     def __init__(self, options: PlannerOptions | None = None, env: Mapping[str, str] | None = None) -> None:
-        self.options = options or PlannerOptions()
+        self.options = options or DEFAULT_OPTIONS
         self.env = os.environ if env is None else env
 
     # building blocks ---------------------------------------------------------------------------
     @functools.cached_property
     def sf_params(self) -> SfParamsConfig:
-        params, _ = load_sf_params(self.options.sf_params_file)
-        source = "shipped" if self.options.sf_params_file is None else str(self.options.sf_params_file)
-        return SfParamsConfig.of(params, source)
+        path = self.options.get(SF_PARAMS)
+        params, _ = load_sf_params(path)
+        return SfParamsConfig.of(params, "shipped" if path is None else str(path))
 
     @functools.cached_property
     def neighbours(self) -> NeighbourPredictionMode:
+        mode = self.options.get(NEIGHBOURS)
         try:
-            return NeighbourPredictionMode(self.options.neighbour_mode)
+            return NeighbourPredictionMode(mode)
         except ValueError:
             valid = ", ".join(m.value for m in NeighbourPredictionMode)
-            raise ValueError(
-                f"unknown neighbour prediction {self.options.neighbour_mode!r}; available: {valid}") from None
+            raise ValueError(f"unknown neighbour prediction {mode!r}; available: {valid}") from None
 
     @functools.cached_property
     def goals(self) -> GoalsConfig:
-        source = self.options.goals
-        if source not in GOAL_SOURCES:
-            raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
-        if source != "learned":
-            return GoalsConfig(source=source)  # type: ignore[arg-type]
-        requested = self.env.get(GOAL_WEIGHTS_ENV)
-        chosen = Path(requested) if requested else shipped_weights_dir("goal")
-        try:
-            load_weights(chosen, expected_model="goal")
-        except (WeightsError, OSError) as exc:
-            if requested:  # an explicit request that does not load is an error, never a silent swap
-                raise WeightsError(f"${GOAL_WEIGHTS_ENV}={requested}: {exc}") from exc
-            return GoalsConfig(source="kinematic", fallback_reason=f"no usable shipped goal weights ({exc})")
-        return GoalsConfig(source="learned", weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+        return goals_config(self.options.get(GOALS), self.options.get(GOAL_WEIGHTS), self.env)
+
+    def _weights(self, given: Path | None, env_name: str, model: str, shipped: bool) -> WeightsConfig | None:
+        """A trained model directory: the option, else ``$env_name``, else the shipped one (None when nothing
+        is shipped), checked (``WeightsError`` names the directory) and fingerprinted."""
+        requested = str(given) if given is not None else self.env.get(env_name)
+        if not requested and not shipped:
+            return None
+        chosen = Path(requested) if requested else shipped_weights_dir(model)
+        load_weights(chosen, expected_model=model)
+        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
 
     @functools.cached_property
     def gnp_weights(self) -> WeightsConfig:
-        requested = self.env.get(GNP_WEIGHTS_ENV)
-        chosen = Path(requested) if requested else shipped_weights_dir("gnp")
-        load_weights(chosen, expected_model="gnp")  # WeightsError names the directory
-        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+        """The ``gnp`` model: ``--gnp-weights``, ``$LETSPI_GNP_WEIGHTS`` or the shipped one."""
+        weights = self._weights(self.options.get(GNP_WEIGHTS), GNP_WEIGHTS_ENV, "gnp", shipped=True)
+        assert weights is not None
+        return weights
 
     @functools.cached_property
     def mlp_weights(self) -> WeightsConfig:
         """The ``mlp`` regressor: ``--mlp-weights`` or ``$LETSPI_MLP_WEIGHTS`` (nothing is shipped)."""
-        requested = self.options.mlp_weights or self.env.get(MLP_WEIGHTS_ENV)
-        if not requested:
+        weights = self._weights(self.options.get(MLP_WEIGHTS), MLP_WEIGHTS_ENV, "param-mlp", shipped=False)
+        if weights is None:
             raise ValueError(f"the mlp planner needs trained weights: --mlp-weights DIR or ${MLP_WEIGHTS_ENV} "
                              "(train them with `letspi train mlp`)")
-        chosen = Path(requested)
-        load_weights(chosen, expected_model="param-mlp")  # WeightsError names the directory
-        return WeightsConfig(weights_sha256=weights_sha256(chosen), weights_dir=str(chosen))
+        return weights
 
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
@@ -187,7 +189,7 @@ class Resolver:
             adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
             if adapter is not None:
                 adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
-        style = self.options.prompt_style
+        style = self.options.get(PROMPT_STYLE)
         if style is None:  # what the adapter was trained on (compact for an adapter that does not say)
             trained = adapter_prompt_style(Path(adapter_path)) if adapter_path is not None else None
             style = (trained or "compact") if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
@@ -196,8 +198,8 @@ class Resolver:
         return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
                          adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
                          prompt_style=style,  # type: ignore[arg-type]
-                         prompt_sha256=self._prompt_sha, cache=self.options.llm_cache,
-                         timeout_s=self.options.llm_timeout_s)
+                         prompt_sha256=self._prompt_sha, cache=self.options.get(LLM_CACHE),
+                         timeout_s=self.options.get(LLM_TIMEOUT))
 
     @functools.cached_property
     def _prompt_sha(self) -> str:
@@ -207,44 +209,41 @@ class Resolver:
         """The decision step (``--decide``; default: on for the choice style, or ``always``); the gate only
         where ``gate`` (the fast phase and ``sf-check``) and ``--gate`` allow it."""
         o = self.options
-        on = o.decide if o.decide is not None else (always or prompt_style == "choice")
+        decide, risk_model = o.get(DECIDE), o.get(RISK_MODEL)
+        on = decide if decide is not None else (always or prompt_style == "choice")
         if prompt_style == "choice" and not on:
             raise ValueError("the choice prompt style needs the decision step's presets (drop --no-decide)")
         if not on:
             return None
         threshold = None
-        if gate and o.gate:
-            threshold = o.gate_threshold if o.gate_threshold is not None else recommended_threshold(o.risk_model_file)
-        return DecisionConfig.resolve(o.presets_file, o.adverse, threshold, o.risk_model_file)
+        if gate and o.get(GATE):
+            given = o.get(GATE_THRESHOLD)
+            threshold = given if given is not None else recommended_threshold(risk_model)
+        return DecisionConfig.resolve(o.get(PRESETS), o.get(ADVERSE), threshold, risk_model)
 
     def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
                      goal_adjustment: bool | None = None) -> MemoryPhaseConfig:
         """The collection configuration (defaults from the options)."""
-        iterations = self.options.max_iterations if max_iterations is None else max_iterations
-        llm = self.llm(spec or self.options.llm)
+        iterations = self.options.get(MAX_REFINEMENTS) if max_iterations is None else max_iterations
+        llm = self.llm(spec or self.options.get(LLM))
         return MemoryPhaseConfig(
             llm=llm, goals=self.goals, neighbours=self.neighbours,
             sf_params=self.sf_params, reflection=ReflectionThresholds(max_iterations=iterations),
-            goal_adjustment=self.options.goal_adjustment if goal_adjustment is None else goal_adjustment,
+            goal_adjustment=self.options.get(GOAL_ADJUSTMENT) if goal_adjustment is None else goal_adjustment,
             decision=self.decision(llm.prompt_style, gate=False),
         )
 
     def memory_ref(self) -> MemoryRef:
         """A snapshot of the memories ``--memory`` (restricted to ``--memory-key``) offers now."""
-        path = self.options.memory
+        path = self.options.get(MEMORY)
         if path is None:
             raise ValueError("letspi-fast and letspi-fs need a memory bank: --memory FILE "
                              "(build one with `letspi collect`)")
         if not Path(path).exists():
             raise FileNotFoundError(f"{path}: no memory bank (build one with `letspi collect`)")
+        key = self.options.get(MEMORY_KEY)
         with MemoryBank.open(path, readonly=True) as bank:
-            ids, sha = bank.snapshot(self.options.memory_key)
-        return MemoryRef(path=str(path), collection_key=self.options.memory_key, snapshot_sha256=sha,
-                         n_memories=len(ids), allow_same_vehicle=self.options.allow_same_vehicle,
-                         subset_fraction=self.options.memory_fraction, subset_seed=self.options.memory_seed)
-
-    # planners ------------------------------------------------------------------------------------
-    def planner(self, kind: str) -> PlannerConfig:
-        """The configuration of planner ``kind`` (``ValueError`` listing the kinds for an unknown one)."""
-        config: PlannerConfig = planner_kind(kind).resolve(self)
-        return config
+            ids, sha = bank.snapshot(key)
+        return MemoryRef(path=str(path), collection_key=key, snapshot_sha256=sha, n_memories=len(ids),
+                         allow_same_vehicle=self.options.get(ALLOW_SAME_VEHICLE),
+                         subset_fraction=self.options.get(MEMORY_FRACTION), subset_seed=self.options.get(MEMORY_SEED))

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from letspi.highd.io import read_recordings
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
@@ -104,12 +105,14 @@ def bench_closed_loop(
     n_reload: int = 32,
     minutes: float = 3.0,
     seed: int = 0,
+    options: PlannerOptions = DEFAULT_OPTIONS,
 ) -> dict[str, float | str]:
-    """Measure closed-loop throughput (see module doc); returns a flat dict of numbers."""
+    """Measure closed-loop throughput (see module doc) of ``planner`` under ``options``; returns a flat dict of
+    numbers."""
     if workers < 2:
         raise ValueError("workers must be >= 2 (the speed-up is measured against 1 worker)")
     batch = bench_scenarios(scenarios, n, minutes, seed)
-    spec = PlannerSpec.of(planner)
+    spec = PlannerSpec.of(planner, options)
     config = ClosedLoopConfig(chunk_size=chunk_size)
     out: dict[str, float | str] = {
         "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),

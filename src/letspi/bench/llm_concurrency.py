@@ -42,8 +42,9 @@ import httpx
 import numpy as np
 
 import letspi
-from letspi.assembly.build import Builder, build_planners
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.build import Builder
+from letspi.assembly.planners import build_planners
+from letspi.assembly.resolve import Resolver
 from letspi.bench.llm_server import latency_for, request_keys
 from letspi.evaluation.harness import evaluate
 from letspi.execution.interrupt import CHILD_GRACE_S, received
@@ -55,6 +56,7 @@ from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics
 from letspi.llm.schema import PlannerReply
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
+from letspi.planners.options import DEFAULT_OPTIONS
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
@@ -189,7 +191,7 @@ def _ratios(levels: dict[str, dict[str, Any]]) -> dict[str, float]:
 def _bank(spec: str, work_dir: Path, n: int) -> tuple[Path, RunStats | None]:
     """A memory bank of ``n`` scenarios collected from ``spec`` (16 in flight) for letspi-fast."""
     path = work_dir / "bank.sqlite"
-    options = PlannerOptions(llm=spec, fast_llm=spec, llm_cache=False)
+    options = DEFAULT_OPTIONS.replace(llm=spec, fast_llm=spec, llm_cache=False)
     phase, _ = Builder(cache=None).memory_phase(Resolver(options).memory_phase())
     with MemoryBank.open(path) as bank:
         stats = collect(phase, bench_batch(n, seed=99), bank, runner=RunnerConfig(concurrency=16))
@@ -198,7 +200,7 @@ def _bank(spec: str, work_dir: Path, n: int) -> tuple[Path, RunStats | None]:
 
 def pipeline_level(spec: str, bank: Path, work_dir: Path, concurrency: int, n: int, seed: int = 1) -> dict[str, Any]:
     """``n`` scenarios of the whole letspi-fast planner through ``evaluate`` (module docstring)."""
-    options = PlannerOptions(llm=spec, fast_llm=spec, llm_cache=False, memory=bank)
+    options = DEFAULT_OPTIONS.replace(llm=spec, fast_llm=spec, llm_cache=False, memory=bank)
     planners = build_planners(["letspi-fast"], options, builder=Builder(cache=None))
     runs: dict[str, RunStats] = {}
     batch = bench_batch(n, seed=seed)

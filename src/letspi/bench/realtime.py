@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.assembly.resolve import PlannerOptions
 from letspi.bench.closed_loop import bench_scenarios
 from letspi.constants import DT_S, HORIZON_S
+from letspi.planners.options import PlannerOptions
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec
-from letspi.simulation.schedule import DualRateConfig, is_dual_rate
+from letspi.simulation.schedule import DualRateConfig
 from letspi.simulation.worker import ChunkTask, ChunkWorker, make_tasks
 
 
@@ -64,7 +64,7 @@ def bench_real_time(
     worker = ChunkWorker(spec, config)
     out["build_s"] = time.perf_counter() - t0
     try:
-        if not is_dual_rate(worker.planner):
+        if not worker.dual_rate:
             raise ValueError(f"{planner!r} is not an LLM planner (dual rate applies to letspi-fast, letspi-fs, llm, "
                              "letspi-memory); the throughput bench measures the others")
         walls, chunk = _simulate_alone(worker, make_tasks(batch, config), warmup)

@@ -19,11 +19,12 @@ from typing import Any
 import numpy as np
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import Resolver
 from letspi.method.matching import top_k
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, Retriever, collect
 from letspi.physics.params import SocialForceParams
+from letspi.planners.options import DEFAULT_OPTIONS
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
@@ -118,7 +119,7 @@ def bench_phases(model_spec: str = "llamacpp:smollm2-135m", n_scenarios: int = 3
                                            VehicleSpec(x0_m=-20.0, speed_mps=31.0, lane_offset=1)])
         for i in range(n_scenarios)
     ]
-    options = PlannerOptions(llm=model_spec, goals="kinematic", llm_cache=False)
+    options = DEFAULT_OPTIONS.replace(llm=model_spec, goals="kinematic", llm_cache=False)
     phase, load_s = Builder(cache=None).memory_phase(Resolver(options).memory_phase())
     advisor, goals = phase.advisor, phase.goal_predictor
     out: dict[str, float] = {"model_load_s": load_s}

@@ -2,9 +2,11 @@
 
 ``bench_robustness`` builds ``n`` scenes of ``letspi.scenario.degenerate`` (random, no neighbours,
 8 neighbours overlapping the ego at t = 0, zero speed, a 1-lane road, NaN gaps in neighbour
-tracks), plans them with every planner that needs no LLM (human, cv, idm, sf, sf-opt, gnp) and,
-on the first ``n_llm`` scenes, with the LLM planners on the scripted backend (llm, letspi-memory,
-letspi-fast with a memory collected on those scenes), and computes every metric.
+tracks), plans them with every planner kind of the table that needs no LLM (``PLAIN_PLANNERS``; a
+kind whose setting has no default, such as ``mlp`` without ``--mlp-weights``, is reported as
+skipped) and, on the first ``n_llm`` scenes, with the LLM planners on the scripted backend
+(``LLM_PLANNERS``; letspi-fast and letspi-fs with a memory collected on those scenes), and computes
+every metric.
 
 Counted per planner: crashes (a ``plan`` or ``compute_metrics`` call that raised; a failing chunk
 is retried scene by scene so every crashing scene is counted once), NaN per metric column (a float
@@ -25,24 +27,27 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.assembly.build import Builder, BuiltPlanner, build_planners
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.build import Builder
+from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planners import BuiltPlanner, build_planners
+from letspi.assembly.resolve import Resolver
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
 from letspi.metrics.aggregate import aggregate_metrics
 from letspi.metrics.compute import compute_metrics
+from letspi.planners.llm import MEMORY
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from letspi.scenario.types import ScenarioBatch
 
-PLAIN_PLANNERS = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
-LLM_PLANNERS = ("llm", "letspi-memory", "letspi-fast")
+PLAIN_PLANNERS = tuple(kind.name for kind in planner_table().kinds if not kind.uses_llm)
+LLM_PLANNERS = tuple(kind.name for kind in planner_table().kinds if kind.uses_llm)
 SCRIPTED = "scripted:default"
 CHUNK = 500
 
 
 def _plan_and_score(built: BuiltPlanner, sub: ScenarioBatch) -> pd.DataFrame:
-    p = built.planner
-    plan = p.plan(sub if p.reads_future else sub.history())
+    plan = built.planner.plan(sub if built.reads_future else sub.history())
     frame = compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m).to_frame()
     frame["plan_finite"] = np.isfinite(plan.xy_m).all(axis=(1, 2)) & np.isfinite(plan.vxy_mps).all(axis=(1, 2))
     return frame
@@ -83,30 +88,46 @@ def _nan_aggregates(frame: pd.DataFrame) -> list[str]:
     return [k for k, v in agg.items() if isinstance(v, float) and (math.isnan(v))]
 
 
-def _llm_planners(sub: ScenarioBatch, bank_dir: Path) -> list[BuiltPlanner]:
-    options = PlannerOptions(llm=SCRIPTED, fast_llm=SCRIPTED, goals="kinematic", llm_cache=False,
-                             memory=bank_dir / "memory.sqlite", allow_same_vehicle=True)
+def _llm_planners(sub: ScenarioBatch, bank_dir: Path, options: PlannerOptions) -> list[BuiltPlanner]:
+    options = options.replace(llm=SCRIPTED, fast_llm=SCRIPTED, goals="kinematic", llm_cache=False,
+                              memory=bank_dir / "memory.sqlite", allow_same_vehicle=True)
     phase, _ = Builder(cache=None).memory_phase(Resolver(options).memory_phase())
-    with MemoryBank.open(options.memory) as bank:  # type: ignore[arg-type]
+    with MemoryBank.open(options.get(MEMORY)) as bank:  # type: ignore[arg-type]
         collect(phase, sub, bank)
     return build_planners(list(LLM_PLANNERS), options)
 
 
+def _plain_planners(options: PlannerOptions, say: Callable[[str], None]) -> tuple[list[BuiltPlanner], dict[str, str]]:
+    """The planners without an LLM, and the kinds skipped because a setting they need was not given."""
+    built: list[BuiltPlanner] = []
+    skipped: dict[str, str] = {}
+    builder = Builder(cache=None)
+    for kind in PLAIN_PLANNERS:
+        try:
+            built += build_planners([kind], options, builder=builder)
+        except ValueError as exc:  # e.g. mlp without --mlp-weights: nothing to plan with
+            skipped[kind] = str(exc)
+            say(f"{kind}: skipped ({exc})")
+    return built, skipped
+
+
 def bench_robustness(n: int = 10_000, *, seed: int = 0, n_llm: int = 300, chunk: int = CHUNK,
+                     options: PlannerOptions = DEFAULT_OPTIONS,
                      log: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Counts of crashes and NaN per planner and metric over ``n`` degenerate scenes (module doc)."""
+    """Counts of crashes and NaN per planner and metric over ``n`` degenerate scenes (module doc);
+    ``options``: the planners' settings (the LLM planners run on the scripted backend regardless)."""
     say = log or (lambda _msg: None)
     t0 = time.perf_counter()
     batch = degenerate_scenarios(n, seed=seed)
     kinds = Counter(scene_kind(str(s)) for s in batch.scenario_id)
     say(f"built {n} scenes in {time.perf_counter() - t0:.1f} s")
-    planners = build_planners(list(PLAIN_PLANNERS), PlannerOptions(llm_cache=False))
+    planners, skipped = _plain_planners(options.replace(llm_cache=False), say)
     runs: list[tuple[BuiltPlanner, ScenarioBatch]] = [(b, batch) for b in planners]
     n_llm = min(n_llm, n)
     with tempfile.TemporaryDirectory(prefix="letspi-robustness-") as tmp:
         if n_llm:
             sub = batch.take(np.arange(n_llm))
-            runs += [(b, sub) for b in _llm_planners(sub, Path(tmp))]
+            runs += [(b, sub) for b in _llm_planners(sub, Path(tmp), options)]
         per_planner: dict[str, dict[str, Any]] = {}
         for built, scenes in runs:
             t1 = time.perf_counter()
@@ -135,5 +156,6 @@ def bench_robustness(n: int = 10_000, *, seed: int = 0, n_llm: int = 300, chunk:
         "nan_aggregates": sum(len(p["nan_aggregates"]) for p in per_planner.values()),
         "plans_not_finite": sum(p["plans_not_finite"] for p in per_planner.values()),
         "planners": per_planner,
+        "skipped": skipped,
         "seconds": round(time.perf_counter() - t0, 1),
     }

@@ -21,9 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from letspi.assembly.build import BuiltPlanner, build_planners, parse_planner_arg
-from letspi.assembly.planner_table import PLANNER_TABLE
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
 from letspi.benchmark.data import SuiteData, prepare_data
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
 from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
@@ -31,8 +30,8 @@ from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_lo
 from letspi.evaluation.harness import ProgressFactory
 from letspi.evaluation.harness import evaluate as evaluate_open_loop
 from letspi.fsutil import atomic_write_text
-from letspi.planners.llm import FastPlannerConfig, MemoryPlannerConfig
 from letspi.planners.mlp import MlpConfig
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import load_scenarios
@@ -43,8 +42,7 @@ from letspi.viz.report import write_report
 def default_planners() -> list[str]:
     """Every built-in planner that runs without a language model or files a default install lacks (``mlp``
     needs weights from ``letspi train mlp``), in the planner table's order."""
-    needs_more = (MemoryPlannerConfig, FastPlannerConfig, MlpConfig)
-    return [k.name for k in PLANNER_TABLE if not issubclass(k.config_class, needs_more)]
+    return [k.name for k in planner_table().kinds if not k.uses_llm and not issubclass(k.config_class, MlpConfig)]
 
 
 @dataclass(frozen=True)
@@ -77,7 +75,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
     full = load_scenarios(data.scenarios_file)
     digests = scenario_digests(full)
     groups_of = dict(zip(digests.tolist(), vehicle_keys(full).tolist(), strict=True))
-    planners: list[BuiltPlanner] = build_planners(list(planner_args), options or PlannerOptions())
+    planners: list[BuiltPlanner] = build_planners(list(planner_args), options or DEFAULT_OPTIONS)
     boards: dict[str, dict[str, Any]] = {}
     report_links: dict[str, str] = {}
     for mode in suite.modes:

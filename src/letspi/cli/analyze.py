@@ -12,7 +12,7 @@ import typer
 from letspi.analysis.decisions import decisions_markdown, paired_rows, planner_report
 from letspi.analysis.headroom import headroom
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import goals_config
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.finetune.options import OptionOutcomes, OptionRun, random_option_table
 from letspi.fsutil import atomic_write_text
@@ -54,7 +54,7 @@ def headroom_cmd(
             raise ValueError("--goals must be learned or kinematic")
         batch = load_scenarios(scenarios, None if max_windows is None else np.arange(max_windows))
         params, _ = load_sf_params(sf_params)
-        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        goal_predictor = Builder(cache=None).goal_predictor(goals_config(goals))
         preset_table = with_defaults(load_presets(presets)[0], params)
         random = random_option_table(params, n_options, seed)
         checked = _scored(OptionRun.create(batch, preset_table, out / "presets", goal_predictor, params, goals=goals,

@@ -14,8 +14,7 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
-from letspi.assembly.planner_table import planner_kind
-from letspi.assembly.resolve import DEFAULT_FAST_LLM, DEFAULT_LLM, PlannerOptions
+from letspi.assembly.planner_table import planner_table
 from letspi.bench.closed_loop import bench_closed_loop, bench_scenarios
 from letspi.bench.data import bench_data
 from letspi.bench.interrupt import MODES as INTERRUPT_MODES
@@ -27,10 +26,12 @@ from letspi.bench.metrics import bench_metrics
 from letspi.bench.physics import bench_frenet, bench_rollout
 from letspi.bench.realtime import bench_real_time
 from letspi.bench.retrieval import bench_phases, bench_retrieval
-from letspi.bench.robustness import bench_robustness
+from letspi.bench.robustness import PLAIN_PLANNERS, bench_robustness
 from letspi.cli.common import console, user_errors
+from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import ClosedLoopSettings
-from letspi.planners.llm import FastPlannerConfig, MemoryPlannerConfig
+from letspi.planners.llm import DEFAULT_FAST_LLM, DEFAULT_LLM
+from letspi.planners.options import PlannerOptions
 from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
@@ -198,11 +199,13 @@ def llm_cmd(
 
 
 @app.command("closed-loop")
+@planner_options(exclude=("llm_cache",))
 def closed_loop_cmd(
+    options: PlannerOptions,
     scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
     n: Annotated[int | None, typer.Option(
         help="Scenarios per measurement (default 256; LLM planners: 8, each simulated alone).")] = None,
-    planner: Annotated[str, typer.Option(help="Planner name.")] = "sf",
+    planner: Annotated[str, typer.Option(help="Planner kind (`letspi planners` lists them).")] = "sf",
     mode: Annotated[str, typer.Option(
         help="closed-loop-log, closed-loop-reactive or closed-loop-hybrid (no scripted events).")] = "closed-loop-log",
     replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
@@ -211,15 +214,11 @@ def closed_loop_cmd(
         help="Scenarios simulated together in one SUMO network.")] = ClosedLoopSettings.chunk_size,
     minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
     seed: int = 0,
-    memory: Annotated[Path | None, typer.Option(help="LLM planners: memory bank of letspi-fast / letspi-fs.")] = None,
-    fast_llm: Annotated[str, typer.Option(help="LLM planners: model of letspi-fast / letspi-fs.")] = DEFAULT_FAST_LLM,
-    llm: Annotated[str, typer.Option(help="LLM planners: model of llm / letspi-memory.")] = DEFAULT_LLM,
     llm_period_s: Annotated[float, typer.Option(
         "--llm-period-s", help="LLM planners: the model at t = 0 and every this many seconds.")] = DEFAULT_LLM_PERIOD_S,
     llm_latency_s: Annotated[float | None, typer.Option(
         "--llm-latency-s", help="LLM planners: a fixed latency [s] instead of the measured one.")] = None,
     warmup: Annotated[int, typer.Option(help="LLM planners: scenarios simulated first and not counted.")] = 1,
-    shield: Annotated[bool, typer.Option(help="LLM planners: the safety shield.")] = True,
     as_json: JsonOpt = False,
 ) -> None:
     """Closed-loop throughput in-process and per worker, the N-worker speed-up over 1 worker (same run),
@@ -227,8 +226,8 @@ def closed_loop_cmd(
     (dual rate): real time, i.e. the wall time per 5 s scenario simulated alone, LLM calls included (no response
     cache: every call runs the model)."""
     with user_errors():
-        if planner_kind(planner).config_class in (MemoryPlannerConfig, FastPlannerConfig):
-            options = PlannerOptions(memory=memory, fast_llm=fast_llm, llm=llm, shield=shield, llm_cache=False)
+        options = options.replace(llm_cache=False)  # LLM planners are timed uncached
+        if planner_table().kind(planner).dual_rate:
             dual_rate = DualRateConfig(llm_period_s, llm_latency_s)
             result = bench_real_time(scenarios=scenarios, n=8 if n is None else n, planner=planner, options=options,
                                      mode=mode, replan_s=replan_s, dual_rate=dual_rate, warmup=warmup,
@@ -236,12 +235,14 @@ def closed_loop_cmd(
         else:
             result = bench_closed_loop(scenarios=scenarios, n=256 if n is None else n, planner=planner, mode=mode,
                                        replan_s=replan_s, workers=workers, chunk_size=chunk_size, minutes=minutes,
-                                       seed=seed)
+                                       seed=seed, options=options)
     _emit(result, as_json, "letspi bench closed-loop")  # type: ignore[arg-type]
 
 
 @app.command("robustness")
+@planner_options(kinds=PLAIN_PLANNERS)
 def robustness_cmd(
+    options: PlannerOptions,
     n: Annotated[int, typer.Option(min=1, help="Scenes: random and degenerate kinds in turn.")] = 10_000,
     n_llm: Annotated[int, typer.Option(min=0, help="First scenes also planned by the LLM planners (scripted "
                                                    "backend: control flow, not model quality).")] = 300,
@@ -250,9 +251,12 @@ def robustness_cmd(
 ) -> None:
     """Random and degenerate scenes (no neighbours, 8 neighbours overlapping the ego at t = 0, zero
     speed, a 1-lane road, NaN gaps in neighbour tracks) through every planner and every metric:
-    scenes per kind, crashes and NaN per metric (both must be 0). Exit code 1 if any."""
+    scenes per kind, crashes and NaN per metric (both must be 0). Exit code 1 if any. The LLM planners
+    run on the scripted backend (control flow, not model quality); a planner whose setting has no
+    default (mlp without --mlp-weights) is skipped and said so."""
     with user_errors():
-        result = bench_robustness(n, seed=seed, n_llm=n_llm, log=lambda m: console.print(m, highlight=False))
+        result = bench_robustness(n, seed=seed, n_llm=n_llm, options=options,
+                                  log=lambda m: console.print(m, highlight=False))
     if as_json:
         typer.echo(json.dumps(result, indent=2))
     else:
@@ -278,6 +282,8 @@ def robustness_cmd(
                 out.print(f"{name} crashed on {example}", highlight=False)
             if row["nan_by_metric"]:
                 out.print(f"{name} NaN by metric: {row['nan_by_metric']}", highlight=False)
+        for name, reason in result["skipped"].items():
+            out.print(f"{name} skipped: {reason}", highlight=False)
         out.print(f"total: {format_number(result['crashes'])} crashes, {format_number(result['nan_values'])} NaN "
                   f"({format_number(result['seconds'])} s)", highlight=False)
     if result["crashes"] or result["nan_values"] or result["nan_aggregates"]:

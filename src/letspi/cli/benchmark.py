@@ -8,15 +8,16 @@ from typing import Annotated
 
 import typer
 
-from letspi.assembly.planner_table import planner_help
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planner_table import planner_table
 from letspi.benchmark.leaderboard import to_markdown
 from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
 from letspi.benchmark.run import default_planners, run_suite
 from letspi.benchmark.suites import SUITES, GeneratedTraffic, get_suite
-from letspi.cli.common import PLANNER_DEFAULTS, command_line, console, progress_bar, user_errors
+from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
+from letspi.cli.options import planner_options
 from letspi.fsutil import writer_lock
+from letspi.planners.options import PlannerOptions
 
 app = typer.Typer(help="Versioned benchmark suites: list, show, run; power of a paired comparison.",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -68,10 +69,13 @@ def show(
 
 
 @app.command("run")
+@planner_options()
 def run(
     suite: Annotated[str, typer.Argument(help="Suite name (or its full id).")],
-    planner: Annotated[list[str] | None, typer.Option(help="Planner (repeatable; default: every built-in planner "
-                                                           "without a language model). " + planner_help())] = None,
+    options: PlannerOptions,
+    planner: Annotated[list[str] | None, typer.Option(
+        help="Planner (repeatable; default: every built-in planner without a language model). "
+             + planner_table().planner_help())] = None,
     out: Annotated[Path | None, typer.Option(help="Results directory (default: benchmark/SUITE-ID).")] = None,
     highd: Annotated[Path | None, typer.Option(
         help="Real-data suites: your HighD directory (NN_tracks.csv, ...).")] = None,
@@ -79,10 +83,6 @@ def run(
         help="Real-data suites: run even if your files differ from those the suite pins (warns).")] = False,
     workers: Annotated[int, typer.Option(min=1, help="Processes for generation and closed-loop simulation.")] = 2,
     reports: Annotated[bool, typer.Option(help="Write each mode's report.html.")] = True,
-    llm: Annotated[str, typer.Option(help="Model of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
-    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = PLANNER_DEFAULTS.fast_llm,
-    memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast / letspi-fs.")] = None,
-    mlp_weights: Annotated[Path | None, typer.Option(help="Weights of the mlp planner.")] = None,
 ) -> None:
     """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
     (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
@@ -90,7 +90,6 @@ def run(
         s = get_suite(suite)
         planners = planner or default_planners()
         target = out or Path("benchmark") / s.suite_id
-        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, mlp_weights=mlp_weights)
         with writer_lock(target, command_line()), progress_bar() as bar:
             result = run_suite(s, planners, target, options=options, highd_dir=highd,
                                allow_other_files=allow_other_files, workers=workers, reports=reports,

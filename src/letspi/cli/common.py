@@ -37,7 +37,6 @@ from rich.progress import (
 )
 from rich.text import Text
 
-from letspi.assembly.resolve import PlannerOptions
 from letspi.execution import interrupt
 from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError
@@ -57,22 +56,9 @@ def debug_enabled() -> bool:
     return os.environ.get(DEBUG_ENV, "") not in ("", "0")
 
 
-#: The default of every planner option, from its type: CLI options take theirs from here.
-PLANNER_DEFAULTS = PlannerOptions()
-
 ConcurrencyOpt = Annotated[int | None, typer.Option(
     help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "
          "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
-
-
-ShieldOpt = Annotated[bool, typer.Option(
-    "--shield/--no-shield",
-    help="Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
-         "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters. "
-         "--no-shield: the paper-faithful ablation.")]
-RequestTimeoutOpt = Annotated[float, typer.Option(
-    help="Seconds one LLM request may take (5 s to connect); a timeout is retried with backoff. Requests queued "
-         "behind a server's busy slots count against it.")]
 
 
 def _duration(seconds: float) -> str:

@@ -8,14 +8,19 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from letspi.assembly.build import Builder, BuiltPlanner, build_planners
-from letspi.assembly.resolve import PlannerOptions, Resolver
-from letspi.cli.common import PLANNER_DEFAULTS, ShieldOpt, console, progress_bar, user_errors
+from letspi.assembly.build import Builder
+from letspi.assembly.planner_table import DemoTable, planner_table
+from letspi.assembly.planners import BuiltPlanner, build_planners
+from letspi.assembly.resolve import Resolver
+from letspi.cli.common import console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
+from letspi.cli.options import planner_options
 from letspi.evaluation.harness import evaluate, read_summary, summary_markdown
 from letspi.highd.io import list_recording_ids, read_recordings
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
+from letspi.planners.llm import DEFAULT_LLM, LLM
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.extract import count_windows, extract_scenarios
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
@@ -24,22 +29,27 @@ from letspi.scenario.types import ScenarioBatch
 from letspi.trafficgen.generate import generate_highd
 from letspi.viz.report import write_report
 
-BASELINES: tuple[str, ...] = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
+#: the kinds of the demo's two tables (``demo`` in the planner table)
+BASELINES = planner_table().demo(DemoTable.BASELINES)
+HEAD_TO_HEAD = planner_table().demo(DemoTable.HEAD_TO_HEAD)
 
 
+@planner_options(kinds=sorted(set(BASELINES) | set(HEAD_TO_HEAD)),
+                 exclude=("llm", "fast_llm", "memory", "memory_key", "llm_cache"))
 def demo(
+    options: PlannerOptions,
     out: Annotated[Path, typer.Option(help="Working directory for all demo outputs.")] = Path("letspi-demo"),
     minutes: Annotated[float, typer.Option(help="Simulated minutes of traffic to generate.")] = 3.0,
     seed: int = 0,
     max_scenarios: Annotated[int, typer.Option(help="Scenarios to sample and evaluate.")] = 1000,
     llm: Annotated[str, typer.Option(
-        help="Embedded (or any) model spec for both LetsPi phases.")] = PLANNER_DEFAULTS.llm,
+        help="Embedded (or any) model spec for both LetsPi phases.")] = DEFAULT_LLM,
     llm_collect: Annotated[int, typer.Option(help="Scenarios in the memory collection phase (0: skip LLMs).")] = 8,
     llm_eval: Annotated[int, typer.Option(help="Held-back scenarios for the LLM head-to-head table.")] = 8,
-    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """The main job: generate (or reuse) SUMO traffic as HighD files, extract planning scenarios,
-    evaluate the baselines (human, cv, idm, sf, sf-opt, gnp) and print the paper-style table.
+    evaluate the baselines (the planner table's demo baselines: human, cv, idm, sf, sf-opt, gnp) and print
+    the paper-style table.
 
     Then LetsPi itself: the memory collection phase (physics-informed prompt, reflection) with the
     embedded model on ``llm_collect`` scenarios, and a head-to-head of baselines, letspi-memory and
@@ -67,7 +77,7 @@ def demo(
                                       progress=lambda k: bar.advance(task, k))
         save_scenarios(batch, scenarios_file, extra_meta={"provenance": {"source": str(highd_dir), "seed": seed}})
         console.print(f"[green]{len(batch)} scenarios[/green] from {len(recs)} recording(s) -> {scenarios_file}")
-        planners = build_planners(list(BASELINES), PlannerOptions())
+        planners = build_planners(list(BASELINES), options)
         with progress_bar() as bar:
             evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
                      progress_factory=progress_factory(bar))
@@ -76,11 +86,11 @@ def demo(
         outputs = [f"{highd_dir}/ (HighD CSV)", str(scenarios_file), f"{eval_dir}/metrics.json, metrics.md, "
                    "per_scenario/ (with the plans)", str(report)]
         if llm_collect > 0 and llm_eval > 0:
-            outputs += _llm_demo(batch, out, llm, llm_collect, llm_eval, shield)
+            outputs += _llm_demo(batch, out, options.replace(llm=llm, fast_llm=llm), llm_collect, llm_eval)
     console.print("files:\n  " + "\n  ".join(outputs))
 
 
-def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval: int, shield: bool) -> list[str]:
+def _llm_demo(batch: ScenarioBatch, out: Path, options: PlannerOptions, n_collect: int, n_eval: int) -> list[str]:
     """Collect a small memory on some ego vehicles, compare planners on other vehicles' scenarios."""
     collect_rows, eval_rows = split_by_vehicle(batch, 0.5, seed=0)
     rng = np.random.default_rng(0)
@@ -91,7 +101,8 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
     save_scenarios(batch.take(eval_rows), eval_file)
     memory = out / "memory.sqlite"
     builder = Builder()
-    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory)
+    options = options.replace(memory=memory)
+    llm = options.get(LLM)
     phase_config = Resolver(options).memory_phase()
     phase, _ = builder.memory_phase(phase_config)
     to_collect = batch.take(collect_rows)
@@ -103,10 +114,8 @@ def _llm_demo(batch: ScenarioBatch, out: Path, llm: str, n_collect: int, n_eval:
                   f"{stats.skipped} reused -> {memory} (configuration {phase_config.key()})")
     # no response cache in the head-to-head: the fast phase's prompt can equal the memory phase's
     # first one, and a cache hit would hide the fast phase's latency (LLM planners are timed uncached)
-    options = PlannerOptions(llm=llm, fast_llm=llm, memory=memory, memory_key=phase_config.key(), shield=shield,
-                             llm_cache=False)
-    planners: list[BuiltPlanner] = build_planners(["human", "idm", "sf", "sf-opt", "gnp", "letspi-memory",
-                                                   "letspi-fast"], options, builder=builder)
+    options = options.replace(memory_key=phase_config.key(), llm_cache=False)
+    planners: list[BuiltPlanner] = build_planners(list(HEAD_TO_HEAD), options, builder=builder)
     eval_dir = out / "evaluation-llm"
     with progress_bar() as bar:
         evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=str(eval_file),

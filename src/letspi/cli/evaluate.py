@@ -9,14 +9,10 @@ import numpy as np
 import typer
 from rich.progress import Progress
 
-from letspi.assembly.build import BuiltPlanner, build_planners, parse_planner_arg
-from letspi.assembly.planner_table import planner_help
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
 from letspi.cli.common import (
-    PLANNER_DEFAULTS,
     ConcurrencyOpt,
-    RequestTimeoutOpt,
-    ShieldOpt,
     command_line,
     console,
     print_run,
@@ -24,6 +20,7 @@ from letspi.cli.common import (
     run_progress,
     user_errors,
 )
+from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import (
     ClosedLoopSettings,
     ScriptedNeighbours,
@@ -43,12 +40,13 @@ from letspi.evaluation.harness import (
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import HandoverConfig
-from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig, is_dual_rate
+from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
-PlannerOpt = Annotated[list[str], typer.Option(help=planner_help())]
+PlannerOpt = Annotated[list[str], typer.Option(help=planner_table().planner_help())]
 
 
 def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
@@ -104,27 +102,6 @@ ReferenceOpt = Annotated[str | None, typer.Option(
          "p. Default: sf when the directory has it, else the first --planner.")]
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
                                                 "configuration or planner configuration is refused).")]
-NeighboursOpt = Annotated[str, typer.Option(
-    help="Neighbour prediction of idm/sf/sf-opt/gnp/LLM planners: idm, constant_velocity, or "
-         "ground_truth_oracle (leaks the future: an upper bound, not a planner).")]
-GoalsOpt = Annotated[str, typer.Option(
-    help="Goal source: learned (shipped transformer, or $LETSPI_GOAL_WEIGHTS), kinematic, or "
-         "oracle (true endpoint: leaks the future).")]
-LlmOpt = Annotated[str, typer.Option(help="Model of llm / letspi-memory (spec, e.g. llamacpp:smollm2-135m, "
-                                          "ollama:llama3.1:8b, openai:MODEL@http://host:port/v1).")]
-TopKOpt = Annotated[int, typer.Option(help="Memories retrieved per scenario by letspi-fast.")]
-MemoryKeyOpt = Annotated[str | None, typer.Option(
-    help="Only memories collected under this configuration key (default: all in the bank).")]
-AllowSameVehicleOpt = Annotated[bool, typer.Option(
-    help="Let retrieval return memories of the query's own vehicle or overlapping windows (a leak).")]
-MaxIterationsOpt = Annotated[int, typer.Option(help="Reflection refinements of letspi-memory (0: none).")]
-GoalAdjustmentOpt = Annotated[bool, typer.Option(help="Let the LLM adjust goals (off: 'w/o GA' ablation).")]
-CacheOpt = Annotated[bool, typer.Option(help="Persistent LLM response cache (cached rows are excluded from the "
-                                             "inference time).")]
-MlpWeightsOpt = Annotated[Path | None, typer.Option(
-    help="Weights of the mlp regressor (from `letspi train mlp`; default: $LETSPI_MLP_WEIGHTS).")]
-
-
 def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
                          ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
                          concurrency: int | None = None,
@@ -161,7 +138,7 @@ def closed_loop_line(closed: ClosedLoopSettings, planners: list[BuiltPlanner]) -
     """The mode, each planner's replanning period and, with LLM planners, when they ask their model."""
     line = f"Mode: {closed.mode}, replanning every " + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})"
                                                                  for p in planners)
-    if any(is_dual_rate(p.planner) for p in planners):
+    if any(p.dual_rate for p in planners):
         dual = closed.dual_rate
         line += (f"; LLM planners ask their model every {dual.llm_period_s:g} s, answers in force after "
                  + ("the measured latency" if dual.measured else f"{dual.llm_latency_s:g} s"))
@@ -204,25 +181,14 @@ def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path,
                               reference=reference)
 
 
+@planner_options()
 def evaluate(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     planner: PlannerOpt,
     out: OutDirOpt,
+    options: PlannerOptions,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
-    sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
-    neighbours: NeighboursOpt = PLANNER_DEFAULTS.neighbour_mode,
-    goals: GoalsOpt = PLANNER_DEFAULTS.goals,
-    llm: LlmOpt = PLANNER_DEFAULTS.llm,
-    fast_llm: Annotated[str, typer.Option(help="Model of letspi-fast / letspi-fs.")] = PLANNER_DEFAULTS.fast_llm,
-    memory: Annotated[Path | None, typer.Option(help="Memory bank (from `letspi collect`) for letspi-fast/fs.")] = None,
-    top_k: TopKOpt = PLANNER_DEFAULTS.top_k,
-    memory_key: MemoryKeyOpt = None,
-    allow_same_vehicle: AllowSameVehicleOpt = PLANNER_DEFAULTS.allow_same_vehicle,
-    max_iterations: MaxIterationsOpt = PLANNER_DEFAULTS.max_iterations,
-    goal_adjustment: GoalAdjustmentOpt = PLANNER_DEFAULTS.goal_adjustment,
-    cache: CacheOpt = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
     mode: ModeOpt = "open-loop",
     replan_s: ReplanOpt = None,
     workers: WorkersOpt = ClosedLoopSettings.workers,
@@ -234,8 +200,6 @@ def evaluate(
     handover_lanes: HandoverLanesOpt = None,
     llm_period_s: LlmPeriodOpt = None,
     llm_latency_s: LlmLatencyOpt = None,
-    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
-    mlp_weights: MlpWeightsOpt = None,
     reference: ReferenceOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
@@ -249,11 +213,6 @@ def evaluate(
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)
         if scripted is not None:
             console.print(scripted.describe())
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
-                                 fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
-                                 max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
-                                 allow_same_vehicle=allow_same_vehicle, llm_timeout_s=request_timeout,
-                                 shield=shield, mlp_weights=mlp_weights)
         planners = build_planners(planner, options)
         _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency, reference)
     if closed is not None:

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import goals_config
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.fitting.frenet import DEFAULT_GRID, fit_frenet_weights
 from letspi.fitting.sf import fit_sf_params
@@ -88,8 +88,8 @@ def fit_frenet(
         for f in scenarios:
             refuse_suite_traffic(f, read_scenario_meta(f))
         batch = _load_unique(scenarios)
-        resolver = Resolver(PlannerOptions(goals=goals))
-        goal_predictor = Builder(cache=None).goal_predictor(resolver.goals)
+        goals_used = goals_config(goals)
+        goal_predictor = Builder(cache=None).goal_predictor(goals_used)
         settings = FrenetSettings()
         res = fit_frenet_weights(batch, goal_predictor, settings=settings, seed=seed, max_train=max_train,
                                  rounds=rounds, collision_weight=collision_weight, progress=console.print)
@@ -98,7 +98,7 @@ def fit_frenet(
             "scenario_provenance": [read_scenario_meta(f).get("provenance") for f in scenarios],
             "n_scenarios": len(batch), "n_train": res.n_train, "n_validation": res.n_validation,
             "split": "by ego vehicle, 70 % train", "split_seed": seed, "max_train": max_train,
-            "goals": resolver.goals.source, "neighbours": "idm",
+            "goals": goals_used.source, "neighbours": "idm",
             "lattice": settings.model_dump(exclude={"weights"}),
         }
         objective = {

@@ -14,13 +14,12 @@ import numpy as np
 import typer
 from rich.pretty import pprint
 
-from letspi.assembly.build import Builder, build_planners
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.build import Builder
+from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planners import build_planners
+from letspi.assembly.resolve import Resolver, goals_config
 from letspi.cli.common import (
-    PLANNER_DEFAULTS,
     ConcurrencyOpt,
-    RequestTimeoutOpt,
-    ShieldOpt,
     command_line,
     console,
     print_run,
@@ -28,6 +27,7 @@ from letspi.cli.common import (
     user_errors,
 )
 from letspi.cli.evaluate import load_limited, progress_factory
+from letspi.cli.options import planner_options
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
 from letspi.evaluation.harness import read_summary, summary_markdown
 from letspi.execution.ordered import RunnerConfig, ScenariosFailedError
@@ -35,30 +35,24 @@ from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt
 from letspi.llm.spec import default_concurrency
+from letspi.method.matching import TOP_K
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import Retriever, memory_example, messages_text
 from letspi.method.phases import collect as run_collect
 from letspi.metrics.compute import compute_metrics
-from letspi.planners.llm import LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.llm import LLM_CACHE, MEMORY_PHASE_OPTIONS, LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.store import load_scenarios
 
 
+@planner_options(declared=MEMORY_PHASE_OPTIONS)
 def collect(
     scenarios: Annotated[Path, typer.Option(help="Scenario file to collect experiences on.")],
     memory: Annotated[Path, typer.Option(help="Memory bank (SQLite; created if missing, resumed if present).")],
-    llm: Annotated[str, typer.Option(help="Model spec of the memory-collection phase.")] = PLANNER_DEFAULTS.llm,
+    options: PlannerOptions,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
-    max_iterations: Annotated[int, typer.Option(
-        help="Reflection refinements per scenario.")] = PLANNER_DEFAULTS.max_iterations,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
-    neighbours: Annotated[str, typer.Option(
-        help="Neighbour prediction: idm or constant_velocity.")] = PLANNER_DEFAULTS.neighbour_mode,
-    sf_params: Annotated[Path | None, typer.Option(help="SF parameters (r_col and the fallback).")] = None,
-    goal_adjustment: Annotated[bool, typer.Option(help="Let the LLM adjust goals.")] = PLANNER_DEFAULTS.goal_adjustment,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
 ) -> None:
     """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
 
@@ -70,13 +64,10 @@ def collect(
     with user_errors(resumes=True) as tally, writer_lock(memory, command_line(), directory=False):
         batch = load_limited(scenarios, limit)
         digests = scenario_digests(batch)
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, goals=goals, llm=llm,
-                                 max_iterations=max_iterations, goal_adjustment=goal_adjustment, llm_cache=cache,
-                                 llm_timeout_s=request_timeout)
         config = Resolver(options).memory_phase()
         tally.track(len(batch), lambda: _stored_memories(memory, config.key(), digests))
         runner = RunnerConfig(concurrency=default_concurrency(config.llm.spec) if concurrency is None else concurrency)
-        phase, load_s = Builder(cache="default" if cache else None).memory_phase(config)
+        phase, load_s = Builder(cache="default" if options.get(LLM_CACHE) else None).memory_phase(config)
         created = not memory.exists()
         with _removed_if_empty_on_failure(memory, created), MemoryBank.open(memory) as bank, progress_bar() as bar:
             bank.record_dataset(dataset_digest(digests), str(scenarios), len(batch))
@@ -135,19 +126,14 @@ def _round(v: Any) -> Any:
     return v
 
 
+@planner_options()
 def plan(
     scenarios: Annotated[Path, typer.Option(help="Scenario file.")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
-    planner: Annotated[str, typer.Option(help="Planner kind (llm, letspi-memory, letspi-fast, sf, ...).")] = "llm",
-    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
-    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
-    memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
-    top_k: int = PLANNER_DEFAULTS.top_k,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
+    options: PlannerOptions,
+    planner: Annotated[str, typer.Option(help="Planner KIND or LABEL=KIND (`letspi planners` lists them).")] = "llm",
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
-    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
     reflection iterations and retrieved memories."""
@@ -155,12 +141,10 @@ def plan(
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
         batch = load_scenarios(scenarios, [index])
-        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, top_k=top_k, goals=goals, llm_cache=cache,
-                                 shield=shield)
         built = build_planners([planner], options)[0]
         p = built.planner
         t0 = time.perf_counter()
-        result = p.plan(batch if p.reads_future else batch.history())
+        result = p.plan(batch if built.reads_future else batch.history())
         elapsed = time.perf_counter() - t0
     metrics = compute_metrics(batch, result.xy_m, result.vxy_mps, result.goals_xy_m).to_frame().iloc[0].to_dict()
     xy = result.xy_m[0]
@@ -223,31 +207,22 @@ def _pairs(items: list[str] | None) -> list[tuple[str, str]]:
     return out_pairs
 
 
+@planner_options(kinds=[kind.name for kind in planner_table().kinds if kind.uses_llm])
 def ablate(
     kind: Annotated[str, typer.Argument(help="|".join(ABLATION_KINDS))],
     scenarios: Annotated[Path, typer.Option(help="Evaluation scenarios (held back from the memory).")],
     out: Annotated[Path, typer.Option(help="Evaluation directory; results go to OUT/ablations/KIND/.")],
-    memory: Annotated[Path | None, typer.Option(help="Memory bank (needed by the fast-phase ablations).")] = None,
-    memory_key: Annotated[str | None, typer.Option(
-        help="Only memories collected under this configuration key (default: all in the bank).")] = None,
+    options: PlannerOptions,
     limit: Annotated[int | None, typer.Option(help="Only the first N evaluation scenarios.")] = None,
-    llm: Annotated[str, typer.Option(help="Memory-phase model spec.")] = PLANNER_DEFAULTS.llm,
-    fast_llm: Annotated[str, typer.Option(help="Fast-phase model spec.")] = PLANNER_DEFAULTS.fast_llm,
-    top_k: int = PLANNER_DEFAULTS.top_k,
     collect_scenarios: Annotated[Path | None, typer.Option(help="llm-combinations: scenarios to collect on.")] = None,
     collect_limit: Annotated[int | None, typer.Option(help="llm-combinations: first N collection scenarios.")] = None,
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
-    cache: Annotated[bool, typer.Option(help="Persistent LLM response cache.")] = PLANNER_DEFAULTS.llm_cache,
     concurrency: ConcurrencyOpt = None,
-    request_timeout: RequestTimeoutOpt = PLANNER_DEFAULTS.llm_timeout_s,
-    shield: ShieldOpt = PLANNER_DEFAULTS.shield,
 ) -> None:
     """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
     with user_errors(resumes=True):
         batch = load_limited(scenarios, limit)
         collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
-        options = PlannerOptions(llm=llm, fast_llm=fast_llm, memory=memory, memory_key=memory_key, top_k=top_k,
-                                 llm_cache=cache, llm_timeout_s=request_timeout, shield=shield)
         with progress_bar() as bar:
             results = run_ablation(kind, batch, out, options, scenarios_file=str(scenarios),
                                    collect_batch=collect_batch, combinations=_pairs(combo),
@@ -260,15 +235,15 @@ def prompt(
     index: Annotated[int, typer.Option(help="Row of the scenario in the file.")],
     fast: Annotated[bool, typer.Option(help="The fast prompt (with memories from --memory) instead.")] = False,
     memory: Annotated[Path | None, typer.Option(help="Memory bank for the fast prompt's examples.")] = None,
-    top_k: int = PLANNER_DEFAULTS.top_k,
-    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = PLANNER_DEFAULTS.goals,
+    top_k: Annotated[int, typer.Option(help="Memories retrieved for the fast prompt.")] = TOP_K,
+    goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
 ) -> None:
     """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
     memory-collection phase, or with --fast the short prompt of the fast-inference phase."""
     with user_errors():
         batch = load_scenarios(scenarios, [index])
         builder = Builder(cache=None)
-        goal = builder.goal_predictor(Resolver(PlannerOptions(goals=goals)).goals).predict_goals(batch.history()).top[0]
+        goal = builder.goal_predictor(goals_config(goals)).predict_goals(batch.history()).top[0]
         desc = describe_scenario(batch, goal)
         if not fast:
             messages = render_physics_prompt(desc)

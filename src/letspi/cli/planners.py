@@ -1,23 +1,33 @@
-"""``letspi planners``: every planner kind, what it is and whether it reads the recorded future."""
+"""``letspi planners``: every planner kind, what it is, whether it reads the recorded future, and its options."""
 
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from letspi.assembly.planner_table import PLANNER_TABLE, FutureUse
+from letspi.assembly.planner_table import FutureUse, planner_table
+from letspi.planners.options import PlannerOption
 
 FUTURE_HEADER = "reads future"
+
+
+def _option_row(option: PlannerOption[Any]) -> dict[str, Any]:
+    default = option.default if isinstance(option.default, str | int | float | bool | None) else str(option.default)
+    return {"name": option.name, "flag": option.cli_flag, "default": default, "unit": option.unit,
+            "help": option.describe()}
 
 
 def planners(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list instead of a table.")] = False,
 ) -> None:
-    """List the planner kinds that --planner accepts (from the one table in letspi.assembly.planner_table)."""
-    rows = [{"kind": k.name, "description": k.description, "reads_future": k.future.value,
-             "config": k.config_class.__name__} for k in PLANNER_TABLE]
+    """List the planner kinds that --planner accepts, with the flags of their settings (from the one table in
+    letspi.assembly.planner_table)."""
+    table = planner_table()
+    rows: list[dict[str, Any]] = [{"kind": k.name, "description": k.description, "reads_future": k.future.value,
+             "config": k.config_class.__name__, "dual_rate": k.dual_rate,
+             "options": [_option_row(o) for o in k.options]} for k in table.kinds]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
         return
@@ -26,6 +36,9 @@ def planners(
     typer.echo(f"{'kind':<{kind_w}}  {FUTURE_HEADER:<{future_w}}  description")
     for row in rows:
         typer.echo(f"{row['kind']:<{kind_w}}  {row['reads_future']:<{future_w}}  {row['description']}")
+        flags = " ".join(o["flag"] for o in row["options"])
+        if flags:
+            typer.echo(f"{'':<{kind_w}}  {'':<{future_w}}  settings: {flags}")
     typer.echo(f"\n{FUTURE_HEADER}: {FutureUse.ALWAYS.value} = replays the recorded future (a reference, not a "
-               f"planner); {FutureUse.ORACLE_INPUTS.value} = with --goals oracle or --neighbour-mode "
-               "ground_truth_oracle.")
+               f"planner); {FutureUse.ORACLE_INPUTS.value} = with --goals oracle or --neighbours "
+               "ground_truth_oracle. `letspi evaluate --help` describes every setting.")

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.resolve import goals_config
 from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.fsutil import writer_lock
 from letspi.learned.goal_model import LearnedGoalPredictor
@@ -111,7 +111,7 @@ def train_gnp(
         batch, infos = load_training_scenarios(scenarios)
         base, _ = load_sf_params(sf_params)
         goals = (LearnedGoalPredictor.from_dir(goal_weights) if goal_weights is not None
-                 else Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals))
+                 else Builder(cache=None).goal_predictor(goals_config("learned")))
         cfg = GnpTrainConfig(epochs=epochs, seed=seed, max_train=max_train, neighbour_mode=neighbours,
                              threads=threads)
         with progress_bar() as bar:
@@ -157,7 +157,7 @@ def train_llm_data(
         tally.track(n, lambda: sum(min(search.chunk, n - int(p.stem.split("-")[1]))
                                    for p in (out / PARTS_DIR).glob("part-*.parquet")))
         params, _ = load_sf_params(sf_params)
-        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        goal_predictor = Builder(cache=None).goal_predictor(goals_config(goals))
         labeller = LabelRun(scenarios_path=scenarios, batch=batch, out=out, goal_predictor=goal_predictor,
                             params=params, search=search, seed=seed, command=command_line())
         with progress_bar() as bar:
@@ -211,7 +211,7 @@ def _llm_examples(data: list[Path], scenarios: Path | None,
     """The chat examples of one or several label directories (``letspi.finetune.data``)."""
     from letspi.finetune.data import build_examples, build_examples_many
 
-    goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions()).goals)
+    goal_predictor = Builder(cache=None).goal_predictor(goals_config("learned"))
     if scenarios is not None and len(data) > 1:
         raise ValueError("--scenarios names the scenario file of one labels directory; with several --data "
                          "each directory's manifest names its own")
@@ -311,7 +311,7 @@ def train_decide(
         for path in scenarios:
             refuse_suite_traffic(path, read_scenario_meta(path))
         params, _ = load_sf_params(sf_params)
-        goal_predictor = Builder(cache=None).goal_predictor(Resolver(PlannerOptions(goals=goals)).goals)
+        goal_predictor = Builder(cache=None).goal_predictor(goals_config(goals))
         with progress_bar() as bar:
             task = bar.add_task("scoring the pool", total=None)
             summary = build_decision_data(scenarios, out, goal_predictor, params, goals=goals, n_presets=presets,

@@ -7,12 +7,13 @@ from typing import Annotated
 
 import typer
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
-from letspi.cli.common import PLANNER_DEFAULTS, console, user_errors
+from letspi.assembly.planners import build_planners
+from letspi.cli.common import console, user_errors
+from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import events_directory, scripted_for
 from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import load_scenarios
 from letspi.simulation.config import validate_replan_s
 from letspi.viz.compare import write_comparison
@@ -22,21 +23,16 @@ from letspi.viz.outcomes import simulate_panel
 from letspi.viz.report import write_report
 
 
+@planner_options()
 def plot(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
     index: Annotated[int, typer.Option(help="Row of the scenario in the file (0-based).")],
     out: Annotated[Path, typer.Option(help="Output PNG file.")],
+    options: PlannerOptions,
     planner: Annotated[list[str] | None, typer.Option(help="Planner KIND or LABEL=KIND to draw; repeat for "
                                                             "several (default: sf).")] = None,
     iterations: Annotated[Path | None, typer.Option(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
-    sf_params: Annotated[Path | None, typer.Option(help="Fitted SF parameters JSON (default: shipped).")] = None,
-    neighbours: Annotated[str, typer.Option(
-        help="Neighbour prediction of physics planners: idm, constant_velocity, ground_truth_oracle.")] = (
-        PLANNER_DEFAULTS.neighbour_mode),
-    llm: Annotated[str, typer.Option(help="Model spec of llm / letspi-memory.")] = PLANNER_DEFAULTS.llm,
-    fast_llm: Annotated[str, typer.Option(help="Model spec of letspi-fast.")] = PLANNER_DEFAULTS.fast_llm,
-    memory: Annotated[Path | None, typer.Option(help="Memory bank for letspi-fast.")] = None,
     mode: Annotated[str, typer.Option(
         help="open-loop (default: the diagrams above) or closed-loop-log / -reactive / -hybrid (actors of "
              "scripted events from the scenario file's source directory, if it exists): simulate the "
@@ -54,20 +50,18 @@ def plot(
             raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
         validate_replan_s(replan_s)
         batch = load_scenarios(scenarios, [index])
-        options = PlannerOptions(sf_params_file=sf_params, neighbour_mode=neighbours, llm=llm, fast_llm=fast_llm,
-                                 memory=memory)
         built = build_planners(list(planner) if planner else ["sf"], options)
         if mode != "open-loop":
             scripted = (scripted_for(batch, events_directory(scenarios), required=False).mask
                         if mode == "closed-loop-hybrid" else None)
             for b in built:
                 target = out if len(built) == 1 else out.with_name(f"{out.stem}-{planner_dir_name(b.name)}{out.suffix}")
-                fig = simulate_panel(batch, b.planner, b.name, mode, replan_s, scripted_nbr=scripted)
+                fig = simulate_panel(batch, b, mode, replan_s, scripted_nbr=scripted)
                 target.parent.mkdir(parents=True, exist_ok=True)
                 fig.savefig(target, dpi=110)
                 console.print(f"scenario {batch.scenario_id[0]}, {b.name}, {mode} -> {target}")
             return
-        plans = {b.name: b.planner.plan(batch if b.planner.reads_future else batch.history()) for b in built}
+        plans = {b.name: b.planner.plan(batch if b.reads_future else batch.history()) for b in built}
         records = load_iterations(iterations) if iterations is not None else None
         for b in built:
             p = b.planner

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from letspi.assembly.build import Builder, BuiltPlanner
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.build import Builder
+from letspi.assembly.planners import BuiltPlanner, build_planner, resolve_planner
+from letspi.assembly.resolve import Resolver
 from letspi.evaluation.harness import ProgressFactory, evaluate
 from letspi.execution.ordered import RunnerConfig, RunStats
 from letspi.fsutil import atomic_write_text
@@ -31,6 +31,8 @@ from letspi.llm.spec import default_concurrency
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
 from letspi.metrics.aggregate import AggValue
+from letspi.planners.llm import LLM_CACHE, MEMORY, MEMORY_KEY, MEMORY_SEED
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.types import ScenarioBatch
 
 ABLATION_KINDS: tuple[str, ...] = ("reflection", "goal-adjustment", "few-shot", "memory-size", "llm-combinations")
@@ -56,7 +58,7 @@ def run_ablation(
     flight for the LLM planners and the collection (None: each backend's default)."""
     if kind not in ABLATION_KINDS:
         raise ValueError(f"unknown ablation {kind!r}; available: {', '.join(ABLATION_KINDS)}")
-    builder = builder or Builder(cache="default" if options.llm_cache else None)
+    builder = builder or Builder(cache="default" if options.get(LLM_CACHE) else None)
     abl_root = Path(out_dir) / "ablations"
     target = abl_root / kind
 
@@ -66,14 +68,14 @@ def run_ablation(
         return {p.name: out[p.name] for p in planners}
 
     def built(kind_: str, name: str, opts: PlannerOptions = options) -> BuiltPlanner:
-        return builder.planner(Resolver(opts).planner(kind_), name=name)
+        return build_planner(resolve_planner(kind_, opts), name, builder=builder)
 
     if kind == "reflection":
         return run([built("letspi-memory", "LetsPi_M"),
-                    built("letspi-memory", "LetsPi_M w/o Ref", replace(options, max_iterations=0))])
+                    built("letspi-memory", "LetsPi_M w/o Ref", options.replace(max_iterations=0))])
     if kind == "goal-adjustment":
         return run([built("letspi-memory", "LetsPi_M"),
-                    built("letspi-memory", "LetsPi_M w/o GA", replace(options, goal_adjustment=False))])
+                    built("letspi-memory", "LetsPi_M w/o GA", options.replace(goal_adjustment=False))])
     if kind == "few-shot":
         return run([built("letspi-fast", "LetsPi_F"), built("letspi-fs", "FS (3 static examples)")])
     if kind == "memory-size":
@@ -83,15 +85,16 @@ def run_ablation(
 
 def _memory_size(options: PlannerOptions, fractions: Sequence[float], abl_root: Path, built: Any,
                  run: Any) -> dict[str, dict[str, AggValue]]:
-    if options.memory is None:
+    memory = options.get(MEMORY)
+    if memory is None:
         raise ValueError("memory-size ablation needs --memory (a bank from `letspi collect`)")
-    planners = [built("letspi-fast", f"LetsPi_F mem {100 * f:g}%", replace(options, memory_fraction=f))
+    planners = [built("letspi-fast", f"LetsPi_F mem {100 * f:g}%", options.replace(memory_fraction=f))
                 for f in fractions]
     results = run(planners)
-    with MemoryBank.open(options.memory, readonly=True) as bank:
-        total = bank.count(config_key=options.memory_key)
-        sizes = [len(bank.sample_fraction(f, seed=options.memory_seed, config_key=options.memory_key))
-                 for f in fractions]
+    key = options.get(MEMORY_KEY)
+    with MemoryBank.open(memory, readonly=True) as bank:
+        total = bank.count(config_key=key)
+        sizes = [len(bank.sample_fraction(f, seed=options.get(MEMORY_SEED), config_key=key)) for f in fractions]
     points = [{"memory_size": 100.0 * f, "n_memories": n, "metrics": results[p.name]}
               for f, n, p in zip(fractions, sizes, planners, strict=True)]
     atomic_write_text(abl_root / "memory_size.json",
@@ -102,18 +105,19 @@ def _memory_size(options: PlannerOptions, fractions: Sequence[float], abl_root: 
 def _llm_combinations(options: PlannerOptions, collect_batch: ScenarioBatch | None,
                       combinations: Sequence[tuple[str, str]], abl_root: Path, builder: Builder, built: Any,
                       run: Any, concurrency: int | None) -> dict[str, dict[str, AggValue]]:
-    if options.memory is None or collect_batch is None or not combinations:
+    memory = options.get(MEMORY)
+    if memory is None or collect_batch is None or not combinations:
         raise ValueError("llm-combinations needs --memory, collection scenarios and at least one --combo")
     planners: list[BuiltPlanner] = []
     rows = []
     for mem_spec, fast_spec in combinations:
-        phase_config = Resolver(replace(options, llm=mem_spec)).memory_phase()
+        phase_config = Resolver(options.replace(llm=mem_spec)).memory_phase()
         phase, _ = builder.memory_phase(phase_config)
         n = concurrency if concurrency is not None else default_concurrency(phase_config.llm.spec)
-        with MemoryBank.open(options.memory) as bank:
+        with MemoryBank.open(memory) as bank:
             collect(phase, collect_batch, bank, runner=RunnerConfig(concurrency=n))  # resumable
         name = f"memory {mem_spec} + fast {fast_spec}"
-        fast_options = replace(options, fast_llm=fast_spec, memory_key=phase_config.key())
+        fast_options = options.replace(fast_llm=fast_spec, memory_key=phase_config.key())
         planners.append(built("letspi-fast", name, fast_options))
         rows.append({"name": name, "physics": mem_spec, "fast": fast_spec, "collection_key": phase_config.key()})
     results = run(planners)

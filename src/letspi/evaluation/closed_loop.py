@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.assembly.build import BuiltPlanner
+from letspi.assembly.planners import BuiltPlanner
 from letspi.constants import N_FUTURE
 from letspi.evaluation.harness import (
     PartWriter,
@@ -53,7 +53,6 @@ from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.uncertainty import GROUP_COLUMN
-from letspi.planners.base import Planner
 from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import read_scenario_meta
@@ -69,7 +68,7 @@ from letspi.simulation import (
 )
 from letspi.simulation.config import DEFAULT_REPLAN_S, ClosedLoopMode, HandoverConfig, validate_replan_s
 from letspi.simulation.handover import hybrid_settings
-from letspi.simulation.schedule import DualRateConfig, is_dual_rate
+from letspi.simulation.schedule import DualRateConfig
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import chunk_frame
 from letspi.trafficgen.binaries import sumo_home
@@ -151,11 +150,11 @@ class ClosedLoopSettings:
             out.update(hybrid_settings(cfg, scripted_nbr))
         return out
 
-    def planner_evaluation(self, label: str, planner: Planner | None = None) -> dict[str, Any]:
-        """What joins the planner's configuration key: the mode and its replanning period; for an LLM
-        planner (``is_dual_rate``) also its LLM period and fixed latency (or ``measured``)."""
+    def planner_evaluation(self, label: str, dual_rate: bool = False) -> dict[str, Any]:
+        """What joins the planner's configuration key: the mode and its replanning period; for a planner
+        run dual-rate (the LLM planners) also its LLM period and fixed latency (or ``measured``)."""
         out: dict[str, Any] = {"mode": self.mode, "replan_s": round(self.replan_s_of(label), 6)}
-        if planner is not None and is_dual_rate(planner):
+        if dual_rate:
             out["dual_rate"] = self.dual_rate.identity()
         return out
 
@@ -343,7 +342,7 @@ def planner_spec(built: BuiltPlanner, settings: ClosedLoopSettings) -> PlannerSp
     configuration, from which every worker builds its own."""
     if settings.uses_processes():
         return PlannerSpec(built.config, built.name, settings.replan_s_of(built.name))
-    return built.planner
+    return built
 
 
 @dataclass
@@ -358,7 +357,7 @@ class ClosedLoopRunner:
                  config: MetricsConfig, progress: ProgressCallback | None,
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
-        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name, built.planner), before_write)
+        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name, built.dual_rate), before_write)
         done = writer.done()
         todo = np.flatnonzero([d not in done for d in digests])
         if progress is not None and len(batch) - len(todo):

@@ -111,6 +111,7 @@ def plan_concurrently(
     batch: ScenarioBatch,
     todo: Sequence[int],
     *,
+    reads_future: bool = False,
     measure: Measure,
     write_part: WritePart,
     runner: RunnerConfig,
@@ -118,8 +119,9 @@ def plan_concurrently(
 ) -> RunStats:
     """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score
     and write them per part in scenario order, in this thread (module docstring). Raises what
-    ``run_ordered`` raises, after writing every row it accepted."""
-    seen_all = batch if planner.reads_future else batch.history()
+    ``run_ordered`` raises, after writing every row it accepted. ``reads_future``: the planner sees the
+    recorded future (else the history only)."""
+    seen_all = batch if reads_future else batch.history()
     contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
                                                        lambda rows: planner.context(seen_all.take(rows)))
     parts = _Parts(planner, batch, seen_all, measure, write_part, contexts)

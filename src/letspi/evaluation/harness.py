@@ -35,8 +35,8 @@ and ``closed-loop-hybrid`` run through ``letspi.evaluation.closed_loop`` (a ``Pl
 ``evaluate``) into the same layout: the mode and its settings join ``run.json``'s identity and each
 planner's key gets ``evaluation = {mode, replan_s}``, so one directory never mixes modes or periods.
 
-Planner contract: planners that do not read the future (``reads_future`` False) get the
-history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
+Planner contract: planners that do not read the future (``BuiltPlanner.reads_future`` False, from
+the planner table) get the history-only view of each batch (``ScenarioBatch.history()``); metrics use the full batch.
 
 Timing: ``inference_s`` is the wall time of ``plan`` per scenario. For LLM planners the table's
 inference time averages only rows whose model calls really ran (``info_llm_cached`` False); cached
@@ -59,7 +59,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from letspi.assembly.build import BuiltPlanner
+from letspi.assembly.planners import BuiltPlanner
 from letspi.constants import N_FUTURE
 from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
 from letspi.execution.ordered import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
@@ -389,7 +389,7 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
     run: RunStats | None = None
     if runs_per_scenario(planner):
         run = plan_concurrently(
-            planner, batch, [int(i) for i in todo],
+            planner, batch, [int(i) for i in todo], reads_future=built.reads_future,
             measure=lambda sub, plan: compute_metrics(sub, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config),
             write_part=lambda metrics, idx, plan, seconds: store_part(
                 _scored_frame(metrics, batch.scenario_id[idx], idx, digests, vehicles, plan.info, seconds),
@@ -400,7 +400,7 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
         for start in range(0, len(todo), step):
             idx = todo[start : start + step]
             sub = batch.take(idx)
-            seen = sub if planner.reads_future else sub.history()
+            seen = sub if built.reads_future else sub.history()
             t0 = time.perf_counter()
             plan = planner.plan(seen)
             elapsed_s = time.perf_counter() - t0

@@ -2,9 +2,10 @@
 
 A planner sees what is known at t = 0: the harness passes non-oracle planners a history-only view
 (``ScenarioBatch.history()``: every per-frame array ends at ``T0_INDEX``, the future is absent, not
-blanked). Planners that read the recorded future declare ``reads_future = True`` and get the full
-batch: the ``human`` replay (the reference row of every table) and the labelled oracle modes (oracle
-goals, ground-truth neighbour replay), which are upper bounds, not planners.
+blanked). The kinds that read the recorded future get the full batch: the ``human`` replay (the
+reference row of every table) and the labelled oracle modes (oracle goals, ground-truth neighbour
+replay), which are upper bounds, not planners. Which ones they are is the planner table's to say
+(``letspi.assembly.planner_table``, ``BuiltPlanner.reads_future``), not the planner object's.
 The harness (``letspi.evaluation.harness``) times ``plan`` calls; planners don't time themselves.
 
 The social force planners (``sf``, ``sf-opt``, ``mlp``, ``gnp`` and the LLM planners) are also
@@ -65,12 +66,11 @@ class Planner(Protocol):
     ``batch_size`` says how many scenarios a caller should pass per call (the physics is vectorised
     over them). Planners whose cost is a model call per scenario say so with
     ``ProposingPlanner.proposes_per_scenario``: the harness then times each scenario's proposal on
-    its own. ``reads_future``: see the module docstring.
+    its own. Whether it reads the recorded future: see the module docstring.
     """
 
     name: str
     batch_size: int
-    reads_future: bool
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch: ...
 

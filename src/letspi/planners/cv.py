@@ -21,7 +21,6 @@ class CvConfig(Config):
 class ConstantVelocityPlanner:
     name: str = "cv"
     batch_size: int = 4096
-    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         p0 = batch.ego_xy0_m.astype(np.float64)  # (B, 2)

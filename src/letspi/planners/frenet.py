@@ -80,7 +80,8 @@ from letspi.physics.lanes import lane_centres_m, lane_index_of
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import Config, GoalsConfig
+from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig
+from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
 SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
@@ -88,6 +89,10 @@ SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
 CURVATURE_SPEED_FLOOR_MPS = 0.5
 LON_SPEED, LON_FOLLOW, LON_BRAKE = 0, 1, 2
 ANY_LANE = -9  # lane code of longitudinal candidates that pair with every lateral candidate
+FRENET_WEIGHTS = PlannerOption[Path | None](
+    "frenet_weights_file", Path | None, None,
+    "Cost weights of the frenet planner (from `letspi fit frenet`; default: the shipped fit)", flag="--frenet-weights")
+OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, FRENET_WEIGHTS)
 
 
 class FrenetWeights(BaseModel):
@@ -821,7 +826,6 @@ class FrenetPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "frenet"
     batch_size: int = 1024
-    reads_future: bool = False
 
     def lattice(self, batch: ScenarioBatch) -> Lattice:
         goals = self.goal_predictor.predict_goals(batch).top

@@ -8,7 +8,8 @@ leaks the future, so the oracle mode is refused here.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
@@ -19,8 +20,15 @@ from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import Config, GoalsConfig, WeightsConfig
+from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig, WeightsConfig
+from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
+
+GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
+GNP_WEIGHTS = PlannerOption[Path | None](
+    "gnp_weights", Path | None, None,
+    f"Weights of the gnp planner (from `letspi train gnp`; default: ${GNP_WEIGHTS_ENV}, else the shipped ones)")
+OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, GNP_WEIGHTS)
 
 
 class GnpConfig(Config):
@@ -43,7 +51,6 @@ class GnpPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "gnp"
     batch_size: int = 1024
-    reads_future: bool = False
     proposes_per_scenario: bool = False
 
     def __post_init__(self) -> None:

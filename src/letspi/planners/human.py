@@ -22,7 +22,6 @@ class HumanConfig(Config):
 class HumanPlanner:
     name: str = "human"
     batch_size: int = 4096
-    reads_future: bool = True
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         fut = batch.future_slice

@@ -10,7 +10,7 @@ mid-lane-change sideways within one 0.04 s step (≈ 30 m/s² lateral), which no
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -18,12 +18,14 @@ from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.idm import rollout_idm_ego
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import Config
+from letspi.planners.config import NEIGHBOURS, Config
+from letspi.planners.options import PlannerOption
 from letspi.scenario.queries import OFF_ROAD, lane_centres_y_m, lane_index_of
 from letspi.scenario.types import ScenarioBatch
 
 LATERAL_LOOKAHEAD_S = 1.5
 LATERAL_TIME_CONSTANT_S = 0.8
+OPTIONS: tuple[PlannerOption[Any], ...] = (NEIGHBOURS,)
 
 
 def settle_laterally(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray]:
@@ -58,7 +60,6 @@ class IdmPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "idm"
     batch_size: int = 4096
-    reads_future: bool = False
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         roll = rollout_idm_ego(batch, predict_neighbours(batch, self.neighbour_mode))

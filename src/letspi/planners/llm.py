@@ -36,12 +36,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import ClassVar, Literal
+from pathlib import Path
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from letspi.llm.client import ParamAdvisor
+from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.compact import PROMPT_STYLES
 from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
@@ -54,12 +56,18 @@ from letspi.method.reflection import (
     safety_report,
     simulate_proposal,
 )
-from letspi.method.thresholds import ReflectionThresholds
+from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
 from letspi.planners.config import (
+    ADVERSE,
+    DECIDE,
+    DECISION_OPTIONS,
+    PRESETS,
+    RISK_MODEL,
+    SOCIAL_FORCE_OPTIONS,
     Config,
     DecisionConfig,
     GoalsConfig,
@@ -69,9 +77,60 @@ from letspi.planners.config import (
     SfParamsConfig,
 )
 from letspi.planners.decision import adverse_failed_names, decision_info
+from letspi.planners.options import PlannerOption
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
+
+DEFAULT_LLM = "llamacpp:smollm2-135m-letspi"
+DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
+
+# Options of the LLM planners and of memory collection ------------------------------------------------
+LLM = PlannerOption(
+    "llm", str, DEFAULT_LLM, "Model of llm / letspi-memory and of memory collection (spec, e.g. "
+    "llamacpp:smollm2-135m, ollama:llama3.1:8b, openai:MODEL@http://host:port/v1)")
+FAST_LLM = PlannerOption("fast_llm", str, DEFAULT_FAST_LLM, "Model of letspi-fast / letspi-fs (a spec as for --llm)")
+PROMPT_STYLE = PlannerOption[str | None](
+    "prompt_style", str | None, None,
+    "Prompt style: paper (the physics-informed prompt, few-shot memories) or compact (what the fine-tuned model "
+    "was trained on); default: compact for a fine-tuned embedded model, else paper", choices=PROMPT_STYLES)
+LLM_CACHE = PlannerOption("llm_cache", bool, True, "Persistent LLM response cache (cached rows are excluded from "
+                          "the inference time)", flag="--cache")
+LLM_TIMEOUT = PlannerOption(
+    "llm_timeout_s", float, RetryPolicy.timeout_s,
+    "Time one LLM request may take (5 s to connect); a timeout is retried with backoff. Requests queued behind a "
+    "server's busy slots count against it", unit="s", flag="--request-timeout")
+MAX_REFINEMENTS = PlannerOption("max_iterations", int, MAX_ITERATIONS,
+                                "Reflection refinements of letspi-memory and of memory collection (0: none)")
+GOAL_ADJUSTMENT = PlannerOption("goal_adjustment", bool, True, "Let the LLM adjust goals (off: the 'w/o GA' "
+                                "ablation)")
+MEMORY = PlannerOption[Path | None]("memory", Path | None, None,
+                                    "Memory bank (from `letspi collect`) of letspi-fast / letspi-fs")
+MEMORY_KEY = PlannerOption[str | None]("memory_key", str | None, None, "Only memories collected under this "
+                                       "configuration key (default: all in the bank)")
+TOP_K_OPTION = PlannerOption("top_k", int, TOP_K, "Memories retrieved per scenario by letspi-fast")
+ALLOW_SAME_VEHICLE = PlannerOption("allow_same_vehicle", bool, False, "Let retrieval return memories of the "
+                                   "query's own vehicle or overlapping windows (a leak)")
+MEMORY_FRACTION = PlannerOption[float | None](
+    "memory_fraction", float | None, None,
+    "Memory-size ablation: retrieve from a reproducible subset of this fraction of the memories (default: all)")
+MEMORY_SEED = PlannerOption("memory_seed", int, 0, "Seed of the --memory-fraction subset")
+SHIELD = PlannerOption(
+    "shield", bool, True,
+    "Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
+    "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters; "
+    "--no-shield: the paper-faithful ablation")
+#: what memory collection reads (``Resolver.memory_phase``)
+MEMORY_PHASE_OPTIONS: tuple[PlannerOption[Any], ...] = (
+    LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MAX_REFINEMENTS, GOAL_ADJUSTMENT, DECIDE, PRESETS, ADVERSE, RISK_MODEL,
+    *SOCIAL_FORCE_OPTIONS)
+#: ``llm``: single shot (no refinements)
+SINGLE_SHOT_OPTIONS: tuple[PlannerOption[Any], ...] = (
+    *(o for o in MEMORY_PHASE_OPTIONS if o is not MAX_REFINEMENTS), SHIELD)
+MEMORY_PLANNER_OPTIONS: tuple[PlannerOption[Any], ...] = (*MEMORY_PHASE_OPTIONS, SHIELD)
+FAST_OPTIONS: tuple[PlannerOption[Any], ...] = (
+    FAST_LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MEMORY, MEMORY_KEY, TOP_K_OPTION, ALLOW_SAME_VEHICLE,
+    MEMORY_FRACTION, MEMORY_SEED, SHIELD, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
 
 
 def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float]) -> dict[str, np.ndarray]:
@@ -272,7 +331,6 @@ class LetsPiMemoryPlanner:
     shield_params: SocialForceParams | None = None  # the fitted sf parameters; None = no shield
     name: str = "letspi-memory"
     batch_size: int = 64
-    reads_future: bool = False
     last_iterations: tuple[IterationRecord, ...] = ()
     proposes_per_scenario: bool = True
 
@@ -337,7 +395,6 @@ class LetsPiFastPlanner:
     thresholds: ReflectionThresholds = field(default_factory=ReflectionThresholds)
     name: str = "letspi-fast"
     batch_size: int = 64
-    reads_future: bool = False
     last_retrieved: tuple[tuple[str, float], ...] = ()
     last_proposal: Proposal | None = None
     concurrent_safe: bool = True

@@ -9,7 +9,8 @@ neighbours (``letspi.method.reflection.simulate_proposal``). Vectorised over the
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
@@ -19,9 +20,16 @@ from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import SocialForcePlannerFields, WeightsConfig
+from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields, WeightsConfig
+from letspi.planners.options import PlannerOption
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import ScenarioBatch
+
+MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
+MLP_WEIGHTS = PlannerOption[Path | None](
+    "mlp_weights", Path | None, None,
+    f"Weights of the mlp regressor (from `letspi train mlp`; default: ${MLP_WEIGHTS_ENV}; nothing is shipped)")
+OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, MLP_WEIGHTS)
 
 
 class MlpConfig(SocialForcePlannerFields):
@@ -45,7 +53,6 @@ class ParamMlpPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "mlp"
     batch_size: int = 256
-    reads_future: bool = False
     proposes_per_scenario: bool = False
 
     def context(self, batch: ScenarioBatch) -> PlanningContext:

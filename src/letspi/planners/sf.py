@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -13,8 +13,11 @@ from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import SocialForcePlannerFields
+from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
+from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
+
+OPTIONS: tuple[PlannerOption[Any], ...] = SOCIAL_FORCE_OPTIONS
 
 
 class SfConfig(SocialForcePlannerFields):
@@ -28,7 +31,6 @@ class SocialForcePlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf"
     batch_size: int = 4096
-    reads_future: bool = False
     proposes_per_scenario: bool = False
 
     def context(self, batch: ScenarioBatch) -> PlanningContext:

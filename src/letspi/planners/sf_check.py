@@ -10,7 +10,7 @@ shield as the LLM planners. Batched over scenarios; no model call.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -20,10 +20,13 @@ from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import DecisionConfig, SocialForcePlannerFields
+from letspi.planners.config import DECISION_OPTIONS, SOCIAL_FORCE_OPTIONS, DecisionConfig, SocialForcePlannerFields
 from letspi.planners.decision import decision_info
-from letspi.planners.llm import simulate_and_shield
+from letspi.planners.llm import SHIELD, simulate_and_shield
+from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
+
+OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD)
 
 
 class SfCheckConfig(SocialForcePlannerFields):
@@ -45,7 +48,6 @@ class DecisionPlanner:
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
     batch_size: int = 64
-    reads_future: bool = False
     proposes_per_scenario: bool = False
 
     def context(self, batch: ScenarioBatch) -> PlanningContext:

@@ -16,7 +16,7 @@ All candidates of a batch are rolled out in one vectorised call (B × C scenario
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -27,9 +27,12 @@ from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import SocialForcePlannerFields
+from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
+from letspi.planners.options import PlannerOption
 from letspi.safety.plan_check import check_plans
 from letspi.scenario.types import ScenarioBatch
+
+OPTIONS: tuple[PlannerOption[Any], ...] = SOCIAL_FORCE_OPTIONS
 
 
 class SearchSpace(BaseModel):
@@ -69,7 +72,6 @@ class SocialForceSearchPlanner:
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf-opt"
     batch_size: int = 256
-    reads_future: bool = False
     proposes_per_scenario: bool = False
 
     def context(self, batch: ScenarioBatch) -> PlanningContext:

@@ -147,7 +147,7 @@ class ClosedLoopConfig:
         sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
         driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
-        dual_rate: LLM planners (``letspi.simulation.schedule.is_dual_rate``): the LLM at t = 0 and
+        dual_rate: LLM planners (``dual_rate`` in the planner table): the LLM at t = 0 and
             every ``llm_period_s``, its answers in force after their latency, the physics and the
             shield every ``replan_s`` (``letspi.simulation.dual_rate``); other planners ignore it.
     """

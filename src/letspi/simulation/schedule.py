@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Final, Protocol
+from typing import Any, Final, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -81,17 +81,12 @@ class DualRateConfig:
         return {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
 
 
+@runtime_checkable
 class DualRatePlanner(ProposingPlanner, Protocol):
-    """A ``ProposingPlanner`` that can say what is in force before its first answer."""
+    """A ``ProposingPlanner`` that can say what is in force before its first answer. Which planners the
+    closed loop runs dual-rate is their kind's ``dual_rate`` in the planner table."""
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
-
-
-def is_dual_rate(planner: object) -> bool:
-    """Whether the closed loop runs ``planner`` dual-rate: it proposes by a model call per scenario
-    (the LLM planners) and can say what is in force before the first answer (``default_proposals``)."""
-    return (isinstance(planner, ProposingPlanner) and bool(getattr(planner, "proposes_per_scenario", False))
-            and callable(getattr(planner, "default_proposals", None)))
 
 
 @dataclass

@@ -3,18 +3,22 @@
 Workers (processes, Ray actors) build their planner themselves from a picklable description, so
 models and caches are loaded once per worker and nothing unpicklable crosses a process boundary.
 ``build_planner`` is the only function that turns a description into a planner: it hands the
-planner's frozen configuration (``letspi.planners.config``, picklable) to the ``Builder``.
+planner's frozen configuration (``letspi.planners.config``, picklable) to
+``letspi.assembly.planners.build_planner``. In this process a ``BuiltPlanner`` is used as it is.
+What a planner can do (read the recorded future, run dual-rate) comes from its kind's entry in the
+planner table, through its configuration.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from letspi.assembly.build import Builder
-from letspi.assembly.planner_table import reads_future
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planners import BuiltPlanner, resolve_planner
+from letspi.assembly.planners import build_planner as assemble_planner
 from letspi.planners.base import Planner
 from letspi.planners.config import PlannerConfig
+from letspi.planners.options import PlannerOptions
 from letspi.simulation.config import validate_replan_s
 
 
@@ -38,7 +42,7 @@ class PlannerSpec:
     def of(cls, kind: str, options: PlannerOptions | None = None, *, name: str = "",
            replan_s: float | None = None) -> PlannerSpec:
         """Resolve ``kind`` with ``options`` (files and environment are read here, once)."""
-        return cls(Resolver(options or PlannerOptions()).planner(kind), name or kind, replan_s)
+        return cls(resolve_planner(kind, options), name or kind, replan_s)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -47,39 +51,39 @@ class PlannerSpec:
             validate_replan_s(self.replan_s)
 
 
-#: What ``run_closed_loop`` accepts as a planner description: a ``PlannerSpec``, or a picklable
-#: planner object (anything with ``name``, ``batch_size`` and ``plan``), used as is.
-PlannerSpecLike = PlannerSpec | Planner
+#: What ``run_closed_loop`` accepts as a planner description: a ``PlannerSpec`` (workers build it) or a
+#: ``BuiltPlanner`` (used as is; picklable planners only when it crosses a process boundary).
+PlannerSpecLike = PlannerSpec | BuiltPlanner
 
 
 def build_planner(spec: PlannerSpecLike) -> Planner:
     """The planner a description stands for (built in the process that will use it)."""
+    if isinstance(spec, BuiltPlanner):
+        return spec.planner
     if isinstance(spec, PlannerSpec):
-        return Builder().planner(spec.config, name=spec.name).planner
-    if isinstance(spec, Planner):
-        return spec
-    raise TypeError(
-        f"planner_spec must be a PlannerSpec or a planner object (name, batch_size, plan), got {type(spec).__name__}"
-    )
+        return assemble_planner(spec.config, spec.name).planner
+    raise TypeError(f"planner_spec must be a PlannerSpec or a BuiltPlanner, got {type(spec).__name__}")
 
 
 def spec_name(spec: PlannerSpecLike) -> str:
     """The planner's name as results should show it (without building a PlannerSpec's planner)."""
-    return spec.name if isinstance(spec, PlannerSpec) else str(spec.name)
+    return spec.name
 
 
 def spec_replan_s(spec: PlannerSpecLike) -> float | None:
     """The planner's own replanning period [s], or None."""
-    value = spec.replan_s if isinstance(spec, PlannerSpec) else getattr(spec, "replan_s", None)
+    value = spec.replan_s if isinstance(spec, PlannerSpec) else None
     return None if value is None else validate_replan_s(float(value))
 
 
 def reads_recorded_future(spec: PlannerSpecLike) -> bool:
-    """Whether the planner reads the recorded future (``human``, oracle goals or neighbours).
+    """Whether the planner reads the recorded future (``human``, oracle goals or neighbours; from the table).
 
-    Such planners are given the log's future (shifted to each replanning instant) instead of
-    NaN; a planner object declares it with its ``reads_future`` attribute.
+    Such planners are given the log's future (shifted to each replanning instant) instead of NaN.
     """
-    if isinstance(spec, PlannerSpec):
-        return reads_future(spec.config)
-    return bool(getattr(spec, "reads_future", False))
+    return spec.reads_future if isinstance(spec, BuiltPlanner) else planner_table().reads_future(spec.config)
+
+
+def runs_dual_rate(spec: PlannerSpecLike) -> bool:
+    """Whether the closed loop runs the planner dual-rate (the LLM planners; from the table)."""
+    return spec.dual_rate if isinstance(spec, BuiltPlanner) else planner_table().kind_of(spec.config).dual_rate

@@ -17,9 +17,9 @@ from letspi.simulation.engine import simulate_group
 from letspi.simulation.network import layout_keys
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replanner
 from letspi.simulation.result import ClosedLoopChunk
-from letspi.simulation.schedule import is_dual_rate
+from letspi.simulation.schedule import DualRatePlanner
 from letspi.simulation.session import SumoSession
-from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorded_future
+from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorded_future, runs_dual_rate
 
 
 @dataclass(frozen=True)
@@ -58,18 +58,22 @@ def llm_concurrency(planner: Planner) -> int:
     return default_concurrency(advisor.backend.spec) if isinstance(advisor, ParamAdvisor) else 1
 
 
-def replanner_for(planner: Planner, batch: ScenarioBatch, config: ClosedLoopConfig,
-                  future: FuturePolicy) -> Replanner:
-    """The replanning step of a lockstep group: dual rate for the LLM planners (``config.dual_rate``),
-    else the whole planner every ``replan_s``."""
-    if is_dual_rate(planner):
-        return DualRateReplanner(planner, batch, config.replan_frames, future, config.dual_rate,  # type: ignore[arg-type]
+def replanner_for(planner: Planner, batch: ScenarioBatch, config: ClosedLoopConfig, future: FuturePolicy,
+                  dual_rate: bool = False) -> Replanner:
+    """The replanning step of a lockstep group: dual rate for the LLM planners (``dual_rate``, from the
+    planner table; timing in ``config.dual_rate``), else the whole planner every ``replan_s``."""
+    if dual_rate:
+        if not isinstance(planner, DualRatePlanner):
+            raise TypeError(f"planner {planner.name!r} runs dual-rate but is no DualRatePlanner (its table entry "
+                            "says dual_rate)")
+        return DualRateReplanner(planner, batch, config.replan_frames, future, config.dual_rate,
                                  concurrency=llm_concurrency(planner))
     return PeriodicReplanner(planner, batch, config.replan_frames, future)
 
 
 def simulate_chunk(
-    session: SumoSession, planner: Planner, task: ChunkTask, config: ClosedLoopConfig, future: FuturePolicy
+    session: SumoSession, planner: Planner, task: ChunkTask, config: ClosedLoopConfig, future: FuturePolicy,
+    dual_rate: bool = False,
 ) -> ClosedLoopChunk:
     """Simulate one chunk (any layouts: one lockstep group per layout) and label it with batch indices."""
     keys = layout_keys(task.batch.marking_y_m)
@@ -78,7 +82,7 @@ def simulate_chunk(
     for key in dict.fromkeys(keys):
         rows = np.asarray([i for i, k in enumerate(keys) if k == key], dtype=np.int64)
         group = task.batch.take(rows)
-        replanner = replanner_for(planner, group, config, future)
+        replanner = replanner_for(planner, group, config, future, dual_rate)
         try:
             part = simulate_group(
                 session,
@@ -109,10 +113,11 @@ class ChunkWorker:
         self.config = config
         self.planner = build_planner(planner_spec)
         self.future: FuturePolicy = "log" if reads_recorded_future(planner_spec) else "none"
+        self.dual_rate = runs_dual_rate(planner_spec)
         self.session = SumoSession(config)
 
     def run(self, task: ChunkTask) -> ClosedLoopChunk:
-        return simulate_chunk(self.session, self.planner, task, self.config, self.future)
+        return simulate_chunk(self.session, self.planner, task, self.config, self.future, self.dual_rate)
 
     def close(self) -> None:
         self.session.close()

@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from letspi.assembly.planners import BuiltPlanner
 from letspi.constants import DT_S, N_FUTURE, T0_INDEX
 from letspi.evaluation.closed_loop import CL_PLAN_XY, closed_loop_row
 from letspi.metrics.compute import compute_metrics
 from letspi.metrics.config import MetricsConfig
-from letspi.planners.base import Planner
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, chunk_metrics, run_closed_loop
 from letspi.viz.closed_loop import LoopOutcome, plot_closed_loop_panel
@@ -96,18 +96,18 @@ def closed_loop_report_figure(scenario: ScenarioBatch, rec: Mapping[str, Any], n
                  title=f"{name}: scenario {rec.get('scenario_id')}")
 
 
-def simulate_panel(scenario: ScenarioBatch, planner: Planner, name: str, mode: str, replan_s: float,
+def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, mode: str, replan_s: float,
                    config: MetricsConfig | None = None, scripted_nbr: np.ndarray | None = None) -> Figure:
     """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel: the
     planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``).
     ``scripted_nbr`` (1, N): neighbours that keep their log in ``closed-loop-hybrid``."""
-    seen = scenario if planner.reads_future else scenario.history()
-    plan = planner.plan(seen)
+    seen = scenario if built.reads_future else scenario.history()
+    plan = built.planner.plan(seen)
     m = compute_metrics(scenario, plan.xy_m, plan.vxy_mps, plan.goals_xy_m, config)
     open_rec = {k: m[k][0] for k in ("collision", "collision_at_fault", "min_ttc_s", "min_box_gap_m",
                                      "collision_step", "collision_nbr")}
     open_rec["plan_xy_m"] = plan.xy_m[0]
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(planner, scenario, mode, replan_s=replan_s,
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(built, scenario, mode, replan_s=replan_s,
                                                         scripted_nbr=scripted_nbr)))
     cm = chunk_metrics(scenario, chunk, config)
     closed = LoopOutcome(f"{mode} (replanning every {replan_s:g} s)", chunk.ego_xy_m[0], chunk.nbr_xy_m[0],
@@ -117,4 +117,4 @@ def simulate_panel(scenario: ScenarioBatch, planner: Planner, name: str, mode: s
                                                              "min_box_gap_m")},
                                     "sumo_collision": chunk.sumo_collision[0]}))
     top = stored_outcome("open loop (recorded neighbours)", scenario, open_rec)
-    return panel(scenario, top, closed, title=f"{name}: scenario {scenario.scenario_id[0]}")
+    return panel(scenario, top, closed, title=f"{built.name}: scenario {scenario.scenario_id[0]}")

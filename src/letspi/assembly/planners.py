@@ -1,0 +1,98 @@
+"""Planners by kind: options -> configuration -> planner, through the table (the entry point of assembly).
+
+``build_planners(["sf", "fast=letspi-fast"], options)`` resolves each ``KIND`` or ``LABEL=KIND`` with
+one ``Resolver`` (files read and fingerprinted once) and builds it with one ``Builder`` (models
+loaded once); ``resolve_planner`` and ``build_planner`` are the two halves. A ``BuiltPlanner`` is a
+planner with its configuration (whose key identifies its results) and what its kind's table entry
+says it can do (``reads_future``, ``dual_rate``): capabilities come from the table, never from the
+planner object.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from letspi.assembly.build import Builder
+from letspi.assembly.planner_table import BUILT_IN, PlannerTable, planner_table
+from letspi.assembly.resolve import Resolver
+from letspi.planners.base import Planner
+from letspi.planners.config import PlannerConfig
+from letspi.planners.llm import LLM_CACHE
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
+
+
+@dataclass
+class BuiltPlanner:
+    """A planner with the configuration it was built from.
+
+    name: the label of its results (short; ``config`` holds everything). load_s: model loading at
+    build time [s] (0 for planners without a model), reported apart from inference time. table: the
+    table its kind is an entry of (its capabilities); None: the built-in kinds (a picklable reference).
+    """
+
+    name: str
+    config: PlannerConfig
+    planner: Planner
+    load_s: float = 0.0
+    table: PlannerTable | None = field(default=None, repr=False)
+
+    @property
+    def key(self) -> str:
+        return self.config.key()
+
+    @property
+    def reads_future(self) -> bool:
+        """It gets the recorded future (``human``, oracle goals or neighbours); others see history only."""
+        return (self.table or BUILT_IN).reads_future(self.config)
+
+    @property
+    def dual_rate(self) -> bool:
+        """The closed loop asks its model at the LLM period and replans its physics in between."""
+        return (self.table or BUILT_IN).kind_of(self.config).dual_rate
+
+
+def parse_planner_arg(arg: str) -> tuple[str, str]:
+    """``KIND`` or ``LABEL=KIND`` (a second configuration of one kind in the same results) -> (label, kind)."""
+    label, sep, kind = arg.partition("=")
+    if not sep:
+        return arg.strip(), arg.strip()
+    if not label.strip() or not kind.strip():
+        raise ValueError(f"--planner takes KIND or LABEL=KIND, got {arg!r}")
+    return label.strip(), kind.strip()
+
+
+def resolve_planner(kind: str, options: PlannerOptions | None = None, *, env: Mapping[str, str] | None = None,
+                    table: PlannerTable | None = None) -> PlannerConfig:
+    """The configuration of planner ``kind`` under ``options`` (``ValueError`` for an unknown kind or option)."""
+    table = table or planner_table()
+    options = options or DEFAULT_OPTIONS
+    table.check(options)
+    config: PlannerConfig = table.kind(kind).resolve(Resolver(options, env))
+    return config
+
+
+def build_planner(config: PlannerConfig, name: str | None = None, *, builder: Builder | None = None,
+                  table: PlannerTable | None = None) -> BuiltPlanner:
+    """Build the planner ``config`` describes (its kind's entry in the table), labelled ``name`` (default: its
+    kind); ``builder`` shares models between planners."""
+    table = table or planner_table()
+    label = name or config.kind
+    planner, load_s = table.kind_of(config).build(builder or Builder(), config, label)
+    return BuiltPlanner(label, config, planner, load_s, None if table is BUILT_IN else table)
+
+
+def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
+                   env: Mapping[str, str] | None = None, table: PlannerTable | None = None) -> list[BuiltPlanner]:
+    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (models are loaded once)."""
+    table = table or planner_table()
+    table.check(options)
+    resolver = Resolver(options, env)
+    builder = builder or Builder(cache="default" if options.get(LLM_CACHE) else None)
+    labels = [parse_planner_arg(a) for a in args]
+    seen = [label for label, _ in labels]
+    dup = sorted({x for x in seen if seen.count(x) > 1})
+    if dup:
+        raise ValueError(f"planner label(s) {', '.join(dup)} given twice; use LABEL=KIND for variants")
+    return [build_planner(table.kind(kind).resolve(resolver), label, builder=builder, table=table)
+            for label, kind in labels]

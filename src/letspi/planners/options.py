@@ -1,0 +1,126 @@
+"""Planner options: the user settings a planner kind reads, declared beside the planner as plain data.
+
+A ``PlannerOption`` is one setting (name, type, default, help, unit). Each planner module declares
+the options of its kind (``letspi.planners.sf.OPTIONS``, ``letspi.planners.frenet.OPTIONS``, ...;
+options several kinds share, such as the goal source or the LLM, are declared once in
+``letspi.planners.config`` and ``letspi.planners.llm``), and its entry in the planner table
+(``letspi.assembly.planner_table``) lists them. Everything else derives from those declarations:
+the CLI gives every command that takes planners one flag per option of the table
+(``letspi.cli.options``), ``letspi planners`` lists them, and ``PlannerOptions`` holds the values a
+user chose, by option name, every other option at its declared default.
+
+An option changes answers only through the configuration it resolves into (``Resolver``: a file is
+read and fingerprinted, a name is checked): that configuration, not the option, is what keys results.
+An option declared outside letspi (a planner kind loaded at run time) is the same plain data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class PlannerOption(Generic[T]):
+    """One user setting of one or more planner kinds.
+
+    Attributes:
+        name: identifier of the value in ``PlannerOptions`` (``goals``, ``frenet_weights_file``).
+        type: the value's type as the CLI parses it (``str``, ``int``, ``float``, ``bool``,
+            ``Path | None``, ``float | None``, ...).
+        default: the value when the user gives none (None: the option's documented fallback, e.g. a
+            shipped file or an environment variable, chosen where it is resolved).
+        help: one sentence for the CLI's help and ``letspi planners``.
+        unit: the unit of a number (``s``, ``m``), shown with the help; empty for none.
+        flag: the CLI flag when it is not ``--`` + the name with dashes (a bool gets ``--no-`` too).
+        choices: the allowed values of a text option (shown in the help; checked where resolved).
+    """
+
+    name: str
+    type: Any
+    default: T
+    help: str
+    unit: str = ""
+    flag: str = ""
+    choices: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier():
+            raise ValueError(f"planner option name {self.name!r} must be a Python identifier")
+
+    @property
+    def cli_flag(self) -> str:
+        """The flag on the command line (``--sf-params``)."""
+        return self.flag or "--" + self.name.replace("_", "-")
+
+    def describe(self) -> str:
+        """The help with its choices and unit."""
+        text = self.help
+        if self.choices:
+            text += f" ({', '.join(self.choices)})"
+        return f"{text} [{self.unit}]" if self.unit else text
+
+
+class PlannerOptions:
+    """What the user asked for: planner option values by name; any option not given has its default.
+
+    ``PlannerOptions(goals="kinematic", top_k=5)``; read with ``options.get(GOALS)`` (typed by the
+    declaration). Immutable: ``replace(**values)`` returns a changed copy. Names are checked against
+    the declared options where options are resolved (``check``), so a misspelt name is an error.
+    """
+
+    _values: dict[str, Any]
+
+    def __init__(self, **values: Any) -> None:
+        object.__setattr__(self, "_values", dict(values))
+
+    def get(self, option: PlannerOption[T]) -> T:
+        value: T = self._values.get(option.name, option.default)
+        return value
+
+    @property
+    def given(self) -> Mapping[str, Any]:
+        """The values set explicitly (by name)."""
+        return dict(self._values)
+
+    def replace(self, **values: Any) -> PlannerOptions:
+        return PlannerOptions(**{**self._values, **values})
+
+    def check(self, declared: Iterable[PlannerOption[Any]]) -> None:
+        """``ValueError`` naming every given name that no option in ``declared`` has."""
+        names = {option.name for option in declared}
+        unknown = sorted(set(self._values) - names)
+        if unknown:
+            raise ValueError(f"unknown planner option(s) {', '.join(unknown)}; available: {', '.join(sorted(names))}")
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("PlannerOptions is immutable; use replace()")
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, PlannerOptions) and self._values == other._values
+
+    def __hash__(self) -> int:
+        return hash(tuple(sorted((k, repr(v)) for k, v in self._values.items())))
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v!r}" for k, v in sorted(self._values.items()))
+        return f"PlannerOptions({inner})"
+
+
+def unique_options(groups: Iterable[Iterable[PlannerOption[Any]]]) -> tuple[PlannerOption[Any], ...]:
+    """The options of several kinds, each once, in first-seen order (``ValueError`` when two different
+    declarations share a name: one name, one meaning)."""
+    seen: dict[str, PlannerOption[Any]] = {}
+    for group in groups:
+        for option in group:
+            other = seen.setdefault(option.name, option)
+            if other != option:
+                raise ValueError(f"planner option {option.name!r} is declared twice, differently: {other} vs {option}")
+    return tuple(seen.values())
+
+
+#: every option at its default (what library callers start from: ``DEFAULT_OPTIONS.replace(goals="kinematic")``)
+DEFAULT_OPTIONS = PlannerOptions()
