@@ -25,7 +25,7 @@ from letspi.scenario.types import concat_batches
 
 runner = CliRunner()
 #: the commands that take planners (their planner flags come from the table)
-PLANNER_COMMANDS = (["evaluate"], ["plan"], ["plot"], ["bench", "closed-loop"])
+PLANNER_COMMANDS = (["evaluate"], ["plan"], ["plot"], ["bench", "closed-loop"], ["benchmark", "run"])
 
 
 def _help(*command: str) -> str:
