@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from letspi.assembly.build import build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import build_planners
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_json, to_markdown
 from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
 from letspi.benchmark.suites import (
@@ -27,6 +26,7 @@ from letspi.benchmark.suites import (
 )
 from letspi.cli.app import app
 from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.provenance import SUITE_SEEDS

@@ -23,7 +23,6 @@ from typer.testing import CliRunner
 from letspi.assembly.planners import BuiltPlanner
 from letspi.cli.app import app
 from letspi.evaluation.closed_loop import (
-    ClosedLoopSettings,
     ClosedLoopSetupError,
     check_setup,
     closed_loop_rows,
@@ -35,6 +34,7 @@ from letspi.planners.cv import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import load_scenarios, save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi.simulation.config import ClosedLoopConfig
 from letspi.viz.compare import compare_dirs
 
 pytestmark = pytest.mark.sumo
@@ -95,8 +95,8 @@ def _brake_batch() -> ScenarioBatch:
 def test_a_hard_braking_ego_collides_in_log_mode_and_not_in_reactive_mode(tmp_path: Path) -> None:
     batch = _brake_batch()
     built = BuiltPlanner("brake", CvConfig(), BrakePlanner(8.0))
-    log = evaluate_closed_loop([built], batch, tmp_path / "log", ClosedLoopSettings(LOG))["brake"]
-    reactive = evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopSettings(REACTIVE))["brake"]
+    log = evaluate_closed_loop([built], batch, tmp_path / "log", ClosedLoopConfig(LOG))["brake"]
+    reactive = evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopConfig(REACTIVE))["brake"]
     assert log["cr_pct"] == 100.0 and log["sumo_cr_pct"] == 100.0 and log["cr_rear_pct"] == 100.0
     assert reactive["cr_pct"] == 0.0 and reactive["sumo_cr_pct"] == 0.0
     # the reactive follower braked: its simulated path is stored for the panel
@@ -133,7 +133,7 @@ def test_modes_and_periods_are_never_mixed_in_one_directory(tmp_path: Path, traf
     pd.testing.assert_frame_equal(load_planner_results(out2, "cv"), before)
     with pytest.raises(EvaluationDirError, match="mode: closed-loop-log -> closed-loop-reactive"):
         evaluate_closed_loop([BuiltPlanner("cv", CvConfig(), BrakePlanner())],
-                             load_scenarios(traffic_file, np.arange(4)), out2, ClosedLoopSettings(REACTIVE))
+                             load_scenarios(traffic_file, np.arange(4)), out2, ClosedLoopConfig(REACTIVE))
 
 
 def test_hybrid_mode_records_its_settings_and_refuses_other_ones(tmp_path: Path, traffic_file: Path) -> None:
@@ -157,7 +157,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
     cases = [
         (["--replan-s", "2"], "--replan-s apply to the closed-loop modes only"),
         (["--workers", "2"], "--workers apply to the closed-loop modes only"),
-        (["--mode", "closed-loop"], "--mode 'closed-loop' is not a mode"),
+        (["--mode", "closed-loop"], "'closed-loop' is not one of 'open-loop', 'closed-loop-log'"),
         (["--mode", LOG, "--replan-s", "sf=2"], "no planner labelled 'sf'"),
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
@@ -181,7 +181,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
     code, text = _evaluate(*base, "--mode", LOG, "--sumo-gui")
     assert code == 2 and ("needs a display" in text or "needs SUMO's sumo-gui" in text), text
     with pytest.raises(ClosedLoopSetupError, match="drop --workers"):
-        check_setup(ClosedLoopSettings(LOG, workers=2, sumo_gui=True))
+        check_setup(ClosedLoopConfig(LOG, workers=2, sumo_gui=True))
     if importlib.util.find_spec("ray") is None:
         code, text = _evaluate(*base, "--mode", LOG, "--ray")
         assert code == 2 and "pip install 'letspi[ray]'" in text
@@ -275,7 +275,7 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     scen = save_scenarios(batch, tmp_path / "brake.arrow")
     built = BuiltPlanner("brake", CvConfig(), BrakePlanner(8.0))
     evaluate([built], batch, tmp_path / "open", scenarios_file=str(scen))
-    evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopSettings(REACTIVE), scenarios_file=str(scen))
+    evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopConfig(REACTIVE), scenarios_file=str(scen))
     result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(tmp_path / "reactive"), "--out",
                                  str(tmp_path / "cmp")])
     assert result.exit_code == 0, result.output

@@ -14,8 +14,7 @@ import pytest
 from test_simulation_support import BrakePlanner
 from typer.testing import CliRunner
 
-from letspi.assembly.build import BuiltPlanner, build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.cli.app import app
 from letspi.evaluation.harness import evaluate, load_planner_results, stored_vehicles
 from letspi.metrics.config import MetricsConfig
@@ -27,6 +26,7 @@ from letspi.metrics.stats import (
     wilson_ends,
 )
 from letspi.planners.cv import CvConfig
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import save_scenarios

@@ -16,12 +16,14 @@ import pytest
 
 import letspi
 from letspi.assembly import resolve
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planners import resolve_planner
+from letspi.assembly.resolve import Resolver
 from letspi.llm import choice, compact, describe, fingerprint, prompts
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.schema import VARIANTS
 from letspi.method import prompt_samples, reflection
 from letspi.method.reflection import METRIC_ORDER
+from letspi.planners.options import PlannerOptions
 
 OPTS = PlannerOptions(llm="scripted:default", fast_llm="scripted:default", llm_cache=False)
 
@@ -76,13 +78,13 @@ def test_a_number_format_in_the_scene_text_changes_the_fingerprint(monkeypatch: 
 
 def test_a_template_edit_changes_the_fingerprint_and_the_result_keys(
         monkeypatch: pytest.MonkeyPatch, fresh_prompts: None) -> None:
-    before, key = resolve.prompt_sha256(), Resolver(OPTS).planner("letspi-memory").key()
+    before, key = resolve.prompt_sha256(), resolve_planner("letspi-memory", OPTS).key()
     load = prompts._load_template
     monkeypatch.setattr(prompts, "_load_template",
                         lambda name: load(name) + ("\nBe brief." if name == "compact_system.j2" else ""))
     _clear_prompt_caches()
     assert resolve.prompt_sha256() != before
-    assert Resolver(OPTS).planner("letspi-memory").key() != key
+    assert resolve_planner("letspi-memory", OPTS).key() != key
 
 
 def test_a_template_file_counts_even_where_no_scene_reaches(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

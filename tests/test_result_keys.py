@@ -19,7 +19,7 @@ import pytest
 
 from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.assembly.resolve import Resolver
-from letspi.evaluation.closed_loop import ClosedLoopSettings
+from letspi.evaluation.closed_loop import mode_settings, planner_evaluation
 from letspi.evaluation.harness import planner_record, run_record
 from letspi.learned.weights import save_weights
 from letspi.method.memory import MemoryBank
@@ -31,7 +31,7 @@ from letspi.planners.options import PlannerOptions
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests
-from letspi.simulation.config import HandoverConfig
+from letspi.simulation.config import ClosedLoopConfig, HandoverConfig
 from letspi.simulation.schedule import DualRateConfig
 
 SCRIPTED = "scripted:default"
@@ -159,19 +159,22 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
     period; the LLM planners' dual-rate schedule), as on main."""
     mask = np.zeros((3, 8), dtype=bool)
     mask[1, 2] = True
-    assert {mode: key_of(ClosedLoopSettings(mode).mode_settings(mask)) for mode in (LOG, REACTIVE, HYBRID)} == {
+    assert {mode: key_of(mode_settings(ClosedLoopConfig(mode), mask)) for mode in (LOG, REACTIVE, HYBRID)} == {
         LOG: "4636b34f162b3205", REACTIVE: "00f3fa4168aaeab7", HYBRID: "1517b8b485841990"}
-    wider = ClosedLoopSettings(HYBRID, handover=HandoverConfig(lanes=1))
-    assert key_of(wider.mode_settings(mask)) == "d8ef66751ea4949b"
-    assert key_of(ClosedLoopSettings(HYBRID).mode_settings(None)) == "0d072afca6382dec"
+    wider = ClosedLoopConfig(HYBRID, handover=HandoverConfig(lanes=1))  # type: ignore[arg-type]
+    assert key_of(mode_settings(wider, mask)) == "d8ef66751ea4949b"
+    assert key_of(mode_settings(ClosedLoopConfig(HYBRID), None)) == "0d072afca6382dec"  # type: ignore[arg-type]
+    # workers, chunk size and the GUI change no answer, so no key
+    busy = ClosedLoopConfig(HYBRID, workers=3, chunk_size=5, sumo_gui=True)  # type: ignore[arg-type]
+    assert key_of(mode_settings(busy, mask)) == "1517b8b485841990"
 
     built = build_planners(["sf", "letspi-fast", "slow=sf"], _options(files, llm_cache=False))
     keys = {}
     for dual in (DualRateConfig(2.5, 0.4), DualRateConfig()):
-        settings = ClosedLoopSettings(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},
-                                      dual_rate=dual)
+        settings = ClosedLoopConfig(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},  # type: ignore[arg-type]
+                                    dual_rate=dual)
         for b in built:
-            evaluation = settings.planner_evaluation(b.name, b.dual_rate)
+            evaluation = planner_evaluation(settings, b.name, b.dual_rate)
             keys[f"{b.name} {dual.llm_latency_s}"] = pinned_key(planner_record(b, evaluation)["identity"])
     for b in built:
         keys[f"{b.name} open"] = pinned_key(planner_record(b)["identity"])
@@ -185,6 +188,6 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
                                    scenario_id="a")
     digests = scenario_digests(batch)
     assert run_record(batch, digests, "", MetricsConfig(), "open-loop")["key"] == "f141b77a3f11cf06"
-    reactive_settings = ClosedLoopSettings(REACTIVE).mode_settings(None)
+    reactive_settings = mode_settings(ClosedLoopConfig(REACTIVE), None)  # type: ignore[arg-type]
     reactive = run_record(batch, digests, "", MetricsConfig(), REACTIVE, reactive_settings)
     assert reactive["key"] == "1da4b636005c9504"

@@ -140,11 +140,11 @@ def test_a_period_as_long_as_the_horizon_asks_once_and_without_the_shield_nothin
 def test_dual_rate_letspi_in_the_engine_asks_twice_per_5_s_scenario_and_records_the_age(mode: str) -> None:
     batch = _scenes(2)
     planner = _fast([])
-    config = ClosedLoopConfig(dual_rate=DualRateConfig(llm_period_s=2.5, llm_latency_s=0.4))
+    config = ClosedLoopConfig(mode=mode, replan_s=0.2, dual_rate=DualRateConfig(llm_period_s=2.5, llm_latency_s=0.4))
     # the planner object as a letspi-fast of the table (its kind runs dual-rate); the configuration is a stand-in
     built = BuiltPlanner("letspi-fast", FastPlannerConfig.model_construct(goals=GoalsConfig(source="kinematic")),
                          planner)
-    chunks = list(run_closed_loop(built, batch, mode, replan_s=0.2, config=config))
+    chunks = list(run_closed_loop(built, batch, config))
     chunk = ClosedLoopChunk.concat(chunks)
     info = chunk.plan_info
     assert chunk.plan_xy_m.shape[1] == 25  # replans at 0, 0.2, ..., 4.8 s

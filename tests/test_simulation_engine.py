@@ -3,7 +3,7 @@ and SUMO's collision detection against the metric code."""
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +53,8 @@ def make_planner(kind: str):
 
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, mode, **kw)))  # type: ignore[arg-type]
+    config = replace(kw.pop("config", None) or ClosedLoopConfig(), mode=mode, **kw)  # type: ignore[arg-type]
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, config)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))
 
 
@@ -273,7 +274,12 @@ def test_configuration_errors_are_clear() -> None:
     with pytest.raises(ValueError, match="closed-loop-log, closed-loop-reactive"):
         ClosedLoopConfig(mode="open-loop")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="replan_s"):
-        PlannerSpec.of("sf", replan_s=0.0)
+        ClosedLoopConfig(planner_replan_s={"sf": 0.0})
+    with pytest.raises(ValueError, match="--workers must be >= 0"):
+        ClosedLoopConfig(workers=-1)
+    assert ClosedLoopConfig(sumo_gui=True).sumo_backend == "traci"
+    own = ClosedLoopConfig(replan_s=0.5, planner_replan_s={"slow": 2.0})
+    assert own.for_planner("slow").replan_s == 2.0 and own.for_planner("sf") is own
     with pytest.raises(ValueError, match="replan_s"):
         ClosedLoopConfig(replan_s=6.0)
     with pytest.raises(TypeError, match="planner_spec"):

@@ -11,7 +11,7 @@ import pytest
 from highd_samples import sample_recording
 
 from letspi.constants import N_FUTURE
-from letspi.evaluation.closed_loop import ClosedLoopSettings, ClosedLoopSetupError, scripted_for
+from letspi.evaluation.closed_loop import ClosedLoopSetupError, mode_settings, scripted_for
 from letspi.highd.events import EVENTS_COLUMNS, write_events
 from letspi.highd.io import read_recording, write_recording
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -112,19 +112,19 @@ def test_scripted_for_refuses_a_directory_of_another_dataset(tmp_path: Path) -> 
 def test_hybrid_keys_hold_the_driver_model_the_hand_over_rule_and_the_scripted_mask() -> None:
     mask = np.zeros((3, 8), dtype=bool)
     mask[1, 2] = True
-    hybrid = ClosedLoopSettings("closed-loop-hybrid").mode_settings(mask)
+    hybrid = mode_settings(ClosedLoopConfig("closed-loop-hybrid"), mask)
     assert hybrid["driver"]["decel_mps2"] == 3.0
     assert hybrid["handover"] == {"lanes": 0, "behind_m": 0.0, "follow_log_speed": True}
     assert hybrid["scripted"]["n"] == 1
     other = mask.copy()
     other[1, 2], other[2, 2] = False, True
-    assert ClosedLoopSettings("closed-loop-hybrid").mode_settings(other)["scripted"] != hybrid["scripted"]
-    assert ClosedLoopSettings("closed-loop-hybrid").mode_settings(None)["scripted"] == {"n": 0, "digest": "none"}
-    wider = ClosedLoopSettings("closed-loop-hybrid", handover=HandoverConfig(lanes=1)).mode_settings(mask)
+    assert mode_settings(ClosedLoopConfig("closed-loop-hybrid"), other)["scripted"] != hybrid["scripted"]
+    assert mode_settings(ClosedLoopConfig("closed-loop-hybrid"), None)["scripted"] == {"n": 0, "digest": "none"}
+    wider = mode_settings(ClosedLoopConfig("closed-loop-hybrid", handover=HandoverConfig(lanes=1)), mask)
     assert wider["handover"]["lanes"] == 1
-    reactive = ClosedLoopSettings("closed-loop-reactive").mode_settings(mask)
+    reactive = mode_settings(ClosedLoopConfig("closed-loop-reactive"), mask)
     assert "driver" in reactive and "handover" not in reactive and "scripted" not in reactive
-    log = ClosedLoopSettings("closed-loop-log").mode_settings(mask)
+    log = mode_settings(ClosedLoopConfig("closed-loop-log"), mask)
     assert "driver" not in log and "handover" not in log
 
 

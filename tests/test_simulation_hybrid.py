@@ -29,7 +29,10 @@ FUT = slice(T0_INDEX + 1, N_TOTAL)
 
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, mode, **kw)))  # type: ignore[arg-type]
+    scripted = kw.pop("scripted_nbr", None)
+    config = replace(kw.pop("config", None) or ClosedLoopConfig(), mode=mode, **kw)  # type: ignore[arg-type]
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, config,  # type: ignore[arg-type]
+                                                        scripted_nbr=scripted)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))
 
 
@@ -239,8 +242,8 @@ class _EveryOtherScenario:
 def test_the_replanning_step_is_a_separate_object_that_plans_for_the_scenarios_due() -> None:
     batch = concat_batches([straight_road_scenario(scenario_id=f"s{i}") for i in range(2)])
     with SumoSession(ClosedLoopConfig()) as session:
-        ch = simulate_group(session, RecordingPlanner(), batch, ClosedLoopConfig(), replan_every=25,
-                            future="none", replanner=_EveryOtherScenario(batch))
+        ch = simulate_group(session, RecordingPlanner(), batch, ClosedLoopConfig(), future="none",
+                            replanner=_EveryOtherScenario(batch))
     assert ch.replan_step.tolist() == [0, 25]
     v = ch.ego_vxy_mps[:, :, 0]
     np.testing.assert_allclose(v[0], 30.0, atol=1e-6)  # scenario 0 follows its t = 0 plan to the end

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +43,8 @@ RUN_SCRIPT = textwrap.dedent(
 
     if __name__ == "__main__":
         batch = load_scenarios(Path(sys.argv[1]))
-        frame = run_closed_loop_to_dir(PlannerSpec.of("idm"), batch, Path(sys.argv[2]), "closed-loop-reactive",
-                                       workers=int(sys.argv[3]), config=ClosedLoopConfig(chunk_size=4))
+        config = ClosedLoopConfig(mode="closed-loop-reactive", workers=int(sys.argv[3]), chunk_size=4)
+        frame = run_closed_loop_to_dir(PlannerSpec.of("idm"), batch, Path(sys.argv[2]), config)
         print("rows", len(frame))
     """
 )
@@ -57,9 +58,9 @@ def traffic(tmp_path_factory: pytest.TempPathFactory) -> ScenarioBatch:
 @pytest.mark.slow  # over ~10 s on a loaded 2-core machine (notes/reliability.md)
 def test_workers_give_the_in_process_result_each_scenario_once(traffic: ScenarioBatch) -> None:
     sub = traffic.take(np.arange(8))
-    local = ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("idm"), sub, "closed-loop-reactive",
-                                                        config=SMALL_CHUNKS)))
-    chunks = list(run_closed_loop(PlannerSpec.of("idm"), sub, "closed-loop-reactive", workers=2, config=SMALL_CHUNKS))
+    reactive = replace(SMALL_CHUNKS, mode="closed-loop-reactive")
+    local = ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("idm"), sub, reactive)))
+    chunks = list(run_closed_loop(PlannerSpec.of("idm"), sub, replace(reactive, workers=2)))
     assert len(chunks) == 2 and all(len(c) == 4 for c in chunks)
     remote = ClosedLoopChunk.concat(chunks)
     assert sorted(remote.indices.tolist()) == list(range(8))
@@ -71,23 +72,23 @@ def test_workers_give_the_in_process_result_each_scenario_once(traffic: Scenario
 
 def test_a_failing_planner_in_a_worker_ends_the_run_with_its_traceback(traffic: ScenarioBatch) -> None:
     with pytest.raises(ClosedLoopWorkerError, match="planner bug for the test"):
-        list(run_closed_loop(as_built(FailingPlanner()), traffic.take(np.arange(4)), workers=1))
+        list(run_closed_loop(as_built(FailingPlanner()), traffic.take(np.arange(4)), ClosedLoopConfig(workers=1)))
 
 
 def test_store_resumes_and_refuses_another_run(tmp_path: Path, traffic: ScenarioBatch) -> None:
     sub = traffic.take(np.arange(8))
     out = tmp_path / "run"
-    first = run_closed_loop_to_dir(PlannerSpec.of("cv"), sub.take(np.arange(8)), out, config=SMALL_CHUNKS)
+    first = run_closed_loop_to_dir(PlannerSpec.of("cv"), sub.take(np.arange(8)), out, SMALL_CHUNKS)
     assert len(first) == 8 and first["scenario_id"].is_unique
     assert {"collision", "sumo_collision", "ade_m", "inference_s", "cpu_s"} <= set(first.columns)
     parts = sorted(p.name for p in out.iterdir())
-    again = run_closed_loop_to_dir(PlannerSpec.of("cv"), sub, out, config=SMALL_CHUNKS)
+    again = run_closed_loop_to_dir(PlannerSpec.of("cv"), sub, out, SMALL_CHUNKS)
     assert sorted(p.name for p in out.iterdir()) == parts  # nothing simulated twice
     assert again["scenario_id"].tolist() == first["scenario_id"].tolist()
     traj = ClosedLoopStore.for_run(out, "cv", "closed-loop-log", 1.0, sub).load_chunks()
     assert traj.ego_xy_m.shape == (8, 125, 2) and traj.plan_xy_m.shape == (8, 5, 125, 2)
     with pytest.raises(ClosedLoopStoreError, match="another closed-loop run"):
-        run_closed_loop_to_dir(PlannerSpec.of("cv"), sub, out, "closed-loop-reactive", config=SMALL_CHUNKS)
+        run_closed_loop_to_dir(PlannerSpec.of("cv"), sub, out, replace(SMALL_CHUNKS, mode="closed-loop-reactive"))
 
 
 def _children(pid: int) -> list[int]:
@@ -161,8 +162,8 @@ def test_a_killed_run_resumes_without_duplicates(tmp_path: Path, traffic: Scenar
     before = store.load_frame()
     assert 8 <= len(before) < len(traffic) and before["scenario_id"].is_unique
     seen: list[int] = []
-    frame = run_closed_loop_to_dir(PlannerSpec.of("idm"), traffic, out, "closed-loop-reactive",
-                                   config=ClosedLoopConfig(chunk_size=4), progress=seen.append)
+    frame = run_closed_loop_to_dir(PlannerSpec.of("idm"), traffic, out,
+                                   ClosedLoopConfig(mode="closed-loop-reactive", chunk_size=4), progress=seen.append)
     assert seen[0] == len(before)  # found on disk, not simulated again
     assert sum(seen) == len(traffic)
     assert len(frame) == len(traffic) and frame["scenario_id"].is_unique

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -36,15 +37,13 @@ def test_ray_actors_simulate_a_small_batch_like_the_local_engine(
     local_ray: Any, tmp_path_factory: pytest.TempPathFactory
 ) -> None:
     batch: ScenarioBatch = generated_batch(tmp_path_factory.mktemp("cl_ray"), n=8, seed=9)
-    cfg = ClosedLoopConfig(chunk_size=4)
-    chunks = list(run_closed_loop(PlannerSpec.of("idm"), batch, "closed-loop-reactive", workers=2, config=cfg,
-                                  ray_address="local"))
+    cfg = ClosedLoopConfig(mode="closed-loop-reactive", chunk_size=4)
+    chunks = list(run_closed_loop(PlannerSpec.of("idm"), batch, replace(cfg, workers=2, ray_address="local")))
     assert local_ray.is_initialized()
     assert len(chunks) == 2
     on_ray = ClosedLoopChunk.concat(chunks)
     assert sorted(on_ray.indices.tolist()) == list(range(8))
-    local = ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("idm"), batch, "closed-loop-reactive",
-                                                        config=cfg)))
+    local = ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("idm"), batch, cfg)))
     a, b = local.take(np.argsort(local.indices)), on_ray.take(np.argsort(on_ray.indices))
     np.testing.assert_allclose(a.ego_xy_m, b.ego_xy_m, atol=1e-9)
     np.testing.assert_array_equal(a.nbr_valid, b.nbr_valid)

@@ -11,7 +11,7 @@ from test_simulation_support import BrakePlanner, as_built
 from letspi.constants import T0_INDEX
 from letspi.metrics.compute import compute_metrics
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
-from letspi.simulation import ClosedLoopChunk, chunk_metrics, run_closed_loop
+from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, chunk_metrics, run_closed_loop
 from letspi.viz.closed_loop import LoopOutcome, plot_closed_loop_panel
 
 pytestmark = pytest.mark.sumo
@@ -25,7 +25,8 @@ def test_panel_shows_open_and_closed_loop_outcomes(tmp_path: Path) -> None:
     planner = BrakePlanner(8.0)
     plan = planner.plan(batch)
     opened = compute_metrics(batch, plan.xy_m, plan.vxy_mps)
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, "closed-loop-reactive")))
+    reactive = ClosedLoopConfig(mode="closed-loop-reactive")  # type: ignore[arg-type]
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, reactive)))  # type: ignore[arg-type]
     closed = chunk_metrics(batch, chunk)
     assert opened.collision[0] and not closed.collision[0]
     fut = slice(T0_INDEX + 1, None)

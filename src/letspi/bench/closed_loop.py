@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,6 @@ from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
-from letspi.simulation.run import effective_config
 from letspi.simulation.worker import ChunkWorker, make_tasks
 from letspi.trafficgen.generate import generate_highd
 
@@ -46,19 +46,18 @@ def bench_scenarios(scenarios: Path | None, n: int, minutes: float, seed: int) -
     return batch.take(np.arange(n))
 
 
-def _timed_run(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, workers: int,
-               config: ClosedLoopConfig) -> tuple[float, ClosedLoopChunk]:
+def _timed_run(spec: PlannerSpec, batch: ScenarioBatch, config: ClosedLoopConfig) -> tuple[float, ClosedLoopChunk]:
     t0 = time.perf_counter()
-    chunks = list(run_closed_loop(spec, batch, mode, replan_s=replan_s, workers=workers, config=config))
+    chunks = list(run_closed_loop(spec, batch, config))
     return time.perf_counter() - t0, ClosedLoopChunk.concat(chunks)
 
 
-def _in_process(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, config: ClosedLoopConfig,
+def _in_process(spec: PlannerSpec, batch: ScenarioBatch, config: ClosedLoopConfig,
                 out: dict[str, float | str]) -> ClosedLoopChunk:
     """In-process throughput, with the worker object itself to read SUMO's load and build times (into
     ``out``); returns the simulated chunk."""
     n = len(batch)
-    cfg = effective_config(spec, mode, replan_s, config)
+    cfg = config.for_planner(spec.name)
     worker = ChunkWorker(spec, cfg)
     try:
         tasks = make_tasks(batch, cfg)
@@ -78,12 +77,12 @@ def _in_process(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: fl
     return local
 
 
-def _workers(spec: PlannerSpec, batch: ScenarioBatch, mode: str, replan_s: float, workers: int,
-             config: ClosedLoopConfig, out: dict[str, float | str]) -> None:
+def _workers(spec: PlannerSpec, batch: ScenarioBatch, workers: int, config: ClosedLoopConfig,
+             out: dict[str, float | str]) -> None:
     """Throughput of 1 and of ``workers`` worker processes, and the speed-up (into ``out``)."""
     n = len(batch)
-    wall_1, one = _timed_run(spec, batch, mode, replan_s, 1, config)
-    wall_n, many = _timed_run(spec, batch, mode, replan_s, workers, config)
+    wall_1, one = _timed_run(spec, batch, replace(config, workers=1))
+    wall_n, many = _timed_run(spec, batch, replace(config, workers=workers))
     out["workers_1_wall_s"] = wall_1
     out["workers_1_scenarios_per_s"] = n / wall_1
     out["workers_1_busy_scenarios_per_s"] = n / float(one.plan_s.sum() + one.sim_s.sum())
@@ -113,24 +112,24 @@ def bench_closed_loop(
         raise ValueError("workers must be >= 2 (the speed-up is measured against 1 worker)")
     batch = bench_scenarios(scenarios, n, minutes, seed)
     spec = PlannerSpec.of(planner, options)
-    config = ClosedLoopConfig(chunk_size=chunk_size)
+    config = ClosedLoopConfig(mode=mode, replan_s=replan_s, chunk_size=chunk_size)  # type: ignore[arg-type]
     out: dict[str, float | str] = {
         "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),
         "chunk_size": float(chunk_size), "cpu_count": float(os.cpu_count() or 1),
         "load_avg_1min_start": os.getloadavg()[0],
     }  # fmt: skip
 
-    local = _in_process(spec, batch, mode, replan_s, config, out)
+    local = _in_process(spec, batch, config, out)
 
     # one SUMO load and a batch-of-one planner call per scenario, on a subset
     m = min(n_reload, n)
     sub = batch.take(np.arange(m))
-    wall_lock, _ = _timed_run(spec, sub, mode, replan_s, 0, config)
-    wall_one, _ = _timed_run(spec, sub, mode, replan_s, 0, ClosedLoopConfig(chunk_size=1))
+    wall_lock, _ = _timed_run(spec, sub, config)
+    wall_one, _ = _timed_run(spec, sub, replace(config, chunk_size=1))
     out["reload_per_scenario_scenarios_per_s"] = m / wall_one
     out["lockstep_speedup_vs_reload_per_scenario"] = wall_one / wall_lock
 
-    _workers(spec, batch, mode, replan_s, workers, config, out)
+    _workers(spec, batch, workers, config, out)
 
     metrics = chunk_metrics(batch, local)
     out["collisions_metric"] = float(metrics.collision.sum())

@@ -26,7 +26,7 @@ from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner
 from letspi.benchmark.data import SuiteData, prepare_data
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
 from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
-from letspi.evaluation.closed_loop import ClosedLoopSettings, evaluate_closed_loop
+from letspi.evaluation.closed_loop import evaluate_closed_loop
 from letspi.evaluation.harness import ProgressFactory
 from letspi.evaluation.harness import evaluate as evaluate_open_loop
 from letspi.fsutil import atomic_write_text
@@ -35,6 +35,7 @@ from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import load_scenarios
+from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.schedule import DualRateConfig
 from letspi.viz.report import write_report
 
@@ -55,10 +56,10 @@ class SuiteRun:
     timing: dict[str, float]
 
 
-def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopSettings:
+def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
     assert mode.replan_s is not None and mode.llm_period_s is not None
-    return ClosedLoopSettings(mode=mode.mode, replan_s=mode.replan_s, workers=workers,
-                              dual_rate=DualRateConfig(mode.llm_period_s, mode.llm_latency_s))
+    return ClosedLoopConfig(mode=mode.mode, replan_s=mode.replan_s, workers=workers,  # type: ignore[arg-type]
+                            dual_rate=DualRateConfig(mode.llm_period_s, mode.llm_latency_s))
 
 
 def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: PlannerOptions | None = None,

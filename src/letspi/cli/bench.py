@@ -29,9 +29,9 @@ from letspi.bench.retrieval import bench_phases, bench_retrieval
 from letspi.bench.robustness import PLAIN_PLANNERS, bench_robustness
 from letspi.cli.common import console, user_errors
 from letspi.cli.options import planner_options
-from letspi.evaluation.closed_loop import ClosedLoopSettings
 from letspi.planners.llm import DEFAULT_FAST_LLM, DEFAULT_LLM
 from letspi.planners.options import PlannerOptions
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
 app = typer.Typer(help="Benchmarks: print measured speed numbers.",
@@ -206,12 +206,13 @@ def closed_loop_cmd(
     n: Annotated[int | None, typer.Option(
         help="Scenarios per measurement (default 256; LLM planners: 8, each simulated alone).")] = None,
     planner: Annotated[str, typer.Option(help="Planner kind (`letspi planners` lists them).")] = "sf",
-    mode: Annotated[str, typer.Option(
-        help="closed-loop-log, closed-loop-reactive or closed-loop-hybrid (no scripted events).")] = "closed-loop-log",
+    mode: Annotated[EvaluationMode, typer.Option(
+        help="closed-loop-log, closed-loop-reactive or closed-loop-hybrid (no scripted events).")] = (
+        EvaluationMode.LOG),
     replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
     workers: Annotated[int, typer.Option(help="Worker processes compared with 1 worker (>= 2).")] = 2,
     chunk_size: Annotated[int, typer.Option(
-        help="Scenarios simulated together in one SUMO network.")] = ClosedLoopSettings.chunk_size,
+        help="Scenarios simulated together in one SUMO network.")] = ClosedLoopConfig.chunk_size,
     minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
     seed: int = 0,
     llm_period_s: Annotated[float, typer.Option(

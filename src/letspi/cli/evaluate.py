@@ -22,7 +22,6 @@ from letspi.cli.common import (
 )
 from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import (
-    ClosedLoopSettings,
     ScriptedNeighbours,
     evaluate_closed_loop,
     events_directory,
@@ -30,7 +29,6 @@ from letspi.evaluation.closed_loop import (
     scripted_for,
 )
 from letspi.evaluation.harness import (
-    EVALUATION_MODES,
     ProgressCallback,
     ProgressFactory,
     read_summary,
@@ -43,7 +41,7 @@ from letspi.metrics.aggregate import AggValue
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import HandoverConfig
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode, HandoverConfig
 from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
 PlannerOpt = Annotated[list[str], typer.Option(help=planner_table().planner_help())]
@@ -55,7 +53,7 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
     return load_scenarios(scenarios, None if limit is None else np.arange(min(limit, n_total)))
 
 
-ModeOpt = Annotated[str, typer.Option(
+ModeOpt = Annotated[EvaluationMode, typer.Option(
     help="open-loop (the paper's protocol: one plan at t = 0, neighbours replay the log), closed-loop-log (the "
          "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log), "
          "closed-loop-reactive (every neighbour is driven by SUMO's IDM from t = 0 and reacts to the ego; the "
@@ -102,16 +100,14 @@ ReferenceOpt = Annotated[str | None, typer.Option(
          "p. Default: sf when the directory has it, else the first --planner.")]
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
                                                 "configuration or planner configuration is refused).")]
-def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopSettings.chunk_size,
+def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, labels: list[str], workers: int,
+                         ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopConfig.chunk_size,
                          concurrency: int | None = None,
                          handover_lanes: int | None = None, llm_period_s: float | None = None,
-                         llm_latency_s: float | None = None) -> ClosedLoopSettings | None:
-    """The closed-loop settings of the options (None in open loop, where they are refused).
-    ``ray``: None (no Ray), ``local`` or a cluster address."""
-    if mode not in EVALUATION_MODES:
-        raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
-    if mode == "open-loop":
+                         llm_latency_s: float | None = None) -> ClosedLoopConfig | None:
+    """The closed-loop settings of the options (None in open loop, where they are refused); the
+    ``ClosedLoopConfig`` checks its values. ``ray``: None (no Ray), ``local`` or a cluster address."""
+    if not mode.closed_loop:
         given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
                                        ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
                                        ("--llm-period-s", llm_period_s is not None),
@@ -124,19 +120,17 @@ def closed_loop_settings(mode: str, replan_s: list[str] | None, labels: list[str
         raise ValueError("--concurrency applies to open loop; in closed loop scenarios run in parallel with --workers "
                          "(one planner per worker: for LLM planners, about one per model-server slot)")
     default, own = parse_replan_options(replan_s, labels)
-    if chunk_size < 1:
-        raise ValueError(f"--chunk-size must be >= 1, got {chunk_size}")
-    if handover_lanes is not None and mode != "closed-loop-hybrid":
+    if handover_lanes is not None and mode is not EvaluationMode.HYBRID:
         raise ValueError(f"--handover-lanes applies to --mode closed-loop-hybrid only, not {mode}")
     handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
     dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s)
-    return ClosedLoopSettings(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                              sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate)
+    return ClosedLoopConfig(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
+                            sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate)
 
 
-def closed_loop_line(closed: ClosedLoopSettings, planners: list[BuiltPlanner]) -> str:
+def closed_loop_line(closed: ClosedLoopConfig, planners: list[BuiltPlanner]) -> str:
     """The mode, each planner's replanning period and, with LLM planners, when they ask their model."""
-    line = f"Mode: {closed.mode}, replanning every " + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})"
+    line = f"Mode: {closed.mode.value}, replanning every " + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})"
                                                                  for p in planners)
     if any(p.dual_rate for p in planners):
         dual = closed.dual_rate
@@ -145,11 +139,11 @@ def closed_loop_line(closed: ClosedLoopSettings, planners: list[BuiltPlanner]) -
     return line
 
 
-def scripted_neighbours_of(mode: str, events: str | None, scenarios: Path,
+def scripted_neighbours_of(mode: EvaluationMode, events: str | None, scenarios: Path,
                            batch: ScenarioBatch) -> ScriptedNeighbours | None:
     """closed-loop-hybrid: the scripted neighbours (``--events`` DIR, ``none``, or the scenario file's source
     directory); None in the other modes, where ``--events`` is refused."""
-    if mode != "closed-loop-hybrid":
+    if mode is not EvaluationMode.HYBRID:
         if events is not None:
             raise ValueError(f"--events applies to --mode closed-loop-hybrid only, not {mode}")
         return None
@@ -167,7 +161,7 @@ def progress_factory(bar: Progress) -> ProgressFactory:
     return factory
 
 
-def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path, closed: ClosedLoopSettings | None,
+def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path, closed: ClosedLoopConfig | None,
                   scenarios: Path, scripted: ScriptedNeighbours | None,
                   concurrency: int | None, reference: str | None = None) -> dict[str, dict[str, AggValue]]:
     """Open or closed loop, with progress bars: the results per planner name."""
@@ -189,13 +183,13 @@ def evaluate(
     options: PlannerOptions,
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
     concurrency: ConcurrencyOpt = None,
-    mode: ModeOpt = "open-loop",
+    mode: ModeOpt = EvaluationMode.OPEN_LOOP,
     replan_s: ReplanOpt = None,
-    workers: WorkersOpt = ClosedLoopSettings.workers,
+    workers: WorkersOpt = ClosedLoopConfig.workers,
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
-    sumo_gui: SumoGuiOpt = ClosedLoopSettings.sumo_gui,
-    chunk_size: ChunkSizeOpt = ClosedLoopSettings.chunk_size,
+    sumo_gui: SumoGuiOpt = ClosedLoopConfig.sumo_gui,
+    chunk_size: ChunkSizeOpt = ClosedLoopConfig.chunk_size,
     events: EventsOpt = None,
     handover_lanes: HandoverLanesOpt = None,
     llm_period_s: LlmPeriodOpt = None,

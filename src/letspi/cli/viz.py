@@ -11,11 +11,11 @@ from letspi.assembly.planners import build_planners
 from letspi.cli.common import console, user_errors
 from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import events_directory, scripted_for
-from letspi.evaluation.harness import EVALUATION_MODES, planner_dir_name
+from letspi.evaluation.harness import planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import load_scenarios
-from letspi.simulation.config import validate_replan_s
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.viz.compare import write_comparison
 from letspi.viz.figure import plot_scenario
 from letspi.viz.llm_panel import load_iterations, panel_record
@@ -33,11 +33,11 @@ def plot(
                                                             "several (default: sf).")] = None,
     iterations: Annotated[Path | None, typer.Option(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
-    mode: Annotated[str, typer.Option(
+    mode: Annotated[EvaluationMode, typer.Option(
         help="open-loop (default: the diagrams above) or closed-loop-log / -reactive / -hybrid (actors of "
              "scripted events from the scenario file's source directory, if it exists): simulate the "
              "scenario in SUMO and draw the closed-loop panel (open-loop plan above, every replan and the "
-             "simulated paths below; one PNG per planner, OUT-LABEL.png when several).")] = "open-loop",
+             "simulated paths below; one PNG per planner, OUT-LABEL.png when several).")] = EvaluationMode.OPEN_LOOP,
     replan_s: Annotated[float, typer.Option("--replan-s", help="Closed loop: replanning period [s].")] = 1.0,
 ) -> None:
     """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
@@ -46,17 +46,15 @@ def plot(
     with user_errors():
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
-        if mode not in EVALUATION_MODES:
-            raise ValueError(f"--mode {mode!r} is not a mode; available: {', '.join(EVALUATION_MODES)}")
-        validate_replan_s(replan_s)
+        closed = ClosedLoopConfig(mode=mode, replan_s=replan_s) if mode.closed_loop else None
         batch = load_scenarios(scenarios, [index])
         built = build_planners(list(planner) if planner else ["sf"], options)
-        if mode != "open-loop":
+        if closed is not None:
             scripted = (scripted_for(batch, events_directory(scenarios), required=False).mask
-                        if mode == "closed-loop-hybrid" else None)
+                        if mode is EvaluationMode.HYBRID else None)
             for b in built:
                 target = out if len(built) == 1 else out.with_name(f"{out.stem}-{planner_dir_name(b.name)}{out.suffix}")
-                fig = simulate_panel(batch, b, mode, replan_s, scripted_nbr=scripted)
+                fig = simulate_panel(batch, b, closed, scripted_nbr=scripted)
                 target.parent.mkdir(parents=True, exist_ok=True)
                 fig.savefig(target, dpi=110)
                 console.print(f"scenario {batch.scenario_id[0]}, {b.name}, {mode} -> {target}")

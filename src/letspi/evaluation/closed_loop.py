@@ -32,7 +32,7 @@ import shutil
 import sys
 from collections.abc import Callable, Mapping
 from contextlib import closing
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -57,18 +57,9 @@ from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation import (
-    CLOSED_LOOP_MODES,
-    ClosedLoopChunk,
-    ClosedLoopConfig,
-    DriverModelConfig,
-    PlannerSpec,
-    chunk_metrics,
-    run_closed_loop,
-)
-from letspi.simulation.config import DEFAULT_REPLAN_S, ClosedLoopMode, HandoverConfig, validate_replan_s
+from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
+from letspi.simulation.config import DEFAULT_REPLAN_S, EvaluationMode
 from letspi.simulation.handover import hybrid_settings
-from letspi.simulation.schedule import DualRateConfig
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import chunk_frame
 from letspi.trafficgen.binaries import sumo_home
@@ -85,81 +76,28 @@ class ClosedLoopSetupError(ValueError):
     """A closed-loop option cannot be honoured here (Ray or sumo-gui missing, bad period)."""
 
 
-@dataclass(frozen=True)
-class ClosedLoopSettings:
-    """How ``letspi evaluate`` runs a closed-loop mode.
+def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = None) -> dict[str, Any]:
+    """What of the simulation changes answers (``run.json``): road and sublane model; the driver model
+    where SUMO drives neighbours (log-replayed neighbours have none); in ``closed-loop-hybrid`` the
+    hand-over rule and the scripted neighbours (count and digest of ``scripted_nbr``, the run's (B, N)
+    mask). Not the workers, the chunk size or the GUI: they change no answer."""
+    out: dict[str, Any] = {"lateral_resolution_m": config.lateral_resolution_m,
+                           "road_behind_m": config.road_behind_m, "road_ahead_m": config.road_ahead_m}
+    if config.mode.has_drivers:
+        out["driver"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(config.driver).items()}
+    if config.mode is EvaluationMode.HYBRID:
+        out.update(hybrid_settings(config, scripted_nbr))
+    return out
 
-    Attributes:
-        mode: ``closed-loop-log``, ``closed-loop-reactive`` or ``closed-loop-hybrid``.
-        replan_s: replanning period of every planner [s] (1.0; 5.0 plans once).
-        planner_replan_s: label -> its own period [s] (e.g. a slower period for an LLM planner).
-        workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
-        ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
-        sumo_gui: watch the simulation in ``sumo-gui`` (TraCI; slow: for debugging a few scenarios).
-        chunk_size: scenarios simulated together in one SUMO network (not part of any key: measured,
-            chunk sizes 3 and 32 give the same plans to 1e-12 m).
-        driver: driver model of SUMO-driven neighbours (part of the key in the reactive and hybrid modes).
-        handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO (part of its key).
-        dual_rate: when the LLM planners ask their model and when the answers take effect (part of
-            their keys; other planners ignore it).
-    """
 
-    mode: str
-    replan_s: float = DEFAULT_REPLAN_S
-    planner_replan_s: Mapping[str, float] = field(default_factory=dict)
-    workers: int = 0
-    ray_address: str | None = None
-    sumo_gui: bool = False
-    chunk_size: int = 32
-    driver: DriverModelConfig = field(default_factory=DriverModelConfig)
-    handover: HandoverConfig = field(default_factory=HandoverConfig)
-    dual_rate: DualRateConfig = field(default_factory=DualRateConfig)
-
-    def __post_init__(self) -> None:
-        if self.mode not in CLOSED_LOOP_MODES:
-            raise ClosedLoopSetupError(f"unknown closed-loop mode {self.mode!r}; available: "
-                                       f"{', '.join(CLOSED_LOOP_MODES)}")
-        for label, period in [("--replan-s", self.replan_s), *self.planner_replan_s.items()]:
-            try:
-                validate_replan_s(period)
-            except ValueError as exc:
-                raise ClosedLoopSetupError(f"--replan-s {label}: {exc}") from None
-        if self.workers < 0:
-            raise ClosedLoopSetupError(f"--workers must be >= 0, got {self.workers}")
-
-    def engine_config(self) -> ClosedLoopConfig:
-        return ClosedLoopConfig(mode=self.mode, replan_s=self.replan_s, chunk_size=self.chunk_size,  # type: ignore[arg-type]
-                                sumo_backend="traci" if self.sumo_gui else "libsumo", sumo_gui=self.sumo_gui,
-                                driver=self.driver, handover=self.handover, dual_rate=self.dual_rate)
-
-    def replan_s_of(self, label: str) -> float:
-        """The replanning period of the planner labelled ``label`` [s]."""
-        return float(self.planner_replan_s.get(label, self.replan_s))
-
-    def mode_settings(self, scripted_nbr: np.ndarray | None = None) -> dict[str, Any]:
-        """What of the simulation changes answers (``run.json``): road and sublane model; the driver
-        model where SUMO drives neighbours (log-replayed neighbours have none); in
-        ``closed-loop-hybrid`` the hand-over rule and the scripted neighbours (count and digest of
-        ``scripted_nbr``, the run's (B, N) mask)."""
-        cfg = self.engine_config()
-        out: dict[str, Any] = {"lateral_resolution_m": cfg.lateral_resolution_m, "road_behind_m": cfg.road_behind_m,
-                               "road_ahead_m": cfg.road_ahead_m}
-        if cfg.mode.has_drivers:
-            out["driver"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.driver).items()}
-        if cfg.mode is ClosedLoopMode.HYBRID:
-            out.update(hybrid_settings(cfg, scripted_nbr))
-        return out
-
-    def planner_evaluation(self, label: str, dual_rate: bool = False) -> dict[str, Any]:
-        """What joins the planner's configuration key: the mode and its replanning period; for a planner
-        run dual-rate (the LLM planners) also its LLM period and fixed latency (or ``measured``)."""
-        out: dict[str, Any] = {"mode": self.mode, "replan_s": round(self.replan_s_of(label), 6)}
-        if dual_rate:
-            out["dual_rate"] = self.dual_rate.identity()
-        return out
-
-    def uses_processes(self) -> bool:
-        return self.workers > 0 or self.ray_address is not None
+def planner_evaluation(config: ClosedLoopConfig, label: str, dual_rate: bool = False) -> dict[str, Any]:
+    """What joins the configuration key of the planner labelled ``label``: the mode and its replanning
+    period; for a planner run dual-rate (the LLM planners) also its LLM period and fixed latency (or
+    ``measured``)."""
+    out: dict[str, Any] = {"mode": config.mode.value, "replan_s": round(config.replan_s_of(label), 6)}
+    if dual_rate:
+        out["dual_rate"] = config.dual_rate.identity()
+    return out
 
 
 def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[float, dict[str, float]]:
@@ -246,7 +184,7 @@ def scripted_for(batch: ScenarioBatch, events_dir: Path | None, *, required: boo
     return ScriptedNeighbours(scripted_neighbours(batch, events), Path(events_dir), matched)
 
 
-def check_setup(settings: ClosedLoopSettings) -> None:
+def check_setup(settings: ClosedLoopConfig) -> None:
     """Fail early, in one line, when Ray or sumo-gui is asked for but not installed."""
     if settings.ray_address is not None and importlib.util.find_spec("ray") is None:
         raise ClosedLoopSetupError("--ray needs the optional extra 'ray': pip install 'letspi[ray]'")
@@ -337,11 +275,11 @@ def closed_loop_rows(out_dir: Path, planner_name: str) -> dict[str, ClosedLoopRo
 # ------------------------------------------------------------------------------------------------
 
 
-def planner_spec(built: BuiltPlanner, settings: ClosedLoopSettings) -> PlannerSpecLike:
+def planner_spec(built: BuiltPlanner, settings: ClosedLoopConfig) -> PlannerSpecLike:
     """In this process the planner the CLI built (its model is loaded once); in workers or on Ray its
     configuration, from which every worker builds its own."""
     if settings.uses_processes():
-        return PlannerSpec(built.config, built.name, settings.replan_s_of(built.name))
+        return PlannerSpec(built.config, built.name)
     return built
 
 
@@ -350,14 +288,14 @@ class ClosedLoopRunner:
     """``harness.PlannerRunner`` of the closed-loop modes (see the module docstring). ``scripted_nbr``:
     (B, N) bool over the evaluated batch, the neighbours that keep their log in ``closed-loop-hybrid``."""
 
-    settings: ClosedLoopSettings
+    settings: ClosedLoopConfig
     scripted_nbr: np.ndarray | None = None
 
     def __call__(self, built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, out_dir: Path,
                  config: MetricsConfig, progress: ProgressCallback | None,
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
-        writer = PartWriter(out_dir, built, settings.planner_evaluation(built.name, built.dual_rate), before_write)
+        writer = PartWriter(out_dir, built, planner_evaluation(settings, built.name, built.dual_rate), before_write)
         done = writer.done()
         todo = np.flatnonzero([d not in done for d in digests])
         if progress is not None and len(batch) - len(todo):
@@ -366,10 +304,7 @@ class ClosedLoopRunner:
             vehicles = vehicle_keys(batch)
             try:
                 # closing: stopped mid-chunk (Ctrl-C), the workers stop now, not when the generator is collected
-                with closing(run_closed_loop(planner_spec(built, settings), batch, settings.mode,
-                                             replan_s=settings.replan_s_of(built.name), workers=settings.workers,
-                                             config=settings.engine_config(), indices=todo,
-                                             ray_address=settings.ray_address,
+                with closing(run_closed_loop(planner_spec(built, settings), batch, settings, indices=todo,
                                              scripted_nbr=self.scripted_nbr)) as chunks:
                     for chunk in chunks:
                         metrics = chunk_metrics(batch, chunk, config)
@@ -390,7 +325,7 @@ def evaluate_closed_loop(
     planners: list[BuiltPlanner],
     batch: ScenarioBatch,
     out_dir: Path,
-    settings: ClosedLoopSettings,
+    settings: ClosedLoopConfig,
     *,
     scenarios_file: str = "",
     config: MetricsConfig | None = None,
@@ -406,9 +341,9 @@ def evaluate_closed_loop(
     unknown = sorted(set(settings.planner_replan_s) - {b.name for b in planners})
     if unknown:
         raise ClosedLoopSetupError(f"--replan-s for unknown planner label(s): {', '.join(unknown)}")
-    if settings.mode != ClosedLoopMode.HYBRID:
+    if settings.mode is not EvaluationMode.HYBRID:
         scripted_nbr = None
     return evaluate(planners, batch, Path(out_dir), scenarios_file=scenarios_file, config=config,
                     mode=settings.mode, progress_factory=progress_factory,
-                    mode_settings=settings.mode_settings(scripted_nbr),
+                    mode_settings=mode_settings(settings, scripted_nbr),
                     runner=ClosedLoopRunner(settings, scripted_nbr), reference=reference)

@@ -84,10 +84,9 @@ from letspi.planners.config import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import EvaluationMode
 
 RUN_FORMAT: Final = 2
-#: open loop (the paper's protocol, this module) and the closed-loop modes (``letspi.evaluation.closed_loop``)
-EVALUATION_MODES: Final = ("open-loop", "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid")
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
 #: prefix of the large per-scenario array columns of closed-loop parts (replan plans, simulated
 #: neighbours); read only with ``with_plans``
@@ -127,7 +126,7 @@ def planner_dir_name(name: str) -> str:
 
 
 def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, config: MetricsConfig,
-               mode: str, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
+               mode: EvaluationMode, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
     """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields.
 
     ``mode_settings``: what else of the mode changes answers (closed loop: the simulation; with SUMO-driven
@@ -136,7 +135,7 @@ def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, c
     """
     identity: dict[str, Any] = {
         "format": RUN_FORMAT,
-        "mode": mode,
+        "mode": EvaluationMode(mode).value,
         "dataset_digest": dataset_digest(digests),
         "metrics_config": config.recorded(),
     }
@@ -575,9 +574,9 @@ def summary_markdown(summary: dict[str, Any], names: Sequence[str] | None = None
     pairs = summary.get("paired")
     if isinstance(pairs, dict):
         pairs = {**pairs, "planners": {n: v for n, v in pairs.get("planners", {}).items() if n in chosen}}
-    mode = summary.get("run", {}).get("mode", "open-loop")
+    mode = summary.get("run", {}).get("mode", EvaluationMode.OPEN_LOOP.value)
     mode_line = (f"Mode: {mode} (per planner replanning period: per_scenario/*/config.json)\n\n"
-                 if mode != "open-loop" else "")
+                 if mode != EvaluationMode.OPEN_LOOP else "")
     return mode_line + render_markdown_table({n: planners[n] for n in chosen}, intervals=summary.get("intervals"),
                                              paired=pairs)
 
@@ -617,7 +616,7 @@ def evaluate(
     *,
     scenarios_file: str = "",
     config: MetricsConfig | None = None,
-    mode: str = "open-loop",
+    mode: EvaluationMode = EvaluationMode.OPEN_LOOP,
     progress_factory: ProgressFactory | None = None,
     concurrency: int | None = None,
     on_run: Callable[[str, RunStats], None] | None = None,
@@ -637,9 +636,8 @@ def evaluate(
     ``reference``: the planner label every other is compared with in metrics.json's "paired" (default:
     ``sf`` when the directory has it, else the first of ``planners``; ``choose_reference``).
     """
-    if mode not in EVALUATION_MODES:
-        raise ValueError(f"unknown evaluation mode {mode!r}; available: {', '.join(EVALUATION_MODES)}")
-    if mode != "open-loop" and runner is None:
+    mode = EvaluationMode(mode)
+    if mode.closed_loop and runner is None:
         raise ValueError(f"mode {mode!r} runs through letspi.evaluation.closed_loop.evaluate_closed_loop")
     config = config or MetricsConfig()
     out_dir = Path(out_dir)

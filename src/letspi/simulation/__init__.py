@@ -2,20 +2,20 @@
 
 Public API:
 
-* ``run_closed_loop(planner_spec, batch, mode, replan_s=..., workers=..., ray_address=...)``:
+* ``run_closed_loop(planner_spec, batch, config)``:
   an iterator of ``ClosedLoopChunk`` (simulated ego and neighbours, every plan, SUMO collisions);
 * ``chunk_metrics`` / ``scored_batch``: the open-loop metric code on the simulated trajectories;
 * ``run_closed_loop_to_dir`` / ``ClosedLoopStore``: resumable per-chunk output;
 * ``PlannerSpec`` / ``build_planner``: the picklable planner description workers build from;
-* ``ClosedLoopConfig``, ``ClosedLoopMode``, ``DriverModelConfig``, ``HandoverConfig``;
+* ``ClosedLoopConfig``, ``EvaluationMode``, ``DriverModelConfig``, ``HandoverConfig``;
 * ``Replanner`` / ``Replan`` / ``PeriodicReplanner``: the engine's replanning step (``letspi.simulation.replan``).
 """
 
 from letspi.simulation.config import (
     CLOSED_LOOP_MODES,
     ClosedLoopConfig,
-    ClosedLoopMode,
     DriverModelConfig,
+    EvaluationMode,
     HandoverConfig,
 )
 from letspi.simulation.pool import ClosedLoopWorkerError
@@ -29,11 +29,11 @@ __all__ = [
     "CLOSED_LOOP_MODES",
     "ClosedLoopChunk",
     "ClosedLoopConfig",
-    "ClosedLoopMode",
     "ClosedLoopStore",
     "ClosedLoopStoreError",
     "ClosedLoopWorkerError",
     "DriverModelConfig",
+    "EvaluationMode",
     "HandoverConfig",
     "PeriodicReplanner",
     "PlannerSpec",

@@ -18,12 +18,18 @@ Modes
   along, wherever they are. So a leader's recorded hard brake still happens, and a follower reacts
   to what the ego does instead of rear-ending it on the recorded path.
 
-Open loop (the paper's protocol) is not a mode of this package: it is the existing harness.
+Open loop (the paper's protocol) is the fourth ``EvaluationMode``, run by the harness
+(``letspi.evaluation.harness``), not by this package: ``ClosedLoopConfig`` refuses it.
+
+``ClosedLoopConfig`` is the one closed-loop settings type: ``letspi evaluate --mode closed-loop-*``
+builds it from the flags (and it validates them, once), the evaluation layer records what of it
+changes answers, and the engine reads the mode and each planner's replanning period from it alone.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Literal
 
@@ -31,18 +37,25 @@ from letspi.constants import DT_S, N_FUTURE
 from letspi.simulation.schedule import DualRateConfig
 
 
-class ClosedLoopMode(StrEnum):
+class EvaluationMode(StrEnum):
+    """How planners are evaluated: open loop (the paper's protocol) or one of the closed-loop modes above."""
+
+    OPEN_LOOP = "open-loop"
     LOG = "closed-loop-log"
     REACTIVE = "closed-loop-reactive"
     HYBRID = "closed-loop-hybrid"
 
     @property
+    def closed_loop(self) -> bool:
+        return self is not EvaluationMode.OPEN_LOOP
+
+    @property
     def has_drivers(self) -> bool:
         """Whether some neighbours are driven by SUMO's driver models (the driver model changes answers)."""
-        return self is not ClosedLoopMode.LOG
+        return self in (EvaluationMode.REACTIVE, EvaluationMode.HYBRID)
 
 
-CLOSED_LOOP_MODES: tuple[str, ...] = tuple(m.value for m in ClosedLoopMode)
+CLOSED_LOOP_MODES: tuple[EvaluationMode, ...] = tuple(m for m in EvaluationMode if m.closed_loop)
 DEFAULT_REPLAN_S = 1.0
 #: Plans further than this beyond a road edge are not followed (the ego keeps its velocity instead).
 OFF_ROAD_MARGIN_M = 15.0
@@ -126,16 +139,20 @@ class HandoverConfig:
 
 @dataclass(frozen=True)
 class ClosedLoopConfig:
-    """How a closed-loop run simulates.
+    """How a closed-loop run simulates (the one closed-loop settings type; module docstring).
 
     Attributes:
-        mode: ``ClosedLoopMode`` (or its string value).
-        replan_s: replanning period [s] (1.0 default; 5.0 = plan once, i.e. open-loop plan in a
-            closed-loop world). Rounded to whole 0.04 s frames. A planner's own ``replan_s``
-            (``PlannerSpec.replan_s``) overrides it.
+        mode: a closed-loop ``EvaluationMode`` (or its string value).
+        replan_s: replanning period [s] of every planner (1.0 default; 5.0 = plan once, i.e.
+            open-loop plan in a closed-loop world). Rounded to whole 0.04 s frames.
+        planner_replan_s: label -> that planner's own period [s] (e.g. a slower one for an LLM
+            planner); ``for_planner(label)`` is the configuration one planner runs under.
+        workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
+        ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
         chunk_size: scenarios simulated together in one SUMO network (one road per scenario,
             stepped in lockstep, replanned in one batched planner call); also the unit of
-            work of the worker processes and of resumable output.
+            work of the worker processes and of resumable output (not part of any key: measured,
+            chunk sizes 3 and 32 give the same plans to 1e-12 m).
         lateral_resolution_m: SUMO's sublane resolution [m]. The sublane model is needed so that
             SUMO's collision check looks at lateral positions (the exact position, not the grid);
             the resolution only shapes the lane-change model of reactive neighbours.
@@ -144,7 +161,7 @@ class ClosedLoopConfig:
         slot_spacing_m: lateral distance between the parallel roads of one network [m].
         sumo_backend: ``libsumo`` (in-process, fast; one simulation per process) or ``traci``
             (a SUMO subprocess over a socket; needed for the GUI).
-        sumo_gui: run ``sumo-gui`` (implies the traci backend; for debugging one chunk).
+        sumo_gui: run ``sumo-gui`` (sets the traci backend; slow: for debugging a few scenarios).
         driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
         dual_rate: LLM planners (``dual_rate`` in the planner table): the LLM at t = 0 and
@@ -152,8 +169,11 @@ class ClosedLoopConfig:
             shield every ``replan_s`` (``letspi.simulation.dual_rate``); other planners ignore it.
     """
 
-    mode: ClosedLoopMode = ClosedLoopMode.LOG
+    mode: EvaluationMode = EvaluationMode.LOG
     replan_s: float = DEFAULT_REPLAN_S
+    planner_replan_s: Mapping[str, float] = field(default_factory=dict)
+    workers: int = 0
+    ray_address: str | None = None
     chunk_size: int = 32
     lateral_resolution_m: float = 1.0
     road_behind_m: float = 1000.0
@@ -167,12 +187,22 @@ class ClosedLoopConfig:
 
     def __post_init__(self) -> None:
         try:
-            object.__setattr__(self, "mode", ClosedLoopMode(self.mode))
+            mode = EvaluationMode(self.mode)
         except ValueError:
-            raise ValueError(
-                f"unknown closed-loop mode {self.mode!r}; available: {', '.join(CLOSED_LOOP_MODES)}"
-            ) from None
+            mode = None
+        if mode is None or not mode.closed_loop:
+            raise ValueError(f"unknown closed-loop mode {self.mode!r}; available: {', '.join(CLOSED_LOOP_MODES)}")
+        object.__setattr__(self, "mode", mode)
         validate_replan_s(self.replan_s)
+        for label, period in self.planner_replan_s.items():
+            try:
+                validate_replan_s(period)
+            except ValueError as exc:
+                raise ValueError(f"--replan-s {label}={period}: {exc}") from None
+        if self.workers < 0:
+            raise ValueError(f"--workers must be >= 0, got {self.workers}")
+        if self.sumo_gui:
+            object.__setattr__(self, "sumo_backend", "traci")
         if self.chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {self.chunk_size}")
         if self.lateral_resolution_m <= 0:
@@ -188,6 +218,18 @@ class ClosedLoopConfig:
     def replan_frames(self) -> int:
         """Replanning period in frames (>= 1)."""
         return replan_frames(self.replan_s)
+
+    def replan_s_of(self, label: str) -> float:
+        """The replanning period of the planner labelled ``label`` [s]."""
+        return float(self.planner_replan_s.get(label, self.replan_s))
+
+    def for_planner(self, label: str) -> ClosedLoopConfig:
+        """The configuration the planner labelled ``label`` runs under: its own period as ``replan_s``."""
+        own = self.replan_s_of(label)
+        return self if own == self.replan_s else replace(self, replan_s=own)
+
+    def uses_processes(self) -> bool:
+        return self.workers > 0 or self.ray_address is not None
 
 
 def validate_replan_s(replan_s: float) -> float:

@@ -46,7 +46,7 @@ import numpy as np
 from letspi.constants import DT_S, N_TOTAL, T0_INDEX
 from letspi.planners.base import Planner
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig, ClosedLoopMode
+from letspi.simulation.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig, EvaluationMode
 from letspi.simulation.drivers import estimate_driver_params
 from letspi.simulation.handover import within_reach
 from letspi.simulation.network import VTYPE_ID, SlotNetwork, layout_keys
@@ -194,9 +194,9 @@ class _Lockstep:
         that the mode releases: all of them (reactive) or those within the ego's reach (hybrid)."""
         g = self.g
         rows = np.flatnonzero(~g.is_ego & g.present & ~g.released & g.rec_valid[:, f - 1])
-        if self.mode is ClosedLoopMode.HYBRID:
+        if self.mode is EvaluationMode.HYBRID:
             rows = rows[~self.scripted[rows]]
-        if self.mode is ClosedLoopMode.HYBRID and rows.size:
+        if self.mode is EvaluationMode.HYBRID and rows.size:
             ego = g.ego_rows[g.scn[rows]]
             reach = within_reach(
                 g.rec_xy[ego, f - 1], g.length[ego], g.width[ego], g.rec_xy[rows, f - 1][:, None],
@@ -223,7 +223,7 @@ class _Lockstep:
         )  # fmt: skip
         pos = np.searchsorted(scenarios, g.scn[rows]) * g.per + (g.nbr_slot[rows] + 1)
         desired, headway = desired.reshape(-1)[pos], headway.reshape(-1)[pos]
-        capped = self.mode is ClosedLoopMode.HYBRID and self.config.handover.follow_log_speed
+        capped = self.mode is EvaluationMode.HYBRID and self.config.handover.follow_log_speed
         for r, v0, tau in zip(rows.tolist(), desired.tolist(), headway.tolist(), strict=True):
             vid = g.sumo_id[r]
             self.api.vehicle.setMaxSpeed(vid, float(v0))
@@ -416,7 +416,6 @@ def simulate_group(
     batch: ScenarioBatch,
     config: ClosedLoopConfig,
     *,
-    replan_every: int,
     future: FuturePolicy,
     run_tag: str = "g",
     scripted_nbr: np.ndarray | None = None,
@@ -426,12 +425,12 @@ def simulate_group(
 
     scripted_nbr: (K, N) bool, neighbour slots that replay their log all along in
     ``closed-loop-hybrid`` (actors of scripted events). replanner: the replanning step (default:
-    ``PeriodicReplanner(planner, batch, replan_every, future)``).
+    ``PeriodicReplanner`` every ``config.replan_s``). The mode and the period are ``config``'s.
     """
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     sim = _Lockstep(session, batch, config, run_tag, scripted_nbr)
-    replanner = replanner or PeriodicReplanner(planner, batch, replan_every, future)
+    replanner = replanner or PeriodicReplanner(planner, batch, config.replan_frames, future)
     plans = _PlanLog(sim.g.k, replanner.frames)
     for f in range(N_TOTAL):
         drive = sim.who_drives(f)
@@ -442,7 +441,8 @@ def simulate_group(
         if replan is not None:
             plans.add(f, replan)
             sim.follow(f, replan)
-    return _chunk(sim, plans, planner, replan_every, time.perf_counter() - t_start, time.process_time() - cpu_start)
+    return _chunk(sim, plans, planner, config.replan_frames, time.perf_counter() - t_start,
+                  time.process_time() - cpu_start)
 
 
 def _chunk(sim: _Lockstep, plans: _PlanLog, planner: Planner, replan_every: int, wall_s: float,

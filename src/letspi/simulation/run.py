@@ -14,39 +14,24 @@ interpreter, one libsumo each), each building its planner once from the picklabl
 from __future__ import annotations
 
 from collections.abc import Generator, Sequence
-from dataclasses import replace
 
 import numpy as np
 
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode
+from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.pool import run_in_processes
 from letspi.simulation.ray_backend import run_on_ray
 from letspi.simulation.result import ClosedLoopChunk
-from letspi.simulation.spec import PlannerSpecLike, spec_replan_s
+from letspi.simulation.spec import PlannerSpecLike, spec_name
 from letspi.simulation.worker import ChunkWorker, make_tasks
-
-
-def effective_config(
-    planner_spec: PlannerSpecLike, mode: ClosedLoopMode | str, replan_s: float | None, config: ClosedLoopConfig | None
-) -> ClosedLoopConfig:
-    """The run's configuration: ``replan_s`` argument > the planner's own > ``config.replan_s``."""
-    base = config or ClosedLoopConfig()
-    own = spec_replan_s(planner_spec)
-    period = replan_s if replan_s is not None else (own if own is not None else base.replan_s)
-    return replace(base, mode=ClosedLoopMode(mode), replan_s=float(period))
 
 
 def run_closed_loop(
     planner_spec: PlannerSpecLike,
     batch: ScenarioBatch,
-    mode: ClosedLoopMode | str = ClosedLoopMode.LOG,
-    *,
-    replan_s: float | None = None,
-    workers: int = 0,
     config: ClosedLoopConfig | None = None,
+    *,
     indices: Sequence[int] | np.ndarray | None = None,
-    ray_address: str | None = None,
     max_worker_restarts: int = 2,
     scripted_nbr: np.ndarray | None = None,
 ) -> Generator[ClosedLoopChunk, None, None]:
@@ -55,27 +40,24 @@ def run_closed_loop(
     A caller that stops early (Ctrl-C while it writes a chunk) closes the generator
     (``contextlib.closing``): worker processes and Ray actors stop at once, not when it is collected.
 
-    planner_spec: a ``PlannerSpec`` (built inside each worker) or a picklable planner object.
-    mode: ``closed-loop-log``, ``closed-loop-reactive`` or ``closed-loop-hybrid`` (``ClosedLoopMode``).
-    replan_s: replanning period [s]
-    (default: the planner spec's own, else ``config.replan_s``, 1.0). workers: 0 = this process,
-    N >= 1 = N worker processes. ray_address: run on Ray instead ("local" starts a local instance
-    unless Ray is already initialised, "auto" or an address joins a cluster); ``workers`` actors.
+    planner_spec: a ``PlannerSpec`` (built inside each worker) or a ``BuiltPlanner`` (used as is).
+    config: everything about the run (default ``ClosedLoopConfig()``): the mode, the replanning period
+    (this planner's own, ``config.for_planner(name)``), ``workers`` (0 = this process, N >= 1 = N
+    worker processes) and ``ray_address`` (run on Ray instead: "local" starts a local instance unless
+    Ray is already initialised, "auto" or an address joins a cluster; ``workers`` actors).
     max_worker_restarts: worker processes (or actors) that may die and be replaced before the run
     fails; their unfinished chunks are simulated again, so nothing is lost or duplicated.
     scripted_nbr: (B, N) bool over ``batch``: neighbour slots that keep their recorded (scripted)
     behaviour in ``closed-loop-hybrid`` (``letspi.scenario.scripted.scripted_neighbours``); None = none.
     """
-    cfg = effective_config(planner_spec, mode, replan_s, config)
-    if workers < 0:
-        raise ValueError(f"workers must be >= 0, got {workers}")
+    cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
     tasks = make_tasks(batch, cfg, indices, scripted_nbr)
     if not tasks:
         return
-    if ray_address is not None:
-        yield from run_on_ray(planner_spec, tasks, cfg, max(1, workers), ray_address, max_worker_restarts)
+    if cfg.ray_address is not None:
+        yield from run_on_ray(planner_spec, tasks, cfg, max(1, cfg.workers), cfg.ray_address, max_worker_restarts)
         return
-    if workers == 0:
+    if cfg.workers == 0:
         worker = ChunkWorker(planner_spec, cfg)
         try:
             for task in tasks:
@@ -83,5 +65,4 @@ def run_closed_loop(
         finally:
             worker.close()
         return
-    yield from run_in_processes(planner_spec, tasks, cfg, workers, max_worker_restarts)
-
+    yield from run_in_processes(planner_spec, tasks, cfg, cfg.workers, max_worker_restarts)

@@ -19,36 +19,30 @@ from letspi.assembly.planners import build_planner as assemble_planner
 from letspi.planners.base import Planner
 from letspi.planners.config import PlannerConfig
 from letspi.planners.options import PlannerOptions
-from letspi.simulation.config import validate_replan_s
 
 
 @dataclass(frozen=True)
 class PlannerSpec:
-    """A planner by its configuration (picklable), its label and its own replanning period.
+    """A planner by its configuration (picklable) and its label (its replanning period is the run
+    configuration's, ``ClosedLoopConfig.replan_s_of(name)``).
 
     Attributes:
         config: the planner's frozen configuration (``letspi.planners.config``); its key
             identifies the planner in results.
         name: the label of its results (default: the configuration's kind).
-        replan_s: this planner's replanning period [s]; None = the run's ``replan_s``. LLM
-            planners replan their physics at it and ask their model every ``llm_period_s`` (dual rate).
     """
 
     config: PlannerConfig
     name: str = ""
-    replan_s: float | None = None
 
     @classmethod
-    def of(cls, kind: str, options: PlannerOptions | None = None, *, name: str = "",
-           replan_s: float | None = None) -> PlannerSpec:
+    def of(cls, kind: str, options: PlannerOptions | None = None, *, name: str = "") -> PlannerSpec:
         """Resolve ``kind`` with ``options`` (files and environment are read here, once)."""
-        return cls(resolve_planner(kind, options), name or kind, replan_s)
+        return cls(resolve_planner(kind, options), name or kind)
 
     def __post_init__(self) -> None:
         if not self.name:
             object.__setattr__(self, "name", self.config.kind)
-        if self.replan_s is not None:
-            validate_replan_s(self.replan_s)
 
 
 #: What ``run_closed_loop`` accepts as a planner description: a ``PlannerSpec`` (workers build it) or a
@@ -67,13 +61,9 @@ def build_planner(spec: PlannerSpecLike) -> Planner:
 
 def spec_name(spec: PlannerSpecLike) -> str:
     """The planner's name as results should show it (without building a PlannerSpec's planner)."""
+    if not isinstance(spec, PlannerSpec | BuiltPlanner):
+        raise TypeError(f"planner_spec must be a PlannerSpec or a BuiltPlanner, got {type(spec).__name__}")
     return spec.name
-
-
-def spec_replan_s(spec: PlannerSpecLike) -> float | None:
-    """The planner's own replanning period [s], or None."""
-    value = spec.replan_s if isinstance(spec, PlannerSpec) else None
-    return None if value is None else validate_replan_s(float(value))
 
 
 def reads_recorded_future(spec: PlannerSpecLike) -> bool:

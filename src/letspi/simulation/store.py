@@ -30,10 +30,10 @@ import pandas as pd
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import ClosedLoopConfig, ClosedLoopMode
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.simulation.handover import hybrid_settings
 from letspi.simulation.result import ClosedLoopChunk, chunk_metrics
-from letspi.simulation.run import effective_config, run_closed_loop
+from letspi.simulation.run import run_closed_loop
 from letspi.simulation.spec import PlannerSpecLike, spec_name
 
 _PART = re.compile(r"^(part|traj)-(\d{5})\.(parquet|npz)$")
@@ -176,13 +176,9 @@ def run_closed_loop_to_dir(
     planner_spec: PlannerSpecLike,
     batch: ScenarioBatch,
     out_dir: Path,
-    mode: ClosedLoopMode | str = ClosedLoopMode.LOG,
-    *,
-    replan_s: float | None = None,
-    workers: int = 0,
     config: ClosedLoopConfig | None = None,
+    *,
     metrics_config: MetricsConfig | None = None,
-    ray_address: str | None = None,
     progress: Callable[[int], None] | None = None,
     scripted_nbr: np.ndarray | None = None,
 ) -> pd.DataFrame:
@@ -191,18 +187,15 @@ def run_closed_loop_to_dir(
     Arguments as ``run_closed_loop``; ``progress`` is called with the number of scenarios done
     (first with those found from an earlier run).
     """
-    cfg = effective_config(planner_spec, mode, replan_s, config)
-    settings = hybrid_settings(cfg, scripted_nbr) if cfg.mode is ClosedLoopMode.HYBRID else None
+    cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
+    settings = hybrid_settings(cfg, scripted_nbr) if cfg.mode is EvaluationMode.HYBRID else None
     store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch, settings)
     done = store.done_ids()
     todo = np.flatnonzero([str(s) not in done for s in batch.scenario_id])
     if progress is not None and len(batch) - len(todo):
         progress(len(batch) - len(todo))
     if len(todo):
-        with closing(run_closed_loop(
-            planner_spec, batch, cfg.mode, replan_s=cfg.replan_s, workers=workers, config=cfg, indices=todo,
-            ray_address=ray_address, scripted_nbr=scripted_nbr,
-        )) as chunks:  # fmt: skip
+        with closing(run_closed_loop(planner_spec, batch, cfg, indices=todo, scripted_nbr=scripted_nbr)) as chunks:
             for chunk in chunks:
                 store.write(chunk, chunk_frame(chunk, chunk_metrics(batch, chunk, metrics_config)))
                 if progress is not None:

@@ -89,7 +89,6 @@ def simulate_chunk(
                 planner,
                 group,
                 config,
-                replan_every=config.replan_frames,
                 future=future,
                 run_tag=f"t{task.task_id}.{len(parts)}",
                 scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],

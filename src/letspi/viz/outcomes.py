@@ -23,7 +23,7 @@ from letspi.evaluation.closed_loop import CL_PLAN_XY, closed_loop_row
 from letspi.metrics.compute import compute_metrics
 from letspi.metrics.config import MetricsConfig
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation import ClosedLoopChunk, chunk_metrics, run_closed_loop
+from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, chunk_metrics, run_closed_loop
 from letspi.viz.closed_loop import LoopOutcome, plot_closed_loop_panel
 
 
@@ -96,7 +96,7 @@ def closed_loop_report_figure(scenario: ScenarioBatch, rec: Mapping[str, Any], n
                  title=f"{name}: scenario {rec.get('scenario_id')}")
 
 
-def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, mode: str, replan_s: float,
+def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, closed: ClosedLoopConfig,
                    config: MetricsConfig | None = None, scripted_nbr: np.ndarray | None = None) -> Figure:
     """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel: the
     planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``).
@@ -107,14 +107,12 @@ def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, mode: str, repl
     open_rec = {k: m[k][0] for k in ("collision", "collision_at_fault", "min_ttc_s", "min_box_gap_m",
                                      "collision_step", "collision_nbr")}
     open_rec["plan_xy_m"] = plan.xy_m[0]
-    chunk = ClosedLoopChunk.concat(list(run_closed_loop(built, scenario, mode, replan_s=replan_s,
-                                                        scripted_nbr=scripted_nbr)))
+    chunk = ClosedLoopChunk.concat(list(run_closed_loop(built, scenario, closed, scripted_nbr=scripted_nbr)))
     cm = chunk_metrics(scenario, chunk, config)
-    closed = LoopOutcome(f"{mode} (replanning every {replan_s:g} s)", chunk.ego_xy_m[0], chunk.nbr_xy_m[0],
-                         chunk.nbr_valid[0], chunk.plan_xy_m[0], chunk.replan_step, int(cm["collision_step"][0]),
-                         int(cm["collision_nbr"][0]),
-                         row_notes({**{k: cm[k][0] for k in ("collision", "collision_at_fault", "min_ttc_s",
-                                                             "min_box_gap_m")},
-                                    "sumo_collision": chunk.sumo_collision[0]}))
+    notes = row_notes({**{k: cm[k][0] for k in ("collision", "collision_at_fault", "min_ttc_s", "min_box_gap_m")},
+                       "sumo_collision": chunk.sumo_collision[0]})
+    outcome = LoopOutcome(f"{closed.mode.value} (replanning every {closed.replan_s_of(built.name):g} s)",
+                          chunk.ego_xy_m[0], chunk.nbr_xy_m[0], chunk.nbr_valid[0], chunk.plan_xy_m[0],
+                          chunk.replan_step, int(cm["collision_step"][0]), int(cm["collision_nbr"][0]), notes)
     top = stored_outcome("open loop (recorded neighbours)", scenario, open_rec)
-    return panel(scenario, top, closed, title=f"{built.name}: scenario {scenario.scenario_id[0]}")
+    return panel(scenario, top, outcome, title=f"{built.name}: scenario {scenario.scenario_id[0]}")
