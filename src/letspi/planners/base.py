@@ -23,7 +23,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from letspi.physics.goals import GoalPredictor
+from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.physics.types import NeighbourPrediction
@@ -198,3 +198,28 @@ def predicted_context(batch: ScenarioBatch, goal_predictor: GoalPredictor,
                       neighbour_mode: NeighbourPredictionMode) -> PlanningContext:
     """The top predicted goal and the predicted neighbours of every scenario of ``batch``."""
     return PlanningContext(goal_predictor.predict_goals(batch).top, predict_neighbours(batch, neighbour_mode))
+
+
+@dataclass(kw_only=True)
+class PredictingPlanner:
+    """The shared step of the social-force-family planners (``sf``, ``sf-opt``, ``mlp``, ``gnp``): the
+    context is the goal predictor's top goal and the neighbours predicted by ``neighbour_mode``, and
+    ``plan`` is propose-then-simulate (``plan_by_proposals``). A subclass adds its fields (``name``,
+    ``batch_size``, its model or parameters) and writes ``propose`` and ``simulate``.
+    """
+
+    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
+    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
+    proposes_per_scenario: bool = False
+
+    def context(self, batch: ScenarioBatch) -> PlanningContext:
+        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
+
+    def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        raise NotImplementedError
+
+    def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
+        raise NotImplementedError
+
+    def plan(self, batch: ScenarioBatch) -> PlanBatch:
+        return plan_by_proposals(self, batch)  # type: ignore[arg-type]

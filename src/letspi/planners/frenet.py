@@ -64,9 +64,7 @@ No Python loop runs over scenarios or candidates (only over chunks of scenarios,
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -81,6 +79,7 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
 from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig
+from letspi.planners.fitted import FittedFile
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
@@ -232,33 +231,18 @@ class FrenetConfig(Config):
     weights_source: str = "shipped"
 
 
+FRENET_WEIGHTS_FILE = FittedFile("weights", SHIPPED_WEIGHTS_FILE, "frenet weights file", "letspi fit frenet")
+
+
 def load_frenet_weights(path: Path | None = None) -> tuple[FrenetWeights, dict[str, Any]]:
     """Weights and the whole record (provenance, objective) from ``path`` (default: the shipped fit)."""
-    if path is None:
-        text = resources.files("letspi.data").joinpath(SHIPPED_WEIGHTS_FILE).read_text()
-        where = f"letspi/data/{SHIPPED_WEIGHTS_FILE}"
-    else:
-        try:
-            text = Path(path).read_text()
-        except FileNotFoundError as exc:
-            raise FileNotFoundError(f"{path}: no such frenet weights file (create one with `letspi fit frenet`)") \
-                from exc
-        where = str(path)
-    try:
-        record = json.loads(text)
-        weights = FrenetWeights(**record["weights"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: not a valid frenet weights file ({exc})") from exc
-    return weights, record
+    return FRENET_WEIGHTS_FILE.load(path, lambda values: FrenetWeights(**values))
 
 
 def save_frenet_weights(path: Path, weights: FrenetWeights, provenance: dict[str, Any],
                         objective: dict[str, Any]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    record = {"weights": weights.model_dump(), "provenance": provenance, "objective": objective}
-    path.write_text(json.dumps(record, indent=2) + "\n")
-    return path
+    """Write a fit atomically (``letspi.planners.fitted``)."""
+    return FRENET_WEIGHTS_FILE.save(path, weights.model_dump(), provenance, objective)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -15,11 +15,10 @@ import numpy as np
 
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
-from letspi.physics.goals import GoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
-from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig, WeightsConfig
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
@@ -39,7 +38,7 @@ class GnpConfig(Config):
 
 
 @dataclass
-class GnpPlanner:
+class GnpPlanner(PredictingPlanner):
     """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours.
 
     ``info`` per scenario: the social force parameters used (tau varies) and the neighbour weights
@@ -47,20 +46,14 @@ class GnpPlanner:
     """
 
     model: GnpModel
-    goal_predictor: GoalPredictor
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "gnp"
     batch_size: int = 1024
-    proposes_per_scenario: bool = False
 
     def __post_init__(self) -> None:
         self.neighbour_mode = NeighbourPredictionMode(self.neighbour_mode)
         if self.neighbour_mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
             raise ValueError("gnp must roll out with predicted neighbours (idm or constant_velocity), "
                              "not the recorded future")
-
-    def context(self, batch: ScenarioBatch) -> PlanningContext:
-        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
         """Learned tau and neighbour weights (``extra["nbr_weight"]`` (B, N)); goals as predicted."""
@@ -76,6 +69,3 @@ class GnpPlanner:
         roll = rollout_weighted(scene, proposals.params, context.goals_xy_m, proposals.extra["nbr_weight"])
         return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=context.goals_xy_m,
                          info=dict(proposals.info))
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        return plan_by_proposals(self, batch)

@@ -16,10 +16,8 @@ import numpy as np
 
 from letspi.learned.param_mlp import OUTPUT_FIELDS, ParamMlp
 from letspi.method.reflection import simulate_proposal
-from letspi.physics.goals import GoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
-from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields, WeightsConfig
 from letspi.planners.options import PlannerOption
 from letspi.scenario.features import scenario_features
@@ -40,7 +38,7 @@ class MlpConfig(SocialForcePlannerFields):
 
 
 @dataclass
-class ParamMlpPlanner:
+class ParamMlpPlanner(PredictingPlanner):
     """Planner ``mlp``: regressed parameters and goal factors, predicted goals and neighbours.
 
     ``r_col_m``: the fitted ``sf`` decay length (the LLM does not choose it either).
@@ -48,15 +46,9 @@ class ParamMlpPlanner:
     """
 
     model: ParamMlp
-    goal_predictor: GoalPredictor
     r_col_m: float
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "mlp"
     batch_size: int = 256
-    proposes_per_scenario: bool = False
-
-    def context(self, batch: ScenarioBatch) -> PlanningContext:
-        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
         values = self.model.predict(scenario_features(batch))  # (B, 8)
@@ -70,6 +62,3 @@ class ParamMlpPlanner:
         sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
                                 context.goals_xy_m, context.neighbours)
         return PlanBatch(xy_m=sim.xy_m, vxy_mps=sim.vxy_mps, goals_xy_m=sim.goals_xy_m, info=dict(proposals.info))
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        return plan_by_proposals(self, batch)

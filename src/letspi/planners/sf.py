@@ -3,16 +3,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
-from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
@@ -25,16 +23,10 @@ class SfConfig(SocialForcePlannerFields):
 
 
 @dataclass
-class SocialForcePlanner:
+class SocialForcePlanner(PredictingPlanner):
     params: SocialForceParams
-    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf"
     batch_size: int = 4096
-    proposes_per_scenario: bool = False
-
-    def context(self, batch: ScenarioBatch) -> PlanningContext:
-        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
         """The fitted parameters for every scenario; the predicted goal as it is (NaN factors)."""
@@ -46,6 +38,3 @@ class SocialForcePlanner:
         roll = rollout_social_force(batch, proposals.params, context.goals_xy_m, context.neighbours)
         return PlanBatch(xy_m=roll.xy_m, vxy_mps=roll.vxy_mps, goals_xy_m=context.goals_xy_m,
                          info=dict(proposals.info))
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        return plan_by_proposals(self, batch)

@@ -21,12 +21,11 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from letspi.physics.goals import NEUTRAL_LON_FACTOR, GoalPredictor, KinematicGoalPredictor, adjust_goals
-from letspi.physics.neighbours import NeighbourPredictionMode
+from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.physics.types import NeighbourPrediction
-from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
 from letspi.safety.plan_check import check_plans
@@ -65,17 +64,11 @@ class SfOptConfig(SocialForcePlannerFields):
 
 
 @dataclass
-class SocialForceSearchPlanner:
+class SocialForceSearchPlanner(PredictingPlanner):
     params: SocialForceParams
     space: SearchSpace = field(default_factory=SearchSpace)
-    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     name: str = "sf-opt"
     batch_size: int = 256
-    proposes_per_scenario: bool = False
-
-    def context(self, batch: ScenarioBatch) -> PlanningContext:
-        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
         """The fitted parameters: the centre of every scenario's search (the search is physics)."""
@@ -116,6 +109,3 @@ class SocialForceSearchPlanner:
             "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
         }
         return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        return plan_by_proposals(self, batch)

@@ -12,42 +12,29 @@ traffic with a different seed than the demo's); ``--sf-params FILE`` points lets
 
 from __future__ import annotations
 
-import json
-from importlib import resources
+from collections.abc import Mapping
 from pathlib import Path
 
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
+from letspi.planners.fitted import FittedFile
 
 SHIPPED_FILE = "sf_params.json"
+SF_PARAMS_FILE = FittedFile("params", SHIPPED_FILE, "SF parameter file", "letspi fit sf")
+
+
+def _params(values: Mapping[str, object]) -> SocialForceParams:
+    missing = [n for n in PARAM_NAMES if n not in values]
+    if missing:
+        raise ValueError(f"missing parameter(s) {missing}")
+    return SocialForceParams.from_mapping({n: float(values[n]) for n in PARAM_NAMES})  # type: ignore[arg-type]
 
 
 def load_sf_params(path: Path | None = None) -> tuple[SocialForceParams, dict[str, object]]:
     """Parameters and the whole record from ``path`` (default: the shipped fit)."""
-    if path is None:
-        text = resources.files("letspi.data").joinpath(SHIPPED_FILE).read_text()
-        where = f"letspi/data/{SHIPPED_FILE}"
-    else:
-        try:
-            text = Path(path).read_text()
-        except FileNotFoundError as exc:
-            raise FileNotFoundError(f"{path}: no such SF parameter file (create one with `letspi fit sf`)") from exc
-        where = str(path)
-    try:
-        record = json.loads(text)
-        values = record["params"]
-        missing = [n for n in PARAM_NAMES if n not in values]
-        if missing:
-            raise ValueError(f"missing parameter(s) {missing}")
-        params = SocialForceParams.from_mapping({n: float(values[n]) for n in PARAM_NAMES})
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: not a valid SF parameter file ({exc})") from exc
-    return params, record
+    return SF_PARAMS_FILE.load(path, _params)
 
 
 def save_sf_params(path: Path, params: SocialForceParams, provenance: dict[str, object],
                    objective: dict[str, object]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    record = {"params": params.as_dict(), "provenance": provenance, "objective": objective}
-    path.write_text(json.dumps(record, indent=2) + "\n")
-    return path
+    """Write a fit atomically (``letspi.planners.fitted``)."""
+    return SF_PARAMS_FILE.save(path, params.as_dict(), provenance, objective)

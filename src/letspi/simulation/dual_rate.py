@@ -22,8 +22,9 @@ from collections.abc import Callable
 import numpy as np
 
 from letspi.constants import T0_INDEX
+from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replan, SimulatedStates, replanning_batch
+from letspi.simulation.replan import FuturePolicy, PeriodicReplanner
 from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule
 
 
@@ -41,12 +42,10 @@ class DualRateReplanner(PeriodicReplanner):
         self.planner: DualRatePlanner = planner
         self.schedule = DualRateSchedule(planner, len(batch), config, concurrency, clock)
 
-    def plans(self, frame: int, states: SimulatedStates) -> Replan | None:
-        if frame not in self._due:
-            return None
+    def _plan(self, frame: int, view: ScenarioBatch) -> tuple[PlanBatch, dict[str, np.ndarray]]:
+        """Context, the proposals in force (the schedule makes the LLM calls due) and the physics; the
+        schedule's info and ``planner_cpu_ms`` (context and physics; the LLM calls are not in it)."""
         k = len(self.batch)
-        t0 = time.perf_counter()
-        view, centre = replanning_batch(self.batch, states, frame, self.future)
         cpu0 = time.thread_time()
         context = self.planner.context(view)
         cpu_context = time.thread_time() - cpu0
@@ -57,7 +56,7 @@ class DualRateReplanner(PeriodicReplanner):
         plan = self.planner.simulate(view, context, proposals)
         cpu_physics = cpu_context + time.thread_time() - cpu1
         schedule_info["planner_cpu_ms"] = np.full(k, 1e3 * cpu_physics / max(k, 1))
-        return self._replan(plan, centre, frame, schedule_info, time.perf_counter() - t0)
+        return plan, schedule_info
 
     def close(self) -> None:
         self.schedule.close()

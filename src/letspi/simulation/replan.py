@@ -244,16 +244,22 @@ class PeriodicReplanner:
         return self._frames
 
     def plans(self, frame: int, states: SimulatedStates) -> Replan | None:
+        """At a frame due: the planner's view from the simulated history, its plans (``_plan``), and the
+        ``Replan`` that brings them back to the simulation frame."""
         if frame not in self._due:
             return None
-        k = len(self.batch)
         t0 = time.perf_counter()
         view, centre = replanning_batch(self.batch, states, frame, self.future)
+        plan, info = self._plan(frame, view)
+        return self._replan(plan, centre, frame, info, time.perf_counter() - t0)
+
+    def _plan(self, frame: int, view: ScenarioBatch) -> tuple[PlanBatch, dict[str, np.ndarray]]:
+        """The plans of every scenario of ``view`` and per-scenario info: the whole planner, in sub-batches;
+        ``planner_cpu_ms``, CPU of this thread per scenario (model calls included)."""
+        k = len(self.batch)
         cpu0 = time.thread_time()
         plan = plan_in_batches(self.planner, view)
-        cpu_ms = 1e3 * (time.thread_time() - cpu0) / max(k, 1)
-        # CPU of this thread per scenario (model calls included)
-        return self._replan(plan, centre, frame, {"planner_cpu_ms": np.full(k, cpu_ms)}, time.perf_counter() - t0)
+        return plan, {"planner_cpu_ms": np.full(k, 1e3 * (time.thread_time() - cpu0) / max(k, 1))}
 
     def _replan(self, plan: PlanBatch, centre: np.ndarray, frame: int, extra_info: dict[str, np.ndarray],
                 plan_s: float) -> Replan:
