@@ -16,7 +16,7 @@ An option declared outside letspi (a planner kind loaded at run time) is the sam
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -80,11 +80,6 @@ class PlannerOptions:
     def get(self, option: PlannerOption[T]) -> T:
         value: T = self._values.get(option.name, option.default)
         return value
-
-    @property
-    def given(self) -> Mapping[str, Any]:
-        """The values set explicitly (by name)."""
-        return dict(self._values)
 
     def replace(self, **values: Any) -> PlannerOptions:
         return PlannerOptions(**{**self._values, **values})
