@@ -15,6 +15,7 @@ from letspi.assembly.planner_table import BUILT_IN, FutureUse, PlannerKind, Plan
 from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.cli.app import app
 from letspi.cli.options import planner_options
+from letspi.llm.compact import PROMPT_STYLES
 from letspi.planners.config import Config
 from letspi.planners.cv import ConstantVelocityPlanner
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
@@ -55,7 +56,7 @@ def test_the_commands_of_one_part_offer_exactly_its_settings() -> None:
 def test_each_flag_carries_its_declared_default_unit_and_choices() -> None:
     text = " ".join(_help("evaluate").split())
     assert "[s] [default: 120.0]" in text  # --request-timeout: unit and default from LLM_TIMEOUT
-    assert "(paper, compact)" in text and "(learned, kinematic, oracle)" in text
+    assert f"({', '.join(PROMPT_STYLES)})" in text and "(learned, kinematic, oracle)" in text
     assert "--shield / --no-shield" in text and "--cache / --no-cache" in text
 
 
