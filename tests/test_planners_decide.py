@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from letspi.assembly.build import Builder
-from letspi.assembly.resolve import PlannerOptions, Resolver
+from letspi.assembly.planners import build_planner, resolve_planner
 from letspi.method.memory import MemoryBank
 from letspi.planners.decision import DECISION_COLUMNS
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
@@ -28,15 +28,17 @@ def _scenes():  # type: ignore[no-untyped-def]
 
 def test_sf_check_keeps_the_defaults_where_the_gate_does_not_fire_and_records_its_decisions() -> None:
     batch = _scenes()
-    never = Builder(cache=None).planner(Resolver(replace(OPTS, gate_threshold=1.01)).planner("sf-check"), "sf-check")
+    never = build_planner(resolve_planner("sf-check", OPTS.replace(gate_threshold=1.01)), "sf-check",
+                          builder=Builder(cache=None))
     plans = never.planner.plan(batch)
     assert set(DECISION_COLUMNS) <= set(plans.info)
     assert list(plans.info["decision"]) == ["default", "default"] and not plans.info["consulted"].any()
     assert np.all((plans.info["risk_score"] >= 0) & (plans.info["risk_score"] <= 1))
-    sf = Builder(cache=None).planner(Resolver(OPTS).planner("sf"), "sf").planner.plan(batch)
+    sf = build_planner(resolve_planner("sf", OPTS), "sf", builder=Builder(cache=None)).planner.plan(batch)
     np.testing.assert_allclose(plans.xy_m, sf.xy_m, atol=1e-9)  # the defaults are sf's plan
     assert plans.info["adverse_failed"][0] == "leader-brakes" and plans.info["adverse_failed"][1] == ""
-    always = Builder(cache=None).planner(Resolver(replace(OPTS, gate=False)).planner("sf-check"), "sf-check")
+    always = build_planner(resolve_planner("sf-check", OPTS.replace(gate=False)), "sf-check",
+                           builder=Builder(cache=None))
     ruled = always.planner.plan(batch)
     assert ruled.info["consulted"].all()
     assert ruled.info["decision"][0] != "default"  # the defaults fail leader-brakes: the rule takes a preset
@@ -48,11 +50,11 @@ def test_sf_check_keeps_the_defaults_where_the_gate_does_not_fire_and_records_it
 
 def test_decision_off_reproduces_the_planner_and_its_key(tmp_path: Path) -> None:
     MemoryBank.open(tmp_path / "m.sqlite").close()
-    base = replace(OPTS, memory=tmp_path / "m.sqlite", fast_llm="scripted:default")
-    off = Resolver(base).planner("letspi-fast")
+    base = OPTS.replace(memory=tmp_path / "m.sqlite", fast_llm="scripted:default")
+    off = resolve_planner("letspi-fast", base)
     assert off.decision is None  # type: ignore[attr-defined]
     assert "decision" not in off.identity()
-    on = Resolver(replace(base, decide=True)).planner("letspi-fast")
+    on = resolve_planner("letspi-fast", base.replace(decide=True))
     assert on.key() != off.key() and on.decision is not None  # type: ignore[attr-defined]
     with pytest.raises(ValueError, match="choice prompt style needs"):
-        Resolver(replace(base, prompt_style="choice", decide=False)).planner("letspi-fast")
+        resolve_planner("letspi-fast", base.replace(prompt_style="choice", decide=False))

@@ -293,7 +293,8 @@ def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, 
 
 def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
     decision = r.decision("paper", always=True)
-    assert decision is not None
+    if decision is None:
+        raise ValueError("sf-check is the decision step without a model: drop --no-decide")
     return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
                          shield=r.options.get(SHIELD))
 

@@ -26,7 +26,8 @@ PANEL = "Planner options"
 
 def _flag_decls(option: PlannerOption[Any]) -> tuple[str, ...]:
     flag = option.cli_flag
-    return (f"{flag}/--no-{flag.removeprefix('--')}",) if option.type is bool else (flag,)
+    is_switch = option.type is bool or option.type == (bool | None)
+    return (f"{flag}/--no-{flag.removeprefix('--')}",) if is_switch else (flag,)
 
 
 def option_parameter(option: PlannerOption[Any]) -> inspect.Parameter:

@@ -9,17 +9,15 @@ shield as the LLM planners. Batched over scenarios; no model call.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
 from letspi.method.decide import Decider, OptionChecks
 from letspi.method.phases import decision_reason
-from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
-from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import SocialForceParams
-from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
+from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import DECISION_OPTIONS, SOCIAL_FORCE_OPTIONS, DecisionConfig, SocialForcePlannerFields
 from letspi.planners.decision import decision_info
 from letspi.planners.llm import SHIELD, simulate_and_shield
@@ -38,20 +36,14 @@ class SfCheckConfig(SocialForcePlannerFields):
 
 
 @dataclass
-class DecisionPlanner:
+class DecisionPlanner(PredictingPlanner):
     """``sf-check`` (module docstring): batched over scenarios, no model call."""
 
     params: SocialForceParams
     decider: Decider
-    goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
-    neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
     batch_size: int = 64
-    proposes_per_scenario: bool = False
-
-    def context(self, batch: ScenarioBatch) -> PlanningContext:
-        return predicted_context(batch, self.goal_predictor, self.neighbour_mode)
 
     def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                                   OptionChecks]:
@@ -75,6 +67,3 @@ class DecisionPlanner:
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
                                    with_memories=False, decider=self.decider)
-
-    def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        return plan_by_proposals(self, batch)
