@@ -39,8 +39,8 @@ def test_bench_robustness_has_no_crash_and_no_nan() -> None:
     out = json.loads(result.stdout)
     assert out["scenarios_by_kind"] == dict.fromkeys(DEGENERATE_KINDS, 5)
     # every kind of the planner table; mlp has no weights unless given (--mlp-weights): skipped, and said so
-    assert set(out["planners"]) == {"human", "cv", "idm", "sf", "sf-opt", "sf-check", "gnp", "frenet", "llm", "letspi-memory",
-                                    "letspi-fast", "letspi-fs"}
+    assert set(out["planners"]) == {"human", "cv", "idm", "sf", "sf-opt", "sf-check", "gnp", "frenet", "llm",
+                                    "letspi-memory", "letspi-fast", "letspi-fs"}
     assert list(out["skipped"]) == ["mlp"] and "--mlp-weights" in out["skipped"]["mlp"]
     assert out["crashes"] == 0 and out["nan_values"] == 0 and out["nan_aggregates"] == 0
     assert all(p["metrics_checked"] >= 10 for p in out["planners"].values())
