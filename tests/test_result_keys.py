@@ -5,8 +5,10 @@ closed-loop settings and the planner table.
 Results directories and memory banks are keyed by these values, so moving code must not move them.
 Unlike ``test_planner_table.py`` this test uses the shipped data as it is (goal, gnp and frenet
 weights, sf parameters, the embedded model's files) and patches nothing: only the prompt fingerprint
-(which issue 26 item 4 changes on purpose) and the fingerprint of weights written here (``np.savez``
-stamps the time into the file) are replaced by constants in the identity before it is hashed.
+(which issue 26 item 4 changes on purpose), the fingerprint of weights written here (``np.savez``
+stamps the time into the file) and the decision step's shipped data (issue 28 refits its presets and
+risk model: their values, and the threshold recommended with the model) are replaced by constants in
+the identity before it is hashed.
 """
 
 from __future__ import annotations
@@ -38,15 +40,23 @@ SCRIPTED = "scripted:default"
 LOG, REACTIVE, HYBRID = "closed-loop-log", "closed-loop-reactive", "closed-loop-hybrid"
 
 
+#: identity fields whose values are shipped data that other issues change on purpose (module docstring)
+DATA_FIELDS = {"prompt_sha256": "prompt", "preset_names": "presets", "preset_values": "presets",
+               "risk_model_sha256": "risk-model"}
+GIVEN_THRESHOLD = 0.5  # a --gate-threshold of a variant below (kept); any other is the risk model's
+
+
 def _normalised(value: Any, parent: str = "") -> Any:
-    """The identity with the prompt fingerprint and the mlp weights' fingerprint replaced (module docstring)."""
+    """The identity with the fields of shipped data replaced (module docstring)."""
     if isinstance(value, dict):
         out = {}
         for k, v in value.items():
-            if k == "prompt_sha256":
-                out[k] = "prompt"
+            if k in DATA_FIELDS:
+                out[k] = DATA_FIELDS[k]
             elif k == "weights_sha256" and parent == "mlp":
                 out[k] = "mlp-weights"
+            elif k == "gate_threshold" and v is not None and v != GIVEN_THRESHOLD:
+                out[k] = "recommended"
             else:
                 out[k] = _normalised(v, k)
         return out
@@ -76,25 +86,25 @@ DEFAULT_KEYS = {
     "sf-opt": "f63396bbbbc3c5ec", "gnp": "df7b5695c2549f70", "frenet": "51ebfe8893f68f60",
     "mlp": "30fb7572d9e66bf6", "llm": "0035c0d451122504", "letspi-memory": "e09321132070e1d0",
     "letspi-fast": "e6fe29ec90f36ac0", "letspi-fs": "a66c3746e9059b93",
-    "sf-check": "9627c7a091d75483",  # issue 28's kind, pinned on main at 5fb7037
+    "sf-check": "4467408d9bff8417",  # issue 28's kind, pinned on main at 9cb44e3, presets and risk model replaced
 }
 #: one option changed at a time (``@name``: a file of the fixture): the kinds whose key it moves (the other
 #: kinds keep their default key); ``refused`` where resolution refuses the option
 VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "neighbours": ({"neighbour_mode": "constant_velocity"}, {"idm": "7ebf8bb605573595", "sf": "9d8c0b64e7c852b6",
-        "sf-check": "e3792b615ac240ad", "sf-opt": "a93543ee377f5fdd", "gnp": "80541cd6172574bb",
+        "sf-check": "df7d7614b5e12017", "sf-opt": "a93543ee377f5fdd", "gnp": "80541cd6172574bb",
         "frenet": "2cb73f85d2d8c293", "mlp": "3800ea4877565340", "llm": "3e9c860384ea6192",
         "letspi-memory": "239485c4d350f9f0", "letspi-fast": "2070d80d08eaacf6", "letspi-fs": "f6fef997bd3eac4e"}),
     "kinematic goals": ({"goals": "kinematic"}, {"sf": "5c341163810f3bb0", "sf-opt": "8bad0e27c282074e",
-        "gnp": "refused", "sf-check": "86dc031b3bd619d9", "frenet": "842a6dbf3138d608", "mlp": "a31e4e9832425486",
+        "gnp": "refused", "sf-check": "6398c8379ab9ff7c", "frenet": "842a6dbf3138d608", "mlp": "a31e4e9832425486",
         "llm": "69c98101af310ebe", "letspi-memory": "913690e54903e33a", "letspi-fast": "c764a90d7a0e8aa1",
         "letspi-fs": "9bb09b47748ebbb7"}),
     "oracle goals": ({"goals": "oracle"}, {"sf": "4ac840df89cec3af", "sf-opt": "37d980c247977be5", "gnp": "refused",
-        "sf-check": "999fbdde584688f9", "frenet": "439d00fefb00f383", "mlp": "e9c670d41bb5436d",
+        "sf-check": "dbe6d6f8489e496f", "frenet": "439d00fefb00f383", "mlp": "e9c670d41bb5436d",
         "llm": "af510e4d3f3e5248", "letspi-memory": "167e5b418e9be2f8", "letspi-fast": "301b79c85fd6e0e0",
         "letspi-fs": "95edead385379532"}),
     "sf parameter file": ({"sf_params_file": "@sf"}, {"sf": "49ea889f0a86441c", "sf-opt": "59140a2db3b5cd12",
-        "sf-check": "c0d94695c66c7fdb", "mlp": "9ef1ad2c6504591c", "llm": "48cec17611cf1242",
+        "sf-check": "675bca0166c9ebfd", "mlp": "9ef1ad2c6504591c", "llm": "48cec17611cf1242",
         "letspi-memory": "fbcdf12c32ca6083", "letspi-fast": "5dacdb41a6d20cbf", "letspi-fs": "025a394a9b1fa0a7"}),
     "frenet weights file": ({"frenet_weights_file": "@frenet"}, {"frenet": "60ea6946bb5bdc07"}),
     "top-k": ({"top_k": 5}, {"letspi-fast": "06a24917eef61dad", "letspi-fs": "a372138f1d530609"}),
@@ -109,13 +119,13 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "memory key": ({"memory_key": "0123456789abcdef"}, {"letspi-fast": "296d20bd09ada67b",
         "letspi-fs": "04f8071ccfd1fe7c"}),
     "no shield": ({"shield": False}, {"llm": "b2f1bf72dde95a66", "letspi-memory": "72e49b6cdb022509",
-        "letspi-fast": "77793932b6d563cf", "letspi-fs": "a4e42b056b4494b7", "sf-check": "bf17b2e697af18c3"}),
-    # the decision step (issue 28; pinned on main at 5fb7037)
-    "no gate": ({"gate": False}, {"sf-check": "aff53c80e956f7fd"}),
-    "gate threshold": ({"gate_threshold": 0.5}, {"sf-check": "2a94bd4dde326562"}),
-    "no adverse": ({"adverse": False}, {"sf-check": "aa0bc07536e544f9"}),
-    "decide": ({"decide": True}, {"llm": "930a9881b812fe50", "letspi-memory": "83cfafaa55180241",
-        "letspi-fast": "2aef0b51ad1be0a4", "letspi-fs": "5f87f70b4c11c91d"}),
+        "letspi-fast": "77793932b6d563cf", "letspi-fs": "a4e42b056b4494b7", "sf-check": "c3630e9eac3c951b"}),
+    # the decision step (issue 28; pinned on main at 9cb44e3, presets and risk model replaced)
+    "no gate": ({"gate": False}, {"sf-check": "d63b4ca94c696aff"}),
+    "gate threshold": ({"gate_threshold": 0.5}, {"sf-check": "d1efc37625dc0cbd"}),
+    "no adverse": ({"adverse": False}, {"sf-check": "1e129cca5fb21ec6"}),
+    "decide": ({"decide": True}, {"llm": "94aa85039b987d52", "letspi-memory": "db8a47332a863b08",
+        "letspi-fast": "a8bb2b1d77222f48", "letspi-fs": "eb2b62e796104e6f"}),
     "compact prompt": ({"prompt_style": "compact"}, {"llm": "465c6c7af86c0d4e", "letspi-memory": "94f7ab4838a8f269",
         "letspi-fast": "4fe8ce85cf6eaea5", "letspi-fs": "67f02206d47f224b"}),
     "cosmetic only": ({"llm_cache": False, "llm_timeout_s": 12.0}, {}),

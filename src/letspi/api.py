@@ -29,13 +29,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.assembly.build import BuiltPlanner, build_planners
-from letspi.assembly.resolve import PlannerOptions
+from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.evaluation.harness import load_planner_results, read_summary, summary_markdown
 from letspi.metrics.aggregate import TABLE_COLUMNS
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch, Planner
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import count_scenarios
 from letspi.scenario.store import load_scenarios as _load
 from letspi.scenario.types import ScenarioBatch
@@ -63,8 +63,8 @@ def load_scenarios(path: str | Path, *, limit: int | None = None,
 
 def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
     """Build planners from ``KIND`` or ``LABEL=KIND`` specs (``letspi planners`` lists the kinds) with
-    planner options by name (``goals="kinematic"``, ``sf_params_file=...``: the fields of
-    ``PlannerOptions``, the CLI's planner flags). Models load once, here."""
+    planner options by name (``goals="kinematic"``, ``sf_params_file=...``: the planner options of the
+    planner table, the CLI's planner flags; ``letspi planners --json`` lists them). Models load once, here."""
     if not specs:
         raise ValueError("name at least one planner, e.g. planners('sf')")
     return build_planners(list(specs), PlannerOptions(**options))
@@ -72,9 +72,11 @@ def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
 
 def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
     """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
-    unless the planner reads the recorded future (an oracle). Untimed and unscored: ``evaluate`` for that."""
-    p = planner.planner if isinstance(planner, BuiltPlanner) else planner
-    return p.plan(batch if p.reads_future else batch.history())
+    unless its kind reads the recorded future (an oracle; a bare planner object gets the history). Untimed
+    and unscored: ``evaluate`` for that."""
+    if isinstance(planner, BuiltPlanner):
+        return planner.planner.plan(batch if planner.reads_future else batch.history())
+    return planner.plan(batch.history())
 
 
 def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
