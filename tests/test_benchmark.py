@@ -163,6 +163,9 @@ def test_run_suite_twice_gives_the_same_leaderboard_bytes_and_reuses_the_data(
     from letspi.scenario.store import read_scenario_meta
     meta = read_scenario_meta(first.data.scenarios_file)
     assert [g["seed"] for g in meta["provenance"]["generation"]] == [1995]  # type: ignore[index]
+    other = replace(suite, extraction=replace(suite.extraction, seed=2), modes=(OPEN_LOOP,))
+    third = run_suite(other, ["sf"], tmp_path / "c", workers=0, reports=False, log=lambda _m: None)
+    assert not third.data.reused and third.timing["generation_s"] == 0.0  # new windows, the same traffic
 
 
 @pytest.mark.sumo

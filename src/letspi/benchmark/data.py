@@ -2,12 +2,13 @@
 
 Cache layout (``$LETSPI_BENCHMARK_CACHE``, default ``~/.cache/letspi/benchmark``)::
 
-    data/<key>/traffic/seed_<S>/NN_*.csv, NN_events.csv, NN_generation.json, done.json
-    data/<key>/scenarios.arrow
+    traffic/<traffic key>/seed_<S>/NN_*.csv, NN_events.csv, NN_generation.json, done.json
+    scenarios/<key>/scenarios.arrow
 
-``<key>`` is a digest of the suite's data and extraction definitions (``Suite.definition``: preset
-resolved to its full configuration, seeds, minutes, ...; real HighD: the recording ids and the digests
-of the files seen) and :data:`DATA_FORMAT`, so any change to either makes new data. Each seed is
+``<traffic key>`` is a digest of the suite's traffic definition (preset resolved to its full
+configuration, seeds, minutes, ...) and :data:`DATA_FORMAT`; ``<key>`` adds the extraction (and, for
+real HighD, the recording ids and the digests of the files seen). Any change makes new data; a change
+of the extraction alone reuses the traffic. Each seed is
 generated in its own process (two seeds run side by side on two cores); a seed directory counts once
 its ``done.json`` is written, so an interrupted generation resumes with the seeds still missing.
 """
@@ -182,15 +183,16 @@ def prepare_data(suite: Suite, *, highd_dir: Path | None = None, allow_other_fil
         digests = check_highd_files(suite.data, highd_dir, allow_other_files=allow_other_files, warn=log)
     elif highd_dir is not None:
         raise SuiteDataError(f"{suite.name} generates its own traffic; --highd applies to real-data suites only")
-    root = cache_root() / "data" / data_key(suite, digests)
+    root = cache_root() / "scenarios" / data_key(suite, digests)
     scenarios = root / "scenarios.arrow"
     if scenarios.exists():
         return SuiteData(scenarios, 0.0, 0.0, reused=True, file_digests=digests)
     generation_s = 0.0
     if isinstance(suite.data, GeneratedTraffic):
-        dirs, generation_s = generate_traffic(suite.data, root / "traffic", workers=workers, log=log)
+        traffic_root = cache_root() / "traffic" / _digest({"format": DATA_FORMAT, "data": suite.data.definition()})
+        dirs, generation_s = generate_traffic(suite.data, traffic_root, workers=workers, log=log)
         recs, events, generation = _load_seed_dirs(dirs)
-        source = str(root / "traffic")
+        source = str(traffic_root)
     else:
         assert highd_dir is not None
         recs = [read_recording(highd_dir, rid) for rid in suite.data.recording_ids]
@@ -210,6 +212,7 @@ def prepare_data(suite: Suite, *, highd_dir: Path | None = None, allow_other_fil
                   "stride_frames": ex.stride_frames, "max": ex.n_windows, "seed": ex.seed,
                   "windows_available": len(windows), "focus": ex.focus, "critical_share": ex.critical_share,
                   "critical_windows_available": n_critical, "generation": generation}
+    root.mkdir(parents=True, exist_ok=True)
     tmp = root / f".scenarios.{os.getpid()}.arrow"
     save_scenarios(batch, tmp, extra_meta={"provenance": provenance})
     os.replace(tmp, scenarios)
