@@ -187,10 +187,10 @@ class Suite:
         return isinstance(self.data, GeneratedTraffic)
 
 
-_CRITICAL_SIZING = ("3,000 windows in open loop: a 1-point CR difference is detected by exact McNemar (alpha "
-                    "0.05, power 0.8) up to a discordance of 3.5 % of windows; 2,000 of them in closed loop, where "
-                    "CRs and discordance are about 1 % (power > 0.95); docs/benchmark.md. Issue 28 needs >= 2,000 "
-                    "critical-focus windows in both modes")
+_CRITICAL_SIZING = ("closed loop, 2,000 windows: planners disagree on 0.7-1.7 % of them, a 1-point CR difference "
+                    "is detected by exact McNemar (alpha 0.05) with power 0.77-0.99; open loop, 3,000 windows: "
+                    "frenet vs sf disagree on 2.8-4.3 % (design effect 1.3-1.5), power 0.61-0.75, 4,600 would "
+                    "reach 0.8 (docs/benchmark.md). Issue 28 needs >= 2,000 critical-focus windows in both modes")
 
 #: THE table of suites (one entry per suite; seeds are never shared between suites)
 SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
@@ -200,9 +200,10 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="realistic", layout="straight", seeds=(1001, 1002), minutes=20.0),
         extraction=Extraction(focus="uniform", n_windows=3000, seed=1001),
         modes=(OPEN_LOOP,),
-        scripted="few scripted events (the realistic preset's rates); most windows hold no conflict",
-        sizing="3,000 windows: open-loop CRs here are about 1 %, so discordance stays under 2 % and "
-               "a 1-point difference is detected with power > 0.9 (docs/benchmark.md)",
+        scripted="scripted events, few: 24 hard brakes, 17 cut-ins, 1 truck pull-out in the 40 minutes; 380 of "
+                 "24,466 windows have a conflict",
+        sizing="3,000 windows: open-loop CRs here are 0.2-0.7 % and planners disagree on at most 0.4 % of "
+               "the windows, so a 1-point difference is detected with power 1.00 (docs/benchmark.md)",
     ),
     Suite(
         name="highway-critical", version=1,
@@ -210,7 +211,7 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="highd", layout="straight", seeds=(1011, 1012), minutes=20.0),
         extraction=Extraction(focus="critical", n_windows=3000, seed=1011, critical_share=0.5),
         modes=(OPEN_LOOP,),
-        scripted="scripted events: about 3 hard brakes, 5 cut-ins and 1 truck pull-out per simulated minute",
+        scripted="scripted events: 107 hard brakes, 115 cut-ins, 24 truck pull-outs in the 40 minutes",
         sizing=_CRITICAL_SIZING,
     ),
     Suite(
@@ -220,7 +221,7 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="stress", layout="straight", seeds=(1021, 1022), minutes=20.0),
         extraction=Extraction(focus="critical", n_windows=3000, seed=1021, critical_share=0.5),
         modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events: about 5 hard brakes, 7 cut-ins and 2 truck pull-outs per simulated minute",
+        scripted="scripted events: 179 hard brakes, 82 cut-ins, 45 truck pull-outs in the 40 minutes",
         sizing=_CRITICAL_SIZING,
     ),
     Suite(
@@ -230,7 +231,8 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="highd", layout="on_ramp", seeds=(1031, 1032), minutes=20.0),
         extraction=Extraction(focus="critical", n_windows=3000, seed=1031, critical_share=0.5),
         modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events as highway-critical, plus merges from the ramp (not scripted)",
+        scripted="scripted events: 98 hard brakes, 116 cut-ins, 30 truck pull-outs in the 40 minutes; merges from "
+                 "the ramp are not scripted",
         sizing=_CRITICAL_SIZING,
     ),
     Suite(
@@ -240,7 +242,8 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="highd", layout="lane_drop", seeds=(1041, 1042), minutes=20.0),
         extraction=Extraction(focus="critical", n_windows=3000, seed=1041, critical_share=0.5),
         modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events as highway-critical, plus forced merges where the lane ends (not scripted)",
+        scripted="scripted events: 88 hard brakes, 110 cut-ins, 25 truck pull-outs in the 40 minutes; merges where "
+                 "the lane ends are not scripted",
         sizing=_CRITICAL_SIZING,
     ),
     Suite(
