@@ -336,7 +336,8 @@ BUILT_IN_KINDS: tuple[PlannerKind[Any], ...] = (
                 _build_sf_opt, sf_opt.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
     PlannerKind("sf-check", "the decision step without a model: presets checked against the prediction and the "
                 "adverse futures, the defaults unless a check fails (where the risk gate fires), the LLM shield",
-                SfCheckConfig, _resolve_sf_check, _build_sf_check, sf_check.OPTIONS, inputs=_goals_and_neighbours),
+                SfCheckConfig, _resolve_sf_check, _build_sf_check, sf_check.OPTIONS, inputs=_goals_and_neighbours,
+                demo=frozenset({DemoTable.HEAD_TO_HEAD})),
     PlannerKind("gnp", "Goal-based Neural Physics: learned tau and neighbour weights, learned goals", GnpConfig,
                 _resolve_gnp, _build_gnp, gnp.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
     PlannerKind("frenet", "Werling-style lattice: quintic/quartic candidates to lanes, speeds and predicted leaders; "

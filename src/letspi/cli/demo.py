@@ -21,6 +21,7 @@ from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
 from letspi.planners.llm import DEFAULT_LLM, LLM
 from letspi.planners.options import PlannerOptions
+from letspi.planners.sf_check import DecisionPlanner
 from letspi.scenario.extract import count_windows, extract_scenarios
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle
@@ -90,12 +91,26 @@ def demo(
     console.print("files:\n  " + "\n  ".join(outputs))
 
 
+def _scenes_that_call_for_a_decision(batch: ScenarioBatch, rows: np.ndarray, n: int, options: PlannerOptions,
+                                     rng: np.random.Generator) -> np.ndarray:
+    """``n`` of ``rows``: half the riskiest by the decision step's risk model (scenes where a planner should
+    not simply keep its defaults), half drawn at random from the others; sorted."""
+    sf = build_planners(["sf-check"], options.replace(llm_cache=False))[0].planner
+    assert isinstance(sf, DecisionPlanner)
+    hist = batch.take(rows).history()
+    _, _, risk, _ = sf.choose(hist, sf.context(hist))
+    riskiest = rows[np.argsort(-risk, kind="stable")[: n // 2]]
+    others = np.setdiff1d(rows, riskiest)
+    return np.sort(np.concatenate([riskiest, rng.choice(others, min(n - len(riskiest), len(others)), replace=False)]))
+
+
 def _llm_demo(batch: ScenarioBatch, out: Path, options: PlannerOptions, n_collect: int, n_eval: int) -> list[str]:
-    """Collect a small memory on some ego vehicles, compare planners on other vehicles' scenarios."""
-    collect_rows, eval_rows = split_by_vehicle(batch, 0.5, seed=0)
+    """Collect a small memory on some ego vehicles, compare planners on other vehicles' scenarios (half of
+    them the riskiest of those vehicles' windows, half at random)."""
+    collect_rows, held_back = split_by_vehicle(batch, 0.5, seed=0)
     rng = np.random.default_rng(0)
     collect_rows = np.sort(rng.choice(collect_rows, min(n_collect, len(collect_rows)), replace=False))
-    eval_rows = np.sort(rng.choice(eval_rows, min(n_eval, len(eval_rows)), replace=False))
+    eval_rows = _scenes_that_call_for_a_decision(batch, held_back, min(n_eval, len(held_back)), options, rng)
     collect_file, eval_file = out / "scenarios-llm-collect.arrow", out / "scenarios-llm-eval.arrow"
     save_scenarios(batch.take(collect_rows), collect_file)  # `letspi ablate --scenarios` can reuse both sets
     save_scenarios(batch.take(eval_rows), eval_file)
