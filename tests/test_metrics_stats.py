@@ -60,6 +60,7 @@ def test_wilson_closed_form_and_design_effect_by_hand() -> None:
     flags = np.arange(300) % 25 == 0
     assert vehicle_wilson_interval(flags, np.arange(300)) == wilson_interval(int(flags.sum()), 300)
     assert vehicle_wilson_interval([1, 1, 0, 0], groups) == wilson_ends(0.5, 1.0)
+    assert wilson_ends(0.0, 123.4)[0] == 0.0 and wilson_ends(1.0, 123.4)[1] == 1.0  # not 1e-17 off
 
 
 def test_vehicle_wilson_covers_a_rate_of_clustered_windows_where_plain_wilson_does_not() -> None:

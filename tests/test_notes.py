@@ -34,15 +34,16 @@ OUTSIDE = re.compile(r"(?<![\w.~-])/(?:work|tmp|root|home)/[\w.-]*")
 
 def _repository_files() -> list[str]:
     out = [p.name for p in ROOT.glob("*.py")]
-    for folder in ("src", "tests", "scripts", "notes", "docs", ".ci"):
+    for folder in ("src", "tests", "scripts", "notes", "docs", ".ci", "examples"):
         out += [str(p.relative_to(ROOT)) for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts]
     return out
 
 
 def missing_py_paths(text: str, files: list[str]) -> list[str]:
     """The ``.py`` paths of ``text`` that name no file of ``files`` (repository-relative paths)."""
-    return [p for p in PY_PATH.findall(text)
-            if p not in EXAMPLE_FILES and not any(f == p or f.endswith("/" + p) for f in files)]
+    found = [(p, p.replace("../", "")) for p in PY_PATH.findall(text)]  # a docs/ link: ../examples/x.py
+    return [p for p, q in found
+            if p not in EXAMPLE_FILES and not any(f == q or f.endswith("/" + q) for f in files)]
 
 
 def missing_dotted(text: str) -> list[str]:

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from letspi.assembly.planners import BuiltPlanner, build_planners
+from letspi.evaluation.closed_loop import evaluate_closed_loop
 from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.evaluation.harness import load_planner_results, read_summary, summary_markdown
 from letspi.metrics.aggregate import TABLE_COLUMNS
@@ -39,10 +40,11 @@ from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import count_scenarios
 from letspi.scenario.store import load_scenarios as _load
 from letspi.scenario.types import ScenarioBatch
+from letspi.simulation.config import ClosedLoopConfig
 from letspi.viz.report import write_report
 
-__all__ = ["PlanBatch", "Results", "ScenarioBatch", "evaluate", "load_scenarios", "open_results", "plan",
-           "planners"]
+__all__ = ["ClosedLoopConfig", "PlanBatch", "Results", "ScenarioBatch", "evaluate", "load_scenarios", "open_results",
+           "plan", "planners"]
 
 #: the metrics of ``Results.summary`` by default: the paper's table (``letspi.metrics.aggregate.TABLE_COLUMNS``)
 SUMMARY_KEYS: tuple[str, ...] = tuple(key for _, key in TABLE_COLUMNS)
@@ -81,20 +83,26 @@ def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
 
 def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
              limit: int | None = None, reference: str | None = None,
-             metrics_config: MetricsConfig | None = None) -> Results:
-    """Evaluate ``planners`` open loop on ``scenarios`` (a batch, or a scenario file with an optional
-    ``limit``) into the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and
-    plans stored, keyed by dataset, metrics configuration and planner configuration; an interrupted or
-    repeated call resumes; planners of earlier calls are kept. ``reference``: the planner the others are
-    compared with (default ``sf`` when present). Returns the directory's ``Results``."""
+             metrics_config: MetricsConfig | None = None, closed_loop: ClosedLoopConfig | None = None) -> Results:
+    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file with an optional ``limit``) into
+    the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and plans stored,
+    keyed by dataset, metrics configuration and planner configuration; an interrupted or repeated call
+    resumes; planners of earlier calls are kept. ``reference``: the planner the others are compared with
+    (default ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g.
+    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (SUMO; ``closed-loop-hybrid`` here
+    without scripted neighbours). Returns the directory's ``Results``."""
     if isinstance(scenarios, ScenarioBatch):
         if limit is not None:
             raise ValueError("limit applies to a scenario file; pass batch.take(...) instead")
         batch, source = scenarios, ""
     else:
         batch, source = load_scenarios(scenarios, limit=limit), str(scenarios)
-    run_evaluation(list(planners), batch, Path(out), scenarios_file=source, config=metrics_config,
-                   reference=reference)
+    if closed_loop is not None:
+        evaluate_closed_loop(list(planners), batch, Path(out), closed_loop, scenarios_file=source,
+                             config=metrics_config, reference=reference)
+    else:
+        run_evaluation(list(planners), batch, Path(out), scenarios_file=source, config=metrics_config,
+                       reference=reference)
     return open_results(out)
 
 

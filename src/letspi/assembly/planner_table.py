@@ -16,23 +16,32 @@ Adding a planner: write ``letspi/planners/<name>.py`` with the planner, its ``Co
 nothing in ``letspi.cli`` changes.
 
 The table is a value, not a registry: nothing is registered on import. ``planner_table()`` is the
-table every command uses: today the built-in kinds. Planner kinds from outside letspi join there,
-on request (the hook issue 27 fills in): ``planner_table()`` returns
-``BUILT_IN.with_kinds(*discovered)``, where ``discovered`` are the ``PlannerKind`` objects named by
-the ``letspi.planners`` entry-point group of installed packages, and ``--planner mypkg.mod:NAME``
-loads one ``PlannerKind`` by its import path the same way. Such a kind is plain data like these: a
-``Config`` subclass whose fields (a version string among them) enter its result key, its
-``PlannerOption``s, and ``resolve``/``build`` functions over the public ``Resolver`` and ``Builder``.
+table every command uses: the built-in kinds, then the kinds of installed packages and those named
+by import path. Such a kind is plain data like these: a ``PlannerKind`` whose ``Config`` subclass
+has a ``version`` field (what makes its results differ: every field enters its result key), its
+``PlannerOption``s, and ``resolve``/``build`` functions over the public ``Resolver`` and ``Builder``
+(``letspi.plugin`` exports them; docs/your-planner.md):
+
+* installed: a package names its ``PlannerKind`` in the ``letspi.planners`` entry-point group
+  (``installed_kinds``, read once per process; one that fails to load or clashes with a kind or an
+  option of the table is left out and reported by ``letspi planners``);
+* by import path: ``--planner mypkg.mod:NAME`` (``load_kind``; remembered for the process, so that
+  the table of every later command and worker has it).
+
+Commands that pick planners themselves (the benchmark suites' defaults, the robustness bench) use
+``BUILT_IN``, so what is installed never changes their results.
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
+from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Annotated, Any, Generic, TypeVar, Union
+from typing import Annotated, Any, Final, Generic, TypeVar, Union
 
 from pydantic import Field, TypeAdapter
 
@@ -361,6 +370,125 @@ BUILT_IN_KINDS: tuple[PlannerKind[Any], ...] = (
 BUILT_IN = PlannerTable(BUILT_IN_KINDS)
 
 
+# kinds from outside letspi ------------------------------------------------------------------------
+#: the entry-point group through which installed packages add planner kinds
+ENTRY_POINT_GROUP: Final = "letspi.planners"
+#: where to read how to write one
+PLUGIN_DOC: Final = "docs/your-planner.md"
+
+
+class PlannerKindError(ValueError):
+    """A planner kind from outside letspi that cannot be used (the message names it and why)."""
+
+
+def _checked(obj: object, where: str, table: PlannerTable) -> PlannerKind[Any]:
+    """``obj`` as a kind that can join ``table``: a ``PlannerKind`` whose configuration declares a version."""
+    if not isinstance(obj, PlannerKind):
+        what = "a class" if isinstance(obj, type) else f"a {type(obj).__name__}"
+        raise PlannerKindError(f"{where} is {what}, not a letspi PlannerKind: wrap the planner in one ({PLUGIN_DOC})")
+    version = obj.config_class.model_fields.get("version")
+    if version is None:
+        raise PlannerKindError(f"{where}: its configuration {obj.config_class.__name__} has no 'version' field; "
+                               "declare what makes its results differ (a version string enters the result key)")
+    if obj.name in table.names:
+        raise PlannerKindError(f"{where}: planner kind {obj.name!r} exists already")
+    prefix = obj.name.replace("-", "_") + "_"
+    shared = {o.name: o for o in BUILT_IN.options()}
+    foreign = [o.name for o in obj.options if shared.get(o.name) != o and not o.name.startswith(prefix)]
+    if foreign:  # its own options carry its name, so that they never clash with a command's flags
+        raise PlannerKindError(f"{where}: option(s) {', '.join(foreign)} must start with {prefix!r} (or be "
+                               "letspi's own option, e.g. letspi.planners.config.GOALS)")
+    try:
+        table.with_kinds(obj)
+    except ValueError as exc:  # an option name another kind declares differently
+        raise PlannerKindError(f"{where}: {exc}") from None
+    return obj
+
+
+@dataclass(frozen=True)
+class InstalledKinds:
+    """What the ``ENTRY_POINT_GROUP`` of installed packages offers: the kinds that can join the table,
+    where each comes from (kind name -> "package VERSION"), and one line per entry point left out."""
+
+    kinds: tuple[PlannerKind[Any], ...]
+    origins: dict[str, str]
+    problems: tuple[str, ...]
+
+
+@functools.cache
+def installed_kinds() -> InstalledKinds:
+    """The kinds installed packages name in ``ENTRY_POINT_GROUP`` (by entry-point name; module docstring).
+    Read once per process."""
+    kinds: list[PlannerKind[Any]] = []
+    origins: dict[str, str] = {}
+    problems: list[str] = []
+    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        dist = getattr(ep, "dist", None)
+        package = f"{dist.name} {dist.version}" if dist is not None else "a package"
+        where = f"{ep.value} (entry point {ep.name!r} of {package})"
+        try:
+            kind = _checked(ep.load(), where, BUILT_IN.with_kinds(*kinds))
+        except PlannerKindError as exc:
+            problems.append(str(exc))
+            continue
+        except Exception as exc:  # a broken plug-in must not break letspi: it is reported
+            problems.append(f"{where}: {type(exc).__name__}: {exc}")
+            continue
+        kinds.append(kind)
+        origins[kind.name] = package
+    return InstalledKinds(tuple(kinds), origins, tuple(problems))
+
+
+def kind_origin(name: str) -> str:
+    """Where a kind of the table comes from: "built in", "package VERSION" or "import path MODULE:NAME"."""
+    if name in BUILT_IN.names:
+        return "built in"
+    path = loaded_from(name)
+    return f"import path {path}" if path is not None else installed_kinds().origins.get(name, "unknown")
+
+
+#: kinds loaded by import path in this process (``load_kind``), by path
+_BY_PATH: dict[str, PlannerKind[Any]] = {}
+
+
+def is_import_path(kind: str) -> bool:
+    """Whether a ``--planner`` kind names a kind by import path (``mypkg.mod:NAME``)."""
+    return ":" in kind
+
+
+def load_kind(target: str) -> PlannerKind[Any]:
+    """The ``PlannerKind`` at ``target`` (``package.module:NAME``), checked (``PlannerKindError`` saying why
+    not); it joins ``planner_table()`` for the rest of the process."""
+    if target in _BY_PATH:
+        return _BY_PATH[target]
+    module_name, _, attribute = target.partition(":")
+    where = f"--planner {target}"
+    if not module_name or not attribute:
+        raise PlannerKindError(f"{where}: an import path is package.module:NAME")
+    try:
+        obj: object = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise PlannerKindError(f"{where}: cannot import {module_name} ({exc}); is its package installed?") from None
+    for part in attribute.split("."):
+        if not hasattr(obj, part):
+            raise PlannerKindError(f"{where}: {module_name} has no {attribute!r}")
+        obj = getattr(obj, part)
+    table = planner_table()
+    same = next((k for k in table.kinds if k is obj), None)  # an installed kind named by its path
+    kind = same if same is not None else _checked(obj, where, table)
+    _BY_PATH[target] = kind
+    return kind
+
+
+def loaded_from(name: str) -> str | None:
+    """The import path a kind of this process was loaded from (None: built in or installed)."""
+    return next((path for path, kind in _BY_PATH.items() if kind.name == name), None)
+
+
 def planner_table(extra: Sequence[PlannerKind[Any]] = ()) -> PlannerTable:
-    """The table of every kind a command offers: the built-in ones and ``extra`` (module docstring)."""
-    return BUILT_IN.with_kinds(*extra) if extra else BUILT_IN
+    """The table of every kind a command offers: the built-in ones, the installed ones, those loaded by
+    import path, and ``extra`` (module docstring)."""
+    kinds: dict[str, PlannerKind[Any]] = {}
+    for kind in (*installed_kinds().kinds, *_BY_PATH.values(), *extra):
+        kinds.setdefault(kind.name, kind)
+    return BUILT_IN.with_kinds(*kinds.values()) if kinds else BUILT_IN

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from letspi.assembly.build import Builder
-from letspi.assembly.planner_table import BUILT_IN, PlannerTable, planner_table
+from letspi.assembly.planner_table import BUILT_IN, PlannerTable, is_import_path, load_kind, planner_table
 from letspi.assembly.resolve import Resolver
 from letspi.planners.base import Planner
 from letspi.planners.config import PlannerConfig
@@ -82,14 +82,28 @@ def build_planner(config: PlannerConfig, name: str | None = None, *, builder: Bu
     return BuiltPlanner(label, config, planner, load_s, None if table is BUILT_IN else table)
 
 
+def planner_kinds(args: Sequence[str]) -> list[tuple[str, str]]:
+    """(label, kind) of ``--planner`` arguments: ``KIND``, ``LABEL=KIND``, or a kind by import path
+    (``mypkg.mod:NAME``, ``LABEL=mypkg.mod:NAME``; loaded here, and labelled by its name unless given)."""
+    out = []
+    for arg in args:
+        label, kind = parse_planner_arg(arg)
+        if is_import_path(kind):
+            name = load_kind(kind).name
+            label, kind = (name if label == kind else label), name
+        out.append((label, kind))
+    return out
+
+
 def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
                    env: Mapping[str, str] | None = None, table: PlannerTable | None = None) -> list[BuiltPlanner]:
-    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (models are loaded once)."""
+    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (a kind by name or by import path,
+    ``planner_kinds``; models are loaded once)."""
+    labels = planner_kinds(args)
     table = table or planner_table()
     table.check(options)
     resolver = Resolver(options, env)
     builder = builder or Builder(cache="default" if options.get(LLM_CACHE) else None)
-    labels = [parse_planner_arg(a) for a in args]
     seen = [label for label, _ in labels]
     dup = sorted({x for x in seen if seen.count(x) > 1})
     if dup:

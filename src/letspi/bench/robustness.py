@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from letspi.assembly.build import Builder
-from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planner_table import BUILT_IN
 from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.assembly.resolve import Resolver
 from letspi.method.memory import MemoryBank
@@ -40,8 +40,8 @@ from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from letspi.scenario.types import ScenarioBatch
 
-PLAIN_PLANNERS = tuple(kind.name for kind in planner_table().kinds if not kind.uses_llm)
-LLM_PLANNERS = tuple(kind.name for kind in planner_table().kinds if kind.uses_llm)
+PLAIN_PLANNERS = tuple(kind.name for kind in BUILT_IN.kinds if not kind.uses_llm)
+LLM_PLANNERS = tuple(kind.name for kind in BUILT_IN.kinds if kind.uses_llm)
 SCRIPTED = "scripted:default"
 CHUNK = 500
 

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from letspi.assembly.planner_table import planner_table
-from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
+from letspi.assembly.planner_table import BUILT_IN
+from letspi.assembly.planners import BuiltPlanner, build_planners, planner_kinds
 from letspi.benchmark.data import SuiteData, prepare_data
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
 from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
@@ -43,7 +43,7 @@ from letspi.viz.report import write_report
 def default_planners() -> list[str]:
     """Every built-in planner that runs without a language model or files a default install lacks (``mlp``
     needs weights from ``letspi train mlp``), in the planner table's order."""
-    return [k.name for k in planner_table().kinds if not k.uses_llm and not issubclass(k.config_class, MlpConfig)]
+    return [k.name for k in BUILT_IN.kinds if not k.uses_llm and not issubclass(k.config_class, MlpConfig)]
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
               log: Callable[[str], None] = print) -> SuiteRun:
     """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode, write the leaderboard."""
     out = Path(out)
-    labels = [parse_planner_arg(a)[0] for a in planner_args]
+    labels = [label for label, _ in planner_kinds(planner_args)]
     timing: dict[str, float] = {}
     started = time.perf_counter()
     data = prepare_data(suite, highd_dir=highd_dir, allow_other_files=allow_other_files, workers=workers, log=log)

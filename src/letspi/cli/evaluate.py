@@ -10,7 +10,7 @@ import typer
 from rich.progress import Progress
 
 from letspi.assembly.planner_table import planner_table
-from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
+from letspi.assembly.planners import BuiltPlanner, build_planners, planner_kinds
 from letspi.cli.common import (
     ConcurrencyOpt,
     command_line,
@@ -199,7 +199,7 @@ def evaluate(
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
     (open loop, or closed loop in SUMO with --mode)."""
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
-        labels = [parse_planner_arg(p)[0] for p in planner]
+        labels = [label for label, _ in planner_kinds(planner)]
         closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),
                                       sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s)
         batch = load_limited(scenarios, limit)

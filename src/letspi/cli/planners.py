@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 import typer
 
-from letspi.assembly.planner_table import FutureUse, planner_table
+from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, installed_kinds, kind_origin, planner_table
 from letspi.planners.options import PlannerOption
 
 FUTURE_HEADER = "reads future"
@@ -26,8 +26,9 @@ def planners(
     letspi.assembly.planner_table)."""
     table = planner_table()
     rows: list[dict[str, Any]] = [{"kind": k.name, "description": k.description, "reads_future": k.future.value,
-             "config": k.config_class.__name__, "dual_rate": k.dual_rate,
+             "config": k.config_class.__name__, "dual_rate": k.dual_rate, "source": kind_origin(k.name),
              "options": [_option_row(o) for o in k.options]} for k in table.kinds]
+    problems = installed_kinds().problems
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
         return
@@ -35,10 +36,15 @@ def planners(
     future_w = max(len(row["reads_future"]) for row in [*rows, {"reads_future": FUTURE_HEADER}])
     typer.echo(f"{'kind':<{kind_w}}  {FUTURE_HEADER:<{future_w}}  description")
     for row in rows:
-        typer.echo(f"{row['kind']:<{kind_w}}  {row['reads_future']:<{future_w}}  {row['description']}")
+        source = "" if row["source"] == "built in" else f" [{row['source']}]"
+        typer.echo(f"{row['kind']:<{kind_w}}  {row['reads_future']:<{future_w}}  {row['description']}{source}")
         flags = " ".join(o["flag"] for o in row["options"])
         if flags:
             typer.echo(f"{'':<{kind_w}}  {'':<{future_w}}  settings: {flags}")
     typer.echo(f"\n{FUTURE_HEADER}: {FutureUse.ALWAYS.value} = replays the recorded future (a reference, not a "
                f"planner); {FutureUse.ORACLE_INPUTS.value} = with --goals oracle or --neighbours "
-               "ground_truth_oracle. `letspi evaluate --help` describes every setting.")
+               "ground_truth_oracle. `letspi evaluate --help` describes every setting. Installed packages add kinds "
+               f"through the entry-point group {ENTRY_POINT_GROUP!r}; --planner package.module:NAME loads one by its "
+               "import path.")
+    for problem in problems:
+        typer.echo(f"left out: {problem}", err=True)

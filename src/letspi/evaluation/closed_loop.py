@@ -279,7 +279,7 @@ def planner_spec(built: BuiltPlanner, settings: ClosedLoopConfig) -> PlannerSpec
     """In this process the planner the CLI built (its model is loaded once); in workers or on Ray its
     configuration, from which every worker builds its own."""
     if settings.uses_processes():
-        return PlannerSpec(built.config, built.name)
+        return PlannerSpec.of_built(built)
     return built
 
 

@@ -81,7 +81,9 @@ def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
     shrink = 1.0 + z * z / n
     centre = (p_hat + z * z / (2 * n)) / shrink
     half = z / shrink * math.sqrt(max(p_hat * (1.0 - p_hat), 0.0) / n + z * z / (4 * n * n))
-    return rounded(max(0.0, centre - half)), rounded(min(1.0, centre + half))
+    low = 0.0 if p_hat <= 0.0 else max(0.0, centre - half)  # exactly 0 / 1 at the ends, not 1e-17 off
+    high = 1.0 if p_hat >= 1.0 else min(1.0, centre + half)
+    return rounded(low), rounded(high)
 
 
 def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any]) -> float:

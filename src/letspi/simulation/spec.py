@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from letspi.assembly.planner_table import planner_table
+from letspi.assembly.planner_table import PlannerTable, load_kind, loaded_from, planner_table
 from letspi.assembly.planners import BuiltPlanner, resolve_planner
 from letspi.assembly.planners import build_planner as assemble_planner
 from letspi.planners.base import Planner
@@ -30,15 +30,29 @@ class PlannerSpec:
         config: the planner's frozen configuration (``letspi.planners.config``); its key
             identifies the planner in results.
         name: the label of its results (default: the configuration's kind).
+        kind_source: the import path of a kind loaded by path (``--planner mypkg.mod:NAME``), which a
+            worker process loads before building; None for built-in and installed kinds.
     """
 
     config: PlannerConfig
     name: str = ""
+    kind_source: str | None = None
+
+    def table(self) -> PlannerTable:
+        """The planner table with this planner's kind (one loaded by import path is loaded again here)."""
+        if self.kind_source is not None:
+            load_kind(self.kind_source)
+        return planner_table()
 
     @classmethod
     def of(cls, kind: str, options: PlannerOptions | None = None, *, name: str = "") -> PlannerSpec:
         """Resolve ``kind`` with ``options`` (files and environment are read here, once)."""
         return cls(resolve_planner(kind, options), name or kind)
+
+    @classmethod
+    def of_built(cls, built: BuiltPlanner) -> PlannerSpec:
+        """The description of a planner built in this process, for a worker to build its own."""
+        return cls(built.config, built.name, loaded_from(built.config.kind))
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -55,7 +69,7 @@ def build_planner(spec: PlannerSpecLike) -> Planner:
     if isinstance(spec, BuiltPlanner):
         return spec.planner
     if isinstance(spec, PlannerSpec):
-        return assemble_planner(spec.config, spec.name).planner
+        return assemble_planner(spec.config, spec.name, table=spec.table()).planner
     raise TypeError(f"planner_spec must be a PlannerSpec or a BuiltPlanner, got {type(spec).__name__}")
 
 
@@ -71,9 +85,9 @@ def reads_recorded_future(spec: PlannerSpecLike) -> bool:
 
     Such planners are given the log's future (shifted to each replanning instant) instead of NaN.
     """
-    return spec.reads_future if isinstance(spec, BuiltPlanner) else planner_table().reads_future(spec.config)
+    return spec.reads_future if isinstance(spec, BuiltPlanner) else spec.table().reads_future(spec.config)
 
 
 def runs_dual_rate(spec: PlannerSpecLike) -> bool:
     """Whether the closed loop runs the planner dual-rate (the LLM planners; from the table)."""
-    return spec.dual_rate if isinstance(spec, BuiltPlanner) else planner_table().kind_of(spec.config).dual_rate
+    return spec.dual_rate if isinstance(spec, BuiltPlanner) else spec.table().kind_of(spec.config).dual_rate
