@@ -42,10 +42,15 @@ def box_gap(dx: np.ndarray, dy: np.ndarray, hx: np.ndarray, hy: np.ndarray) -> n
     return np.hypot(gx, gy)
 
 
+def box_gaps(inp: MetricInputs) -> np.ndarray:
+    """Box gap [m] to every neighbour, (B, N, F); NaN where invalid."""
+    return box_gap(inp.dx_m, inp.dy_m, inp.half_len_sum_m, inp.half_wid_sum_m)
+
+
 def distances(inp: MetricInputs) -> DistanceResult:
     """Centre distance and box gap to every valid neighbour and their per-scenario minima."""
     centre = np.hypot(inp.dx_m, inp.dy_m)  # NaN where invalid -> ignored by the minimum
-    gap = box_gap(inp.dx_m, inp.dy_m, inp.half_len_sum_m, inp.half_wid_sum_m)
+    gap = box_gaps(inp)
     c_val, c_step, c_nbr = min_over_nbr_time(centre)
     g_val, g_step, g_nbr = min_over_nbr_time(gap)
     return DistanceResult(

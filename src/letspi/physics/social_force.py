@@ -160,11 +160,13 @@ class SocialForceScene:
         return int(self.nbr_x_m.shape[1])
 
     def take(self, indices: np.ndarray | slice) -> SocialForceScene:
-        """A sub-scene of the selected scenarios (batch is the last axis of the per-step arrays)."""
+        """A sub-scene of the selected scenarios (batch is the last axis of the per-step arrays), laid out
+        as ``from_arrays`` lays it out (C-contiguous: NumPy's kernels, ``exp`` among them, may round
+        differently on strided arrays, and a sub-scene must roll out exactly as a scene built from it)."""
         out = {}
         for name, value in vars(self).items():
             batch_last = name.startswith("nbr_") or name.startswith("line_")
-            out[name] = value[..., indices] if batch_last else value[indices]
+            out[name] = np.ascontiguousarray(value[..., indices] if batch_last else value[indices])
         return SocialForceScene(**out)
 
     @classmethod

@@ -23,8 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
 from letspi.physics.params import SocialForceParams
-from letspi.physics.social_force import rollout_social_force
-from letspi.physics.types import NeighbourPrediction
+from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
@@ -54,10 +53,6 @@ class SearchSpace(BaseModel):
         return np.stack([m.reshape(-1) for m in mesh], axis=1)
 
 
-def _repeat_prediction(pred: NeighbourPrediction, c: int) -> NeighbourPrediction:
-    return NeighbourPrediction(*(np.repeat(np.asarray(a), c, axis=0) for a in pred))
-
-
 class SfOptConfig(SocialForcePlannerFields):
     kind: Literal["sf-opt"] = "sf-opt"
     search: SearchSpace = Field(default_factory=SearchSpace)
@@ -83,14 +78,15 @@ class SocialForceSearchPlanner(PredictingPlanner):
         goals = context.goals_xy_m  # (B, 2)
         pred = context.neighbours
         rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
-        big = batch.take(rep)
         k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
         base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rep])
         params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
-        cand_goals = adjust_goals(goals[rep], big.ego_xy0_m.astype(np.float64), lon, lane, big.marking_y_m)
-        big_pred = _repeat_prediction(pred, c)
-        roll = rollout_social_force(big, params.clamped(), cand_goals, big_pred)
-        check = check_plans(big, roll.xy_m, roll.vxy_mps, big_pred)
+        cand_goals = adjust_goals(goals[rep], batch.ego_xy0_m.astype(np.float64)[rep], lon, lane,
+                                  batch.marking_y_m[rep])
+        # the scene (per-scenario arrays) is built once and repeated per candidate, not the whole batch
+        scene = SocialForceScene.from_batch(batch, pred).take(rep)
+        roll = rollout_social_force_scene(scene, params.clamped(), cand_goals)
+        check = check_plans(batch, roll.xy_m, roll.vxy_mps, pred, rows=rep)
         safe = check.safe(self.space.ttc_threshold_s, self.space.gap_threshold_m).reshape(b, c)
         cost = (
             np.abs(lon - NEUTRAL_LON_FACTOR)

@@ -6,15 +6,15 @@ evaluation harness, by contrast, scores the chosen plan against the ground-truth
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from letspi.metrics.collision import boxes_overlap
-from letspi.metrics.distance import distances
-from letspi.metrics.inputs import MetricInputs
+from letspi.metrics.distance import box_gaps
+from letspi.metrics.inputs import MetricInputs, min_over_nbr_time
 from letspi.metrics.kinematics import off_road
-from letspi.metrics.ttc import ttc_1d
+from letspi.metrics.ttc import rear_ttc_1d, ttc_1d
 from letspi.physics.types import NeighbourPrediction
 from letspi.scenario.types import ScenarioBatch
 
@@ -56,28 +56,29 @@ class SafetyCheck:
 
 
 def predicted_inputs(
-    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
+    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction,
+    rows: np.ndarray | None = None,
 ) -> MetricInputs:
-    """Metric inputs pairing a plan (B, F, 2) with predicted neighbour futures (B, N, F, 2)."""
+    """Metric inputs pairing plans (P, F, 2) with predicted neighbour futures (B, N, F, 2).
+
+    rows: (P,) the scenario of each plan (several candidate plans of one scenario share its neighbours);
+    None: one plan per scenario (P = B).
+    """
+    def per_plan(a: np.ndarray) -> np.ndarray:
+        return a if rows is None else a[rows]
+
     nxy = np.asarray(neighbours.xy_m, dtype=np.float64)
     return MetricInputs(
         ego_xy_m=np.asarray(plan_xy_m, dtype=np.float64),
         ego_vxy_mps=np.asarray(plan_vxy_mps, dtype=np.float64),
-        ego_length_m=batch.ego_length_m.astype(np.float64),
-        ego_width_m=batch.ego_width_m.astype(np.float64),
-        nbr_xy_m=nxy,
-        nbr_vxy_mps=np.asarray(neighbours.vxy_mps, dtype=np.float64),
-        nbr_valid=np.asarray(neighbours.valid, dtype=bool) & np.isfinite(nxy).all(axis=-1),
-        nbr_length_m=batch.nbr_length_m.astype(np.float64),
-        nbr_width_m=batch.nbr_width_m.astype(np.float64),
+        ego_length_m=per_plan(batch.ego_length_m.astype(np.float64)),
+        ego_width_m=per_plan(batch.ego_width_m.astype(np.float64)),
+        nbr_xy_m=per_plan(nxy),
+        nbr_vxy_mps=per_plan(np.asarray(neighbours.vxy_mps, dtype=np.float64)),
+        nbr_valid=per_plan(np.asarray(neighbours.valid, dtype=bool) & np.isfinite(nxy).all(axis=-1)),
+        nbr_length_m=per_plan(batch.nbr_length_m.astype(np.float64)),
+        nbr_width_m=per_plan(batch.nbr_width_m.astype(np.float64)),
     )
-
-
-def _mirrored(inp: MetricInputs) -> MetricInputs:
-    """The same scene with x reversed, so the vehicle behind becomes the one "preceding"."""
-    flip = np.array([-1.0, 1.0])
-    return replace(inp, ego_xy_m=inp.ego_xy_m * flip, ego_vxy_mps=inp.ego_vxy_mps * flip,
-                   nbr_xy_m=inp.nbr_xy_m * flip, nbr_vxy_mps=inp.nbr_vxy_mps * flip)
 
 
 def _min_path_gap_m(inp: MetricInputs) -> np.ndarray:
@@ -87,10 +88,13 @@ def _min_path_gap_m(inp: MetricInputs) -> np.ndarray:
 
 
 def check_plans(
-    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction
+    batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction,
+    rows: np.ndarray | None = None,
 ) -> SafetyCheck:
-    """TTC, box gap, contact and road-edge checks of plans against predicted neighbours."""
-    return check_inputs(batch, predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours))
+    """TTC, box gap, contact and road-edge checks of plans against predicted neighbours (``rows``: the
+    scenario of each plan, as ``predicted_inputs``)."""
+    inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbours, rows)
+    return _checks(inp, *(m if rows is None else m[rows] for m in (batch.marking_y_m, batch.marking_is_edge)))
 
 
 def check_recorded(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray) -> SafetyCheck:
@@ -101,11 +105,16 @@ def check_recorded(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np
 
 def check_inputs(batch: ScenarioBatch, inp: MetricInputs) -> SafetyCheck:
     """The checks of ``check_plans`` on prepared metric inputs (any neighbour slots)."""
+    return _checks(inp, batch.marking_y_m, batch.marking_is_edge)
+
+
+def _checks(inp: MetricInputs, marking_y_m: np.ndarray, marking_is_edge: np.ndarray) -> SafetyCheck:
+    # the rear TTC is the front TTC of the scene mirrored in x; computed on the same relative geometry
     ttc = ttc_1d(inp)
-    rear = ttc_1d(_mirrored(inp))
-    dist = distances(inp)
+    rear = rear_ttc_1d(inp)
+    gap_m, gap_step, gap_nbr = min_over_nbr_time(box_gaps(inp))
     contact = np.asarray(boxes_overlap(inp).any(axis=(1, 2)), dtype=bool)
-    leaves_road = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, batch.marking_y_m, batch.marking_is_edge)
+    leaves_road = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, marking_y_m, marking_is_edge)
     return SafetyCheck(
         min_ttc_s=ttc.min_ttc_s,
         min_ttc_step=ttc.min_ttc_step,
@@ -113,9 +122,9 @@ def check_inputs(batch: ScenarioBatch, inp: MetricInputs) -> SafetyCheck:
         min_rear_ttc_s=rear.min_ttc_s,
         min_rear_ttc_step=rear.min_ttc_step,
         min_rear_ttc_nbr=rear.min_ttc_nbr,
-        min_box_gap_m=dist.min_box_gap_m,
-        min_gap_step=dist.min_gap_step,
-        min_gap_nbr=dist.min_gap_nbr,
+        min_box_gap_m=gap_m,
+        min_gap_step=gap_step,
+        min_gap_nbr=gap_nbr,
         min_path_gap_m=_min_path_gap_m(inp),
         collision=contact,
         off_road=leaves_road,
