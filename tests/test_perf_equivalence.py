@@ -12,11 +12,22 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from letspi.constants import DT_S, N_FUTURE
 from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.ttc import ttc_1d
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
-from letspi.physics.neighbours import predict_neighbours
+from letspi.physics.idm import (
+    CAR_IDM,
+    GAP_FLOOR_FRACTION,
+    IDM_MIN_ACCEL_MPS2,
+    MIN_DESIRED_SPEED_MPS,
+    IdmKernel,
+    IdmParams,
+    desired_speed_from_history,
+    idm_acceleration,
+)
+from letspi.physics.neighbours import _t0_state, idm_leaders, predict_idm, predict_neighbours
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force
 from letspi.physics.types import NeighbourPrediction
@@ -157,3 +168,65 @@ def test_sf_opt_search_matches_the_search_on_the_repeated_batch(scenes: Scenario
     for key, values in old.info.items():
         assert np.array_equal(new.info[key], values), key
     assert 0 < int(np.sum(new.info["found_safe"])) < len(scenes)  # both branches of the choice are taken
+
+
+def _old_idm_acceleration(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray,
+                          prm: IdmParams) -> np.ndarray:
+    """idm_acceleration before issue 27's speed work (constants recomputed every call)."""
+    v = np.maximum(np.asarray(v, dtype=np.float64), 0.0)
+    v0 = np.maximum(np.asarray(v0, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
+    has_leader = np.isfinite(gap)
+    v_lead = np.where(has_leader, np.asarray(v_lead, dtype=np.float64), v)
+    a_max = np.asarray(prm.max_accel_mps2, dtype=np.float64)
+    b = np.asarray(prm.comfort_decel_mps2, dtype=np.float64)
+    s0 = np.asarray(prm.min_gap_m, dtype=np.float64)
+    s_star = s0 + np.maximum(0.0, v * prm.time_headway_s + v * (v - v_lead) / (2.0 * np.sqrt(a_max * b)))
+    s = np.maximum(np.where(has_leader, gap, 1.0), GAP_FLOOR_FRACTION * s0)
+    interaction = np.where(has_leader, (s_star / s) ** 2, 0.0)
+    acc = a_max * (1.0 - (v / v0) ** prm.delta - interaction)
+    return np.clip(acc, IDM_MIN_ACCEL_MPS2, a_max)
+
+
+def _old_predict_idm(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray]:
+    """predict_idm's loop before issue 27's speed work (concatenate + take_along_axis per step): xs, vs."""
+    xy0, vxy0, ok = _t0_state(batch)
+    leader = idm_leaders(batch)
+    has_leader = leader >= 0
+    lead_idx = np.where(has_leader, leader, 0)
+    hist = batch.history_slice
+    v0 = desired_speed_from_history(batch.nbr_vxy_mps[:, :, hist, 0], batch.nbr_valid[:, :, hist])
+    prm = IdmParams.for_classes(batch.nbr_class)
+    nbr_len = np.nan_to_num(batch.nbr_length_m.astype(np.float64))
+    cand_len = np.concatenate([nbr_len, batch.ego_length_m.astype(np.float64)[:, None]], axis=1)
+    half_len = 0.5 * (nbr_len + np.take_along_axis(cand_len, lead_idx, axis=1))
+    ego_x = np.nan_to_num(batch.ego_xy0_m[:, 0].astype(np.float64))
+    ego_v = np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64))
+    x, v = xy0[:, :, 0].copy(), np.maximum(vxy0[:, :, 0], 0.0)
+    xs, vs = [], []
+    for k in range(N_FUTURE):
+        cand_x = np.concatenate([x, (ego_x + ego_v * (k * DT_S))[:, None]], axis=1)
+        cand_v = np.concatenate([v, ego_v[:, None]], axis=1)
+        gap = np.where(has_leader, np.take_along_axis(cand_x, lead_idx, axis=1) - x - half_len, np.inf)
+        acc = _old_idm_acceleration(v, v0, gap, np.take_along_axis(cand_v, lead_idx, axis=1), prm)
+        v = np.maximum(v + acc * DT_S, 0.0)
+        x = x + v * DT_S
+        xs.append(x)
+        vs.append(v)
+    return np.stack(xs, axis=2), np.stack(vs, axis=2)
+
+
+def test_idm_prediction_matches_the_per_step_concatenating_loop(scenes: ScenarioBatch) -> None:
+    pred = predict_idm(scenes)
+    xs, vs = _old_predict_idm(scenes)
+    ok = pred.valid
+    assert np.array_equal(pred.xy_m[..., 0][ok], xs[ok]) and np.array_equal(pred.vxy_mps[..., 0][ok], vs[ok])
+    assert (vs < vs[..., :1]).any()  # followers brake for their leaders
+
+
+def test_idm_kernel_is_idm_acceleration_as_it_was() -> None:
+    rng = np.random.default_rng(0)
+    v, v0, v_lead = rng.uniform(0, 40, (3, 50, 7))
+    gap = np.where(rng.random((50, 7)) < 0.2, np.inf, rng.uniform(-3, 80, (50, 7)))
+    prm = IdmParams.for_classes(rng.integers(1, 3, (50, 7)))
+    assert np.array_equal(IdmKernel(v0, prm)(v, gap, v_lead), _old_idm_acceleration(v, v0, gap, v_lead, prm))
+    assert np.array_equal(idm_acceleration(v, v0, gap, v_lead), _old_idm_acceleration(v, v0, gap, v_lead, CAR_IDM))

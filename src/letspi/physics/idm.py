@@ -73,6 +73,36 @@ CAR_IDM = IdmParams()
 TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
 
 
+class IdmKernel:
+    """The IDM acceleration of a set of vehicles with their per-vehicle constants prepared once, for
+    rollouts that evaluate it every step (``idm_acceleration`` is one evaluation: same arithmetic).
+
+    desired_speed_mps and the fields of ``params`` broadcast to the vehicle array shape.
+    """
+
+    def __init__(self, desired_speed_mps: np.ndarray, params: IdmParams = CAR_IDM) -> None:
+        self.v0 = np.maximum(np.asarray(desired_speed_mps, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
+        self.a_max = np.asarray(params.max_accel_mps2, dtype=np.float64)
+        b = np.asarray(params.comfort_decel_mps2, dtype=np.float64)
+        self.s0 = np.asarray(params.min_gap_m, dtype=np.float64)
+        self.time_headway_s = params.time_headway_s
+        self.delta = params.delta
+        self.two_sqrt_ab = 2.0 * np.sqrt(self.a_max * b)
+        self.gap_floor_m = GAP_FLOOR_FRACTION * self.s0
+
+    def __call__(self, speed_mps: np.ndarray, gap_m: np.ndarray, leader_speed_mps: np.ndarray) -> np.ndarray:
+        """Acceleration [m/s^2]; gap_m ``inf`` without a leader (``leader_speed_mps`` then ignored)."""
+        v = np.maximum(np.asarray(speed_mps, dtype=np.float64), 0.0)
+        gap = np.asarray(gap_m, dtype=np.float64)
+        has_leader = np.isfinite(gap)
+        v_lead = np.where(has_leader, np.asarray(leader_speed_mps, dtype=np.float64), v)
+        s_star = self.s0 + np.maximum(0.0, v * self.time_headway_s + v * (v - v_lead) / self.two_sqrt_ab)
+        s = np.maximum(np.where(has_leader, gap, 1.0), self.gap_floor_m)
+        interaction = np.where(has_leader, (s_star / s) ** 2, 0.0)
+        acc = self.a_max * (1.0 - (v / self.v0) ** self.delta - interaction)
+        return np.clip(acc, IDM_MIN_ACCEL_MPS2, self.a_max)
+
+
 def idm_acceleration(
     speed_mps: np.ndarray,
     desired_speed_mps: np.ndarray,
@@ -85,19 +115,7 @@ def idm_acceleration(
     gap_m: bumper-to-bumper gap to the leader, ``inf`` without a leader (then ``leader_speed_mps``
     is ignored and may be NaN).
     """
-    v = np.maximum(np.asarray(speed_mps, dtype=np.float64), 0.0)
-    v0 = np.maximum(np.asarray(desired_speed_mps, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
-    gap = np.asarray(gap_m, dtype=np.float64)
-    has_leader = np.isfinite(gap)
-    v_lead = np.where(has_leader, np.asarray(leader_speed_mps, dtype=np.float64), v)
-    a_max = np.asarray(params.max_accel_mps2, dtype=np.float64)
-    b = np.asarray(params.comfort_decel_mps2, dtype=np.float64)
-    s0 = np.asarray(params.min_gap_m, dtype=np.float64)
-    s_star = s0 + np.maximum(0.0, v * params.time_headway_s + v * (v - v_lead) / (2.0 * np.sqrt(a_max * b)))
-    s = np.maximum(np.where(has_leader, gap, 1.0), GAP_FLOOR_FRACTION * s0)
-    interaction = np.where(has_leader, (s_star / s) ** 2, 0.0)
-    acc = a_max * (1.0 - (v / v0) ** params.delta - interaction)
-    return np.clip(acc, IDM_MIN_ACCEL_MPS2, a_max)
+    return IdmKernel(desired_speed_mps, params)(speed_mps, gap_m, leader_speed_mps)
 
 
 def desired_speed_from_history(speed_mps: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
@@ -166,6 +184,7 @@ def rollout_idm_ego(
     xs = np.empty((n, f))
     vs = np.empty((n, f))
     accs = np.empty((n, f))
+    kernel = IdmKernel(v0, prm)
     for k in range(f):
         dx = np.where(nvalid[:, :, k], nxy[:, :, k, 0], np.inf) - x[:, None]
         dy = np.abs(np.where(nvalid[:, :, k], nxy[:, :, k, 1], np.inf) - y[:, None])
@@ -173,7 +192,7 @@ def rollout_idm_ego(
         lead = np.argmin(gap, axis=1)
         lead_gap = np.take_along_axis(gap, lead[:, None], axis=1)[:, 0]
         lead_v = np.take_along_axis(nvx[:, :, k], lead[:, None], axis=1)[:, 0]
-        acc = idm_acceleration(v, v0, lead_gap, lead_v, prm)
+        acc = kernel(v, lead_gap, lead_v)
         new_v = step_speed(v, acc, dt_s)
         accs[:, k] = (new_v - v) / dt_s
         v = new_v

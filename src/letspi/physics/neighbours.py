@@ -22,7 +22,7 @@ from enum import StrEnum
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE, T0_INDEX
-from letspi.physics.idm import IdmParams, desired_speed_from_history, idm_acceleration, step_speed
+from letspi.physics.idm import IdmKernel, IdmParams, desired_speed_from_history, step_speed
 from letspi.physics.types import NeighbourPrediction
 from letspi.scenario.types import ScenarioBatch
 
@@ -103,13 +103,18 @@ def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_
     v = np.maximum(vxy0[:, :, 0], 0.0)
     xs = np.empty((b, n, n_steps))
     vs = np.empty((b, n, n_steps))
+    kernel = IdmKernel(v0, prm)
+    # the leaders' states are gathered from (B, N + 1) rows of [neighbours..., ego] by flat index
+    cand_x = np.empty((b, n + 1))
+    cand_v = np.empty((b, n + 1))
+    cand_v[:, n] = ego_v
+    flat_lead = lead_idx + (n + 1) * np.arange(b)[:, None]
     for k in range(n_steps):
-        ego_xk = ego_x + ego_v * (k * dt_s)  # ego: constant velocity
-        cand_x = np.concatenate([x, ego_xk[:, None]], axis=1)
-        cand_v = np.concatenate([v, ego_v[:, None]], axis=1)
-        gap = np.where(has_leader, np.take_along_axis(cand_x, lead_idx, axis=1) - x - half_len, np.inf)
-        lead_v = np.take_along_axis(cand_v, lead_idx, axis=1)
-        acc = idm_acceleration(v, v0, gap, lead_v, prm)
+        cand_x[:, :n] = x
+        cand_x[:, n] = ego_x + ego_v * (k * dt_s)  # ego: constant velocity
+        cand_v[:, :n] = v
+        gap = np.where(has_leader, cand_x.take(flat_lead) - x - half_len, np.inf)
+        acc = kernel(v, gap, cand_v.take(flat_lead))
         v = step_speed(v, acc, dt_s)
         x = x + v * dt_s
         xs[:, :, k] = x
