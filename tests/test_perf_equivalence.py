@@ -189,7 +189,7 @@ def _old_idm_acceleration(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead
 
 def _old_predict_idm(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray]:
     """predict_idm's loop before issue 27's speed work (concatenate + take_along_axis per step): xs, vs."""
-    xy0, vxy0, ok = _t0_state(batch)
+    xy0, vxy0, _ = _t0_state(batch)
     leader = idm_leaders(batch)
     has_leader = leader >= 0
     lead_idx = np.where(has_leader, leader, 0)
