@@ -307,25 +307,34 @@ class _Lockstep:
     def _move(self, rows: np.ndarray, xy: np.ndarray, vxy: np.ndarray) -> None:
         g = self.g
         xs, ys, angles = _front_and_angle(xy, vxy, g.length[rows], g.x_off[rows], g.y_off[rows])
+        move, ids = self.api.vehicle.moveToXY, g.sumo_id
         for r, x, y, a in zip(rows.tolist(), xs, ys, angles, strict=True):
-            self.api.vehicle.moveToXY(g.sumo_id[r], "", -1, x, y, a, 2)
+            move(ids[r], "", -1, x, y, a, 2)
 
     def _read_back(self, f: int, drive: _Drive) -> None:
         g, tc = self.g, self.tc
         results = self.api.vehicle.getAllSubscriptionResults()
-        for r in np.flatnonzero(g.present).tolist():
-            res = results.get(g.sumo_id[r])
-            if res is None:  # SUMO removed it (end of the road)
+        rows = np.flatnonzero(g.present)
+        found = [results.get(g.sumo_id[r]) for r in rows.tolist()]
+        if None in found:  # SUMO removed them (end of the road)
+            kept = np.array([res is not None for res in found], dtype=bool)
+            for r in rows[~kept].tolist():
                 del self.id_to_row[g.sumo_id[r]]
-                g.present[r] = False
-                continue
-            px, py = res[tc.VAR_POSITION]
-            g.rec_xy[r, f, 0] = px - g.x_off[r] - 0.5 * self.lengths[r]
-            g.rec_xy[r, f, 1] = py - g.y_off[r]
-            if g.released[r]:
-                prev_y = g.rec_xy[r, f - 1, 1]
-                vy = (g.rec_xy[r, f, 1] - prev_y) / DT_S if math.isfinite(prev_y) else 0.0
-                g.rec_vxy[r, f] = (res[tc.VAR_SPEED], vy)
+            g.present[rows[~kept]] = False
+            rows = rows[kept]
+            found = [res for res in found if res is not None]
+        if rows.size:
+            pos = np.array([res[tc.VAR_POSITION] for res in found], dtype=np.float64).reshape(-1, 2)
+            g.rec_xy[rows, f, 0] = pos[:, 0] - g.x_off[rows] - 0.5 * g.length[rows]
+            g.rec_xy[rows, f, 1] = pos[:, 1] - g.y_off[rows]
+            moved = g.released[rows]
+            if moved.any():  # SUMO drives them: its speed along x, the lateral speed from the positions
+                rel = rows[moved]
+                prev_y = g.rec_xy[rel, f - 1, 1]
+                with np.errstate(invalid="ignore"):
+                    vy = np.where(np.isfinite(prev_y), (g.rec_xy[rel, f, 1] - prev_y) / DT_S, 0.0)
+                g.rec_vxy[rel, f, 0] = [found[i][tc.VAR_SPEED] for i in np.flatnonzero(moved).tolist()]
+                g.rec_vxy[rel, f, 1] = vy
         g.rec_valid[:, f] = g.present & ~drive.preroll
         logged = g.rec_valid[:, f] & drive.want_log
         g.rec_vxy[logged, f] = g.log_vxy[logged, f]
