@@ -35,7 +35,6 @@ overlap is reported every frame it lasts).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
