@@ -70,6 +70,10 @@ class Stopped:
         return (int(match.group(1)), int(match.group(2))) if match else None
 
 
+class EndedBeforeSignal(RuntimeError):
+    """The command finished before it could be interrupted (give it more work or signal it sooner)."""
+
+
 def letspi_command(*args: str) -> list[str]:
     """The ``letspi`` command line run by this interpreter (and this checkout of letspi)."""
     return [sys.executable, "-m", "letspi.cli.app", *args]
@@ -96,7 +100,7 @@ def run_and_stop(command: Sequence[str], ready: Callable[[], bool], log: Path, *
         try:
             while not ready():
                 if proc.poll() is not None:
-                    raise RuntimeError(f"{' '.join(command)} ended before the signal:\n{log.read_text()[-3000:]}")
+                    raise EndedBeforeSignal(f"{' '.join(command)} ended before the signal:\n{log.read_text()[-3000:]}")
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"{' '.join(command)}: not ready within {timeout_s:.0f} s")
                 children.update(descendants(proc.pid))
@@ -168,7 +172,7 @@ class _Mode:
     stored: Callable[[], dict[str, Any]] | None = None
 
 
-def _modes(names: Sequence[str], scenario_file: Path, n: int, n_llm: int, work: Path,
+def _modes(names: Sequence[str], scenario_file: Path, n: int, n_llm: int, n_labels: int, work: Path,
            server: LlmTestServer) -> dict[str, _Mode]:
     data = ["--scenarios", str(scenario_file)]
     both = ["--planner", "sf", "--planner", "frenet", "--mode", "closed-loop-log", "--limit", str(n)]
@@ -194,8 +198,8 @@ def _modes(names: Sequence[str], scenario_file: Path, n: int, n_llm: int, work: 
                            "--llm", server.spec(), "--goals", "kinematic", "--no-cache", "--concurrency", "4"),
             n_llm, lambda: _bank_rows(out("bank.sqlite"))),
         "train-llm-data": lambda: _Mode(
-            letspi_command("train", "llm-data", *data, "--max", str(n_llm), "--out", str(out("train-llm-data"))),
-            n_llm, lambda: _label_rows(out("train-llm-data"))),
+            letspi_command("train", "llm-data", *data, "--max", str(n_labels), "--out", str(out("train-llm-data"))),
+            n_labels, lambda: _label_rows(out("train-llm-data"))),
         "data-generate": lambda: _Mode(
             letspi_command("data", "generate", "--out", str(out("data-generate")), "--minutes", "10"), None),
         "bench-physics": lambda: _Mode(letspi_command("bench", "physics"), None),
@@ -215,27 +219,34 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def bench_interrupt(batch: ScenarioBatch, *, n: int = 3000, n_llm: int = 40, modes: Sequence[str] = MODES,
-                    after_s: float = 10.0, resume: bool = True, llm_latency_s: float = 2.0,
-                    log: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Each of ``modes`` on the first ``n`` scenarios of ``batch`` (``n_llm`` for ``collect`` and
-    ``train-llm-data``), SIGINT ``after_s`` s after its start (module docstring); ``resume``: rerun
-    the resumable ones to completion and count what they stored."""
+def bench_interrupt(batch: ScenarioBatch, *, n: int = 3000, n_llm: int = 40, n_labels: int = 600,
+                    modes: Sequence[str] = MODES, after_s: float = 10.0, resume: bool = True,
+                    llm_latency_s: float = 2.0, log: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Each of ``modes`` on the first ``n`` scenarios of ``batch`` (``n_llm`` for ``collect``,
+    ``n_labels`` for ``train-llm-data``), SIGINT ``after_s`` s after its start (module docstring);
+    ``resume``: rerun the resumable ones to completion and count what they stored. A command that
+    ends before the signal is reported as such."""
     say = log or (lambda _m: None)
     if "closed-loop-ray" in modes and importlib.util.find_spec("ray") is None:
         say("closed-loop-ray: skipped (ray is not installed: pip install 'letspi[ray]')")
         modes = [m for m in modes if m != "closed-loop-ray"]
-    result: dict[str, Any] = {"scenarios": n, "llm_scenarios": n_llm, "after_s": after_s,
+    result: dict[str, Any] = {"scenarios": n, "llm_scenarios": n_llm, "label_scenarios": n_labels, "after_s": after_s,
                               "llm_latency_s": llm_latency_s, "loadavg_start": _load(), "modes": {}}
     with tempfile.TemporaryDirectory(prefix="letspi-bench-interrupt-") as tmp, \
             LlmTestServer(latency_s=llm_latency_s) as server:
         work = Path(tmp)
-        if len(batch) < max(n, n_llm):
-            raise ValueError(f"{len(batch)} scenarios, {max(n, n_llm)} requested")
-        scenario_file = save_scenarios(batch.take(slice(0, max(n, n_llm))), work / "scenarios.arrow")
-        for name, mode in _modes(modes, scenario_file, n, n_llm, work, server).items():
+        most = max(n, n_llm, n_labels)
+        if len(batch) < most:
+            raise ValueError(f"{len(batch)} scenarios, {most} requested")
+        scenario_file = save_scenarios(batch.take(slice(0, most)), work / "scenarios.arrow")
+        for name, mode in _modes(modes, scenario_file, n, n_llm, n_labels, work, server).items():
             say(f"{name}: letspi {' '.join(mode.command[3:])}")
-            stopped = run_and_stop(mode.command, _after(after_s), work / f"{name}.err")
+            try:
+                stopped = run_and_stop(mode.command, _after(after_s), work / f"{name}.err")
+            except EndedBeforeSignal:
+                say(f"  ended before the signal ({after_s:g} s): give it more work")
+                result["modes"][name] = {"ended_before_signal": True}
+                continue
             entry: dict[str, Any] = {
                 "seconds_to_exit": round(stopped.seconds, 2), "exit_code": stopped.returncode,
                 "stop_line": " | ".join(stopped.stop_lines), "one_stop_line": len(stopped.stop_lines) == 1,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -134,6 +135,11 @@ class LlmTestServer:
         class Server(ThreadingHTTPServer):
             daemon_threads = True
             request_queue_size = 1024
+
+            def handle_error(self, request: Any, client_address: Any) -> None:
+                if isinstance(sys.exc_info()[1], ConnectionError):  # a client that went away (e.g. Ctrl-C)
+                    return
+                super().handle_error(request, client_address)
 
         self.httpd = Server((host, port), Handler)
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},

@@ -295,7 +295,8 @@ def robustness_cmd(
 def interrupt_cmd(
     scenarios: Annotated[Path | None, typer.Option(help="Scenario file (default: generated traffic).")] = None,
     n: Annotated[int, typer.Option(help="Scenarios of the evaluate modes.")] = 3000,
-    n_llm: Annotated[int, typer.Option(help="Scenarios of collect and train llm-data.")] = 40,
+    n_llm: Annotated[int, typer.Option(help="Scenarios of collect.")] = 40,
+    n_labels: Annotated[int, typer.Option(help="Scenarios of train llm-data.")] = 600,
     mode: Annotated[list[str] | None, typer.Option(
         help=f"Modes to run (repeatable; default all): {', '.join(INTERRUPT_MODES)}.")] = None,
     after_s: Annotated[float, typer.Option(help="Seconds after its start each command gets Ctrl-C.")] = 10.0,
@@ -309,8 +310,9 @@ def interrupt_cmd(
     with workers and on Ray, collect, train llm-data, data generate, bench physics), its stop line,
     child processes left running (must be 0) and the rerun's rows and duplicates."""
     with user_errors():
-        batch = bench_scenarios(scenarios, max(n, n_llm), minutes, seed)
-        result = bench_interrupt(batch, n=n, n_llm=n_llm, modes=mode or INTERRUPT_MODES, after_s=after_s,
+        batch = bench_scenarios(scenarios, max(n, n_llm, n_labels), minutes, seed)
+        result = bench_interrupt(batch, n=n, n_llm=n_llm, n_labels=n_labels, modes=mode or INTERRUPT_MODES,
+                                 after_s=after_s,
                                  resume=resume, llm_latency_s=llm_latency_s,
                                  log=lambda m: console.print(m, highlight=False, markup=False))
     if as_json:
@@ -321,6 +323,9 @@ def interrupt_cmd(
     for col in ("mode", "s to exit", "exit", "kept", "left", "rerun rows", "dup"):
         table.add_column(col, justify="left" if col in ("mode", "kept") else "right")
     for name, row in result["modes"].items():
+        if row.get("ended_before_signal"):
+            table.add_row(name, "-", "-", "ended before the signal", "-", "-", "-")
+            continue
         rerun = row.get("rerun") or {}
         counted = re.match(r"interrupted: (\d+ of \d+) stored", row["stop_line"])
         kept = counted.group(1) if counted else "nothing" if "nothing stored" in row["stop_line"] else row["stop_line"]

@@ -289,6 +289,18 @@ def _resource_tracker_pid() -> int | None:
     return getattr(tracker, "_pid", None)
 
 
+def _ignores_sigterm(pid: int) -> bool:
+    """Whether process ``pid`` ignores SIGTERM (its SigIgn mask in /proc; False where unknown)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    for line in status.splitlines():
+        if line.startswith("SigIgn:"):
+            return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    return False
+
+
 def _signal_all(pids: list[int], signum: int) -> None:
     for pid in pids:
         try:
@@ -312,6 +324,7 @@ def stop_children(grace_s: float = CHILD_GRACE_S) -> None:
             pass
     pids = [p for p in descendants() if p != _resource_tracker_pid()]
     _signal_all(pids, signal.SIGTERM)
+    _signal_all([p for p in pids if _ignores_sigterm(p)], signal.SIGKILL)  # e.g. Ray's agents: no use waiting
     deadline = time.monotonic() + grace_s
     while time.monotonic() < deadline and any(alive(p) for p in pids):
         time.sleep(0.02)

@@ -52,11 +52,11 @@ def ensure_ray(address: str, num_cpus: int) -> ModuleType:
     instance's processes, or this driver's connection to a cluster."""
     ray = import_ray()
     if not ray.is_initialized():
+        on_stop(ray.shutdown)  # before init: Ctrl-C during the start also ends what it started
         if address == "local":
             ray.init(num_cpus=num_cpus, include_dashboard=False)
         else:
             ray.init(address=address)
-        on_stop(ray.shutdown)
     return ray
 
 
