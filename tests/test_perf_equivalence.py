@@ -8,11 +8,15 @@ are byte-identical before and after, so any difference, even in the last bit, is
 from __future__ import annotations
 
 from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
+from letspi.assembly.planners import build_planners
 from letspi.constants import DT_S, N_FUTURE
+from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.ttc import ttc_1d
@@ -32,10 +36,12 @@ from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch, Proposals
+from letspi.planners.options import DEFAULT_OPTIONS
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.planners.sf_params import load_sf_params
 from letspi.safety.plan_check import SafetyCheck, check_inputs, check_plans, predicted_inputs
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
 
@@ -230,3 +236,19 @@ def test_idm_kernel_is_idm_acceleration_as_it_was() -> None:
     prm = IdmParams.for_classes(rng.integers(1, 3, (50, 7)))
     assert np.array_equal(IdmKernel(v0, prm)(v, gap, v_lead), _old_idm_acceleration(v, v0, gap, v_lead, prm))
     assert np.array_equal(idm_acceleration(v, v0, gap, v_lead), _old_idm_acceleration(v, v0, gap, v_lead, CAR_IDM))
+
+
+@pytest.mark.slow
+def test_open_loop_in_worker_processes_stores_the_same_rows(tmp_path: Path, scenes: ScenarioBatch) -> None:
+    """``evaluate(..., workers=2)`` scores the batch planners in two spawned processes: same rows."""
+    file = tmp_path / "scenes.arrow"
+    save_scenarios(scenes, file)
+    planners = build_planners(["cv", "sf", "sf-opt"], DEFAULT_OPTIONS)
+    evaluate(planners, scenes, tmp_path / "one", scenarios_file=str(file))
+    evaluate(planners, scenes, tmp_path / "two", scenarios_file=str(file), workers=2)
+    for p in planners:
+        a = load_planner_results(tmp_path / "one", p.name, with_plans=True).sort_values("row").reset_index(drop=True)
+        b = load_planner_results(tmp_path / "two", p.name, with_plans=True).sort_values("row").reset_index(drop=True)
+        a, b = (f.drop(columns=[c for c in f if c == "inference_s" or c.endswith("cpu_ms")]) for f in (a, b))
+        pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert (tmp_path / "two" / "metrics.json").exists() and (tmp_path / "two" / "run.json").exists()

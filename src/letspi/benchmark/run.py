@@ -89,7 +89,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             batch = full
         if mode.mode == "open-loop":
             evaluate_open_loop(planners, batch, eval_dir, scenarios_file=str(data.scenarios_file), config=suite.metrics,
-                               progress_factory=progress_factory)
+                               progress_factory=progress_factory, workers=workers)
         else:
             evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers),
                                  scenarios_file=str(data.scenarios_file), config=suite.metrics,

@@ -81,7 +81,8 @@ def run(
         help="Real-data suites: your HighD directory (NN_tracks.csv, ...).")] = None,
     allow_other_files: Annotated[bool, typer.Option(
         help="Real-data suites: run even if your files differ from those the suite pins (warns).")] = False,
-    workers: Annotated[int, typer.Option(min=1, help="Processes for generation and closed-loop simulation.")] = 2,
+    workers: Annotated[int, typer.Option(
+        min=1, help="Processes for generation, open-loop planners and closed-loop simulation.")] = 2,
     reports: Annotated[bool, typer.Option(help="Write each mode's report.html.")] = True,
 ) -> None:
     """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard

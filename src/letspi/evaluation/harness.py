@@ -46,6 +46,7 @@ made (``llm_original_latency_s``); model loading is ``model_load_s``, outside ev
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 import uuid
@@ -60,8 +61,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from letspi.assembly.planners import BuiltPlanner
+from letspi.assembly.planners import build_planner as assemble_planner
 from letspi.constants import N_FUTURE
 from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency, runs_per_scenario
+from letspi.execution.interrupt import WorkerPool
 from letspi.execution.ordered import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
@@ -83,8 +86,10 @@ from letspi.metrics.uncertainty import (
 from letspi.planners.config import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import vehicle_keys
+from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import EvaluationMode
+from letspi.simulation.spec import PlannerSpec
 
 RUN_FORMAT: Final = 2
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
@@ -411,6 +416,39 @@ def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarr
     return run
 
 
+@functools.lru_cache(maxsize=1)
+def _scenarios_by_digest(scenarios_file: str) -> tuple[ScenarioBatch, dict[str, int]]:
+    """A scenario file and the row of each scenario digest, read once per worker process."""
+    full = load_scenarios(Path(scenarios_file))
+    return full, {str(d): i for i, d in enumerate(scenario_digests(full))}
+
+
+def _planner_parts(spec: PlannerSpec, scenarios_file: str, digests: list[str], out_dir: str,
+                   config: MetricsConfig) -> None:
+    """A worker process's share of ``evaluate(..., workers=N)``: one planner's parts for the scenarios
+    ``digests`` (read from ``scenarios_file``, in that order: the rows of this process's batch)."""
+    built = assemble_planner(spec.config, spec.name, table=spec.table())
+    full, row_of = _scenarios_by_digest(scenarios_file)
+    missing = [d for d in digests if d not in row_of]
+    if missing:
+        raise ValueError(f"{scenarios_file} does not hold {len(missing)} of the evaluated scenarios: evaluate "
+                         "them in one process (workers=0)")
+    batch = full.take(np.array([row_of[d] for d in digests], dtype=np.int64))
+    run_planner(built, batch, np.asarray(digests, dtype=object), Path(out_dir), config)
+
+
+def store_in_workers(planners: Sequence[BuiltPlanner], scenarios_file: str, digests: np.ndarray, out_dir: Path,
+                     config: MetricsConfig, workers: int) -> None:
+    """Store the parts of batch ``planners`` in ``workers`` spawned processes, one planner per task: each
+    plans the batches it would plan in this process (identical rows) and the planners share the cores."""
+    specs = [PlannerSpec.of_built(b) for b in planners]
+    with WorkerPool(min(workers, len(specs))) as pool:
+        futures = [pool.submit(_planner_parts, s, scenarios_file, [str(d) for d in digests], str(out_dir), config)
+                   for s in specs]
+        for future in futures:
+            future.result()
+
+
 def _cached(frame: pd.DataFrame) -> np.ndarray:
     return (np.asarray(frame["info_llm_cached"], dtype=bool) if "info_llm_cached" in frame
             else np.zeros(len(frame), dtype=bool))
@@ -623,6 +661,7 @@ def evaluate(
     mode_settings: dict[str, Any] | None = None,
     runner: PlannerRunner | None = None,
     reference: str | None = None,
+    workers: int = 0,
 ) -> dict[str, dict[str, AggValue]]:
     """Evaluate ``planners`` on ``batch``; write per-scenario parts, metrics.json and metrics.md.
 
@@ -635,6 +674,8 @@ def evaluate(
     ``run_planner`` (closed-loop modes need one: use ``letspi.evaluation.closed_loop.evaluate_closed_loop``).
     ``reference``: the planner label every other is compared with in metrics.json's "paired" (default:
     ``sf`` when the directory has it, else the first of ``planners``; ``choose_reference``).
+    ``workers`` > 1 (open loop, with the ``scenarios_file`` the batch was read from): the batch planners
+    are scored in that many worker processes first (``store_in_workers``; same rows), then summarised here.
     """
     mode = EvaluationMode(mode)
     if mode.closed_loop and runner is None:
@@ -657,6 +698,10 @@ def evaluate(
             run_pending = False
 
     wrote_run_file = run_pending
+    batch_planners = [b for b in planners if not runs_per_scenario(b.planner)]
+    if workers > 1 and runner is None and scenarios_file and len(batch_planners) > 1:
+        write_run_file()
+        store_in_workers(batch_planners, scenarios_file, digests, out_dir, config, workers)
     results: dict[str, dict[str, AggValue]] = {}
     failures: list[ScenariosFailedError] = []
     for built in planners:
