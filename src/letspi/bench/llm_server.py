@@ -80,6 +80,16 @@ def latency_for(key: str, latency_s: float, jitter: float) -> float:
     return max(0.0, latency_s * (1.0 - jitter + 2.0 * jitter * u))
 
 
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    request_queue_size = 1024
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        if isinstance(sys.exc_info()[1], ConnectionError):  # a client that went away (e.g. Ctrl-C)
+            return
+        super().handle_error(request, client_address)
+
+
 class LlmTestServer:
     """The server (see the module docstring); ``with LlmTestServer(...) as srv: srv.base_url``."""
 
@@ -132,16 +142,7 @@ class LlmTestServer:
             def log_message(self, *args: Any) -> None:
                 pass
 
-        class Server(ThreadingHTTPServer):
-            daemon_threads = True
-            request_queue_size = 1024
-
-            def handle_error(self, request: Any, client_address: Any) -> None:
-                if isinstance(sys.exc_info()[1], ConnectionError):  # a client that went away (e.g. Ctrl-C)
-                    return
-                super().handle_error(request, client_address)
-
-        self.httpd = Server((host, port), Handler)
+        self.httpd = _Server((host, port), Handler)
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05},
                                         name="letspi-test-llm-server", daemon=True)
 
