@@ -166,6 +166,25 @@ def test_run_suite_twice_gives_the_same_leaderboard_bytes_and_reuses_the_data(
     other = replace(suite, extraction=replace(suite.extraction, seed=2), modes=(OPEN_LOOP,))
     third = run_suite(other, ["sf"], tmp_path / "c", workers=0, reports=False, log=lambda _m: None)
     assert not third.data.reused and third.timing["generation_s"] == 0.0  # new windows, the same traffic
+    assert set(first.planner_s["closed-loop-log-1s"]) == {"sf", "cv"}  # each planner's wall time per mode
+    assert all(s > 0 for s in first.planner_s["closed-loop-log-1s"].values())
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_run_suite_in_worker_processes_gives_the_same_leaderboard(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Open-loop planners and closed-loop chunks in 2 worker processes: the leaderboard of one process."""
+    pytest.importorskip("sumo")
+    from letspi.benchmark.run import run_suite
+
+    monkeypatch.setenv("LETSPI_BENCHMARK_CACHE", str(tmp_path / "cache"))
+    suite = _tiny_suite(1996)
+    one = run_suite(suite, ["sf", "cv", "idm"], tmp_path / "one", workers=1, reports=False, log=lambda _m: None)
+    two = run_suite(suite, ["sf", "cv", "idm"], tmp_path / "two", workers=2, reports=False, log=lambda _m: None)
+    assert (tmp_path / "one" / "leaderboard.json").read_bytes() == (tmp_path / "two" / "leaderboard.json").read_bytes()
+    assert set(one.planner_s) == {"open-loop", "closed-loop-log-1s"}
+    assert set(two.planner_s) == {"closed-loop-log-1s"}  # open-loop planners ran in the workers
 
 
 @pytest.mark.sumo

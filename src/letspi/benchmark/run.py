@@ -3,7 +3,8 @@
 Layout of a suite's results directory::
 
     OUT/leaderboard.json, leaderboard.md, leaderboard.html
-    OUT/timing.json                     wall time of each stage (data, each mode), load average
+    OUT/timing.json                     wall time of each stage (data, each mode, each planner of a
+                                        closed-loop mode), load average
     OUT/<mode slug>/                    a ``letspi evaluate`` results directory (+ report.html)
 
 Rerunning resumes every mode where it stopped and reuses the cached data; more planners join.
@@ -15,7 +16,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from letspi.benchmark.data import SuiteData, prepare_data
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
 from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
 from letspi.evaluation.closed_loop import evaluate_closed_loop
-from letspi.evaluation.harness import ProgressFactory
+from letspi.evaluation.harness import ProgressCallback, ProgressFactory
 from letspi.evaluation.harness import evaluate as evaluate_open_loop
 from letspi.fsutil import atomic_write_text
 from letspi.planners.mlp import MlpConfig
@@ -54,6 +55,28 @@ class SuiteRun:
     board: dict[str, Any]
     data: SuiteData
     timing: dict[str, float]
+    planner_s: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+class _PlannerClock:
+    """Wall time of each planner of one evaluation: ``evaluate`` asks the progress factory for a planner's
+    progress when it starts that planner, so each request ends the previous planner's time."""
+
+    def __init__(self, factory: ProgressFactory | None) -> None:
+        self.factory = factory
+        self.seconds: dict[str, float] = {}
+        self._current: tuple[str, float] | None = None
+
+    def __call__(self, name: str, total: int) -> ProgressCallback:
+        self.stop()
+        self._current = (name, time.perf_counter())
+        return self.factory(name, total) if self.factory is not None else (lambda _n, _status: None)
+
+    def stop(self) -> None:
+        if self._current is not None:
+            name, t0 = self._current
+            self.seconds[name] = round(time.perf_counter() - t0, 2)
+            self._current = None
 
 
 def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
@@ -79,6 +102,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
     planners: list[BuiltPlanner] = build_planners(list(planner_args), options or DEFAULT_OPTIONS)
     boards: dict[str, dict[str, Any]] = {}
     report_links: dict[str, str] = {}
+    planner_s: dict[str, dict[str, float]] = {}  # mode -> planner -> wall seconds
     for mode in suite.modes:
         eval_dir = out / mode.slug
         t0 = time.perf_counter()
@@ -87,14 +111,17 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             batch = full.take(np.sort(pick))
         else:
             batch = full
+        clock = _PlannerClock(progress_factory)
         if mode.mode == "open-loop":
             evaluate_open_loop(planners, batch, eval_dir, scenarios_file=str(data.scenarios_file), config=suite.metrics,
-                               progress_factory=progress_factory, workers=workers)
+                               progress_factory=clock, workers=workers)
         else:
             evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers),
-                                 scenarios_file=str(data.scenarios_file), config=suite.metrics,
-                                 progress_factory=progress_factory)
+                                 scenarios_file=str(data.scenarios_file), config=suite.metrics, progress_factory=clock)
+        clock.stop()
         timing[f"{mode.slug}_s"] = time.perf_counter() - t0
+        if mode.mode != "open-loop" or workers <= 1:  # open-loop planners in workers are timed as one stage
+            planner_s[mode.slug] = clock.seconds
         reference = REFERENCE_PLANNER if REFERENCE_PLANNER in labels else None
         boards[mode.slug] = mode_board(eval_dir, labels, groups_of, reference)
         if reports:
@@ -108,6 +135,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
     atomic_write_text(out / "leaderboard.html", to_html(board, report_links))
     timing["total_s"] = time.perf_counter() - started
     record = {"suite": suite.suite_id, "planners": labels, "data_reused": data.reused, "workers": workers,
-              "load_average_end": list(np.round(os.getloadavg(), 2)), **{k: round(v, 2) for k, v in timing.items()}}
+              "load_average_end": list(np.round(os.getloadavg(), 2)), **{k: round(v, 2) for k, v in timing.items()},
+              "planner_s": planner_s}
     atomic_write_text(out / "timing.json", json.dumps(record, indent=2) + "\n")
-    return SuiteRun(out=out, board=board, data=data, timing=timing)
+    return SuiteRun(out=out, board=board, data=data, timing=timing, planner_s=planner_s)

@@ -97,6 +97,8 @@ def run(
                                progress_factory=progress_factory(bar), log=bar.console.print)
     typer.echo(to_markdown(result.board))
     t = result.timing
+    for slug, seconds in result.planner_s.items():
+        console.print(f"{slug}: " + ", ".join(f"{name} {s:.1f} s" for name, s in seconds.items()))
     console.print(f"data: {'reused from the cache' if result.data.reused else 'made'} (generation "
                   f"{t['generation_s']:.1f} s, extraction {t['extraction_s']:.1f} s); total {t['total_s']:.1f} s; "
                   f"results in {target}/ (leaderboard.json, leaderboard.md, leaderboard.html, timing.json)")
