@@ -86,6 +86,17 @@ def test_frenet_weights_and_the_prompt_style_reach_the_configuration(tmp_path: P
     assert result.exit_code == 2 and "unknown prompt style 'chatty'; available: paper, compact" in result.output
 
 
+def test_a_switch_without_a_default_is_three_valued(tmp_path: Path) -> None:
+    """--decide / --no-decide / neither (None: the kind's default): sf-check is the decision step, so it
+    refuses --no-decide in one line."""
+    base = ["plan", "--scenarios", str(_scenarios(tmp_path)), "--index", "0", "--planner", "sf-check", "--goals",
+            "kinematic", "--json"]
+    assert runner.invoke(app, base).exit_code == 0
+    assert runner.invoke(app, [*base, "--decide"]).exit_code == 0
+    refused = runner.invoke(app, [*base, "--no-decide"])
+    assert refused.exit_code == 2 and "sf-check is the decision step without a model" in refused.output
+
+
 def test_a_misspelt_option_is_an_error_naming_it() -> None:
     with pytest.raises(ValueError, match=r"unknown planner option\(s\) goal; available: .*goals"):
         build_planners(["sf"], PlannerOptions(goal="kinematic"))
