@@ -35,6 +35,7 @@ from letspi.physics.goals import GoalPredictor
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_key, vehicle_keys
 from letspi.scenario.store import load_scenarios
+from letspi.scenario.types import ScenarioBatch
 
 LABELS_FORMAT = FORMAT
 KINDS = ("propose", "refine")
@@ -152,6 +153,42 @@ def build_examples(
         df = df[df["scenario_index"].isin(indices)]
     batch = load_scenarios(path, indices)
     digests = scenario_digests(batch)
+    examples = _examples_of_rows(df, batch, digests, indices, goal_predictor, choice=choice,
+                                 where=(path, directory), progress=progress)
+    info = {
+        "prompt_style": "choice" if choice else "compact",
+        "labels_dir": str(directory),
+        "labels_sha256": labels_sha256(directory),
+        "labels_manifest": {k: manifest.get(k) for k in ("dataset_digest", "n_scenarios", "n_propose", "n_refine",
+                                                         "seed", "sf_params_sha256", "command")},
+        "scenarios_path": str(path),
+        "scenarios_digest": dataset_digest(digests),
+        "n_label_rows": n_rows,
+        "n_examples": len(examples),
+        "n_scenarios": len(indices),
+        "safe_only": safe_only,
+    }
+    return examples, info
+
+
+def _examples_of_rows(
+    df: pd.DataFrame,
+    batch: ScenarioBatch,
+    digests: np.ndarray,
+    indices: np.ndarray,
+    goal_predictor: GoalPredictor,
+    *,
+    choice: bool,
+    where: tuple[Path, Path],
+    progress: Callable[[int], None] | None,
+) -> list[ChatExample]:
+    """The chat examples of the label rows ``df``, in (scenario index, kind) order.
+
+    ``batch`` holds the labelled scenarios ``indices`` (in that order) with their ``digests``; each
+    scenario is described once. ``where``: (scenario file, labels directory), for the error when a
+    digest differs from the one the labels recorded.
+    """
+    path, directory = where
     vehicles = vehicle_keys(batch)
     pos = {int(k): j for j, k in enumerate(indices)}
     goals = goal_predictor.predict_goals(batch).top
@@ -171,20 +208,7 @@ def build_examples(
             examples += [example] * max(1, round(float(row["weight"])))
         else:
             examples.append(example_of_row(row, descs[j], str(vehicles[j])))
-    info = {
-        "prompt_style": "choice" if choice else "compact",
-        "labels_dir": str(directory),
-        "labels_sha256": labels_sha256(directory),
-        "labels_manifest": {k: manifest.get(k) for k in ("dataset_digest", "n_scenarios", "n_propose", "n_refine",
-                                                         "seed", "sf_params_sha256", "command")},
-        "scenarios_path": str(path),
-        "scenarios_digest": dataset_digest(digests),
-        "n_label_rows": n_rows,
-        "n_examples": len(examples),
-        "n_scenarios": len(indices),
-        "safe_only": safe_only,
-    }
-    return examples, info
+    return examples
 
 
 def build_examples_many(

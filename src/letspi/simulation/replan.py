@@ -113,13 +113,29 @@ def replanning_batch(
         raise ValueError(f"replanning frame {frame} outside [{T0_INDEX}, {n_frames})")
     if future not in ("none", "log"):
         raise ValueError(f"future must be 'none' or 'log', got {future!r}")
-    shift = frame - T0_INDEX
-    hist = slice(0, T0_INDEX + 1)
-    src_hist = slice(shift, frame + 1)
     centre = sim.ego_xy_m[:, frame].astype(np.float64)
     if not np.isfinite(centre).all():
         raise ValueError(f"the simulated ego position at frame {frame} is not finite")
+    out = _shifted_fields(source, sim, frame, future)
+    _recentre(out, source, centre, shift=frame - T0_INDEX)
+    if future == "none":  # context vehicles are future-only ground truth: never part of a planner's view
+        out.update({name: out[name][:, :0] for name in CONTEXT_FIELDS})
+    return ScenarioBatch(**out), centre
 
+
+def _shifted_fields(
+    source: ScenarioBatch, sim: SimulatedStates, frame: int, future: FuturePolicy
+) -> dict[str, np.ndarray]:
+    """Every field of ``source`` with its frame axis shifted so that ``frame`` becomes ``T0_INDEX``.
+
+    The ego's and the neighbours' own states come from ``sim`` over the history; with
+    ``future="none"`` every frame after ``T0_INDEX`` is blanked (fill value). Fields without a
+    frame axis are copied.
+    """
+    n_frames = source.ego_xy_m.shape[1]
+    shift = frame - T0_INDEX
+    hist = slice(0, T0_INDEX + 1)
+    src_hist = slice(shift, frame + 1)
     own = {
         "ego_xy_m": sim.ego_xy_m,
         "ego_vxy_mps": sim.ego_vxy_mps,
@@ -151,17 +167,18 @@ def replanning_batch(
             src_index[axis] = src_hist
             win[tuple(index)] = own[f.name][tuple(src_index)].astype(arr.dtype)
         out[f.name] = win
+    return out
 
-    # re-centre: positions move with the ego, markings with its y
+
+def _recentre(out: dict[str, np.ndarray], source: ScenarioBatch, centre: np.ndarray, shift: int) -> None:
+    """Move the view's positions with the ego (``centre`` (K, 2)), its markings with the ego's y,
+    and its first frame by ``shift`` (in place)."""
     for name, arr in out.items():
         if name.endswith("_xy_m"):
             shape = (len(centre),) + (1,) * (arr.ndim - 2) + (2,)
             out[name] = (arr.astype(np.float64) - centre.reshape(shape)).astype(arr.dtype)
     out["marking_y_m"] = (out["marking_y_m"].astype(np.float64) - centre[:, 1:2]).astype(source.marking_y_m.dtype)
     out["frame0"] = (np.asarray(source.frame0) + shift).astype(source.frame0.dtype)
-    if future == "none":  # context vehicles are future-only ground truth: never part of a planner's view
-        out.update({name: out[name][:, :0] for name in CONTEXT_FIELDS})
-    return ScenarioBatch(**out), centre
 
 
 # ------------------------------------------------------------------------------------------------
