@@ -17,6 +17,7 @@ modes: their prediction is invalid for the whole horizon (xy, vxy set to 0).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -83,44 +84,79 @@ def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
     return np.where(np.isfinite(dist.min(axis=2)), leader, -1)
 
 
-def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
-    """IDM prediction (see module docstring); shapes as ``predict_constant_velocity``."""
+@dataclass(frozen=True)
+class IdmStart:
+    """What the IDM prediction starts from, (B, N) each: positions x and speeds v at t = 0 (v floored
+    at 0), whether a neighbour is visible (``ok``) and has a leader, the leader's slot in [neighbours,
+    ego] (0 without one), desired speeds, car/truck parameters, half length sums with the leader; and
+    the ego's x and speed (B,), which it keeps (constant velocity)."""
+
+    x: np.ndarray
+    v: np.ndarray
+    y: np.ndarray
+    ok: np.ndarray
+    has_leader: np.ndarray
+    lead_idx: np.ndarray
+    desired_speed_mps: np.ndarray
+    params: IdmParams
+    half_len_m: np.ndarray
+    ego_x_m: np.ndarray
+    ego_v_mps: np.ndarray
+
+
+def idm_start(batch: ScenarioBatch) -> IdmStart:
+    """The t = 0 state and constants of ``predict_idm`` (module docstring)."""
     xy0, vxy0, ok = _t0_state(batch)
-    b, n = ok.shape
     leader = idm_leaders(batch)
     has_leader = leader >= 0
     lead_idx = np.where(has_leader, leader, 0)
     hist = batch.history_slice
-    v0 = desired_speed_from_history(batch.nbr_vxy_mps[:, :, hist, 0], batch.nbr_valid[:, :, hist])
-    prm = IdmParams.for_classes(batch.nbr_class)
     nbr_len = np.nan_to_num(batch.nbr_length_m.astype(np.float64))
     cand_len = np.concatenate([nbr_len, batch.ego_length_m.astype(np.float64)[:, None]], axis=1)
-    half_len = 0.5 * (nbr_len + np.take_along_axis(cand_len, lead_idx, axis=1))
-    ego_x = np.nan_to_num(batch.ego_xy0_m[:, 0].astype(np.float64))
-    ego_v = np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64))
+    return IdmStart(
+        x=xy0[:, :, 0].copy(), v=np.maximum(vxy0[:, :, 0], 0.0), y=xy0[:, :, 1], ok=ok, has_leader=has_leader,
+        lead_idx=lead_idx,
+        desired_speed_mps=desired_speed_from_history(batch.nbr_vxy_mps[:, :, hist, 0], batch.nbr_valid[:, :, hist]),
+        params=IdmParams.for_classes(batch.nbr_class),
+        half_len_m=0.5 * (nbr_len + np.take_along_axis(cand_len, lead_idx, axis=1)),
+        ego_x_m=np.nan_to_num(batch.ego_xy0_m[:, 0].astype(np.float64)),
+        ego_v_mps=np.nan_to_num(batch.ego_vxy0_mps[:, 0].astype(np.float64)),
+    )
 
-    x = xy0[:, :, 0].copy()
-    v = np.maximum(vxy0[:, :, 0], 0.0)
+
+def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
+    """IDM prediction (see module docstring); shapes as ``predict_constant_velocity``."""
+    st = idm_start(batch)
+    b, n = st.ok.shape
+    x, v, half_len, ego_x, ego_v = st.x, st.v, st.half_len_m, st.ego_x_m, st.ego_v_mps
     xs = np.empty((b, n, n_steps))
     vs = np.empty((b, n, n_steps))
-    kernel = IdmKernel(v0, prm)
+    kernel = IdmKernel(st.desired_speed_mps, st.params)
     # the leaders' states are gathered from (B, N + 1) rows of [neighbours..., ego] by flat index
     cand_x = np.empty((b, n + 1))
     cand_v = np.empty((b, n + 1))
     cand_v[:, n] = ego_v
-    flat_lead = lead_idx + (n + 1) * np.arange(b)[:, None]
+    flat_lead = st.lead_idx + (n + 1) * np.arange(b)[:, None]
     for k in range(n_steps):
         cand_x[:, :n] = x
         cand_x[:, n] = ego_x + ego_v * (k * dt_s)  # ego: constant velocity
         cand_v[:, :n] = v
-        gap = np.where(has_leader, cand_x.take(flat_lead) - x - half_len, np.inf)
+        gap = np.where(st.has_leader, cand_x.take(flat_lead) - x - half_len, np.inf)
         acc = kernel(v, gap, cand_v.take(flat_lead))
         v = step_speed(v, acc, dt_s)
         x = x + v * dt_s
         xs[:, :, k] = x
         vs[:, :, k] = v
+    return idm_prediction_of(st, xs, vs)
+
+
+def idm_prediction_of(st: IdmStart, xs: np.ndarray, vs: np.ndarray) -> NeighbourPrediction:
+    """The prediction of simulated x positions and speeds (B, N, F): invisible neighbours invalid (0),
+    lateral positions kept."""
+    b, n, n_steps = xs.shape
+    ok = st.ok
     valid = np.broadcast_to(ok[:, :, None], (b, n, n_steps)).copy()
-    y = np.broadcast_to(xy0[:, :, None, 1], (b, n, n_steps))
+    y = np.broadcast_to(st.y[:, :, None], (b, n, n_steps))
     xy = np.where(valid[..., None], np.stack([xs, y], axis=-1), 0.0)
     vxy = np.where(valid[..., None], np.stack([vs, np.zeros_like(vs)], axis=-1), 0.0)
     return NeighbourPrediction(xy_m=xy, vxy_mps=vxy, valid=valid)

@@ -24,10 +24,11 @@ from pydantic import BaseModel, ConfigDict, Field
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
+from letspi.physics.types import RolloutResult
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
-from letspi.safety.plan_check import check_plans
+from letspi.safety.plan_check import SafetyCheck, check_plans
 from letspi.scenario.types import ScenarioBatch
 
 OPTIONS: tuple[PlannerOption[Any], ...] = SOCIAL_FORCE_OPTIONS
@@ -72,36 +73,52 @@ class SocialForceSearchPlanner(PredictingPlanner):
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         """The candidate grid around each scenario's proposed parameters, rolled out and checked at once."""
-        b = len(batch)
-        grid = self.space.grid()
-        c = len(grid)
-        goals = context.goals_xy_m  # (B, 2)
         pred = context.neighbours
-        rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
-        k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
-        base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rep])
-        params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
-        cand_goals = adjust_goals(goals[rep], batch.ego_xy0_m.astype(np.float64)[rep], lon, lane,
-                                  batch.marking_y_m[rep])
+        rep, params, cand_goals = candidates(self.space, batch, context.goals_xy_m, proposals)
         # the scene (per-scenario arrays) is built once and repeated per candidate, not the whole batch
         scene = SocialForceScene.from_batch(batch, pred).take(rep)
-        roll = rollout_social_force_scene(scene, params.clamped(), cand_goals)
+        roll = rollout_social_force_scene(scene, params, cand_goals)
         check = check_plans(batch, roll.xy_m, roll.vxy_mps, pred, rows=rep)
-        safe = check.safe(self.space.ttc_threshold_s, self.space.gap_threshold_m).reshape(b, c)
-        cost = (
-            np.abs(lon - NEUTRAL_LON_FACTOR)
-            + self.space.lane_change_cost * np.abs(lane)
-            + self.space.k_scale_cost * (k_scale - 1.0)
-        ).reshape(b, c)
-        # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
-        ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), self.space.ttc_cap_s).reshape(b, c)
-        gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
-        unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
-        best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
-                        np.argmax(unsafe_score, axis=1))
-        rows = np.arange(b) * c + best
-        info = {
-            "k_scale": k_scale[rows], "lon_factor": lon[rows], "lane_factor": lane[rows],
-            "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
-        }
-        return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)
+        return choose_candidates(self.space, len(batch), roll, cand_goals, check)
+
+
+def candidates(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray,
+               proposals: Proposals) -> tuple[np.ndarray, SocialForceParams, np.ndarray]:
+    """Every scenario's candidate grid, scenario-major: the scenario of each candidate row (B C,), their
+    (clamped) social force parameters and their goals (B C, 2)."""
+    b = len(batch)
+    grid = space.grid()
+    rep = np.repeat(np.arange(b), len(grid))  # candidate row r belongs to scenario rep[r]
+    k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
+    base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rep])
+    params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
+    goals = adjust_goals(np.asarray(goals_xy_m)[rep], batch.ego_xy0_m.astype(np.float64)[rep], lon, lane,
+                         batch.marking_y_m[rep])
+    return rep, params.clamped(), goals
+
+
+def choose_candidates(space: SearchSpace, b: int, roll: RolloutResult, cand_goals: np.ndarray,
+                      check: SafetyCheck) -> PlanBatch:
+    """The plan of each of ``b`` scenarios from its C candidates (rows scenario-major, ``space.grid()``
+    order): the cheapest safe one, else the best ranked (module docstring)."""
+    grid = space.grid()
+    c = len(grid)
+    k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
+    safe = check.safe(space.ttc_threshold_s, space.gap_threshold_m).reshape(b, c)
+    cost = (
+        np.abs(lon - NEUTRAL_LON_FACTOR)
+        + space.lane_change_cost * np.abs(lane)
+        + space.k_scale_cost * (k_scale - 1.0)
+    ).reshape(b, c)
+    # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
+    ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), space.ttc_cap_s).reshape(b, c)
+    gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
+    unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
+    best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
+                    np.argmax(unsafe_score, axis=1))
+    rows = np.arange(b) * c + best
+    info = {
+        "k_scale": k_scale[rows], "lon_factor": lon[rows], "lane_factor": lane[rows],
+        "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
+    }
+    return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)

@@ -81,7 +81,7 @@ def predicted_inputs(
     )
 
 
-def _min_path_gap_m(inp: MetricInputs) -> np.ndarray:
+def min_path_gap_m(inp: MetricInputs) -> np.ndarray:
     lon_gap = np.abs(inp.dx_m) - inp.half_len_sum_m
     in_path = inp.lateral_overlap & inp.nbr_valid
     return np.where(in_path, lon_gap, np.inf).min(axis=(1, 2))
@@ -125,7 +125,7 @@ def _checks(inp: MetricInputs, marking_y_m: np.ndarray, marking_is_edge: np.ndar
         min_box_gap_m=gap_m,
         min_gap_step=gap_step,
         min_gap_nbr=gap_nbr,
-        min_path_gap_m=_min_path_gap_m(inp),
+        min_path_gap_m=min_path_gap_m(inp),
         collision=contact,
         off_road=leaves_road,
     )
