@@ -117,9 +117,25 @@ def draw_trajectory(
     xlo, xhi = x_range_m(scenario, tracks, goal_xy_m)
     ylo, yhi = y_range_m(scenario, tracks)
     draw_road(ax, scenario)
-    out: dict[str, Line2D] = {}
+    _draw_neighbours(ax, scenario, label_x_range_m=(xlo, xhi))
+    out = _draw_ego(ax, scenario)
+    out.update(_draw_plans_and_goals(ax, tracks, colours, goal_xy_m))
 
-    # neighbours: past solid, future dashed, box and id at t = 0
+    ax.set_xlim(xlo, xhi)
+    ax.set_ylim(ylo, yhi)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x, along travel [m]")
+    ax.set_ylabel("y, left [m]")
+    ax.grid(False)
+    if title:
+        ax.set_title(title, loc="left")
+    return out
+
+
+def _draw_neighbours(ax: Axes, scenario: ScenarioBatch, label_x_range_m: tuple[float, float]) -> None:
+    """Neighbours: past solid, future dashed, box at t = 0, and an id label when its box lies in
+    ``label_x_range_m`` (the diagram's x range)."""
+    xlo, xhi = label_x_range_m
     groups = neighbour_groups(scenario)
     for j, group in enumerate(groups):
         if group is None:
@@ -147,7 +163,10 @@ def draw_trajectory(
                 color="black", zorder=8, gid=f"nbr_label:{vid}", annotation_clip=True,
             )
 
-    # ego: past, ground truth, box at t = 0
+
+def _draw_ego(ax: Axes, scenario: ScenarioBatch) -> dict[str, Line2D]:
+    """The ego's past, ground truth and box at t = 0; its lines by gid (``ego_past``, ``ego_truth``)."""
+    out: dict[str, Line2D] = {}
     ego = np.asarray(scenario.ego_xy_m[0], dtype=np.float64)
     out["ego_past"] = ax.plot(ego[: T0_INDEX + 1, 0], ego[: T0_INDEX + 1, 1], color=style.EGO_PAST, lw=2.0,
                               zorder=6, gid="ego_past")[0]
@@ -160,8 +179,14 @@ def draw_trajectory(
     ax.annotate("ego", (float(ego[T0_INDEX, 0]), float(ego[T0_INDEX, 1]) - 0.5 * float(scenario.ego_width_m[0])),
                 xytext=(0, -2), textcoords="offset points", ha="center", va="top", fontsize=8, fontweight="bold",
                 zorder=8)
+    return out
 
-    # plans and goals
+
+def _draw_plans_and_goals(ax: Axes, tracks: Sequence[PlanTrack], colours: Sequence[str],
+                          goal_xy_m: np.ndarray | None) -> dict[str, Line2D]:
+    """The plans (lines by gid ``plan:<name>``), the predicted goal, and each plan goal that differs
+    from it by more than ``ADJUSTED_GOAL_TOL_M`` with an arrow from it."""
+    out: dict[str, Line2D] = {}
     for track, colour in zip(tracks, colours, strict=True):
         out[style.gid_plan(track.name)] = ax.plot(
             track.xy_m[:, 0], track.xy_m[:, 1], color=colour, lw=2.2, marker="o", ms=3.5,
@@ -179,15 +204,6 @@ def draw_trajectory(
                             zorder=8)
                 ax.plot([a[0]], [a[1]], marker="D", ms=8, color=colour, mec="black", mew=0.7, ls="none",
                         zorder=9, gid=f"adjusted_goal:{track.name}")
-
-    ax.set_xlim(xlo, xhi)
-    ax.set_ylim(ylo, yhi)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x, along travel [m]")
-    ax.set_ylabel("y, left [m]")
-    ax.grid(False)
-    if title:
-        ax.set_title(title, loc="left")
     return out
 
 
