@@ -6,6 +6,10 @@ survives a crash of the process or the machine.
 
 Writers: ``writer_lock`` lets one process at a time write a results directory or a memory bank;
 two writers would interleave their parts and store scenarios twice.
+
+Provenance: ``provenance_path``, ``provenance_command`` and ``provenance_record`` write the paths a
+manifest records without the directories of the machine that wrote it (a fitted file or an adapter
+ships inside letspi; the digest recorded beside a path identifies the file).
 """
 
 from __future__ import annotations
@@ -13,12 +17,13 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shlex
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 TMP_SUFFIX = ".tmp"
 
@@ -65,6 +70,51 @@ def remove_stale_temporaries(directory: Path) -> int:
         tmp.unlink(missing_ok=True)
         n += 1
     return n
+
+
+def provenance_path(path: str | os.PathLike[str], root: str | os.PathLike[str] | None = None) -> str:
+    """``path`` as a manifest records it: a relative path as given; an absolute one relative to ``root``
+    (default: the working directory) when it lies below it, else by its file name alone."""
+    text = os.fspath(path)
+    if not os.path.isabs(text):
+        return text
+    base = os.path.abspath(os.fspath(root) if root is not None else os.getcwd())
+    full = os.path.normpath(text)
+    if base != os.path.dirname(base) and full.startswith(base.rstrip(os.sep) + os.sep):
+        return os.path.relpath(full, base)
+    return os.path.basename(full) or full
+
+
+def _provenance_arg(arg: str) -> str:
+    option, eq, value = arg.partition("=")
+    if eq and option.startswith("-"):
+        return f"{option}={_provenance_arg(value)}"
+    return provenance_path(arg) if os.path.isabs(arg) else arg
+
+
+def provenance_command(program: str, args: Sequence[str]) -> str:
+    """The command line ``program args...`` as a manifest records it: absolute paths among the arguments
+    (``--out /abs/dir`` or ``--out=/abs/dir``) through ``provenance_path``, each argument shell-quoted."""
+    return " ".join([program, *(shlex.quote(_provenance_arg(a)) for a in args)])
+
+
+def provenance_record(value: Any) -> Any:
+    """``value`` (a JSON-like record: dicts, lists, strings, paths, numbers) with every absolute path in it
+    (a string or a ``Path``) through ``provenance_path``, and every ``letspi ...`` command line through
+    ``provenance_command``; anything else as it is."""
+    if isinstance(value, dict):
+        return {k: provenance_record(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [provenance_record(v) for v in value]
+    if isinstance(value, str) and value.startswith("letspi "):
+        try:
+            words = shlex.split(value)
+        except ValueError:  # unbalanced quotes: not a command line we wrote
+            return value
+        return provenance_command(words[0], words[1:])
+    if isinstance(value, str | os.PathLike) and os.path.isabs(value):
+        return provenance_path(value)
+    return value
 
 
 class OutputLockedError(OSError):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import errno
 import os
-import shlex
 import sqlite3
 import sys
 import traceback
@@ -39,7 +38,7 @@ from rich.text import Text
 
 from letspi.execution import interrupt
 from letspi.execution.ordered import RunStats, RunStatus
-from letspi.fsutil import OutputLockedError
+from letspi.fsutil import OutputLockedError, provenance_command
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
 
@@ -48,8 +47,9 @@ DEBUG_ENV = "LETSPI_DEBUG"
 
 
 def command_line() -> str:
-    """The command as typed (recorded in manifests and writer locks)."""
-    return "letspi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    """The command as typed, as manifests and writer locks record it: absolute paths relative to the
+    working directory, or by their file name when outside it (``fsutil.provenance_command``)."""
+    return provenance_command("letspi", sys.argv[1:])
 
 
 def debug_enabled() -> bool:

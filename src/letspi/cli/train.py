@@ -11,7 +11,7 @@ import typer
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import goals_config
 from letspi.cli.common import command_line, console, progress_bar, user_errors
-from letspi.fsutil import writer_lock
+from letspi.fsutil import provenance_record, writer_lock
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.hyperparams import GnpTrainConfig, GoalTrainConfig
 from letspi.learned.weights import save_weights
@@ -221,7 +221,7 @@ def _llm_examples(data: list[Path], scenarios: Path | None,
         examples, info = build_examples_many(data, goal_predictor, max_scenarios=max_scenarios)
     if not examples:
         raise ValueError(f"{', '.join(map(str, data))}: no safe labels to train on")
-    return list(examples), info
+    return list(examples), provenance_record(info)  # the manifest names no directory of this machine
 
 
 @app.command("llm")

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from letspi.fsutil import provenance_record
+
 FORMAT_VERSION = 1
 WEIGHTS_FILE = "weights.npz"
 MANIFEST_FILE = "manifest.json"
@@ -39,7 +41,7 @@ def save_weights(out_dir: Path, arrays: dict[str, np.ndarray], manifest: dict[st
     out.mkdir(parents=True, exist_ok=True)
     tmp_w = out / (WEIGHTS_FILE + ".tmp.npz")
     np.savez_compressed(tmp_w, **{k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()})  # type: ignore[arg-type]
-    record = {"format_version": FORMAT_VERSION, **manifest}
+    record = provenance_record({"format_version": FORMAT_VERSION, **manifest})  # no directory of this machine
     tmp_m = out / (MANIFEST_FILE + ".tmp")
     tmp_m.write_text(json.dumps(record, indent=2, allow_nan=True, default=_json_default) + "\n")
     os.replace(tmp_w, out / WEIGHTS_FILE)

@@ -8,7 +8,9 @@ File format::
 
 The package ships one fit per kind (``letspi/data/<file>``); a user's fit comes from ``letspi fit``.
 ``save_fitted`` writes atomically and durably (``letspi.fsutil``): a crash leaves the old file or the
-new one, never half of one. ``load_fitted`` names the file in every error.
+new one, never half of one, and records its provenance without the directories of the machine that
+wrote it (``fsutil.provenance_record``: a scenario file by its name). ``load_fitted`` names the file in
+every error.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
-from letspi.fsutil import atomic_write_text
+from letspi.fsutil import atomic_write_text, provenance_record
 
 T = TypeVar("T")
 
@@ -56,6 +58,8 @@ class FittedFile:
 
     def save(self, path: Path, values: Mapping[str, Any], provenance: Mapping[str, Any],
              objective: Mapping[str, Any]) -> Path:
-        """Write ``values`` with their provenance and objective to ``path`` (atomically)."""
-        record = {self.field: dict(values), "provenance": dict(provenance), "objective": dict(objective)}
+        """Write ``values`` with their provenance (paths as ``provenance_record`` writes them) and objective
+        to ``path`` (atomically)."""
+        record = {self.field: dict(values), "provenance": provenance_record(dict(provenance)),
+                  "objective": dict(objective)}
         return atomic_write_text(Path(path), json.dumps(record, indent=2) + "\n")
