@@ -3,9 +3,10 @@
 * A file path ending in ``.py`` names a file of the repository, matched by its tail: ``describe.py``,
   ``llm/describe.py`` and ``src/letspi/llm/describe.py`` all name ``src/letspi/llm/describe.py``.
 * A dotted ``letspi.x.y`` names a module, and a name after the module an attribute of it.
-* No path outside the repository (``/work/``, ``/tmp/``, ``/root/``, ``/home/``) in those files or in the
-  package's Python source: a note that cites an input or a script the reader cannot have is not one that
-  can be rerun.
+* No path outside the repository (``/work/``, ``/tmp/``, ``/root/``, ``/home/``) in those files, in the
+  package's Python source or in the JSON files it ships (``letspi/data``: provenance names files, not the
+  directories of the machine that wrote them): a note that cites an input or a script the reader cannot
+  have is not one that can be rerun. Nor does the source cite sections of a reference file outside it.
 * Every ``letspi`` command line in notes/ exists with its options (the checker of ``test_docs``).
 """
 
@@ -82,9 +83,21 @@ def test_docs_and_notes_name_existing_modules_only(doc: Path) -> None:
 
 
 def test_no_path_outside_the_repository() -> None:
-    sources = [*TEXT_FILES, *sorted(PACKAGE.rglob("*.py"))]
+    shipped = sorted((PACKAGE / "data").rglob("*.json"))  # fitted files, adapter and model manifests
+    assert len(shipped) >= 4
+    sources = [*TEXT_FILES, *sorted(PACKAGE.rglob("*.py")), *shipped]
     bad = [f"{p.relative_to(ROOT)}:{i}: {m}" for p in sources
            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1) for m in OUTSIDE.findall(line)]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_source_cites_nothing_outside_the_repository() -> None:
+    """Docstrings state a fact or link docs/; a numbered section of a file the reader lacks is neither."""
+    cite = re.compile(r"REFERENCE(?: §|'s)")
+    files = [*sorted(PACKAGE.rglob("*.py")), *sorted((ROOT / "tests").glob("*.py"))]
+    bad = [f"{p.relative_to(ROOT)}:{i}" for p in files
+           for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1)
+           if cite.search(line) and p.name != "test_notes.py"]
     assert not bad, "\n".join(bad)
 
 

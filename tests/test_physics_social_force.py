@@ -39,7 +39,7 @@ def _plan(
 
 
 def _leader_scene(k_np: float, *, gap_m: float = 60.0, ego_speed_mps: float = 35.0, horizon_s: float = 30.0):
-    """1-D check of REFERENCE §4: ego wants 35 m/s, leader at 25 m/s, ``gap_m`` bumper gap."""
+    """1-D check: ego wants 35 m/s, leader at 25 m/s, ``gap_m`` bumper gap."""
     f = round(horizon_s / DT_S)
     length = 4.5
     lead_x = length + gap_m + 25.0 * np.arange(f + 1) * DT_S

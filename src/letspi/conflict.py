@@ -1,6 +1,6 @@
 """Surrogate safety measures of a car-following pair, from bumper gap and closing speed.
 
-The one place the TTC and DRAC formulas are written (REFERENCE §5); the planners' metrics
+The one place the TTC and DRAC formulas are written; the planners' metrics
 (``letspi.metrics.ttc``, ``letspi.metrics.drac``) and the highD-format derivation
 (``letspi.highd.derive``, ``letspi.highd.criticality``) differ only in what they report where the
 formula is undefined, which the callers pass in:

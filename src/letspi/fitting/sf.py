@@ -9,7 +9,7 @@ Objective on a training split (by vehicle: all windows of one ego vehicle fall o
 
 with goals from the kinematic predictor and neighbours from the IDM prediction, exactly as the
 planner runs. Nelder–Mead over the seven parameters in a normalised space, clamped to
-``TYPICAL_RANGES`` (the physically plausible ranges of REFERENCE §4). Why bounded: on calm
+``TYPICAL_RANGES`` (the physically plausible ranges, ``letspi.physics.params``). Why bounded: on calm
 traffic ADE alone rewards switching repulsion off (an unbounded fit on generated data returned
 k_np = 0, which collides with any braking leader): a fixed-parameter baseline should be the best
 *plausible* social force model, not a degenerate one. Deterministic for a seed.

@@ -3,7 +3,7 @@
 ``describe_scenario`` turns one scenario of a ``letspi.scenario.types.ScenarioBatch`` (ego frame: x along travel,
 y to the left, origin at the ego at t = 0) plus a predicted goal into a ``ScenarioDescription``:
 plain numbers rounded for the prompt, and ``to_text()`` renders it. Numbers carry one decimal
-to keep prompts short (input tokens cost prefill time; REFERENCE §8).
+to keep prompts short (input tokens cost prefill time).
 
 Lanes are named by their HighD lane id. The neighbour relation (``ahead``, ``behind``,
 ``alongside``, prefixed ``left-``/``right-`` or ``2-left-``...) is computed from lane

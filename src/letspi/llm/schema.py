@@ -9,7 +9,7 @@ rollout accepts. The LLM chooses the paper's six parameters; ``r_col_m`` stays f
 Wire format
 -----------
 Replies use short JSON keys (``WIRE_KEYS``): output tokens dominate latency on small
-machines (REFERENCE §8). The parser also accepts the long names and common variants
+machines (decoding under a JSON grammar is slow). The parser also accepts the long names and common variants
 (see ``letspi.llm.parse``). Two variants:
 
 * ``"physics"`` (memory-collection phase): a short rationale first, then the numbers. The
@@ -129,8 +129,8 @@ class PlannerReply(BaseModel):
         return out
 
 
-#: Library fallback when every attempt failed: mid-range parameters from REFERENCE §4's starting
-#: ranges, neutral goal. letspi's planners pass the fitted ``sf`` parameters instead
+#: Library fallback when every attempt failed: parameters inside ``TYPICAL_RANGES``
+#: (``letspi.physics.params``), neutral goal. letspi's planners pass the fitted ``sf`` parameters instead
 #: (``fallback_reply_from_params``), so a failed call plans like the ``sf`` baseline.
 DEFAULT_REPLY: Final = PlannerReply(
     tau_s=1.0,

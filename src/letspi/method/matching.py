@@ -10,7 +10,7 @@ Formula used here (per feature k, current scenario f_curr, memory f_mem)::
     D   = sum_k w_k d_k                                            weighted distance in [0, sum w]
     Sim = 1 / (1 + D)                                              in (0, 1], 1 for identical features
 
-**Change from the paper** (REFERENCE §7): the paper writes d_k = 1 - min(1, |Δf| / max(f, eps)). That
+**Change from the paper** (a slip in its formula): the paper writes d_k = 1 - min(1, |Δf| / max(f, eps)). That
 is a *similarity* (1 when the features are equal), so Sim = 1 / (1 + Σ w d_k) would rank the *least*
 similar memories first. We use the normalised difference itself as the distance, which is what the
 surrounding text ("weighted normalized feature distance") describes. ``paper_literal_similarities``

@@ -1,4 +1,4 @@
-"""Collision tests (paper "CR"; REFERENCE §5).
+"""Collision tests (paper "CR").
 
 Primary (``collision``): the axis-aligned boxes of the planned ego and a valid neighbour overlap
 (strictly: touching is not a collision) at some future step. This is real contact.

@@ -1,4 +1,4 @@
-"""Minimum distances between the planned ego and the neighbours (paper "minD"; REFERENCE §5).
+"""Minimum distances between the planned ego and the neighbours (paper "minD").
 
 Two different numbers, both reported:
 

@@ -1,4 +1,4 @@
-"""Deceleration rate to avoid a crash with the preceding vehicle (REFERENCE §5).
+"""Deceleration rate to avoid a crash with the preceding vehicle.
 
 DRAC = dv^2 / (2 s) [m/s^2] with s the bumper gap and dv = vx_ego - vx_nbr > 0 the closing speed
 towards the preceding vehicle (same preceding-vehicle definition as ``letspi.metrics.ttc``).

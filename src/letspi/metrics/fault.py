@@ -3,7 +3,7 @@
 Neighbours are replayed from the recording: they do not react to the plan. As nuPlan does for
 replayed ("non-reactive") agents, a contact the ego could not have avoided is not charged to it.
 Every colliding ego-neighbour pair is classified once, at its first contact step s (the step at
-which the boxes first overlap; REFERENCE §10):
+which the boxes first overlap):
 
 * **side**: the boxes came together laterally: they did not overlap laterally at some step
   within ``fault_reaction_time_s`` (1 s) before s (including the step just before contact, a

@@ -1,4 +1,4 @@
-"""Post-encroachment time by the grid method (Allen et al. 1978; REFERENCE §5).
+"""Post-encroachment time by the grid method (Allen et al. 1978).
 
 Definition (per ego-neighbour pair). Space is cut into square cells of ``cell_m`` (default 0.5 m)
 aligned with the ego frame (cell (i, j) = [i c, (i+1) c) x [j c, (j+1) c), centre

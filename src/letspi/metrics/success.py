@@ -1,4 +1,4 @@
-"""Success of a plan (paper "SR", not defined precisely there; REFERENCE §5).
+"""Success of a plan (paper "SR", which the paper does not define precisely; defined here).
 
 A plan succeeds (``success``) when all of these hold (tolerances in ``MetricsConfig``):
 

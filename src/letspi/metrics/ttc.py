@@ -1,4 +1,4 @@
-"""1-D time-to-collision with the preceding vehicle (paper §IV-C "TTC"; REFERENCE §5), and rear TTC.
+"""1-D time-to-collision with the preceding vehicle (paper §IV-C "TTC"), and rear TTC.
 
 Preceding vehicle at step f: among the valid neighbours whose centre is ahead of the ego's
 centre (dx > 0) and whose box **overlaps the ego's box laterally** (|dy| < (W_ego + W_nbr) / 2),

@@ -1,4 +1,4 @@
-"""2-D time-to-collision of axis-aligned boxes under constant relative velocity (REFERENCE §5).
+"""2-D time-to-collision of axis-aligned boxes under constant relative velocity.
 
 For each ego-neighbour pair and step, with relative position p = c_nbr - c_ego and relative
 velocity v = v_nbr - v_ego, the boxes overlap along an axis while |p + v t| < h (h = half-size

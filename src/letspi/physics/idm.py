@@ -3,7 +3,7 @@
 ``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``
 with gap s (bumper to bumper) and approach rate dv = v - v_leader.
 
-Parameters (REFERENCE §6, Treiber's simulator values): cars T 1.5 s, s0 2 m, a 1.0 m/s^2,
+Parameters (the values of Treiber's traffic simulator): cars T 1.5 s, s0 2 m, a 1.0 m/s^2,
 b 2.0 m/s^2, delta 4; trucks T 2.0 s, a 0.7 m/s^2.
 
 Safeguards (documented deviations from the textbook model):

@@ -16,7 +16,8 @@ r_col_m         m       decay length of the neighbour repulsion ``k * exp(-d / r
 ==============  ======  ==================================================================
 
 ``PARAM_RANGES`` are hard physical limits (what LLM output is clamped to); ``TYPICAL_RANGES`` are the
-starting ranges from REFERENCE §4 (guidance for prompts, not limits).
+plausible starting ranges from the units and typical values: guidance for prompts and the bounds of
+the ``sf`` fit (``letspi.fitting.sf``), not limits.
 """
 
 from __future__ import annotations

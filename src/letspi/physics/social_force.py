@@ -57,12 +57,12 @@ Deviations from the paper's equations, and why
 8. Neighbour states: the force at step k (t = k dt) uses the neighbours at t = k dt: the observed
    state at t = 0, then the prediction. Invalid or non-finite neighbour samples exert no force.
 
-1-D check (REFERENCE §4; tests/test_physics_social_force.py): ego wants 35 m/s (v0 cap 35, goal
+1-D check (tests/test_physics_social_force.py): ego wants 35 m/s (v0 cap 35, goal
 far ahead), leader at 25 m/s with a 60 m bumper gap, r_col 10 m, tau 1 s, 30 s horizon. Steady
 bumper gap = r_col ln(k_np tau / 10 m/s) exactly: k_np 10 collides (boxes overlap by 3.3 m),
 k_np 20 settles at 6.93 m (minimum 5.15 m during the approach), k_np 30 at 10.99 m (minimum 9.2 m).
-REFERENCE's 0.5 m / 4.5 m minima come from the centre distance in the potential: with the box
-distance (item 2) every gap is one car length (4.5 m) larger for the same k_np.
+The potential uses the box distance (item 2): with the centre distance every gap would be one car
+length (4.5 m) smaller for the same k_np.
 """
 
 from __future__ import annotations

@@ -63,7 +63,7 @@ def sumo_arguments(net: SlotNetwork, config: ClosedLoopConfig) -> list[str]:
         f"{DT_S}",
         "--lateral-resolution",
         f"{config.lateral_resolution_m}",
-        # physical contact only (REFERENCE §10); keep colliding vehicles so both sides are scored
+        # physical contact only (mingap factor 0); keep colliding vehicles so both sides are scored
         "--collision.mingap-factor",
         "0",
         "--collision.action",

@@ -4,7 +4,7 @@
   ``letspi.llm.models.locate_adapter``) is applied by llama.cpp when the model is loaded.
 * One ``Llama`` instance per (model file, adapter, context size, runtime) per process, shared by every
   backend object: llama.cpp keeps the previous prompt's KV cache, so consecutive calls that share a
-  static prompt prefix only evaluate the changed tail (REFERENCE §8).
+  static prompt prefix only evaluate the changed tail.
 * Decoding is constrained by the JSON schema (``response_format={"type": "json_object",
   "schema": ...}``), greedy (temperature 0) with a fixed seed.
 * Timeouts: generation is streamed and abandoned when the deadline passes (``LLMTimeoutError``);
