@@ -19,6 +19,7 @@ from letspi.bench.closed_loop import bench_closed_loop, bench_scenarios
 from letspi.bench.data import bench_data
 from letspi.bench.interrupt import MODES as INTERRUPT_MODES
 from letspi.bench.interrupt import bench_interrupt
+from letspi.bench.kernels import KERNELS, bench_kernels
 from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
 from letspi.bench.llm_runtime import CONFIGS, bench_runtime
@@ -80,22 +81,46 @@ def data_cmd(
 
 @app.command("physics")
 def physics_cmd(
-    n: Annotated[int, typer.Option(help="Scenarios (x 8 neighbours x 125 steps).")] = 10_000,
+    n: Annotated[int, typer.Option(help="Scenarios (x 8 neighbours x 125 steps; 0: skip rollout, metrics).")] = 10_000,
     n_reference: Annotated[int, typer.Option(help="Scenarios run through the plain Python loops.")] = 100,
     frenet_n: Annotated[int, typer.Option(help="Scenarios of the batched frenet planner timing (0: skip).")] = 1000,
+    kernel_n: Annotated[int, typer.Option(help="Scenarios of the new-vs-replaced kernel timings (0: skip).")] = 256,
     seed: int = 0,
     as_json: JsonOpt = False,
 ) -> None:
     """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio); CPU ms per
-    scenario of one batched frenet plan."""
+    scenario of one batched frenet plan; the kernels issue 27 made faster (IDM prediction, sf-opt's
+    candidate check and search) beside the algorithms they replaced (ratio, identical results)."""
     # the bench functions print progress lines of their own; keep stdout clean for --json
     with contextlib.redirect_stdout(io.StringIO()):
-        rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference)
-        metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference)
+        rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference) if n > 0 else {}
+        metrics = bench_metrics(n_scenarios=n, seed=seed, n_reference=n_reference) if n > 0 else {}
         frenet = bench_frenet(n_scenarios=frenet_n, seed=seed) if frenet_n > 0 else {}
+        kernels = bench_kernels(n_scenarios=kernel_n, seed=seed) if kernel_n > 0 else {}
     result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()},
-              **{f"frenet_{k}": v for k, v in frenet.items()}}
-    _emit(result, as_json, "letspi bench physics")
+              **{f"frenet_{k}": v for k, v in frenet.items()}, **{f"kernel_{k}": v for k, v in kernels.items()}}
+    if as_json or not kernels:
+        _emit(result, as_json, "letspi bench physics")
+        return
+    if rollout or metrics or frenet:
+        _emit({k: v for k, v in result.items() if not k.startswith("kernel_")}, False, "letspi bench physics")
+    _kernel_table(kernels)
+
+
+def _kernel_table(result: dict[str, float]) -> None:
+    table = Table(title=f"letspi bench physics: kernels new vs replaced, {format_number(result['n_scenarios'])} "
+                        f"scenarios, {format_number(result['sf_opt_candidates'])} sf-opt candidates each "
+                        "(ms, best of 3)")
+    for col in ("kernel", "new CPU", "old CPU", "old/new", "new wall", "old wall", "same"):
+        table.add_column(col, justify="left" if col == "kernel" else "right")
+    for name in KERNELS:
+        table.add_row(name, *(format_number(result[f"{name}_{m}"]) for m in
+                              ("new_cpu_ms", "old_cpu_ms", "speedup", "new_wall_ms", "old_wall_ms")),
+                      "yes" if result[f"{name}_identical"] else "NO")
+    out = Console()
+    out.print(table)
+    out.print(f"load average (1 min): {result['load_1min_start']:.2f} at the start, "
+              f"{result['load_1min_end']:.2f} at the end")
 
 
 def _runtime_table(result: dict[str, Any]) -> None:
