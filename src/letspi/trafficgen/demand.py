@@ -146,69 +146,92 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig)
     follow what HighD shows: time headways of 0.6-1.0 s are common on the left lanes,
     and speed differences of 10+ m/s between adjacent lanes occur.
     """
-    lo_hw = drivers.min_headway_s
     if kind == "truck":
-        # Mix of articulated trucks (about 16.5 m) and rigid trucks / buses (about 10-12 m).
-        if rng.random() < 0.7:
-            length = _clipped_normal(rng, 16.3, 0.6, 14.5, 18.75)
-        else:
-            length = _clipped_normal(rng, 10.5, 1.3, 8.0, 13.0)
-        params: dict[str, float | bool] = {
-            "length_m": length,
-            "width_m": _clipped_normal(rng, 2.50, 0.04, 2.40, 2.60),
-            # German trucks: 80 km/h limit, actually driven at about 85-90 km/h.
-            "desired_speed_mps": _clipped_normal(rng, 24.0, 1.0, 21.5, 26.5),
-            "accel_mps2": _clipped_normal(rng, 0.6, 0.1, 0.4, 0.9),
-            "decel_mps2": _clipped_normal(rng, 2.2, 0.3, 1.8, 3.0),
-            "headway_s": _clipped_normal(rng, 1.55, 0.25, 1.2, 2.1),
-            "min_gap_m": float(rng.uniform(2.0, 3.0)),
-            "lc_speed_gain": float(rng.uniform(0.3, 1.0)),
-            "lc_keep_right": float(rng.uniform(1.0, 2.0)),
-            "lc_cooperative": float(rng.uniform(0.7, 1.0)),
-            "lc_assertive": float(rng.uniform(1.0, 1.5)),
-        }
+        params = _truck_params(rng)
     elif kind == "van":
-        params = {
-            "length_m": _clipped_normal(rng, 5.6, 0.5, 4.8, 7.0),
-            "width_m": _clipped_normal(rng, 2.0, 0.05, 1.9, 2.15),
-            "desired_speed_mps": _clipped_normal(rng, 32.0, 3.0, 25.0, 40.0),
-            "accel_mps2": _clipped_normal(rng, 1.3, 0.25, 0.8, 2.0),
-            "decel_mps2": _clipped_normal(rng, 2.8, 0.4, 2.0, 3.8),
-            "headway_s": _clipped_normal(rng, 1.1, 0.25, max(lo_hw, 0.65), 1.6),
-            "min_gap_m": float(rng.uniform(1.5, 2.5)),
-            "lc_speed_gain": float(rng.uniform(1.0, 3.0)),
-            "lc_keep_right": float(rng.uniform(0.5, 1.5)),
-            "lc_cooperative": float(rng.uniform(0.3, 1.0)),
-            "lc_assertive": float(rng.uniform(1.0, 2.0)),
-        }
+        params = _van_params(rng, drivers)
     else:
-        mean_hw, sd_hw = drivers.car_headway_s
-        params = {
-            "length_m": _clipped_normal(rng, 4.55, 0.35, 3.6, 5.3),
-            "width_m": _clipped_normal(rng, 1.82, 0.07, 1.6, 2.0),
-            # Unrestricted autobahn: cars mostly 110-160 km/h, some much faster.
-            "desired_speed_mps": _clipped_normal(rng, 36.5, 4.5, 26.0, 50.0),
-            "accel_mps2": _clipped_normal(rng, 1.8, 0.4, 1.0, 3.0),
-            "decel_mps2": _clipped_normal(rng, 3.0, 0.5, 2.0, 4.5),
-            "headway_s": _clipped_normal(rng, mean_hw, sd_hw, lo_hw, max(lo_hw, 1.6)),
-            "min_gap_m": float(rng.uniform(1.5, 2.5)),
-            "lc_speed_gain": float(rng.uniform(1.0, 4.0)),
-            "lc_keep_right": float(rng.uniform(0.5, 1.5)),
-            "lc_cooperative": float(rng.uniform(0.2, 1.0)),
-            "lc_assertive": (float(rng.uniform(*drivers.assertive_range))
-                             if rng.random() < drivers.assertive_share else 1.0),
-        }
-        if drivers.impatient_share > 0 and rng.random() < drivers.impatient_share:
-            params.update(
-                impatient=True,
-                desired_speed_mps=min(50.0, float(params["desired_speed_mps"]) * 1.1),
-                headway_s=lo_hw,
-                lc_speed_gain=float(params["lc_speed_gain"]) * 2.0,
-                lc_keep_right=0.3,
-                lc_cooperative=0.1,
-                lc_assertive=max(float(params["lc_assertive"]), drivers.assertive_range[0]),
-                lc_lookahead_s=2.0,
-            )
+        params = _car_params(rng, drivers)
+    _apply_reaction_time(rng, params, drivers)
+    return params
+
+
+def _truck_params(rng: np.random.Generator) -> dict[str, float | bool]:
+    """A truck's dimensions, desired speed, EIDM and LC2013 parameters (before the reaction time)."""
+    # Mix of articulated trucks (about 16.5 m) and rigid trucks / buses (about 10-12 m).
+    if rng.random() < 0.7:
+        length = _clipped_normal(rng, 16.3, 0.6, 14.5, 18.75)
+    else:
+        length = _clipped_normal(rng, 10.5, 1.3, 8.0, 13.0)
+    return {
+        "length_m": length,
+        "width_m": _clipped_normal(rng, 2.50, 0.04, 2.40, 2.60),
+        # German trucks: 80 km/h limit, actually driven at about 85-90 km/h.
+        "desired_speed_mps": _clipped_normal(rng, 24.0, 1.0, 21.5, 26.5),
+        "accel_mps2": _clipped_normal(rng, 0.6, 0.1, 0.4, 0.9),
+        "decel_mps2": _clipped_normal(rng, 2.2, 0.3, 1.8, 3.0),
+        "headway_s": _clipped_normal(rng, 1.55, 0.25, 1.2, 2.1),
+        "min_gap_m": float(rng.uniform(2.0, 3.0)),
+        "lc_speed_gain": float(rng.uniform(0.3, 1.0)),
+        "lc_keep_right": float(rng.uniform(1.0, 2.0)),
+        "lc_cooperative": float(rng.uniform(0.7, 1.0)),
+        "lc_assertive": float(rng.uniform(1.0, 1.5)),
+    }
+
+
+def _van_params(rng: np.random.Generator, drivers: DriverConfig) -> dict[str, float | bool]:
+    """A van's dimensions, desired speed, EIDM and LC2013 parameters (before the reaction time)."""
+    return {
+        "length_m": _clipped_normal(rng, 5.6, 0.5, 4.8, 7.0),
+        "width_m": _clipped_normal(rng, 2.0, 0.05, 1.9, 2.15),
+        "desired_speed_mps": _clipped_normal(rng, 32.0, 3.0, 25.0, 40.0),
+        "accel_mps2": _clipped_normal(rng, 1.3, 0.25, 0.8, 2.0),
+        "decel_mps2": _clipped_normal(rng, 2.8, 0.4, 2.0, 3.8),
+        "headway_s": _clipped_normal(rng, 1.1, 0.25, max(drivers.min_headway_s, 0.65), 1.6),
+        "min_gap_m": float(rng.uniform(1.5, 2.5)),
+        "lc_speed_gain": float(rng.uniform(1.0, 3.0)),
+        "lc_keep_right": float(rng.uniform(0.5, 1.5)),
+        "lc_cooperative": float(rng.uniform(0.3, 1.0)),
+        "lc_assertive": float(rng.uniform(1.0, 2.0)),
+    }
+
+
+def _car_params(rng: np.random.Generator, drivers: DriverConfig) -> dict[str, float | bool]:
+    """A car's dimensions, desired speed, EIDM and LC2013 parameters (before the reaction time);
+    a share ``drivers.impatient_share`` of drivers is impatient (faster, tailgating, assertive)."""
+    lo_hw = drivers.min_headway_s
+    mean_hw, sd_hw = drivers.car_headway_s
+    params: dict[str, float | bool] = {
+        "length_m": _clipped_normal(rng, 4.55, 0.35, 3.6, 5.3),
+        "width_m": _clipped_normal(rng, 1.82, 0.07, 1.6, 2.0),
+        # Unrestricted autobahn: cars mostly 110-160 km/h, some much faster.
+        "desired_speed_mps": _clipped_normal(rng, 36.5, 4.5, 26.0, 50.0),
+        "accel_mps2": _clipped_normal(rng, 1.8, 0.4, 1.0, 3.0),
+        "decel_mps2": _clipped_normal(rng, 3.0, 0.5, 2.0, 4.5),
+        "headway_s": _clipped_normal(rng, mean_hw, sd_hw, lo_hw, max(lo_hw, 1.6)),
+        "min_gap_m": float(rng.uniform(1.5, 2.5)),
+        "lc_speed_gain": float(rng.uniform(1.0, 4.0)),
+        "lc_keep_right": float(rng.uniform(0.5, 1.5)),
+        "lc_cooperative": float(rng.uniform(0.2, 1.0)),
+        "lc_assertive": (float(rng.uniform(*drivers.assertive_range))
+                         if rng.random() < drivers.assertive_share else 1.0),
+    }
+    if drivers.impatient_share > 0 and rng.random() < drivers.impatient_share:
+        params.update(
+            impatient=True,
+            desired_speed_mps=min(50.0, float(params["desired_speed_mps"]) * 1.1),
+            headway_s=lo_hw,
+            lc_speed_gain=float(params["lc_speed_gain"]) * 2.0,
+            lc_keep_right=0.3,
+            lc_cooperative=0.1,
+            lc_assertive=max(float(params["lc_assertive"]), drivers.assertive_range[0]),
+            lc_lookahead_s=2.0,
+        )
+    return params
+
+
+def _apply_reaction_time(rng: np.random.Generator, params: dict[str, float | bool], drivers: DriverConfig) -> None:
+    """Draw the reaction time (on the simulation grid) and apply the preset's scales, in place."""
     # Reaction time on the simulation grid; the desired headway never undercuts it (SUMO:
     # tau below the reaction time causes very hard braking or collisions).
     lo, hi = drivers.reaction_time_s
@@ -220,7 +243,6 @@ def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig)
     params["lc_speed_gain"] = float(params["lc_speed_gain"]) * drivers.lc_speed_gain_scale
     params["lc_keep_right"] = float(params["lc_keep_right"]) * drivers.lc_keep_right_scale
     params["headway_s"] = max(float(params["headway_s"]), reaction)
-    return params
 
 
 def sample_demand(

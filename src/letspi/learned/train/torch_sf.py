@@ -99,6 +99,56 @@ def default_max_speed(scene: TorchScene, goals: torch.Tensor, dt_s: float = DT_S
     return torch.clamp(fastest + CATCH_UP_MARGIN_MPS, max=DEFAULT_MAX_SPEED_MPS)
 
 
+@dataclass(frozen=True)
+class _RolloutTerms:
+    """What every step of ``rollout_torch`` uses, computed once: per-scenario tensors (B,) and
+    per-neighbour / per-line tensors (N, B) / (L, B)."""
+
+    pass_speed: torch.Tensor
+    inv_tau: torch.Tensor
+    neg_inv_r: torch.Tensor
+    max_speed: torch.Tensor
+    half_len: torch.Tensor
+    half_wid: torch.Tensor
+    inline_dy: torch.Tensor
+    lateral_dy: torch.Tensor
+    line_k: torch.Tensor
+    right_edge: torch.Tensor
+    left_edge: torch.Tensor
+    cutoff: torch.Tensor
+    shift: torch.Tensor
+    w_nb: torch.Tensor | None
+
+
+def _rollout_terms(
+    scene: TorchScene,
+    params: dict[str, torch.Tensor],
+    goals_xy_m: torch.Tensor,
+    nbr_weights: torch.Tensor | None,
+    dt_s: float,
+    max_speed_mps: torch.Tensor | None,
+) -> _RolloutTerms:
+    lw = scene.lane_width_m
+    half_wid = 0.5 * (scene.ego_width_m + scene.nbr_width_m)
+    cutoff = torch.clamp(0.5 * lw - 0.5 * scene.ego_width_m, min=EDGE_MIN_CUTOFF_M)
+    return _RolloutTerms(
+        pass_speed=torch.clamp(goals_xy_m[:, 0] - scene.ego_xy0_m[:, 0], min=0.0) / max(scene.n_steps * dt_s, dt_s),
+        inv_tau=1.0 / params["tau_s"],
+        neg_inv_r=-1.0 / params["r_col_m"],
+        max_speed=default_max_speed(scene, goals_xy_m, dt_s) if max_speed_mps is None else max_speed_mps,
+        half_len=0.5 * (scene.ego_length_m + scene.nbr_length_m),  # (N, B)
+        half_wid=half_wid,
+        inline_dy=torch.maximum(0.5 * lw, half_wid),
+        lateral_dy=LATERAL_RANGE_LANES * lw,
+        line_k=scene.line_known * (params["k_cline"] / LANE_LINE_SIGMA_M**2),
+        right_edge=scene.right_edge_y_m + 0.5 * scene.ego_width_m,
+        left_edge=scene.left_edge_y_m - 0.5 * scene.ego_width_m,
+        cutoff=cutoff,
+        shift=1.0 / cutoff**3,
+        w_nb=None if nbr_weights is None else nbr_weights.T,  # (N, B)
+    )
+
+
 def rollout_torch(
     scene: TorchScene,
     params: dict[str, torch.Tensor],
@@ -114,60 +164,18 @@ def rollout_torch(
     r_col_m); goals_xy_m (B, 2); nbr_weights (B, N) or None (= 1); max_speed_mps (B,) or the default.
     """
     f = scene.n_steps
-    goal_x, goal_y = goals_xy_m[:, 0], goals_xy_m[:, 1]
-    horizon_s = f * dt_s
-    pass_speed = torch.clamp(goal_x - scene.ego_xy0_m[:, 0], min=0.0) / max(horizon_s, dt_s)
-    inv_tau = 1.0 / params["tau_s"]
-    neg_inv_r = -1.0 / params["r_col_m"]
-    max_speed = default_max_speed(scene, goals_xy_m, dt_s) if max_speed_mps is None else max_speed_mps
-    lw = scene.lane_width_m
-    half_len = 0.5 * (scene.ego_length_m + scene.nbr_length_m)  # (N, B)
-    half_wid = 0.5 * (scene.ego_width_m + scene.nbr_width_m)
-    inline_dy = torch.maximum(0.5 * lw, half_wid)
-    lateral_dy = LATERAL_RANGE_LANES * lw
-    line_k = scene.line_known * (params["k_cline"] / LANE_LINE_SIGMA_M**2)
-    right_edge = scene.right_edge_y_m + 0.5 * scene.ego_width_m
-    left_edge = scene.left_edge_y_m - 0.5 * scene.ego_width_m
-    cutoff = torch.clamp(0.5 * lw - 0.5 * scene.ego_width_m, min=EDGE_MIN_CUTOFF_M)
-    shift = 1.0 / cutoff**3
-    w_nb = None if nbr_weights is None else nbr_weights.T  # (N, B)
-
+    terms = _rollout_terms(scene, params, goals_xy_m, nbr_weights, dt_s, max_speed_mps)
     ex, ey = scene.ego_xy0_m[:, 0], scene.ego_xy0_m[:, 1]
     vx, vy = scene.ego_vxy0_mps[:, 0], scene.ego_vxy0_mps[:, 1]
     xs, ys, vxs, vys = [], [], [], []
     for k in range(f):
-        remaining = (f - k) * dt_s
-        # goal attraction (with the pass-through goal over the last second)
-        overrun = max(MIN_REMAINING_TIME_S - remaining, 0.0)
-        gx = goal_x + pass_speed * overrun - ex
-        gy = goal_y - ey
-        dist = torch.clamp(_safe_sqrt(gx * gx + gy * gy), min=MIN_GOAL_DISTANCE_M)
-        v0 = torch.minimum(dist / max(remaining, MIN_REMAINING_TIME_S), max_speed)
-        scale = v0 / dist
-        vdx = torch.clamp(scale * gx, min=0.0)
-        vdy = torch.clamp(scale * gy, -MAX_LATERAL_DESIRED_SPEED_MPS, MAX_LATERAL_DESIRED_SPEED_MPS)
-        fgx = (vdx - vx) * inv_tau
-        fgy = (vdy - vy) * inv_tau
-        # neighbours
-        dx = scene.nbr_x_m[k] - ex
-        dy = scene.nbr_y_m[k] - ey
-        ady = torch.abs(dy)
-        gap_x = torch.clamp(torch.abs(dx) - half_len, min=0.0)
-        gap_y = torch.clamp(ady - half_wid, min=0.0)
-        mag = torch.exp(_safe_sqrt(gap_x * gap_x + gap_y * gap_y) * neg_inv_r)
-        if w_nb is not None:
-            mag = mag * w_nb
-        inline = ady < inline_dy
-        lateral = (ady < lateral_dy) & ~inline
-        w_inline = mag * inline
-        pre = (w_inline * (dx > 0.0)).sum(dim=0)
-        fol = w_inline.sum(dim=0) - pre
-        lat = (mag * torch.copysign(lateral.to(mag.dtype), dy)).sum(dim=0)
+        fgx, fgy = _goal_force(terms, goals_xy_m, ex, ey, vx, vy, remaining_s=(f - k) * dt_s)
+        pre, fol, lat = _neighbour_forces(scene, terms, k, ex, ey)
         # lanes
         dm = ey - scene.line_y_m
-        line = (line_k * dm * torch.exp(dm * dm * (-0.5 / LANE_LINE_SIGMA_M**2))).sum(dim=0)
-        edge = params["k_boundary"] * (_edge_push(ey - right_edge, cutoff, shift)
-                                       - _edge_push(left_edge - ey, cutoff, shift))
+        line = (terms.line_k * dm * torch.exp(dm * dm * (-0.5 / LANE_LINE_SIGMA_M**2))).sum(dim=0)
+        edge = params["k_boundary"] * (_edge_push(ey - terms.right_edge, terms.cutoff, terms.shift)
+                                       - _edge_push(terms.left_edge - ey, terms.cutoff, terms.shift))
         ax = torch.clamp(fgx + (-params["k_np"] * pre) + params["k_nf"] * fol, AX_MIN_MPS2, AX_MAX_MPS2)
         ay = torch.clamp(fgy + (-params["k_nl"] * lat) + line + edge, -AY_MAX_MPS2, AY_MAX_MPS2)
         vx = torch.clamp(vx + ax * dt_s, min=0.0)
@@ -181,3 +189,41 @@ def rollout_torch(
     xy = torch.stack([torch.stack(xs, dim=1), torch.stack(ys, dim=1)], dim=-1)
     vxy = torch.stack([torch.stack(vxs, dim=1), torch.stack(vys, dim=1)], dim=-1)
     return xy, vxy
+
+
+def _goal_force(
+    terms: _RolloutTerms, goals_xy_m: torch.Tensor, ex: torch.Tensor, ey: torch.Tensor, vx: torch.Tensor,
+    vy: torch.Tensor, remaining_s: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Goal attraction (x, y) (B,) with ``remaining_s`` left (the pass-through goal over the last second)."""
+    overrun = max(MIN_REMAINING_TIME_S - remaining_s, 0.0)
+    gx = goals_xy_m[:, 0] + terms.pass_speed * overrun - ex
+    gy = goals_xy_m[:, 1] - ey
+    dist = torch.clamp(_safe_sqrt(gx * gx + gy * gy), min=MIN_GOAL_DISTANCE_M)
+    v0 = torch.minimum(dist / max(remaining_s, MIN_REMAINING_TIME_S), terms.max_speed)
+    scale = v0 / dist
+    vdx = torch.clamp(scale * gx, min=0.0)
+    vdy = torch.clamp(scale * gy, -MAX_LATERAL_DESIRED_SPEED_MPS, MAX_LATERAL_DESIRED_SPEED_MPS)
+    return (vdx - vx) * terms.inv_tau, (vdy - vy) * terms.inv_tau
+
+
+def _neighbour_forces(
+    scene: TorchScene, terms: _RolloutTerms, k: int, ex: torch.Tensor, ey: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Summed (weighted) repulsion magnitudes (B,) at step ``k`` of the in-lane neighbours ahead,
+    the in-lane neighbours behind, and the lateral ones (signed by side)."""
+    dx = scene.nbr_x_m[k] - ex
+    dy = scene.nbr_y_m[k] - ey
+    ady = torch.abs(dy)
+    gap_x = torch.clamp(torch.abs(dx) - terms.half_len, min=0.0)
+    gap_y = torch.clamp(ady - terms.half_wid, min=0.0)
+    mag = torch.exp(_safe_sqrt(gap_x * gap_x + gap_y * gap_y) * terms.neg_inv_r)
+    if terms.w_nb is not None:
+        mag = mag * terms.w_nb
+    inline = ady < terms.inline_dy
+    lateral = (ady < terms.lateral_dy) & ~inline
+    w_inline = mag * inline
+    pre = (w_inline * (dx > 0.0)).sum(dim=0)
+    fol = w_inline.sum(dim=0) - pre
+    lat = (mag * torch.copysign(lateral.to(mag.dtype), dy)).sum(dim=0)
+    return pre, fol, lat
