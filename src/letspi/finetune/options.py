@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from letspi.arrays import Rows
 from letspi.finetune.labels import LabelSearch, random_candidates
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.method.decide import DEFAULT_NAME, OptionTable, check_options, defaults_vector, plan_options
@@ -59,7 +60,7 @@ def random_option_table(params: SocialForceParams, n: int, seed: int) -> OptionT
 
 
 @dataclass(frozen=True)
-class OptionOutcomes:
+class OptionOutcomes(Rows):
     """Per window and option, (B, C) each (``adverse_failed`` (B, C, A)).
 
     Hindsight: collision, at_fault, success, min_ttc_s, progress_m (x of the plan's end [m]).
@@ -75,12 +76,6 @@ class OptionOutcomes:
     predicted_safe: np.ndarray
     adverse_failed: np.ndarray
     adverse_applies: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.collision.shape[0])
-
-    def take(self, rows: np.ndarray | list[int] | slice) -> OptionOutcomes:
-        return OptionOutcomes(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
 
     @classmethod
     def concat(cls, parts: list[OptionOutcomes]) -> OptionOutcomes:

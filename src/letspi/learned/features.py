@@ -32,6 +32,7 @@ from typing import Final
 
 import numpy as np
 
+from letspi.arrays import Rows
 from letspi.constants import HORIZON_S, T0_INDEX
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.lanes import lane_centres_m, lane_index_of, lane_width_m
@@ -52,7 +53,7 @@ SCALE_VY_MPS: Final = 2.0
 
 
 @dataclass(frozen=True)
-class SceneFeatures:
+class SceneFeatures(Rows):
     """Model inputs for B scenarios (shapes and units in the module docstring)."""
 
     agent_hist: np.ndarray
@@ -60,13 +61,6 @@ class SceneFeatures:
     agent_mask: np.ndarray
     lane: np.ndarray
     anchor_xy: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.agent_hist.shape[0])
-
-    def take(self, indices: np.ndarray | slice) -> SceneFeatures:
-        return SceneFeatures(self.agent_hist[indices], self.agent_static[indices], self.agent_mask[indices],
-                             self.lane[indices], self.anchor_xy[indices])
 
     def agent_input(self) -> np.ndarray:
         """Flattened per-agent input (B, A, H * 5 + 6): history then static features."""

@@ -46,11 +46,11 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Final, Literal
 
 import numpy as np
 
+from letspi.arrays import Rows
 from letspi.method.reflection import ReflectionResult
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.scenario.features import FEATURE_NAMES, scenario_features
@@ -245,7 +245,7 @@ class Experience:
 
 
 @dataclass(frozen=True)
-class MemoryFeatures:
+class MemoryFeatures(Rows):
     """Retrieval view of M rows, ascending id: ids (M,) int64, features (M, 6) float64 (``FEATURE_NAMES``
     order), and the vehicle of each memory: recording_key (M,) str, ego_id (M,) int64, frame0 (M,) int64."""
 
@@ -254,13 +254,6 @@ class MemoryFeatures:
     recording_key: np.ndarray
     ego_id: np.ndarray
     frame0: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.ids.shape[0])
-
-    def take(self, mask_or_index: np.ndarray) -> MemoryFeatures:
-        return MemoryFeatures(*(a[mask_or_index] for a in (self.ids, self.features, self.recording_key,
-                                                             self.ego_id, self.frame0)))
 
 
 def _row_values(exp: Experience, created_at: str) -> tuple[Any, ...]:
@@ -383,9 +376,7 @@ class MemoryBank:
     def __enter__(self) -> MemoryBank:
         return self
 
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def close(self) -> None:

@@ -72,6 +72,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from letspi.arrays import Batched
 from letspi.constants import DT_S, T0_INDEX
 from letspi.physics.lanes import lane_width_m
 from letspi.physics.params import SocialForceParams, as_params_batch
@@ -118,7 +119,7 @@ def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.nd
 
 
 @dataclass(frozen=True)
-class SocialForceScene:
+class SocialForceScene(Batched):
     """Everything a rollout needs besides parameters and goals: float64, sanitised, and laid out
     step-major / batch-last so the time loop reads contiguous slabs.
 
@@ -147,9 +148,6 @@ class SocialForceScene:
     right_edge_y_m: np.ndarray
     left_edge_y_m: np.ndarray
     lane_width_m: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.ego_xy0_m.shape[0])
 
     @property
     def n_steps(self) -> int:

@@ -71,6 +71,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from letspi.arrays import Batched
 from letspi.constants import DT_S, HORIZON_S, N_FUTURE, T0_INDEX
 from letspi.metrics.kinematics import off_road
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
@@ -300,7 +301,7 @@ def evaluate_held(c: np.ndarray, horizon_s: np.ndarray, t_s: np.ndarray) -> tupl
 
 
 @dataclass(frozen=True)
-class Lattice:
+class Lattice(Batched):
     """Weight-independent part of the planner for B scenarios: candidates, their checks and cost terms.
 
     Longitudinal (B, I): ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (B, I) (a braking candidate ends when it
@@ -346,9 +347,6 @@ class Lattice:
     rss_deficit_s: np.ndarray
     v_des_mps: np.ndarray
     goals_xy_m: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.lon_coef.shape[0])
 
     @property
     def valid(self) -> np.ndarray:
