@@ -28,9 +28,13 @@ def _check_range(name: str, value: tuple[float, float], lo: float, hi: float) ->
         raise ValueError(f"{name} must be (low, high) with {lo} <= low <= high <= {hi}, got {value}")
 
 
+def _check_in(name: str, value: float, lo: float, hi: float, unit: str = "") -> None:
+    if not lo <= value <= hi:
+        raise ValueError(f"{name} must be in [{lo:g}, {hi:g}]{unit}, got {value}")
+
+
 def _check_share(name: str, value: float) -> None:
-    if not 0.0 <= value <= 1.0:
-        raise ValueError(f"{name} must be in [0, 1], got {value}")
+    _check_in(name, value, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -83,16 +87,13 @@ class DriverConfig:
         _check_range("drivers.reaction_time_s", self.reaction_time_s, 0.04, 3.0)
         if not (0.0 < self.car_headway_s[0] <= 5.0 and 0.0 <= self.car_headway_s[1] <= 2.0):
             raise ValueError(f"drivers.car_headway_s must be (mean in (0, 5], sd in [0, 2]), got {self.car_headway_s}")
-        if not 0.3 <= self.min_headway_s <= 3.0:
-            raise ValueError(f"drivers.min_headway_s must be in [0.3, 3], got {self.min_headway_s}")
+        _check_in("drivers.min_headway_s", self.min_headway_s, 0.3, 3.0)
         _check_share("drivers.assertive_share", self.assertive_share)
         _check_range("drivers.assertive_range", self.assertive_range, 1.0, 20.0)
         _check_share("drivers.impatient_share", self.impatient_share)
         for name in ("lc_speed_gain_scale", "lc_keep_right_scale"):
-            if not 0.0 <= getattr(self, name) <= 10.0:
-                raise ValueError(f"drivers.{name} must be in [0, 10], got {getattr(self, name)}")
-        if not 0.1 <= self.epsilon_acc_mps2 <= 100.0:
-            raise ValueError(f"drivers.epsilon_acc_mps2 must be in [0.1, 100], got {self.epsilon_acc_mps2}")
+            _check_in(f"drivers.{name}", getattr(self, name), 0.0, 10.0)
+        _check_in("drivers.epsilon_acc_mps2", self.epsilon_acc_mps2, 0.1, 100.0)
 
 
 @dataclass(frozen=True)
@@ -161,8 +162,7 @@ class EventConfig:
 
     def __post_init__(self) -> None:
         for name in ("hard_brake_per_min", "cut_in_per_min", "truck_pullout_per_min"):
-            if not 0.0 <= getattr(self, name) <= 60.0:
-                raise ValueError(f"events.{name} must be in [0, 60] per minute, got {getattr(self, name)}")
+            _check_in(f"events.{name}", getattr(self, name), 0.0, 60.0, " per minute")
         _check_range("events.hard_brake_decel_mps2", self.hard_brake_decel_mps2, 0.5, 9.0)
         _check_range("events.hard_brake_duration_s", self.hard_brake_duration_s, 0.2, 10.0)
         _check_range("events.hard_brake_hold_s", self.hard_brake_hold_s, 0.0, 20.0)
@@ -172,18 +172,12 @@ class EventConfig:
         _check_range("events.truck_pullout_closing_mps", self.truck_pullout_closing_mps, 0.0, 30.0)
         _check_range("events.cut_in_ttc_s", self.cut_in_ttc_s, 0.1, 30.0)
         _check_range("events.truck_pullout_ttc_s", self.truck_pullout_ttc_s, 0.1, 30.0)
-        if not 0.0 <= self.hard_brake_min_speed_mps <= 40.0:
-            raise ValueError(f"events.hard_brake_min_speed_mps must be in [0, 40], got {self.hard_brake_min_speed_mps}")
-        if not 0.2 <= self.hard_brake_max_headway_s <= 10.0:
-            raise ValueError(
-                f"events.hard_brake_max_headway_s must be in [0.2, 10], got {self.hard_brake_max_headway_s}")
+        _check_in("events.hard_brake_min_speed_mps", self.hard_brake_min_speed_mps, 0.0, 40.0)
+        _check_in("events.hard_brake_max_headway_s", self.hard_brake_max_headway_s, 0.2, 10.0)
         _check_range("events.follower_brake_ratio", self.follower_brake_ratio, 0.1, 1.5)
-        if not 1.0 <= self.follower_jerk_mps3 <= 100.0:
-            raise ValueError(f"events.follower_jerk_mps3 must be in [1, 100], got {self.follower_jerk_mps3}")
-        if not 1.0 <= self.release_decel_mps2 <= 15.0:
-            raise ValueError(f"events.release_decel_mps2 must be in [1, 15], got {self.release_decel_mps2}")
-        if not 1.0 <= self.release_gap_m <= 100.0:
-            raise ValueError(f"events.release_gap_m must be in [1, 100], got {self.release_gap_m}")
+        _check_in("events.follower_jerk_mps3", self.follower_jerk_mps3, 1.0, 100.0)
+        _check_in("events.release_decel_mps2", self.release_decel_mps2, 1.0, 15.0)
+        _check_in("events.release_gap_m", self.release_gap_m, 1.0, 100.0)
 
     @property
     def any_enabled(self) -> bool:
@@ -214,12 +208,9 @@ class LayoutConfig:
     def __post_init__(self) -> None:
         if self.kind not in LAYOUTS:
             raise ValueError(f"layout.kind must be one of {', '.join(LAYOUTS)}, got {self.kind!r}")
-        if not 50.0 <= self.aux_lane_m <= 400.0:
-            raise ValueError(f"layout.aux_lane_m must be in [50, 400] m, got {self.aux_lane_m}")
-        if not 0.0 <= self.ramp_share <= 0.5:
-            raise ValueError(f"layout.ramp_share must be in [0, 0.5], got {self.ramp_share}")
-        if not 0.01 <= self.lc_strategic <= 10.0:
-            raise ValueError(f"layout.lc_strategic must be in [0.01, 10], got {self.lc_strategic}")
+        _check_in("layout.aux_lane_m", self.aux_lane_m, 50.0, 400.0, " m")
+        _check_in("layout.ramp_share", self.ramp_share, 0.0, 0.5)
+        _check_in("layout.lc_strategic", self.lc_strategic, 0.01, 10.0)
 
 
 @dataclass(frozen=True)
@@ -245,8 +236,7 @@ class TrafficConfig:
 
     def __post_init__(self) -> None:
         _check_share("truck_share", self.truck_share)
-        if not 1 <= self.max_attempts <= 20:
-            raise ValueError(f"max_attempts must be in [1, 20], got {self.max_attempts}")
+        _check_in("max_attempts", self.max_attempts, 1, 20)
 
     def to_dict(self) -> dict[str, object]:
         return dataclasses.asdict(self)
