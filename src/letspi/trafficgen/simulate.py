@@ -135,8 +135,32 @@ def run_sumo(
     """
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
-    log_file = work_dir / "sumo.log"
     collision_file = work_dir / "collisions.xml"
+    cmd = _sumo_command(net_file, route_file, work_dir, end_s=end_s, seed=seed,
+                        lane_change_duration_s=lane_change_duration_s, ssm_file=ssm_file)
+    report = progress or (lambda _f: None)
+    started = time.perf_counter()
+    cpu_started = time.process_time()
+    sim.start(cmd)
+    try:
+        hook = make_hook(sim) if make_hook is not None else None
+        _step_to_end(sim, end_s, hook, report)
+        events = list(hook.records) if hook is not None else []
+        stats = hook.stats() if hook is not None else {}
+    finally:
+        sim.close()
+    wall = time.perf_counter() - started
+    cpu = time.process_time() - cpu_started
+    report(1.0)
+    return SimulationResult(fcd=read_fcd(fcd_file, x_range_m=x_range_m), collisions=_read_collisions(collision_file),
+                            wall_time_s=wall, cpu_time_s=cpu, events=events, hook_stats=stats)
+
+
+def _sumo_command(
+    net_file: Path, route_file: Path, work_dir: Path, *, end_s: float, seed: int, lane_change_duration_s: float,
+    ssm_file: Path | None,
+) -> list[str]:
+    """SUMO's command line for :func:`run_sumo` (FCD, collisions and log into ``work_dir``)."""
     cmd = [
         sumo_binary("sumo"),
         "--net-file", str(net_file), "--route-files", str(route_file),
@@ -147,47 +171,38 @@ def run_sumo(
         "--lanechange.duration", f"{lane_change_duration_s}",
         "--time-to-teleport", "-1",
         "--collision.action", "warn", "--collision.mingap-factor", "0",
-        "--collision-output", str(collision_file),
-        "--fcd-output", str(fcd_file),
+        "--collision-output", str(work_dir / "collisions.xml"),
+        "--fcd-output", str(work_dir / "fcd.csv"),
         "--fcd-output.attributes", "id,x,y,speed,acceleration",
         "--no-step-log", "true", "--duration-log.disable", "true",
         "--no-warnings", "true",  # emergency-braking notices of scripted events; collisions go to their file
-        "--log", str(log_file),
+        "--log", str(work_dir / "sumo.log"),
         "--threads", "1",
     ]
     if ssm_file is not None:
         cmd += ["--device.ssm.probability", "1", "--device.ssm.file", str(ssm_file),
                 "--device.ssm.measures", "TTC DRAC PET", "--device.ssm.thresholds", "5.0 3.0 2.0",
                 "--device.ssm.range", "100", "--device.ssm.trajectories", "true"]
-    report = progress or (lambda _f: None)
-    started = time.perf_counter()
-    cpu_started = time.process_time()
-    sim.start(cmd)
-    try:
-        hook = make_hook(sim) if make_hook is not None else None
-        t = 0.0
-        while t < end_s - 1e-9:
-            wake = hook.next_wakeup() if hook is not None else math.inf
-            target = min(end_s, t + _PROGRESS_CHUNK_S, max(wake, t + STEP_S))
-            # Round up to the step grid: simulationStep(target) runs until time >= target.
-            target = math.ceil(target / STEP_S - 1e-6) * STEP_S
-            if target - t > 1.5 * STEP_S:
-                sim.simulationStep(target)
-            else:
-                sim.simulationStep()
-            t = float(sim.simulation.getTime())
-            if hook is not None and t >= wake - 1e-9:
-                hook.on_step(t)
-            report(min(1.0, t / end_s))
-        events = list(hook.records) if hook is not None else []
-        stats = hook.stats() if hook is not None else {}
-    finally:
-        sim.close()
-    wall = time.perf_counter() - started
-    cpu = time.process_time() - cpu_started
-    report(1.0)
-    return SimulationResult(fcd=read_fcd(fcd_file, x_range_m=x_range_m), collisions=_read_collisions(collision_file),
-                            wall_time_s=wall, cpu_time_s=cpu, events=events, hook_stats=stats)
+    return cmd
+
+
+def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable[[float], None]) -> None:
+    """Run the started simulation to ``end_s``: in chunks of up to ``_PROGRESS_CHUNK_S``, stopping
+    at each of the hook's wake-up times to call its ``on_step``; report progress after each chunk."""
+    t = 0.0
+    while t < end_s - 1e-9:
+        wake = hook.next_wakeup() if hook is not None else math.inf
+        target = min(end_s, t + _PROGRESS_CHUNK_S, max(wake, t + STEP_S))
+        # Round up to the step grid: simulationStep(target) runs until time >= target.
+        target = math.ceil(target / STEP_S - 1e-6) * STEP_S
+        if target - t > 1.5 * STEP_S:
+            sim.simulationStep(target)
+        else:
+            sim.simulationStep()
+        t = float(sim.simulation.getTime())
+        if hook is not None and t >= wake - 1e-9:
+            hook.on_step(t)
+        report(min(1.0, t / end_s))
 
 
 def read_fcd(path: Path, *, x_range_m: tuple[float, float] | None = None) -> pd.DataFrame:
