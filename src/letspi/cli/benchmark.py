@@ -1,4 +1,5 @@
-"""``letspi benchmark``: versioned suites (``list``, ``show``, ``run``); windows a paired test needs (``power``)."""
+"""``letspi benchmark``: versioned suites (``list``, ``show``, ``run``); one table over several runs (``summary``);
+windows a paired test needs (``power``)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from letspi.benchmark.leaderboard import to_markdown
 from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
 from letspi.benchmark.run import default_planners, run_suite
 from letspi.benchmark.suites import SUITES, GeneratedTraffic, get_suite
+from letspi.benchmark.summary import load_boards, summary_markdown
 from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
 from letspi.cli.options import planner_options
@@ -102,6 +104,21 @@ def run(
     console.print(f"data: {'reused from the cache' if result.data.reused else 'made'} (generation "
                   f"{t['generation_s']:.1f} s, extraction {t['extraction_s']:.1f} s); total {t['total_s']:.1f} s; "
                   f"results in {target}/ (leaderboard.json, leaderboard.md, leaderboard.html, timing.json)")
+
+
+@app.command("summary")
+def summary(
+    results: Annotated[list[Path], typer.Argument(help="Results directories of suite runs (each with its "
+                                                       "leaderboard.json), one column group each.")],
+    planner: Annotated[list[str] | None, typer.Option(
+        "--planner", help="Only these planners, in this order (repeatable; default: all, as first seen).")] = None,
+) -> None:
+    """One Markdown table over several suites' leaderboards: per planner and suite mode, CR at fault % (95 %
+    CI), the paired McNemar p against the suite's reference and SR %; then which planners another dominates
+    (both intervals apart). Reads the leaderboards only: nothing is rerun."""
+    with user_errors():
+        boards = load_boards(results)
+    typer.echo(summary_markdown(boards, planner), nl=False)
 
 
 @app.command("power")

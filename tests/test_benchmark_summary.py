@@ -1,0 +1,62 @@
+"""letspi benchmark summary: one table over several leaderboards (cells, order, dominance, errors)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from letspi.benchmark.summary import dominated_by, load_boards, summary_markdown
+from letspi.cli.app import app
+
+
+def _row(cr_fault: float, ci: tuple[float, float], sr: float, sr_ci: tuple[float, float]) -> dict:
+    return {"cr_at_fault_pct": cr_fault, "cr_at_fault_pct_ci95": list(ci), "sr_pct": sr, "sr_pct_ci95": list(sr_ci)}
+
+
+def _board(name: str) -> dict:
+    planners = {"human": _row(0.0, (0.0, 0.1), 99.0, (98.0, 99.5)),
+                "sf": _row(5.0, (4.0, 6.2), 60.0, (58.0, 62.0)),
+                "a": _row(2.0, (1.5, 2.6), 70.0, (68.0, 72.0)),   # apart on both: dominates sf
+                "b": _row(4.5, (3.5, 5.5), 70.0, (68.0, 72.0))}   # CR intervals overlap sf's: does not
+    paired = {k: {"cr_at_fault_pct": {"p_mcnemar": 0.0123}} for k in ("a", "b", "human")}
+    mode = {"n_windows": 100, "planners": planners, "paired": {"reference": "sf", "planners": paired}}
+    return {"suite": f"{name}@v1-0000", "definition": {"name": name},
+            "modes": {"closed-loop-log-0.2s": dict(mode), "open-loop": dict(mode)}}
+
+
+def test_dominance_needs_both_intervals_apart() -> None:
+    mode = _board("x")["modes"]["open-loop"]
+    assert dominated_by(mode, "sf") == ["a"]
+    assert dominated_by(mode, "a") == []
+    assert dominated_by(mode, "missing") == []
+
+
+def test_table_cells_order_and_dominance_line() -> None:
+    text = summary_markdown([_board("s1"), _board("s2")], ["sf", "a", "c"])
+    lines = text.splitlines()
+    assert lines[0] == ("| planner | s1 open-loop (n 100) | s1 closed-loop-log-0.2s (n 100) | s2 open-loop (n 100) "
+                        "| s2 closed-loop-log-0.2s (n 100) |")
+    assert lines[2].startswith("| sf | 5.00 (4.00–6.20) · 60.0 |")  # the reference: no p
+    assert lines[3].startswith("| a | 2.00 (1.50–2.60) p 0.012 · 70.0 |")
+    assert lines[4] == "| c | – | – | – | – |"
+    assert "sf is dominated on s1 open-loop by a" in text
+    assert "b is dominated" not in text
+
+
+def test_cli_reads_leaderboards_and_names_a_missing_one(tmp_path: Path) -> None:
+    for name in ("s1", "s2"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "leaderboard.json").write_text(json.dumps(_board(name)))
+    runner = CliRunner()
+    result = runner.invoke(app, ["benchmark", "summary", str(tmp_path / "s1"), str(tmp_path / "s2"),
+                                 "--planner", "sf", "--planner", "a"])
+    assert result.exit_code == 0, result.output
+    assert "| a | 2.00 (1.50–2.60) p 0.012 · 70.0 |" in result.output
+    result = runner.invoke(app, ["benchmark", "summary", str(tmp_path / "nothing")])
+    assert result.exit_code == 2
+    assert "no leaderboard here" in " ".join(result.output.split())
+    with pytest.raises(ValueError, match="no leaderboard here"):
+        load_boards([tmp_path])
