@@ -192,6 +192,17 @@ _CRITICAL_SIZING = ("closed loop, 2,000 windows: planners disagree on 0.7-1.7 % 
                     "frenet vs sf disagree on 2.8-4.3 % (design effect 1.3-1.5), power 0.61-0.75, 4,600 would "
                     "reach 0.8 (docs/benchmark.md). Issue 28 needs >= 2,000 critical-focus windows in both modes")
 
+
+def _critical(name: str, description: str, preset: str, layout: str, seed: int, scripted: str,
+              modes: tuple[Mode, ...] = (OPEN_LOOP, CLOSED_LOOP_DUAL_RATE)) -> Suite:
+    """A critical-focus suite (version 1): 20 minutes of traffic of generator seeds ``seed`` and ``seed + 1``,
+    3,000 windows drawn with ``seed``, half of them with a conflict of the ego."""
+    return Suite(name=name, version=1, description=description,
+                 data=GeneratedTraffic(preset=preset, layout=layout, seeds=(seed, seed + 1), minutes=20.0),
+                 extraction=Extraction(focus="critical", n_windows=3000, seed=seed, critical_share=0.5),
+                 modes=modes, scripted=scripted, sizing=_CRITICAL_SIZING)
+
+
 #: THE table of suites (one entry per suite; seeds are never shared between suites)
 SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
     Suite(
@@ -205,47 +216,27 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         sizing="3,000 windows: open-loop CRs here are 0.2-0.7 % and planners disagree on at most 0.4 % of "
                "the windows, so a 1-point difference is detected with power 1.00 (docs/benchmark.md)",
     ),
-    Suite(
-        name="highway-critical", version=1,
-        description="straight highway, the default (highd) traffic, half the windows with a conflict of the ego",
-        data=GeneratedTraffic(preset="highd", layout="straight", seeds=(1011, 1012), minutes=20.0),
-        extraction=Extraction(focus="critical", n_windows=3000, seed=1011, critical_share=0.5),
-        modes=(OPEN_LOOP,),
-        scripted="scripted events: 107 hard brakes, 115 cut-ins, 24 truck pull-outs in the 40 minutes",
-        sizing=_CRITICAL_SIZING,
-    ),
-    Suite(
-        name="stress-closed-loop", version=1,
-        description="straight highway, stress traffic, critical windows, open loop and closed-loop-log "
-                    "(replanning every 0.2 s; LLM planners dual-rate: the model every 2.5 s, 1.5 s latency)",
-        data=GeneratedTraffic(preset="stress", layout="straight", seeds=(1021, 1022), minutes=20.0),
-        extraction=Extraction(focus="critical", n_windows=3000, seed=1021, critical_share=0.5),
-        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events: 179 hard brakes, 82 cut-ins, 45 truck pull-outs in the 40 minutes",
-        sizing=_CRITICAL_SIZING,
-    ),
-    Suite(
-        name="on-ramp-critical", version=1,
-        description="on-ramp (acceleration lane ending in the window), default traffic, critical windows, "
-                    "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
-        data=GeneratedTraffic(preset="highd", layout="on_ramp", seeds=(1031, 1032), minutes=20.0),
-        extraction=Extraction(focus="critical", n_windows=3000, seed=1031, critical_share=0.5),
-        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events: 98 hard brakes, 116 cut-ins, 30 truck pull-outs in the 40 minutes; merges from "
-                 "the ramp are not scripted",
-        sizing=_CRITICAL_SIZING,
-    ),
-    Suite(
-        name="lane-drop-critical", version=1,
-        description="lane drop (the right lane ends in the window), default traffic, critical windows, "
-                    "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
-        data=GeneratedTraffic(preset="highd", layout="lane_drop", seeds=(1041, 1042), minutes=20.0),
-        extraction=Extraction(focus="critical", n_windows=3000, seed=1041, critical_share=0.5),
-        modes=(OPEN_LOOP, CLOSED_LOOP_DUAL_RATE),
-        scripted="scripted events: 88 hard brakes, 110 cut-ins, 25 truck pull-outs in the 40 minutes; merges where "
-                 "the lane ends are not scripted",
-        sizing=_CRITICAL_SIZING,
-    ),
+    _critical("highway-critical",
+              "straight highway, the default (highd) traffic, half the windows with a conflict of the ego",
+              "highd", "straight", 1011,
+              "scripted events: 107 hard brakes, 115 cut-ins, 24 truck pull-outs in the 40 minutes", (OPEN_LOOP,)),
+    _critical("stress-closed-loop",
+              "straight highway, stress traffic, critical windows, open loop and closed-loop-log "
+              "(replanning every 0.2 s; LLM planners dual-rate: the model every 2.5 s, 1.5 s latency)",
+              "stress", "straight", 1021,
+              "scripted events: 179 hard brakes, 82 cut-ins, 45 truck pull-outs in the 40 minutes"),
+    _critical("on-ramp-critical",
+              "on-ramp (acceleration lane ending in the window), default traffic, critical windows, "
+              "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
+              "highd", "on_ramp", 1031,
+              "scripted events: 98 hard brakes, 116 cut-ins, 30 truck pull-outs in the 40 minutes; merges from "
+              "the ramp are not scripted"),
+    _critical("lane-drop-critical",
+              "lane drop (the right lane ends in the window), default traffic, critical windows, "
+              "open loop and closed-loop-log (0.2 s; dual-rate LLM 2.5 s)",
+              "highd", "lane_drop", 1041,
+              "scripted events: 88 hard brakes, 110 cut-ins, 25 truck pull-outs in the 40 minutes; merges where "
+              "the lane ends are not scripted"),
     Suite(
         name="highd-real", version=1,
         description="your licensed HighD copy: 6 recordings spread over the 60 (ids 1, 7, 13, 25, 45, 60), "

@@ -95,7 +95,13 @@ FRENET_WEIGHTS = PlannerOption[Path | None](
 OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, FRENET_WEIGHTS)
 
 
-class FrenetWeights(BaseModel):
+class _Frozen(BaseModel):
+    """The frenet settings' models: immutable, and an unknown field is an error."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class FrenetWeights(_Frozen):
     """Cost weights. The defaults are hand-set starting values of ``letspi fit frenet``; the planner uses the
     fitted ones shipped in ``letspi/data/frenet_weights.json`` (``shipped_settings``).
 
@@ -106,8 +112,6 @@ class FrenetWeights(BaseModel):
     distance and of the RSS distance (``FrenetFollowing``). Only ratios matter (the argmin is
     unchanged when all are scaled), so ``k_speed`` is the unit the others are measured in.
     """
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     k_jerk_lon: float = Field(default=0.1, ge=0)
     k_jerk_lat: float = Field(default=0.1, ge=0)
@@ -122,13 +126,11 @@ class FrenetWeights(BaseModel):
 WEIGHT_NAMES: tuple[str, ...] = tuple(FrenetWeights.model_fields)
 
 
-class FrenetSampling(BaseModel):
+class FrenetSampling(_Frozen):
     """The lattice (the same for every scenario). Defaults: horizons 3, 4, 5 s; current, left and right
     lane, centre and ±0.5 m; goal speed ±2 m/s; current speed -8, -4, 0, +2 m/s; a stop (0 m/s);
     following at 1 and 2 s, 3 m behind the leader (more than the safety check's front gap); braking at
     a constant 3, 5 and 8 m/s² from t = 0 (to a stop, or to 5 s)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     horizons_s: tuple[float, ...] = (3.0, 4.0, 5.0)
     lane_changes: tuple[int, ...] = (0, 1, -1)  # lanes relative to the current one, +1 = left (+y)
@@ -143,10 +145,8 @@ class FrenetSampling(BaseModel):
     brake_onset_s: float = Field(default=0.5, gt=0)
 
 
-class FrenetLimits(BaseModel):
+class FrenetLimits(_Frozen):
     """Feasibility limits: the metric's success test allows 8 m/s² longitudinal and 4 m/s² lateral."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     max_accel_mps2: float = Field(default=4.0, gt=0)
     max_decel_mps2: float = Field(default=8.0, gt=0)
@@ -159,10 +159,8 @@ class FrenetLimits(BaseModel):
     max_start_decel_mps2: float = Field(default=3.0, gt=0)
 
 
-class FrenetSafety(BaseModel):
+class FrenetSafety(_Frozen):
     """The collision check against the predicted neighbours (margins; module doc)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     front_gap_m: float = Field(default=2.0, ge=0)
     rear_gap_m: float = Field(default=0.5, ge=0)
@@ -172,7 +170,7 @@ class FrenetSafety(BaseModel):
     cautious_check: bool = True
 
 
-class FrenetFollowing(BaseModel):
+class FrenetFollowing(_Frozen):
     """The soft following terms and the fallback rule (module doc).
 
     Desired following distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS distance (Shalev-Shwartz
@@ -191,8 +189,6 @@ class FrenetFollowing(BaseModel):
     neighbour in that lane) counts as if its first contact came ``occupied_lane_change_penalty_s`` earlier.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
     desired_headway_s: float = Field(default=1.5, ge=0)
     standstill_gap_m: float = Field(default=2.0, ge=0)
     rss_reaction_s: float = Field(default=0.5, ge=0)
@@ -207,10 +203,8 @@ class FrenetFollowing(BaseModel):
     frame_stride: int = Field(default=5, ge=1, le=25)
 
 
-class FrenetSettings(BaseModel):
+class FrenetSettings(_Frozen):
     """Everything that changes a ``frenet`` plan besides the goal source and the neighbour prediction."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     weights: FrenetWeights = Field(default_factory=FrenetWeights)
     sampling: FrenetSampling = Field(default_factory=FrenetSampling)
