@@ -20,7 +20,7 @@ import os
 import shlex
 import time
 import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TextIO
@@ -115,6 +115,35 @@ def provenance_record(value: Any) -> Any:
     if isinstance(value, str | os.PathLike) and os.path.isabs(value):
         return provenance_path(value)
     return value
+
+
+SETTINGS_FILE = "settings.json"
+
+
+def resume_directory(out: Path, settings: Mapping[str, Any], *, what: str, instead: str,
+                     parts_dir: str = "parts") -> tuple[Path, bool]:
+    """Prepare the output directory ``out`` of a resumable run that stores its work in ``out/parts_dir``:
+    both created, temporaries a killed writer left removed; ``settings.json`` pins what a rerun must match.
+
+    Returns (the parts directory, True when this run wrote the settings: a fresh start). A rerun with other
+    settings gets ``ValueError`` naming the changed keys ("OUT: holds WHAT made with other settings (keys);
+    INSTEAD or delete it") and nothing is touched.
+    """
+    out = Path(out)
+    parts = out / parts_dir
+    parts.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(parts)
+    remove_stale_temporaries(out)
+    settings_file = out / SETTINGS_FILE
+    if settings_file.exists():
+        old = json.loads(settings_file.read_text())
+        if old != settings:
+            changed = sorted(k for k in settings if old.get(k) != settings[k])
+            raise ValueError(f"{out}: holds {what} made with other settings ({', '.join(changed)}); {instead} "
+                             "or delete it")
+        return parts, False
+    atomic_write_text(settings_file, json.dumps(settings, indent=2, sort_keys=True) + "\n")
+    return parts, True
 
 
 class OutputLockedError(OSError):

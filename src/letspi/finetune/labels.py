@@ -52,7 +52,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict
 
 from letspi.constants import DT_S
-from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
+from letspi.fsutil import atomic_write, atomic_write_text, resume_directory
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
 from letspi.method.decide import defaults_vector, params_of
 from letspi.method.reflection import Proposal, safety_report, simulate_proposal
@@ -369,20 +369,8 @@ class LabelRun:
 
     def run(self, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
         """Label every scenario; returns the manifest. Finished parts of an earlier run are reused."""
-        parts = self.out / PARTS_DIR
-        parts.mkdir(parents=True, exist_ok=True)
-        remove_stale_temporaries(parts)
-        remove_stale_temporaries(self.out)
-        settings_file = self.out / "settings.json"
-        settings = self._settings()
-        if settings_file.exists():
-            old = json.loads(settings_file.read_text())
-            if old != settings:
-                changed = sorted(k for k in settings if old.get(k) != settings[k])
-                raise ValueError(f"{self.out}: holds labels made with other settings ({', '.join(changed)}); "
-                                 "use another --out or delete it")
-        else:
-            atomic_write_text(settings_file, json.dumps(settings, indent=2, sort_keys=True) + "\n")
+        parts, _ = resume_directory(self.out, self._settings(), what="labels", instead="use another --out",
+                                    parts_dir=PARTS_DIR)
         t0 = time.perf_counter()
         elapsed_before = float(json.loads((self.out / MANIFEST_FILE).read_text()).get("elapsed_s", 0.0)) \
             if (self.out / MANIFEST_FILE).exists() else 0.0

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict
 
 from letspi.arrays import Rows
 from letspi.finetune.labels import LabelSearch, random_candidates
-from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
+from letspi.fsutil import atomic_write, atomic_write_text, resume_directory
 from letspi.method.decide import DEFAULT_NAME, OptionTable, check_options, defaults_vector, plan_options
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.metrics.compute import compute_outcomes
@@ -187,20 +187,9 @@ class OptionRun:
 
     def run(self, progress: Callable[[int], None] | None = None) -> OptionOutcomes:
         """Score every window (finished chunks of an earlier run are reused) and consolidate."""
-        parts = self.out / "parts"
-        parts.mkdir(parents=True, exist_ok=True)
-        remove_stale_temporaries(parts)
-        remove_stale_temporaries(self.out)
-        settings_file = self.out / "settings.json"
         wanted = self.settings.model_dump(mode="json")
-        if settings_file.exists():
-            old = json.loads(settings_file.read_text())
-            if old != wanted:
-                changed = sorted(k for k in wanted if old.get(k) != wanted[k])
-                raise ValueError(f"{self.out}: holds option outcomes made with other settings "
-                                 f"({', '.join(changed)}); use another directory or delete it")
-        else:
-            atomic_write_text(settings_file, json.dumps(wanted, indent=2, sort_keys=True) + "\n")
+        parts, fresh = resume_directory(self.out, wanted, what="option outcomes", instead="use another directory")
+        if fresh:
             atomic_write_text(self.out / "options.json", json.dumps(self.table.to_json(), indent=1) + "\n")
         t0 = time.perf_counter()
         n, step = len(self.batch), self.settings.chunk
