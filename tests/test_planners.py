@@ -14,7 +14,7 @@ from letspi.planners.sf import SocialForcePlanner
 from letspi.planners.sf_opt import SocialForceSearchPlanner
 from letspi.planners.sf_params import load_sf_params, save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
-from letspi.scenario.split import split_by_vehicle
+from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.types import concat_batches
 
 BASELINE_PLANNERS = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
@@ -97,6 +97,15 @@ def test_split_by_vehicle_never_shares_a_vehicle():
     train, val = split_by_vehicle(batch, 0.5, seed=3)
     assert set(batch.ego_id[train]).isdisjoint(set(batch.ego_id[val]))
     assert len(train) + len(val) == 12
+
+
+def test_subsample_keeps_few_indices_and_draws_an_ascending_subset_of_many():
+    idx = np.array([2, 5, 7, 11, 13])
+    assert subsample(idx, None, np.random.default_rng(0)) is idx
+    assert subsample(idx, 5, np.random.default_rng(0)) is idx
+    drawn = subsample(idx, 3, np.random.default_rng(4))
+    assert len(drawn) == 3 and set(drawn) <= set(idx) and list(drawn) == sorted(drawn)
+    assert np.array_equal(drawn, subsample(idx, 3, np.random.default_rng(4)))  # a seed gives the same rows
 
 
 def test_fit_is_deterministic_and_not_worse_than_its_start():

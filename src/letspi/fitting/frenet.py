@@ -36,7 +36,7 @@ from letspi.planners.frenet import (
     build_lattice,
     plan_from_lattice,
 )
-from letspi.scenario.split import split_by_vehicle
+from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.types import ScenarioBatch
 
 #: weights searched (k_speed is the unit) and their grid (log-spaced)
@@ -116,9 +116,7 @@ def fit_frenet_weights(
     settings = settings or FrenetSettings()
     t0 = time.perf_counter()
     train_idx, val_idx = split_by_vehicle(batch, train_fraction, seed)
-    rng = np.random.default_rng(seed)
-    if max_train is not None and len(train_idx) > max_train:
-        train_idx = np.sort(rng.choice(train_idx, max_train, replace=False))
+    train_idx = subsample(train_idx, max_train, np.random.default_rng(seed))
     train_batch = batch.take(train_idx)
     train = _Objective(train_batch, lattice_of(train_batch, goal_predictor, settings), collision_weight,
                        low_ttc_weight, failure_weight)

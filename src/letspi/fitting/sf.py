@@ -37,7 +37,7 @@ from letspi.physics.params import (
     SocialForceParams,
 )
 from letspi.physics.social_force import rollout_social_force
-from letspi.scenario.split import split_by_vehicle
+from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.types import ScenarioBatch
 
 
@@ -107,9 +107,7 @@ def fit_sf_params(
 ) -> FitResult:
     """Fit the fixed SF parameters on the training split of ``batch`` (see module doc)."""
     train_idx, val_idx = split_by_vehicle(batch, train_fraction, seed)
-    rng = np.random.default_rng(seed)
-    if max_train is not None and len(train_idx) > max_train:
-        train_idx = np.sort(rng.choice(train_idx, max_train, replace=False))
+    train_idx = subsample(train_idx, max_train, np.random.default_rng(seed))
     train = _Objective(batch.take(train_idx), collision_weight, low_ttc_weight)
     t0 = time.perf_counter()
     n_eval = 0

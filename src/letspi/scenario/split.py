@@ -43,3 +43,11 @@ def split_by_recording(batch: ScenarioBatch, train_fraction: float, seed: int) -
     n_train = min(max(round(train_fraction * len(uniq)), 1), len(uniq) - 1)
     is_train = np.isin(batch.recording_key.astype(str), uniq[perm[:n_train]])
     return np.flatnonzero(is_train), np.flatnonzero(~is_train)
+
+
+def subsample(indices: np.ndarray, at_most: int | None, rng: np.random.Generator) -> np.ndarray:
+    """``indices`` as they are when there are at most ``at_most`` of them (or ``at_most`` is None), else
+    ``at_most`` of them drawn with ``rng`` without replacement, ascending."""
+    if at_most is None or len(indices) <= at_most:
+        return indices
+    return np.sort(rng.choice(indices, at_most, replace=False))

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from letspi.scenario.split import split_by_vehicle
+from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
@@ -33,8 +33,5 @@ def split(batch: ScenarioBatch, val_fraction: float, seed: int, max_train: int |
     optionally subsampled (deterministic for ``seed``)."""
     train, val = split_by_vehicle(batch, 1.0 - val_fraction, seed)
     rng = np.random.default_rng(seed + 1)
-    if max_train is not None and len(train) > max_train:
-        train = np.sort(rng.choice(train, max_train, replace=False))
-    if max_val is not None and len(val) > max_val:
-        val = np.sort(rng.choice(val, max_val, replace=False))
-    return train, val
+    train = subsample(train, max_train, rng)  # first: the validation draw continues the same generator
+    return train, subsample(val, max_val, rng)
