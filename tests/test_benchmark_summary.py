@@ -60,3 +60,30 @@ def test_cli_reads_leaderboards_and_names_a_missing_one(tmp_path: Path) -> None:
     assert "no leaderboard here" in " ".join(result.output.split())
     with pytest.raises(ValueError, match="no leaderboard here"):
         load_boards([tmp_path])
+
+
+def test_runs_of_one_suite_share_a_column() -> None:
+    base, extra = _board("s1"), _board("s1")
+    for mode in extra["modes"].values():
+        mode["planners"] = {"sf": mode["planners"]["sf"], "llm": _row(1.0, (0.5, 1.8), 61.0, (59.0, 63.0))}
+        mode["paired"] = {"reference": "sf", "planners": {"llm": {"cr_at_fault_pct": {"p_mcnemar": 0.5}}}}
+    text = summary_markdown([base, extra], ["a", "llm"])
+    assert text.splitlines()[0].count("s1 open-loop") == 1
+    assert "| llm | 1.00 (0.50–1.80) p 0.5 · 61.0 |" in text
+    extra["modes"]["open-loop"]["n_windows"] = 50
+    with pytest.raises(ValueError, match="different windows"):
+        summary_markdown([base, extra])
+
+
+def test_run_refuses_an_unknown_mode_before_any_work(tmp_path: Path) -> None:
+    from letspi.benchmark.run import selected_modes
+    from letspi.benchmark.suites import get_suite
+
+    suite = get_suite("stress-closed-loop")
+    assert [m.slug for m in selected_modes(suite, ["closed-loop-log-0.2s"])] == ["closed-loop-log-0.2s"]
+    assert [m.slug for m in selected_modes(suite, None)] == ["open-loop", "closed-loop-log-0.2s"]
+    result = CliRunner().invoke(app, ["benchmark", "run", "stress-closed-loop", "--mode", "closed-loop",
+                                      "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert "has no mode closed-loop (its modes: open-loop, closed-loop-log-0.2s)" in " ".join(result.output.split())
+    assert not (tmp_path / "out").exists()

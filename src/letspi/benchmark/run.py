@@ -79,6 +79,18 @@ class _PlannerClock:
             self._current = None
 
 
+def selected_modes(suite: Suite, slugs: Sequence[str] | None) -> tuple[Mode, ...]:
+    """The suite's modes named by ``slugs`` (all when None or empty), in the suite's order; an unknown slug
+    is refused with the suite's slugs."""
+    if not slugs:
+        return tuple(suite.modes)
+    known = [m.slug for m in suite.modes]
+    unknown = [s for s in slugs if s not in known]
+    if unknown:
+        raise ValueError(f"{suite.name} has no mode {', '.join(unknown)} (its modes: {', '.join(known)})")
+    return tuple(m for m in suite.modes if m.slug in slugs)
+
+
 def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
     assert mode.replan_s is not None and mode.llm_period_s is not None
     return ClosedLoopConfig(mode=mode.mode, replan_s=mode.replan_s, workers=workers,  # type: ignore[arg-type]
@@ -88,9 +100,11 @@ def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
 def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: PlannerOptions | None = None,
               highd_dir: Path | None = None, allow_other_files: bool = False, workers: int = 2,
               reports: bool = True, progress_factory: ProgressFactory | None = None,
-              log: Callable[[str], None] = print) -> SuiteRun:
-    """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode, write the leaderboard."""
+              log: Callable[[str], None] = print, modes: Sequence[str] | None = None) -> SuiteRun:
+    """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode (or in the modes
+    whose slugs ``modes`` names: the leaderboard then holds those), write the leaderboard."""
     out = Path(out)
+    run_modes = selected_modes(suite, modes)
     labels = [label for label, _ in planner_kinds(planner_args)]
     timing: dict[str, float] = {}
     started = time.perf_counter()
@@ -103,7 +117,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
     boards: dict[str, dict[str, Any]] = {}
     report_links: dict[str, str] = {}
     planner_s: dict[str, dict[str, float]] = {}  # mode -> planner -> wall seconds
-    for mode in suite.modes:
+    for mode in run_modes:
         eval_dir = out / mode.slug
         t0 = time.perf_counter()
         if mode.n_windows is not None and mode.n_windows < len(full):

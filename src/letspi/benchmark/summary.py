@@ -33,9 +33,26 @@ def load_boards(results: Sequence[Path]) -> list[dict[str, Any]]:
 
 
 def columns(boards: Sequence[Mapping[str, Any]]) -> list[tuple[str, str, Mapping[str, Any]]]:
-    """(suite name, mode slug, mode board) for every mode of every board, open loop first."""
-    return [(board["definition"]["name"], slug, board["modes"][slug]) for board in boards
-            for slug in sorted(board["modes"], key=lambda s: (s != "open-loop", s))]
+    """(suite name, mode slug, mode board) for every mode of every board, open loop first. Boards of one
+    suite id (e.g. the baselines' run and the LLM planners' run of the same suite) share a column: their
+    planners are merged (each planner's paired statistics stay those of its own run, on the same windows)."""
+    merged: dict[tuple[str, str], dict[str, Any]] = {}
+    names: dict[tuple[str, str], str] = {}
+    for board in boards:
+        for slug in sorted(board["modes"], key=lambda s: (s != "open-loop", s)):
+            mode, key = board["modes"][slug], (board["suite"], slug)
+            names[key] = board["definition"]["name"]
+            if key not in merged:
+                merged[key] = {"n_windows": mode["n_windows"], "planners": dict(mode["planners"]),
+                               "paired": {"reference": mode["paired"]["reference"],
+                                          "planners": dict(mode["paired"]["planners"])}}
+                continue
+            into = merged[key]
+            if into["n_windows"] != mode["n_windows"] or into["paired"]["reference"] != mode["paired"]["reference"]:
+                raise ValueError(f"{board['suite']} {slug}: two runs with different windows or references")
+            into["planners"].update(mode["planners"])
+            into["paired"]["planners"].update(mode["paired"]["planners"])
+    return [(names[key], key[1], mode) for key, mode in merged.items()]
 
 
 def planner_order(boards: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -86,6 +103,6 @@ def summary_markdown(boards: Sequence[Mapping[str, Any]], planners: Sequence[str
     lines += ["", "Cells: CR at fault % (95 % CI), exact McNemar p against the suite's reference (sf) on the same "
               "windows, · SR %."]
     lines += ["Dominated (both intervals apart): " + ("; ".join(notes) if notes else "none") + "."]
-    suites = ", ".join(f"`{board['suite']}`" for board in boards)
+    suites = ", ".join(dict.fromkeys(f"`{board['suite']}`" for board in boards))
     lines += [f"Suites: {suites}."]
     return "\n".join(lines) + "\n"

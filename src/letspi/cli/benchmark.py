@@ -86,6 +86,9 @@ def run(
     workers: Annotated[int, typer.Option(
         min=1, help="Processes for generation, open-loop planners and closed-loop simulation.")] = 2,
     reports: Annotated[bool, typer.Option(help="Write each mode's report.html.")] = True,
+    mode: Annotated[list[str] | None, typer.Option(
+        "--mode", help="Only this mode of the suite (its slug, e.g. open-loop or closed-loop-log-0.2s; "
+                       "repeatable; default: all): the leaderboard then holds these modes.")] = None,
 ) -> None:
     """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
     (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
@@ -96,7 +99,8 @@ def run(
         with writer_lock(target, command_line()), progress_bar() as bar:
             result = run_suite(s, planners, target, options=options, highd_dir=highd,
                                allow_other_files=allow_other_files, workers=workers, reports=reports,
-                               progress_factory=progress_factory(bar), log=bar.console.print)
+                               progress_factory=progress_factory(bar), log=bar.console.print,
+                               modes=mode)
     typer.echo(to_markdown(result.board))
     t = result.timing
     for slug, seconds in result.planner_s.items():
