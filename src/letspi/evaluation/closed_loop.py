@@ -296,10 +296,7 @@ class ClosedLoopRunner:
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
         writer = PartWriter(out_dir, built, planner_evaluation(settings, built.name, built.dual_rate), before_write)
-        done = writer.done()
-        todo = np.flatnonzero([d not in done for d in digests])
-        if progress is not None and len(batch) - len(todo):
-            progress(len(batch) - len(todo), None)
+        todo = writer.todo(digests, progress)
         if len(todo):
             vehicles = vehicle_keys(batch)
             try:
@@ -317,8 +314,7 @@ class ClosedLoopRunner:
             except BaseException:
                 writer.abandon()
                 raise
-        frame = load_planner_results(out_dir, built.name)
-        return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), None
+        return load_planner_results(out_dir, built.name, digests=digests), None
 
 
 def evaluate_closed_loop(

@@ -280,6 +280,15 @@ class PartWriter:
         """Digests of the scenarios already stored."""
         return done_digests(self.planner_dir)
 
+    def todo(self, digests: np.ndarray, progress: ProgressCallback | None = None) -> np.ndarray:
+        """Indices of the scenarios ``digests`` (B,) not stored yet; the stored ones are reported to
+        ``progress`` as done (a rerun resumes)."""
+        done = self.done()
+        todo = np.flatnonzero([d not in done for d in digests])
+        if progress is not None and len(digests) - len(todo):
+            progress(len(digests) - len(todo), None)
+        return todo
+
     def write(self, frame: pd.DataFrame, plan_xy: np.ndarray, plan_vxy: np.ndarray, goals: np.ndarray,
               arrays: dict[str, np.ndarray] | None = None) -> Path:
         if self._before_write is not None:
@@ -309,8 +318,10 @@ def stored_rows(out_dir: Path, planner_names: Sequence[str]) -> int:
     return sum(len(done_digests(Path(out_dir) / "per_scenario" / planner_dir_name(n))) for n in planner_names)
 
 
-def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool = False) -> pd.DataFrame:
-    """All stored rows of one planner, in dataset order (``row``), one per scenario digest.
+def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool = False,
+                         digests: np.ndarray | None = None) -> pd.DataFrame:
+    """All stored rows of one planner, in dataset order (``row``), one per scenario digest; with
+    ``digests``, only the rows of those scenarios.
 
     ``with_plans`` keeps the plan columns (``plan_xy_m`` etc. as flat float32 arrays per row).
     """
@@ -324,6 +335,8 @@ def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool =
                                          if c not in PLAN_COLUMNS and not c.startswith(TRAJECTORY_PREFIX)]
         frames.append(pq.read_table(p, columns=cols).to_pandas())
     frame = pd.concat(frames, ignore_index=True).drop_duplicates("scenario_digest", keep="first")
+    if digests is not None:
+        frame = frame[frame["scenario_digest"].isin(set(digests))]
     return frame.sort_values("row", kind="stable").reset_index(drop=True)
 
 
@@ -372,17 +385,13 @@ def run_planner(
     The planner's directory and ``config.json`` appear with its first part (``before_write()`` runs
     before each part is written): a planner that fails before storing anything leaves nothing."""
     writer = PartWriter(out_dir, built, before_write=before_write)
-    done = writer.done()
-    todo = np.flatnonzero([d not in done for d in digests])
-    if progress is not None and len(batch) - len(todo):
-        progress(len(batch) - len(todo), None)
+    todo = writer.todo(digests, progress)
     try:
         run = _plan_and_store(built, batch, digests, todo, config, progress, concurrency, writer.write)
     except BaseException:
         writer.abandon()
         raise
-    frame = load_planner_results(out_dir, built.name)
-    return frame[frame["scenario_digest"].isin(set(digests))].reset_index(drop=True), run
+    return load_planner_results(out_dir, built.name, digests=digests), run
 
 
 def _plan_and_store(built: BuiltPlanner, batch: ScenarioBatch, digests: np.ndarray, todo: np.ndarray,
