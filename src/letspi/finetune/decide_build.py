@@ -27,7 +27,7 @@ from letspi.finetune.decide_data import (
 )
 from letspi.finetune.labels import LABELS_FILE, MANIFEST_FILE, _write_parquet
 from letspi.finetune.options import OptionOutcomes, OptionRun
-from letspi.fsutil import atomic_write_text
+from letspi.fsutil import atomic_write_text, provenance_path
 from letspi.method.decide import PRESETS_FORMAT, OptionTable, gate_features
 from letspi.physics.goals import GoalPredictor
 from letspi.physics.params import SocialForceParams
@@ -56,7 +56,7 @@ def build_decision_data(scenario_files: Sequence[Path], out: Path, goal_predicto
     everything = OptionOutcomes.concat(outcomes)
     chosen = sorted(select_presets(everything, n_presets))  # in the pool's order: the defaults, then by caution
     presets = OptionTable(tuple(pool.names[k] for k in chosen), pool.values[chosen])
-    sources = [{"file": str(p), "digest": dataset_digest(scenario_digests(b)), "windows": len(b)}
+    sources = [{"file": provenance_path(p), "digest": dataset_digest(scenario_digests(b)), "windows": len(b)}
                for p, b in zip(scenario_files, batches, strict=True)]
     provenance = {"command": command, "sources": sources, "pool": list(pool.names), "goals": goals,
                   "sf_params": params.as_dict(), "adverse": adverse.model_dump(mode="json"),
