@@ -42,12 +42,14 @@ def test_a_record_is_rewritten_at_every_depth_and_nothing_else_changes(monkeypat
     record = {"sources": [{"labels_dir": "/runs/labels31", "scenarios_path": Path("/data/train31.arrow"),
                            "manifest": {"command": "letspi train llm-data --scenarios /data/train31.arrow --seed 31"},
                            "n": 3, "share": 0.5, "ok": None}],
-              "text": "m/s and 1/2", "odd": "letspi 'unbalanced"}
+              "text": "m/s and 1/2, http://host:8080/v1", "odd": "letspi 'unbalanced",
+              "note": "letspi data generate --seed 1 (criticality highd; 3+3 lanes) -> --out=/data/gen1 '/a b'"}
     assert provenance_record(record) == {
         "sources": [{"labels_dir": "labels31", "scenarios_path": "train31.arrow",
                      "manifest": {"command": "letspi train llm-data --scenarios train31.arrow --seed 31"},
                      "n": 3, "share": 0.5, "ok": None}],
-        "text": "m/s and 1/2", "odd": "letspi 'unbalanced"}
+        "text": "m/s and 1/2, http://host:8080/v1", "odd": "letspi 'unbalanced",
+        "note": "letspi data generate --seed 1 (criticality highd; 3+3 lanes) -> --out=gen1 '/a b'"}
 
 
 def test_a_fitted_file_names_its_scenario_files_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

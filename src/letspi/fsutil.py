@@ -17,6 +17,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import re
 import shlex
 import time
 import uuid
@@ -98,22 +99,22 @@ def provenance_command(program: str, args: Sequence[str]) -> str:
     return " ".join([program, *(shlex.quote(_provenance_arg(a)) for a in args)])
 
 
+#: an absolute path inside a text: a word that starts with "/" (after a space, "=" or the text's start)
+_ABSOLUTE_WORD = re.compile(r"(?<![^\s=])/[^\s'\"]+")
+
+
 def provenance_record(value: Any) -> Any:
     """``value`` (a JSON-like record: dicts, lists, strings, paths, numbers) with every absolute path in it
-    (a string or a ``Path``) through ``provenance_path``, and every ``letspi ...`` command line through
-    ``provenance_command``; anything else as it is."""
+    through ``provenance_path``: a ``Path``, a string that is one, or a word of a text that is one (a
+    command line such as ``letspi train llm --data /abs/labels31``); every other character as it is."""
     if isinstance(value, dict):
         return {k: provenance_record(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return [provenance_record(v) for v in value]
-    if isinstance(value, str) and value.startswith("letspi "):
-        try:
-            words = shlex.split(value)
-        except ValueError:  # unbalanced quotes: not a command line we wrote
-            return value
-        return provenance_command(words[0], words[1:])
     if isinstance(value, str | os.PathLike) and os.path.isabs(value):
         return provenance_path(value)
+    if isinstance(value, str):
+        return _ABSOLUTE_WORD.sub(lambda m: provenance_path(m.group(0)), value)
     return value
 
 
