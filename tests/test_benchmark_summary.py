@@ -44,6 +44,10 @@ def test_table_cells_order_and_dominance_line() -> None:
     assert lines[4] == "| c | – | – | – | – |"
     assert "sf is dominated on s1 open-loop by a" in text
     assert "b is dominated" not in text
+    text = summary_markdown([_board("s1"), _board("s2")], ["sf"], ["open-loop"])
+    assert text.splitlines()[0] == "| planner | s1 (n 100) | s2 (n 100) |"
+    with pytest.raises(ValueError, match="no leaderboard has a mode closed"):
+        summary_markdown([_board("s1")], None, ["closed"])
 
 
 def test_cli_reads_leaderboards_and_names_a_missing_one(tmp_path: Path) -> None:

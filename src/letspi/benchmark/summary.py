@@ -90,11 +90,17 @@ def dominated_by(mode: Mapping[str, Any], planner: str) -> list[str]:
             and other["sr_pct_ci95"][0] > me["sr_pct_ci95"][1]]
 
 
-def summary_markdown(boards: Sequence[Mapping[str, Any]], planners: Sequence[str] | None = None) -> str:
-    """The headline table (planners x suite modes) and a line per dominated planner."""
-    cols = columns(boards)
+def summary_markdown(boards: Sequence[Mapping[str, Any]], planners: Sequence[str] | None = None,
+                     modes: Sequence[str] | None = None) -> str:
+    """The headline table (planners x suite modes; only the mode slugs ``modes`` when given) and a line per
+    dominated planner."""
+    cols = [c for c in columns(boards) if not modes or c[1] in modes]
+    if not cols:
+        raise ValueError(f"no leaderboard has a mode {', '.join(modes or [])}")
     names = list(planners) if planners else planner_order(boards)
-    header = ["planner", *[f"{suite} {slug} (n {mode['n_windows']})" for suite, slug, mode in cols]]
+    one_mode = len({slug for _, slug, _ in cols}) == 1
+    header = ["planner", *[f"{suite}{'' if one_mode else ' ' + slug} (n {mode['n_windows']})"
+                           for suite, slug, mode in cols]]
     lines = ["| " + " | ".join(header) + " |", "|---|" + "---|" * len(cols)]
     lines += ["| " + " | ".join([name, *[cell(mode, name) for _, _, mode in cols]]) + " |" for name in names]
     notes = [f"{name} is dominated on {suite} {slug} by {', '.join(others)}"

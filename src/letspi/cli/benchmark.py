@@ -116,13 +116,15 @@ def summary(
                                                        "leaderboard.json), one column group each.")],
     planner: Annotated[list[str] | None, typer.Option(
         "--planner", help="Only these planners, in this order (repeatable; default: all, as first seen).")] = None,
+    mode: Annotated[list[str] | None, typer.Option(
+        "--mode", help="Only this mode (slug, e.g. open-loop; repeatable; default: all).")] = None,
 ) -> None:
     """One Markdown table over several suites' leaderboards: per planner and suite mode, CR at fault % (95 %
     CI), the paired McNemar p against the suite's reference and SR %; then which planners another dominates
     (both intervals apart). Reads the leaderboards only: nothing is rerun."""
     with user_errors():
-        boards = load_boards(results)
-    typer.echo(summary_markdown(boards, planner), nl=False)
+        text = summary_markdown(load_boards(results), planner, mode)
+    typer.echo(text, nl=False)
 
 
 @app.command("power")
