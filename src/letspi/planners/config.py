@@ -41,7 +41,7 @@ from letspi.method.decide import Decider, OptionTable, RiskGate, load_presets, l
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
-from letspi.planners.options import PlannerOption
+from letspi.planners.options import PlannerOption, file_option
 from letspi.safety.adverse import AdverseSettings
 
 KEY_CHARS = 16
@@ -298,12 +298,12 @@ GOALS = PlannerOption(
     "goals", str, "learned",
     "Goal source: learned (the goal predictor's weights, see --goal-weights), kinematic, or oracle (the true "
     "endpoint: leaks the future)", choices=GOAL_SOURCES)
-GOAL_WEIGHTS = PlannerOption[Path | None](
-    "goal_weights", Path | None, None,
+GOAL_WEIGHTS = file_option(
+    "goal_weights",
     f"Weights of the learned goal predictor (from `letspi train goals`; default: ${GOAL_WEIGHTS_ENV}, else the "
     "shipped ones)")
-SF_PARAMS = PlannerOption[Path | None](
-    "sf_params_file", Path | None, None,
+SF_PARAMS = file_option(
+    "sf_params_file",
     "Fitted social force parameters JSON (from `letspi fit sf`; default: the shipped fit); the LLM planners take "
     "r_col and their fallback from it", flag="--sf-params")
 #: what every planner that predicts goals and neighbours reads
@@ -317,8 +317,7 @@ DECIDE = PlannerOption[bool | None](
     "decide", bool | None, None,
     "LetsPi's decision step: presets checked against the prediction and the adverse futures, a risk gate "
     "(default: on for the choice prompt style and sf-check)")
-PRESETS = PlannerOption[Path | None]("presets_file", Path | None, None,
-                                     "Presets of the decision step (default: the shipped ones)", flag="--presets")
+PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets")
 ADVERSE = PlannerOption("adverse", bool, True, "Decision step: check plans against the adverse futures too "
                         "(off: against the prediction only)")
 GATE = PlannerOption("gate", bool, True, "Decision step: the risk gate of letspi-fast and sf-check (off: the model "
@@ -327,9 +326,8 @@ GATE_THRESHOLD = PlannerOption[float | None](
     "gate_threshold", float | None, None,
     "Decision step: the risk score above which the gate asks the model (default: the risk model's recommended "
     "threshold)")
-RISK_MODEL = PlannerOption[Path | None]("risk_model_file", Path | None, None,
-                                        "Decision step: the gate's risk model (default: the shipped one)",
-                                        flag="--risk-model")
+RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk model (default: the shipped one)",
+                         flag="--risk-model")
 DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL)
 
 

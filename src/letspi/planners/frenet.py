@@ -81,7 +81,7 @@ from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
 from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig
 from letspi.planners.fitted import FittedFile
-from letspi.planners.options import PlannerOption
+from letspi.planners.options import PlannerOption, file_option
 from letspi.scenario.types import ScenarioBatch
 
 SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
@@ -89,8 +89,8 @@ SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
 CURVATURE_SPEED_FLOOR_MPS = 0.5
 LON_SPEED, LON_FOLLOW, LON_BRAKE = 0, 1, 2
 ANY_LANE = -9  # lane code of longitudinal candidates that pair with every lateral candidate
-FRENET_WEIGHTS = PlannerOption[Path | None](
-    "frenet_weights_file", Path | None, None,
+FRENET_WEIGHTS = file_option(
+    "frenet_weights_file",
     "Cost weights of the frenet planner (from `letspi fit frenet`; default: the shipped fit)", flag="--frenet-weights")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, FRENET_WEIGHTS)
 

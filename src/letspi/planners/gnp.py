@@ -8,7 +8,6 @@ leaks the future, so the oracle mode is refused here.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -20,12 +19,12 @@ from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig, WeightsConfig
-from letspi.planners.options import PlannerOption
+from letspi.planners.options import PlannerOption, file_option
 from letspi.scenario.types import ScenarioBatch
 
 GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
-GNP_WEIGHTS = PlannerOption[Path | None](
-    "gnp_weights", Path | None, None,
+GNP_WEIGHTS = file_option(
+    "gnp_weights",
     f"Weights of the gnp planner (from `letspi train gnp`; default: ${GNP_WEIGHTS_ENV}, else the shipped ones)")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, GNP_WEIGHTS)
 

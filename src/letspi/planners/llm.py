@@ -36,7 +36,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -77,7 +76,7 @@ from letspi.planners.config import (
     SfParamsConfig,
 )
 from letspi.planners.decision import adverse_failed_names, decision_info
-from letspi.planners.options import PlannerOption
+from letspi.planners.options import PlannerOption, file_option
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
@@ -105,8 +104,7 @@ MAX_REFINEMENTS = PlannerOption("max_iterations", int, MAX_ITERATIONS,
                                 "Reflection refinements of letspi-memory and of memory collection (0: none)")
 GOAL_ADJUSTMENT = PlannerOption("goal_adjustment", bool, True, "Let the LLM adjust goals (off: the 'w/o GA' "
                                 "ablation)")
-MEMORY = PlannerOption[Path | None]("memory", Path | None, None,
-                                    "Memory bank (from `letspi collect`) of letspi-fast / letspi-fs")
+MEMORY = file_option("memory", "Memory bank (from `letspi collect`) of letspi-fast / letspi-fs")
 MEMORY_KEY = PlannerOption[str | None]("memory_key", str | None, None, "Only memories collected under this "
                                        "configuration key (default: all in the bank)")
 TOP_K_OPTION = PlannerOption("top_k", int, TOP_K, "Memories retrieved per scenario by letspi-fast")

@@ -9,7 +9,6 @@ neighbours (``letspi.method.reflection.simulate_proposal``). Vectorised over the
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -19,13 +18,13 @@ from letspi.method.reflection import simulate_proposal
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields, WeightsConfig
-from letspi.planners.options import PlannerOption
+from letspi.planners.options import PlannerOption, file_option
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import ScenarioBatch
 
 MLP_WEIGHTS_ENV = "LETSPI_MLP_WEIGHTS"
-MLP_WEIGHTS = PlannerOption[Path | None](
-    "mlp_weights", Path | None, None,
+MLP_WEIGHTS = file_option(
+    "mlp_weights",
     f"Weights of the mlp regressor (from `letspi train mlp`; default: ${MLP_WEIGHTS_ENV}; nothing is shipped)")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, MLP_WEIGHTS)
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
@@ -62,6 +63,12 @@ class PlannerOption(Generic[T]):
         if self.choices:
             text += f" ({', '.join(self.choices)})"
         return f"{text} [{self.unit}]" if self.unit else text
+
+
+def file_option(name: str, help: str, *, flag: str = "") -> PlannerOption[Path | None]:
+    """A file or directory setting: a path, or None for its documented default (a shipped file, an
+    environment variable)."""
+    return PlannerOption[Path | None](name, Path | None, None, help, flag=flag)
 
 
 class PlannerOptions:
