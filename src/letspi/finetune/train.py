@@ -39,7 +39,7 @@ import numpy as np
 from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
-from letspi.fsutil import atomic_write_text
+from letspi.fsutil import atomic_write_text, provenance_path
 from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
 from letspi.llm.backends.llamacpp import open_llama
 
@@ -328,7 +328,7 @@ def train_lora(
         "format": MANIFEST_FORMAT,
         "model": "smollm2-135m-letspi",
         "fingerprint": fingerprint,
-        "base_model": {"path": str(base_gguf), "sha256": base_sha},
+        "base_model": {"path": provenance_path(base_gguf), "sha256": base_sha},
         "adapter": {**adapter_record, "trainable_parameters": int(n_trainable)},
         "prompt_style": (data_info or {}).get("prompt_style", "compact"),
         "hyperparameters": asdict(config),
