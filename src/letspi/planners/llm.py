@@ -92,8 +92,9 @@ FAST_LLM = PlannerOption("fast_llm", str, DEFAULT_FAST_LLM, "Model of letspi-fas
 PROMPT_STYLE = PlannerOption[str | None](
     "prompt_style", str | None, None,
     "Prompt style of the LLM planners and memory collection (paper: the physics-informed prompt with few-shot "
-    "memories; compact: what the fine-tuned model was trained on); default: compact for a fine-tuned embedded "
-    "model, else paper", choices=PROMPT_STYLES)
+    "memories; compact: eight numbers from a short prompt; choice: one of the decision step's checked presets); "
+    "default: the style a fine-tuned embedded model was trained on (its manifest; the shipped one: choice), "
+    "else paper", choices=PROMPT_STYLES)
 LLM_CACHE = PlannerOption("llm_cache", bool, True, "Persistent LLM response cache (cached rows are excluded from "
                           "the inference time)", flag="--cache")
 LLM_TIMEOUT = PlannerOption(

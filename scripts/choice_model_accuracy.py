@@ -1,0 +1,56 @@
+"""How often the embedded choice model answers its label on the validation examples of its training data.
+
+Usage: python scripts/choice_model_accuracy.py LABELS_DIR [LABELS_DIR ...]
+
+The labels directories are those `letspi train decide` wrote (`OUT/labels/NAME`) and `letspi train llm`
+trained on, given in the same order; the validation examples are the ones `letspi train llm` held out (by
+ego vehicle, 10 %, seed 0). Each distinct prompt is asked once through the default model spec
+(`llamacpp:smollm2-135m-letspi`; set LETSPI_LLM_ADAPTER to try another adapter), uncached. Prints the
+confusion (kind, label -> answer), the accuracy and the median latency per call as JSON.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from letspi.assembly.build import Builder
+from letspi.assembly.resolve import goals_config
+from letspi.finetune.data import build_examples_many, split_examples
+from letspi.llm.client import ParamAdvisor
+from letspi.method.decide import load_presets
+
+
+def main(dirs: list[Path]) -> dict[str, object]:
+    goal_predictor = Builder(cache=None).goal_predictor(goals_config("learned"))
+    examples, _ = build_examples_many(dirs, goal_predictor)
+    _, val = split_examples(examples, 0.1, 0)
+    names = list(load_presets()[0].names)
+    options: dict[str, Any] = {n: n for n in names}  # only the chosen name is read
+    advisor = ParamAdvisor("llamacpp:smollm2-135m-letspi", cache=None)
+    confusion: collections.Counter[tuple[str, str, str]] = collections.Counter()
+    latencies: list[float] = []
+    seen: set[tuple[str, str]] = set()
+    for example in val:
+        key = (json.dumps(list(map(dict, example.messages)), sort_keys=True), example.reply)
+        if key in seen:  # weighted examples repeat: ask each prompt once
+            continue
+        seen.add(key)
+        started = time.perf_counter()
+        advice = advisor.choose(list(example.messages), options)
+        latencies.append(time.perf_counter() - started)
+        confusion[(example.kind, json.loads(example.reply)["option"], str(advice.choice))] += 1
+    n = sum(confusion.values())
+    return {"n": n, "accuracy": sum(v for k, v in confusion.items() if k[1] == k[2]) / max(n, 1),
+            "median_latency_s": sorted(latencies)[len(latencies) // 2] if latencies else None,
+            "confusion": {f"{kind} {label} -> {answer}": v for (kind, label, answer), v in sorted(confusion.items())}}
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        sys.exit(__doc__)
+    print(json.dumps(main([Path(a) for a in sys.argv[1:]]), indent=1))
