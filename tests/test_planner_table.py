@@ -48,11 +48,12 @@ VARIANT = {"neighbour_mode": "constant_velocity", "top_k": 5, "shield": False, "
 #: Keys computed on main at ea22160, before the table existed: results directories and memory banks are
 #: keyed by them, so moving configuration classes must not move a key. The LLM planners' keys moved once,
 #: on purpose, when ``LlmConfig`` gained ``runtime`` (llama.cpp version and flash attention change answers), and
-#: the default ones again when the fine-tuned model became the default (its adapter and the compact prompt).
+#: the default ones again when the fine-tuned model became the default (its adapter and the compact prompt),
+#: and again when issue 28's choice model shipped (its manifest's prompt style choice turns the decision step on).
 PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
-    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "d2f86acc63383123",
-    "letspi-memory": "7888058c6fe80e5c", "letspi-fast": "4e76d45509a7831d", "letspi-fs": "fa19c2e729efa07c",
+    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "210260a274c3ad1b",
+    "letspi-memory": "ae541a1de1e149da", "letspi-fast": "d6d541b743ecaf7c", "letspi-fs": "f399c957a2cdbb53",
     # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
     # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
     "frenet": "fe73b79fa4e18c4a",
@@ -66,7 +67,7 @@ PINNED_VARIANT_KEYS = {
     "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
     "sf-check": "050b9ad37f8fcf68",
 }
-PINNED_COLLECTION_KEYS = {"default": "224bd66dd6fa2c74", "variant": "48dba622cf863542"}
+PINNED_COLLECTION_KEYS = {"default": "33941d690a8100c3", "variant": "48dba622cf863542"}  # default: moved with the choice model (issue 28)
 
 
 def _keys(options: PlannerOptions) -> dict[str, str]:
