@@ -67,7 +67,8 @@ PINNED_VARIANT_KEYS = {
     "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
     "sf-check": "050b9ad37f8fcf68",
 }
-PINNED_COLLECTION_KEYS = {"default": "33941d690a8100c3", "variant": "48dba622cf863542"}  # default: moved with the choice model (issue 28)
+#: default: moved with the choice model (issue 28)
+PINNED_COLLECTION_KEYS = {"default": "33941d690a8100c3", "variant": "48dba622cf863542"}
 
 
 def _keys(options: PlannerOptions) -> dict[str, str]:
