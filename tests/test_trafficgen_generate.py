@@ -218,7 +218,8 @@ def test_deterministic_per_seed(tmp_path: Path) -> None:
         # default (highd) traffic: scripted events and held followers are deterministic too
         generate_highd(tmp_path / name, minutes=0.5, seed=seed, lanes_per_direction=2)
         runs[name] = {f.name: f.read_bytes() for f in sorted((tmp_path / name).iterdir())}
-    assert set(runs["a"]) == {"01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv", "01_events.csv"}
+    assert set(runs["a"]) == {"01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv", "01_events.csv",
+                              "01_generation.json", "01_highway.png"}  # provenance and the drawing: same bytes too
     assert runs["a"] == runs["b"]
     assert runs["a"]["01_tracks.csv"] != runs["c"]["01_tracks.csv"]
 
