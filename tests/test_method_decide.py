@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -187,3 +188,30 @@ def test_memory_phase_choice_refinement_names_the_rejected_preset_and_the_failed
     assert [it.proposal.meta["decision"] for it in result.iterations] == ["default", "slow"]
     refine = backend.calls[1][-1]["content"]
     assert "Rejected: default\nCheck: failed leader-brakes" in refine
+
+
+def test_verification_replaces_a_choice_that_fails_more_checks_than_another_preset() -> None:
+    """The leader 22 m ahead at the ego's speed: the defaults fail leader-brakes, slow passes. A model
+    answering default is overruled by the rule's choice; ease (failing the same check as every faster
+    option) or slow stand; off, the model's answer stands."""
+    scene = _leader_scene()
+    goal = np.array([150.0, 0.0])
+    decider = _decider(_gate(0.4, 0.0))
+    checks = decider.check(scene, goal.reshape(1, 2), predict_neighbours(scene, NeighbourPredictionMode.IDM))
+    failed = checks.failed_checks()[0]
+    assert failed[0] > failed.min()  # the scene's premise: the defaults fail a check some preset passes
+    rule = checks.names[int(decider.rule(checks)[0])]
+    verifying = replace(decider, verify=True)
+    assert verifying.verified(checks, "default") == rule != "default"
+    assert verifying.verified(checks, rule) == rule and verifying.verified(checks, "custom") == "custom"
+    for verify, expected in ((True, rule), (False, "default")):
+        asked = ScriptedBackend(['{"option": "default"}'])
+        phase = FastPhase(ParamAdvisor(asked, cache=None), KinematicGoalPredictor(), 5.0, None, prompt_style="choice",
+                          decider=replace(decider, verify=verify))
+        proposal, _ = phase.propose_retrieved(scene, goal)
+        assert len(asked.calls) == 1 and proposal.meta["decision"] == expected
+        reply = dict(zip(checks.names, decider.presets.values, strict=True))[expected]
+        assert proposal.lon_factor == pytest.approx(reply[-2]) and proposal.params.tau_s == pytest.approx(reply[0])
+        if verify:
+            assert proposal.meta["reason"].endswith(f"default fails leader-brakes; kept default; verified: {rule} "
+                                                    "fails fewer checks (passes every check)")

@@ -49,11 +49,12 @@ VARIANT = {"neighbour_mode": "constant_velocity", "top_k": 5, "shield": False, "
 #: keyed by them, so moving configuration classes must not move a key. The LLM planners' keys moved once,
 #: on purpose, when ``LlmConfig`` gained ``runtime`` (llama.cpp version and flash attention change answers), and
 #: the default ones again when the fine-tuned model became the default (its adapter and the compact prompt),
-#: and again when issue 28's choice model shipped (its manifest's prompt style choice turns the decision step on).
+#: and again when issue 28's choice model shipped (its manifest's prompt style choice turns the decision step on),
+#: and again when the embedded base ran from its F16 copy (another file) and the fast phase verified its choice.
 PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
-    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "210260a274c3ad1b",
-    "letspi-memory": "ae541a1de1e149da", "letspi-fast": "d6d541b743ecaf7c", "letspi-fs": "f399c957a2cdbb53",
+    "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "534f43ea8a81abfb",
+    "letspi-memory": "2c0af099e7a4eb86", "letspi-fast": "5918ff434343a9fe", "letspi-fs": "709a0d6688cf5124",
     # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
     # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
     "frenet": "fe73b79fa4e18c4a",
@@ -67,8 +68,8 @@ PINNED_VARIANT_KEYS = {
     "frenet": "428520381f961d0c",  # moved on frenet2 (see PINNED_KEYS)
     "sf-check": "050b9ad37f8fcf68",
 }
-#: default: moved with the choice model (issue 28)
-PINNED_COLLECTION_KEYS = {"default": "33941d690a8100c3", "variant": "48dba622cf863542"}
+#: default: moved with the choice model (issue 28) and with the F16 copy of the base (another file name)
+PINNED_COLLECTION_KEYS = {"default": "a1609d159281757d", "variant": "48dba622cf863542"}
 
 
 def _keys(options: PlannerOptions) -> dict[str, str]:

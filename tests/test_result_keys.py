@@ -6,9 +6,11 @@ Results directories and memory banks are keyed by these values, so moving code m
 Unlike ``test_planner_table.py`` this test uses the shipped data as it is (goal, gnp and frenet
 weights, sf parameters, the embedded model's files) and patches nothing: only the prompt fingerprint
 (which issue 26 item 4 changes on purpose), the fingerprint of weights written here (``np.savez``
-stamps the time into the file) and the decision step's shipped data (issue 28 refits its presets and
-risk model: their values, and the threshold recommended with the model) are replaced by constants in
-the identity before it is hashed.
+stamps the time into the file), the decision step's shipped data (issue 28 refits its presets and
+risk model: their values, and the threshold recommended with the model) and the embedded model's weights
+(the shipped adapter is retrained, and the base runs from an F16 copy: their SHA-256) are replaced by
+constants in the identity before it is hashed. Behaviour that changes on purpose moves keys here:
+issue 28's verification of the fast phase's choice (``verify``) moved letspi-fast's and letspi-fs's.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ LOG, REACTIVE, HYBRID = "closed-loop-log", "closed-loop-reactive", "closed-loop-
 
 #: identity fields whose values are shipped data that other issues change on purpose (module docstring)
 DATA_FIELDS = {"prompt_sha256": "prompt", "preset_names": "presets", "preset_values": "presets",
-               "risk_model_sha256": "risk-model"}
+               "risk_model_sha256": "risk-model", "model_sha256": "embedded-model", "adapter_sha256": "adapter"}
 GIVEN_THRESHOLD = 0.5  # a --gate-threshold of a variant below (kept); any other is the risk model's
 
 
@@ -51,7 +53,7 @@ def _normalised(value: Any, parent: str = "") -> Any:
     if isinstance(value, dict):
         out = {}
         for k, v in value.items():
-            if k in DATA_FIELDS:
+            if k in DATA_FIELDS and v is not None:
                 out[k] = DATA_FIELDS[k]
             elif k == "weights_sha256" and parent == "mlp":
                 out[k] = "mlp-weights"
@@ -131,11 +133,11 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "cosmetic only": ({"llm_cache": False, "llm_timeout_s": 12.0}, {}),
 }
 #: the LLM kinds on the embedded default model (its weights, adapter and llama.cpp runtime fingerprinted);
-#: moved on purpose by issue 28's shipped adapter (a new adapter digest, prompt style choice): recomputed
-#: on main bddc19f with that adapter
-EMBEDDED_KEYS = {"llm": "10e95de145e005af", "letspi-memory": "7cf355b24f0e6b39", "letspi-fast": "5fc74637c4509191",
-                 "letspi-fs": "8017b4bd5b339d77"}
-COLLECTION_KEYS = {"scripted": "216bc7d8c4de867c", "embedded": "d32983e30b07d765"}
+#: moved on purpose by issue 28's shipped adapter (prompt style choice) and the fast phase's verification;
+#: recomputed with the weights' digests replaced (``DATA_FIELDS``)
+EMBEDDED_KEYS = {"llm": "72995e49342617ce", "letspi-memory": "28b4e739ba99a9a9", "letspi-fast": "41f04d6d3d2faaed",
+                 "letspi-fs": "e98ee5aed5036e1e"}
+COLLECTION_KEYS = {"scripted": "216bc7d8c4de867c", "embedded": "9a40f3e2d34c4be2"}
 
 
 def _options(files: dict[str, Path], **values: Any) -> PlannerOptions:
@@ -168,6 +170,10 @@ def test_each_option_moves_exactly_the_keys_it_moved_before(files: dict[str, Pat
 def test_the_embedded_model_and_the_collection_keep_their_keys(files: dict[str, Path]) -> None:
     embedded = PlannerOptions(memory=files["memory"])
     assert {kind: _key(embedded, kind) for kind in EMBEDDED_KEYS} == EMBEDDED_KEYS
+    # --no-verify: the model's choice stands, under the key the fast phase had before verification
+    unverified = PlannerOptions(memory=files["memory"], verify=False)
+    assert {kind: _key(unverified, kind) for kind in ("letspi-fast", "letspi-fs")} == {
+        "letspi-fast": "f99ff4f76cde4b0d", "letspi-fs": "6fb882405039e018"}  # = main before verification
     assert {"scripted": pinned_key(Resolver(_options(files), env={}).memory_phase().identity()),
             "embedded": pinned_key(Resolver(embedded, env={}).memory_phase().identity())} == COLLECTION_KEYS
 

@@ -256,7 +256,8 @@ def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
         llm = r.llm(o.get(FAST_LLM))
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=r.decision(llm.prompt_style))
+                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD),
+                                 decision=r.decision(llm.prompt_style, verify=True))
     return resolve
 
 

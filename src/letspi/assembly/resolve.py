@@ -42,6 +42,7 @@ from letspi.planners.config import (
     PRESETS,
     RISK_MODEL,
     SF_PARAMS,
+    VERIFY,
     DecisionConfig,
     GoalsConfig,
     LlmConfig,
@@ -205,9 +206,11 @@ class Resolver:
     def _prompt_sha(self) -> str:
         return prompt_sha256()
 
-    def decision(self, prompt_style: str, *, gate: bool = True, always: bool = False) -> DecisionConfig | None:
+    def decision(self, prompt_style: str, *, gate: bool = True, always: bool = False,
+                 verify: bool = False) -> DecisionConfig | None:
         """The decision step (``--decide``; default: on for the choice style, or ``always``); the gate only
-        where ``gate`` (the fast phase and ``sf-check``) and ``--gate`` allow it."""
+        where ``gate`` (the fast phase and ``sf-check``) and ``--gate`` allow it; the verification of a
+        model's choice where ``verify`` (the fast phase's choice style) and ``--verify`` allow it."""
         o = self.options
         decide, risk_model = o.get(DECIDE), o.get(RISK_MODEL)
         on = decide if decide is not None else (always or prompt_style == "choice")
@@ -219,7 +222,8 @@ class Resolver:
         if gate and o.get(GATE):
             given = o.get(GATE_THRESHOLD)
             threshold = given if given is not None else recommended_threshold(risk_model)
-        return DecisionConfig.resolve(o.get(PRESETS), o.get(ADVERSE), threshold, risk_model)
+        return DecisionConfig.resolve(o.get(PRESETS), o.get(ADVERSE), threshold, risk_model,
+                                      verify=verify and prompt_style == "choice" and o.get(VERIFY))
 
     def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
                      goal_adjustment: bool | None = None) -> MemoryPhaseConfig:

@@ -22,6 +22,7 @@ from letspi.bench.interrupt import bench_interrupt
 from letspi.bench.kernels import KERNELS, bench_kernels
 from letspi.bench.llm import bench_models
 from letspi.bench.llm_concurrency import bench_concurrency
+from letspi.bench.llm_format import bench_formats
 from letspi.bench.llm_runtime import CONFIGS, bench_runtime
 from letspi.bench.metrics import bench_metrics
 from letspi.bench.physics import bench_frenet, bench_rollout
@@ -144,6 +145,22 @@ def _runtime_table(result: dict[str, Any]) -> None:
                   f"{result['letspi']['quiet']['self_check']}; load average at start {result['loadavg_start']}")
 
 
+def _formats_table(result: dict[str, Any]) -> None:
+    table = Table(title=f"{result['model']}: choice prompt per file format (load {result['loadavg_start'][0]:.2f} "
+                        f"-> {result['loadavg_end'][0]:.2f})")
+    for col in ("file", "MB", "prompt tokens", "prefill s", "tokens/s", "call s", "x prefill", "x call",
+                "answers agree", "self-check"):
+        table.add_column(col)
+    for fmt, row in result.items():
+        if not isinstance(row, dict):
+            continue
+        table.add_row(f"{fmt}: {row['file']}", f"{row['bytes'] / 1e6:.0f}", str(row["prompt_tokens"]),
+                      f"{row['prefill_s']:.3f}", f"{row['tokens_per_s']:.0f}", f"{row['call_s']:.3f}",
+                      f"{row.get('ratio_prefill', 1.0):.2f}", f"{row.get('ratio_call', 1.0):.2f}",
+                      f"{row.get('answers_agree', len(row['answers']))}/{len(row['answers'])}", row["self_check"])
+    Console().print(table)
+
+
 def _levels(text: str, option: str) -> tuple[int, ...]:
     try:
         levels = tuple(int(x) for x in text.split(",") if x.strip())
@@ -189,11 +206,21 @@ def llm_cmd(
     contention: Annotated[int | None, typer.Option(
         help="Instead: the embedded model's uncached latency on a quiet machine and beside N CPU-bound "
              "processes (letspi's runtime vs 2 spinning threads), its self-check, and flash attention off.")] = None,
+    formats: Annotated[bool, typer.Option(
+        "--formats", help="Instead: the fine-tuned SmolLM2's choice call from the packaged Q4_1 file against "
+                          "the F16 and Q8_0 copies (prefill, call latency, ratios, greedy agreement).")] = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Per embedded model: latency and tokens of the physics-informed and fast prompts, warm-prefix
     and cache-hit speedups; per-phase latency; memory retrieval time at 10k and 100k experiences.
     With --concurrency: scenarios/s at each concurrency (JSON: concurrency -> scenarios_per_s)."""
+    if formats:
+        fmt = bench_formats(repeats=max(repeats, 3))
+        if as_json:
+            typer.echo(json.dumps(fmt, indent=2, default=float))
+        else:
+            _formats_table(fmt)
+        return
     if contention is not None:
         runtime = bench_runtime((model or [DEFAULT_FAST_LLM.partition(":")[2]])[0], hogs=contention, repeats=repeats)
         if as_json:

@@ -15,7 +15,7 @@ from letspi.fsutil import provenance_record, writer_lock
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.hyperparams import GnpTrainConfig, GoalTrainConfig
 from letspi.learned.weights import save_weights
-from letspi.llm.models import locate_model
+from letspi.llm.models import packaged_smollm2_path
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.planners.sf_params import load_sf_params
 from letspi.scenario.provenance import refuse_suite_traffic
@@ -273,7 +273,7 @@ def train_llm(
                 if tally.total is None:  # stopped, it keeps the steps of its last checkpoint
                     tally.track(total, lambda: checkpoint_step(out))
 
-            manifest = train_lora(examples, cfg, locate_model("smollm2-135m"), out, data_info=info,
+            manifest = train_lora(examples, cfg, packaged_smollm2_path(), out, data_info=info,
                                   progress=progress, verify=verify, command=command_line())
     t = manifest["training"]
     check = manifest.get("export_check") or {}

@@ -329,7 +329,9 @@ class Decider:
     """The decision step as the phases use it: the presets, their checks, the risk gate.
 
     ``adverse`` None checks against the prediction only (the "without adverse futures" ablation);
-    ``gate`` None (no risk model) or a gate without threshold consults the model on every scenario.
+    ``gate`` None (no risk model) or a gate without threshold consults the model on every scenario;
+    ``verify``: the fast phase replaces a model's choice that fails more checks than another preset
+    (``verified``).
     """
 
     presets: OptionTable
@@ -337,6 +339,7 @@ class Decider:
     thresholds: ReflectionThresholds
     adverse: AdverseSettings | None
     gate: RiskGate | None
+    verify: bool = False
 
     @property
     def adverse_settings(self) -> AdverseSettings:
@@ -364,6 +367,18 @@ class Decider:
     def rule(self, checks: OptionChecks) -> np.ndarray:
         """(B,) the no-model choice (``rule_choice``) as preset indices."""
         return rule_choice(checks.predicted_safe, checks.adverse_failed, checks.progress_m)
+
+    def verified(self, checks: OptionChecks, option: str) -> str:
+        """Scenario 0's option after verification: the model's ``option`` when no preset fails fewer checks
+        than it (or it is not a preset), else the rule's choice (fewest failed checks, then most progress).
+        The model keeps the say among equally checked options: e.g. ``ease`` where every preset fails
+        leader-brakes, or a cautious option where the defaults pass."""
+        if option not in checks.names:
+            return option
+        failed = checks.failed_checks()[0]
+        if failed[checks.names.index(option)] <= failed.min():
+            return option
+        return checks.names[int(self.rule(checks)[0])]
 
     def preference(self, checks: OptionChecks, i: int) -> list[int]:
         """Scenario ``i``'s presets that pass every check, the rule's order (most progress first)."""

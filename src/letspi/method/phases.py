@@ -423,11 +423,22 @@ class FastPhase:
         if self.prompt_style == "choice":
             messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0),
                                             risk=risk_score)
-            advice = self.advisor.choose(messages, preset_replies(self.decider.presets))
+            replies = preset_replies(self.decider.presets)
+            advice = self.advisor.choose(messages, replies)
             proposal = proposal_from_advice(advice, messages, self.r_col_m)
             option = advice.choice or CUSTOM
-            return _with_decision(proposal, option, True, risk_score,
-                                  decision_reason(self.decider, checks, option, True, risk_score)), retrieved
+            reason = decision_reason(self.decider, checks, option, True, risk_score)
+            final = self.decider.verified(checks, option) if self.decider.verify else option
+            if final != option:  # the physics overrules the model: another preset fails fewer checks
+                reply = replies[final]
+                proposal = replace(proposal, params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
+                                   lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
+                                   rationale=f"the model chose {option}; {final} fails fewer checks")
+                k = checks.names.index(final)
+                failed = checks.failed_names(0, k)
+                reason += (f"; verified: {final} fails fewer checks "
+                           f"({'fails ' + ', '.join(failed) if failed else 'passes every check'})")
+            return _with_decision(proposal, final, True, risk_score, reason), retrieved
         return _with_decision(self._ask(scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score,
                               decision_reason(self.decider, checks, CUSTOM, True, risk_score)), retrieved
 

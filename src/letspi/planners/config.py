@@ -228,10 +228,13 @@ class DecisionConfig(Config):
     """LetsPi's decision step (``letspi.method.decide``): the preset values, the adverse futures' settings
     (None: checks against the prediction only, the "without adverse futures" ablation), the risk model
     (its SHA-256; its score is the gate's and the choice prompt's risk) and the gate's threshold (None:
-    the model is asked on every scenario). A planner without it plans exactly as before the decision
-    step existed, under the same key."""
+    the model is asked on every scenario). ``verify`` (the fast phase): a model's choice that fails more
+    checks than another preset is replaced by the rule's choice (``Decider.verified``); None: the model's
+    answer stands. A planner without it plans exactly as before the decision step existed, under the same
+    key, and ``verify`` None keeps the keys of before verification existed."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"presets_source", "risk_model_path"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"verify"})
 
     preset_names: tuple[str, ...]
     preset_values: tuple[tuple[float, ...], ...]
@@ -240,13 +243,14 @@ class DecisionConfig(Config):
     risk_model_sha256: str
     risk_model_path: str = "shipped"
     gate_threshold: float | None = None
+    verify: bool | None = None
 
     def table(self) -> OptionTable:
         return OptionTable(self.preset_names, np.asarray(self.preset_values, dtype=np.float64))
 
     @classmethod
     def resolve(cls, presets_file: Path | None, adverse: bool, gate_threshold: float | None,
-                risk_model_file: Path | None) -> DecisionConfig:
+                risk_model_file: Path | None, verify: bool = False) -> DecisionConfig:
         """From files (default: the shipped presets and risk model) and switches."""
         table, _ = load_presets(presets_file)
         _, sha = load_risk_model(risk_model_file)
@@ -254,7 +258,7 @@ class DecisionConfig(Config):
                    presets_source="shipped" if presets_file is None else str(presets_file),
                    adverse=AdverseSettings() if adverse else None, risk_model_sha256=sha,
                    risk_model_path="shipped" if risk_model_file is None else str(risk_model_file),
-                   gate_threshold=gate_threshold)
+                   gate_threshold=gate_threshold, verify=True if verify else None)
 
     def decider(self, params: SocialForceParams, thresholds: ReflectionThresholds) -> Decider:
         """The decision step for planners whose defaults are ``params``."""
@@ -264,7 +268,7 @@ class DecisionConfig(Config):
             raise ValueError(f"the risk model {self.risk_model_path} changed since the configuration was made "
                              f"({self.risk_model_sha256[:12]} -> {sha[:12]})")
         return Decider(with_defaults(self.table(), params), float(params.r_col_m), thresholds, self.adverse,
-                       RiskGate(model, self.gate_threshold))
+                       RiskGate(model, self.gate_threshold), verify=bool(self.verify))
 
 
 class MemoryPhaseConfig(Config):
@@ -328,7 +332,9 @@ GATE_THRESHOLD = PlannerOption[float | None](
     "threshold)")
 RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk model (default: the shipped one)",
                          flag="--risk-model")
-DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL)
+VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a model's choice that fails more checks "
+                       "than another preset is replaced by the rule's choice (off: the model's answer stands)")
+DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY)
 
 
 class SocialForcePlannerFields(Config):
