@@ -114,12 +114,12 @@ def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_to
     # coarse a probe after six steps: on one CI machine it stayed the same)
     from letspi.finetune.train import prompt_text
     from letspi.llm.backends.llamacpp import open_llama
-    from letspi.llm.models import locate_model
+    from letspi.llm.models import packaged_smollm2_path
 
     goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]
     msgs = render_compact_prompt(describe_scenario(batch.take([0]), goal))
     from transformers import AutoTokenizer
-    base_gguf = locate_model("smollm2-135m")
+    base_gguf = packaged_smollm2_path()  # what training read
     tokenizer = AutoTokenizer.from_pretrained(base_gguf.parent, gguf_file=base_gguf.name)
     prompt_ids = tokenizer(prompt_text(tokenizer, msgs), add_special_tokens=False)["input_ids"]
     reply_ids = tokenizer(compact_reply_text(TARGET), add_special_tokens=False)["input_ids"]

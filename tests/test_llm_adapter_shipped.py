@@ -5,6 +5,7 @@ of the decision step's presets) of the standard scene validly."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -12,7 +13,14 @@ from letspi.assembly.resolve import file_sha256
 from letspi.llm.choice import OptionLine, render_choice_prompt
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.describe import describe_scenario
-from letspi.llm.models import ADAPTER_FILE, adapter_prompt_style, locate_adapter, locate_model, shipped_adapter_dir
+from letspi.llm.models import (
+    ADAPTER_FILE,
+    adapter_prompt_style,
+    locate_adapter,
+    locate_model,
+    packaged_smollm2_path,
+    shipped_adapter_dir,
+)
 from letspi.method.decide import load_presets
 from letspi.planners.llm import DEFAULT_FAST_LLM, DEFAULT_LLM
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -34,7 +42,8 @@ def test_shipped_adapter_matches_its_manifest_and_base() -> None:
     assert adapter.stat().st_size <= MAX_ADAPTER_BYTES
     assert file_sha256(adapter) == manifest["adapter"]["sha256"]
     assert manifest["adapter"]["bytes"] == adapter.stat().st_size
-    assert file_sha256(locate_model("smollm2-135m")) == manifest["base_model"]["sha256"]
+    assert file_sha256(packaged_smollm2_path()) == manifest["base_model"]["sha256"]  # trained on the packaged file
+    assert locate_model("smollm2-135m").name.startswith(Path(manifest["base_model"]["path"]).stem)  # run as its copy
     assert locate_adapter("smollm2-135m-letspi", env={}) == adapter
     assert manifest["prompt_style"] == "choice"
     # issue 28's run: 300 optimiser steps of 8 (0.8 epochs; cut short for time, the manifest says how) over
