@@ -53,7 +53,7 @@ def make_planner(kind: str):
 
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
-    config = replace(kw.pop("config", None) or ClosedLoopConfig(), mode=mode, **kw)  # type: ignore[arg-type]
+    config = replace(kw.pop("config", None) or ClosedLoopConfig(simulator="sumo"), mode=mode, **kw)  # type: ignore[arg-type]
     chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, config)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))
 

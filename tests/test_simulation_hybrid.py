@@ -30,7 +30,7 @@ FUT = slice(T0_INDEX + 1, N_TOTAL)
 
 def _run(planner: object, batch: ScenarioBatch, mode: str, **kw: object) -> ClosedLoopChunk:
     scripted = kw.pop("scripted_nbr", None)
-    config = replace(kw.pop("config", None) or ClosedLoopConfig(), mode=mode, **kw)  # type: ignore[arg-type]
+    config = replace(kw.pop("config", None) or ClosedLoopConfig(simulator="sumo"), mode=mode, **kw)  # type: ignore[arg-type]
     chunk = ClosedLoopChunk.concat(list(run_closed_loop(as_built(planner), batch, config,  # type: ignore[arg-type]
                                                         scripted_nbr=scripted)))  # type: ignore[arg-type]
     return chunk.take(np.argsort(chunk.indices))

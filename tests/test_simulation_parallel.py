@@ -31,7 +31,7 @@ from letspi.simulation import (
 )
 
 pytestmark = pytest.mark.sumo
-SMALL_CHUNKS = ClosedLoopConfig(chunk_size=4)
+SMALL_CHUNKS = ClosedLoopConfig(chunk_size=4, simulator="sumo")
 
 RUN_SCRIPT = textwrap.dedent(
     """

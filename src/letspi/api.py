@@ -89,7 +89,8 @@ def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | 
     keyed by dataset, metrics configuration and planner configuration; an interrupted or repeated call
     resumes; planners of earlier calls are kept. ``reference``: the planner the others are compared with
     (default ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g.
-    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (SUMO; ``closed-loop-hybrid`` here
+    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (the log replay; the other modes run
+    SUMO; ``closed-loop-hybrid`` here
     without scripted neighbours). Returns the directory's ``Results``."""
     if isinstance(scenarios, ScenarioBatch):
         if limit is not None:

@@ -7,7 +7,12 @@ Everything is measured in one process run, on the same scenarios:
 * lockstep vs one SUMO load per scenario (``chunk_size=1``): why scenarios share a network;
 * ``workers=1`` and ``workers=N`` processes: wall time (worker start-up included) and the speed-up,
   plus the busy throughput of a worker (its chunks' own wall time, start-up excluded);
-* collision flags of SUMO and of the metric code on these scenarios.
+* collision flags of SUMO and of the metric code on these scenarios;
+* in ``closed-loop-log``, the log replay without SUMO (``letspi.simulation.replay``) on the same
+  scenarios in this process: its throughput, the speed-up over SUMO and the largest difference of
+  the simulated ego positions.
+
+Everything else runs in SUMO (``simulator="sumo"``), whatever the mode.
 
 The machine's 1-minute load average is reported before and after: on a shared machine the
 wall-clock numbers (and the speed-up) depend on it; ``*_cpu_s_*`` does not.
@@ -93,6 +98,30 @@ def _workers(spec: PlannerSpec, batch: ScenarioBatch, workers: int, config: Clos
     out["cpu_ms_per_scenario_in_workers"] = 1e3 * float(many.cpu_s.sum()) / n
 
 
+def _replay(spec: PlannerSpec, batch: ScenarioBatch, config: ClosedLoopConfig, sumo: ClosedLoopChunk,
+            out: dict[str, float | str]) -> None:
+    """The log replay in this process on the same scenarios (into ``out``), against SUMO's ``sumo`` run."""
+    n = len(batch)
+    replay_cfg = replace(config, simulator="replay").for_planner(spec.name)
+    worker = ChunkWorker(spec, replay_cfg)
+    try:
+        worker.run(make_tasks(batch.take(np.arange(min(4, n))), replay_cfg)[0])  # warm-up: the planner
+        t0, c0 = time.perf_counter(), time.process_time()
+        replay = ClosedLoopChunk.concat([worker.run(task) for task in make_tasks(batch, replay_cfg)])
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    finally:
+        worker.close()
+    replay = replay.take(np.argsort(replay.indices))
+    sumo = sumo.take(np.argsort(sumo.indices))
+    sumo_per_s = float(out["in_process_scenarios_per_s"])
+    out["replay_scenarios_per_s"] = n / wall
+    out["replay_plan_ms_per_scenario"] = 1e3 * float(replay.plan_s.sum()) / n
+    out["replay_sim_ms_per_scenario"] = 1e3 * float(replay.sim_s.sum()) / n
+    out["replay_cpu_ms_per_scenario"] = 1e3 * cpu / n
+    out["replay_speedup_over_sumo"] = n / wall / sumo_per_s
+    out["replay_max_ego_diff_m"] = float(np.nanmax(np.abs(replay.ego_xy_m - sumo.ego_xy_m)))
+
+
 def bench_closed_loop(
     scenarios: Path | None = None,
     n: int = 256,
@@ -112,7 +141,7 @@ def bench_closed_loop(
         raise ValueError("workers must be >= 2 (the speed-up is measured against 1 worker)")
     batch = bench_scenarios(scenarios, n, minutes, seed)
     spec = PlannerSpec.of(planner, options)
-    config = ClosedLoopConfig(mode=mode, replan_s=replan_s, chunk_size=chunk_size)  # type: ignore[arg-type]
+    config = ClosedLoopConfig(mode=mode, replan_s=replan_s, chunk_size=chunk_size, simulator="sumo")  # type: ignore[arg-type]
     out: dict[str, float | str] = {
         "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),
         "chunk_size": float(chunk_size), "cpu_count": float(os.cpu_count() or 1),
@@ -135,5 +164,7 @@ def bench_closed_loop(
     out["collisions_metric"] = float(metrics.collision.sum())
     out["collisions_sumo"] = float(local.sumo_collision.sum())
     out["collision_flags_agree_pct"] = 100.0 * float(np.mean(metrics.collision == local.sumo_collision))
+    if config.mode.value == "closed-loop-log":
+        _replay(spec, batch, config, local, out)
     out["load_avg_1min_end"] = os.getloadavg()[0]
     return out

@@ -80,6 +80,10 @@ ChunkSizeOpt = Annotated[int, typer.Option(
          "results agree to float rounding; smaller chunks lose less when a run is killed).")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
+SimulatorOpt = Annotated[str, typer.Option(
+    "--simulator", help="Closed loop: auto (replay in closed-loop-log, else SUMO), replay (closed-loop-log in "
+                        "NumPy: the neighbours only replay their log; the same trajectories and metrics as SUMO, "
+                        "without SUMO's own collision flag, several times faster) or sumo.")]
 LlmPeriodOpt = Annotated[float | None, typer.Option(
     "--llm-period-s", help="Closed loop, LLM planners (dual rate): ask the model at t = 0 and then every this many "
                            f"seconds (default {DEFAULT_LLM_PERIOD_S:g}: two calls per 5 s scenario; 5: at t = 0 only); "
@@ -104,14 +108,15 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
                          ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopConfig.chunk_size,
                          concurrency: int | None = None,
                          handover_lanes: int | None = None, llm_period_s: float | None = None,
-                         llm_latency_s: float | None = None) -> ClosedLoopConfig | None:
+                         llm_latency_s: float | None = None, simulator: str = "auto") -> ClosedLoopConfig | None:
     """The closed-loop settings of the options (None in open loop, where they are refused); the
     ``ClosedLoopConfig`` checks its values. ``ray``: None (no Ray), ``local`` or a cluster address."""
     if not mode.closed_loop:
         given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
                                        ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
                                        ("--llm-period-s", llm_period_s is not None),
-                                       ("--llm-latency-s", llm_latency_s is not None)) if on]
+                                       ("--llm-latency-s", llm_latency_s is not None),
+                                       ("--simulator", simulator != "auto")) if on]
         if given:
             raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
                              "closed-loop-reactive or closed-loop-hybrid)")
@@ -125,13 +130,15 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
     handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
     dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s)
     return ClosedLoopConfig(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                            sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate)
+                            sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate,
+                            simulator=simulator)  # type: ignore[arg-type]
 
 
 def closed_loop_line(closed: ClosedLoopConfig, planners: list[BuiltPlanner]) -> str:
     """The mode, each planner's replanning period and, with LLM planners, when they ask their model."""
-    line = f"Mode: {closed.mode.value}, replanning every " + ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})"
-                                                                 for p in planners)
+    simulator = "SUMO" if closed.uses_sumo else "log replay"
+    periods = ", ".join(f"{closed.replan_s_of(p.name):g} s ({p.name})" for p in planners)
+    line = f"Mode: {closed.mode.value} ({simulator}), replanning every {periods}"
     if any(p.dual_rate for p in planners):
         dual = closed.dual_rate
         line += (f"; LLM planners ask their model every {dual.llm_period_s:g} s, answers in force after "
@@ -189,6 +196,7 @@ def evaluate(
     ray: RayOpt = False,
     ray_address: RayAddressOpt = None,
     sumo_gui: SumoGuiOpt = ClosedLoopConfig.sumo_gui,
+    simulator: SimulatorOpt = ClosedLoopConfig.simulator,
     chunk_size: ChunkSizeOpt = ClosedLoopConfig.chunk_size,
     events: EventsOpt = None,
     handover_lanes: HandoverLanesOpt = None,
@@ -201,7 +209,8 @@ def evaluate(
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         labels = [label for label, _ in planner_kinds(planner)]
         closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),
-                                      sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s)
+                                      sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s,
+                                      simulator)
         batch = load_limited(scenarios, limit)
         tally.track(len(labels) * len(batch), lambda: min(stored_rows(out, labels), len(labels) * len(batch)))
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)

@@ -80,13 +80,17 @@ def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = No
     """What of the simulation changes answers (``run.json``): road and sublane model; the driver model
     where SUMO drives neighbours (log-replayed neighbours have none); in ``closed-loop-hybrid`` the
     hand-over rule and the scripted neighbours (count and digest of ``scripted_nbr``, the run's (B, N)
-    mask). Not the workers, the chunk size or the GUI: they change no answer."""
+    mask); ``simulator: replay`` where the log replay runs (absent with SUMO, so SUMO runs keep their
+    keys): its rows have the same metrics but no SUMO collision columns. Not the workers, the chunk
+    size or the GUI: they change no answer."""
     out: dict[str, Any] = {"lateral_resolution_m": config.lateral_resolution_m,
                            "road_behind_m": config.road_behind_m, "road_ahead_m": config.road_ahead_m}
     if config.mode.has_drivers:
         out["driver"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(config.driver).items()}
     if config.mode is EvaluationMode.HYBRID:
         out.update(hybrid_settings(config, scripted_nbr))
+    if not config.uses_sumo:
+        out["simulator"] = "replay"
     return out
 
 

@@ -490,8 +490,9 @@ def timing_summary(frame: pd.DataFrame, load_s: float) -> dict[str, AggValue]:
         out["llm_calls_per_scenario"] = float(np.asarray(frame[calls], dtype=np.float64).mean())
     if "info_fallback" in frame:
         out["fallback_pct"] = float(100.0 * np.asarray(frame["info_fallback"], dtype=bool).mean())
-    if "sumo_collision" in frame and len(frame):  # closed loop: SUMO's own check beside the metric's
+    if "sumo_collision" in frame and len(frame):  # closed loop in SUMO: SUMO's own check beside the metric's
         out["sumo_cr_pct"] = float(100.0 * np.asarray(frame["sumo_collision"], dtype=bool).mean())
+    if "n_replans" in frame and len(frame):  # closed loop
         out["replans_per_scenario"] = float(np.asarray(frame["n_replans"], dtype=np.float64).mean())
         out["sim_s"] = float(np.asarray(frame["sim_s"], dtype=np.float64).mean())
         if "nbr_reactive" in frame:  # neighbours SUMO drove (hand-overs), per scenario

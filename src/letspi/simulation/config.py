@@ -162,6 +162,11 @@ class ClosedLoopConfig:
         sumo_backend: ``libsumo`` (in-process, fast; one simulation per process) or ``traci``
             (a SUMO subprocess over a socket; needed for the GUI).
         sumo_gui: run ``sumo-gui`` (sets the traci backend; slow: for debugging a few scenarios).
+        simulator: ``sumo``, ``replay`` or ``auto`` (the default: ``replay`` in ``closed-loop-log``
+            without the GUI, else ``sumo``). The replay (``letspi.simulation.replay``) runs
+            ``closed-loop-log`` in NumPy: its neighbours only replay their log, so SUMO would only
+            echo positions; the same trajectories and metrics (tested), without SUMO's own collision
+            flag, several times faster. The other modes need SUMO's driver models.
         driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
         handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
         dual_rate: LLM planners (``dual_rate`` in the planner table): the LLM at t = 0 and
@@ -181,6 +186,7 @@ class ClosedLoopConfig:
     slot_spacing_m: float = 60.0
     sumo_backend: Literal["libsumo", "traci"] = "libsumo"
     sumo_gui: bool = False
+    simulator: Literal["auto", "replay", "sumo"] = "auto"
     driver: DriverModelConfig = field(default_factory=DriverModelConfig)
     handover: HandoverConfig = field(default_factory=HandoverConfig)
     dual_rate: DualRateConfig = field(default_factory=DualRateConfig)
@@ -213,6 +219,13 @@ class ClosedLoopConfig:
             raise ValueError("the road must reach at least 300 m behind and 500 m ahead of the ego")
         if self.sumo_backend not in ("libsumo", "traci"):
             raise ValueError(f"sumo_backend must be 'libsumo' or 'traci', got {self.sumo_backend!r}")
+        if self.simulator not in ("auto", "replay", "sumo"):
+            raise ValueError(f"simulator must be 'auto', 'replay' or 'sumo', got {self.simulator!r}")
+        if self.simulator == "replay" and mode is not EvaluationMode.LOG:
+            raise ValueError(f"--simulator replay runs closed-loop-log only: {mode.value} needs SUMO to drive "
+                             "the neighbours")
+        if self.simulator == "replay" and self.sumo_gui:
+            raise ValueError("--sumo-gui shows SUMO: use --simulator sumo (or auto)")
 
     @property
     def replan_frames(self) -> int:
@@ -227,6 +240,13 @@ class ClosedLoopConfig:
         """The configuration the planner labelled ``label`` runs under: its own period as ``replan_s``."""
         own = self.replan_s_of(label)
         return self if own == self.replan_s else replace(self, replan_s=own)
+
+    @property
+    def uses_sumo(self) -> bool:
+        """Whether SUMO simulates (else the log replay, ``simulator`` above)."""
+        if self.simulator == "auto":
+            return self.mode is not EvaluationMode.LOG or self.sumo_gui
+        return self.simulator == "sumo"
 
     def uses_processes(self) -> bool:
         return self.workers > 0 or self.ray_address is not None

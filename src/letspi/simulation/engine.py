@@ -36,7 +36,6 @@ overlap is reported every frame it lasts).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,10 +44,11 @@ import numpy as np
 from letspi.constants import DT_S, N_TOTAL, T0_INDEX
 from letspi.planners.base import Planner
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import OFF_ROAD_MARGIN_M, ClosedLoopConfig, EvaluationMode
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.simulation.drivers import estimate_driver_params
 from letspi.simulation.handover import within_reach
 from letspi.simulation.network import VTYPE_ID, SlotNetwork, layout_keys
+from letspi.simulation.plans import PlanLog, follow_plans
 from letspi.simulation.replan import (
     FuturePolicy,
     PeriodicReplanner,
@@ -368,54 +368,10 @@ class _Lockstep:
 
     # --- 5. following a plan ----------------------------------------------------------------------
     def follow(self, f: int, replan: Replan) -> None:
-        """The ego commands of the scenarios that replanned at frame f, up to each plan's last frame.
-
-        A plan that is not finite, or leaves the simulated area, where it is followed is not: the ego
-        keeps its velocity instead and the scenario is flagged (``plan_nonfinite``).
-        """
+        """The ego commands of the scenarios that replanned at frame f (``letspi.simulation.plans.follow_plans``)."""
         g = self.g
-        rows = np.asarray(replan.rows, dtype=np.int64)
-        until = np.asarray(replan.follow_until, dtype=np.int64)
-        for stop in np.unique(until).tolist():
-            sel = until == stop
-            r = rows[sel]
-            n_use = stop - f
-            use_xy = replan.xy_m[sel, :n_use].copy()
-            use_vxy = replan.vxy_mps[sel, :n_use].copy()
-            bad = ~(np.isfinite(use_xy).all(axis=(1, 2)) & np.isfinite(use_vxy).all(axis=(1, 2)))
-            with np.errstate(invalid="ignore"):
-                bad |= ~_inside(use_xy, self.road_y[r], self.config).all(axis=1)
-            if bad.any():
-                self.nonfinite[r[bad]] = True
-                centre = g.rec_xy[g.ego_rows[r[bad]], f]
-                v0 = g.rec_vxy[g.ego_rows[r[bad]], f]
-                steps = np.arange(1, n_use + 1)[None, :, None] * DT_S
-                use_xy[bad] = centre[:, None, :] + v0[:, None, :] * steps
-                use_vxy[bad] = v0[:, None, :]
-            g.cmd_xy[r, f + 1 : stop + 1] = use_xy
-            g.cmd_vxy[r, f + 1 : stop + 1] = use_vxy
-
-
-class _PlanLog:
-    """Every plan made, per scenario and replanning slot (the frames a replanner may plan at)."""
-
-    def __init__(self, k: int, frames: Sequence[int]) -> None:
-        self.frames = list(frames)
-        self.slot = {f: i for i, f in enumerate(self.frames)}
-        n_future = N_TOTAL - T0_INDEX - 1
-        self.xy = np.full((k, len(self.frames), n_future, 2), np.nan)
-        self.goals = np.full((k, len(self.frames), 2), np.nan)
-        self.info: dict[str, np.ndarray] = {}
-        self.plan_s = 0.0
-
-    def add(self, f: int, replan: Replan) -> None:
-        i = self.slot[f]
-        rows = np.asarray(replan.rows, dtype=np.int64)
-        self.xy[rows, i] = replan.xy_m
-        self.goals[rows, i] = replan.goals_xy_m
-        for key, arr in replan.info.items():
-            self.info.setdefault(key, np.full(self.goals.shape[:2], np.nan))[rows, i] = arr
-        self.plan_s += replan.plan_s
+        follow_plans(replan, f, g.rec_xy[g.ego_rows, f], g.rec_vxy[g.ego_rows, f], self.road_y, self.config,
+                     g.cmd_xy, g.cmd_vxy, self.nonfinite)
 
 
 def simulate_group(
@@ -439,7 +395,7 @@ def simulate_group(
     cpu_start = time.process_time()
     sim = _Lockstep(session, batch, config, run_tag, scripted_nbr)
     replanner = replanner or PeriodicReplanner(planner, batch, config.replan_frames, future)
-    plans = _PlanLog(sim.g.k, replanner.frames)
+    plans = PlanLog(sim.g.k, replanner.frames)
     for f in range(N_TOTAL):
         drive = sim.who_drives(f)
         sim.bookkeeping(drive)
@@ -453,7 +409,7 @@ def simulate_group(
                   time.process_time() - cpu_start)
 
 
-def _chunk(sim: _Lockstep, plans: _PlanLog, planner: Planner, replan_every: int, wall_s: float,
+def _chunk(sim: _Lockstep, plans: PlanLog, planner: Planner, replan_every: int, wall_s: float,
            cpu_s: float) -> ClosedLoopChunk:
     g = sim.g
     states = g.states()
@@ -495,11 +451,3 @@ def _front_and_angle(
     heading = np.where(fast, np.arctan2(vxy[:, 1], vxy[:, 0]), 0.0)
     angle = 90.0 - np.degrees(heading)  # cosmetic (GUI): SUMO keeps lane-aligned boxes
     return x.tolist(), y.tolist(), angle.tolist()
-
-
-def _inside(xy: np.ndarray, road_y: np.ndarray, config: ClosedLoopConfig) -> np.ndarray:
-    """(K, S) whether planned positions (K, S, 2) lie in the simulated area: on the road's length and
-    within ``OFF_ROAD_MARGIN_M`` of its edges (further out SUMO cannot place a vehicle sensibly)."""
-    x_ok = (xy[..., 0] > -config.road_behind_m + 50.0) & (xy[..., 0] < config.road_ahead_m - 50.0)
-    y_ok = (xy[..., 1] > road_y[:, :1] - OFF_ROAD_MARGIN_M) & (xy[..., 1] < road_y[:, 1:] + OFF_ROAD_MARGIN_M)
-    return np.asarray(x_ok & y_ok)

@@ -12,6 +12,9 @@ from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig
 from letspi.scenario.types import ScenarioBatch
 
+#: fields of a chunk that hold one value for the run, not one per scenario
+_PER_RUN = ("planner", "mode", "replan_s", "replan_step", "plan_info", "simulator")
+
 
 @dataclass(frozen=True)
 class ClosedLoopChunk:
@@ -34,12 +37,15 @@ class ClosedLoopChunk:
         plan_nonfinite: (K,) a plan had non-finite values, or left the simulated area (more than
             15 m beyond a road edge), where the ego needed it; the ego then kept its velocity until
             the next replan.
-        sumo_contact: (K, N, F) SUMO reported a collision between the ego and that neighbour.
+        sumo_contact: (K, N, F) SUMO reported a collision between the ego and that neighbour (all
+            False from the replay, which runs no SUMO).
         sumo_nbr_collisions: (K,) SUMO collision reports (pairs x frames) among the neighbours.
         plan_s: (K,) planner wall time per scenario [s] (batched calls split evenly).
         sim_s: (K,) the rest of the chunk's wall time (SUMO, bookkeeping) per scenario [s].
         cpu_s: (K,) CPU time of the simulating process per scenario [s] (planner included; on a
             shared machine it is the load-independent cost).
+        simulator: ``sumo`` (``letspi.simulation.engine``) or ``replay`` (``letspi.simulation.replay``:
+            closed-loop-log without SUMO, so without SUMO's collision check).
     """
 
     indices: np.ndarray
@@ -64,6 +70,7 @@ class ClosedLoopChunk:
     sim_s: np.ndarray
     cpu_s: np.ndarray
     plan_info: dict[str, np.ndarray] = field(default_factory=dict)
+    simulator: str = "sumo"
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -84,7 +91,7 @@ class ClosedLoopChunk:
         per_row: dict[str, Any] = {
             f.name: getattr(self, f.name)[rows]
             for f in fields(self)
-            if f.name not in ("planner", "mode", "replan_s", "replan_step", "plan_info")
+            if f.name not in _PER_RUN
         }
         return replace(self, **per_row, plan_info={k: v[rows] for k, v in self.plan_info.items()})
 
@@ -97,7 +104,7 @@ class ClosedLoopChunk:
         per_row: dict[str, Any] = {
             f.name: np.concatenate([getattr(p, f.name) for p in parts])
             for f in fields(first)
-            if f.name not in ("planner", "mode", "replan_s", "replan_step", "plan_info")
+            if f.name not in _PER_RUN
         }
         info = {
             k: np.concatenate([p.plan_info[k] for p in parts])

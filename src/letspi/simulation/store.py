@@ -57,12 +57,13 @@ def scenario_fingerprint(scenario_ids: Sequence[str] | np.ndarray) -> str:
 
 
 def chunk_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics) -> pd.DataFrame:
-    """One row per scenario of the chunk: metrics, SUMO collision columns, timings, plan extras."""
+    """One row per scenario of the chunk: metrics, SUMO collision columns (SUMO runs only), timings, plan extras."""
     frame = metrics.to_frame()
     frame.insert(0, "scenario_id", [str(s) for s in chunk.scenario_id])
-    frame["sumo_collision"] = chunk.sumo_collision
-    frame["sumo_collision_step"] = chunk.sumo_collision_step
-    frame["sumo_nbr_collisions"] = chunk.sumo_nbr_collisions
+    if chunk.simulator == "sumo":  # the replay runs no SUMO, so it has no SUMO collision check
+        frame["sumo_collision"] = chunk.sumo_collision
+        frame["sumo_collision_step"] = chunk.sumo_collision_step
+        frame["sumo_nbr_collisions"] = chunk.sumo_nbr_collisions
     frame["plan_nonfinite"] = chunk.plan_nonfinite
     frame["nbr_reactive"] = (np.asarray(chunk.nbr_handover_step) >= 0).sum(axis=1)
     frame["n_replans"] = len(chunk.replan_step)

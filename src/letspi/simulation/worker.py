@@ -16,6 +16,7 @@ from letspi.simulation.dual_rate import DualRateReplanner
 from letspi.simulation.engine import simulate_group
 from letspi.simulation.network import layout_keys
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replanner
+from letspi.simulation.replay import simulate_replay_group
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.schedule import DualRatePlanner
 from letspi.simulation.session import SumoSession
@@ -75,7 +76,8 @@ def simulate_chunk(
     session: SumoSession, planner: Planner, task: ChunkTask, config: ClosedLoopConfig, future: FuturePolicy,
     dual_rate: bool = False,
 ) -> ClosedLoopChunk:
-    """Simulate one chunk (any layouts: one lockstep group per layout) and label it with batch indices."""
+    """Simulate one chunk (any layouts: one lockstep group per layout) and label it with batch indices.
+    ``config.uses_sumo``: in SUMO (``session``), else the log replay (``session`` unused, never started)."""
     keys = layout_keys(task.batch.marking_y_m)
     parts: list[ClosedLoopChunk] = []
     rows_all: list[np.ndarray] = []
@@ -84,16 +86,13 @@ def simulate_chunk(
         group = task.batch.take(rows)
         replanner = replanner_for(planner, group, config, future, dual_rate)
         try:
-            part = simulate_group(
-                session,
-                planner,
-                group,
-                config,
-                future=future,
-                run_tag=f"t{task.task_id}.{len(parts)}",
-                scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],
-                replanner=replanner,
-            )
+            if config.uses_sumo:
+                part = simulate_group(session, planner, group, config, future=future,
+                                      run_tag=f"t{task.task_id}.{len(parts)}",
+                                      scripted_nbr=None if task.scripted_nbr is None else task.scripted_nbr[rows],
+                                      replanner=replanner)
+            else:
+                part = simulate_replay_group(planner, group, config, future=future, replanner=replanner)
         finally:
             close = getattr(replanner, "close", None)
             if close is not None:
@@ -106,7 +105,8 @@ def simulate_chunk(
 
 
 class ChunkWorker:
-    """A planner and a SUMO session, built once, simulating chunk after chunk (one per process)."""
+    """A planner and a SUMO session, built once, simulating chunk after chunk (one per process); the
+    session starts SUMO at its first chunk, so the replay never starts it."""
 
     def __init__(self, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
         self.config = config
