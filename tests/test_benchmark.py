@@ -35,7 +35,7 @@ from letspi.scenario.types import concat_batches
 #: every suite's id: a change to a definition (or to a preset or metrics default it uses) changes its
 #: digest and must be made deliberately, here and in docs/benchmark.md
 PINNED = {
-    "highway-uniform": "highway-uniform@v1-b1c7a3f1",
+    "highway-uniform": "highway-uniform@v2-4870b89f",
     "highway-critical": "highway-critical@v1-b272dc5d",
     "stress-closed-loop": "stress-closed-loop@v1-7ed330eb",
     "on-ramp-critical": "on-ramp-critical@v1-3e61c8cc",

@@ -206,7 +206,7 @@ def _critical(name: str, description: str, preset: str, layout: str, seed: int, 
 #: THE table of suites (one entry per suite; seeds are never shared between suites)
 SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
     Suite(
-        name="highway-uniform", version=1,
+        name="highway-uniform", version=2,
         description="straight 3+3-lane highway, realistic traffic, windows drawn uniformly (the paper's protocol)",
         data=GeneratedTraffic(preset="realistic", layout="straight", seeds=(1001, 1002), minutes=20.0),
         extraction=Extraction(focus="uniform", n_windows=3000, seed=1001),
