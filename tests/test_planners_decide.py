@@ -58,3 +58,26 @@ def test_decision_off_reproduces_the_planner_and_its_key(tmp_path: Path) -> None
     assert on.key() != off.key() and on.decision is not None  # type: ignore[attr-defined]
     with pytest.raises(ValueError, match="choice prompt style needs"):
         resolve_planner("letspi-fast", base.replace(prompt_style="choice", decide=False))
+
+
+def test_the_shield_reuses_sf_check_s_preset_checks_and_plans_the_same() -> None:
+    """``sf-check`` hands its checks of every preset to the shield (``Proposals.extra``), which otherwise
+    checks them again for the plans it replaces: the same alternatives, so the same plans."""
+    from dataclasses import replace
+
+    from letspi.planners.llm import PRESETS_PASS_ALL, PRESETS_PROGRESS
+
+    batch = concat_batches([
+        straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(gap, 29.0 - drop)], scenario_id=f"s{i}")
+        for i, (gap, drop) in enumerate([(22.0, 0.0), (12.0, 6.0), (8.0, 10.0), (40.0, 2.0)])
+    ]).history()
+    planner = build_planner(resolve_planner("sf-check", OPTS.replace(gate=False)), "sf-check",
+                            builder=Builder(cache=None)).planner
+    context = planner.context(batch)
+    proposals = planner.propose(batch, context)
+    assert proposals.extra[PRESETS_PASS_ALL].shape == proposals.extra[PRESETS_PROGRESS].shape == (4, 6)
+    reused = planner.simulate(batch, context, proposals)
+    checked_again = planner.simulate(batch, context, replace(proposals, extra={}))
+    assert reused.info["shield_source"].tolist() == checked_again.info["shield_source"].tolist()
+    assert (reused.info["shield_source"] != "").any()  # the case must be one where the shield acts
+    np.testing.assert_array_equal(reused.xy_m, checked_again.xy_m)

@@ -228,6 +228,13 @@ def check_options(
     )
 
 
+def preference_order(passes_all: np.ndarray, progress_m: np.ndarray) -> list[int]:
+    """One scenario's options that pass every check (``passes_all`` (K,)), most progress (``progress_m``
+    (K,)) first: the order the shield tries presets in."""
+    ok = np.flatnonzero(passes_all)
+    return [int(k) for k in ok[np.argsort(-np.nan_to_num(progress_m[ok], nan=-1e3), kind="stable")]]
+
+
 def rule_choice(predicted_safe: np.ndarray, adverse_failed: np.ndarray, progress_m: np.ndarray) -> np.ndarray:
     """(B,) the choice without a model: option 0 (the defaults) when it passes every check; else the option
     failing the fewest checks, then keeping the most predicted progress. Inputs (B, K) / (B, K, A)."""
@@ -382,5 +389,4 @@ class Decider:
 
     def preference(self, checks: OptionChecks, i: int) -> list[int]:
         """Scenario ``i``'s presets that pass every check, the rule's order (most progress first)."""
-        ok = np.flatnonzero(checks.passes_all()[i])
-        return [int(k) for k in ok[np.argsort(-np.nan_to_num(checks.progress_m[i, ok], nan=-1e3), kind="stable")]]
+        return preference_order(checks.passes_all()[i], checks.progress_m[i])

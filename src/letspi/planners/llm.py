@@ -34,7 +34,7 @@ retrieved memory k, -1 = the fitted ``sf`` parameters, -2 = a grid candidate).
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Literal
 
@@ -43,7 +43,7 @@ from pydantic import Field
 
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
-from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider
+from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, preference_order
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
@@ -465,7 +465,8 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
     fallback = _sf_alternatives(shield_params)
     memories = proposals.extra.get(MEMORY_ALTERNATIVES) if with_memories else None
     failing = [i for i, r in enumerate(reports) if not r.safe]
-    presets = _preset_alternatives(batch, context, decider, failing) if decider is not None and failing else {}
+    presets = _preset_alternatives(batch, context, decider, failing, proposals.extra) \
+        if decider is not None and failing else {}
     alternatives = [[*presets.get(i, []), *(memory_alternatives(memories[i]) if memories is not None else []),
                      *fallback] for i in range(len(batch))]
     shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds,
@@ -474,15 +475,25 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
     return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
 
 
+#: ``Proposals.extra`` keys of a planner that checked every preset already (``sf-check``): (B, K) whether
+#: each preset passes every check, and its progress [m]; the shield then does not check them again
+PRESETS_PASS_ALL, PRESETS_PROGRESS = "presets_pass_all", "presets_progress_m"
+
+
 def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider: Decider,
-                         rows: list[int]) -> dict[int, list[Alternative]]:
-    """Per scenario of ``rows``, the presets that pass every check, the most progress first."""
-    checks = decider.check(batch.take(rows), context.goals_xy_m[rows], context.take(rows).neighbours)
+                         rows: list[int], extra: Mapping[str, np.ndarray]) -> dict[int, list[Alternative]]:
+    """Per scenario of ``rows``, the presets that pass every check, the most progress first (from the
+    checks in ``extra`` where the planner made them, else checked here)."""
+    if PRESETS_PASS_ALL in extra:
+        passes, progress = np.asarray(extra[PRESETS_PASS_ALL])[rows], np.asarray(extra[PRESETS_PROGRESS])[rows]
+    else:
+        checks = decider.check(batch.take(rows), context.goals_xy_m[rows], context.take(rows).neighbours)
+        passes, progress = checks.passes_all(), checks.progress_m
     table = decider.presets
     out: dict[int, list[Alternative]] = {}
     for j, i in enumerate(rows):
         out[i] = []
-        for k in decider.preference(checks, j):
+        for k in preference_order(passes[j], progress[j]):
             v = table.values[k]
             params = SocialForceParams(**dict(zip(PARAM_NAMES[:6], (float(x) for x in v[:6]), strict=True)),
                                        r_col_m=decider.r_col_m)

@@ -20,7 +20,7 @@ from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import DECISION_OPTIONS, SOCIAL_FORCE_OPTIONS, DecisionConfig, SocialForcePlannerFields
 from letspi.planners.decision import decision_info
-from letspi.planners.llm import SHIELD, simulate_and_shield
+from letspi.planners.llm import PRESETS_PASS_ALL, PRESETS_PROGRESS, SHIELD, simulate_and_shield
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
@@ -62,7 +62,10 @@ class DecisionPlanner(PredictingPlanner):
         from_values = SocialForceParams.from_matrix(
             np.concatenate([values[:, :6], np.full((len(batch), 1), self.params.r_col_m)], axis=1))
         info = decision_info(names, consulted, risk, np.zeros(len(batch)), reasons)
-        return Proposals(params=from_values, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info)
+        # the shield's preset alternatives come from these checks (the same inputs: not checked twice)
+        extra = {PRESETS_PASS_ALL: checks.passes_all(), PRESETS_PROGRESS: checks.progress_m}
+        return Proposals(params=from_values, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info,
+                         extra=extra)
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
