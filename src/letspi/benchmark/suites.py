@@ -211,8 +211,8 @@ SUITES: Final[Mapping[str, Suite]] = MappingProxyType({s.name: s for s in (
         data=GeneratedTraffic(preset="realistic", layout="straight", seeds=(1001, 1002), minutes=20.0),
         extraction=Extraction(focus="uniform", n_windows=3000, seed=1001),
         modes=(OPEN_LOOP,),
-        scripted="scripted events, few: 24 hard brakes, 17 cut-ins, 1 truck pull-out in the 40 minutes; 380 of "
-                 "24,466 windows have a conflict",
+        scripted="scripted events, few: 22 hard brakes, 13 cut-ins, 3 truck pull-outs in the 40 minutes; 309 of "
+                 "25,613 windows have a conflict",
         sizing="3,000 windows: open-loop CRs here are 0.2-0.7 % and planners disagree on at most 0.4 % of "
                "the windows, so a 1-point difference is detected with power 1.00 (docs/benchmark.md)",
     ),

@@ -1,4 +1,8 @@
-"""Closed-loop evaluation in SUMO: log-replay, reactive and hybrid traffic, receding-horizon replanning.
+"""Closed-loop evaluation: log-replay, reactive and hybrid traffic, receding-horizon replanning.
+
+SUMO simulates the reactive and hybrid modes (``letspi.simulation.engine``); ``closed-loop-log``, where
+nobody but the ego moves off its log, runs in NumPy by default (``letspi.simulation.replay``, the same
+results; ``ClosedLoopConfig.simulator``).
 
 Public API:
 
