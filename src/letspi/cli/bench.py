@@ -275,7 +275,8 @@ def closed_loop_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Closed-loop throughput in-process and per worker, the N-worker speed-up over 1 worker (same run),
-    lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags. With an LLM planner
+    lockstep vs one SUMO load per scenario, SUMO-vs-metric collision flags; in closed-loop-log also the log replay
+    without SUMO on the same scenarios (its speed-up over SUMO). With an LLM planner
     (dual rate): real time, i.e. the wall time per 5 s scenario simulated alone, LLM calls included (no response
     cache: every call runs the model)."""
     with user_errors():
