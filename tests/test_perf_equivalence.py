@@ -21,6 +21,7 @@ from letspi.bench.replaced import (
     idm_acceleration_per_call,
     predict_idm_concatenating,
     repeated,
+    sf_opt_all_candidates,
     sf_opt_on_repeated_batch,
 )
 from letspi.evaluation.harness import evaluate, load_planner_results
@@ -106,13 +107,35 @@ def test_sf_opt_search_matches_the_search_on_the_repeated_batch(scenes: Scenario
     planner = SocialForceSearchPlanner(params=load_sf_params()[0])
     context = planner.context(scenes)
     proposals = planner.propose(scenes, context)
-    new = planner.simulate(scenes, context, proposals)
+    new = sf_opt_all_candidates(planner, scenes, context, proposals)
     old = sf_opt_on_repeated_batch(planner, scenes, context, proposals)
     for name in ("xy_m", "vxy_mps", "goals_xy_m"):
         assert np.array_equal(getattr(new, name), getattr(old, name)), name
     for key, values in old.info.items():
         assert np.array_equal(new.info[key], values), key
     assert 0 < int(np.sum(new.info["found_safe"])) < len(scenes)  # both branches of the choice are taken
+
+
+@pytest.mark.parametrize("seed", [4, 7])
+def test_sf_opt_staged_search_matches_the_search_of_every_candidate(seed: int) -> None:
+    """The staged search (cheapest candidates first, stop at the first safe one) plans exactly what
+    rolling out and checking all 27 candidates of every scenario planned, in both branches: a safe
+    candidate found at different stages, and the fallback of scenarios where none is safe."""
+    scenes = crowded_scenes(40, seed=seed)
+    planner = SocialForceSearchPlanner(params=load_sf_params()[0])
+    context = planner.context(scenes)
+    proposals = planner.propose(scenes, context)
+    new = planner.simulate(scenes, context, proposals)
+    old = sf_opt_all_candidates(planner, scenes, context, proposals)
+    for name in ("xy_m", "vxy_mps", "goals_xy_m"):
+        assert np.array_equal(getattr(new, name), getattr(old, name)), name
+    for key in ("k_scale", "lon_factor", "lane_factor", "found_safe"):
+        assert np.array_equal(new.info[key], old.info[key]), key
+    tried = new.info["n_candidates_tried"]
+    n_grid = len(planner.space.grid())
+    assert (tried[~new.info["found_safe"]] == n_grid).all()  # no safe candidate: every one was tried
+    assert (tried == 1).any() and ((tried > 1) & new.info["found_safe"]).any()  # stops early and late
+    assert (~new.info["found_safe"]).any()
 
 
 def test_idm_prediction_matches_the_per_step_concatenating_loop(scenes: ScenarioBatch) -> None:

@@ -9,8 +9,12 @@ that both give identical arrays, and reports the ratio old / new:
 * ``sf_opt_check``: the safety check of ``sf-opt``'s candidate plans (C = 27 per scenario) against the
   predicted neighbours; the old one gets the batch and the prediction already repeated per candidate
   (in ``sf-opt`` that copy was shared with the rollout, so it is not charged to the check);
-* ``sf_opt_search``: ``sf-opt``'s whole search (candidate rollouts, check, choice) from the same
-  proposals and context.
+* ``sf_opt_search``: ``sf-opt``'s search of every candidate (rollouts, check, choice) from the same
+  proposals and context, against the search on the batch repeated per candidate;
+* ``sf_opt_staged``: ``sf-opt``'s staged search (cheapest candidates first, stop at the first safe one)
+  against the search of every candidate. Identical plans and choices; the staged search reports
+  ``n_candidates_tried`` where the other counted ``n_safe_candidates``, so info keys only one side has
+  are not compared.
 
 Timings are the best of ``repeats`` after one warm-up call: CPU seconds of this process (NumPy's
 element-wise kernels are single-threaded, so CPU time is the load-independent figure) and wall
@@ -32,6 +36,7 @@ from letspi.bench.replaced import (
     check_inputs_mirrored,
     predict_idm_concatenating,
     repeated,
+    sf_opt_all_candidates,
     sf_opt_on_repeated_batch,
 )
 from letspi.physics.neighbours import predict_idm
@@ -41,7 +46,7 @@ from letspi.planners.sf_opt import SocialForceSearchPlanner, candidates
 from letspi.planners.sf_params import load_sf_params
 from letspi.safety.plan_check import check_plans, predicted_inputs
 
-KERNELS = ("predict_idm", "sf_opt_check", "sf_opt_search")
+KERNELS = ("predict_idm", "sf_opt_check", "sf_opt_search", "sf_opt_staged")
 
 
 def best_of(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
@@ -56,18 +61,21 @@ def best_of(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
     return 1e3 * min(cpu), 1e3 * min(wall), out
 
 
-def arrays_of(result: Any) -> list[np.ndarray]:
-    """Every array of a kernel's result, in a fixed order (a plan's info by key)."""
+def arrays_of(result: Any, info_keys: set[str] | None = None) -> list[np.ndarray]:
+    """Every array of a kernel's result, in a fixed order (a plan's info by key: ``info_keys``, default all)."""
     if isinstance(result, PlanBatch):
-        return [result.xy_m, result.vxy_mps, result.goals_xy_m, *(result.info[k] for k in sorted(result.info))]
+        keys = sorted(result.info if info_keys is None else info_keys)
+        return [result.xy_m, result.vxy_mps, result.goals_xy_m, *(result.info[k] for k in keys)]
     if isinstance(result, tuple):  # NeighbourPrediction
         return [np.asarray(a) for a in result]
     return [np.asarray(getattr(result, f.name)) for f in fields(result)]
 
 
 def identical(a: Any, b: Any) -> bool:
-    """Whether two kernel results hold the same arrays, bit for bit (NaN equal to NaN)."""
-    xs, ys = arrays_of(a), arrays_of(b)
+    """Whether two kernel results hold the same arrays, bit for bit (NaN equal to NaN); two plans are compared
+    on the info keys both have."""
+    shared = set(a.info) & set(b.info) if isinstance(a, PlanBatch) and isinstance(b, PlanBatch) else None
+    xs, ys = arrays_of(a, shared), arrays_of(b, shared)
     return len(xs) == len(ys) and all(
         x.shape == y.shape and np.array_equal(x, y, equal_nan=x.dtype.kind == "f") for x, y in zip(xs, ys, strict=True)
     )
@@ -91,8 +99,12 @@ def kernel_pairs(n_scenarios: int, seed: int) -> tuple[dict[str, tuple[Callable[
             lambda: check_inputs_mirrored(big, predicted_inputs(big, roll.xy_m, roll.vxy_mps, big_pred)),
         ),
         "sf_opt_search": (
-            lambda: planner.simulate(batch, context, proposals),
+            lambda: sf_opt_all_candidates(planner, batch, context, proposals),
             lambda: sf_opt_on_repeated_batch(planner, batch, context, proposals),
+        ),
+        "sf_opt_staged": (
+            lambda: planner.simulate(batch, context, proposals),
+            lambda: sf_opt_all_candidates(planner, batch, context, proposals),
         ),
     }
     return pairs, len(rows) // n_scenarios

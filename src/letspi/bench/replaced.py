@@ -8,7 +8,10 @@ results). Each computes exactly what letspi computed before; none is used to pla
 * ``check_inputs_mirrored``: the candidate check whose rear TTC was the front TTC of a copy of the scene
   mirrored in x, with every distance computed;
 * ``sf_opt_on_repeated_batch``: ``sf-opt``'s search on the whole batch and prediction repeated per
-  candidate, checked by ``check_inputs_mirrored``.
+  candidate, checked by ``check_inputs_mirrored``;
+* ``sf_opt_all_candidates``: ``sf-opt``'s search before it was staged: all C candidates of every
+  scenario rolled out and checked at once, then ``choose_candidates`` (its ``n_safe_candidates`` info
+  counts the safe ones; the staged search reports ``n_candidates_tried`` instead).
 """
 
 from __future__ import annotations
@@ -23,13 +26,14 @@ from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.kinematics import off_road
 from letspi.metrics.ttc import ttc_1d
+from letspi.physics.goals import NEUTRAL_LON_FACTOR
 from letspi.physics.idm import GAP_FLOOR_FRACTION, IDM_MIN_ACCEL_MPS2, MIN_DESIRED_SPEED_MPS, IdmParams
 from letspi.physics.neighbours import idm_prediction_of, idm_start
-from letspi.physics.social_force import rollout_social_force
-from letspi.physics.types import NeighbourPrediction
+from letspi.physics.social_force import SocialForceScene, rollout_social_force, rollout_social_force_scene
+from letspi.physics.types import NeighbourPrediction, RolloutResult
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals
-from letspi.planners.sf_opt import SocialForceSearchPlanner, candidates, choose_candidates
-from letspi.safety.plan_check import SafetyCheck, min_path_gap_m, predicted_inputs
+from letspi.planners.sf_opt import SearchSpace, SocialForceSearchPlanner, candidates
+from letspi.safety.plan_check import SafetyCheck, check_plans, min_path_gap_m, predicted_inputs
 from letspi.scenario.types import ScenarioBatch
 
 
@@ -95,3 +99,41 @@ def sf_opt_on_repeated_batch(planner: SocialForceSearchPlanner, batch: ScenarioB
     roll = rollout_social_force(big, params, cand_goals, big_pred)
     check = check_inputs_mirrored(big, predicted_inputs(big, roll.xy_m, roll.vxy_mps, big_pred))
     return choose_candidates(planner.space, len(batch), roll, cand_goals, check)
+
+
+def sf_opt_all_candidates(planner: SocialForceSearchPlanner, batch: ScenarioBatch, context: PlanningContext,
+                          proposals: Proposals) -> PlanBatch:
+    """``SocialForceSearchPlanner.simulate`` before the staged search: every candidate of every scenario
+    rolled out and checked in one call, then ``choose_candidates``."""
+    pred = context.neighbours
+    rep, params, cand_goals = candidates(planner.space, batch, context.goals_xy_m, proposals)
+    roll = rollout_social_force_scene(SocialForceScene.from_batch(batch, pred).take(rep), params, cand_goals)
+    check = check_plans(batch, roll.xy_m, roll.vxy_mps, pred, rows=rep)
+    return choose_candidates(planner.space, len(batch), roll, cand_goals, check)
+
+
+def choose_candidates(space: SearchSpace, b: int, roll: RolloutResult, cand_goals: np.ndarray,
+                      check: SafetyCheck) -> PlanBatch:
+    """The plan of each of ``b`` scenarios from its C candidates (rows scenario-major, ``space.grid()``
+    order): the cheapest safe one, else the best ranked (``letspi.planners.sf_opt``'s docstring)."""
+    grid = space.grid()
+    c = len(grid)
+    k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
+    safe = check.safe(space.ttc_threshold_s, space.gap_threshold_m).reshape(b, c)
+    cost = (
+        np.abs(lon - NEUTRAL_LON_FACTOR)
+        + space.lane_change_cost * np.abs(lane)
+        + space.k_scale_cost * (k_scale - 1.0)
+    ).reshape(b, c)
+    # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
+    ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), space.ttc_cap_s).reshape(b, c)
+    gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
+    unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
+    best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
+                    np.argmax(unsafe_score, axis=1))
+    rows = np.arange(b) * c + best
+    info = {
+        "k_scale": k_scale[rows], "lon_factor": lon[rows], "lane_factor": lane[rows],
+        "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
+    }
+    return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)

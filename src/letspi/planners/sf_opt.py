@@ -10,21 +10,28 @@ parameters), simulates each against the *predicted* neighbours (never the ground
    lane-change penalty × |lane| + repulsion penalty);
 2. if none is safe, the one with the largest min(TTC, cap) and then box gap.
 
-All candidates of a batch are rolled out in one vectorised call (B × C scenarios).
+The search is staged (``staged_search``): candidates are tried cheapest first (``search_order``), a
+few at a time (``SEARCH_STAGES``), each stage one vectorised rollout and check of the scenarios still
+without a safe candidate. The first safe candidate in that order is the cheapest safe one, so most
+scenarios stop after the neutral candidate; a scenario with none safe tries all C and gets the
+fallback. The plans are bit-identical to rolling out and checking all C candidates of every scenario
+(``letspi.bench.replaced.sf_opt_all_candidates``, tests/test_perf_equivalence.py); the info
+``n_candidates_tried`` says how far each scenario's search went.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from letspi.constants import N_FUTURE
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
-from letspi.physics.types import RolloutResult
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
@@ -72,53 +79,111 @@ class SocialForceSearchPlanner(PredictingPlanner):
         return Proposals(self.params.broadcast(b), np.full(b, NEUTRAL_LON_FACTOR), np.zeros(b))
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
-        """The candidate grid around each scenario's proposed parameters, rolled out and checked at once."""
-        pred = context.neighbours
-        rep, params, cand_goals = candidates(self.space, batch, context.goals_xy_m, proposals)
-        # the scene (per-scenario arrays) is built once and repeated per candidate, not the whole batch
-        scene = SocialForceScene.from_batch(batch, pred).take(rep)
-        roll = rollout_social_force_scene(scene, params, cand_goals)
-        check = check_plans(batch, roll.xy_m, roll.vxy_mps, pred, rows=rep)
-        return choose_candidates(self.space, len(batch), roll, cand_goals, check)
+        """The candidate grid around each scenario's proposed parameters, cheapest first (``staged_search``)."""
+        return staged_search(self.space, batch, context, proposals)
+
+
+#: candidates tried per stage of the staged search, cheapest first; the last stage tries all that are left
+SEARCH_STAGES: Final = (1, 2, 6)
+
+
+def candidate_costs(space: SearchSpace) -> np.ndarray:
+    """(C,) each candidate's cost (``space.grid()`` order): how far it moves from the unadjusted plan."""
+    k_scale, lon, lane = space.grid().T
+    cost: np.ndarray = np.abs(lon - NEUTRAL_LON_FACTOR) + space.lane_change_cost * np.abs(lane) \
+        + space.k_scale_cost * (k_scale - 1.0)
+    return cost
+
+
+def search_order(space: SearchSpace) -> np.ndarray:
+    """(C,) candidate indices, cheapest first, equal costs in grid order: the first safe one in this order
+    is the one ``argmin`` over the safe candidates' costs picks."""
+    cost = candidate_costs(space)
+    order: np.ndarray = np.lexsort((np.arange(len(cost)), cost))
+    return order
+
+
+def candidate_rows(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray, proposals: Proposals,
+                   rows: np.ndarray, cand: np.ndarray) -> tuple[SocialForceParams, np.ndarray]:
+    """Candidate ``cand[r]`` (grid index) of scenario ``rows[r]``: its (clamped) social force parameters and
+    its goal (R, 2)."""
+    grid = space.grid()
+    k_scale, lon, lane = (grid[cand, i] for i in range(3))
+    base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rows])
+    params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
+    goals = adjust_goals(np.asarray(goals_xy_m)[rows], batch.ego_xy0_m.astype(np.float64)[rows], lon, lane,
+                         batch.marking_y_m[rows])
+    return params.clamped(), goals
 
 
 def candidates(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray,
                proposals: Proposals) -> tuple[np.ndarray, SocialForceParams, np.ndarray]:
     """Every scenario's candidate grid, scenario-major: the scenario of each candidate row (B C,), their
     (clamped) social force parameters and their goals (B C, 2)."""
-    b = len(batch)
-    grid = space.grid()
-    rep = np.repeat(np.arange(b), len(grid))  # candidate row r belongs to scenario rep[r]
-    k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
-    base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rep])
-    params = replace(base, k_np=base.k_np * k_scale, k_nf=base.k_nf * k_scale, k_nl=base.k_nl * k_scale)
-    goals = adjust_goals(np.asarray(goals_xy_m)[rep], batch.ego_xy0_m.astype(np.float64)[rep], lon, lane,
-                         batch.marking_y_m[rep])
-    return rep, params.clamped(), goals
+    b, c = len(batch), len(space.grid())
+    rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
+    params, goals = candidate_rows(space, batch, goals_xy_m, proposals, rep, np.tile(np.arange(c), b))
+    return rep, params, goals
 
 
-def choose_candidates(space: SearchSpace, b: int, roll: RolloutResult, cand_goals: np.ndarray,
-                      check: SafetyCheck) -> PlanBatch:
-    """The plan of each of ``b`` scenarios from its C candidates (rows scenario-major, ``space.grid()``
-    order): the cheapest safe one, else the best ranked (module docstring)."""
-    grid = space.grid()
-    c = len(grid)
-    k_scale, lon, lane = (np.tile(grid[:, i], b) for i in range(3))
-    safe = check.safe(space.ttc_threshold_s, space.gap_threshold_m).reshape(b, c)
-    cost = (
-        np.abs(lon - NEUTRAL_LON_FACTOR)
-        + space.lane_change_cost * np.abs(lane)
-        + space.k_scale_cost * (k_scale - 1.0)
-    ).reshape(b, c)
-    # fallback ranking when nothing is safe: larger capped TTC, then larger gap, no contact first
-    ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), space.ttc_cap_s).reshape(b, c)
-    gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9).reshape(b, c)
-    unsafe_score = -(1e6 * check.collision.reshape(b, c) + 1e3 * check.off_road.reshape(b, c)) + ttc + 0.01 * gap
-    best = np.where(safe.any(axis=1), np.argmin(np.where(safe, cost, np.inf), axis=1),
-                    np.argmax(unsafe_score, axis=1))
-    rows = np.arange(b) * c + best
+def fallback_scores(space: SearchSpace, check: SafetyCheck) -> np.ndarray:
+    """(R,) the ranking of candidates when none is safe: no contact, then on the road, then larger capped
+    TTC, then larger gap (the largest wins)."""
+    ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), space.ttc_cap_s)
+    gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9)
+    out: np.ndarray = -(1e6 * check.collision + 1e3 * check.off_road) + ttc + 0.01 * gap
+    return out
+
+
+def staged_search(space: SearchSpace, batch: ScenarioBatch, context: PlanningContext,
+                  proposals: Proposals) -> PlanBatch:
+    """Each scenario's plan from its candidates (module docstring): stage by stage in ``search_order``, the
+    scenarios without a safe candidate yet roll out and check the stage's candidates; the first safe one
+    is taken, and where none is safe the best ``fallback_scores`` (ties: the first in grid order)."""
+    b, grid = len(batch), space.grid()
+    pred = context.neighbours
+    scene = SocialForceScene.from_batch(batch, pred)  # built once; each stage takes its candidate rows
+    order = search_order(space)
+    bounds = np.cumsum((0, *SEARCH_STAGES))
+    stages = [order[lo:hi] for lo, hi in itertools.pairwise(bounds)] + [order[bounds[-1]:]]
+    xy = np.full((b, N_FUTURE, 2), np.nan)
+    vxy = np.full((b, N_FUTURE, 2), np.nan)
+    goals = np.full((b, 2), np.nan)
+    chosen = np.full(b, -1, dtype=np.int64)
+    found = np.zeros(b, dtype=bool)
+    best_score = np.full(b, -np.inf)
+    tried = np.zeros(b, dtype=np.int64)
+    pending = np.arange(b)
+    for stage in stages:
+        if pending.size == 0 or stage.size == 0:
+            break
+        p, s = len(pending), len(stage)
+        rows, cand = np.repeat(pending, s), np.tile(stage, p)
+        params, cand_goals = candidate_rows(space, batch, context.goals_xy_m, proposals, rows, cand)
+        roll = rollout_social_force_scene(scene.take(rows), params, cand_goals)
+        check = check_plans(batch, roll.xy_m, roll.vxy_mps, pred, rows=rows)
+        tried[pending] += s
+        safe = check.safe(space.ttc_threshold_s, space.gap_threshold_m).reshape(p, s)
+        # where nothing is safe yet: the stage's best fallback (NaN ranks first, as argmax takes it),
+        # ties to the lowest grid index; it replaces the best so far if better, or equal and earlier in the grid
+        score = np.nan_to_num(fallback_scores(space, check), nan=np.inf).reshape(p, s)
+        top = score.max(axis=1)
+        pick = np.where(score == top[:, None], stage[None, :], len(grid)).argmin(axis=1)
+        better = (top > best_score[pending]) | ((top == best_score[pending]) & (stage[pick] < chosen[pending]))
+        # a safe candidate ends the search: the first one in the stage (cheapest)
+        has_safe = safe.any(axis=1)
+        pick = np.where(has_safe, safe.argmax(axis=1), pick)
+        take = has_safe | better
+        local = np.flatnonzero(take)
+        src = local * s + pick[local]
+        dst = pending[local]
+        xy[dst], vxy[dst], goals[dst] = roll.xy_m[src], roll.vxy_mps[src], cand_goals[src]
+        chosen[dst] = stage[pick[local]]
+        best_score[dst] = np.where(has_safe[local], np.inf, top[local])
+        found[pending[has_safe]] = True
+        pending = pending[~has_safe]
     info = {
-        "k_scale": k_scale[rows], "lon_factor": lon[rows], "lane_factor": lane[rows],
-        "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
+        "k_scale": grid[chosen, 0], "lon_factor": grid[chosen, 1], "lane_factor": grid[chosen, 2],
+        "found_safe": found, "n_candidates_tried": tried,
     }
-    return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)
+    return PlanBatch(xy_m=xy, vxy_mps=vxy, goals_xy_m=goals, info=info)
