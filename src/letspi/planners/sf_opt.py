@@ -171,7 +171,7 @@ def staged_search(space: SearchSpace, batch: ScenarioBatch, context: PlanningCon
         pick = np.where(score == top[:, None], stage[None, :], len(grid)).argmin(axis=1)
         better = (top > best_score[pending]) | ((top == best_score[pending]) & (stage[pick] < chosen[pending]))
         # a safe candidate ends the search: the first one in the stage (cheapest)
-        has_safe: np.ndarray = safe.any(axis=1)
+        has_safe = np.asarray(safe.any(axis=1), dtype=bool)
         pick = np.where(has_safe, safe.argmax(axis=1), pick)
         take = has_safe | better
         local = np.flatnonzero(take)
