@@ -8,7 +8,7 @@ so any difference, even in the last bit, is a failure.
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +21,13 @@ from letspi.bench.replaced import (
     idm_acceleration_per_call,
     predict_idm_concatenating,
     repeated,
+    sf_check_checking_every_preset,
     sf_opt_all_candidates,
     sf_opt_on_repeated_batch,
 )
 from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.learned.trees import Tree, TreeEnsemble
+from letspi.method.decide import load_risk_model
 from letspi.physics.idm import CAR_IDM, IdmKernel, IdmParams, idm_acceleration
 from letspi.physics.neighbours import predict_idm, predict_neighbours
 from letspi.physics.social_force import SocialForceScene
@@ -116,6 +119,27 @@ def test_sf_opt_search_matches_the_search_on_the_repeated_batch(scenes: Scenario
     assert 0 < int(np.sum(new.info["found_safe"])) < len(scenes)  # both branches of the choice are taken
 
 
+@pytest.mark.parametrize("seed", [4, 13])
+def test_sf_check_plans_as_when_it_checked_every_preset(seed: int) -> None:
+    """``sf-check`` checks every preset only where its rule needs them (the gate consults and the defaults
+    fail a check); plans, choices, reasons and shield columns are those of checking every preset on every
+    scenario, including the shield's replacements where the presets were checked and where they were not."""
+    scenes = crowded_scenes(40, seed=seed)
+    planner = build_planners(["sf-check"], DEFAULT_OPTIONS)[0].planner
+    context = planner.context(scenes)
+    gated = planner.choose(scenes, context)[1]
+    new = planner.plan(scenes)
+    old = sf_check_checking_every_preset(planner, scenes, context)
+    for name in ("xy_m", "vxy_mps", "goals_xy_m"):
+        assert np.array_equal(getattr(new, name), getattr(old, name)), name
+    assert set(new.info) == set(old.info)
+    for key, values in old.info.items():
+        assert np.array_equal(np.asarray(new.info[key]), np.asarray(values)), key
+    replaced = np.asarray(new.info["shielded"]) > 0
+    assert gated.complete.any() and not gated.complete.all()  # some scenarios need every preset, others not
+    assert (replaced & gated.complete).any() and (replaced & ~gated.complete).any()
+
+
 @pytest.mark.parametrize("seed", [4, 7])
 def test_sf_opt_staged_search_matches_the_search_of_every_candidate(seed: int) -> None:
     """The staged search (cheapest candidates first, stop at the first safe one) plans exactly what
@@ -170,3 +194,22 @@ def test_open_loop_in_worker_processes_stores_the_same_rows(tmp_path: Path, scen
         a, b = (f.drop(columns=[c for c in f if c == "inference_s" or c.endswith("cpu_ms")]) for f in (a, b))
         pd.testing.assert_frame_equal(a, b, check_exact=True)
     assert (tmp_path / "two" / "metrics.json").exists() and (tmp_path / "two" / "run.json").exists()
+
+
+def test_tree_ensemble_walks_all_trees_together_to_the_same_sum() -> None:
+    """The risk gate's trees walked together (packed, padded to the largest) sum exactly what walking each
+    tree (``Tree.predict``) summed, NaN inputs (the missing-value branch) included."""
+    shipped, _ = load_risk_model()
+    assert isinstance(shipped, TreeEnsemble)
+    stump = Tree(feature=np.array([2, -1, -1]), threshold=np.array([0.5, 0.0, 0.0]),
+                 missing_left=np.array([False, False, False]), left=np.array([1, -1, -1]),
+                 right=np.array([2, -1, -1]), value=np.array([0.0, -0.25, 0.75]))
+    model = replace(shipped, trees=(*shipped.trees[:40], stump, *shipped.trees[40:]))  # trees of two sizes: padded
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, len(model.feature_names))) * 3.0
+    x[rng.random(x.shape) < 0.15] = np.nan
+    per_tree = np.full(len(x), model.baseline)
+    for tree in model.trees:
+        per_tree += tree.predict(x)
+    assert np.array_equal(model.raw(x), per_tree)
+    assert len(np.unique(per_tree)) > 100  # the rows reach many different leaves

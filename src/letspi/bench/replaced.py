@@ -11,7 +11,9 @@ results). Each computes exactly what letspi computed before; none is used to pla
   candidate, checked by ``check_inputs_mirrored``;
 * ``sf_opt_all_candidates``: ``sf-opt``'s search before it was staged: all C candidates of every
   scenario rolled out and checked at once, then ``choose_candidates`` (its ``n_safe_candidates`` info
-  counts the safe ones; the staged search reports ``n_candidates_tried`` instead).
+  counts the safe ones; the staged search reports ``n_candidates_tried`` instead);
+* ``sf_check_checking_every_preset``: ``sf-check``'s plans when every preset was checked on every
+  scenario (the rule needs them only where the gate consults and the defaults fail a check).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
+from letspi.method.phases import decision_reason
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs
@@ -29,9 +32,13 @@ from letspi.metrics.ttc import ttc_1d
 from letspi.physics.goals import NEUTRAL_LON_FACTOR
 from letspi.physics.idm import GAP_FLOOR_FRACTION, IDM_MIN_ACCEL_MPS2, MIN_DESIRED_SPEED_MPS, IdmParams
 from letspi.physics.neighbours import idm_prediction_of, idm_start
+from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force, rollout_social_force_scene
 from letspi.physics.types import NeighbourPrediction, RolloutResult
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals
+from letspi.planners.decision import decision_info
+from letspi.planners.llm import PRESETS_PASS_ALL, PRESETS_PROGRESS
+from letspi.planners.sf_check import DecisionPlanner
 from letspi.planners.sf_opt import SearchSpace, SocialForceSearchPlanner, candidates
 from letspi.safety.plan_check import SafetyCheck, check_plans, min_path_gap_m, predicted_inputs
 from letspi.scenario.types import ScenarioBatch
@@ -137,3 +144,24 @@ def choose_candidates(space: SearchSpace, b: int, roll: RolloutResult, cand_goal
         "found_safe": safe.any(axis=1), "n_safe_candidates": safe.sum(axis=1),
     }
     return PlanBatch(xy_m=roll.xy_m[rows], vxy_mps=roll.vxy_mps[rows], goals_xy_m=cand_goals[rows], info=info)
+
+
+def sf_check_checking_every_preset(planner: DecisionPlanner, batch: ScenarioBatch,
+                                   context: PlanningContext) -> PlanBatch:
+    """``sf-check``'s plan as it was: every preset checked on every scenario, the rule where the gate consults,
+    the shield's preset alternatives from those checks."""
+    decider = planner.decider
+    checks = decider.check(batch, context.goals_xy_m, context.neighbours)
+    risk = decider.risk_scores(batch, checks)
+    consulted = decider.consulted(risk)
+    chosen = np.where(consulted, decider.rule(checks), 0)
+    values = decider.presets.values[chosen]
+    names = [decider.presets.names[k] for k in chosen]
+    reasons = [decision_reason(decider, checks.row(i), names[i], bool(consulted[i]), float(risk[i]))
+               for i in range(len(batch))]
+    params = SocialForceParams.from_matrix(
+        np.concatenate([values[:, :6], np.full((len(batch), 1), planner.params.r_col_m)], axis=1))
+    info = decision_info(names, consulted, risk, np.zeros(len(batch)), reasons)
+    extra = {PRESETS_PASS_ALL: checks.passes_all(), PRESETS_PROGRESS: checks.progress_m}
+    proposals = Proposals(params=params, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info, extra=extra)
+    return planner.simulate(batch, context, proposals)

@@ -98,7 +98,7 @@ def _scenes_that_call_for_a_decision(batch: ScenarioBatch, rows: np.ndarray, n: 
     sf = build_planners(["sf-check"], options.replace(llm_cache=False))[0].planner
     assert isinstance(sf, DecisionPlanner)
     hist = batch.take(rows).history()
-    _, _, risk, _ = sf.choose(hist, sf.context(hist))
+    risk = sf.choose(hist, sf.context(hist))[1].risk
     riskiest = rows[np.argsort(-risk, kind="stable")[: n // 2]]
     others = np.setdiff1d(rows, riskiest)
     return np.sort(np.concatenate([riskiest, rng.choice(others, min(n - len(riskiest), len(others)), replace=False)]))

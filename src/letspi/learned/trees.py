@@ -10,6 +10,7 @@ class. Training happens elsewhere (``letspi.finetune.gate_train``, scikit-learn,
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +61,54 @@ class Tree:
 
 
 @dataclass(frozen=True)
+class _PackedTrees:
+    """T trees as (T, M) arrays padded to the largest (padding: leaves of value 0, never reached), walked
+    together: one array step per depth level for all trees and rows, the same leaves as ``Tree.predict``."""
+
+    feature: np.ndarray
+    threshold: np.ndarray
+    missing_left: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    value: np.ndarray
+
+    @classmethod
+    def of(cls, trees: tuple[Tree, ...]) -> _PackedTrees:
+        m = max((len(t.feature) for t in trees), default=1)
+
+        def pad(name: str, fill: object, dtype: type) -> np.ndarray:
+            out: np.ndarray = np.full((len(trees), m), fill, dtype=dtype)
+            for i, t in enumerate(trees):
+                values = getattr(t, name)
+                out[i, : len(values)] = values
+            return out
+
+        return cls(pad("feature", -1, np.int64), pad("threshold", 0.0, np.float64), pad("missing_left", False, bool),
+                   pad("left", 0, np.int64), pad("right", 0, np.int64), pad("value", 0.0, np.float64))
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(T, B) the leaf value each row of x (B, D) reaches in each tree."""
+        n_trees, m = self.feature.shape
+        b, d = x.shape
+        # flat indices (node of tree t: t m + node; input of row r: r d + feature) into raveled arrays
+        base = (np.arange(n_trees) * m)[:, None]
+        row_base = (np.arange(b) * d)[None, :]
+        feature, threshold, missing_left = self.feature.ravel(), self.threshold.ravel(), self.missing_left.ravel()
+        left, right, flat_x = self.left.ravel(), self.right.ravel(), np.ascontiguousarray(x).ravel()
+        at = np.broadcast_to(base, (n_trees, b)).copy()
+        for _ in range(m):  # at most as many levels as nodes
+            f = feature[at]
+            inner = f >= 0
+            if not inner.any():
+                break
+            v = flat_x[row_base + np.where(inner, f, 0)]
+            go_left = np.where(np.isnan(v), missing_left[at], v <= threshold[at])
+            at = np.where(inner, base + np.where(go_left, left[at], right[at]), at)
+        out: np.ndarray = self.value.ravel()[at]
+        return out
+
+
+@dataclass(frozen=True)
 class TreeEnsemble:
     """A binary classifier: ``sigmoid(baseline + sum of the trees)`` over inputs named ``feature_names``."""
 
@@ -73,9 +122,13 @@ class TreeEnsemble:
         if xs.ndim != 2 or xs.shape[1] != len(self.feature_names):
             raise ValueError(f"expected (B, {len(self.feature_names)}) inputs, got {xs.shape}")
         total = np.full(len(xs), self.baseline)
-        for tree in self.trees:
-            total += tree.predict(xs)
+        for leaf_values in self._packed.predict(xs):  # tree by tree, in order: the sum of Tree.predict's
+            total += leaf_values
         return total
+
+    @functools.cached_property
+    def _packed(self) -> _PackedTrees:
+        return _PackedTrees.of(self.trees)
 
     def score(self, x: np.ndarray) -> np.ndarray:
         """(B,) the probability of the positive class."""

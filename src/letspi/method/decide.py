@@ -87,6 +87,11 @@ class OptionTable:
         except ValueError:
             raise ValueError(f"unknown option {name!r}; options: {', '.join(self.names)}") from None
 
+    def subset(self, indices: Sequence[int]) -> OptionTable:
+        """The options ``indices`` (in that order) as a table of their own."""
+        idx = [int(i) for i in indices]
+        return OptionTable(tuple(self.names[i] for i in idx), np.asarray(self.values, dtype=np.float64)[idx])
+
     def values_of(self, name: str) -> dict[str, float]:
         """The option's eight numbers by field name."""
         return dict(zip(NUMERIC_FIELDS, (float(x) for x in self.values[self.index(name)]), strict=True))
@@ -332,6 +337,44 @@ CUSTOM: Final = "custom"
 
 
 @dataclass(frozen=True)
+class GatedChecks:
+    """The checks the no-model rule needs (``Decider.gated_checks``), B scenarios.
+
+    checks: (B, K) every preset's checks where ``complete`` (B,) is True; elsewhere only the defaults'
+    (option 0), the other presets' entries unknown (not safe, failing every future, NaN plans).
+    risk: (B,) the gate's scores (NaN without a gate); consulted: (B,) whether the gate consults.
+    """
+
+    checks: OptionChecks
+    complete: np.ndarray
+    risk: np.ndarray
+    consulted: np.ndarray
+
+    def rule(self) -> np.ndarray:
+        """(B,) the rule's choice where the gate consults (the defaults elsewhere)."""
+        return np.where(self.consulted, rule_choice(self.checks.predicted_safe, self.checks.adverse_failed,
+                                                    self.checks.progress_m), 0)
+
+
+def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
+                full: OptionChecks | None) -> OptionChecks:
+    """``partial`` (B, 1 option: the defaults) widened to the K options ``names``, with ``full``'s checks (of
+    the scenarios ``rows``, None if none) in those rows; the other options of the other rows unknown
+    (``GatedChecks``)."""
+    b, k = partial.predicted_safe.shape[0], len(names)
+    out: dict[str, np.ndarray] = {}
+    for name, fill in (("predicted_safe", False), ("adverse_failed", True), ("progress_m", np.nan),
+                       ("min_ttc_s", np.nan), ("xy_m", np.nan), ("vxy_mps", np.nan), ("goals_xy_m", np.nan)):
+        part = getattr(partial, name)
+        arr = np.full((b, k, *part.shape[2:]), fill, dtype=part.dtype)
+        arr[:, :1] = part
+        if full is not None:
+            arr[rows] = getattr(full, name)
+        out[name] = arr
+    return OptionChecks(names=names, adverse_names=partial.adverse_names, **out)
+
+
+@dataclass(frozen=True)
 class Decider:
     """The decision step as the phases use it: the presets, their checks, the risk gate.
 
@@ -357,6 +400,23 @@ class Decider:
         """Every preset planned and checked on the B scenarios ``history``."""
         return check_options(history, base_goals_xy_m, prediction, self.presets, self.r_col_m, self.thresholds,
                              self.adverse_settings)
+
+    def gated_checks(self, history: ScenarioBatch, base_goals_xy_m: np.ndarray,
+                     prediction: NeighbourPrediction) -> GatedChecks:
+        """What the rule needs, checked lazily: the defaults on every scenario (the gate's inputs), every
+        preset only where the gate consults and the defaults fail a check (elsewhere the rule keeps the
+        defaults whatever the other presets do). The same choices as ``rule`` over ``check``, a fraction of
+        the work where the defaults usually pass (tests/test_perf_equivalence.py)."""
+        defaults = check_options(history, base_goals_xy_m, prediction, self.presets.subset([0]), self.r_col_m,
+                                 self.thresholds, self.adverse_settings)
+        risk = self.risk_scores(history, defaults)
+        consulted = self.consulted(risk)
+        rows = np.flatnonzero(consulted & ~defaults.passes_all()[:, 0])
+        full = self.check(history.take(rows), np.asarray(base_goals_xy_m)[rows],
+                          NeighbourPrediction(*(np.asarray(a)[rows] for a in prediction))) if rows.size else None
+        complete = np.zeros(len(history), dtype=bool)
+        complete[rows] = True
+        return GatedChecks(_merge_rows(defaults, self.presets.names, rows, full), complete, risk, consulted)
 
     def risk_scores(self, history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
         """(B,) the gate's scores; NaN without a gate."""

@@ -52,6 +52,7 @@ from letspi.method.reflection import (
     Proposal,
     ReflectionResult,
     SafetyReport,
+    SimulatedPlan,
     safety_report,
     simulate_proposal,
 )
@@ -454,8 +455,11 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
     With a ``decider`` the plans are also checked against the adverse futures (info ``adverse_failed``,
     unless the proposals carry it) and a plan the shield replaces is replaced first by the presets that
     pass every check, the most progress first (``shield_source`` ``PRESET_SOURCE``)."""
-    sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
-                            context.goals_xy_m, context.neighbours)
+    if PROPOSED_XY in proposals.extra:  # rolled out by the planner already
+        sim = SimulatedPlan(*(np.asarray(proposals.extra[k]) for k in (PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS)))
+    else:
+        sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
+                                context.goals_xy_m, context.neighbours)
     info = dict(proposals.info)
     if decider is not None and "adverse_failed" not in info:
         info["adverse_failed"] = adverse_failed_names(batch, context, sim.xy_m, sim.vxy_mps, decider.adverse)
@@ -476,19 +480,30 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
 
 
 #: ``Proposals.extra`` keys of a planner that checked every preset already (``sf-check``): (B, K) whether
-#: each preset passes every check, and its progress [m]; the shield then does not check them again
-PRESETS_PASS_ALL, PRESETS_PROGRESS = "presets_pass_all", "presets_progress_m"
+#: each preset passes every check, and its progress [m], valid where ``PRESETS_CHECKED`` (B,) is True (all
+#: scenarios without it); the shield then does not check them again
+PRESETS_PASS_ALL, PRESETS_PROGRESS, PRESETS_CHECKED = "presets_pass_all", "presets_progress_m", "presets_checked"
+
+#: ``Proposals.extra`` keys of a planner that rolled out its proposals already (``sf-check``: its checks did):
+#: (B, F, 2) positions and velocities, (B, 2) adjusted goals; ``simulate_and_shield`` takes them as they are
+PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS = "proposed_xy_m", "proposed_vxy_mps", "proposed_goals_xy_m"
 
 
 def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider: Decider,
                          rows: list[int], extra: Mapping[str, np.ndarray]) -> dict[int, list[Alternative]]:
     """Per scenario of ``rows``, the presets that pass every check, the most progress first (from the
     checks in ``extra`` where the planner made them, else checked here)."""
+    n_presets = len(decider.presets)
+    passes, progress = np.zeros((len(rows), n_presets), dtype=bool), np.full((len(rows), n_presets), np.nan)
+    known = np.zeros(len(rows), dtype=bool)
     if PRESETS_PASS_ALL in extra:
-        passes, progress = np.asarray(extra[PRESETS_PASS_ALL])[rows], np.asarray(extra[PRESETS_PROGRESS])[rows]
-    else:
-        checks = decider.check(batch.take(rows), context.goals_xy_m[rows], context.take(rows).neighbours)
-        passes, progress = checks.passes_all(), checks.progress_m
+        known = np.asarray(extra.get(PRESETS_CHECKED, np.ones(len(batch), dtype=bool)), dtype=bool)[rows]
+        passes[known] = np.asarray(extra[PRESETS_PASS_ALL])[rows][known]
+        progress[known] = np.asarray(extra[PRESETS_PROGRESS])[rows][known]
+    todo = np.asarray(rows, dtype=np.int64)[~known]
+    if todo.size:
+        checks = decider.check(batch.take(todo), context.goals_xy_m[todo], context.take(todo).neighbours)
+        passes[~known], progress[~known] = checks.passes_all(), checks.progress_m
     table = decider.presets
     out: dict[int, list[Alternative]] = {}
     for j, i in enumerate(rows):

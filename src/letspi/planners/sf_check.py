@@ -14,13 +14,22 @@ from typing import Any, Literal
 
 import numpy as np
 
-from letspi.method.decide import Decider, OptionChecks
+from letspi.method.decide import Decider, GatedChecks
 from letspi.method.phases import decision_reason
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import DECISION_OPTIONS, SOCIAL_FORCE_OPTIONS, DecisionConfig, SocialForcePlannerFields
 from letspi.planners.decision import decision_info
-from letspi.planners.llm import PRESETS_PASS_ALL, PRESETS_PROGRESS, SHIELD, simulate_and_shield
+from letspi.planners.llm import (
+    PRESETS_CHECKED,
+    PRESETS_PASS_ALL,
+    PRESETS_PROGRESS,
+    PROPOSED_GOALS,
+    PROPOSED_VXY,
+    PROPOSED_XY,
+    SHIELD,
+    simulate_and_shield,
+)
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
@@ -43,18 +52,17 @@ class DecisionPlanner(PredictingPlanner):
     decider: Decider
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
-    batch_size: int = 64
+    batch_size: int = 256
 
-    def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                                  OptionChecks]:
-        """(preset index, consulted, risk score) per scenario and the checks they came from."""
-        checks = self.decider.check(batch, context.goals_xy_m, context.neighbours)
-        risk = self.decider.risk_scores(batch, checks)
-        consulted = self.decider.consulted(risk)
-        return np.where(consulted, self.decider.rule(checks), 0), consulted, risk, checks
+    def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, GatedChecks]:
+        """(B,) the preset index of each scenario and the checks it came from (every preset's only where
+        the rule needs them: ``Decider.gated_checks``)."""
+        gated = self.decider.gated_checks(batch, context.goals_xy_m, context.neighbours)
+        return gated.rule(), gated
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
-        chosen, consulted, risk, checks = self.choose(batch, context)
+        chosen, gated = self.choose(batch, context)
+        checks, consulted, risk = gated.checks, gated.consulted, gated.risk
         values = self.decider.presets.values[chosen]
         names = [self.decider.presets.names[k] for k in chosen]
         reasons = [decision_reason(self.decider, checks.row(i), names[i], bool(consulted[i]), float(risk[i]))
@@ -62,8 +70,16 @@ class DecisionPlanner(PredictingPlanner):
         from_values = SocialForceParams.from_matrix(
             np.concatenate([values[:, :6], np.full((len(batch), 1), self.params.r_col_m)], axis=1))
         info = decision_info(names, consulted, risk, np.zeros(len(batch)), reasons)
-        # the shield's preset alternatives come from these checks (the same inputs: not checked twice)
-        extra = {PRESETS_PASS_ALL: checks.passes_all(), PRESETS_PROGRESS: checks.progress_m}
+        # the checks planned and checked the chosen preset already: its plan and the adverse futures it fails
+        rows = np.arange(len(batch))
+        failed = checks.adverse_failed[rows, chosen]
+        info["adverse_failed"] = np.asarray([",".join(checks.adverse_names[a] for a in np.flatnonzero(row))
+                                             for row in failed], dtype=object)
+        # the shield's preset alternatives come from these checks where every preset was checked (the same
+        # inputs: not checked twice); it checks the other scenarios itself if their plan needs replacing
+        extra = {PRESETS_PASS_ALL: checks.passes_all(), PRESETS_PROGRESS: checks.progress_m,
+                 PRESETS_CHECKED: gated.complete, PROPOSED_XY: checks.xy_m[rows, chosen],
+                 PROPOSED_VXY: checks.vxy_mps[rows, chosen], PROPOSED_GOALS: checks.goals_xy_m[rows, chosen]}
         return Proposals(params=from_values, lon_factor=values[:, 6], lane_factor=values[:, 7], info=info,
                          extra=extra)
 
