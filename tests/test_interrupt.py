@@ -26,7 +26,7 @@ from letspi.bench.interrupt import Stopped, letspi_command, run_and_stop
 from letspi.bench.llm_concurrency import _child_env, real_server_available, start_llama_server
 from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.evaluation.harness import load_planner_results
-from letspi.execution.interrupt import Tally, stop_line
+from letspi.execution.interrupt import Tally, WorkerPool, stop_line
 from letspi.method.memory import MemoryBank
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import save_scenarios
@@ -166,6 +166,21 @@ def test_a_worker_pool_is_terminated_at_once_and_its_items_clean_up(tmp_path: Pa
     assert len(stopped.children) >= 2 and stopped.left == ()
     work_dirs = [Path(d.read_text()) for d in tmp_path.glob("*.dir")]
     assert len(work_dirs) == 2 and not any(d.exists() for d in work_dirs)  # the items' finally ran
+
+
+def _blas_threads() -> list[int]:
+    import numpy as np  # BLAS loaded
+    from threadpoolctl import threadpool_info
+
+    np.ones((64, 64)) @ np.ones((64, 64))
+    return [int(d["num_threads"]) for d in threadpool_info() if d["user_api"] == "blas"]
+
+
+def test_worker_processes_run_blas_on_one_thread() -> None:
+    """Workers share the cores: their BLAS runs one thread (``enter_worker``); this process keeps its own."""
+    with WorkerPool(1) as pool:
+        threads = pool.submit(_blas_threads).result()
+    assert threads and all(n == 1 for n in threads)
 
 
 def test_the_stop_line_says_what_is_kept() -> None:

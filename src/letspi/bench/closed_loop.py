@@ -102,7 +102,9 @@ def _replay(spec: PlannerSpec, batch: ScenarioBatch, config: ClosedLoopConfig, s
             out: dict[str, float | str]) -> None:
     """The log replay in this process on the same scenarios (into ``out``), against SUMO's ``sumo`` run."""
     n = len(batch)
+    # the replay in its own chunks (its default, larger than SUMO's, unless the run set one)
     replay_cfg = replace(config, simulator="replay").for_planner(spec.name)
+    out["replay_chunk_size"] = float(replay_cfg.scenarios_per_chunk)
     worker = ChunkWorker(spec, replay_cfg)
     try:
         worker.run(make_tasks(batch.take(np.arange(min(4, n))), replay_cfg)[0])  # warm-up: the planner
@@ -129,7 +131,7 @@ def bench_closed_loop(
     mode: str = "closed-loop-log",
     replan_s: float = 1.0,
     workers: int = 2,
-    chunk_size: int = 32,
+    chunk_size: int | None = None,
     n_reload: int = 32,
     minutes: float = 3.0,
     seed: int = 0,
@@ -144,7 +146,7 @@ def bench_closed_loop(
     config = ClosedLoopConfig(mode=mode, replan_s=replan_s, chunk_size=chunk_size, simulator="sumo")  # type: ignore[arg-type]
     out: dict[str, float | str] = {
         "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),
-        "chunk_size": float(chunk_size), "cpu_count": float(os.cpu_count() or 1),
+        "chunk_size": float(config.scenarios_per_chunk), "cpu_count": float(os.cpu_count() or 1),
         "load_avg_1min_start": os.getloadavg()[0],
     }  # fmt: skip
 

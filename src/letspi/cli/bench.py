@@ -263,8 +263,9 @@ def closed_loop_cmd(
         EvaluationMode.LOG),
     replan_s: Annotated[float, typer.Option("--replan-s", help="Replanning period [s].")] = 1.0,
     workers: Annotated[int, typer.Option(help="Worker processes compared with 1 worker (>= 2).")] = 2,
-    chunk_size: Annotated[int, typer.Option(
-        help="Scenarios simulated together in one SUMO network.")] = ClosedLoopConfig.chunk_size,
+    chunk_size: Annotated[int | None, typer.Option(
+        help="Scenarios simulated together (one SUMO network or replay; default 32 with SUMO, 256 replayed).")] = (
+        ClosedLoopConfig.chunk_size),
     minutes: Annotated[float, typer.Option(help="Simulated minutes when generating traffic.")] = 3.0,
     seed: int = 0,
     llm_period_s: Annotated[float, typer.Option(

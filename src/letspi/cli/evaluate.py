@@ -75,9 +75,10 @@ RayOpt = Annotated[bool, typer.Option(
                   "unless --ray-address is given.")]
 RayAddressOpt = Annotated[str | None, typer.Option(
     help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.")]
-ChunkSizeOpt = Annotated[int, typer.Option(
-    help="Closed loop: scenarios simulated together in one SUMO network and written per part (not in any key: "
-         "results agree to float rounding; smaller chunks lose less when a run is killed).")]
+ChunkSizeOpt = Annotated[int | None, typer.Option(
+    help="Closed loop: scenarios simulated together (in one SUMO network or replay) and written per part (not in "
+         "any key: results agree to float rounding; smaller chunks lose less when a run is killed). Default: 32 "
+         "with SUMO, 256 for the replay.")]
 SumoGuiOpt = Annotated[bool, typer.Option(
     "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
 SimulatorOpt = Annotated[str, typer.Option(
@@ -105,7 +106,7 @@ ReferenceOpt = Annotated[str | None, typer.Option(
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
                                                 "configuration or planner configuration is refused).")]
 def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int = ClosedLoopConfig.chunk_size,
+                         ray: str | None, sumo_gui: bool, chunk_size: int | None = ClosedLoopConfig.chunk_size,
                          concurrency: int | None = None,
                          handover_lanes: int | None = None, llm_period_s: float | None = None,
                          llm_latency_s: float | None = None, simulator: str = "auto") -> ClosedLoopConfig | None:

@@ -45,6 +45,8 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, Final, NoReturn, TypeVar
 
+from threadpoolctl import threadpool_limits
+
 T = TypeVar("T")
 
 STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
@@ -158,7 +160,15 @@ def start_worker(process: BaseProcess) -> None:
 def enter_worker() -> None:
     """First call in a worker process: ignore Ctrl-C (the parent decides when the worker stops) and
     drop one that arrived during start-up (``start_worker``); SIGTERM, the parent's stop, raises
-    ``SystemExit`` so the worker's own cleanup runs (closing SUMO, removing its temporary files)."""
+    ``SystemExit`` so the worker's own cleanup runs (closing SUMO, removing its temporary files).
+
+    BLAS runs on one thread here: the workers already share the cores, and the planners' matrix products
+    are small (measured: ``sf-check`` in closed loop 230 -> 189 ms per window with one OpenBLAS thread
+    instead of two, same plans). llama.cpp's own threads are not BLAS's and keep their setting."""
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # OpenBLAS builds loaded later (SciPy's) read it when they load
+    import numpy  # noqa: F401  (loads its BLAS, so that the limit reaches the copy already loaded)
+
+    threadpool_limits(1, user_api="blas")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards a pending SIGINT
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     if hasattr(signal, "pthread_sigmask"):

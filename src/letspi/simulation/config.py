@@ -31,7 +31,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Literal
+from typing import Final, Literal
 
 from letspi.constants import DT_S, N_FUTURE
 from letspi.simulation.schedule import DualRateConfig
@@ -137,6 +137,12 @@ class HandoverConfig:
             raise ValueError(f"handover behind_m must be >= 0, got {self.behind_m}")
 
 
+#: scenarios per chunk: SUMO (one road each in one network) and the log replay. The replay's planners are
+#: batched NumPy, faster per scenario in larger batches: ``letspi bench closed-loop`` measures it
+DEFAULT_CHUNK_SUMO: Final = 32
+DEFAULT_CHUNK_REPLAY: Final = 256
+
+
 @dataclass(frozen=True)
 class ClosedLoopConfig:
     """How a closed-loop run simulates (the one closed-loop settings type; module docstring).
@@ -149,10 +155,12 @@ class ClosedLoopConfig:
             planner); ``for_planner(label)`` is the configuration one planner runs under.
         workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
         ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
-        chunk_size: scenarios simulated together in one SUMO network (one road per scenario,
-            stepped in lockstep, replanned in one batched planner call); also the unit of
-            work of the worker processes and of resumable output (not part of any key: measured,
-            chunk sizes 3 and 32 give the same plans to 1e-12 m).
+        chunk_size: scenarios simulated together in one SUMO network or replay (stepped in
+            lockstep, replanned in one batched planner call); also the unit of work of the worker
+            processes and of resumable output (not part of any key: measured, chunk sizes 3, 32 and
+            256 give the same plans to 1e-12 m). None (default): ``DEFAULT_CHUNK_SUMO`` with SUMO
+            (one road per scenario in one network), ``DEFAULT_CHUNK_REPLAY`` for the replay, whose
+            planners run faster in larger batches (``scenarios_per_chunk``).
         lateral_resolution_m: SUMO's sublane resolution [m]. The sublane model is needed so that
             SUMO's collision check looks at lateral positions (the exact position, not the grid);
             the resolution only shapes the lane-change model of reactive neighbours.
@@ -179,7 +187,7 @@ class ClosedLoopConfig:
     planner_replan_s: Mapping[str, float] = field(default_factory=dict)
     workers: int = 0
     ray_address: str | None = None
-    chunk_size: int = 32
+    chunk_size: int | None = None
     lateral_resolution_m: float = 1.0
     road_behind_m: float = 1000.0
     road_ahead_m: float = 1500.0
@@ -209,7 +217,7 @@ class ClosedLoopConfig:
             raise ValueError(f"--workers must be >= 0, got {self.workers}")
         if self.sumo_gui:
             object.__setattr__(self, "sumo_backend", "traci")
-        if self.chunk_size < 1:
+        if self.chunk_size is not None and self.chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {self.chunk_size}")
         if self.lateral_resolution_m <= 0:
             raise ValueError(
@@ -240,6 +248,13 @@ class ClosedLoopConfig:
         """The configuration the planner labelled ``label`` runs under: its own period as ``replan_s``."""
         own = self.replan_s_of(label)
         return self if own == self.replan_s else replace(self, replan_s=own)
+
+    @property
+    def scenarios_per_chunk(self) -> int:
+        """``chunk_size``, or the simulator's default."""
+        if self.chunk_size is not None:
+            return self.chunk_size
+        return DEFAULT_CHUNK_SUMO if self.uses_sumo else DEFAULT_CHUNK_REPLAY
 
     @property
     def uses_sumo(self) -> bool:

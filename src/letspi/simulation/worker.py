@@ -133,5 +133,5 @@ def make_tasks(
     return [
         ChunkTask(task_id=i, indices=rows, batch=batch.take(rows),
                   scripted_nbr=None if scripted_nbr is None else np.asarray(scripted_nbr, dtype=bool)[rows])
-        for i, rows in enumerate(plan_chunks(batch, config.chunk_size, indices))
+        for i, rows in enumerate(plan_chunks(batch, config.scenarios_per_chunk, indices))
     ]
