@@ -105,6 +105,26 @@ def test_which_simulator_runs_and_what_is_refused() -> None:
         ClosedLoopConfig(LOG, simulator="carla")  # type: ignore[arg-type]
 
 
+def test_chunk_sizes_by_simulator_and_planner(traffic: ScenarioBatch) -> None:
+    """The replay's planners get 256 scenarios per chunk, SUMO and the LLM planners 32, unless set; the plans
+    do not depend on it (float rounding)."""
+    assert ClosedLoopConfig(LOG).scenarios_per_chunk() == 256  # type: ignore[arg-type]
+    assert ClosedLoopConfig(LOG).scenarios_per_chunk(dual_rate=True) == 32  # type: ignore[arg-type]
+    assert ClosedLoopConfig(LOG, simulator="sumo").scenarios_per_chunk() == 32  # type: ignore[arg-type]
+    assert ClosedLoopConfig(REACTIVE).scenarios_per_chunk() == 32  # type: ignore[arg-type]
+    assert ClosedLoopConfig(LOG, chunk_size=5).scenarios_per_chunk(dual_rate=True) == 5  # type: ignore[arg-type]
+    many = traffic.take(np.tile(np.arange(len(traffic)), 8))  # 320 scenarios
+    for dual_rate, most in ((False, 256), (True, 32)):
+        sizes = [len(t.indices) for t in make_tasks(many, ClosedLoopConfig(LOG), dual_rate=dual_rate)]  # type: ignore[arg-type]
+        assert sum(sizes) == len(many) and max(sizes) == most
+    default = ClosedLoopConfig(LOG, replan_s=0.2)  # type: ignore[arg-type]
+    small = replace(default, chunk_size=3)
+    a, b = (ClosedLoopChunk.concat(list(run_closed_loop(PlannerSpec.of("sf"), traffic, c))) for c in (default, small))
+    a, b = a.take(np.argsort(a.indices)), b.take(np.argsort(b.indices))
+    np.testing.assert_allclose(a.ego_xy_m, b.ego_xy_m, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(a.plan_xy_m, b.plan_xy_m, atol=1e-9, rtol=0)
+
+
 def test_the_replay_has_a_key_of_its_own_and_sumo_keeps_its_key() -> None:
     replay = mode_settings(ClosedLoopConfig(LOG))  # type: ignore[arg-type]
     sumo = mode_settings(ClosedLoopConfig(LOG, simulator="sumo"))  # type: ignore[arg-type]

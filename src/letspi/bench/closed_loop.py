@@ -34,6 +34,7 @@ from letspi.scenario.extract import extract_scenarios
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
+from letspi.simulation.spec import runs_dual_rate
 from letspi.simulation.worker import ChunkWorker, make_tasks
 from letspi.trafficgen.generate import generate_highd
 
@@ -104,12 +105,13 @@ def _replay(spec: PlannerSpec, batch: ScenarioBatch, config: ClosedLoopConfig, s
     n = len(batch)
     # the replay in its own chunks (its default, larger than SUMO's, unless the run set one)
     replay_cfg = replace(config, simulator="replay").for_planner(spec.name)
-    out["replay_chunk_size"] = float(replay_cfg.scenarios_per_chunk)
     worker = ChunkWorker(spec, replay_cfg)
+    out["replay_chunk_size"] = float(replay_cfg.scenarios_per_chunk(worker.dual_rate))
     try:
         worker.run(make_tasks(batch.take(np.arange(min(4, n))), replay_cfg)[0])  # warm-up: the planner
         t0, c0 = time.perf_counter(), time.process_time()
-        replay = ClosedLoopChunk.concat([worker.run(task) for task in make_tasks(batch, replay_cfg)])
+        replay = ClosedLoopChunk.concat([worker.run(task) for task in make_tasks(batch, replay_cfg,
+                                                                                  dual_rate=worker.dual_rate)])
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         worker.close()
@@ -146,7 +148,7 @@ def bench_closed_loop(
     config = ClosedLoopConfig(mode=mode, replan_s=replan_s, chunk_size=chunk_size, simulator="sumo")  # type: ignore[arg-type]
     out: dict[str, float | str] = {
         "planner": planner, "mode": mode, "replan_s": replan_s, "n_scenarios": float(n),
-        "chunk_size": float(config.scenarios_per_chunk), "cpu_count": float(os.cpu_count() or 1),
+        "chunk_size": float(config.scenarios_per_chunk(runs_dual_rate(spec))), "cpu_count": float(os.cpu_count() or 1),
         "load_avg_1min_start": os.getloadavg()[0],
     }  # fmt: skip
 

@@ -91,7 +91,8 @@ def physics_cmd(
 ) -> None:
     """SF rollout and metrics throughput, each beside a plain per-scenario Python loop (ratio); CPU ms per
     scenario of one batched frenet plan; the kernels issue 27 made faster (IDM prediction, sf-opt's
-    candidate check, its search and its staged search) beside the algorithms they replaced (ratio, identical results)."""
+    candidate check, its search and its staged search) beside the algorithms they replaced (ratio, identical
+    results)."""
     # the bench functions print progress lines of their own; keep stdout clean for --json
     with contextlib.redirect_stdout(io.StringIO()):
         rollout = bench_rollout(n_scenarios=n, seed=seed, n_reference=n_reference) if n > 0 else {}

@@ -137,8 +137,8 @@ class HandoverConfig:
             raise ValueError(f"handover behind_m must be >= 0, got {self.behind_m}")
 
 
-#: scenarios per chunk: SUMO (one road each in one network) and the log replay. The replay's planners are
-#: batched NumPy, faster per scenario in larger batches: ``letspi bench closed-loop`` measures it
+#: scenarios per chunk: SUMO (one road each in one network; and LLM planners anywhere) and the log replay,
+#: whose planners are batched NumPy, faster per scenario in larger batches (``letspi bench closed-loop``)
 DEFAULT_CHUNK_SUMO: Final = 32
 DEFAULT_CHUNK_REPLAY: Final = 256
 
@@ -158,9 +158,10 @@ class ClosedLoopConfig:
         chunk_size: scenarios simulated together in one SUMO network or replay (stepped in
             lockstep, replanned in one batched planner call); also the unit of work of the worker
             processes and of resumable output (not part of any key: measured, chunk sizes 3, 32 and
-            256 give the same plans to 1e-12 m). None (default): ``DEFAULT_CHUNK_SUMO`` with SUMO
-            (one road per scenario in one network), ``DEFAULT_CHUNK_REPLAY`` for the replay, whose
-            planners run faster in larger batches (``scenarios_per_chunk``).
+            256 give the same plans to 1e-12 m). None (default): ``DEFAULT_CHUNK_REPLAY`` for the
+            replay, whose planners run faster in larger batches; ``DEFAULT_CHUNK_SUMO`` with SUMO
+            (one road per scenario in one network) and for the dual-rate LLM planners, whose
+            measured answer latency queues a chunk's scenarios on the model (``scenarios_per_chunk``).
         lateral_resolution_m: SUMO's sublane resolution [m]. The sublane model is needed so that
             SUMO's collision check looks at lateral positions (the exact position, not the grid);
             the resolution only shapes the lane-change model of reactive neighbours.
@@ -249,12 +250,11 @@ class ClosedLoopConfig:
         own = self.replan_s_of(label)
         return self if own == self.replan_s else replace(self, replan_s=own)
 
-    @property
-    def scenarios_per_chunk(self) -> int:
-        """``chunk_size``, or the simulator's default."""
+    def scenarios_per_chunk(self, dual_rate: bool = False) -> int:
+        """``chunk_size``, or the default of the simulator and the planner (``dual_rate``: an LLM planner)."""
         if self.chunk_size is not None:
             return self.chunk_size
-        return DEFAULT_CHUNK_SUMO if self.uses_sumo else DEFAULT_CHUNK_REPLAY
+        return DEFAULT_CHUNK_SUMO if self.uses_sumo or dual_rate else DEFAULT_CHUNK_REPLAY
 
     @property
     def uses_sumo(self) -> bool:

@@ -156,7 +156,7 @@ class _Lockstep:
         widths = set(layout_keys(batch.marking_y_m))
         if len(widths) != 1:
             raise ValueError(f"simulate_group needs one lane layout, got {len(widths)}")
-        net = session.open(widths.pop(), max(len(batch), config.scenarios_per_chunk))
+        net = session.open(widths.pop(), max(len(batch), config.scenarios_per_chunk()))
         self.api: Any = session.api
         self.tc = self.api.constants
         self.config = config

@@ -22,7 +22,7 @@ from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.pool import run_in_processes
 from letspi.simulation.ray_backend import run_on_ray
 from letspi.simulation.result import ClosedLoopChunk
-from letspi.simulation.spec import PlannerSpecLike, spec_name
+from letspi.simulation.spec import PlannerSpecLike, runs_dual_rate, spec_name
 from letspi.simulation.worker import ChunkWorker, make_tasks
 
 
@@ -51,7 +51,7 @@ def run_closed_loop(
     behaviour in ``closed-loop-hybrid`` (``letspi.scenario.scripted.scripted_neighbours``); None = none.
     """
     cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
-    tasks = make_tasks(batch, cfg, indices, scripted_nbr)
+    tasks = make_tasks(batch, cfg, indices, scripted_nbr, dual_rate=runs_dual_rate(planner_spec))
     if not tasks:
         return
     if cfg.ray_address is not None:

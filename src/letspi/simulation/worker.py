@@ -124,14 +124,15 @@ class ChunkWorker:
 
 def make_tasks(
     batch: ScenarioBatch, config: ClosedLoopConfig, indices: Sequence[int] | np.ndarray | None = None,
-    scripted_nbr: np.ndarray | None = None,
+    scripted_nbr: np.ndarray | None = None, dual_rate: bool = False,
 ) -> list[ChunkTask]:
-    """The run's chunks; ``scripted_nbr`` (B, N) bool rows follow their scenarios."""
+    """The run's chunks (``config.scenarios_per_chunk(dual_rate)`` scenarios at most: ``dual_rate`` for an LLM
+    planner); ``scripted_nbr`` (B, N) bool rows follow their scenarios."""
     if scripted_nbr is not None and np.shape(scripted_nbr) != (len(batch), batch.n_neighbours):
         raise ValueError(f"scripted_nbr must be (B, N) = {(len(batch), batch.n_neighbours)}, "
                          f"got {np.shape(scripted_nbr)}")
     return [
         ChunkTask(task_id=i, indices=rows, batch=batch.take(rows),
                   scripted_nbr=None if scripted_nbr is None else np.asarray(scripted_nbr, dtype=bool)[rows])
-        for i, rows in enumerate(plan_chunks(batch, config.scenarios_per_chunk, indices))
+        for i, rows in enumerate(plan_chunks(batch, config.scenarios_per_chunk(dual_rate), indices))
     ]
