@@ -158,7 +158,9 @@ class ClosedLoopConfig:
         chunk_size: scenarios simulated together in one SUMO network or replay (stepped in
             lockstep, replanned in one batched planner call); also the unit of work of the worker
             processes and of resumable output (not part of any key: measured, chunk sizes 3, 32 and
-            256 give the same plans to 1e-12 m). None (default): ``DEFAULT_CHUNK_REPLAY`` for the
+            256 give the same plans to 1e-12 m; the learned goal predictor's last bits depend on the
+            batch, and a discrete choice of ``sf-check`` or ``sf-opt`` followed such a bit in about
+            one closed-loop window of 2,000). None (default): ``DEFAULT_CHUNK_REPLAY`` for the
             replay, whose planners run faster in larger batches; ``DEFAULT_CHUNK_SUMO`` with SUMO
             (one road per scenario in one network) and for the dual-rate LLM planners, whose
             measured answer latency queues a chunk's scenarios on the model (``scenarios_per_chunk``).
