@@ -24,7 +24,8 @@ FORMAT = "letspi-trees/1"
 @dataclass(frozen=True)
 class Tree:
     """One tree, (M,) per node: feature (-1 at a leaf), threshold (go left when ``x <= threshold``),
-    missing_left (NaN goes left), left, right (child node indices), value (the leaf's contribution)."""
+    missing_left (NaN goes left), left, right (child node indices), value (the leaf's contribution).
+    ``pack_trees`` stores T trees in one, (T, M) per field."""
 
     feature: np.ndarray
     threshold: np.ndarray
@@ -60,52 +61,43 @@ class Tree:
                    np.asarray(d["right"], dtype=np.int64), np.asarray(d["value"], dtype=np.float64))
 
 
-@dataclass(frozen=True)
-class _PackedTrees:
-    """T trees as (T, M) arrays padded to the largest (padding: leaves of value 0, never reached), walked
-    together: one array step per depth level for all trees and rows, the same leaves as ``Tree.predict``."""
+def pack_trees(trees: tuple[Tree, ...]) -> Tree:
+    """T trees as one ``Tree`` of (T, M) arrays, padded to the largest (padding: leaves of value 0, never
+    reached), for ``predict_packed``."""
+    m = max((len(t.feature) for t in trees), default=1)
 
-    feature: np.ndarray
-    threshold: np.ndarray
-    missing_left: np.ndarray
-    left: np.ndarray
-    right: np.ndarray
-    value: np.ndarray
-
-    @classmethod
-    def of(cls, trees: tuple[Tree, ...]) -> _PackedTrees:
-        m = max((len(t.feature) for t in trees), default=1)
-
-        def pad(name: str, fill: object, dtype: type) -> np.ndarray:
-            out: np.ndarray = np.full((len(trees), m), fill, dtype=dtype)
-            for i, t in enumerate(trees):
-                values = getattr(t, name)
-                out[i, : len(values)] = values
-            return out
-
-        return cls(pad("feature", -1, np.int64), pad("threshold", 0.0, np.float64), pad("missing_left", False, bool),
-                   pad("left", 0, np.int64), pad("right", 0, np.int64), pad("value", 0.0, np.float64))
-
-    def predict(self, x: np.ndarray) -> np.ndarray:
-        """(T, B) the leaf value each row of x (B, D) reaches in each tree."""
-        n_trees, m = self.feature.shape
-        b, d = x.shape
-        # flat indices (node of tree t: t m + node; input of row r: r d + feature) into raveled arrays
-        base = (np.arange(n_trees) * m)[:, None]
-        row_base = (np.arange(b) * d)[None, :]
-        feature, threshold, missing_left = self.feature.ravel(), self.threshold.ravel(), self.missing_left.ravel()
-        left, right, flat_x = self.left.ravel(), self.right.ravel(), np.ascontiguousarray(x).ravel()
-        at = np.broadcast_to(base, (n_trees, b)).copy()
-        for _ in range(m):  # at most as many levels as nodes
-            f = feature[at]
-            inner = f >= 0
-            if not inner.any():
-                break
-            v = flat_x[row_base + np.where(inner, f, 0)]
-            go_left = np.where(np.isnan(v), missing_left[at], v <= threshold[at])
-            at = np.where(inner, base + np.where(go_left, left[at], right[at]), at)
-        out: np.ndarray = self.value.ravel()[at]
+    def pad(name: str, fill: object, dtype: type) -> np.ndarray:
+        out: np.ndarray = np.full((len(trees), m), fill, dtype=dtype)
+        for i, t in enumerate(trees):
+            values = getattr(t, name)
+            out[i, : len(values)] = values
         return out
+
+    return Tree(pad("feature", -1, np.int64), pad("threshold", 0.0, np.float64), pad("missing_left", False, bool),
+                pad("left", 0, np.int64), pad("right", 0, np.int64), pad("value", 0.0, np.float64))
+
+
+def predict_packed(packed: Tree, x: np.ndarray) -> np.ndarray:
+    """(T, B) the leaf value each row of x (B, D) reaches in each tree of ``packed`` (``pack_trees``): all
+    trees walked together, one array step per depth level, the same leaves as ``Tree.predict``."""
+    n_trees, m = packed.feature.shape
+    b, d = x.shape
+    # flat indices (node of tree t: t m + node; input of row r: r d + feature) into raveled arrays
+    base = (np.arange(n_trees) * m)[:, None]
+    row_base = (np.arange(b) * d)[None, :]
+    feature, threshold, missing_left = packed.feature.ravel(), packed.threshold.ravel(), packed.missing_left.ravel()
+    left, right, flat_x = packed.left.ravel(), packed.right.ravel(), np.ascontiguousarray(x).ravel()
+    at = np.broadcast_to(base, (n_trees, b)).copy()
+    for _ in range(m):  # at most as many levels as nodes
+        f = feature[at]
+        inner = f >= 0
+        if not inner.any():
+            break
+        v = flat_x[row_base + np.where(inner, f, 0)]
+        go_left = np.where(np.isnan(v), missing_left[at], v <= threshold[at])
+        at = np.where(inner, base + np.where(go_left, left[at], right[at]), at)
+    out: np.ndarray = packed.value.ravel()[at]
+    return out
 
 
 @dataclass(frozen=True)
@@ -122,13 +114,13 @@ class TreeEnsemble:
         if xs.ndim != 2 or xs.shape[1] != len(self.feature_names):
             raise ValueError(f"expected (B, {len(self.feature_names)}) inputs, got {xs.shape}")
         total = np.full(len(xs), self.baseline)
-        for leaf_values in self._packed.predict(xs):  # tree by tree, in order: the sum of Tree.predict's
+        for leaf_values in predict_packed(self._packed, xs):  # tree by tree, in order: Tree.predict's sum
             total += leaf_values
         return total
 
     @functools.cached_property
-    def _packed(self) -> _PackedTrees:
-        return _PackedTrees.of(self.trees)
+    def _packed(self) -> Tree:
+        return pack_trees(self.trees)
 
     def score(self, x: np.ndarray) -> np.ndarray:
         """(B,) the probability of the positive class."""
