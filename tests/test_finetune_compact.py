@@ -15,6 +15,7 @@ from letspi.finetune.export import (
     gguf_lora_name,
     permute_rotary_rows,
 )
+from letspi.llm.backends.llamacpp_open import open_vocab
 from letspi.llm.compact import (
     compact_reply_text,
     compact_report_text,
@@ -75,15 +76,13 @@ def test_compact_reply_is_the_fast_wire_format_with_few_decimals() -> None:
 
 
 def test_compact_prompt_fits_400_smollm2_tokens() -> None:
-    llama_cpp = pytest.importorskip("llama_cpp")
-    from letspi.llm.backends.llamacpp import without_extra_buffer_types
+    pytest.importorskip("llama_cpp")
 
     try:
         path = locate_model("smollm2-135m")
     except Exception as exc:  # the model package is optional in some environments
         pytest.skip(str(exc))
-    with without_extra_buffer_types(llama_cpp):
-        vocab = llama_cpp.Llama(model_path=str(path), vocab_only=True, verbose=False)
+    vocab = open_vocab(path)
     report = compact_report_text({"min_ttc_s": 0.8, "min_rear_ttc_s": 0.5, "min_path_gap_m": -1.0,
                                   "min_box_gap_m": 0.0, "collision": True}, ["contact", "rear_ttc", "in_path_gap"])
     for msgs in (render_compact_prompt(_busy_desc()), render_compact_prompt(_busy_desc(), rejected=LABEL,

@@ -113,7 +113,7 @@ def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_to
     # example is more likely with the adapter than without (a greedy, schema-constrained answer is too
     # coarse a probe after six steps: on one CI machine it stayed the same)
     from letspi.finetune.train import prompt_text
-    from letspi.llm.backends.llamacpp import open_llama
+    from letspi.llm.backends.llamacpp_open import open_llama
     from letspi.llm.models import packaged_smollm2_path
 
     goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]

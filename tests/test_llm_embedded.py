@@ -104,12 +104,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-_SERVER_BOOT = (
-    "import runpy, llama_cpp; "
-    "from letspi.llm.backends.llamacpp import without_extra_buffer_types; "
-    "_keep = without_extra_buffer_types(llama_cpp); _keep.__enter__(); "  # AMX workaround (see llamacpp.py)
-    "runpy.run_module('llama_cpp.server', run_name='__main__')"
-)
 
 
 @pytest.fixture(scope="module")
@@ -122,8 +116,8 @@ def llama_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     port = _free_port()
     cmd = [
         sys.executable,
-        "-c",
-        _SERVER_BOOT,
+        "-m",
+        "letspi.llm.backends.llamacpp_server",
         "--model",
         str(model),
         "--host",

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from letspi.llm.backends.llamacpp import amx_compiled_in, extra_buffer_types_disabled, without_extra_buffer_types
+from letspi.llm.backends.llamacpp_open import amx_compiled_in, extra_buffer_types_disabled, without_extra_buffer_types
 
 
 def _fake_llama(system_info: bytes) -> Any:

@@ -15,10 +15,10 @@ from letspi.llm.backends.llamacpp import (
     LlamaRuntime,
     choose_threads,
     compare_logits,
-    open_llama,
     self_check,
     shared_llama,
 )
+from letspi.llm.backends.llamacpp_open import open_llama
 from letspi.llm.models import EMBEDDED_MODELS, batch_tolerance, locate_model
 from letspi.llm.types import ModelSelfCheckError
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, load_weights, shipped_weights_dir
 from letspi.llm.backends.llamacpp import LlamaRuntime
+from letspi.llm.backends.llamacpp_open import runnable_model
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.fingerprint import prompt_fingerprint
 from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter, locate_model
@@ -184,8 +185,10 @@ class Resolver:
         parsed = parse_spec(spec)
         model_sha = model_path = adapter_sha = adapter_path = runtime = None
         if parsed.kind == "llamacpp":
-            runtime = LlamaRuntime.from_env(dict(self.env)).identity()
-            path = locate_model(parsed.model)
+            llama_runtime = LlamaRuntime.from_env(dict(self.env))
+            runtime = llama_runtime.identity()
+            # the file llama.cpp will run: its F16 copy where the probe saw its quantized kernels fault here
+            path = runnable_model(locate_model(parsed.model), flash_attn=llama_runtime.flash_attn)
             model_sha, model_path = file_sha256(path), str(path)
             adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
             if adapter is not None:

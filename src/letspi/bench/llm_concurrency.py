@@ -256,10 +256,12 @@ def real_server_available() -> str | None:
 
 
 def start_llama_server(log: Path, *, n_threads: int = 2) -> tuple[_Process, str]:
-    """``python -m llama_cpp.server`` with the embedded SmolLM2 on a free port (verbose log in ``log``)."""
+    """llama-cpp-python's server (``letspi.llm.backends.llamacpp_server``) with the embedded SmolLM2 on a free
+    port (verbose log in ``log``)."""
     port = _free_port()
-    proc = _Process([sys.executable, "-m", "llama_cpp.server", "--model", str(locate_model("smollm2-135m")),
-                     "--model_alias", "smollm2", "--host", "127.0.0.1", "--port", str(port), "--n_ctx", "4096",
+    proc = _Process([sys.executable, "-m", "letspi.llm.backends.llamacpp_server",
+                     "--model", str(locate_model("smollm2-135m")), "--model_alias", "smollm2",
+                     "--host", "127.0.0.1", "--port", str(port), "--n_ctx", "4096",
                      "--n_threads", str(n_threads), "--n_threads_batch", str(n_threads), "--seed", "0",
                      "--interrupt_requests", "False", "--verbose", "True"], log=log)
     url = f"http://127.0.0.1:{port}/v1"

@@ -13,11 +13,12 @@ import errno
 import os
 import sqlite3
 import sys
+import time
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -85,7 +86,78 @@ class RunColumn(ProgressColumn):
                     style="progress.remaining")
 
 
-def progress_bar() -> Progress:
+#: seconds between two lines of a task's progress when stderr is not a terminal
+PROGRESS_INTERVAL_ENV = "LETSPI_PROGRESS_INTERVAL_S"
+
+
+class LineProgress:
+    """Progress for logs (stderr not a terminal): one plain line per task at most every ``interval_s``, and
+    one when it completes; the same calls as rich's ``Progress`` that the commands make."""
+
+    def __init__(self, out: Console, interval_s: float = 10.0) -> None:
+        self.console = out
+        self.interval_s = interval_s
+        self._tasks: list[dict[str, Any]] = []
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for i, task in enumerate(self._tasks):
+            if not task["reported_done"] and task["completed"] > task["printed"]:
+                self._print(TaskID(i))
+
+    def add_task(self, description: str, total: float | None = None, completed: float = 0, **fields: Any) -> TaskID:
+        now = time.monotonic()
+        self._tasks.append({"description": description, "total": total, "completed": completed, "start": now,
+                            "start_completed": completed, "last": now, "printed": -1.0, "reported_done": False,
+                            "fields": fields})
+        return TaskID(len(self._tasks) - 1)
+
+    def advance(self, task: TaskID, advance: float = 1) -> None:
+        self.update(task, advance=advance)
+
+    def update(self, task: TaskID, *, total: float | None = None, completed: float | None = None,
+               advance: float | None = None, description: str | None = None, **fields: Any) -> None:
+        t = self._tasks[task]
+        if total is not None:
+            t["total"] = total
+        if completed is not None:
+            t["completed"] = completed
+        if advance is not None:
+            t["completed"] += advance
+        if description is not None:
+            t["description"] = description
+        t["fields"].update(fields)
+        done = t["total"] is not None and t["completed"] >= t["total"]
+        if (done and not t["reported_done"]) or time.monotonic() - t["last"] >= self.interval_s:
+            self._print(task)
+
+    def _print(self, task: TaskID) -> None:
+        t = self._tasks[task]
+        now = time.monotonic()
+        t["last"], t["printed"] = now, t["completed"]
+        done, total = t["completed"], t["total"]
+        rate = (done - t["start_completed"]) / max(now - t["start"], 1e-9)
+        parts = [f"{t['description']}: {done:g}" + (f"/{total:g} ({100 * done / total:.0f} %)" if total else "")]
+        status = t["fields"].get("run")
+        if isinstance(status, RunStatus):
+            eta = status.eta_s
+            parts.append(f"{status.scenarios_per_s:.2f} scenarios/s, {status.fallbacks} fallbacks, {status.failed} "
+                         f"failed, ETA {_duration(eta) if eta is not None else '-:--:--'}")
+        else:
+            parts.append(f"{rate:.3g}/s, {_duration(now - t['start'])} elapsed")
+            if total and rate > 0 and done < total:
+                parts.append(f"ETA {_duration((total - done) / rate)}")
+        if total is not None and done >= total:
+            t["reported_done"] = True
+        self.console.print(escape(", ".join(parts)), highlight=False, soft_wrap=True)
+
+
+def progress_bar() -> Progress | LineProgress:
+    """A live progress bar on a terminal; plain lines at a modest rate otherwise (logs, CI)."""
+    if not console.is_terminal:
+        return LineProgress(console, float(os.environ.get(PROGRESS_INTERVAL_ENV, "10")))
     return Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -98,7 +170,7 @@ def progress_bar() -> Progress:
     )
 
 
-def run_progress(bar: Progress, task: TaskID) -> Callable[[int, RunStatus | None], None]:
+def run_progress(bar: Progress | LineProgress, task: TaskID) -> Callable[[int, RunStatus | None], None]:
     """Advance ``task`` by k scenarios and show the runner's status (``RunColumn``)."""
 
     def update(k: int, status: RunStatus | None = None) -> None:

@@ -13,6 +13,7 @@ from letspi.assembly.planner_table import planner_table
 from letspi.assembly.planners import BuiltPlanner, build_planners, planner_kinds
 from letspi.cli.common import (
     ConcurrencyOpt,
+    LineProgress,
     command_line,
     console,
     print_run,
@@ -162,7 +163,7 @@ def scripted_neighbours_of(mode: EvaluationMode, events: str | None, scenarios: 
     return scripted_for(batch, events_directory(scenarios), required=False)
 
 
-def progress_factory(bar: Progress) -> ProgressFactory:
+def progress_factory(bar: Progress | LineProgress) -> ProgressFactory:
     def factory(name: str, total: int) -> ProgressCallback:
         return run_progress(bar, bar.add_task(name, total=total))
 

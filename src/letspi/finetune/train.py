@@ -41,7 +41,7 @@ from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text, provenance_path
 from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
-from letspi.llm.backends.llamacpp import open_llama
+from letspi.llm.backends.llamacpp_open import open_llama
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"

@@ -129,6 +129,12 @@ class ModelSelfCheckError(LLMConfigError):
     self-check was asked to refuse rather than fall back (``LETSPI_LLAMA_SELF_CHECK=strict``)."""
 
 
+class LlamaFaultError(LLMConfigError):
+    """llama.cpp kills the process (SIGILL, SIGSEGV, ...) running this model format on this CPU; the probe
+    (``letspi.llm.backends.llamacpp_open``) caught it in a child process. The message names the format, the
+    CPU feature and what to do."""
+
+
 class ResponseCacheError(LLMConfigError):
     """The response cache file cannot be opened, read or written (corrupted file, full disk,
     unwritable directory). The message names the file and what to do."""

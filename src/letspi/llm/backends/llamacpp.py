@@ -38,11 +38,8 @@ operations and sleeps when its partner is descheduled; and (2) choose the
 thread count per call from the CPUs this process may use and the processes runnable right now
 (``choose_threads``; ``LETSPI_LLAMA_THREADS=N`` fixes it).
 
-AMX workaround: llama.cpp wheels built with ``GGML_NATIVE`` on CPUs that advertise AMX use AMX tile
-instructions through "extra buffer types". In VMs that advertise AMX without enabling its register
-state ``ldtilecfg`` faults (SIGSEGV on the first multi-token prompt). When the loaded llama.cpp reports
-AMX support we load models with ``use_extra_bufts = False`` (``LETSPI_LLAMA_EXTRA_BUFTS=1`` keeps
-them, ``=0`` always disables them).
+Models are opened by ``letspi.llm.backends.llamacpp_open`` (the AMX workaround and the probe that catches a
+load that would kill the process).
 """
 
 from __future__ import annotations
@@ -52,15 +49,14 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from importlib import metadata
 from pathlib import Path
 from typing import Any, Final, Literal
 
 import numpy as np
 
+from letspi.llm.backends.llamacpp_open import import_llama_cpp, llama_cpp_version, open_llama, runnable_model
 from letspi.llm.models import batch_tolerance, file_fingerprint, locate_adapter, locate_model
 from letspi.llm.parse import try_parse_json
 from letspi.llm.types import (
@@ -69,14 +65,8 @@ from letspi.llm.types import (
     LLMTimeoutError,
     LLMTransportError,
     Message,
-    MissingDependencyError,
     ModelSelfCheckError,
     RequestRejectedError,
-)
-
-_INSTALL_HINT = (
-    "the llamacpp backend needs llama-cpp-python: pip install llama-cpp-python "
-    "(builds from source, about 6 min on 2 cores)"
 )
 
 FLASH_ATTN_ENV: Final = "LETSPI_LLAMA_FLASH_ATTN"
@@ -89,29 +79,6 @@ CHECK_TEXT: Final = (
     "A car drives at 30 m/s on a highway with three lanes. The car ahead is 20 m away and brakes hard. "
     "To avoid a collision the driver must brake or change lanes. One, two, three, four, five, six, seven"
 )
-
-
-def llama_cpp_version() -> str:
-    try:
-        return metadata.version("llama-cpp-python")
-    except metadata.PackageNotFoundError:
-        return "absent"
-
-
-#: libgomp spin iterations before a waiting worker sleeps (module doc: measured against 0 and unbounded)
-OMP_SPIN_COUNT: Final = 100_000
-
-
-def _import_llama_cpp() -> Any:
-    # before libgomp is loaded with llama.cpp: waiting OpenMP workers spin briefly, then sleep (module doc)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
-    try:
-        import llama_cpp
-        import llama_cpp.llama
-    except ImportError as exc:
-        raise MissingDependencyError(f"{_INSTALL_HINT} ({exc})") from None
-    return llama_cpp
 
 
 # --------------------------------------------------------------------------------------------------
@@ -259,59 +226,6 @@ def self_check(llm: Any, tolerance: float, text: str = CHECK_TEXT) -> SelfCheckR
 # --------------------------------------------------------------------------------------------------
 
 
-def amx_compiled_in(llama_mod: Any) -> bool:
-    """Whether the loaded llama.cpp CPU backend was built with AMX kernels."""
-    try:
-        info = llama_mod.llama_print_system_info()
-    except (AttributeError, OSError):
-        return False
-    text = info.decode(errors="replace") if isinstance(info, bytes) else str(info)
-    return "AMX_INT8 = 1" in text or "AMX_TILE = 1" in text or "AMX_BF16 = 1" in text
-
-
-def extra_buffer_types_disabled(llama_mod: Any) -> bool:
-    """The decision of the AMX workaround (see module docstring)."""
-    setting = os.environ.get("LETSPI_LLAMA_EXTRA_BUFTS", "auto")
-    if setting in ("0", "1"):
-        return setting == "0"
-    return amx_compiled_in(llama_mod)
-
-
-@contextmanager
-def without_extra_buffer_types(llama_mod: Any) -> Iterator[None]:
-    """Make ``Llama(...)`` load with ``use_extra_bufts = False`` if needed (see module docstring)."""
-    if not extra_buffer_types_disabled(llama_mod):
-        yield
-        return
-    low = llama_mod.llama.llama_cpp  # the ctypes binding module that Llama.__init__ calls
-    original = low.llama_model_default_params
-
-    def patched() -> Any:
-        params = original()
-        if hasattr(params, "use_extra_bufts"):
-            params.use_extra_bufts = False
-        return params
-
-    low.llama_model_default_params = patched
-    try:
-        yield
-    finally:
-        low.llama_model_default_params = original
-
-
-def open_llama(model_path: Path, *, n_ctx: int, n_threads: int, seed: int = 0, lora_path: Path | None = None,
-               flash_attn: bool = True, token_by_token: bool = False, logits_all: bool = False) -> Any:
-    """A ``llama_cpp.Llama`` with letspi's settings (the AMX workaround applied)."""
-    llama_mod = _import_llama_cpp()
-    n_batch = 1 if token_by_token else 512
-    with without_extra_buffer_types(llama_mod):
-        return llama_mod.Llama(
-            model_path=str(model_path), n_ctx=n_ctx, n_threads=n_threads, n_threads_batch=n_threads,
-            n_batch=n_batch, n_ubatch=n_batch, seed=seed, flash_attn=flash_attn, logits_all=logits_all,
-            lora_path=str(lora_path) if lora_path is not None else None, verbose=False,
-        )
-
-
 @dataclass
 class LoadedLlama:
     """A shared ``Llama``, its lock (one generation at a time: the KV cache is shared state), and the
@@ -401,8 +315,8 @@ class LlamaCppBackend:
         self.n_ctx = n_ctx
         self.n_threads = n_threads
         self.runtime = runtime or LlamaRuntime.from_env()
-        _import_llama_cpp()  # fail fast with the pip hint
-        self.model_path = locate_model(model)
+        import_llama_cpp()  # fail fast with the pip hint
+        self.model_path = runnable_model(locate_model(model), flash_attn=self.runtime.flash_attn, n_threads=n_threads)
         self.lora_path = Path(lora_path) if lora_path is not None else locate_adapter(model)
 
     @property
