@@ -23,7 +23,8 @@ def _docstring_nodes(tree: ast.Module) -> list[ast.Constant]:
     for node in ast.walk(tree):
         if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef) and node.body:
             first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                    and isinstance(first.value.value, str):
                 out.append(first.value)
     return out
 
@@ -42,8 +43,9 @@ def stats(src: Path) -> dict[str, object]:
         for node in _docstring_nodes(tree):
             n = (node.end_lineno or node.lineno) - node.lineno + 1
             doc += n
-        if tree.body and _docstring_nodes(tree) and tree.body[0].value is _docstring_nodes(tree)[0]:  # type: ignore[attr-defined]
-            first = _docstring_nodes(tree)[0]
+        module_doc = ast.get_docstring(tree, clean=False)
+        if module_doc is not None:
+            first = tree.body[0]
             n = (first.end_lineno or first.lineno) - first.lineno + 1
             if n > 15:
                 long_modules.append((rel, n))
