@@ -16,8 +16,8 @@ from letspi.assembly.planner_table import BUILT_IN, FutureUse, PlannerKind, Plan
 from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.cli.app import app
 from letspi.cli.options import planner_options
+from letspi.keyed import Config
 from letspi.llm.compact import PROMPT_STYLES
-from letspi.planners.config import Config
 from letspi.planners.cv import ConstantVelocityPlanner
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
 from letspi.planners.options import PlannerOption, PlannerOptions, unique_options
