@@ -93,13 +93,16 @@ def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.n
     raise ValueError(f"{agg.key}: {agg.how!r} is neither a rate nor a mean")
 
 
-def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
+def apply_agg(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
     """One aggregation of one (n,) column (``registry.HOW_DOC``)."""
     if agg.how in RATE_HOWS:
         return _pct(scenario_values(agg, values, config))
     if agg.how in MEAN_HOWS:
         return finite_mean(scenario_values(agg, values, config))[0]
     v = values.astype(np.float64)
+    if agg.how == "pct_mean":
+        mean = finite_mean(v)[0]
+        return None if mean is None else 100.0 * mean
     if agg.how == "finite_n":
         return finite_mean(v)[1]
     if agg.how == "inf_n":
@@ -196,7 +199,7 @@ def aggregate_metrics(
         else:
             raise KeyError(f"per-scenario column {m.name!r} missing: not a compute_metrics frame of this version")
         for a in m.aggregates:
-            out[a.key] = _apply(a, values, cfg)
+            out[a.key] = apply_agg(a, values, cfg)
     out["metrics_config_key"] = cfg.key()
     for field in MetricsConfig.AGGREGATE_FIELDS:
         out[field] = float(getattr(cfg, field))

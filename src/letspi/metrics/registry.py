@@ -29,7 +29,8 @@ from letspi.metrics.config import MetricsConfig
 from letspi.metrics.stats import N_RESAMPLES, SEED
 
 AggHow = Literal[
-    "finite_mean", "finite_n", "capped_mean", "n_at_or_above", "inf_n", "pct", "pct_below", "pct_above", "pct_equal"
+    "finite_mean", "finite_n", "capped_mean", "n_at_or_above", "inf_n", "pct", "pct_below", "pct_above", "pct_equal",
+    "pct_mean",
 ]
 Dtype = Literal["float64", "int64", "bool", "str"]
 
@@ -50,6 +51,7 @@ HOW_DOC: MappingProxyType[str, str] = MappingProxyType({
     "pct_below": "share of all scenarios with value < {t} (+inf is not below)",
     "pct_above": "share of all scenarios with value > {t} (inf included)",
     "pct_equal": "share of scenarios where it equals {t!r}",
+    "pct_mean": "100 x the mean of the finite values (a per-scenario fraction, as a percentage)",
 })
 
 
