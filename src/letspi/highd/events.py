@@ -1,19 +1,17 @@
 """``NN_events.csv``: scripted traffic events beside a HighD recording (a letspi extension; real HighD has none).
 
-One row per event, in the recording's own frames and vehicle ids; empty cells are "not applicable"; events whose
-actor is not in the recording at the start frame are not written. Columns ([m], [s], [m/s], [m/s²]):
+One row per event whose actor is in the recording at the start frame, in its frames and ids; empty cells are
+"not applicable". Columns (units as named):
 
-- ``frame``: start; ``id``: the actor (braking leader, car cutting in, truck pulling out); ``kind``: one of
-  ``EVENT_KINDS``; ``other_id``: the vehicle that must react (after a lane change: the one behind), 0 = none.
-- ``lane_id``, ``target_lane_id``: the actor's laneId at the start and after its lane change (else equal).
-- ``speed_mps``: actor speed at the start; ``target_speed_mps``, ``decel_mps2``: of a ``hard_brake``;
-  ``duration_s``: braking or lane-change duration; ``gap_m``: bumper-to-bumper gap other -> actor at the start.
-- ``reaction_s``: reaction time of ``other_id``'s driver; ``held_s``: how long ``other_id`` kept its speed from
-  ``frame`` on (until it perceived the event: at once for a braking leader, when the changer's centre crossed into
-  its lane for a cut-in; plus its reaction time; less when released early so as not to need harder braking than
-  the generator allows; 0 = not held).
-- ``other_decel_mps2``: what ``other_id`` then brakes with until it no longer closes in (``hard_brake``: a share
-  of the leader's, built up at the generator's jerk); empty when SUMO's car following takes over at once.
+- ``frame`` start; ``id`` the actor (braking leader, car cutting in, truck pulling out); ``kind`` (``EVENT_KINDS``);
+  ``other_id`` the vehicle that must react (after a lane change: the one behind), 0 = none.
+- ``lane_id``, ``target_lane_id``: the actor's laneId at the start and after its lane change (else equal);
+  ``speed_mps`` at the start; ``target_speed_mps``, ``decel_mps2`` of a ``hard_brake``; ``duration_s`` of the
+  braking or lane change; ``gap_m`` bumper gap other -> actor at the start; ``reaction_s`` of ``other_id``.
+- ``held_s``: how long ``other_id`` kept its speed from ``frame`` on: until it perceived the event (a braking leader
+  at once, a cut-in when the changer's centre crossed into its lane) plus its reaction time, or less (released
+  early rather than brake harder than allowed; 0 = not held); ``other_decel_mps2``: its braking after that until it
+  no longer closes in (``hard_brake``: a share of the leader's, at the generator's jerk; empty: SUMO took over).
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 """At-fault collisions: who caused a contact between the planned ego and a replayed (non-reactive) neighbour.
 
-As nuPlan does, a contact the ego could not have avoided is not charged to it. Each colliding pair is classified
-at its first contact step s:
-
-* **side**: the boxes did not overlap laterally at some step within ``fault_reaction_time_s`` before s. At fault
-  when the ego did at least half of the lateral closing since the last step without lateral overlap.
-* **front**: otherwise, when the neighbour's centre was ahead of the ego's just before contact: at fault.
-* **rear**: otherwise. At fault only when at some step f <= s the ego braked harder than
-  max(``fault_comfort_decel_mps2``, the largest need so far), a need being the larger of the ego's DRAC towards
-  its preceding vehicle and that vehicle's deceleration.
-
-Only future steps are examined; decelerations are finite differences from the t = 0 state (``kinematics``),
-neighbours' of their recorded velocities (the first step copies the second).
+As in nuPlan, a contact the ego could not have avoided is not charged to it. Each colliding pair is classified
+at its first contact step s: **side** when the boxes did not overlap laterally at some step within
+``fault_reaction_time_s`` before s, at fault when the ego did at least half of the lateral closing since;
+otherwise **front** when the neighbour's centre was ahead of the ego's just before contact, at fault; otherwise
+**rear**, at fault only when at some step f <= s the ego braked harder than max(``fault_comfort_decel_mps2``,
+the largest need so far), a need being the larger of the ego's DRAC towards its preceding vehicle and that
+vehicle's deceleration. Only future steps count; decelerations are finite differences from the t = 0 state
+(``kinematics``), the neighbours' of their recorded velocities (the first step copies the second).
 """
 
 from __future__ import annotations

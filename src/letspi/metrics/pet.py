@@ -4,13 +4,10 @@ Cells of ``cell_m`` in the ego frame; a box occupies a cell when it strictly cov
 cell both vehicles occupy within the F future steps, PET = t_enter(second) - t_exit(first), 0 when the
 occupancies overlap in time; a pair's PET is the minimum over shared cells, a scenario's over neighbours, +inf
 when no cell is shared. Every valid neighbour counts, in either order (same-lane following gives the bumper
-time gap plus up to a frame and a cell); history is not used. Resolution: dt, plus about cell / speed.
-``cell_m`` must not exceed the smallest vehicle dimension.
-
-Computed as dt · min |f1 - f2| over frame pairs whose boxes share a cell (equal to the per-cell definition
-when each occupancy is one contiguous run of frames): per ego frame a ``searchsorted`` finds the neighbour
-frames whose cell columns intersect (exact for non-decreasing neighbour x), then a loop over the ego's cell
-rows picks the nearest covering frame. O(rows × F) per pair.
+time gap plus up to a frame and a cell); history is not used. ``cell_m`` must not exceed the smallest vehicle
+dimension. Computed as dt · min |f1 - f2| over frame pairs whose boxes share a cell (the same when each
+occupancy is one run of frames), with a ``searchsorted`` over frames (exact for non-decreasing neighbour x) and
+a loop over the ego's cell rows.
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
 """The one registry of per-scenario metrics: each declared once, with how it aggregates.
 
-A ``Metric`` is one column of ``compute_metrics`` (name with unit, dtype, doc, ``source``) and the ``Agg`` keys it
-adds to ``metrics.json``; ``ScenarioMetrics``, the per-scenario frame, the keys and their reference
-(``reference_markdown``) derive from ``METRICS``. ``source`` is ``"group.attribute"`` of ``compute_metrics``'
-intermediate results, or None for a column the caller supplies (``inference_s``).
-
-Conventions: units in names (_s, _m, _mps2, _mps3, _pct, _n); "*_step" columns index the future axis (step + 1)
-dt after t = 0 and "*_nbr" the neighbour slots, -1 for no event; +inf marks "no conflict" (TTC, PET);
-aggregates never emit NaN or inf.
+A ``Metric`` is one column of ``compute_metrics`` (name with unit, dtype, doc, ``source``: ``"group.attribute"`` of
+its intermediate results, or None for a column the caller supplies) and the ``Agg`` keys it adds to
+``metrics.json``; ``ScenarioMetrics``, the frame, the keys and their reference (``reference_markdown``) derive
+from ``METRICS``. Units are in names (_s, _m, _mps2, _mps3, _pct, _n); "*_step" and "*_nbr" columns are -1 for no
+event; +inf marks "no conflict"; aggregates never emit NaN or inf.
 """
 
 from __future__ import annotations

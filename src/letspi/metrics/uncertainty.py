@@ -1,9 +1,7 @@
 """Intervals and paired comparisons of the aggregated metrics: ``metrics.json``'s "intervals" and "paired".
 
-Each rate or mean key averages one per-scenario value (``aggregate.scenario_values``), and its interval and
-paired difference come from exactly those values: a rate gets a vehicle Wilson interval and, paired, the
-discordant windows, exact McNemar p and a bootstrap interval of the difference; a mean a vehicle-bootstrap
-interval and, paired, the mean difference over the windows where both are finite. Counts (``*_n``) get none.
+Each rate or mean key's interval and paired difference come from exactly the per-scenario values it averages
+(``aggregate.scenario_values``), with the statistics of ``letspi.metrics.stats``; counts (``*_n``) get none.
 The frames need a ``vehicle_key`` column and, to be paired, ``scenario_digest``.
 """
 

@@ -329,16 +329,12 @@ def generate_highd(
 ) -> GenerationReport:
     """Simulate a two-direction highway and write HighD-format recordings into ``out_dir`` (created if missing).
 
-    Args:
-        minutes: recorded minutes, after a 90 s warm-up. seed: equal seeds give identical files.
-        lanes_per_direction: 2 or 3 main lanes. flow_veh_per_h: demand per direction (default about 733 per lane).
-        recording_minutes: split into consecutive recordings of this length (vehicles crossing a split are cut);
-            default one recording.
-        criticality: preset name, ignored when ``traffic`` is given. progress: called with the fraction done.
-
-    Writes ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png``
-    and ``NN_generation.json`` for NN = 01, 02, ...: a 420 m window in which a vehicle is recorded when its whole box
-    is inside and its centre on the main carriageway; no speed limit (speedLimit -1).
+    ``minutes`` are recorded after a 90 s warm-up; equal seeds give identical files; ``flow_veh_per_h`` per
+    direction defaults to about 733 per lane; ``recording_minutes`` splits the run into consecutive recordings
+    (vehicles crossing a split are cut); ``criticality`` names a preset, ignored when ``traffic`` is given. Writes
+    ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png`` and
+    ``NN_generation.json`` (NN = 01, 02, ...): a 420 m window in which a vehicle is recorded while its whole box is
+    inside and its centre on the main carriageway; no speed limit (speedLimit -1).
     """
     started = time.perf_counter()
     out = Path(out_dir)

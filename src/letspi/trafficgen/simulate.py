@@ -99,18 +99,13 @@ def run_sumo(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
-    """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD.
+    """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD (rows with SUMO x in ``x_range_m``).
 
-    Args:
-        work_dir: the caller's (temporary) directory for the FCD, collision and log files.
-        seed: SUMO's seed (nothing random is left with the sigmas at 0).
-        lane_change_duration_s: > 0 makes (non-sublane) lane changes continuous [s].
-        x_range_m: keep only FCD rows with SUMO x in this range [m].
-        make_hook: called with the libsumo module once loaded; returns a ``StepHook`` whose ``on_step(t)`` runs
-            whenever SUMO's current time t has reached ``next_wakeup()`` (timing as in ``events``).
-        ssm_file: every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (encounters
-            with TTC < 5 s, DRAC > 3 m/s² or PET < 2 s, within 100 m).
-        progress: called with the fraction of simulated time done.
+    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes
+    lane changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
+    ``on_step(t)`` runs whenever SUMO's time t has reached ``next_wakeup()`` (timing as in ``events``). ``ssm_file``:
+    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or
+    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done.
     """
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"

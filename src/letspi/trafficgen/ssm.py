@@ -57,14 +57,12 @@ def read_ssm_ttc(path: Path) -> pd.DataFrame:
 
 @dataclass(frozen=True)
 class SsmComparison:
-    """Agreement of a recording's TTC with SUMO's SSM device (TTCs below the device threshold, 5 s).
+    """Agreement of a recording's TTC with SUMO's SSM device, for TTCs below the device threshold (5 s).
 
-    ``frames_both``: (follower, frame) pairs where both have a TTC for the same leader; ``frame_*``: the |difference|'s
-    median and p95 [s] and the share within 5 %. ``frames_only_recording`` / ``frames_only_ssm``: pairs only one has;
-    of the latter ``_other_lane`` (different laneIds: a lane changer), ``_above_threshold`` (the recording's TTC for
-    that leader is >= the threshold) and ``_not_preceding`` (same lane, but HighD's preceding vehicle is another).
-    ``vehicles_below_3s_*``: vehicles with a minimum under 3 s in the recording, in SUMO, in both;
-    ``vehicle_median_abs_diff_s``: median |minTTC - SUMO minimum| over those in both [s].
+    ``frames_both``: (follower, frame) pairs both have for the same leader, ``frame_*``: median and p95 |difference|
+    [s], share within 5 %. ``frames_only_*``: pairs only one has; of SUMO's, ``_other_lane`` (a lane changer),
+    ``_above_threshold`` (the recording's TTC is >= 5 s) and ``_not_preceding`` (HighD's leader is another).
+    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both.
     """
 
     recorded_minutes: float
