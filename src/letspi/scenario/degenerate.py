@@ -1,4 +1,4 @@
-"""Random and degenerate straight-road scenes for robustness checks (``letspi bench robustness``).
+"""Random and degenerate straight-road scenes for robustness checks (``python -m benchmarks.speed robustness``).
 
 ``DEGENERATE_KINDS``: ``random`` (0-8 neighbours within ±80 m on 1-4 lanes, speeds 0-45 m/s, some appearing
 late), ``no_neighbours``, ``overlap`` (8 boxes overlapping the ego at t = 0), ``zero_speed``, ``one_lane`` and
