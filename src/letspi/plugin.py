@@ -14,6 +14,10 @@ An installed package offers its kind in the ``ENTRY_POINT_GROUP`` entry-point gr
     gap-keeper = "letspi_gap_keeper:KIND"
 
 and ``letspi planners`` lists it; ``--planner package.module:KIND`` loads one without installing.
+
+An LLM backend is a ``BackendKind`` (prefix, factory, spec forms, default concurrency) named in the
+``LLM_BACKENDS_GROUP`` group under its prefix; ``letspi llm backends`` lists it
+(docs/architecture.md#add-an-llm-backend).
 """
 
 from letspi.assembly.build import Builder
@@ -21,9 +25,15 @@ from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, PlannerK
 from letspi.assembly.resolve import Resolver
 from letspi.constants import DT_S, N_FUTURE, N_HISTORY, T0_INDEX
 from letspi.keyed import Config
+from letspi.llm.parse import try_parse_json
+from letspi.llm.spec import ENTRY_POINT_GROUP as LLM_BACKENDS_GROUP
+from letspi.llm.spec import BackendKind, BackendSpec
+from letspi.llm.types import DecodingSettings, LLMBackend, LLMConfigError, LLMResponse, LLMTransportError, Message
 from letspi.planners.base import PlanBatch, Planner
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
-__all__ = ["DT_S", "ENTRY_POINT_GROUP", "N_FUTURE", "N_HISTORY", "T0_INDEX", "Builder", "Config", "FutureUse",
-           "PlanBatch", "Planner", "PlannerKind", "PlannerOption", "Resolver", "ScenarioBatch"]
+__all__ = ["DT_S", "ENTRY_POINT_GROUP", "LLM_BACKENDS_GROUP", "N_FUTURE", "N_HISTORY", "T0_INDEX", "BackendKind",
+           "BackendSpec", "Builder", "Config", "DecodingSettings", "FutureUse", "LLMBackend", "LLMConfigError",
+           "LLMResponse", "LLMTransportError", "Message", "PlanBatch", "Planner", "PlannerKind", "PlannerOption",
+           "Resolver", "ScenarioBatch", "try_parse_json"]
