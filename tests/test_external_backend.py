@@ -20,6 +20,8 @@ from typer.testing import CliRunner
 
 from letspi.assembly.resolve import Resolver
 from letspi.cli.llm import app
+from letspi.llm.cache import ResponseCache
+from letspi.llm.client import ParamAdvisor
 from letspi.llm.schema import FIELD_RANGES
 from letspi.llm.spec import (
     BackendKind,
@@ -29,7 +31,7 @@ from letspi.llm.spec import (
     make_backend,
     parse_spec,
 )
-from letspi.llm.types import UnknownBackendError
+from letspi.llm.types import UnknownBackendError, message
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import save_scenarios
 
@@ -42,7 +44,15 @@ from pathlib import Path
 from letspi.plugin import BackendKind
 from letspi.llm.backends.scripted import ScriptedBackend
 
+class Local(ScriptedBackend):
+    @property
+    def spec(self):
+        return f"local:{self.name}"
+
 def build(spec, options):
+    return Local(default='{}', name=spec.model)
+
+def bare(spec, options):
     return ScriptedBackend(default='{}', name=spec.model)
 
 def explode(spec, options):
@@ -55,11 +65,12 @@ LOCAL = BackendKind("local", build, ("local:/path/to/weights",), "runs local wei
                     local_weights=lambda s: Path(s.model))
 BOOM = BackendKind("boom", explode, ("boom:MODEL",), "a factory that raises")
 ODD = BackendKind("odd", not_a_backend, ("odd:MODEL",), "a factory that returns no backend")
+BARE = BackendKind("bare", bare, ("bare:MODEL",), "a backend whose spec names another kind")
 TAKEN = BackendKind("ollama", build, ("ollama:MODEL",), "takes a built-in prefix")
 NOT_A_KIND = ScriptedBackend
 '''
 
-ENTRY_POINTS = {"local": "LOCAL", "boom": "BOOM", "odd": "ODD", "ollama": "TAKEN", "cls": "NOT_A_KIND",
+ENTRY_POINTS = {"local": "LOCAL", "boom": "BOOM", "odd": "ODD", "bare": "BARE", "ollama": "TAKEN", "cls": "NOT_A_KIND",
                 "renamed": "LOCAL", "gone": "NO_SUCH"}
 
 
@@ -117,12 +128,24 @@ def test_an_installed_kind_is_parsed_built_scheduled_and_keyed_by_package_and_we
     weights.write_bytes(b"second")
     assert Resolver(OPTS).llm(f"local:{weights}").key() != config.key()  # the weights enter the key
     assert default_concurrency(f"local:{weights}") == 3
-    assert make_backend(f"local:{weights}").spec == f"scripted:{weights}"
+    assert make_backend(f"local:{weights}").spec == f"local:{weights}"
+
+
+def test_the_response_cache_tells_package_versions_apart(plugins: Path, tmp_path: Path) -> None:
+    cache, messages = ResponseCache(tmp_path / "cache.sqlite"), [message("user", "hi")]
+    assert not ParamAdvisor("local:m", cache=cache).complete(messages, schema=None).cached
+    assert ParamAdvisor("local:m", cache=cache).complete(messages, schema=None).cached
+    (plugins / "letspi_test_backends-0.3.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: letspi-test-backends\nVersion: 0.4\n")  # an upgrade
+    installed_backends.cache_clear()
+    assert not ParamAdvisor("local:m", cache=cache).complete(messages, schema=None).cached
 
 
 @pytest.mark.parametrize(("spec", "message"), [
     ("boom:m", "boom:m: the backend of letspi-test-backends 0.3 failed to start: RuntimeError: no GPU here"),
     ("odd:m", "odd:m: the backend of letspi-test-backends 0.3 returned a int, not an LLMBackend"),
+    ("bare:m", "bare:m: the backend of letspi-test-backends 0.3 has spec 'scripted:m', which does not start with "
+               "'bare:'"),
     ("cls:m", "letspi_test_backends:NOT_A_KIND (entry point 'cls' of letspi-test-backends 0.3) is a class, "
               "not a letspi BackendKind"),
     ("renamed:m", "entry point 'renamed' of letspi-test-backends 0.3): the entry-point name must be the kind's "
@@ -142,7 +165,7 @@ def test_a_kind_may_not_take_a_built_in_prefix_and_the_built_in_stays(plugins: P
     assert "letspi-test-backends 0.3" in problems["ollama"]
     assert type(make_backend("ollama:m")).__name__ == "OllamaBackend"
     with pytest.raises(UnknownBackendError, match=r"unknown backend 'hf' \(known: llamacpp, ollama, openai, "
-                                                  r"scripted, boom, local, odd\)") as err:
+                                                  r"scripted, bare, boom, local, odd\)") as err:
         parse_spec("hf:gpt2")
     assert "local:/path/to/weights" in str(err.value)  # the installed forms are listed too
 
@@ -163,7 +186,7 @@ def test_llm_backends_lists_built_in_and_installed_kinds_and_what_is_left_out(pl
     res = CliRunner().invoke(app, ["backends", "--json"])
     assert res.exit_code == 0, res.output
     rows = {row["prefix"]: row for row in json.loads(res.stdout)}
-    assert list(rows) == ["llamacpp", "ollama", "openai", "scripted", "boom", "local", "odd"]
+    assert list(rows) == ["llamacpp", "ollama", "openai", "scripted", "bare", "boom", "local", "odd"]
     assert rows["local"]["source"] == "letspi-test-backends 0.3" and rows["local"]["local_weights"] is True
     assert rows["ollama"]["source"] == "built in" and rows["ollama"]["default_concurrency"] == 8
     assert sum(line.startswith("left out: ") for line in res.stderr.splitlines()) == 4  # cls, renamed, gone, ollama

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -34,7 +34,8 @@ _TINY_USER = (
 
 @app.command("check")
 def check(
-    spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b.")],
+    spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b "
+                                                "(letspi llm backends lists the kinds).")],
     prompt: Annotated[
         str, typer.Option(help="auto | tiny | fast | physics | compact (fast, physics and compact on a close-leader "
                                "scenario; auto: compact for the fine-tuned model, else tiny).")
@@ -97,9 +98,9 @@ def backends(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list instead of a table.")] = False,
 ) -> None:
     """List the backend kinds a spec may name (PREFIX:MODEL): built in and from installed packages."""
-    rows = [{"prefix": k.prefix, "doc": k.doc, "forms": list(k.forms), "default_concurrency": k.default_concurrency,
-             "local_weights": k.local_weights is not None, "source": backend_origin(k.prefix)}
-            for k in backend_table()]
+    rows: list[dict[str, Any]] = [
+        {"prefix": k.prefix, "doc": k.doc, "forms": list(k.forms), "default_concurrency": k.default_concurrency,
+         "local_weights": k.local_weights is not None, "source": backend_origin(k.prefix)} for k in backend_table()]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
     else:

@@ -261,4 +261,7 @@ def make_backend(spec: str | BackendSpec, **options: Any) -> LLMBackend:
     if not isinstance(backend, LLMBackend):
         raise BackendKindError(f"{parsed}: the backend of {origin} returned a {type(backend).__name__}, "
                                "not an LLMBackend (a spec property and complete())")
+    if not str(backend.spec).startswith(f"{kind.prefix}:"):  # the cache and the run records go by its spec
+        raise BackendKindError(f"{parsed}: the backend of {origin} has spec {backend.spec!r}, which does not start "
+                               f"with {kind.prefix + ':'!r}")
     return backend
