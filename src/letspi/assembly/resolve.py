@@ -208,8 +208,7 @@ class Resolver:
         if style not in PROMPT_STYLES:
             raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
         return LlmConfig(spec=str(parsed), backend=installed_origin(parsed.kind), model_sha256=model_sha,
-                         model_path=model_path,
-                         adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
+                         model_path=model_path, adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
                          prompt_style=style,  # type: ignore[arg-type]
                          prompt_sha256=self._prompt_sha, cache=self.options.get(LLM_CACHE),
                          timeout_s=self.options.get(LLM_TIMEOUT))
