@@ -95,7 +95,7 @@ def check_inputs_mirrored(batch: ScenarioBatch, inp: MetricInputs) -> SafetyChec
 
 def repeated(pred: NeighbourPrediction, rows: np.ndarray) -> NeighbourPrediction:
     """The prediction of scenario ``rows[i]`` in row i."""
-    return NeighbourPrediction(*(np.asarray(a)[rows] for a in pred))
+    return pred.take(rows)
 
 
 def sf_opt_on_repeated_batch(planner: SocialForceSearchPlanner, batch: ScenarioBatch, context: PlanningContext,

@@ -32,7 +32,6 @@ from letspi.metrics.compute import compute_outcomes
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
-from letspi.physics.types import NeighbourPrediction
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
@@ -68,7 +67,7 @@ def test_check_options_agrees_with_checking_each_plan_by_hand() -> None:
     np.testing.assert_array_equal(chk.xy_m.reshape(-1, *xy.shape[1:]), xy)
     np.testing.assert_allclose(chk.progress_m, xy[:, -1, 0].reshape(2, 3))
     # scene 0 by hand: the default plan follows the leader and hits it when it brakes hard
-    pred_take = NeighbourPrediction(*(np.asarray(a)[:1] for a in pred))
+    pred_take = pred.take(slice(0, 1))
     fut = adverse_futures(hist.take([0]), pred_take)
     by_hand = check_futures(hist.take([0]), xy[:1], vxy[:1], pred_take, fut)
     assert chk.adverse_failed[0, 0, 0] == by_hand.collision[0, 1]

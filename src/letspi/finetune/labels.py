@@ -110,7 +110,7 @@ class LabelSearch(BaseModel):
 
 
 def _repeat(pred: NeighbourPrediction, c: int) -> NeighbourPrediction:
-    return NeighbourPrediction(*(np.repeat(np.asarray(a), c, axis=0) for a in pred))
+    return pred.repeat(c)
 
 
 @dataclass(frozen=True)
@@ -323,7 +323,7 @@ def label_rows(
 
 
 def _take_pred(pred: NeighbourPrediction, i: int) -> NeighbourPrediction:
-    return NeighbourPrediction(*(np.asarray(a)[i:i + 1] for a in pred))
+    return pred.take(slice(i, i + 1))
 
 
 def frame_of(rows: list[dict[str, Any]]) -> pd.DataFrame:

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any, Final, Protocol
+from typing import Any, ClassVar, Final, Protocol
 
 import numpy as np
 
@@ -158,10 +158,17 @@ class OptionChecks:
     vxy_mps: np.ndarray
     goals_xy_m: np.ndarray
 
+    #: the fields with the scenario axis first
+    ARRAYS: ClassVar[tuple[str, ...]] = ("predicted_safe", "adverse_failed", "progress_m", "min_ttc_s", "xy_m",
+                                         "vxy_mps", "goals_xy_m")
+
+    def take(self, rows: np.ndarray | Sequence[int] | slice) -> OptionChecks:
+        """The checks of the selected scenarios (index array, mask or slice)."""
+        return replace(self, **{f: getattr(self, f)[rows] for f in self.ARRAYS})
+
     def row(self, i: int) -> OptionChecks:
         """Scenario ``i``'s checks as a batch of one."""
-        return replace(self, **{f: getattr(self, f)[i:i + 1] for f in ("predicted_safe", "adverse_failed", "progress_m",
-                                                                      "min_ttc_s", "xy_m", "vxy_mps", "goals_xy_m")})
+        return self.take(slice(i, i + 1))
 
     def failed_checks(self) -> np.ndarray:
         """(B, K) how many checks each option fails (the prediction counts as one)."""
@@ -196,7 +203,7 @@ def plan_options(history: ScenarioBatch, values: np.ndarray, base_goals_xy_m: np
     k = v.shape[1]
     rep = np.repeat(np.arange(b), k)
     flat = v.reshape(b * k, -1)
-    pred = NeighbourPrediction(*(np.asarray(a)[rep] for a in prediction))
+    pred = prediction.take(rep)
     plan = simulate_proposal(history.take(rep), params_of(flat, r_col_m), flat[:, 6], flat[:, 7],
                              np.asarray(base_goals_xy_m, dtype=np.float64)[rep], pred)
     return plan.xy_m, plan.vxy_mps, plan.goals_xy_m
@@ -219,7 +226,7 @@ def check_options(
     xy, vxy, goals = plan_options(history, table.values, base_goals_xy_m, prediction, r_col_m)
     rep = np.repeat(np.arange(b), k)
     futures = adverse_futures(history, prediction, settings)
-    chk = check_futures(history.take(rep), xy, vxy, NeighbourPrediction(*(np.asarray(a)[rep] for a in prediction)),
+    chk = check_futures(history.take(rep), xy, vxy, prediction.take(rep),
                         futures.take(rep))
     ok = chk.predicted_safe(th.ttc_s, th.min_dist_m)
     if th.max_decel_mps2 is not None:
@@ -363,8 +370,9 @@ def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
     (``GatedChecks``)."""
     b, k = partial.predicted_safe.shape[0], len(names)
     out: dict[str, np.ndarray] = {}
-    for name, fill in (("predicted_safe", False), ("adverse_failed", True), ("progress_m", np.nan),
-                       ("min_ttc_s", np.nan), ("xy_m", np.nan), ("vxy_mps", np.nan), ("goals_xy_m", np.nan)):
+    fills = {"predicted_safe": False, "adverse_failed": True}  # unknown: not safe, failing every future
+    for name in OptionChecks.ARRAYS:
+        fill = fills.get(name, np.nan)
         part = getattr(partial, name)
         arr = np.full((b, k, *part.shape[2:]), fill, dtype=part.dtype)
         arr[:, :1] = part
@@ -413,7 +421,7 @@ class Decider:
         consulted = self.consulted(risk)
         rows = np.flatnonzero(consulted & ~defaults.passes_all()[:, 0])
         full = self.check(history.take(rows), np.asarray(base_goals_xy_m)[rows],
-                          NeighbourPrediction(*(np.asarray(a)[rows] for a in prediction))) if rows.size else None
+                          prediction.take(rows)) if rows.size else None
         complete = np.zeros(len(history), dtype=bool)
         complete[rows] = True
         return GatedChecks(_merge_rows(defaults, self.presets.names, rows, full), complete, risk, consulted)

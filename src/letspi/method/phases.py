@@ -281,7 +281,7 @@ def collect(
     def work(i: int) -> tuple[ScenarioBatch, ReflectionResult]:
         one = batch.take([i])
         (goals, pred), k, _ = contexts.get(i)
-        return one, phase.run(one, goals[k], NeighbourPrediction(*(np.asarray(a)[k : k + 1] for a in pred)))
+        return one, phase.run(one, goals[k], pred.take(slice(k, k + 1)))
 
     def write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
         _write(i, done_)

@@ -4,6 +4,7 @@ t = dt ... F dt (the future frames ``T0_INDEX + 1 ...``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -40,3 +41,16 @@ class NeighbourPrediction(NamedTuple):
     xy_m: np.ndarray
     vxy_mps: np.ndarray
     valid: np.ndarray
+
+    def take(self, rows: np.ndarray | Sequence[int] | slice) -> NeighbourPrediction:
+        """The prediction of the selected scenarios (index array, mask or slice)."""
+        return NeighbourPrediction(*(np.asarray(a)[rows] for a in self))
+
+    def repeat(self, counts: int | np.ndarray) -> NeighbourPrediction:
+        """Each scenario's prediction ``counts`` times in a row (``np.repeat`` on the batch axis)."""
+        return NeighbourPrediction(*(np.repeat(np.asarray(a), counts, axis=0) for a in self))
+
+    @staticmethod
+    def concat(parts: Sequence[NeighbourPrediction]) -> NeighbourPrediction:
+        """The predictions of ``parts`` one after another on the batch axis."""
+        return NeighbourPrediction(*(np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(3)))

@@ -80,10 +80,6 @@ class Planner(Protocol):
 # ------------------------------------------------------------------------------------------------
 
 
-def _take_prediction(pred: NeighbourPrediction, indices: np.ndarray | list[int] | slice) -> NeighbourPrediction:
-    return NeighbourPrediction(*(np.asarray(a)[indices] for a in pred))
-
-
 @dataclass(frozen=True)
 class PlanningContext:
     """What a planner derives from the observed scene before it decides (batched, no model call).
@@ -100,13 +96,12 @@ class PlanningContext:
         return int(self.goals_xy_m.shape[0])
 
     def take(self, indices: np.ndarray | list[int] | slice) -> PlanningContext:
-        return PlanningContext(np.asarray(self.goals_xy_m)[indices], _take_prediction(self.neighbours, indices))
+        return PlanningContext(np.asarray(self.goals_xy_m)[indices], self.neighbours.take(indices))
 
     @classmethod
     def concat(cls, parts: Sequence[PlanningContext]) -> PlanningContext:
         return cls(np.concatenate([p.goals_xy_m for p in parts]),
-                   NeighbourPrediction(*(np.concatenate([np.asarray(p.neighbours[k]) for p in parts])
-                                         for k in range(3))))
+                   NeighbourPrediction.concat([p.neighbours for p in parts]))
 
 
 @dataclass(frozen=True)

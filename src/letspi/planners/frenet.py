@@ -469,7 +469,7 @@ def build_lattice(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: n
     """The weight-independent lattice of ``batch`` (history suffices) against predicted neighbours ``pred``."""
     if len(batch) > chunk_size:
         parts = [build_lattice(batch.take(slice(k, k + chunk_size)),
-                               NeighbourPrediction(*(a[k:k + chunk_size] for a in pred)),
+                               pred.take(slice(k, k + chunk_size)),
                                goals_xy_m[k:k + chunk_size], settings, chunk_size)
                  for k in range(0, len(batch), chunk_size)]
         return _concat(parts)
