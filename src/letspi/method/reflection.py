@@ -20,7 +20,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Literal, NamedTuple
+from typing import Any, Final, Literal, NamedTuple
 
 import numpy as np
 
@@ -48,26 +48,33 @@ from letspi.safety.plan_check import SafetyCheck, check_plans, predicted_inputs
 from letspi.scenario.queries import lane_id_of
 from letspi.scenario.types import ScenarioBatch
 
-MetricName = Literal["contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road", "harsh_braking"]
 Relative = Literal["front", "rear", "left", "right", "none"]
 Category = Literal["front", "rear", "side", "road", "dynamics"]
 
-METRIC_ORDER: tuple[MetricName, ...] = (
-    "contact", "front_ttc", "rear_ttc", "in_path_gap", "pet", "off_road", "harsh_braking",
+
+@dataclass(frozen=True)
+class CheckKind:
+    """One kind of violation the reflection reports: its name, its label in the report and its unit."""
+
+    name: str
+    label: str
+    unit: str
+
+
+#: every kind of violation, in the order a report lists them
+CHECKS: Final[tuple[CheckKind, ...]] = (
+    CheckKind("contact", "contact", "m"),
+    CheckKind("front_ttc", "TTC", "s"),
+    CheckKind("rear_ttc", "rear TTC", "s"),
+    CheckKind("in_path_gap", "in-path gap", "m"),
+    CheckKind("pet", "PET", "s"),
+    CheckKind("off_road", "off-road", "m"),
+    CheckKind("harsh_braking", "braking", "m/s^2"),
 )
-_LABEL: dict[str, str] = {
-    "contact": "contact",
-    "front_ttc": "TTC",
-    "rear_ttc": "rear TTC",
-    "in_path_gap": "in-path gap",
-    "pet": "PET",
-    "off_road": "off-road",
-    "harsh_braking": "braking",
-}
-_UNIT: dict[str, str] = {
-    "contact": "m", "front_ttc": "s", "rear_ttc": "s", "in_path_gap": "m", "pet": "s", "off_road": "m",
-    "harsh_braking": "m/s^2",
-}
+CHECK_KINDS: Final[dict[str, CheckKind]] = {c.name: c for c in CHECKS}
+#: a ``CheckKind`` name
+MetricName = str
+METRIC_ORDER: Final[tuple[MetricName, ...]] = tuple(CHECK_KINDS)
 
 
 # --------------------------------------------------------------------------------------------
@@ -328,7 +335,7 @@ def _violation_text(v: Violation, n_steps: int) -> str:
                 "drivable comfortably, invites rear-end conflicts).")
     if v.metric == "contact":
         return f"{at}, {_where(v)}: boxes overlap (contact, {cat} collision)."
-    label, unit = _LABEL[v.metric], _UNIT[v.metric]
+    label, unit = CHECK_KINDS[v.metric].label, CHECK_KINDS[v.metric].unit
     return f"{at}, {_where(v)}: {label} {v.value:.2f} {unit} < {v.threshold:g} {unit} ({cat} conflict)."
 
 
@@ -530,7 +537,7 @@ def _violations_of(columns: dict[str, dict[str, np.ndarray]], i: int, th: Reflec
             metric=metric,
             value=float(col["value"][i]),
             threshold=float(thresholds_of[metric]),
-            unit=_UNIT[metric],
+            unit=CHECK_KINDS[metric].unit,
             step=step_i,
             time_s=(step_i + 1) * DT_S,
             nbr_slot=int(col["nbr"][i]),
