@@ -2,7 +2,7 @@
 
 In ``closed-loop-log`` nobody but the ego is simulated: every neighbour is placed on its recorded
 position each frame, and the ego on its plan. SUMO then only echoes the positions it was given and
-reports collisions, at 21-30 ms per scenario replanned every 0.2 s (``letspi bench closed-loop``:
+reports collisions, at 21-30 ms per scenario replanned every 0.2 s (``python -m benchmarks.speed closed-loop``:
 ``in_process_sim_ms_per_scenario``), more than most planners take; the replay's is under 1 ms.
 ``simulate_replay_group`` produces the same ``ClosedLoopChunk`` with NumPy:
 
