@@ -4,7 +4,8 @@ A planner kind is plain data, a ``PlannerKind``: a name and a one-line descripti
 class (a ``Config`` subclass with a ``kind`` literal, a ``version`` field and every setting that
 changes its plans: all of them enter its result key), the ``PlannerOption``s it reads (named with
 the kind's name as prefix), ``resolve`` (options -> configuration, through a ``Resolver``) and
-``build`` (configuration -> planner and model load time, through a ``Builder``). A planner has a
+``build`` (configuration -> planner and model load time, through a ``Builder``) and the ``outputs`` its
+plans' ``info`` reports (``output(name, unit, dtype, doc, *Agg)``: stored as ``info_<name>``). A planner has a
 ``name``, a ``batch_size``, ``reads_future = False`` and ``plan(ScenarioBatch) -> PlanBatch``; it
 sees the history only (``T0_INDEX`` is t = 0) and plans ``N_FUTURE`` steps of ``DT_S``.
 
@@ -14,6 +15,10 @@ An installed package offers its kind in the ``ENTRY_POINT_GROUP`` entry-point gr
     gap-keeper = "letspi_gap_keeper:KIND"
 
 and ``letspi planners`` lists it; ``--planner package.module:KIND`` loads one without installing.
+
+An LLM backend is a ``BackendKind`` (prefix, factory, spec forms, default concurrency) named in the
+``LLM_BACKENDS_GROUP`` group under its prefix; ``letspi llm backends`` lists it
+(docs/architecture.md#add-an-llm-backend).
 """
 
 from letspi.assembly.build import Builder
@@ -21,11 +26,41 @@ from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, PlannerK
 from letspi.assembly.resolve import Resolver
 from letspi.constants import DT_S, N_FUTURE, N_HISTORY, T0_INDEX
 from letspi.keyed import Config
+from letspi.llm.parse import try_parse_json
+from letspi.llm.spec import ENTRY_POINT_GROUP as LLM_BACKENDS_GROUP
+from letspi.llm.spec import BackendKind, BackendSpec
+from letspi.llm.types import DecodingSettings, LLMBackend, LLMConfigError, LLMResponse, LLMTransportError, Message
 from letspi.metrics.registry import Agg
 from letspi.planners.base import PlanBatch, Planner
 from letspi.planners.options import PlannerOption
 from letspi.planners.outputs import output
 from letspi.scenario.types import ScenarioBatch
 
-__all__ = ["DT_S", "ENTRY_POINT_GROUP", "N_FUTURE", "N_HISTORY", "T0_INDEX", "Agg", "Builder", "Config", "FutureUse",
-           "PlanBatch", "Planner", "PlannerKind", "PlannerOption", "Resolver", "ScenarioBatch", "output"]
+__all__ = [
+           "DT_S",
+           "ENTRY_POINT_GROUP",
+           "LLM_BACKENDS_GROUP",
+           "N_FUTURE",
+           "N_HISTORY",
+           "T0_INDEX",
+           "Agg",
+           "BackendKind",
+           "BackendSpec",
+           "Builder",
+           "Config",
+           "DecodingSettings",
+           "FutureUse",
+           "LLMBackend",
+           "LLMConfigError",
+           "LLMResponse",
+           "LLMTransportError",
+           "Message",
+           "PlanBatch",
+           "Planner",
+           "PlannerKind",
+           "PlannerOption",
+           "Resolver",
+           "ScenarioBatch",
+           "output",
+           "try_parse_json",
+]

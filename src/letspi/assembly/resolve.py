@@ -24,8 +24,8 @@ from letspi.llm.backends.llamacpp_open import runnable_model
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.config import LlmConfig
 from letspi.llm.fingerprint import prompt_fingerprint
-from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter, locate_model
-from letspi.llm.spec import parse_spec
+from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter
+from letspi.llm.spec import backend_kind, installed_origin, parse_spec
 from letspi.method.config import DecisionConfig, MemoryPhaseConfig, MemoryRef
 from letspi.method.decide import recommended_threshold
 from letspi.method.memory import MemoryBank
@@ -83,6 +83,19 @@ def file_sha256(path: Path) -> str:
     """SHA-256 of one file, computed once per process for an unchanged file (size, mtime)."""
     st = Path(path).stat()
     return _file_sha256(str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
+def path_sha256(path: Path) -> str:
+    """SHA-256 of a weights file, or of every file under a weights directory (by relative path)."""
+    path = Path(path)
+    if not path.is_dir():
+        return file_sha256(path)
+    files = sorted(p for p in path.rglob("*") if p.is_file())
+    h = hashlib.sha256()
+    for p in files:
+        h.update(p.relative_to(path).as_posix().encode())
+        h.update(file_sha256(p).encode())
+    return h.hexdigest()
 
 
 def weights_sha256(model_dir: Path) -> str:
@@ -175,24 +188,27 @@ class Resolver:
     def llm(self, spec: str) -> LlmConfig:
         """The model ``spec`` with its weights fingerprint (local files only) and the prompt fingerprint."""
         parsed = parse_spec(spec)
+        kind = backend_kind(parsed.kind)
         model_sha = model_path = adapter_sha = adapter_path = runtime = None
-        if parsed.kind == "llamacpp":
-            llama_runtime = LlamaRuntime.from_env(dict(self.env))
-            runtime = llama_runtime.identity()
-            # the file llama.cpp will run: its F16 copy where the probe saw its quantized kernels fault here
-            path = runnable_model(locate_model(parsed.model), flash_attn=llama_runtime.flash_attn)
-            model_sha, model_path = file_sha256(path), str(path)
-            adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
-            if adapter is not None:
-                adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
+        if kind.local_weights is not None:
+            path = kind.local_weights(parsed)
+            if parsed.kind == "llamacpp":
+                llama_runtime = LlamaRuntime.from_env(dict(self.env))
+                runtime = llama_runtime.identity()
+                # the file llama.cpp will run: its F16 copy where the probe saw its quantized kernels fault here
+                path = runnable_model(path, flash_attn=llama_runtime.flash_attn)
+                adapter = locate_adapter(parsed.model, self.env)  # $LETSPI_LLM_ADAPTER or the shipped one
+                if adapter is not None:
+                    adapter_sha, adapter_path = file_sha256(adapter), str(adapter)
+            model_sha, model_path = path_sha256(path), str(path)
         style = self.options.get(PROMPT_STYLE)
         if style is None:  # what the adapter was trained on (compact for an adapter that does not say)
             trained = adapter_prompt_style(Path(adapter_path)) if adapter_path is not None else None
             style = (trained or "compact") if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
         if style not in PROMPT_STYLES:
             raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
-        return LlmConfig(spec=str(parsed), model_sha256=model_sha, model_path=model_path,
-                         adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
+        return LlmConfig(spec=str(parsed), backend=installed_origin(parsed.kind), model_sha256=model_sha,
+                         model_path=model_path, adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
                          prompt_style=style,  # type: ignore[arg-type]
                          prompt_sha256=self._prompt_sha, cache=self.options.get(LLM_CACHE),
                          timeout_s=self.options.get(LLM_TIMEOUT))

@@ -1,11 +1,12 @@
-"""``letspi llm``: check LLM backends, list embedded models, benchmark them, show the prompt fingerprint."""
+"""``letspi llm``: check LLM backends, list backend kinds and embedded models, benchmark them, show the prompt
+fingerprint."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -17,11 +18,13 @@ from letspi.llm.fingerprint import prompt_samples
 from letspi.llm.latency import bench_models, bench_scenarios, standard_messages
 from letspi.llm.models import EMBEDDED_MODELS, is_fine_tuned
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
+from letspi.llm.spec import ENTRY_POINT_GROUP, backend_origin, backend_table, installed_backends
 from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message
 from letspi.method.phases import messages_text
 from letspi.method.prompt_samples import prompt_text_samples
 
-app = typer.Typer(help="LLM backends: check a spec, list embedded models, benchmark; the prompt fingerprint.",
+app = typer.Typer(help="LLM backends: check a spec, list backend kinds and embedded models, benchmark; the prompt "
+                       "fingerprint.",
                   no_args_is_help=True, rich_markup_mode=None)
 
 _TINY_USER = (
@@ -31,7 +34,8 @@ _TINY_USER = (
 
 @app.command("check")
 def check(
-    spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b.")],
+    spec: Annotated[str, typer.Argument(help="Backend spec, e.g. llamacpp:smollm2-135m, ollama:llama3.1:8b "
+                                                "(letspi llm backends lists the kinds).")],
     prompt: Annotated[
         str, typer.Option(help="auto | tiny | fast | physics | compact (fast, physics and compact on a close-leader "
                                "scenario; auto: compact for the fine-tuned model, else tiny).")
@@ -87,6 +91,27 @@ def check(
     typer.echo(json.dumps(out, indent=2, ensure_ascii=False))
     if advice.fallback:
         raise typer.Exit(code=1)
+
+
+@app.command("backends")
+def backends(
+    as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list instead of a table.")] = False,
+) -> None:
+    """List the backend kinds a spec may name (PREFIX:MODEL): built in and from installed packages."""
+    rows: list[dict[str, Any]] = [
+        {"prefix": k.prefix, "doc": k.doc, "forms": list(k.forms), "default_concurrency": k.default_concurrency,
+         "local_weights": k.local_weights is not None, "source": backend_origin(k.prefix)} for k in backend_table()]
+    if as_json:
+        typer.echo(json.dumps(rows, indent=2))
+    else:
+        width = max(len(row["prefix"]) for row in rows)
+        for row in rows:
+            source = "" if row["source"] == "built in" else f" [{row['source']}]"
+            typer.echo(f"{row['prefix']:<{width}}  {row['doc']}{source}")
+            typer.echo(f"{'':<{width}}  forms: {', '.join(row['forms'])}; concurrency {row['default_concurrency']}")
+        typer.echo(f"\nInstalled packages add kinds through the entry-point group {ENTRY_POINT_GROUP!r}.")
+    for problem in installed_backends().problems.values():
+        typer.echo(f"left out: {problem}", err=True)
 
 
 @app.command("models")

@@ -24,7 +24,7 @@ from letspi.llm.choice import CHOICE_KEY, choice_json_schema, parse_choice
 from letspi.llm.guard import CircuitBreaker, RequestStats
 from letspi.llm.parse import parse_reply, try_parse_json
 from letspi.llm.schema import DEFAULT_REPLY, WIRE_KEYS, PlannerReply, Variant, reply_json_schema
-from letspi.llm.spec import make_backend
+from letspi.llm.spec import installed_origin, make_backend
 from letspi.llm.types import (
     BackendUnavailableError,
     DecodingSettings,
@@ -228,7 +228,8 @@ class ParamAdvisor:
         """One call through the cache (no validation, no retry)."""
         key = ""
         if self.cache is not None:
-            key = cache_key(backend_identity(self.backend), messages, self.settings, schema)
+            identity, origin = backend_identity(self.backend), installed_origin(self.backend.spec)
+            key = cache_key(identity if origin is None else f"{identity} [{origin}]", messages, self.settings, schema)
         if self.cache is not None:
             t0 = time.perf_counter()
             hit = self.cache.get(key)

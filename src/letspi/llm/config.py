@@ -17,8 +17,11 @@ class LlmConfig(Config):
     ``LlamaRuntime.identity`` (None for servers)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"backend"})
 
     spec: str
+    #: "package VERSION" of a backend kind from an installed package (None: built in)
+    backend: str | None = None
     model_sha256: str | None = None
     model_path: str | None = None
     adapter_sha256: str | None = None
