@@ -1,8 +1,5 @@
-"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario.
-
-Info columns (``DECISION_COLUMNS``): ``decision`` (the preset, or ``custom``), ``consulted`` (the model or
-rule was asked), ``risk_score`` (NaN without a gate), ``adverse_failed`` (the futures the first plan fails,
-comma-separated), ``refinements`` (rounds after the first) and ``reason`` (why, in one line).
+"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario
+(``DECISION_OUTPUTS``).
 """
 
 from __future__ import annotations

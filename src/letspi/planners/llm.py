@@ -2,13 +2,10 @@
 (retrieved memories) and ``letspi-fs`` (three static examples instead of retrieval).
 
 ``propose`` makes one scenario's LLM calls (``proposes_per_scenario``) and is thread-safe, so the harness
-keeps many scenarios in flight; ``simulate`` rolls out and shields every proposal at once. ``info`` records
-tokens, fallbacks, clamps and iterations, and the timing columns: ``llm_calls`` / ``llm_cached_calls``
-(``llm_cached``: all were cached), ``llm_latency_s`` (calls that ran now) and ``llm_original_latency_s`` (what
-every call cost when first made). The safety shield (beyond the paper; ``--no-shield`` is the ablation)
-replaces a plan failing the reflection checks against the prediction by the first safe alternative (presets,
-retrieved memories, the fitted ``sf`` parameters, ``sf-opt``'s grid), else the least unsafe plan of all:
-``shielded``, ``shield_checked``, ``shield_safe``, ``shield_source`` (0 the LLM's plan, k memory k, ``*_SOURCE``).
+keeps many scenarios in flight; ``simulate`` rolls out and shields every proposal at once. The safety shield
+(beyond the paper; ``--no-shield`` is the ablation) replaces a plan failing the reflection checks against the
+prediction by the first safe alternative (presets, retrieved memories, the fitted ``sf`` parameters,
+``sf-opt``'s grid), else the least unsafe plan of all. Info columns: the ``*_OUTPUTS`` declarations.
 """
 
 from __future__ import annotations
