@@ -1,14 +1,9 @@
-"""Labels directory (``letspi train llm-data``) -> chat examples in the compact prompt.
+"""Labels directory (``letspi train llm-data`` or ``letspi train decide``) -> chat examples.
 
-Each label row becomes ``(messages, reply)``: the compact prompt of its scenario
-(``letspi.llm.compact``; the scene described with the goal the planners predict, so the model sees in
-training what it sees when planning) and the label in the compact wire format. ``refine`` rows also
-carry the rejected proposal and the facts of its safety check. Rows whose label failed the checks
-(``label_safe`` False) are left out: the model is only taught answers the physics verified.
-
-The train/validation split is **by ego vehicle** (``letspi.scenario.split.split_by_key`` on the
-recording key and ego id of each example's scenario): overlapping windows of one vehicle, and the
-propose and refine examples of one scenario, all land on one side.
+Each label row becomes ``(messages, reply)``: the prompt of its scenario as the planners render it (the
+goal they predict included) and the label in the wire format. Rows whose label failed the checks are left
+out (the model is only taught answers the physics verified). The train/validation split is by ego vehicle,
+so overlapping windows of one vehicle land on one side.
 """
 
 from __future__ import annotations
@@ -63,8 +58,7 @@ def labels_sha256(directory: Path) -> str:
 
 
 def read_labels(directory: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """(labels table, manifest) of a labels directory (``labels.load_labels``, which names the file of a
-    bad one), with only the example kinds this module renders."""
+    """(labels table, manifest) of a labels directory; ``ValueError`` naming the file for unknown kinds."""
     df, manifest = load_labels(directory)
     bad = sorted(set(df["kind"]) - set(KINDS))
     if bad:
@@ -92,8 +86,8 @@ def example_of_row(row: pd.Series, desc: Any, vehicle_key: str = "") -> ChatExam
 
 
 def choice_example_of_row(row: pd.Series, desc: Any, vehicle_key: str = "") -> ChatExample:
-    """The chat example of one choice label row (``letspi.finetune.decide_data``): the choice prompt over
-    the row's option lines, and for a refinement the rejected preset and the checks it failed."""
+    """The chat example of one choice label row: the choice prompt over its option lines (a refinement adds
+    the rejected preset's failed checks)."""
     lines = [OptionLine(str(name), tuple(failed), float(progress)) for name, failed, progress in
              json.loads(row["lines_json"])]
     rejected = str(row["rejected"]) or None
@@ -133,12 +127,8 @@ def build_examples(
     max_scenarios: int | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> tuple[list[ChatExample], dict[str, Any]]:
-    """Chat examples of a labels directory and a description of the data (for the manifest).
-
-    ``scenarios``: the scenario file the labels index (default: the manifest's ``scenarios_path``);
-    its rows must have the digests the labels recorded. ``max_scenarios``: only the first N
-    labelled scenarios (by row index), for quick runs and tests.
-    """
+    """Chat examples of a labels directory and a description of the data (for the manifest). ``scenarios``:
+    the file the labels index (default: the manifest's; digests must match); ``max_scenarios``: the first N."""
     choice = _is_choice(directory)
     df, manifest = read_choice_labels(directory) if choice else read_labels(directory)
     path = Path(scenarios or manifest.get("scenarios_path", ""))
@@ -182,12 +172,8 @@ def _examples_of_rows(
     where: tuple[Path, Path],
     progress: Callable[[int], None] | None,
 ) -> list[ChatExample]:
-    """The chat examples of the label rows ``df``, in (scenario index, kind) order.
-
-    ``batch`` holds the labelled scenarios ``indices`` (in that order) with their ``digests``; each
-    scenario is described once. ``where``: (scenario file, labels directory), for the error when a
-    digest differs from the one the labels recorded.
-    """
+    """The chat examples of label rows ``df`` in (scenario index, kind) order; ``batch`` holds scenarios
+    ``indices`` with their ``digests``; ``where`` (scenario file, labels directory) names a digest mismatch."""
     path, directory = where
     vehicles = vehicle_keys(batch)
     pos = {int(k): j for j, k in enumerate(indices)}
@@ -219,8 +205,7 @@ def build_examples_many(
     max_scenarios: int | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> tuple[list[ChatExample], dict[str, Any]]:
-    """``build_examples`` over several label directories (each with the scenario file its manifest
-    names), concatenated; the description lists each directory's provenance."""
+    """``build_examples`` over several label directories, concatenated, with each one's provenance."""
     examples: list[ChatExample] = []
     infos: list[dict[str, Any]] = []
     for d in directories:

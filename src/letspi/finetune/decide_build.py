@@ -1,7 +1,5 @@
-"""``letspi train decide``: option outcomes of training traffic -> presets, risk gate, choice labels.
-
-See ``letspi.finetune.decide_data`` for what each step does; this module runs them over scenario files
-and writes the outputs with their provenance (files, digests, settings, counts)."""
+"""``letspi train decide``: runs ``letspi.finetune.decide_data``'s steps over scenario files and writes the
+presets, risk gate and choice labels with their provenance."""
 
 from __future__ import annotations
 

@@ -1,22 +1,9 @@
-"""Training data of LetsPi's decision step: presets, the risk gate and decision-focused labels.
+"""Training data of LetsPi's decision step, from training traffic only (``letspi train decide``).
 
-``letspi train decide`` runs these on training traffic (never evaluation seeds):
-
-1. **Option outcomes**: a pool of candidate answers (``pool_option_table``: the fitted defaults and
-   structured variations: a shorter goal, a stronger repulsion from the leader, a lane change) scored on
-   every window in hindsight and checked at plan time (``letspi.finetune.options.OptionRun``, cached).
-2. **Presets** (``select_presets``): a greedy cover of the windows where the defaults collide, by options
-   that pass every plan-time check there *and* avoid the collision in hindsight: presets a chooser that
-   reads the checks can pick, and that fix what the defaults get wrong.
-3. **Risk gate** (``fit_gate``): a logistic model from the history's risk features and the defaults'
-   checks to "the defaults collide in hindsight", with the threshold that consults the model on a
-   given share of the windows.
-4. **Labels** (``choice_labels``): per window the preset to learn, in hindsight: the defaults where they
-   did not collide; else the best preset by ``letspi.analysis.headroom``'s utility, preferring presets
-   that pass every check. Windows are weighted by risk bucket (the rare windows where the defaults
-   collide weigh ``bad_weight``), and refinement examples (the memory phase's reflection round: the
-   defaults rejected by a check, the label among the others) are added for windows where the defaults
-   fail a check.
+Option outcomes (a pool of candidate answers scored in hindsight and checked at plan time) give: presets,
+a greedy cover of the windows where the defaults collide (``select_presets``); the risk gate, P(the defaults
+collide) with a threshold that consults a given share of windows (``fit_gate``); and decision-focused
+choice labels (``choice_labels``), weighted by risk, with refinement examples where the defaults fail a check.
 """
 
 from __future__ import annotations
@@ -43,11 +30,9 @@ _W = (4.0, 2.0, 1.0, 1e-3)
 
 
 def pool_option_table(params: SocialForceParams) -> OptionTable:
-    """The candidate presets: the defaults; a shorter goal (``ease``, ``slow``, ``brake``: lon factor 0.55,
-    0.7, 1.0, i.e. a goal 7.5, 15 and 30 % nearer) and the same with a stronger repulsion from the leader
-    (``-gap``: k_np 35, ``-gap+``: 50; ``keep-gap`` at the unchanged goal); a lane change to the ``left``
-    or ``right`` at the unchanged, ``slow`` and ``brake`` goals (``-gap``: k_np 40); a firm lane keeper
-    (``hold``) and a quicker relaxation (``quick``). Short names: the model writes one in its reply."""
+    """The candidate presets: the defaults; nearer goals (``ease``, ``slow``, ``brake``), each also with a
+    stronger repulsion from the leader (``-gap``, ``-gap+``; ``keep-gap``); lane changes ``left`` / ``right`` at
+    several goals; ``hold`` and ``quick``. Short names: the model writes one in its reply."""
     d = defaults_vector(params)
     field = {f: i for i, f in enumerate(NUMERIC_FIELDS)}
     names, rows = [DEFAULT_NAME], [d.copy()]
@@ -82,9 +67,8 @@ def utility(o: OptionOutcomes) -> np.ndarray:
 
 
 def select_presets(o: OptionOutcomes, k: int) -> list[int]:
-    """K option indices, the defaults first: greedily, the option that makes the most windows where the
-    defaults collide fixable (passes every plan-time check and avoids contact in hindsight); ties broken
-    by the option's success rate over all windows."""
+    """K option indices, the defaults first, then greedily the option that fixes (passes every plan-time check,
+    no contact in hindsight) the most windows where the defaults collide; ties by success rate."""
     if k < 1:
         raise ValueError("at least one preset (the defaults)")
     bad = o.collision[:, 0]
@@ -107,10 +91,9 @@ def grouped_fold(groups: np.ndarray, folds: int, seed: int = 0) -> np.ndarray:
 
 def fit_gate(features: np.ndarray, o: OptionOutcomes, fold: np.ndarray, *, consult_share: float,
              provenance: dict[str, Any] | None = None) -> tuple[TreeEnsemble, np.ndarray]:
-    """The risk model: P(the defaults collide) from ``features`` (B, ``GATE_FEATURE_NAMES``), gradient-boosted
-    trees (``letspi.finetune.gate_train``), and its cross-validated scores (B,). The threshold in its
-    provenance consults ``consult_share`` of these windows by those scores (by ``fold``: what a held-out
-    window's score looks like, not the optimistic in-sample one)."""
+    """The risk model (gradient-boosted trees, P(the defaults collide) from ``features`` (B, ``GATE_FEATURE_NAMES``))
+    and its cross-validated scores (B,); its threshold consults ``consult_share`` of the windows by those
+    out-of-fold scores (what a held-out window's score looks like)."""
     positive = o.collision[:, 0]
     oof = np.zeros(len(positive))
     for f in np.unique(fold):
@@ -128,8 +111,7 @@ def fit_gate(features: np.ndarray, o: OptionOutcomes, fold: np.ndarray, *, consu
 
 @dataclass(frozen=True)
 class ChoiceLabel:
-    """One training example of the choice style: window ``row``, the preset to answer (an index into the
-    presets), its weight, the risk score its prompt shows, and for a refinement the rejected preset (else -1)."""
+    """One choice example: window ``row``, preset ``label``, ``weight``, prompt ``risk``, ``rejected`` (-1: none)."""
 
     row: int
     label: int
@@ -149,8 +131,7 @@ class Weights:
 
 
 def outcome_probabilities(x: np.ndarray, o: OptionOutcomes, fold: np.ndarray) -> dict[str, np.ndarray]:
-    """Cross-validated (B, K) probabilities of each option's at-fault contact, contact and success from the
-    plan-time inputs ``x`` (B, D): every window's by the trees fitted on the other folds."""
+    """Out-of-fold (B, K) probabilities of each option's at-fault contact, contact and success from ``x`` (B, D)."""
     out = {name: np.zeros(o.collision.shape) for name in ("at_fault", "collision", "success")}
     for name, target in (("at_fault", o.at_fault), ("collision", o.collision), ("success", o.success)):
         for k in range(target.shape[1]):
@@ -175,11 +156,9 @@ def expected_utility(p: dict[str, np.ndarray], o: OptionOutcomes, w: Weights) ->
 
 def choice_labels(eu: np.ndarray, risk: np.ndarray, consulted: np.ndarray, o: OptionOutcomes, *,
                   keep_share: float, refine_weight: float, seed: int = 0) -> list[ChoiceLabel]:
-    """Decision-focused labels (module docstring): in the windows the gate consults, the option of the
-    highest expected utility ``eu`` (B, K) when it beats the defaults, else the defaults; ``keep_share`` of
-    the other windows (sampled) as examples of keeping the defaults at low risk; and for a consulted
-    window whose best option fails a plan-time check while another passes all, a refinement example
-    (that option rejected, the best of the others as the answer)."""
+    """Where the gate consults, the option of highest ``eu`` (B, K) if it beats the defaults, else the defaults;
+    a ``keep_share`` sample of the other windows keeping the defaults; and a refinement example (rejected:
+    the best option, answer: the best passing one) where the best fails a check another passes."""
     rng = np.random.default_rng(seed)
     best = np.argmax(eu, axis=1)
     label = np.where(eu[np.arange(len(eu)), best] > eu[:, 0], best, 0)
@@ -198,8 +177,8 @@ def choice_labels(eu: np.ndarray, risk: np.ndarray, consulted: np.ndarray, o: Op
 
 
 def keep_and_change_rates(choice: Sequence[int] | np.ndarray, o: OptionOutcomes) -> dict[str, float]:
-    """The issue's diversity targets for a chooser's picks (B,): kept where the defaults were
-    collision-free, changed where they collided, and each preset's share."""
+    """Diversity of a chooser's picks (B,): kept where the defaults were collision-free, changed where they
+    collided, and each preset's share."""
     c = np.asarray(choice)
     bad = o.collision[:, 0]
     return {"keep_where_safe": float((c[~bad] == 0).mean()) if (~bad).any() else float("nan"),
@@ -213,8 +192,7 @@ CHOICE_COLUMNS: tuple[str, ...] = ("scenario_index", "scenario_digest", "kind", 
 
 
 def option_lines_of(o: OptionOutcomes, presets: OptionTable, adverse_names: Sequence[str], i: int) -> list[list[Any]]:
-    """Window ``i``'s presets as the choice prompt lists them: [name, failed checks, progress m] each
-    (the plan-time checks and the plan's own end: nothing from the recorded future)."""
+    """Window ``i``'s presets as the choice prompt lists them: [name, failed plan-time checks, progress m]."""
     out: list[list[Any]] = []
     for k, name in enumerate(presets.names):
         failed = ([] if o.predicted_safe[i, k] else ["predicted"]) + [

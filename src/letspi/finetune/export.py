@@ -1,22 +1,10 @@
-"""PEFT LoRA weights -> a llama.cpp LoRA adapter GGUF (``Llama(model_path=base, lora_path=adapter)``).
+"""PEFT LoRA weights -> a llama.cpp LoRA adapter GGUF, laid out as llama.cpp's ``convert_lora_to_gguf.py`` does.
 
-Layout (as llama.cpp's ``convert_lora_to_gguf.py`` writes it, re-implemented with the ``gguf``
-package):
-
-* metadata: ``general.architecture`` = the base model's (``llama`` for SmolLM2),
-  ``general.type`` = ``adapter``, ``adapter.type`` = ``lora``, ``adapter.lora.alpha`` (float32;
-  llama.cpp scales by alpha / rank, rank read from the tensors);
-* per adapted matrix ``W`` (PyTorch shape (out, in)), two tensors named after the base tensor:
-  ``blk.N.attn_q.weight.lora_a`` = PEFT ``lora_A`` (rank, in) and ``....lora_b`` = ``lora_B``
-  (out, rank), written in PyTorch row-major order (GGUF dims are reversed: ggml sees
-  ``lora_a`` as ne = [in, rank], so ``mul_mat(lora_b, mul_mat(lora_a, x))`` = B A x);
-* the rotary layout: llama.cpp's converter permutes the rows of ``q_proj``/``k_proj`` of Llama models
-  (pairs of rotary dimensions interleaved per head), and transformers undoes that when it loads a
-  GGUF. The adapter's output rows must follow the GGUF base, so ``lora_b`` of q/k gets the same row
-  permutation (``lora_a`` acts on the input side and is unchanged).
-
-Embeddings and ``lm_head`` are never adapted (``letspi.finetune.train``); a state dict holding them
-is refused.
+Metadata: the base's ``general.architecture``, ``general.type`` = ``adapter``, ``adapter.type`` = ``lora``,
+``adapter.lora.alpha`` (llama.cpp scales by alpha / rank). Per adapted matrix W (out, in):
+``blk.N.<tensor>.weight.lora_a`` = PEFT ``lora_A`` (rank, in) and ``.lora_b`` = ``lora_B`` (out, rank),
+row-major (ggml reads the dims reversed, so it computes B A x). ``lora_b`` of q/k gets the rotary row
+permutation llama.cpp's converter applies to the base. Embeddings and ``lm_head`` are refused.
 """
 
 from __future__ import annotations
@@ -61,9 +49,8 @@ def gguf_lora_name(peft_name: str) -> str:
 
 
 def permute_rotary_rows(w: np.ndarray, n_head: int) -> np.ndarray:
-    """llama.cpp's q/k row permutation (``convert_hf_to_gguf.LlamaModel.permute``) of a matrix whose
-    rows are ``n_head`` heads of ``head_dim`` output features: per head, the two rotary halves are
-    interleaved. w: (n_head * head_dim, cols) -> same shape."""
+    """llama.cpp's q/k row permutation (per head, the two rotary halves interleaved) of
+    w (n_head * head_dim, cols) -> same shape."""
     rows = w.shape[0]
     if rows % (2 * n_head):
         raise AdapterExportError(f"{rows} rows do not split into {n_head} heads of an even size")
@@ -71,11 +58,8 @@ def permute_rotary_rows(w: np.ndarray, n_head: int) -> np.ndarray:
 
 
 def adapter_tensors(state: Mapping[str, Any], *, n_head: int, n_kv_head: int) -> dict[str, np.ndarray]:
-    """GGUF adapter tensors (float32, PyTorch layout) of a PEFT LoRA state dict (name -> array or tensor).
-
-    ``n_head`` / ``n_kv_head``: attention heads of the base model (q rows / k rows are permuted per head).
-    Every ``lora_a`` must have its ``lora_b`` and vice versa.
-    """
+    """GGUF adapter tensors (float32, PyTorch layout) of a PEFT LoRA state dict; ``n_head`` / ``n_kv_head``
+    permute q / k rows; every ``lora_a`` needs its ``lora_b`` and vice versa."""
     out: dict[str, np.ndarray] = {}
     for name, value in state.items():
         arr = np.asarray(value.detach().cpu().float().numpy() if hasattr(value, "detach") else value,

@@ -1,8 +1,5 @@
-"""Training the risk gate's trees (scikit-learn's histogram gradient boosting; the ``train`` extra) and
-exporting them to ``letspi.learned.trees.TreeEnsemble`` (NumPy inference, no scikit-learn at run time).
-
-``fit_trees`` checks the export: the exported ensemble's scores equal scikit-learn's on the training
-inputs (to 1e-9), or it raises.
+"""Training the risk gate's trees (scikit-learn's histogram gradient boosting; the ``train`` extra), exported to
+``letspi.learned.trees.TreeEnsemble``; ``fit_trees`` raises unless the export scores as scikit-learn does (1e-9).
 """
 
 from __future__ import annotations

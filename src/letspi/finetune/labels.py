@@ -1,39 +1,11 @@
 """Physics-verified training labels for the LLM (and the ``mlp`` regressor): hindsight search.
 
-For every training scenario the six social-force parameters and the two goal factors
-(``letspi.llm.schema.NUMERIC_FIELDS``, inside ``FIELD_RANGES``) are searched:
-
-1. random candidates: the fitted ``sf`` defaults (neutral goal) first, half uniform over the ranges,
-   half Gaussian around the defaults (lane factor snapped to -1 / 0 / +1 most of the time);
-2. local refinement: ``n_rounds`` rounds of Gaussian perturbations around the ``top_m`` best so far,
-   with a shrinking step.
-
-Each candidate is planned the way a planner plans it at inference time (goal adjustment of the
-predicted goal, social force rollout against *predicted* neighbours, ``letspi.method.reflection
-.simulate_proposal``), and the resulting trajectory is checked against the RECORDED future
-(neighbours and context vehicles, ``letspi.safety.plan_check.check_recorded``): hindsight, as the
-evaluation scores plans. This is for training only; planners never see the future.
-
-Objective (higher is better; ``LabelSearch`` holds the weights):
-
-* unsafe (contact, off-road, front / rear TTC < ``ttc_s``, in-path gap < ``min_dist_m``, braking >
-  ``max_decel_mps2``): ``-10 - 5 contact - 2 off-road - violations + margin`` (never beats a safe one);
-* safe: ``w_goal * min(progress / goal distance, 1) - w_overshoot * overshoot - w_lane * |lateral
-  end error| / lane width - w_decel * peak braking / 8 - w_lat * peak |a_y| / 3 + w_margin *
-  min(TTC, 6) / 6 - w_reg * distance to the defaults`` (normalised by the ranges). The pull towards
-  the defaults makes the label unique where many candidates are equally good (a learnable target).
-
-Rows (``LABEL_COLUMNS``; the directory format is in docs/finetuning.md, "The labels directory"):
-
-* ``propose``: scene -> best candidate (``label_safe`` False when no candidate was safe);
-* ``refine``: scene + a rejected proposal (the defaults when they are unsafe, and one random unsafe
-  candidate) + its safety report -> the nearest safe candidate among the good ones (score within
-  ``refine_tolerance`` of the best). The report is the reflection module's own report of that plan
-  against the recorded neighbours (``SafetyReport.to_text``): measured facts, nothing invented.
-
-Resumable: scenarios are processed in chunks written as ``parts/part-NNNNN.parquet`` (atomic);
-a rerun with the same settings skips finished parts. ``labels.parquet`` and ``manifest.json`` are
-rewritten (atomically) every ``consolidate_s`` seconds and at the end (``complete`` true).
+Per training scenario the eight answer values are searched (the fitted defaults, random candidates, then
+rounds of local refinement around the best). Each candidate is planned as a planner plans it (against
+predicted neighbours) and checked against the recorded future: hindsight, for training only. Rows
+(``LABEL_COLUMNS``; format in docs/finetuning.md): ``propose`` (scene -> best candidate) and ``refine``
+(scene + a rejected unsafe proposal + its safety report -> the nearest good safe candidate). Resumable:
+chunks go to ``parts/part-NNNNN.parquet`` atomically and a rerun with the same settings skips them.
 """
 
 from __future__ import annotations
@@ -83,7 +55,11 @@ TTC_CAP_S = 6.0
 
 
 class LabelSearch(BaseModel):
-    """Search settings (recorded in the manifest; a resume with other settings is refused)."""
+    """Search settings (recorded in the manifest; a resume with other settings is refused). Score, higher is
+    better: unsafe ``-10 - 5 contact - 2 off-road - violations + margin`` (below every safe one); safe
+    ``w_goal * min(progress / goal distance, 1) - w_overshoot * overshoot - w_lane * |lateral end error| / lane
+    width - w_decel * peak braking / 8 - w_lat * peak |a_y| / 3 + w_margin * min(TTC, 6) / 6 - w_reg * distance
+    to the defaults`` (the pull to the defaults makes the label unique, a learnable target)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -134,12 +110,9 @@ def evaluate_candidates(
     r_col_m: float,
     search: LabelSearch,
 ) -> CandidateResults:
-    """Plan every candidate (as a planner would) and score it against the recorded future.
-
-    batch: B scenarios WITH their future; values: (B, C, 8) candidates; base_goals_xy_m: (B, 2) the
-    unadjusted predicted goals; prediction: (B, N, F, ...) predicted neighbours (what the plan reacts
-    to); defaults: (8,) the regularisation centre. All B x C rollouts run in one vectorised call.
-    """
+    """Plan every candidate as a planner would and score it against the recorded future, in one call: batch
+    (B scenarios WITH their future), values (B, C, 8), base_goals_xy_m (B, 2), prediction (B, N, F, ...),
+    defaults (8,) the regularisation centre."""
     b, c, _ = values.shape
     rep = np.repeat(np.arange(b), c)
     big = batch.take(rep)
@@ -216,12 +189,8 @@ def search_chunk(
     search: LabelSearch,
     seed: int,
 ) -> tuple[np.ndarray, CandidateResults, np.ndarray, NeighbourPrediction]:
-    """Search B scenarios (``batch`` with the future; ``indices`` (B,) their rows in the file, which seed
-    their generators, so a scenario's result does not depend on the chunking).
-
-    Returns all candidates (B, C, 8), their results (B, C), the unadjusted goals (B, 2) and the
-    neighbour prediction the plans reacted to.
-    """
+    """Search B scenarios (``batch`` with the future; ``indices`` (B,) their file rows seed their generators, so
+    results do not depend on the chunking): candidates (B, C, 8), results (B, C), goals (B, 2), the prediction."""
     history = batch.history()
     goals = goal_predictor.predict_goals(history).top.astype(np.float64)
     pred = predict_neighbours(history, search.neighbours)

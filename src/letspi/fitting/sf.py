@@ -1,18 +1,9 @@
-"""Offline fit of the ``sf`` baseline's fixed parameters (the paper: "fixed parameters determined
-through offline optimization").
+"""Offline fit of the ``sf`` baseline's fixed parameters (paper: "determined through offline optimization").
 
-Objective on a training split (by vehicle: all windows of one ego vehicle fall on one side):
-
-    J(θ) = mean ADE to the human future [m]
-           + ``collision_weight`` × collision rate (box overlap with the ground-truth futures)
-           + ``low_ttc_weight`` × low-TTC rate (minimum 1-D TTC < 2 s against the ground truth)
-
-with goals from the kinematic predictor and neighbours from the IDM prediction, exactly as the
-planner runs. Nelder–Mead over the seven parameters in a normalised space, clamped to
-``TYPICAL_RANGES`` (the physically plausible ranges, ``letspi.physics.params``). Why bounded: on calm
-traffic ADE alone rewards switching repulsion off (an unbounded fit on generated data returned
-k_np = 0, which collides with any braking leader): a fixed-parameter baseline should be the best
-*plausible* social force model, not a degenerate one. Deterministic for a seed.
+On a by-vehicle training split, ``J(θ) = mean ADE [m] + collision_weight x collision rate + low_ttc_weight x
+rate of min 1-D TTC < 2 s`` (against the recorded futures), planned as the planner runs. Nelder-Mead over
+the seven parameters, clamped to ``TYPICAL_RANGES``: unbounded, ADE alone switches repulsion off.
+Deterministic for a seed.
 """
 
 from __future__ import annotations
@@ -105,7 +96,7 @@ def fit_sf_params(
     low_ttc_weight: float = 5.0,
     progress: Callable[[int], None] | None = None,
 ) -> FitResult:
-    """Fit the fixed SF parameters on the training split of ``batch`` (see module doc)."""
+    """Fit the fixed SF parameters on the training split of ``batch``."""
     train_idx, val_idx = split_by_vehicle(batch, train_fraction, seed)
     train_idx = subsample(train_idx, max_train, np.random.default_rng(seed))
     train = _Objective(batch.take(train_idx), collision_weight, low_ttc_weight)

@@ -1,13 +1,6 @@
-"""Learned components: the transformer multi-goal predictor and the GNP baseline.
+"""Learned components with NumPy inference: the multi-goal predictor, GNP and the risk gate's models.
 
-Inference is NumPy only (``goal_model``, ``gnp_model``, ``layers``, ``features``, ``weights``);
-training lives in ``letspi.learned.train`` and needs torch (``pip install 'letspi[train]'``).
-
-Public API:
-
-* ``LearnedGoalPredictor.from_dir(path)``; ``GnpModel.from_dir(path)`` (which directory, shipped or
-  ``$LETSPI_GOAL_WEIGHTS`` / ``$LETSPI_GNP_WEIGHTS``, is decided by ``letspi.assembly.resolve``).
-* ``goal_metrics`` (minFDE@K, miss rate), ``scene_features``, ``save_weights`` / ``load_weights``.
+Training lives in ``letspi.learned.train`` and needs torch (``letspi[train]``).
 """
 
 from letspi.learned.features import SceneFeatures, scene_features

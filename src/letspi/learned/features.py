@@ -1,28 +1,6 @@
-"""Scene -> fixed-size input tensors of the learned models (only what is known at t <= 0).
+"""Scene -> fixed-size inputs of the learned models, from frames t <= 0 only, in the ego frame at t = 0.
 
-Everything stays in the ego frame (origin: ego centre at t = 0, x forward, y left; see
-``letspi.scenario.types``). Agent slot 0 is the ego, slots 1..N the neighbour slots of the batch.
-
-``SceneFeatures`` (float64 arrays, B scenarios, A = 1 + N agents, H = ``N_HIST_STEPS`` = 15):
-
-* ``agent_hist`` (B, A, H, 5): per history step (every ``HIST_STRIDE`` = 5 frames = 0.2 s over the
-  last 2.8 s, ending at t = 0): ``x / 50 m``, ``y / 5 m``, ``vx / 30 m/s``, ``vy / 2 m/s``, valid (0/1).
-  Invalid samples are all zero.
-* ``agent_static`` (B, A, 6): ``length / 5 m``, ``width / 2 m``, is_truck, is_ego, and the agent's
-  lateral offset from its lane centre at t = 0 ``/ 2 m`` and signed lane index relative to the ego's
-  lane (``+1`` = one lane to the left), both 0 when unknown.
-* ``agent_mask`` (B, A) bool: the ego always; a neighbour when it is visible at t = 0 (a vehicle
-  that already left cannot act on the plan, and the neighbour predictors cannot start from it).
-* ``lane`` (B, 2 * ``MAX_MARKINGS`` + 4): for each marking slot (ascending y, NaN padding -> 0):
-  ``(marking_y - ego_y0) / 5 m`` and a kind code (+1 road edge, -1 lane line, 0 padding); then lane
-  width ``/ 4 m``, number of lanes left and right of the ego's lane ``/ 3``, speed limit ``/ 40 m/s``
-  (0 when unknown), and the kinematic anchor relative to constant velocity:
-  ``(anchor_x - vx0 * 5 s) / 10 m``, ``anchor_y / 5 m``.
-* ``anchor_xy`` (B, 2) [m]: the ``KinematicGoalPredictor`` goal (constant acceleration + lane-change
-  intention). The goal network predicts offsets from it, so an untrained offset is the kinematic goal.
-
-The scales keep every input of order 1 without data-dependent normalisation statistics, so the
-same features work for any data set (generated or real HighD).
+Fixed scales (not data statistics) keep every input of order 1, so the features fit any data set.
 """
 
 from __future__ import annotations
@@ -54,7 +32,18 @@ SCALE_VY_MPS: Final = 2.0
 
 @dataclass(frozen=True)
 class SceneFeatures(Rows):
-    """Model inputs for B scenarios (shapes and units in the module docstring)."""
+    """Model inputs (float64) for B scenarios, A = 1 + N agents (slot 0 the ego), H = ``N_HIST_STEPS``.
+
+    * ``agent_hist`` (B, A, H, 5): every 0.2 s up to t = 0: x / 50 m, y / 5 m, vx / 30 m/s, vy / 2 m/s, valid;
+      invalid samples all 0.
+    * ``agent_static`` (B, A, 6): length / 5 m, width / 2 m, is_truck, is_ego, offset from the lane centre
+      / 2 m, lane index relative to the ego's (+1 = left); 0 when unknown.
+    * ``agent_mask`` (B, A) bool: the ego, and neighbours visible at t = 0 (no others can act on the plan).
+    * ``lane`` (B, 2 * MAX_MARKINGS + 6): per marking (ascending y) (y - ego y) / 5 m, then its kind (+1 edge,
+      -1 line, 0 padding); lane width / 4 m, lanes left and right of the ego / 3, speed limit / 40 m/s, the
+      anchor's (x - vx0 * 5 s) / 10 m and y / 5 m.
+    * ``anchor_xy`` (B, 2) [m]: the ``KinematicGoalPredictor`` goal; the goal network predicts offsets from it.
+    """
 
     agent_hist: np.ndarray
     agent_static: np.ndarray
@@ -79,7 +68,7 @@ def _lane_offset_and_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> tuple[np
 
 
 def scene_features(batch: ScenarioBatch) -> SceneFeatures:
-    """Build the model inputs of ``batch`` from frames <= ``T0_INDEX`` only (see module docstring)."""
+    """The model inputs of ``batch`` from frames <= ``T0_INDEX`` only."""
     b, n = len(batch), batch.n_neighbours
     frames = list(HIST_FRAMES)
     my = batch.marking_y_m.astype(np.float64)

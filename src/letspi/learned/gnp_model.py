@@ -1,26 +1,10 @@
-"""GNP (Goal-based Neural Physics) baseline: a network sets social force parameters per scene.
+"""GNP (Goal-based Neural Physics) baseline: a network sets social-force parameters per scene.
 
-``GnpModel`` (NumPy inference of ``letspi.learned.train.modules.GnpNet``) reads the scene encoder's
-tokens (``letspi.learned.layers``) into
-
-* a relaxation time per scenario, ``tau = 0.3 + 2.7 s * sigmoid(.)`` in ``TAU_RANGE_S`` (B,) [s], and
-* a repulsion weight per neighbour slot, ``w_j = 1 + 3 * sigmoid(.)`` in (``WEIGHT_MIN``,
-  ``WEIGHT_MAX``) = (1, 4) (B, N) [dimensionless], 0 for absent neighbours. Why the floor at the
-  ``sf`` fit's strength: on calm generated traffic the trajectory loss rewards switching repulsion
-  off (measured: with weights in (0, 4) they fell to 0.05 on average, with (0.5, 4) they sat at the
-  floor, and in both cases the planner drove into a slower leader 40 m ahead), the same degeneracy
-  ``letspi.fitting.sf`` bounds its parameters against. GNP may be more cautious than ``sf``
-  per neighbour, never less.
-
-The weight multiplies the class strength of the fixed social force model (``k_np`` / ``k_nf`` /
-``k_nl`` of the shipped ``sf`` fit, stored in the GNP manifest): neighbour j pushes with
-``w_j * k_class * exp(-d_j / r_col)``. GNP learns one k per neighbour in (0, 100); a multiplicative
-weight keeps the class-dependent force directions of ``letspi.physics.social_force`` (a neighbour
-can change class during a rollout, e.g. preceding -> lateral, and the class strengths differ by
-~50x), and w = 1 everywhere is exactly the ``sf`` planner.
-
-The planner ``gnp`` (``letspi.planners.gnp``) rolls this model out with goals from the learned goal
-predictor and **predicted** neighbour motion.
+``GnpModel`` (NumPy inference of ``letspi.learned.train.modules.GnpNet``) reads the scene encoder's tokens
+into a relaxation time per scenario in ``TAU_RANGE_S`` (B,) [s] and a repulsion weight per neighbour slot
+in (``WEIGHT_MIN``, ``WEIGHT_MAX``) (B, N), 0 for absent neighbours. Neighbour j pushes with
+``w_j * k_class * exp(-d_j / r_col)`` (``k_class`` of the shipped ``sf`` fit), so w = 1 is the ``sf``
+planner and the floor at 1 makes GNP never less cautious than ``sf`` per neighbour.
 """
 
 from __future__ import annotations
@@ -93,8 +77,6 @@ def rollout_weighted(
     dt_s: float = DT_S,
     max_speed_mps: float | np.ndarray | None = None,
 ) -> RolloutResult:
-    """The social force rollout with per-neighbour repulsion weights ``nbr_weights`` (B, N)
-    (``None``: 1 everywhere, the plain model); a thin name for GNP's use of
-    ``rollout_social_force_scene(..., nbr_weights=...)``."""
+    """The social force rollout with per-neighbour repulsion weights ``nbr_weights`` (B, N) (None: all 1)."""
     return rollout_social_force_scene(scene, params, goals_xy_m, dt_s=dt_s, max_speed_mps=max_speed_mps,
                                       nbr_weights=nbr_weights)

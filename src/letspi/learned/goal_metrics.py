@@ -18,11 +18,8 @@ def goal_truth(batch: ScenarioBatch, n_steps: int = N_FUTURE) -> np.ndarray:
 
 def goal_metrics(prediction: GoalPrediction, truth_xy_m: np.ndarray, ks: tuple[int, ...] = (1, 5),
                  miss_threshold_m: float = MISS_THRESHOLD_M) -> dict[str, float]:
-    """``min_fde_at_{k}_m`` (mean over scenarios of the best of the top-k goals' errors [m]) and
-    ``miss_rate_at_{k}`` (share whose best top-k error exceeds ``miss_threshold_m``) for each k.
-
-    With fewer than k goals, all goals are used (so a single-goal predictor has minFDE@5 = FDE).
-    """
+    """Per k: ``min_fde_at_{k}_m`` (mean best top-k goal error [m]) and ``miss_rate_at_{k}`` (share whose best
+    error exceeds ``miss_threshold_m``); with fewer than k goals, all are used."""
     g = prediction.goals_xy_m
     err = np.linalg.norm(g - np.asarray(truth_xy_m, dtype=np.float64)[:, None, :], axis=-1)  # (B, K)
     ok = np.isfinite(err).all(axis=1)

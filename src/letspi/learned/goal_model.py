@@ -1,16 +1,9 @@
 """The learned multi-goal predictor (NumPy inference of the transformer trained by ``letspi train goals``).
 
-A transformer over the ego's and up to 8 neighbours' subsampled histories plus a lane-context token
-(``letspi.learned.layers``) reads the ego token into K candidate goals at the horizon and their
-logits. Goals are offsets from the kinematic anchor ``a`` (``KinematicGoalPredictor``'s goal, see
-``letspi.learned.features``): ``g_k = a + (10 m * o_kx, 2 m * o_ky)``, so the network learns
-corrections and alternatives to a physically sensible default. Trained winner-takes-all (the
-closest goal regresses, a cross-entropy teaches the probabilities), as in GNP's multi-goal predictor;
-goal 0 is also regressed on every scenario (``letspi.learned.train.goal_train``).
-
-Post-processing (NumPy only, not part of the network): goals are sorted best first, kept on the
-road (y between the outermost lane centres) and never behind the ego (x >= x0); probabilities are
-the softmax of the logits.
+The scene encoder's ego token is read into K goals at the horizon and their logits. Goals are offsets from
+the kinematic anchor ``a``: ``g_k = a + (10 m * o_kx, 2 m * o_ky)``, so the network learns corrections to a
+sensible default. Post-processing: goals sorted best first, kept on the road (y between the outermost lane
+centres) and never behind the ego; probabilities are the softmax of the logits.
 """
 
 from __future__ import annotations

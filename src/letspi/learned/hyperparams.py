@@ -1,7 +1,4 @@
-"""Hyperparameters of the goal predictor's and GNP's training (torch-free: the CLI reads its defaults here).
-
-The training itself is ``letspi.learned.train`` (needs torch).
-"""
+"""Training hyperparameters of the goal predictor and GNP (torch-free: the CLI reads its defaults here)."""
 
 from __future__ import annotations
 

@@ -1,18 +1,8 @@
-"""NumPy inference of the scene encoder shared by the goal predictor and GNP (no torch needed).
+"""NumPy inference (float64) of the scene encoder shared by the goal predictor and GNP.
 
-Architecture (mirrored 1:1 by ``letspi.learned.train.modules.SceneEncoder``; parameter names are the
-torch ``state_dict`` keys):
-
-1. Agent tokens: ``agent_out(relu(agent_in(agent_input)))`` with ``agent_input`` (B, A, H * 5 + 6)
-   from ``SceneFeatures.agent_input``; lane token: ``lane_out(relu(lane_in(lane)))``. A learned
-   ``slot_embed`` (A + 1, d) is added so the ego, the neighbour slots and the lane token are
-   distinguishable. Tokens: (B, A + 1, d).
-2. ``n_layers`` pre-LayerNorm transformer blocks over the tokens:
-   ``x += proj(MHA(ln1(x)))``, ``x += ff2(relu(ff1(ln2(x))))``; attention keys of absent
-   neighbours are masked, the ego and lane tokens are always present.
-3. A final LayerNorm ``ln_f``.
-
-All computation is float64.
+Mirrors ``letspi.learned.train.modules.SceneEncoder`` 1:1 (parameter names are its ``state_dict`` keys):
+agent and lane tokens from two-layer MLPs plus a learned ``slot_embed``, (B, A + 1, d); ``n_layers``
+pre-LayerNorm transformer blocks, absent neighbours masked as attention keys; a final LayerNorm ``ln_f``.
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
-"""Logistic regression (binary and multinomial) with NumPy inference: LetsPi's risk gate and the
-history-only choosers of ``letspi analyze headroom``.
+"""Logistic regression (binary and multinomial) with NumPy inference: the risk gate and headroom choosers.
 
-A ``LogisticModel`` standardises its inputs (the training mean and standard deviation, stored with
-it), then ``softmax(x W + b)`` over K classes (K = 2 for a binary model, whose ``score`` is the
-probability of class 1). ``fit_logistic`` minimises the (sample-weighted) cross-entropy plus an L2
-penalty ``l2 * |W|^2 / 2`` with SciPy's L-BFGS; deterministic for given data. ``to_json`` /
-``from_json`` round-trip the model with its feature names and provenance (what it was trained on).
+A ``LogisticModel`` standardises its inputs (stored training mean and std), then ``softmax(x W + b)`` over
+K classes (binary: ``score`` is P(class 1)). ``to_json`` / ``from_json`` round-trip it with its feature
+names and provenance.
 """
 
 from __future__ import annotations
@@ -92,11 +89,8 @@ def fit_logistic(
     sample_weight: np.ndarray | None = None,
     provenance: dict[str, Any] | None = None,
 ) -> LogisticModel:
-    """Fit on inputs (B, D) and class indices y (B,) in ``range(len(classes))``.
-
-    ``l2`` is per unit of total sample weight (the penalty does not grow weaker with more data).
-    A constant feature gets std 1 (it then carries no weight).
-    """
+    """Fit on inputs (B, D) and class indices y (B,): weighted cross-entropy plus ``l2 * |W|^2 / 2`` per unit
+    of total sample weight, by L-BFGS (deterministic). A constant feature gets std 1."""
     xs = np.asarray(x, dtype=np.float64)
     yi = np.asarray(y, dtype=np.int64)
     b, d = xs.shape
@@ -128,8 +122,7 @@ def fit_logistic(
 
 
 def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
-    """Area under the ROC curve of ``score`` for the boolean ``positive`` (ties count half); NaN when one
-    class is absent."""
+    """ROC AUC of ``score`` for boolean ``positive`` (ties count half); NaN when one class is absent."""
     s = np.asarray(score, dtype=np.float64)
     pos = np.asarray(positive, dtype=bool)
     n_pos, n_neg = int(pos.sum()), int((~pos).sum())

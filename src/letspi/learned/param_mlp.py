@@ -1,17 +1,10 @@
-"""``mlp``: a small regressor from the scenario-matching features to the LLM's eight answers.
+"""``mlp``: a regressor from the six scenario-matching features to the LLM's eight answers (an ablation).
 
-The ablation behind "what does the language model add over a regressor?": the same physics-verified
-labels the LLM is fine-tuned on (``letspi train llm-data``), fitted by a two-hidden-layer MLP on the
-six matching features of ``letspi.scenario.features`` (what retrieval sees), with NumPy inference.
-
-Network (``letspi.finetune.mlp_train`` trains it with torch; parameter names follow its state_dict)::
+NumPy inference of the network ``letspi.finetune.mlp_train`` trains on the LLM's labels::
 
     z = (features - feat_mean) / feat_std                        (B, 6)
     h = relu(W2 relu(W1 z + b1) + b2)                            (B, H)
-    values = low + (high - low) * sigmoid(W3 h + b3)             (B, 8), always inside the ranges
-
-Output columns: ``OUTPUT_FIELDS`` (the six social-force parameters the LLM chooses, then the two
-goal factors); the ranges are stored with the weights (``low`` / ``high``).
+    values = low + (high - low) * sigmoid(W3 h + b3)             (B, 8), columns ``OUTPUT_FIELDS``
 """
 
 from __future__ import annotations

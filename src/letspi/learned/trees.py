@@ -1,11 +1,6 @@
-"""Gradient-boosted decision trees with NumPy inference (LetsPi's risk gate).
+"""Gradient-boosted decision trees with NumPy inference (the risk gate; trained by ``letspi.finetune.gate_train``).
 
-A ``TreeEnsemble`` is what a binary gradient-boosting classifier learned, as plain arrays: per tree its
-nodes (the feature each splits on, the threshold, which side missing values take, the two children,
-the leaf values), and the baseline. ``score`` walks every tree for a batch at once (one array step per
-depth level) and returns ``sigmoid(baseline + sum of leaf values)``: the probability of the positive
-class. Training happens elsewhere (``letspi.finetune.gate_train``, scikit-learn, the ``train`` extra);
-``to_json`` / ``from_json`` carry the model with its feature names and provenance.
+``TreeEnsemble.score``: ``sigmoid(baseline + sum of leaf values)``, every tree walked for a batch at once.
 """
 
 from __future__ import annotations
@@ -23,9 +18,8 @@ FORMAT = "letspi-trees/1"
 
 @dataclass(frozen=True)
 class Tree:
-    """One tree, (M,) per node: feature (-1 at a leaf), threshold (go left when ``x <= threshold``),
-    missing_left (NaN goes left), left, right (child node indices), value (the leaf's contribution).
-    ``pack_trees`` stores T trees in one, (T, M) per field."""
+    """One tree, (M,) per node (``pack_trees``: (T, M)): feature (-1 at a leaf), threshold (left when ``x <=``
+    it), missing_left (NaN goes left), left, right (child indices), value (the leaf's contribution)."""
 
     feature: np.ndarray
     threshold: np.ndarray
@@ -62,8 +56,7 @@ class Tree:
 
 
 def pack_trees(trees: tuple[Tree, ...]) -> Tree:
-    """T trees as one ``Tree`` of (T, M) arrays, padded to the largest (padding: leaves of value 0, never
-    reached), for ``predict_packed``."""
+    """T trees as one ``Tree`` of (T, M) arrays, padded with unreachable leaves of value 0."""
     m = max((len(t.feature) for t in trees), default=1)
 
     def pad(name: str, fill: object, dtype: type) -> np.ndarray:
@@ -78,8 +71,7 @@ def pack_trees(trees: tuple[Tree, ...]) -> Tree:
 
 
 def predict_packed(packed: Tree, x: np.ndarray) -> np.ndarray:
-    """(T, B) the leaf value each row of x (B, D) reaches in each tree of ``packed`` (``pack_trees``): all
-    trees walked together, one array step per depth level, the same leaves as ``Tree.predict``."""
+    """(T, B) the leaf value each row of x (B, D) reaches in each tree of ``packed``, as ``Tree.predict``."""
     n_trees, m = packed.feature.shape
     b, d = x.shape
     # flat indices (node of tree t: t m + node; input of row r: r d + feature) into raveled arrays

@@ -1,14 +1,6 @@
-"""Weight files of the learned models: ``weights.npz`` (named float arrays) + ``manifest.json``.
-
-A model directory holds exactly these two files::
-
-    DIR/weights.npz     parameter name -> array (float32 on disk; inference casts to float64)
-    DIR/manifest.json   {"model": "goal" | "gnp", "format_version": 1, "config": {...},
-                         "data": {"scenario_files": [...], "seeds": [...], "n_train": ..., "n_val": ...},
-                         "validation": {...metrics...}, "training": {"command": ..., "seconds": ...}, ...}
-
-Parameter names follow the torch ``state_dict`` of ``letspi.learned.train.modules`` so that training
-and inference agree by construction; NumPy inference never imports torch.
+"""Weight files of the learned models: a directory of ``weights.npz`` (float32 arrays by the torch ``state_dict``
+names of ``letspi.learned.train.modules``) and ``manifest.json`` (kind, format version, config, data,
+validation metrics, training command).
 """
 
 from __future__ import annotations
@@ -33,10 +25,8 @@ class WeightsError(ValueError):
 
 
 def save_weights(out_dir: Path, arrays: dict[str, np.ndarray], manifest: dict[str, Any]) -> Path:
-    """Write ``arrays`` (float32) and ``manifest`` (plus ``format_version``) to ``out_dir``; returns it.
-
-    Both files are written to temporaries first and renamed, so a crash never leaves a half-written pair.
-    """
+    """Write ``arrays`` (float32) and ``manifest`` (plus ``format_version``) to ``out_dir`` via temporaries and
+    renames (a crash leaves no half-written pair); returns ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tmp_w = out / (WEIGHTS_FILE + ".tmp.npz")

@@ -1,21 +1,8 @@
-"""letspi.llm: the LLM side of LetsPi (paper §III-B, §III-C, §III-E).
+"""The LLM side of LetsPi (paper §III-B, §III-C, §III-E): prompts, backends, reply validation, retries, cache.
 
-An LLM reads a scenario description and returns six social-force parameters, two goal
-adjustment factors and a rationale as JSON. This package renders the prompts, talks to the
-model through one small backend interface, validates and clamps the reply, retries, falls back,
-and caches replies on disk.
-
-Typical use::
-
-    from letspi.llm import ParamAdvisor, describe_scenario, render_physics_prompt
-
-    advisor = ParamAdvisor("llamacpp:gemma3-270m")          # or ollama:..., openai:...@url
-    desc = describe_scenario(scenario, goal_xy=(150.0, 0.0))
-    advice = advisor.advise(render_physics_prompt(desc), variant="physics")
-    advice.reply.params(), advice.reply.goal_factors(), advice.fallback, advice.clamped
-
-Importing this package loads no model and no optional dependency (llama-cpp-python is imported
-on first use of a ``llamacpp:`` backend).
+An LLM reads a scenario description and returns six social-force parameters, two goal adjustment factors
+and a rationale as JSON (``ParamAdvisor.advise``). Importing this package loads no model and no optional
+dependency (llama-cpp-python is imported on first use of a ``llamacpp:`` backend).
 """
 
 from letspi.llm.cache import ResponseCache, default_cache_dir

@@ -1,14 +1,10 @@
-"""Persistent response cache (SQLite in WAL mode; safe for concurrent threads and processes).
+"""Persistent LLM response cache: SQLite in WAL mode, safe for concurrent threads and processes.
 
-The key is a SHA-256 of the backend identity (spec; for the embedded model also the weights, LoRA adapter
-and llama.cpp runtime: ``backend_identity``), the full message list, the decoding settings and the
-JSON schema, so at temperature 0 a rerun returns byte-identical replies for free. Only
-successful transport results are stored (parse failures included: the retry re-asks with
-different messages, hence a different key, so a rerun replays the same sequence).
-
-Location: ``$LETSPI_CACHE_DIR/llm_cache.sqlite``, default ``~/.cache/letspi/llm_cache.sqlite``.
-A cache that cannot be opened, read or written (corrupted file, full disk, unwritable directory)
-raises ``ResponseCacheError`` naming the file, never a raw sqlite3 error.
+The key hashes the backend identity (``backend_identity``), the messages, the decoding settings and the
+schema, so a rerun at temperature 0 replays identical replies. Every transport success is stored, parse
+failures included (the retry's different messages give a different key). Location:
+``$LETSPI_CACHE_DIR/llm_cache.sqlite`` (default ``~/.cache/letspi``); any failure to use it raises
+``ResponseCacheError`` naming the file.
 """
 
 from __future__ import annotations
@@ -50,8 +46,8 @@ def default_cache_dir() -> Path:
 
 
 def backend_identity(backend: Any) -> str:
-    """What a reply depends on besides the request: the backend's ``cache_identity`` when it has one (the
-    embedded backend: weights, LoRA adapter and llama.cpp runtime), else its spec (a server's model name)."""
+    """What a reply depends on besides the request: the backend's ``cache_identity`` (the embedded backend:
+    weights, adapter, runtime) when it has one, else its spec."""
     return str(getattr(backend, "cache_identity", None) or backend.spec)
 
 
@@ -84,11 +80,8 @@ class CachedEntry:
 
 
 class ResponseCache:
-    """Key -> reply store. One connection per thread; WAL lets readers and writers overlap.
-
-    Concurrent writers from several processes are serialised by SQLite's lock with a busy
-    timeout; ``INSERT OR REPLACE`` makes duplicate writes of the same key harmless.
-    """
+    """Key -> reply store, one connection per thread; processes serialise on SQLite's lock (busy timeout),
+    and a duplicate write of a key is harmless (``INSERT OR REPLACE``)."""
 
     def __init__(self, path: str | Path | None = None, *, busy_timeout_s: float = 30.0) -> None:
         self.path = Path(path) if path is not None else default_cache_dir() / CACHE_FILENAME

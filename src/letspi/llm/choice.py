@@ -1,14 +1,9 @@
 """The choice prompt: the model picks one of a few checked options instead of writing eight numbers.
 
-LetsPi's decision step (``letspi.method.decide``) plans every preset (a named answer of the six
-social-force parameters and two goal factors) and checks each plan against the predicted traffic and
-the adverse futures (``letspi.safety.adverse``). This prompt gives the model the scene in a few lines
-(``letspi.llm.compact.compact_scene_text``) and, per option, the checks it failed and the progress it
-keeps; the reply is one JSON key, ``{"option": NAME}``, constrained to the option names: a few output
-tokens, so a call costs about the prompt's prefill.
-
-Forms, both ``[system, user]``: propose; refine (the memory phase's reflection round): the same plus
-the rejected option and what its check found. ``parse_choice`` validates a reply.
+Per option (a preset, planned and checked by ``letspi.method.decide``) the prompt lists the checks its
+plan failed and its progress; the reply is ``{"option": NAME}`` constrained to the option names, so a
+call costs little more than the prompt's prefill. Forms, both ``[system, user]``: propose, and refine
+(adds the rejected option and what its check found). ``parse_choice`` validates a reply.
 """
 
 from __future__ import annotations
@@ -63,9 +58,8 @@ def render_choice_prompt(
     rejected: str | None = None,
     report: str | None = None,
 ) -> list[Message]:
-    """``[system, user]``: the scene, the estimated risk that the defaults collide (``risk`` in [0, 1],
-    the risk gate's score; the line is left out when NaN) and the options; for a refinement also the
-    rejected option and its check (both or neither)."""
+    """``[system, user]``: the scene, the risk gate's score that the defaults collide (``risk`` in [0, 1];
+    no line when NaN) and the options; a refinement adds ``rejected`` and its ``report`` (both or neither)."""
     if (rejected is None) != (report is None):
         raise ValueError("a choice refinement prompt needs both the rejected option and its report")
     if not options:

@@ -1,31 +1,13 @@
 """``ParamAdvisor``: ask a backend for parameters, with cache, validation, retries and fallback.
 
-Control flow of ``ParamAdvisor.advise(messages)`` (up to ``RetryPolicy.max_attempts`` calls):
-
-1. Look the exact request up in the response cache; on a miss call the backend with the
-   per-call timeout and store the reply text.
-2. Transport error or timeout: wait and resend the same messages. The wait is exponential
-   backoff with jitter (``RetryPolicy.wait_s``), and never shorter than the server's
-   ``Retry-After`` (HTTP 429/503 carry it in ``LLMTransportError.retry_after_s``):
-   ``max(backoff * (1 - jitter * U[0, 1)), retry_after)``. Only this request waits.
-3. Invalid reply (``ReplyParseError``): resend at once with the bad reply and a short
-   corrective user message appended (so the request, and its cache key, differ; no backoff
-   because the server is fine).
-4. The server refused this one request (``RequestRejectedError``, e.g. a prompt longer than its
-   context): no further attempt (the same request would be refused again).
-5. After the last attempt without a valid reply: if the model answered every attempt (invalid
-   replies, a rejection), ``DEFAULT_REPLY`` with ``fallback=True`` and every attempt recorded; if
-   any attempt failed in transport, ``RequestFailedError``: the scenario is not stored, so a rerun
-   retries it (a fallback always means the model itself never answered validly).
-
-Raised at once: ``LLMConfigError`` (unknown backend, missing package or model, auth). Also raised:
-a ``BackendUnavailableError`` when *every* attempt found the server unreachable; a
-``ServerBusyError`` when the server asks (``Retry-After``) for a longer wait than
-``RetryPolicy.max_retry_after_s``; ``RunStoppedError`` when the advisor's run-wide circuit breaker
-(``letspi.llm.guard``, shared by every request in flight) has tripped, checked before every attempt.
-
-Thread-safe: a run calls one advisor from many threads (``letspi.execution.ordered``); ``stats`` counts
-their requests. Backoff waits end at once when the breaker trips.
+``advise`` makes up to ``RetryPolicy.max_attempts`` calls, each through the response cache:
+* transport error or timeout: resend the same messages after ``RetryPolicy.wait_s`` (this request only);
+* invalid reply: resend at once with that reply echoed and a corrective message (a different cache key);
+* ``RequestRejectedError`` (e.g. a prompt over the context): stop, the same request would be refused again.
+Without a valid reply: ``DEFAULT_REPLY`` with ``fallback=True`` if the model answered every attempt, else
+``RequestFailedError`` (the scenario is not stored; a rerun retries it). ``BackendUnavailableError`` when
+every attempt found the server unreachable, ``ServerBusyError`` for a ``Retry-After`` over the limit,
+``RunStoppedError`` once the run-wide breaker (``letspi.llm.guard``) trips. Thread-safe.
 """
 
 from __future__ import annotations
@@ -67,14 +49,8 @@ _ECHO_CHARS = 600
 
 @dataclass(frozen=True)
 class RetryPolicy:
-    """How hard to try. ``max_attempts`` counts all calls (1 = no retry).
-
-    After the n-th consecutive transport failure of a request the advisor waits
-    ``max(delay(n) * (1 - jitter * u), retry_after)`` with ``u`` uniform in [0, 1) (``wait_s``):
-    exponential backoff, randomised so that many clients do not retry in lockstep, and never
-    sooner than the server's ``Retry-After``. A ``Retry-After`` above ``max_retry_after_s`` stops
-    the run (``ServerBusyError``) instead of stalling or falling back.
-    """
+    """How hard to try: ``max_attempts`` counts all calls (1 = no retry); the wait after a transport failure is
+    ``wait_s``. A ``Retry-After`` above ``max_retry_after_s`` raises ``ServerBusyError``."""
 
     max_attempts: int = 3
     backoff_s: float = 0.5
@@ -99,16 +75,15 @@ class RetryPolicy:
         return min(self.backoff_s * self.backoff_factor ** max(failures - 1, 0), self.max_backoff_s)
 
     def wait_s(self, failures: int, retry_after_s: float | None = None, u: float = 0.0) -> float:
-        """The wait before the next attempt: jittered backoff, at least ``retry_after_s``."""
+        """``max(delay(failures) * (1 - jitter * u), retry_after_s)``, ``u`` in [0, 1) (no lockstep retries)."""
         backoff = self.delay(failures) * (1.0 - self.jitter * min(max(u, 0.0), 1.0))
         return max(backoff, retry_after_s or 0.0)
 
 
 @dataclass(frozen=True)
 class Attempt:
-    """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable``,
-    ``busy`` (HTTP 429/503), ``rejected`` (the server refused this request) or ``parse:<reason>``
-    (``no_json``, ``missing_keys``, ``bad_value``, ``non_finite``, ``bad_type``)."""
+    """One call's outcome. ``error_kind``: None, ``transport``, ``timeout``, ``unavailable``, ``busy`` (HTTP
+    429/503), ``rejected`` or ``parse:<ReplyParseError.reason>``."""
 
     index: int
     error_kind: str | None
@@ -220,14 +195,9 @@ def _transport_kind(exc: LLMTransportError) -> str:
 
 
 class ParamAdvisor:
-    """Asks one backend for social-force parameters (see module docstring).
-
-    ``cache="default"`` uses ``ResponseCache()`` (``$LETSPI_CACHE_DIR``); ``cache=None`` turns it off.
-    ``use_schema=False`` sends no JSON schema (for servers without structured output).
-    ``sleep`` is injectable so tests do not wait for backoff (default: ``breaker.wait``, which a
-    stopping run interrupts); ``rng`` draws the backoff jitter. ``breaker`` and ``stats`` are the
-    run-wide circuit breaker and request counters (``letspi.llm.guard``; a runner resets them).
-    """
+    """Asks one backend for social-force parameters. ``cache``: ``"default"`` (``ResponseCache()``) or None.
+    ``use_schema=False`` sends no JSON schema. ``sleep`` waits out backoff (default ``breaker.wait``, which a
+    stopping run interrupts); ``rng`` draws the jitter; ``breaker`` and ``stats`` are run-wide."""
 
     def __init__(
         self,
@@ -293,10 +263,8 @@ class ParamAdvisor:
                       response=resp, model_spec=self.backend.spec)
 
     def choose(self, messages: Sequence[Message], options: Mapping[str, PlannerReply]) -> Advice:
-        """One of ``options`` (option name -> the answer it stands for) for one prompt
-        (``letspi.llm.choice``): ``Advice.choice`` names it and ``Advice.reply`` is its answer. A model
-        that gives no valid name in ``max_attempts`` falls back to the first option; a failed
-        transport raises, as in ``advise``."""
+        """One of ``options`` (name -> the answer it stands for): ``Advice.choice`` names it, ``Advice.reply``
+        is its answer. No valid name in ``max_attempts``: the first option; a failed transport raises."""
         names = list(options)
         if not names:
             raise ValueError("choose needs at least one option")
@@ -310,10 +278,8 @@ class ParamAdvisor:
 
     def _ask(self, messages: Sequence[Message], schema: dict[str, Any] | None, parse: Callable[[str], T],
              corrective: Callable[[ReplyParseError], str]) -> tuple[T | None, LLMResponse | None, _AttemptLog]:
-        """Up to ``max_attempts`` calls until ``parse`` accepts a reply: (parsed, its response, the log);
-        (None, None, log) when none did. After an invalid reply the next call re-asks from the original
-        prompt with only that reply echoed and the ``corrective`` message: short requests, and the
-        static prefix stays cached."""
+        """Up to ``max_attempts`` calls until ``parse`` accepts a reply: (parsed, its response, the log), or
+        (None, None, log). A retry echoes only the last bad reply (the static prefix stays cached)."""
         base = list(messages)
         current = list(base)
         log = _AttemptLog()
@@ -337,7 +303,7 @@ class ParamAdvisor:
     def _send(self, i: int, messages: list[Message], schema: dict[str, Any] | None,
               log: _AttemptLog) -> LLMResponse | None:
         """Attempt ``i``, counted in ``stats``: the response, or None after a rejection or a transport
-        failure (both recorded in ``log``; after a transport failure the backoff wait is over)."""
+        failure (recorded in ``log``; the backoff wait is over)."""
         t0 = time.perf_counter()
         self.stats.begin()
         try:
@@ -364,9 +330,8 @@ class ParamAdvisor:
         return resp
 
     def _wait_after_transport_failure(self, i: int, exc: LLMTransportError, log: _AttemptLog) -> bool:
-        """Backoff before the next attempt; False when the caller re-raises ``exc`` (the last attempt,
-        and every attempt found the server unreachable). A ``Retry-After`` beyond the limit raises
-        ``ServerBusyError``; a spent breaker budget ``RunStoppedError``."""
+        """Backoff before the next attempt; False when the caller re-raises ``exc`` (last attempt, server
+        never reachable). Raises ``ServerBusyError`` (``Retry-After`` over the limit), ``RunStoppedError``."""
         retry_after = exc.retry_after_s
         if retry_after is not None and not retry_after <= self.retry.max_retry_after_s:
             raise ServerBusyError(

@@ -1,16 +1,9 @@
-"""The compact prompt: the scene in a few lines, no few-shot examples, numbers-only reply.
+"""The compact prompt: the scene in a few lines, no few-shot examples, a numbers-only reply.
 
-Written for the fine-tuned embedded model (``llamacpp:smollm2-135m-letspi``, ``letspi.finetune``),
-which learned the answers from physics-verified labels instead of reading examples: the prompt stays
-under ~400 SmolLM2 tokens (prefill is most of the latency on 2 cores) and the reply is the
-``"fast"`` wire format (``letspi.llm.schema.WIRE_KEYS``) with few decimals (fewer output tokens).
-
-Two forms, both ``[system, user]``:
-
-* propose: the scene (ego state, lanes, nearest neighbours' relative gaps and speeds, goal);
-* refine: the scene, the rejected answer and the facts of its safety check (minimum TTCs, gaps,
-  contact, which checks failed), for reflection rounds. Training (``letspi.finetune.data``) and
-  planning render both with these functions, so the model sees at run time what it was trained on.
+For the fine-tuned embedded model, which learned from labels instead of examples: a short prompt (prefill
+is most of the latency) and the ``"fast"`` wire format with few decimals. Two forms, both
+``[system, user]``: propose (the scene), and refine (adds the rejected answer and its safety-check facts).
+Training (``letspi.finetune.data``) and planning render both here, so the model sees what it was trained on.
 """
 
 from __future__ import annotations
@@ -97,11 +90,8 @@ def compact_scene_text(desc: ScenarioDescription, *, max_neighbours: int = MAX_N
 
 
 def compact_reply_text(values: Mapping[str, float] | PlannerReply) -> str:
-    """The numbers-only wire reply (``WIRE_KEYS``, ``REPLY_DECIMALS``) of canonical field values.
-
-    The training target and the rejected answer of a refine prompt; its layout (``", "``, ``": "``)
-    is one that llama.cpp's JSON-schema grammar accepts.
-    """
+    """The numbers-only wire reply (``WIRE_KEYS``, ``REPLY_DECIMALS``) of canonical field values, in a
+    layout llama.cpp's JSON-schema grammar accepts (the training target)."""
     get = (lambda k: getattr(values, k)) if isinstance(values, PlannerReply) else values.__getitem__
     out: dict[str, float | int] = {}
     for name in NUMERIC_FIELDS:
@@ -125,9 +115,8 @@ def _num(value: Any) -> str:
 
 
 def compact_report_text(metrics: Mapping[str, Any], violations: Sequence[str]) -> str:
-    """One line of safety-check facts: ``metrics`` has min_ttc_s, min_rear_ttc_s, min_path_gap_m
-    (s, s, m; None or non-finite = no conflict, shown as ``-``) and collision; ``violations`` the failed
-    checks' names (``letspi.method.reflection.Violation.metric``)."""
+    """One line of safety-check facts from ``metrics`` (min_ttc_s, min_rear_ttc_s [s], min_path_gap_m [m]:
+    ``-`` when None or non-finite; collision) and the failed checks' names ``violations``."""
     contact = "yes" if bool(metrics.get("collision")) else "no"
     failed = ", ".join(dict.fromkeys(violations)) or "none"
     return (

@@ -12,14 +12,9 @@ from letspi.llm.types import DecodingSettings
 
 
 class LlmConfig(Config):
-    """One language model as used by a phase: model, weights, decoding, prompt text, retries.
-
-    ``adapter_sha256`` / ``adapter_path``: the LoRA adapter llama.cpp applies (the fine-tuned
-    ``smollm2-135m-letspi``); ``prompt_style``: ``paper`` (physics + fast prompts with few-shot
-    memories) or ``compact`` (``letspi.llm.compact``, what the fine-tuned model was trained on);
-    ``runtime``: the embedded model's llama.cpp version and attention path
-    (``letspi.llm.backends.llamacpp.LlamaRuntime.identity``; None for servers).
-    """
+    """One language model as used by a phase: model, weights (``adapter_*``: the LoRA adapter llama.cpp applies),
+    decoding, ``prompt_style`` (``PROMPT_STYLES``), retries; ``runtime``: the embedded model's
+    ``LlamaRuntime.identity`` (None for servers)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"timeout_s", "cache", "model_path", "adapter_path"})
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"backend"})

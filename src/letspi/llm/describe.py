@@ -1,13 +1,9 @@
 """Scenario -> compact text for the prompts (paper §III-C inputs E, N, G_f, L).
 
-``describe_scenario`` turns one scenario of a ``letspi.scenario.types.ScenarioBatch`` (ego frame: x along travel,
-y to the left, origin at the ego at t = 0) plus a predicted goal into a ``ScenarioDescription``:
-plain numbers rounded for the prompt, and ``to_text()`` renders it. Numbers carry one decimal
-to keep prompts short (input tokens cost prefill time).
-
-Lanes are named by their HighD lane id. The neighbour relation (``ahead``, ``behind``,
-``alongside``, prefixed ``left-``/``right-`` or ``2-left-``...) is computed from lane
-membership by the markings and longitudinal box overlap, not from HighD's id columns.
+``describe_scenario`` turns one scenario of a ``ScenarioBatch`` (ego frame at t = 0) and a predicted goal
+into a ``ScenarioDescription``, rounded to one decimal (input tokens cost prefill). Lanes carry their HighD
+ids; neighbour relations (``ahead``, ``left-behind``, ``2-left-alongside``...) come from the markings and
+longitudinal box overlap, not from HighD's id columns.
 """
 
 from __future__ import annotations
@@ -383,10 +379,7 @@ def describe_scenario(
     neighbour_history_step_s: float = 1.0,
     horizon_s: float = 5.0,
 ) -> ScenarioDescription:
-    """Build the description of scenario ``index`` of ``batch`` at t = 0 with the predicted ``goal_xy`` (ego frame).
-
-    Uses only frames up to t = 0 (the future is for evaluation).
-    """
+    """The description of scenario ``index`` at t = 0 with the predicted ``goal_xy`` (ego frame); frames up to t = 0."""
     road = _road(batch, index)
     t0 = T0_INDEX
     ego_xy = np.asarray(batch.ego_xy_m[index], dtype=float)

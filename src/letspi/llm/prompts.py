@@ -1,18 +1,9 @@
-"""Prompt rendering (paper Fig. 2) from Jinja2 templates shipped in ``letspi/prompts/*.j2``.
+"""Prompt rendering (paper Fig. 2) from the Jinja2 templates in ``letspi/prompts/*.j2``.
 
-Layout, chosen so that prefix caches (llama.cpp, Ollama, vLLM) hit:
-
-* the **system** message is fully static per process: role, context, coordinate frame, inputs,
-  social force equations, parameter meanings/units/ranges, safety constraints, output format;
-* the **user** message carries what changes: the scenario (built by ``letspi.llm.describe``),
-  then the optional memory examples, then the optional safety report / refinement request.
-* A reflection round with ``previous_reply`` is a multi-turn continuation (system, user,
-  assistant = previous reply, user = safety report), so the whole first exchange is a reused
-  prefix.
-
-``render_physics_prompt`` is the memory-collection prompt (Fig. 2a); ``render_fast_prompt`` the
-fast-inference prompt (Fig. 2b): simplified base, one-paragraph social force summary, few-shot
-memories, brief scenario, targeted guidance, numbers-only output.
+The system message is static per process and the user message carries what changes (scenario, memory
+examples, safety report), so prefix caches hit; a reflection round continues the first exchange as a
+multi-turn chat. ``render_physics_prompt``: memory collection (Fig. 2a); ``render_fast_prompt``: fast
+inference (Fig. 2b).
 """
 
 from __future__ import annotations
@@ -39,11 +30,8 @@ DIST_MIN_M: Final = 2.0
 
 @dataclass(frozen=True)
 class MemoryExample:
-    """One remembered, validated answer shown as a few-shot example.
-
-    ``summary``: one line about the scenario (e.g. ``ScenarioDescription.summary_line()``);
-    ``outcome``: optional safety result (e.g. ``"min TTC 4.2 s, min gap 9.0 m"``).
-    """
+    """One remembered, validated answer shown as a few-shot example: a one-line scenario ``summary`` and an
+    optional safety ``outcome`` (``"min TTC 4.2 s, min gap 9.0 m"``)."""
 
     summary: str
     reply: PlannerReply
@@ -119,12 +107,8 @@ def render_physics_prompt(
     safety_report: str | None = None,
     previous_reply: str | None = None,
 ) -> list[Message]:
-    """Messages of the physics-informed prompt (memory-collection phase).
-
-    With ``safety_report`` this is a reflection round: if ``previous_reply`` (the raw text the
-    model gave) is passed, the report is a follow-up turn after it; otherwise it is appended
-    to the single user message.
-    """
+    """Messages of the physics-informed prompt. With ``safety_report``, a reflection round: a follow-up turn
+    after ``previous_reply`` (the model's raw text) if given, else appended to the user message."""
     scenario_text = scenario_description.to_text(detail="full")
     mems = _memories(memories, "physics")
     system = message("system", system_prompt("physics"))

@@ -1,20 +1,9 @@
 """The LLM's reply: six social-force parameters, two goal-adjustment factors, a rationale.
 
-Ranges
-------
-``LLM_PARAM_RANGES`` (prompt text, JSON schema, clamping) is taken from the physics module's
-``PARAM_RANGES`` (``letspi.physics.params``): one table for what the LLM may say and what the
-rollout accepts. The LLM chooses the paper's six parameters; ``r_col_m`` stays fixed.
-
-Wire format
------------
-Replies use short JSON keys (``WIRE_KEYS``): output tokens dominate latency on small
-machines (decoding under a JSON grammar is slow). The parser also accepts the long names and common variants
-(see ``letspi.llm.parse``). Two variants:
-
-* ``"physics"`` (memory-collection phase): a short rationale first, then the numbers. The
-  rationale comes first so a model that reasons does so before committing to numbers.
-* ``"fast"`` (fast-inference phase): numbers only.
+``LLM_PARAM_RANGES`` is ``letspi.physics.params.PARAM_RANGES`` (one table for what the LLM may say and what
+the rollout accepts; ``r_col_m`` stays fixed). Replies use short JSON keys (``WIRE_KEYS``: output tokens
+dominate latency). Variants: ``"physics"`` (rationale first, so a model reasons before the numbers) and
+``"fast"`` (numbers only).
 """
 
 from __future__ import annotations
@@ -89,11 +78,8 @@ def _param_field(name: str, wire: str) -> Any:
 
 
 class PlannerReply(BaseModel):
-    """A validated reply, always within range. Build one from raw text with ``parse_reply``.
-
-    Populate by canonical name (``tau_s=...``) or wire key (``tau=...``); ``model_dump()``
-    gives canonical names, ``model_dump(by_alias=True)`` the wire keys.
-    """
+    """A validated reply, always within range (from raw text: ``parse_reply``). Populate by canonical name or
+    wire key; ``model_dump(by_alias=True)`` gives the wire keys."""
 
     model_config = ConfigDict(frozen=True, extra="ignore")
 
@@ -146,12 +132,8 @@ DEFAULT_REPLY: Final = PlannerReply(
 
 
 def reply_json_schema(variant: Variant = "physics") -> dict[str, Any]:
-    """JSON schema of the wire reply, for constrained decoding.
-
-    Property order is generation order under grammar-constrained decoding (llama.cpp follows it),
-    so the rationale comes first in the physics variant. ``minimum``/``maximum`` are advisory:
-    llama.cpp's grammar ignores them, so ``parse_reply`` clamps anyway.
-    """
+    """JSON schema of the wire reply, for constrained decoding. Property order is generation order;
+    ``minimum``/``maximum`` are advisory (llama.cpp's grammar ignores them; ``parse_reply`` clamps)."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown reply variant {variant!r}; expected one of {VARIANTS}")
     props: dict[str, Any] = {}

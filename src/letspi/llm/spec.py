@@ -1,10 +1,8 @@
-"""Backend spec strings (``PREFIX:MODEL``) and the one table of backend kinds they name.
+"""Backend spec strings (``PREFIX:MODEL``) and the one table of backend kinds (``BackendKind``) they name.
 
-Each kind is one ``BackendKind`` entry: its prefix, factory, documented forms, default concurrency and
-local weights. Spec parsing, the valid-forms error, default concurrency and ``letspi llm backends``
-derive from the table. Installed packages add kinds through the ``letspi.llm_backends`` entry-point
-group (entry-point name = prefix), read only when a spec names a prefix letspi does not know, or when
-listing.
+Parsing, the valid-forms error, default concurrency and ``letspi llm backends`` derive from the table.
+Installed packages add kinds through the ``letspi.llm_backends`` entry-point group (name = prefix), read
+only for an unknown prefix or when listing.
 """
 
 from __future__ import annotations
@@ -46,15 +44,10 @@ class BackendSpec:
 
 @dataclass(frozen=True)
 class BackendKind:
-    """One backend kind: everything letspi needs to parse, build, schedule and key its specs.
-
-    ``factory(spec, options)`` builds the backend (``options``: constructor keywords); ``forms`` are the
-    documented spec forms (shown by a bad spec's error); ``default_concurrency`` the scenarios in flight
-    unless ``--concurrency`` says otherwise (1 for a backend answering one request at a time);
-    ``local_weights(spec)`` the weights file or directory a spec runs, whose SHA-256 enters the LLM key
-    (None: a server's model, identified by its name); ``parse(rest)`` checks the text after the prefix and
-    returns ``(model, base_url)``, raising ``ValueError`` saying why.
-    """
+    """One backend kind: ``factory(spec, options)`` builds the backend; ``forms``: the documented spec forms;
+    ``default_concurrency``: scenarios in flight unless ``--concurrency`` says otherwise; ``local_weights(spec)``:
+    the weights file a spec runs, whose SHA-256 enters the LLM key (None: a server's model, keyed by name);
+    ``parse(rest)``: ``(model, base_url)`` of the text after the prefix, or ``ValueError`` saying why."""
 
     prefix: str
     factory: Callable[[BackendSpec, dict[str, Any]], LLMBackend]
@@ -232,20 +225,16 @@ def parse_spec(spec: str) -> BackendSpec:
 
 
 def default_concurrency(spec: str | BackendSpec) -> int:
-    """How many scenarios a run keeps in flight against ``spec`` (a backend's ``spec``) unless
-    ``--concurrency`` says otherwise; 1 for a kind it does not know."""
+    """Scenarios a run keeps in flight against ``spec`` unless ``--concurrency`` says otherwise (unknown kind: 1)."""
     prefix = spec.kind if isinstance(spec, BackendSpec) else str(spec).partition(":")[0].strip().lower()
     kind = _BUILT_IN.get(prefix) or installed_backends().kinds.get(prefix)
     return kind.default_concurrency if kind is not None else 1
 
 
 def make_backend(spec: str | BackendSpec, **options: Any) -> LLMBackend:
-    """Build a backend from a spec. ``options`` go to the backend's constructor
-    (``n_ctx``/``n_threads`` for llamacpp, ``base_url`` for ollama, ``api_key`` for openai...).
-
-    Raises ``LLMConfigError`` subclasses at once for unknown backends, missing packages or models, and
-    ``BackendKindError`` naming the package when an installed kind's factory fails.
-    """
+    """Build a backend from a spec; ``options`` go to its constructor. Raises ``LLMConfigError`` subclasses at
+    once for unknown backends, missing packages or models; ``BackendKindError`` naming the package when an
+    installed kind's factory fails."""
     parsed = parse_spec(spec) if isinstance(spec, str) else spec
     kind = backend_kind(parsed.kind, str(parsed))
     if kind.prefix in _BUILT_IN:

@@ -1,27 +1,9 @@
 """Core types of the LLM layer: messages, decoding settings, responses, errors, the backend protocol.
 
-Error taxonomy (what the caller does with it):
-
-* ``LLMConfigError`` and subclasses: the setup is wrong (unknown backend, malformed spec, missing
-  package or model, authentication). Raised immediately, never retried: a long run must not
-  silently turn every scenario into a fallback because of a typo.
-* ``LLMTransportError`` and subclasses: one call failed (HTTP 5xx, reset connection, timeout,
-  HTTP 429/503 ``ServerBusyError``). Retried with exponential backoff and jitter, never sooner
-  than the server's ``Retry-After``; after the last attempt the advisor falls back to default
-  parameters. Two stop the run instead (raised out of ``ParamAdvisor.advise``): a
-  ``BackendUnavailableError`` on every attempt (dead server), and a ``ServerBusyError`` whose
-  ``Retry-After`` exceeds the policy's ``max_retry_after_s``.
-  A request whose attempts were spent without a valid reply and at least one of them failed in
-  transport raises ``RequestFailedError``: nothing is stored for that scenario and a rerun retries it
-  (a fallback means the *model* had every attempt and never answered validly).
-  ``RequestRejectedError`` (the server refused this one request, e.g. a prompt longer than the
-  context; HTTP 4xx other than 401/403/404/429) is not a transport failure: retrying cannot help,
-  the request falls back at once.
-* Run level (``letspi.llm.guard``): ``RunStoppedError`` when the shared circuit breaker trips
-  (a bounded number of consecutive transport failures across all requests in flight);
-  ``letspi.execution.ordered.ScenariosFailedError`` at the end of a run that left scenarios unstored.
-* ``ReplyParseError``: the model answered but the reply is not a valid parameter set. Retried with
-  a corrective message, then the fallback.
+Errors: ``LLMConfigError`` (the setup is wrong: raised at once, never retried, so a typo cannot turn a
+run into fallbacks); ``LLMTransportError`` (one call failed: retried with backoff); ``ReplyParseError``
+(the model answered invalidly: retried with a corrective message, then the fallback). Each subclass
+says what the advisor (``letspi.llm.client``) does with it.
 """
 
 from __future__ import annotations
@@ -47,11 +29,8 @@ def message(role: Role, content: str) -> Message:
 
 @dataclass(frozen=True)
 class DecodingSettings:
-    """Sampling settings sent with every call; part of the cache key.
-
-    Temperature 0 and a fixed seed make replies reproducible (paper §IV: temperature 0).
-    ``max_tokens`` bounds the reply: output tokens dominate latency on small machines.
-    """
+    """Sampling settings sent with every call; part of the cache key. Temperature 0 and a fixed seed make
+    replies reproducible (paper §IV)."""
 
     temperature: float = 0.0
     seed: int = 0
@@ -63,11 +42,8 @@ class DecodingSettings:
 
 @dataclass(frozen=True)
 class LLMResponse:
-    """What a backend returns for one call.
-
-    ``parsed`` is the reply's JSON object as ``letspi.llm.parse`` chooses it (the last complete
-    one; no validation of its values: that is ``parse_reply``'s job), else ``None``.
-    """
+    """What a backend returns for one call. ``parsed``: the reply's JSON object as ``letspi.llm.parse``
+    chooses it (values not validated), else None."""
 
     text: str
     parsed: dict[str, Any] | None
@@ -81,11 +57,8 @@ class LLMResponse:
 
 @runtime_checkable
 class LLMBackend(Protocol):
-    """A chat model: messages in, one ``LLMResponse`` out.
-
-    Implementations raise ``LLMConfigError`` for setup problems and ``LLMTransportError`` for
-    failures of one call; they never validate the reply's content.
-    """
+    """A chat model: messages in, one ``LLMResponse`` out. Raises ``LLMConfigError`` for setup problems and
+    ``LLMTransportError`` for failures of one call; never validates the reply."""
 
     @property
     def spec(self) -> str:
@@ -125,28 +98,21 @@ class ModelNotFoundError(LLMConfigError):
 
 
 class ModelSelfCheckError(LLMConfigError):
-    """The loaded model's batched prompt evaluation disagrees with token-by-token evaluation and the
-    self-check was asked to refuse rather than fall back (``LETSPI_LLAMA_SELF_CHECK=strict``)."""
+    """Batched prompt evaluation disagrees with token by token and ``LETSPI_LLAMA_SELF_CHECK=strict``."""
 
 
 class LlamaFaultError(LLMConfigError):
-    """llama.cpp kills the process (SIGILL, SIGSEGV, ...) running this model format on this CPU; the probe
-    (``letspi.llm.backends.llamacpp_open``) caught it in a child process. The message names the format, the
-    CPU feature and what to do."""
+    """llama.cpp faults (SIGILL, SIGSEGV, ...) running this model format on this CPU (caught by the probe in a
+    child process); the message names the format, the CPU feature and what to do."""
 
 
 class ResponseCacheError(LLMConfigError):
-    """The response cache file cannot be opened, read or written (corrupted file, full disk,
-    unwritable directory). The message names the file and what to do."""
+    """The response cache file cannot be opened, read or written; the message names the file and what to do."""
 
 
 class LLMTransportError(LLMError):
-    """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable.
-
-    ``status`` is the HTTP status when the server answered; ``retry_after_s`` the delay the
-    server asked for in a ``Retry-After`` header (seconds, parsed from seconds or an HTTP date),
-    which the advisor honours before that request's next attempt.
-    """
+    """One call failed in transport (connection, HTTP 5xx, malformed envelope); retryable. ``status``: the
+    HTTP status, if any; ``retry_after_s``: the server's ``Retry-After`` [s], honoured before the next attempt."""
 
     def __init__(self, message: str, *, status: int | None = None, retry_after_s: float | None = None) -> None:
         super().__init__(message)
@@ -169,37 +135,27 @@ class LLMTimeoutError(LLMTransportError):
 
 
 class ServerBusyError(LLMTransportError):
-    """HTTP 429 (rate limited) or 503 (overloaded, loading): the server is up but asks us to wait.
-
-    Retried after ``max(backoff, retry_after_s)``. If the server asks for a longer wait than
-    ``RetryPolicy.max_retry_after_s`` the advisor raises this error instead of falling back.
-    """
+    """HTTP 429 or 503: retried after ``max(backoff, retry_after_s)``; raised (stops the run) when the wait
+    asked exceeds ``RetryPolicy.max_retry_after_s``."""
 
 
 class BackendUnavailableError(LLMTransportError):
-    """The server could not be reached at all (connection refused, DNS).
-
-    Retried like any transport error, but if *every* attempt of a call hit it the advisor raises
-    it instead of falling back: a dead server is a setup problem, not one bad reply.
-    """
+    """The server could not be reached (connection refused, DNS); raised when every attempt of a call hit it."""
 
 
 class RequestRejectedError(LLMTransportError):
-    """The server answered but refused this one request (HTTP 4xx other than 401/403/404/429, or
-    the embedded model could not evaluate the prompt): deterministic, so it is not retried and the
-    request falls back; it does not count as a transport failure."""
+    """The server refused this one request (HTTP 4xx other than 401/403/404/429, a prompt over the context):
+    not retried, not a transport failure; the request falls back."""
 
 
 class RequestFailedError(LLMTransportError):
-    """A request spent its attempts without a valid reply and at least one attempt failed in
-    transport. The scenario is not stored (so a rerun retries it) and the run goes on; the run's
-    circuit breaker decides when too many failures stop it."""
+    """No valid reply in all attempts, at least one a transport failure: the scenario is not stored (a rerun
+    retries it) and the run goes on."""
 
 
 class RunStoppedError(BackendUnavailableError):
-    """The run's circuit breaker tripped: too many consecutive transport failures across all requests
-    in flight (or a dead server, or one request that could not be retried). Every request of the run
-    stops with this error; the message names the first cause. Finished scenarios are stored."""
+    """The run's circuit breaker tripped (``letspi.llm.guard``): every request stops; the message names the
+    first cause. Finished scenarios are stored."""
 
 
 class ReplyParseError(LLMError, ValueError):

@@ -1,10 +1,5 @@
-"""letspi.method: the LetsPi method itself (paper §III-C to §III-E), independent of any LLM backend.
-
-* ``thresholds``: ``ReflectionThresholds`` (TTC 1.5 s, in-path gap / contact 2.0 m, optional PET, iterations).
-* ``reflection``: ``safety_report`` (vectorised), ``SafetyReport.to_text``, ``simulate_proposal``, ``reflect``.
-* ``memory``: ``MemoryBank`` on SQLite (WAL, unique per scenario and configuration), ``Experience``.
-* ``matching``: scenario similarity with the paper's slip fixed, vectorised ``top_k``.
-* ``bench``: ``bench_retrieval`` (top-k over 10k / 100k experiences).
+"""The LetsPi method (paper §III-C to §III-E), independent of any LLM backend: reflection thresholds and loop,
+the memory bank, scenario matching, the decision step and the two phases.
 """
 
 from letspi.method.matching import PAPER_WEIGHTS, similarities, top_k

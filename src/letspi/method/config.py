@@ -20,15 +20,9 @@ from letspi.safety.adverse import AdverseSettings
 
 
 class MemoryRef(Config):
-    """The memories a fast planner may retrieve, pinned by a fingerprint of the bank's rows.
-
-    collection_key: only memories collected under this configuration (None: any configuration).
-    snapshot_sha256: fingerprint of every retrievable row (id, scenario digest, configuration) when
-        the planner was built; a bank that gained or lost memories gives another key.
-    allow_same_vehicle: False excludes memories of the query's own ego vehicle with an overlapping
-        window (a leak of the query's future); True keeps them (labelled in results).
-    subset_fraction / subset_seed: the memory-size ablation's reproducible subset (None: all).
-    """
+    """The memories a fast planner may retrieve: ``collection_key`` (None: any), ``snapshot_sha256`` of the
+    retrievable rows when the planner was built (a changed bank gives another key), ``allow_same_vehicle``
+    (the query's own vehicle: a leak), the memory-size ablation's ``subset_fraction`` / ``subset_seed``."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"path", "n_memories"})
 
@@ -42,13 +36,9 @@ class MemoryRef(Config):
 
 
 class DecisionConfig(Config):
-    """LetsPi's decision step (``letspi.method.decide``): the preset values, the adverse futures' settings
-    (None: checks against the prediction only, the "without adverse futures" ablation), the risk model
-    (its SHA-256; its score is the gate's and the choice prompt's risk) and the gate's threshold (None:
-    the model is asked on every scenario). ``verify`` (the fast phase): a model's choice that fails more
-    checks than another preset is replaced by the rule's choice (``Decider.verified``); None: the model's
-    answer stands. A planner without it plans exactly as before the decision step existed, under the same
-    key, and ``verify`` None keeps the keys of before verification existed."""
+    """LetsPi's decision step (``letspi.method.decide``): preset values, ``adverse`` settings (None: the
+    prediction only), the risk model's SHA-256, ``gate_threshold`` (None: always consult) and ``verify``
+    (``Decider.verified``; None: the model's answer stands, and the field stays out of the key)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"presets_source", "risk_model_path"})
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"verify"})
@@ -89,12 +79,8 @@ class DecisionConfig(Config):
 
 
 class MemoryPhaseConfig(Config):
-    """LetsPi's memory collection phase: its key identifies the experiences it stores.
-
-    ``reflection.max_iterations`` = 0 is the single-shot ``llm`` planner and the "w/o Ref" ablation;
-    ``goal_adjustment`` False the "w/o GA" ablation. ``sf_params`` supplies ``r_col_m`` (the LLM sets
-    the other six) and the fallback parameters of a failed call.
-    """
+    """LetsPi's memory collection phase; its key identifies the experiences it stores. ``sf_params`` supplies
+    ``r_col_m`` (the LLM sets the other six) and the fallback parameters of a failed call."""
 
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision"})
 

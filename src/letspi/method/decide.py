@@ -1,19 +1,10 @@
 """The decision step of LetsPi: named options, checked against what could happen, and a risk gate.
 
-* An **option** is one answer of the eight numbers the LLM chooses (the paper's six social-force
-  parameters and two goal factors, ``letspi.llm.schema.NUMERIC_FIELDS``); an ``OptionTable`` names C
-  of them, the fitted defaults first. The shipped **presets** (``letspi/data/presets.json``,
-  ``load_presets``) are a few options chosen on training traffic (``letspi.finetune.presets``).
-* ``check_options`` plans every option of a table on every scenario, as the planners plan an answer
-  (goal adjustment, social force rollout against the predicted neighbours), and checks each plan
-  against the prediction (the reflection's thresholds) and against the adverse futures
-  (``letspi.safety.adverse``): what a planner can know about each option at t = 0. Vectorised over
-  scenarios x options x futures.
-* ``rule_choice``: the choice without a model: the defaults when they pass every check, otherwise
-  the option that fails the fewest checks, then the one that keeps the most (predicted) progress.
-* ``RiskGate``: a cheap score from the scene (history risk features and the defaults' checks, a
-  logistic model with NumPy inference, ``letspi/data/risk_model.json``) that decides whether the model
-  is consulted at all; below ``threshold`` the planner plans with the defaults.
+An option is one answer of the eight numbers the LLM chooses; an ``OptionTable`` names C of them, the
+fitted defaults first (the shipped presets: ``load_presets``). ``check_options`` plans every option on every
+scenario as the planners do and checks each plan against the prediction and the adverse futures
+(``letspi.safety.adverse``), vectorised over scenarios x options x futures. ``rule_choice`` chooses without
+a model; the ``RiskGate`` decides whether the model is consulted at all.
 """
 
 from __future__ import annotations
@@ -130,8 +121,7 @@ def load_presets(path: Path | None = None) -> tuple[OptionTable, dict[str, Any]]
 
 
 def with_defaults(table: OptionTable, params: SocialForceParams) -> OptionTable:
-    """``table`` with option 0 replaced by ``params``' defaults (the shipped presets carry the shipped
-    fit's; a planner with other ``sf`` parameters keeps its own defaults)."""
+    """``table`` with option 0 replaced by ``params`` (a planner with other ``sf`` parameters keeps its own)."""
     values = np.array(table.values, dtype=np.float64)
     values[0] = defaults_vector(params)
     return OptionTable(table.names, values)
@@ -139,14 +129,10 @@ def with_defaults(table: OptionTable, params: SocialForceParams) -> OptionTable:
 
 @dataclass(frozen=True)
 class OptionChecks:
-    """Every option of a table planned and checked on B scenarios; (B, K) each unless said.
-
-    names (K,); adverse_names (A,). predicted_safe: the plan passes the reflection's checks against the
-    predicted neighbours (no contact, on the road, TTC, in-path gap, braking). adverse_failed (B, K, A):
-    the plan fails an adverse future (``AdverseSettings`` thresholds). progress_m: the plan's end x [m]
-    (ego frame). min_ttc_s: front and rear TTC against the prediction, the smaller. xy_m, vxy_mps
-    (B, K, F, 2) the plans; goals_xy_m (B, K, 2) their adjusted goals.
-    """
+    """Every option of a table planned and checked on B scenarios; (B, K) unless said. names (K,), adverse_names
+    (A,); predicted_safe: passes the reflection's checks against the prediction; adverse_failed (B, K, A);
+    progress_m: the plan's end x [m]; min_ttc_s: the smaller of front and rear TTC [s]; xy_m, vxy_mps
+    (B, K, F, 2) the plans; goals_xy_m (B, K, 2) their adjusted goals."""
 
     names: tuple[str, ...]
     adverse_names: tuple[str, ...]
@@ -195,8 +181,8 @@ def peak_braking_mps2(vx0_mps: np.ndarray, plan_vxy_mps: np.ndarray) -> np.ndarr
 
 def plan_options(history: ScenarioBatch, values: np.ndarray, base_goals_xy_m: np.ndarray,
                  prediction: NeighbourPrediction, r_col_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Plans of every option (values (K, 8), or (B, K, 8) per scenario) on every scenario, in one vectorised
-    rollout: positions and velocities (B K, F, 2) and adjusted goals (B K, 2), row ``i K + k``."""
+    """Plans of every option (values (K, 8) or (B, K, 8)) on every scenario in one rollout: positions and
+    velocities (B K, F, 2) and adjusted goals (B K, 2), row ``i K + k``."""
     b = len(history)
     v = np.asarray(values, dtype=np.float64)
     v = np.broadcast_to(v, (b, *v.shape)) if v.ndim == 2 else v
@@ -241,8 +227,7 @@ def check_options(
 
 
 def preference_order(passes_all: np.ndarray, progress_m: np.ndarray) -> list[int]:
-    """One scenario's options that pass every check (``passes_all`` (K,)), most progress (``progress_m``
-    (K,)) first: the order the shield tries presets in."""
+    """One scenario's options passing every check (``passes_all`` (K,)), most ``progress_m`` (K,) first."""
     ok = np.flatnonzero(passes_all)
     return [int(k) for k in ok[np.argsort(-np.nan_to_num(progress_m[ok], nan=-1e3), kind="stable")]]
 
@@ -287,9 +272,8 @@ class ScoreModel(Protocol):
 
 @dataclass(frozen=True)
 class RiskGate:
-    """The risk score of a scene (``model.score``: the probability that the defaults collide, which the
-    choice prompt shows) and the gate: consult the model only where it is at least ``threshold``
-    (None: everywhere)."""
+    """The risk score (P(the defaults collide)) and the gate: consult the model only where the score is at
+    least ``threshold`` (None: everywhere)."""
 
     model: ScoreModel
     threshold: float | None
@@ -326,12 +310,8 @@ def load_risk_model(path: Path | None = None) -> tuple[ScoreModel, str]:
 
 @dataclass(frozen=True)
 class Decision:
-    """What the decision step decided for one scenario.
-
-    option: the preset chosen (``DEFAULT_NAME`` when the gate kept the defaults), or ``CUSTOM`` for an
-    answer of free parameters; consulted: the model was asked; risk_score: the gate's score (NaN
-    without a gate); checks: every preset's checks on this scenario (a batch of one).
-    """
+    """One scenario's decision: ``option`` (a preset's name, or ``CUSTOM``), whether the model was
+    ``consulted``, the gate's ``risk_score`` (NaN without a gate), every preset's ``checks`` (a batch of one)."""
 
     option: str
     consulted: bool
@@ -345,12 +325,8 @@ CUSTOM: Final = "custom"
 
 @dataclass(frozen=True)
 class GatedChecks:
-    """The checks the no-model rule needs (``Decider.gated_checks``), B scenarios.
-
-    checks: (B, K) every preset's checks where ``complete`` (B,) is True; elsewhere only the defaults'
-    (option 0), the other presets' entries unknown (not safe, failing every future, NaN plans).
-    risk: (B,) the gate's scores (NaN without a gate); consulted: (B,) whether the gate consults.
-    """
+    """The checks the no-model rule needs, B scenarios: every preset's where ``complete`` (B,), else only the
+    defaults' (other entries: unsafe, failing every future, NaN plans); ``risk`` and ``consulted`` (B,)."""
 
     checks: OptionChecks
     complete: np.ndarray
@@ -365,9 +341,7 @@ class GatedChecks:
 
 def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
                 full: OptionChecks | None) -> OptionChecks:
-    """``partial`` (B, 1 option: the defaults) widened to the K options ``names``, with ``full``'s checks (of
-    the scenarios ``rows``, None if none) in those rows; the other options of the other rows unknown
-    (``GatedChecks``)."""
+    """``partial`` (the defaults only) widened to the K options ``names``, with ``full``'s checks in ``rows``."""
     b, k = partial.predicted_safe.shape[0], len(names)
     out: dict[str, np.ndarray] = {}
     fills = {"predicted_safe": False, "adverse_failed": True}  # unknown: not safe, failing every future
@@ -384,13 +358,8 @@ def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
 
 @dataclass(frozen=True)
 class Decider:
-    """The decision step as the phases use it: the presets, their checks, the risk gate.
-
-    ``adverse`` None checks against the prediction only (the "without adverse futures" ablation);
-    ``gate`` None (no risk model) or a gate without threshold consults the model on every scenario;
-    ``verify``: the fast phase replaces a model's choice that fails more checks than another preset
-    (``verified``).
-    """
+    """The decision step as the phases use it. ``adverse`` None: the prediction only (an ablation); ``gate``
+    None or without threshold: consult everywhere; ``verify``: the fast phase applies ``verified``."""
 
     presets: OptionTable
     r_col_m: float
@@ -411,10 +380,8 @@ class Decider:
 
     def gated_checks(self, history: ScenarioBatch, base_goals_xy_m: np.ndarray,
                      prediction: NeighbourPrediction) -> GatedChecks:
-        """What the rule needs, checked lazily: the defaults on every scenario (the gate's inputs), every
-        preset only where the gate consults and the defaults fail a check (elsewhere the rule keeps the
-        defaults whatever the other presets do). The same choices as ``rule`` over ``check``, a fraction of
-        the work where the defaults usually pass (tests/test_perf_equivalence.py)."""
+        """What the rule needs, checked lazily: the defaults everywhere, every preset only where the gate
+        consults and the defaults fail (elsewhere the rule keeps them). Same choices as ``rule`` over ``check``."""
         defaults = check_options(history, base_goals_xy_m, prediction, self.presets.subset([0]), self.r_col_m,
                                  self.thresholds, self.adverse_settings)
         risk = self.risk_scores(history, defaults)
@@ -444,10 +411,8 @@ class Decider:
         return rule_choice(checks.predicted_safe, checks.adverse_failed, checks.progress_m)
 
     def verified(self, checks: OptionChecks, option: str) -> str:
-        """Scenario 0's option after verification: the model's ``option`` when no preset fails fewer checks
-        than it (or it is not a preset), else the rule's choice (fewest failed checks, then most progress).
-        The model keeps the say among equally checked options: e.g. ``ease`` where every preset fails
-        leader-brakes, or a cautious option where the defaults pass."""
+        """Scenario 0's option after verification: the model's ``option`` unless a preset fails fewer checks,
+        then the rule's choice (the model keeps the say among equally checked options)."""
         if option not in checks.names:
             return option
         failed = checks.failed_checks()[0]

@@ -1,25 +1,9 @@
 """Scenario matching for the fast inference phase (paper §III-E), with the paper's similarity slip fixed.
 
-Features are the six columns of ``letspi.scenario.features.scenario_features`` (``FEATURE_NAMES``:
-n_vehicles, ego_speed_mps, lane_change, min_dist_m, mean_dist_m, mean_nbr_speed_mps) with the
-paper's weights w = (1.0, 2.0, 3.0, 2.5, 1.5, 1.0).
-
-Formula used here (per feature k, current scenario f_curr, memory f_mem)::
-
-    d_k = min(1, |f_curr,k - f_mem,k| / max(|f_curr,k|, eps))     normalised difference in [0, 1]
-    D   = sum_k w_k d_k                                            weighted distance in [0, sum w]
-    Sim = 1 / (1 + D)                                              in (0, 1], 1 for identical features
-
-**Change from the paper** (a slip in its formula): the paper writes d_k = 1 - min(1, |Δf| / max(f, eps)). That
-is a *similarity* (1 when the features are equal), so Sim = 1 / (1 + Σ w d_k) would rank the *least*
-similar memories first. We use the normalised difference itself as the distance, which is what the
-surrounding text ("weighted normalized feature distance") describes. ``paper_literal_similarities``
-keeps the literal formula for comparison (the tests assert that it reverses the ranking).
-
-Notes: the normalisation is relative to the *current* scenario (as in the paper), so the measure is
-not symmetric. For the binary ``lane_change`` feature with f_curr = 0 the ratio is |Δ| / eps (1e5 for
-Δ = 1), clipped to 1: a mismatch costs the full weight, a match nothing, as intended. NaN features give
-distance +inf (similarity 0), so they rank last.
+Per feature k of ``FEATURE_NAMES``, with the paper's weights: ``d_k = min(1, |f_curr,k - f_mem,k| /
+max(|f_curr,k|, eps))``, ``Sim = 1 / (1 + sum_k w_k d_k)`` in (0, 1]. The paper's ``d_k = 1 - min(...)`` is a
+similarity and would rank the least similar first (``paper_literal_similarities`` keeps it). Normalised by
+the current scenario, so not symmetric; NaN features give similarity 0.
 """
 
 from __future__ import annotations
@@ -37,7 +21,7 @@ PAPER_WEIGHTS: Final = (1.0, 2.0, 3.0, 2.5, 1.5, 1.0)
 """Weights in ``FEATURE_NAMES`` order (paper §III-E)."""
 WEIGHTS_BY_NAME: Final = dict(zip(FEATURE_NAMES, PAPER_WEIGHTS, strict=True))
 EPS: Final = 1e-5
-_CHUNK_ELEMENTS: Final = 1 << 16  # (Q-chunk x M) temporaries of ~0.5 MB stay in cache (measured faster than 32 MB)
+_CHUNK_ELEMENTS: Final = 1 << 16  # (Q-chunk x M) temporaries of ~0.5 MB stay in cache
 
 
 def _check(query: np.ndarray, memory: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -54,10 +38,8 @@ def _check(query: np.ndarray, memory: np.ndarray, weights: np.ndarray) -> tuple[
 def weighted_distances(
     query: np.ndarray, memory: np.ndarray, weights: np.ndarray | tuple[float, ...] = PAPER_WEIGHTS, eps: float = EPS
 ) -> np.ndarray:
-    """D (Q, M) = Σ_k w_k min(1, |q_k - m_k| / max(|q_k|, eps)) for query (Q, K) and memory (M, K) features.
-
-    Computed feature by feature into one (chunk, M) buffer, never a (Q, M, K) array. NaN -> +inf.
-    """
+    """D (Q, M) = Σ_k w_k min(1, |q_k - m_k| / max(|q_k|, eps)) for query (Q, K) and memory (M, K) features;
+    NaN -> +inf. Built feature by feature in a (chunk, M) buffer, never (Q, M, K)."""
     q, m, w = _check(query, memory, np.asarray(weights))
     n_q, n_m = q.shape[0], m.shape[0]
     out = np.zeros((n_q, n_m))
@@ -106,12 +88,8 @@ def top_k(
     weights: np.ndarray | tuple[float, ...] = PAPER_WEIGHTS,
     eps: float = EPS,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The k most similar memories per query: indices (Q, k') int64 into ``memory`` and their Sim (Q, k').
-
-    k' = min(k, M). Rows are ordered by descending similarity; equal similarities go to the lower
-    memory index (deterministic, also across the partition boundary). ``np.argpartition`` selects in
-    O(M) per query, only the k selected are sorted.
-    """
+    """The k' = min(k, M) most similar memories per query: indices (Q, k') int64 and Sim (Q, k'), by descending
+    similarity, ties to the lower memory index (deterministic)."""
     if k < 0:
         raise ValueError(f"k must be >= 0, got {k}")
     q, m, w = _check(query, memory, np.asarray(weights))
@@ -120,7 +98,6 @@ def top_k(
     if kk == 0 or n_q == 0:
         return np.zeros((n_q, kk), dtype=np.int64), np.zeros((n_q, kk))
     # query chunks keep the (chunk, M) distance block small: a 100 x 100k block (80 MB) is memory-bound
-    # and measured 2x slower than one query at a time
     chunk = max(1, _CHUNK_ELEMENTS // n_m)
     parts = [_top_k_block(weighted_distances(q[i:i + chunk], m, w, eps), kk) for i in range(0, n_q, chunk)]
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

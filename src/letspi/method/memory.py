@@ -1,39 +1,12 @@
 """The memory bank: validated driving experiences on SQLite (paper §III-E, "Scenario-based Memory").
 
-Storage decisions
------------------
-* One table ``experiences``, unique per ``(scenario_digest, config_key)``: the scenario's content
-  digest (``letspi.scenario.identity``; ids repeat across regenerated data) and the content key of the
-  collection configuration (``letspi.method.config.MemoryPhaseConfig.key()``: model and weights,
-  decoding, prompt text, goals, neighbours, sf parameters, thresholds, iterations, goal adjustment).
-  Several configurations and datasets share one file without mixing.
-* **Fallbacks are never experience.** A result whose final proposal is a fallback (the model gave
-  no valid answer, or the server failed) is stored with ``fallback = 1`` and ``validated = 0``, is
-  never retrieved, does not count as done (``has``), and is replaced when a resumed run retries it
-  (``add`` updates a fallback row; a real row is never overwritten).
-* Vehicle identity (``recording_key``, ``ego_id``, ``frame0``) is stored so retrieval can leave out
-  memories of the query's own vehicle in an overlapping window (``MemoryFeatures``).
-* ``datasets``: every dataset (digest, path, size) collected from, for provenance.
-* WAL journal: readers never block the writer and vice versa (``letspi evaluate`` may read while
-  ``collect`` writes). One writer per process, short transactions (one statement per ``add``, one
-  ``BEGIN IMMEDIATE`` transaction per ``add_many``); a ``busy_timeout`` lets writers of other processes
-  wait instead of failing.
-* ``synchronous=FULL`` (default): every commit is fsynced to the WAL, so a committed experience
-  survives a process kill *and* an OS crash or power loss. NORMAL would also survive kill -9 (the WAL
-  is in the page cache) but may lose the last commits on power loss. An experience costs seconds of
-  LLM time; an fsync costs milliseconds, so durability is nearly free here. ``synchronous="NORMAL"``
-  is available for bulk loads (benchmarks).
-* Features are six REAL columns (``FEATURE_NAMES``), parameters seven REAL columns (``PARAM_NAMES``):
-  matching reads them as one NumPy matrix (``features_matrix``, cached until the bank changes, detected
-  with ``PRAGMA data_version`` plus this connection's own writes).
-* Metrics and iteration records are JSON text. JSON has no infinity (and SQLite 3.40's JSON functions
-  reject ``Infinity``), so non-finite floats are written as the strings ``"inf"``, ``"-inf"``, ``"nan"``
-  and turned back into floats when metrics are read (``decode_metrics``).
-* ``created_at``: ISO-8601 UTC with milliseconds. A ``schema_version`` table guards future migrations.
-* ``sample_fraction``: a reproducible subset for the memory-size ablation as a list of row ids (a
-  filter, not a copy): rows ordered by a hash of (seed, scenario_digest, config_key), the first
-  round(fraction x count) kept. Subsets of one seed are nested (10 % is inside 50 %) and do not depend
-  on insertion order.
+* One row per (scenario content digest, collection configuration key), so configurations and datasets
+  share a file without mixing. A fallback result is stored flagged, never retrieved, not ``has``, and
+  replaced when a resumed run retries it; a real row is never overwritten.
+* WAL journal with ``synchronous=FULL``: readers and the writer never block each other, and a committed
+  experience survives a kill and a power loss. Features and parameters are REAL columns read as one NumPy
+  matrix; non-finite metric floats are stored as ``"inf"``/``"-inf"``/``"nan"`` (JSON has no infinity).
+* ``sample_fraction``: nested, insertion-order-free subsets for the memory-size ablation.
 """
 
 from __future__ import annotations
@@ -161,19 +134,10 @@ def _decode_iterations(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 @dataclass(frozen=True)
 class Experience:
-    """One stored experience.
-
-    scenario_digest / recording_key / recording_id / ego_id / frame0: which scenario and vehicle
-        (``letspi.scenario``); the digest identifies the content, the rest the vehicle and time.
-    features: the 6 matching features in ``FEATURE_NAMES`` order (units there); all finite.
-    params, lon_factor, lane_factor: the final (validated) proposal.
-    metrics_before / metrics_after: ``SafetyReport.metrics`` of the first and the final iteration.
-    iterations: ``IterationRecord.to_dict()`` of every iteration (prompts, replies, metrics, reports).
-    model / prompt / reply / rationale: of the final iteration.
-    validated: the final plan is safe and came from the model. fallback: the final proposal is a
-        fallback (never validated, never retrieved, retried on resume).
-    id / created_at: set by the bank (None before insertion; ignored by equality).
-    """
+    """One stored experience: the scenario (content digest) and vehicle, the 6 finite matching ``features``
+    (``FEATURE_NAMES`` order), the final proposal and its prompt/reply, ``SafetyReport.metrics`` of the first
+    and final iteration, every iteration's record. ``validated``: safe and from the model; ``fallback``: never
+    validated. ``id`` / ``created_at``: set by the bank (ignored by equality)."""
 
     scenario_id: str
     scenario_digest: str
@@ -323,11 +287,8 @@ class MemoryBankError(ValueError):
 
 
 class MemoryBank:
-    """SQLite-backed experience store (decisions in the module doc). Use ``MemoryBank.open(path)``.
-
-    One connection: use it from one thread at a time (it may be handed between threads, e.g. a
-    ``Retriever`` that serialises its reads with a lock); every process opens its own bank.
-    """
+    """SQLite-backed experience store (``MemoryBank.open(path)``): one connection, used by one thread at a time;
+    every process opens its own bank."""
 
     def __init__(self, conn: sqlite3.Connection, path: Path, *, readonly: bool) -> None:
         self._conn = conn
@@ -384,9 +345,8 @@ class MemoryBank:
 
     # writing ---------------------------------------------------------------------------------
     def add(self, experience: Experience) -> bool:
-        """Insert one experience in its own (committed) transaction. A row of the same scenario and
-        configuration is kept, unless it is a fallback (then the new result replaces it: a retry).
-        Returns whether the bank changed."""
+        """Insert one experience (committed); an existing row of the same scenario and configuration is kept
+        unless it is a fallback. Returns whether the bank changed."""
         cur = self._conn.execute(self._insert_sql(), _row_values(experience, _now()))
         self._own_writes += 1
         return cur.rowcount == 1
@@ -440,9 +400,8 @@ class MemoryBank:
         return {str(r[0]) for r in rows}
 
     def snapshot(self, config_key: str | None = None) -> tuple[np.ndarray, str]:
-        """Row ids (ascending) of every retrievable memory (validated, not fallback; of ``config_key`` or
-        all) and a SHA-256 over (id, scenario digest, configuration) of those rows: the identity of
-        what a fast planner built now can retrieve."""
+        """Row ids (ascending) of every retrievable memory (of ``config_key`` or all) and a SHA-256 over their
+        (id, digest, configuration): the identity of what a fast planner built now can retrieve."""
         where, args = _where(True, config_key)
         rows = self._conn.execute(
             f"SELECT id, scenario_digest, config_key FROM experiences{where} ORDER BY id", args).fetchall()
@@ -503,8 +462,8 @@ class MemoryBank:
     def iter_experiences(
         self, validated_only: bool = False, config_key: str | None = None, batch_size: int = 256
     ) -> Iterator[Experience]:
-        """All experiences in id order, fetched ``batch_size`` rows at a time (keyset pagination, so a
-        concurrent writer never makes the iteration skip or repeat rows)."""
+        """All experiences in id order, ``batch_size`` rows at a time (keyset pagination: a concurrent writer
+        never makes it skip or repeat rows)."""
         where, args = _where(validated_only, config_key)
         last = 0
         cond = f"{where} AND id > ?" if where else " WHERE id > ?"
@@ -522,7 +481,8 @@ class MemoryBank:
     def sample_fraction(
         self, fraction: float, seed: int = 0, validated_only: bool = True, config_key: str | None = None
     ) -> MemorySubset:
-        """A reproducible subset of round(fraction x count) experiences (selection rule: module doc)."""
+        """The first round(fraction x count) rows ordered by a hash of (seed, digest, configuration): subsets of
+        one seed are nested (10 % inside 50 %) and independent of insertion order."""
         if not 0.0 <= fraction <= 1.0:
             raise ValueError(f"fraction must be in [0, 1], got {fraction}")
         where, args = _where(validated_only, config_key)

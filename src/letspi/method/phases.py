@@ -1,18 +1,11 @@
 """LetsPi's two phases on top of the LLM engine (paper §III-E, Figure 1).
 
-* Memory collection: for each scenario, the physics-informed prompt → LLM proposal → simulate →
-  reflection (safety report → refined proposal, up to N times) → store the experience in the
-  memory bank (validated or not; retrieval uses validated ones only). A result whose final proposal
-  is a fallback is stored flagged, never retrieved, and retried when the run is resumed.
-* Fast inference: scenario features → top-k similar validated memories → the short fast prompt
-  with them as few-shot examples → one LLM call → simulate.
-
-``LlmProposer`` adapts a ``ParamAdvisor`` to ``reflect``'s proposer interface. The LLM chooses
-the six parameters of the paper; ``r_col_m`` stays at the fitted ``sf`` value.
-
-``prompt_style="compact"`` (the fine-tuned model, ``letspi.llm.compact``) replaces both prompts by the
-compact one: no few-shot examples (retrieval still runs: the memories are recorded), numbers-only
-replies, and a refinement round is the compact refine prompt (scene, rejected answer, check facts).
+* Memory collection (``collect``): physics-informed prompt -> proposal -> simulate -> reflection rounds ->
+  store the experience (retrieval uses validated ones only).
+* Fast inference (``FastPhase``): top-k similar validated memories -> the fast prompt with them as few-shot
+  examples -> one call -> simulate.
+The LLM chooses the paper's six parameters; ``r_col_m`` stays at the fitted ``sf`` value. The ``compact``
+and ``choice`` prompt styles replace both prompts (retrieval still runs and is recorded).
 """
 
 from __future__ import annotations
@@ -89,8 +82,7 @@ def _reply_values(proposal: Proposal) -> dict[str, float]:
 
 
 def choice_report(report: SafetyReport, adverse: AdverseOutcome | None) -> str:
-    """What the choice style's refinement says about the rejected option: the checks it failed, by the
-    names its option line uses (``predicted``, then the adverse futures), as the training labels state it."""
+    """The choice refinement's check line for the rejected option (``predicted``, then adverse futures)."""
     failed = ([] if report.safe else ["predicted"]) + list(adverse.failed if adverse is not None else ())
     return choice_check_text(failed)
 
@@ -113,8 +105,8 @@ def _with_decision(proposal: Proposal, option: str, consulted: bool, risk_score:
 
 
 def decision_reason(decider: Decider, checks: OptionChecks, option: str, consulted: bool, risk_score: float) -> str:
-    """Why, in one line: the risk against the gate, what the defaults fail, the option chosen and its checks
-    (``risk 23.1 % >= gate 6.5 %; default fails leader-brakes; chose slow (passes every check)``)."""
+    """Why, in one line (``risk 23.1 % >= gate 6.5 %; default fails leader-brakes; chose slow (passes every
+    check)``)."""
 
     def verdict(k: int) -> str:
         failed = checks.failed_names(0, k)
@@ -134,10 +126,8 @@ def decision_reason(decider: Decider, checks: OptionChecks, option: str, consult
 
 @dataclass
 class LlmProposer:
-    """``reflect`` proposer: physics-informed prompt first, then the refinement turn with the report
-    (``prompt_style="compact"``: the compact prompt, then the compact refine prompt; ``"choice"``: the
-    choice prompt over ``options`` (``replies``: the answer of each), then the same with the rejected
-    option and what its checks found, adverse futures included)."""
+    """``reflect`` proposer: the ``prompt_style``'s propose prompt, then its refinement with the report
+    (``choice``: over ``options``, ``replies`` the answer of each)."""
 
     advisor: ParamAdvisor
     r_col_m: float
@@ -182,12 +172,8 @@ class LlmProposer:
 
 @dataclass
 class MemoryPhase:
-    """Runs the memory-collection pipeline on one scenario at a time.
-
-    ``config_key`` identifies everything that changes its answers (the content key of the
-    configuration it was built from, ``letspi.method.config.MemoryPhaseConfig.key()``); its
-    experiences are stored under it.
-    """
+    """Runs the memory-collection pipeline on one scenario at a time; its experiences are stored under
+    ``config_key`` (the content key of everything that changes its answers)."""
 
     advisor: ParamAdvisor
     goal_predictor: GoalPredictor
@@ -201,10 +187,8 @@ class MemoryPhase:
 
     def run(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None = None,
             prediction: NeighbourPrediction | None = None) -> ReflectionResult:
-        """Reflection loop on a batch of one. ``base_goal_xy_m`` (2,) / ``prediction`` (1, N, F, ...):
-        the scenario's goal and predicted neighbours when the caller computed them for many scenarios
-        at once (default: predicted here). With a ``decider`` every plan is also checked against the
-        adverse futures, and the choice style lists the presets with their checks."""
+        """Reflection loop on a batch of one; ``base_goal_xy_m`` (2,) and ``prediction`` (1, N, F, ...) if the
+        caller computed them batched. A ``decider`` adds the adverse futures (and the choice style's presets)."""
         base_goal = (self.goal_predictor.predict_goals(scenario).top[0] if base_goal_xy_m is None
                      else np.asarray(base_goal_xy_m, dtype=np.float64).reshape(2))
         pred = predict_neighbours(scenario, self.neighbour_mode) if prediction is None else prediction
@@ -228,10 +212,8 @@ class MemoryPhase:
 
 @dataclass(frozen=True)
 class CollectStats:
-    """Counts of one collection run. ``fallback_results``: scenarios whose final answer was a
-    fallback (stored flagged, retried on resume); ``fallback_replies``: fallback proposals over all
-    iterations; ``cached_calls`` / ``calls``: LLM calls served by the response cache / made;
-    ``run``: throughput, latency and request counters of the scenarios this run executed."""
+    """Counts of one collection run: ``fallback_results`` (scenarios), ``fallback_replies`` (all iterations),
+    ``cached_calls`` of ``calls``; ``run``: throughput, latency and request counters."""
 
     total: int
     skipped: int
@@ -254,18 +236,12 @@ def collect(
     *,
     runner: RunnerConfig | None = None,
 ) -> CollectStats:
-    """The memory collection phase over ``batch``; resumable: scenarios with a real (non-fallback)
-    result under this configuration are skipped.
+    """The memory collection phase over ``batch``, resumable (scenarios with a real result are skipped).
 
-    ``runner.concurrency`` scenarios run at once (``letspi.execution.ordered``); their experiences are
-    committed one at a time in scenario order by this thread, so the bank's rows (ids included) do
-    not depend on the concurrency or on which scenario finished first, and a killed run resumed
-    gives the bank of an uninterrupted one. A scenario whose LLM requests failed in transport is not
-    stored (the run ends with ``ScenariosFailedError``; rerunning retries it). Goals and predicted
-    neighbours are computed batched for fixed blocks of ``CONTEXT_BLOCK`` scenarios (the reflection
-    rounds' rollouts stay per scenario: each needs the previous round's answer). A server that cannot be
-    reached, or too many failures in a row, stops the run (``BackendUnavailableError``,
-    ``RunStoppedError``) with what finished stored."""
+    ``runner.concurrency`` scenarios run at once; experiences are committed in scenario order, so the bank
+    (ids included) does not depend on the concurrency, and a resumed run gives an uninterrupted one's bank.
+    A scenario whose requests failed in transport is not stored (``ScenariosFailedError`` at the end); an
+    unreachable server or too many failures stop the run (``BackendUnavailableError``, ``RunStoppedError``)."""
     t0 = time.perf_counter()
     key = phase.config_key
     digests = scenario_digests(batch)
@@ -336,17 +312,11 @@ def memory_example(exp: Experience) -> MemoryExample:
 
 @dataclass
 class Retriever:
-    """Top-k validated memories by the (fixed) §III-E similarity.
+    """Top-k validated memories by the (fixed) §III-E similarity; thread-safe (bank reads under a lock).
 
-    config_key: only memories of this collection configuration (None: any).
-    allowed_ids: only these row ids (the snapshot a fast planner was built with, or the
-        memory-size ablation's subset); None: every retrievable row.
-    allow_same_vehicle: False (default) leaves out memories of the query's own ego vehicle and
-        every memory whose window overlaps the query's in the same recording: their history is
-        the query's future, or shares it. True keeps them (a leak; labelled in configurations).
-
-    Thread-safe: scenarios planned concurrently share one retriever; its bank is read by one thread
-    at a time (a lock; reads take milliseconds next to seconds of LLM time).
+    ``config_key``: only this collection configuration's (None: any); ``allowed_ids``: only these row ids (a
+    snapshot or an ablation's subset). ``allow_same_vehicle`` False leaves out the query's own vehicle and
+    windows overlapping it in the same recording (their history is the query's future: a leak).
     """
 
     bank: MemoryBank
@@ -400,12 +370,9 @@ class FastPhase:
     def propose_retrieved(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
                           prediction: NeighbourPrediction | None = None,
                           ) -> tuple[Proposal, list[tuple[Experience, float]]]:
-        """``propose`` returning the retrieved experiences themselves (the shield falls back to them).
-
-        With a ``decider``: the presets are checked on the scene (``prediction``: its predicted
-        neighbours, default IDM), the gate scores it, and below the gate's threshold the defaults are
-        kept without a model call; the choice style asks the model for a preset. ``Proposal.meta``
-        records the decision (``decision``, ``consulted``, ``risk_score``)."""
+        """``propose`` returning the retrieved experiences. With a ``decider`` the presets are checked (against
+        ``prediction``, default IDM) and below the gate the defaults are kept without a call; ``Proposal.meta``
+        records ``decision``, ``consulted``, ``risk_score``."""
         retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
         if self.decider is None:
             return self._ask(scenario, base_goal_xy_m, retrieved), retrieved

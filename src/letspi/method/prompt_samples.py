@@ -1,11 +1,8 @@
-"""The prompt text the method layer writes, rendered for fixed inputs (part of the prompt fingerprint).
+"""The prompt text the method layer writes, rendered for fixed inputs: part of the prompt fingerprint.
 
-``letspi.llm.fingerprint`` renders the prompts themselves; the reflection's safety report
-(``SafetyReport.to_text`` and the compact form ``compact_report``) and the few-shot examples made of
-stored experiences (``memory_example``) are written here, one layer up, and reach the fingerprint as
-``prompt_fingerprint(prompt_text_samples())``. The samples go through the real code: hand-built
-reports with one violation of every kind in ``METRIC_ORDER`` (a new kind without a sample raises), a
-safe report, a report with contact, with and without the proposal whose values the suggestions quote.
+Safety reports (full and compact; one violation of every kind in ``METRIC_ORDER``, a new kind without a
+sample raises) and few-shot examples of stored experiences reach it as
+``prompt_fingerprint(prompt_text_samples())``.
 """
 
 from __future__ import annotations

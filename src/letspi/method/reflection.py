@@ -1,17 +1,9 @@
-"""Reflection module (paper §III-E, Figure 3), independent of any LLM.
+"""Reflection (paper §III-E, Figure 3), independent of any LLM.
 
-* ``simulate_proposal``: goal adjustment + social force rollout of proposed parameters (shared with planners).
-* ``safety_report``: surrogate safety measures of plans against the *predicted* neighbours
-  (``letspi.safety.plan_check.check_plans``; thresholds and their reading in ``letspi.method.thresholds``) and,
-  per scenario, the violations with where they happen: time step and time, the neighbour (slot and
-  vehicle id), its HighD lane and the ego's, front / rear / left / right. ``SafetyReport.to_text`` is the
-  concise safety analysis report the refinement prompt includes, with targeted suggestions per category.
-* ``reflect``: the loop. ``propose(context) -> Proposal`` is called first without a report, then with the
-  previous proposal and its report, until the plan is safe or ``max_iterations`` refinements are spent.
-  Every iteration is recorded. An LLM adapter implements ``propose``; tests use scripted proposers.
-
-Time convention (as in ``letspi.metrics``): ``step`` f is an index into the F future frames, at time
-``(f + 1) * dt`` after t = 0; the text shows the 1-based frame number ``f + 1`` ("frame 60/125" = 2.40 s).
+``simulate_proposal`` plans proposed parameters (shared with the planners); ``safety_report`` checks plans
+against the predicted neighbours and locates each violation; ``SafetyReport.to_text`` is the report the
+refinement prompt includes; ``reflect`` is the loop. Time convention (as in ``letspi.metrics``): ``step`` f
+is future frame f, at ``(f + 1) * dt`` after t = 0; the text shows ``f + 1`` ("frame 60/125" = 2.40 s).
 """
 
 from __future__ import annotations
@@ -84,15 +76,9 @@ METRIC_ORDER: Final[tuple[MetricName, ...]] = tuple(CHECK_KINDS)
 
 @dataclass(frozen=True)
 class Proposal:
-    """One answer of a proposer (an LLM adapter or a script).
-
-    params: social force parameters; lon_factor in [0, 1] (0 = goal 20 % further, 1 = 30 % shorter,
-    0.4 = unchanged); lane_factor in [-1, 1] (-1 = adjacent lane on the left, +1 = on the right).
-    prompt / reply: raw texts when the proposer is an LLM (recorded per iteration).
-    clamped_fields: names of values the proposer (or ``normalised``) had to clamp into range.
-    fallback: the proposer could not produce an answer and returned defaults.
-    meta: anything else worth recording (token counts, latency, model spec); JSON-serialisable.
-    """
+    """One answer of a proposer. lon_factor in [0, 1] (0 = goal 20 % further, 0.4 unchanged, 1 = 30 % shorter);
+    lane_factor in [-1, 1] (-1 = adjacent lane left, +1 right). prompt / reply: an LLM's raw texts;
+    clamped_fields: values clamped into range; fallback: defaults, no answer; meta: JSON-serialisable extras."""
 
     params: SocialForceParams
     lon_factor: float = NEUTRAL_LON_FACTOR
@@ -105,10 +91,7 @@ class Proposal:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def normalised(self) -> Proposal:
-        """Parameters clamped into ``PARAM_RANGES`` and factors into their ranges (NaN -> neutral).
-
-        Clamped names are appended to ``clamped_fields``; returns ``self`` when nothing changes.
-        """
+        """Parameters and factors clamped into their ranges (NaN -> neutral), names added to ``clamped_fields``."""
         params = self.params.clamped()
         changed = [n for n in PARAM_NAMES if not getattr(params, n) == getattr(self.params, n)]
         lon = _clip_factor(self.lon_factor, LON_FACTOR_RANGE, NEUTRAL_LON_FACTOR)
@@ -152,11 +135,8 @@ def simulate_proposal(
     neighbour_prediction: NeighbourPrediction,
 ) -> SimulatedPlan:
     """Adjust the goals (paper factors) and roll the social force model out against predicted neighbours.
-
-    params: (B,) parameter batch (clamped into ``PARAM_RANGES`` here: the rollout must never see
-    out-of-range values); lon_factor, lane_factor: (B,); base_goals_xy_m: (B, 2) unadjusted goals [m, ego
-    frame]; neighbour_prediction: (B, N, F, ...) arrays. Returns plans (B, F, 2) and adjusted goals (B, 2).
-    """
+    params (B,) (clamped here), lon_factor, lane_factor (B,), base_goals_xy_m (B, 2) [m, ego frame],
+    neighbour_prediction (B, N, F, ...) -> plans (B, F, 2) and adjusted goals (B, 2)."""
     b = len(batch)
     goals = adjust_goals(
         np.asarray(base_goals_xy_m, dtype=np.float64).reshape(b, 2),
@@ -176,15 +156,12 @@ def simulate_proposal(
 
 @dataclass(frozen=True)
 class Violation:
-    """One violated threshold of one scenario, at its worst (or, for contact / off-road, first) instant.
+    """One violated threshold of one scenario, at its worst (contact, off-road: first) instant.
 
-    value / threshold in ``unit`` (s or m). contact: value = box gap 0, threshold = min_dist_m.
-    off_road: value = how far the ego box extends beyond the road edge [m], threshold 0.
-    step: future step index (time_s = (step + 1) dt). nbr_slot -1 / vehicle_id 0 / nbr_lane_id 0 when
-    no neighbour is involved (off-road). ego_lane_id: HighD lane of the planned ego at that step (0 = off
-    the road). relative: where the neighbour is (front / rear / left / right; for contact, the direction
-    it came from, i.e. the relation one step before the boxes overlap). dx_m, dy_m: neighbour centre minus
-    ego centre at ``step`` [m] (NaN without a neighbour).
+    value / threshold in ``unit`` (contact: box gap 0 vs min_dist_m; off_road: excursion beyond the edge [m]
+    vs 0). step: future step (time_s = (step + 1) dt). nbr_slot -1, vehicle_id 0, nbr_lane_id 0 without a
+    neighbour; ego_lane_id 0 = off the road. relative: the neighbour's side (contact: one step before the
+    overlap). dx_m, dy_m: neighbour minus ego centre [m] (NaN without a neighbour).
     """
 
     metric: MetricName
@@ -218,14 +195,10 @@ class Violation:
 
 @dataclass(frozen=True)
 class SafetyReport:
-    """Safety of one planned trajectory against the predicted neighbours.
-
-    metrics: min_ttc_s, min_rear_ttc_s, min_path_gap_m, min_box_gap_m (+inf = no conflict / nobody),
-    collision, off_road (0/1 floats), min_pet_s (only when PET is checked), safe (0/1).
-    violations: ordered contact, front TTC, rear TTC, in-path gap, PET, off-road.
-    pre_contact_metrics / first_contact_time_s: with contact, the same metrics on the steps before the
-    first contact (what the text summary shows: after a crash the numbers mean nothing), else None.
-    """
+    """Safety of one planned trajectory against the predicted neighbours. ``metrics``: min_ttc_s,
+    min_rear_ttc_s, min_path_gap_m, min_box_gap_m (+inf = no conflict), collision, off_road, safe (0/1),
+    min_pet_s (if checked). ``pre_contact_metrics`` / ``first_contact_time_s``: with contact, the metrics before
+    it (after a crash the numbers mean nothing), else None."""
 
     scenario_id: str
     violations: tuple[Violation, ...]
@@ -262,10 +235,7 @@ class SafetyReport:
         }
 
     def to_text(self, proposal: Proposal | None = None) -> str:
-        """The concise safety analysis report for the refinement prompt.
-
-        With ``proposal`` (the parameters that produced this plan) the suggestions quote current values.
-        """
+        """The safety report for the refinement prompt; with ``proposal`` the suggestions quote its values."""
         th = self.thresholds
         checks = [f"TTC >= {th.ttc_s:g} s (front and rear)", f"in-path gap >= {th.min_dist_m:g} m", "no contact"]
         if th.pet_s is not None:
@@ -389,15 +359,9 @@ def safety_report(
     neighbour_prediction: NeighbourPrediction,
     thresholds: ReflectionThresholds | None = None,
 ) -> list[SafetyReport]:
-    """Safety reports of B plans (B, F, 2) against predicted neighbours (B, N, F, ...), one per scenario.
-
-    All numbers are computed for the whole batch at once; the values come from ``check_plans``, the
-    locations (step, neighbour, lanes, relative position) from the same geometry
-    (``predicted_inputs``). Only the assembly of the per-scenario objects loops.
-    ``SafetyReport.metrics`` cover the whole horizon; with contact, the TTC / gap / PET violations are
-    located before the first contact (see the comment in the code). ``safe`` equals
-    ``check_plans(...).safe(ttc_s, min_dist_m)`` when PET is off and off-road is checked.
-    """
+    """Safety reports of B plans (B, F, 2) against predicted neighbours (B, N, F, ...), computed batched.
+    Metrics cover the whole horizon; with contact, TTC / gap / PET violations are located before it.
+    ``safe`` equals ``check_plans(...).safe(ttc_s, min_dist_m)`` when PET is off and off-road is checked."""
     th = thresholds or ReflectionThresholds()
     check = check_plans(batch, plan_xy_m, plan_vxy_mps, neighbour_prediction)  # whole horizon: the metrics
     inp = predicted_inputs(batch, plan_xy_m, plan_vxy_mps, neighbour_prediction)
@@ -443,8 +407,7 @@ Located = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 def _before_contact(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray,
                     neighbour_prediction: NeighbourPrediction, contact: np.ndarray, c_step: np.ndarray,
                     check: SafetyCheck, inp: MetricInputs) -> tuple[SafetyCheck, MetricInputs]:
-    """The plan checks on the steps before each scenario's first contact (the whole-horizon ones
-    when no scenario has contact)."""
+    """The plan checks on the steps before each scenario's first contact (without contact: the given ones)."""
     if not contact.any():
         return check, inp
     # After the first contact the plan means nothing (a weak repulsion lets the ego drive *through* its
@@ -494,8 +457,7 @@ def _peak_braking(batch: ScenarioBatch, inp: MetricInputs) -> tuple[np.ndarray, 
 
 
 def _violation_columns(batch: ScenarioBatch, inp: MetricInputs, located: Located) -> dict[str, dict[str, np.ndarray]]:
-    """Per metric, (B,) columns of everything a ``Violation`` says: value, step, neighbour, lanes,
-    relative position and offsets."""
+    """Per metric, (B,) columns of every ``Violation`` field."""
     rows = np.arange(len(batch))
     ego_lane = lane_id_of(batch, inp.ego_xy_m[..., 1])  # (B, F)
     nbr_y = np.where(inp.nbr_valid, inp.nbr_xy_m[..., 1], np.nan)
@@ -600,12 +562,8 @@ def adverse_outcomes(checks: FutureChecks, settings: AdverseSettings) -> list[Ad
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """One proposal, its simulation and its safety report.
-
-    iteration: 0 = initial proposal, then 1, 2, ... refinements. goal_xy_m: the adjusted goal [m].
-    propose_s / simulate_s: wall time of the proposer and of simulation + report [s].
-    plan_xy_m / plan_vxy_mps: (F, 2) the planned trajectory (not serialised by ``to_dict``).
-    """
+    """One proposal (``iteration`` 0 the initial one), its adjusted goal [m], plan (F, 2) (not serialised),
+    safety report and wall times ``propose_s`` / ``simulate_s`` [s]."""
 
     iteration: int
     proposal: Proposal
@@ -654,11 +612,8 @@ class IterationRecord:
 
 @dataclass(frozen=True)
 class ReflectionContext:
-    """What ``propose`` sees. iteration 0: ``previous`` and ``report`` are None.
-
-    scenario: the batch of one; base_goal_xy_m: (2,) the unadjusted goal [m, ego frame];
-    history: all earlier iterations (``history[-1]`` produced ``previous`` / ``report``).
-    """
+    """What ``propose`` sees: a batch of one, its unadjusted goal (2,) [m], and earlier iterations (``history[-1]``
+    produced ``previous`` / ``report``, both None at iteration 0)."""
 
     scenario: ScenarioBatch
     iteration: int
@@ -672,13 +627,9 @@ class ReflectionContext:
 
 @dataclass(frozen=True)
 class ReflectionResult:
-    """All iterations of one scenario; ``final_index`` points at the one to use.
-
-    validated: the final plan passes every threshold against the prediction (then final = the first
-    iteration safe against the prediction and, when they were checked, every adverse future, else the
-    one failing the fewest adverse futures). Otherwise final is the least unsafe iteration
-    (``unsafe_choice="best"``) or the last one.
-    """
+    """All iterations of one scenario; ``final_index`` points at the one to use. ``validated``: some plan passed
+    the checks against the prediction (final: the first also passing every adverse future, else the one
+    failing fewest); otherwise final is the least unsafe (``unsafe_choice="best"``) or the last."""
 
     scenario_id: str
     iterations: tuple[IterationRecord, ...]
@@ -712,8 +663,7 @@ Proposer = Callable[[ReflectionContext], Proposal]
 
 def _goal_and_prediction(scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | None,
                          neighbour_prediction: NeighbourPrediction | None) -> tuple[np.ndarray, NeighbourPrediction]:
-    """The goal before adjustment (2,) and the neighbour prediction, the planners' defaults where not given
-    (kinematic goal, IDM prediction)."""
+    """The goal before adjustment (2,) and the neighbour prediction (defaults: kinematic goal, IDM)."""
     if base_goal_xy_m is None:
         base_goal_xy_m = KinematicGoalPredictor().predict_goals(scenario).top[0]
     pred = neighbour_prediction if neighbour_prediction is not None else predict_neighbours(
@@ -722,8 +672,7 @@ def _goal_and_prediction(scenario: ScenarioBatch, base_goal_xy_m: np.ndarray | N
 
 
 def _with_goal_factors_of(proposal: Proposal, first: Proposal) -> Proposal:
-    """``proposal`` with the first proposal's goal factors (the "w/o GA" ablation); an override is
-    recorded in ``meta['goal_factors_frozen']``."""
+    """``proposal`` with ``first``'s goal factors, an override recorded in ``meta['goal_factors_frozen']``."""
     if (proposal.lon_factor, proposal.lane_factor) == (first.lon_factor, first.lane_factor):
         return proposal
     meta = {**proposal.meta, "goal_factors_frozen": [proposal.lon_factor, proposal.lane_factor]}
@@ -743,15 +692,10 @@ def reflect(
 ) -> ReflectionResult:
     """Propose, simulate, check; re-propose with the safety report until safe (paper Figure 3).
 
-    scenario: a batch of one. base_goal_xy_m: (2,) goal before adjustment (default: the kinematic goal
-    predictor). neighbour_prediction: (1, N, F, ...) (default: IDM prediction, as the planners use).
-    goal_adjustment=False is the "w/o GA" ablation: refinements keep the initial proposal's goal factors
-    (an override recorded in the proposal's ``meta['goal_factors_frozen']``).
-    Proposals are ``normalised`` (clamped) before simulation; the recorded proposal is the clamped one.
-    ``adverse``: also check every plan against the adverse futures of the scene (``letspi.safety.adverse``);
-    a plan that fails one is refined too (its report says which future failed), and the result prefers
-    the first plan safe in all of them, else the safest against the prediction that fails the fewest.
-    ``validated`` keeps the paper's meaning: some plan passed the checks against the prediction.
+    ``scenario``: a batch of one; ``base_goal_xy_m`` (2,) and ``neighbour_prediction`` (1, N, F, ...) default
+    as the planners'. ``goal_adjustment=False`` (the "w/o GA" ablation) keeps the first goal factors.
+    Proposals are clamped (``normalised``) before simulation and recorded so. ``adverse``: plans failing an
+    adverse future are refined too.
     """
     if len(scenario) != 1:
         raise ValueError(f"reflect works on one scenario (a batch of one), got {len(scenario)}")

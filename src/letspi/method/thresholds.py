@@ -1,14 +1,8 @@
 """Safety thresholds of the reflection module (paper §III-E: TTC < 1.5 s or distance < 2.0 m is unsafe).
 
-Reading of the paper's "minimum distance < 2.0 m" (the same one ``letspi.safety.plan_check.SafetyCheck.safe``
-and ``sf-opt`` use, so a plan the reflection accepts is one sf-opt would accept too):
-
-* ``min_dist_m`` applies to the **in-path gap**: the bumper-to-bumper distance to a vehicle whose box
-  overlaps the ego's laterally (ahead or behind). An ordinary adjacent-lane pass leaves ~1.9 m between
-  boxes on 3.75 m lanes; applying 2 m to the raw box gap would flag every one of them.
-* **Contact** (the boxes overlap, box gap 0 < ``min_dist_m``) is always a violation, whatever the
-  direction, so a side-swipe during a lane change is caught even though it is not "in path" beforehand.
-* Front and rear 1-D TTC below ``ttc_s`` and leaving the road are violations; PET only when ``pet_s`` is set.
+The paper's "distance" is read as the in-path bumper-to-bumper gap (as ``SafetyCheck.safe`` and ``sf-opt``
+read it): an ordinary adjacent-lane pass leaves ~1.9 m between boxes, so 2 m on the raw box gap would
+flag every one. Contact (box overlap) always violates, whatever the direction.
 """
 
 from __future__ import annotations
@@ -24,17 +18,10 @@ _METRICS = MetricsConfig()
 
 
 class ReflectionThresholds(BaseModel):
-    """Thresholds [SI] and the iteration budget of the reflection loop.
-
-    ttc_s: minimum acceptable front and rear 1-D TTC [s].
-    min_dist_m: minimum acceptable in-path bumper-to-bumper gap [m]; contact always violates.
-    pet_s: minimum acceptable post-encroachment time [s]; None = PET not checked (the paper lists PET
-        among the reflection metrics without a threshold).
-    pet_cell_m: grid cell of the PET computation [m].
-    check_off_road: leaving the road (box beyond a road edge) is a violation.
-    max_iterations: refinement rounds after the initial proposal, so at most ``max_iterations + 1``
-        proposals; 0 disables refinement (the "w/o Ref" ablation).
-    """
+    """Thresholds of the reflection loop: minimum front and rear 1-D TTC ``ttc_s`` [s] and in-path gap
+    ``min_dist_m`` [m]; ``pet_s`` [s] (None: PET not checked; the paper gives no threshold) on a
+    ``pet_cell_m`` grid; ``check_off_road``; ``max_decel_mps2``; ``max_iterations`` refinements after the
+    initial proposal (0: the "w/o Ref" ablation)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

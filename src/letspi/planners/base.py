@@ -1,18 +1,10 @@
 """The planner interface: scenarios in, planned ego futures out.
 
-A planner sees what is known at t = 0: the harness passes non-oracle planners a history-only view
-(``ScenarioBatch.history()``: every per-frame array ends at ``T0_INDEX``, the future is absent, not
-blanked). The kinds that read the recorded future get the full batch: the ``human`` replay (the
-reference row of every table) and the labelled oracle modes (oracle goals, ground-truth neighbour
-replay), which are upper bounds, not planners. Which ones they are is the planner table's to say
-(``letspi.assembly.planner_table``, ``BuiltPlanner.reads_future``), not the planner object's.
-The harness (``letspi.evaluation.harness``) times ``plan`` calls; planners don't time themselves.
-
-The social force planners (``sf``, ``sf-opt``, ``mlp``, ``gnp`` and the LLM planners) are also
-``ProposingPlanner``s: a *propose* step that decides (parameters, goal adjustments; an LLM call per
-scenario for the LLM planners) and a *simulate* step that runs the physics (rollout, safety shield)
-batched over any set of proposals. The harness pools the proposals of LLM planners, made many at a
-time, and simulates and scores them per part; the closed loop replans with them.
+A planner gets a history-only view (``ScenarioBatch.history()``: arrays end at ``T0_INDEX``) unless its
+planner-table entry reads the future (``BuiltPlanner.reads_future``: the human replay and the oracle modes).
+The harness times ``plan``. The social force family are also ``ProposingPlanner``s: a *propose* step that
+decides (an LLM call per scenario for the LLM planners) and a batched *simulate* step that runs the physics,
+so the harness can pool proposals and the closed loop can replan with them.
 """
 
 from __future__ import annotations
@@ -32,15 +24,9 @@ from letspi.scenario.types import ScenarioBatch
 
 @dataclass(frozen=True)
 class PlanBatch:
-    """Planned ego futures for B scenarios (ego frame, F = 125 steps after t = 0).
-
-    Attributes:
-        xy_m: (B, F, 2) ego box-centre positions at t = 1..F frames.
-        vxy_mps: (B, F, 2) ego velocities.
-        goals_xy_m: (B, 2) the (possibly adjusted) goal the plan aimed at, NaN if none.
-        info: per-scenario extras, each an array with leading axis B (parameters, flags, ...);
-            stored beside the metrics in the per-scenario results.
-    """
+    """Planned ego futures for B scenarios (ego frame, F = 125 steps after t = 0): ``xy_m`` (B, F, 2) box-centre
+    positions [m] and ``vxy_mps`` (B, F, 2) at frames 1..F; ``goals_xy_m`` (B, 2) the goal aimed at (NaN if
+    none); ``info``: per-scenario extras (leading axis B), stored beside the metrics."""
 
     xy_m: np.ndarray
     vxy_mps: np.ndarray
@@ -61,13 +47,8 @@ class PlanBatch:
 
 @runtime_checkable
 class Planner(Protocol):
-    """Anything with a ``name`` and a batched ``plan``.
-
-    ``batch_size`` says how many scenarios a caller should pass per call (the physics is vectorised
-    over them). Planners whose cost is a model call per scenario say so with
-    ``ProposingPlanner.proposes_per_scenario``: the harness then times each scenario's proposal on
-    its own. Whether it reads the recorded future: see the module docstring.
-    """
+    """Anything with a ``name`` and a batched ``plan``; ``batch_size``: how many scenarios a caller should pass
+    per call."""
 
     name: str
     batch_size: int
@@ -82,12 +63,8 @@ class Planner(Protocol):
 
 @dataclass(frozen=True)
 class PlanningContext:
-    """What a planner derives from the observed scene before it decides (batched, no model call).
-
-    Attributes:
-        goals_xy_m: (B, 2) the goal predictor's top goal [m, ego frame], before any adjustment.
-        neighbours: the predicted neighbours (B, N, F, ...) the rollout and the shield react to.
-    """
+    """What a planner derives before it decides (batched, no model call): ``goals_xy_m`` (B, 2) the top goal
+    before adjustment [m, ego frame]; ``neighbours`` (B, N, F, ...) the prediction the rollout reacts to."""
 
     goals_xy_m: np.ndarray
     neighbours: NeighbourPrediction
@@ -106,15 +83,9 @@ class PlanningContext:
 
 @dataclass(frozen=True)
 class Proposals:
-    """What a planner decided per scenario before any physics (the *propose* step), B scenarios.
-
-    Attributes:
-        params: (B,) social force parameters as proposed (``simulate`` clamps them).
-        lon_factor, lane_factor: (B,) goal adjustment factors (paper §III-D; NaN = no adjustment).
-        info: per-scenario extras stored with the plan (``PlanBatch.info``), leading axis B.
-        extra: per-scenario inputs of the planner's own ``simulate`` (leading axis B; e.g. GNP's
-            neighbour weights, the retrieved memories a shield may fall back to); not stored.
-    """
+    """The *propose* step's decisions, B scenarios: ``params`` (B,) as proposed (``simulate`` clamps them),
+    goal adjustment factors ``lon_factor``, ``lane_factor`` (B,) (paper §III-D; NaN = none), ``info`` (stored
+    with the plan) and ``extra`` (inputs of the planner's own ``simulate``, not stored), leading axis B."""
 
     params: SocialForceParams
     lon_factor: np.ndarray
@@ -161,18 +132,10 @@ class Proposals:
 
 @runtime_checkable
 class ProposingPlanner(Planner, Protocol):
-    """A planner split into its decision and its physics.
-
-    * ``context(batch)``: goals and predicted neighbours, batched (no model call);
-    * ``propose(batch, context)``: the decision per scenario: social force parameters and goal
-      adjustments. ``proposes_per_scenario`` True means it calls a model once per scenario (the LLM
-      planners): the harness then runs it on batches of one, many in flight, and pools the results;
-    * ``simulate(batch, context, proposals)``: rollout, safety shield, plan; batched over any number
-      of proposals, and a scenario's plan does not depend on which others share its batch.
-
-    ``plan(batch)`` is ``simulate(batch, c, propose(batch, c))`` with ``c = context(batch)``. In closed
-    loop the physics may replan with proposals made earlier (``letspi.simulation``).
-    """
+    """A planner split into its decision and its physics: ``plan(batch)`` is ``simulate(batch, c, propose(batch,
+    c))`` with ``c = context(batch)``. ``proposes_per_scenario``: ``propose`` calls a model once per scenario
+    (the harness runs it on batches of one, many in flight). ``simulate`` is batched, and a scenario's plan
+    does not depend on which others share its batch."""
 
     proposes_per_scenario: bool
 
@@ -197,11 +160,8 @@ def predicted_context(batch: ScenarioBatch, goal_predictor: GoalPredictor,
 
 @dataclass(kw_only=True)
 class PredictingPlanner:
-    """The shared step of the social-force-family planners (``sf``, ``sf-opt``, ``mlp``, ``gnp``): the
-    context is the goal predictor's top goal and the neighbours predicted by ``neighbour_mode``, and
-    ``plan`` is propose-then-simulate (``plan_by_proposals``). A subclass adds its fields (``name``,
-    ``batch_size``, its model or parameters) and writes ``propose`` and ``simulate``.
-    """
+    """Base of the social-force-family planners: the context is the top predicted goal and ``neighbour_mode``'s
+    prediction; a subclass adds ``name``, ``batch_size`` and its model, and writes ``propose`` and ``simulate``."""
 
     goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM

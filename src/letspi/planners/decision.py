@@ -1,14 +1,5 @@
-"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario.
-
-Their decision step is configured by ``letspi.method.config.DecisionConfig`` (presets, adverse
-futures, risk gate); without one a planner plans, and records, exactly as before.
-
-Per-scenario info columns (``DECISION_COLUMNS``; NAMES.md "Per-scenario decision columns"):
-``decision`` (the preset, or ``custom`` for a model's own numbers), ``consulted`` (the model, or the
-rule, was asked), ``risk_score`` (NaN without a gate), ``adverse_failed`` (the adverse futures the
-first proposal's plan fails, comma-separated), ``refinements`` (reflection rounds after the first), and
-``reason``: why, in one line (the risk against the gate, what the defaults fail, what was chosen and
-its checks; for the memory phase the trail of its rounds and the model's rationale when it gave one).
+"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario
+(``DECISION_OUTPUTS``).
 """
 
 from __future__ import annotations

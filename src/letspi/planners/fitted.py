@@ -1,16 +1,6 @@
-"""Fitted files: values a planner uses, with the data they came from, in one JSON file.
-
-File format::
-
-    {"<field>": {name: value, ...},          # "params" (sf), "weights" (frenet)
-     "provenance": {"scenarios_file": ..., "n_train": ..., "split_seed": ..., ...},
-     "objective": {...}}
-
-The package ships one fit per kind (``letspi/data/<file>``); a user's fit comes from ``letspi fit``.
-``save_fitted`` writes atomically and durably (``letspi.fsutil``): a crash leaves the old file or the
-new one, never half of one, and records its provenance without the directories of the machine that
-wrote it (``fsutil.provenance_record``: a scenario file by its name). ``load_fitted`` names the file in
-every error.
+"""Fitted files: values a planner uses and the data they came from, in one JSON file
+(``{"<field>": {name: value}, "provenance": {...}, "objective": {...}}``). The package ships one fit per kind
+in ``letspi/data``; ``letspi fit`` makes others, written atomically with provenance free of machine paths.
 """
 
 from __future__ import annotations
@@ -29,8 +19,8 @@ T = TypeVar("T")
 
 @dataclass(frozen=True)
 class FittedFile:
-    """One kind of fitted file: its values' ``field``, the shipped file's name in ``letspi.data``, what a
-    reader calls it (``what``: "SF parameter file") and the command that makes one."""
+    """One kind of fitted file: its values' ``field``, the ``shipped`` file in ``letspi.data``, what a reader
+    calls it (``what``) and the ``command`` that makes one."""
 
     field: str
     shipped: str
@@ -58,8 +48,7 @@ class FittedFile:
 
     def save(self, path: Path, values: Mapping[str, Any], provenance: Mapping[str, Any],
              objective: Mapping[str, Any]) -> Path:
-        """Write ``values`` with their provenance (paths as ``provenance_record`` writes them) and objective
-        to ``path`` (atomically)."""
+        """Write ``values`` with their provenance (``provenance_record``) and objective to ``path`` atomically."""
         record = {self.field: dict(values), "provenance": provenance_record(dict(provenance)),
                   "objective": dict(objective)}
         return atomic_write_text(Path(path), json.dumps(record, indent=2) + "\n")

@@ -1,65 +1,14 @@
 """``frenet``: a Werling-style lattice planner (Werling, Ziegler, Kammel, Thrun, ICRA 2010), batched.
 
-The road is straight in the ego frame, so the Frenet coordinates are the scenario's own: s = x
-(along the carriageway) and d = y (to the left). Every scenario gets the same candidate lattice:
-
-* **lateral** (index j): quintic polynomials y(t) from the t = 0 state (y, vy, ay) to a target
-  y_T = lane centre + offset with vy = ay = 0 at T, for the current lane and the lanes left and
-  right of it (where they exist), ``lateral_offsets_m`` inside the lane, horizons ``horizons_s``;
-* **longitudinal** (index i):
-  - velocity keeping: quartic polynomials x(t) from (x, vx, ax) to a target speed with ax = 0 at T:
-    the speed that reaches the goal's progress at 5 s with this horizon plus ``goal_speed_offsets_mps``,
-    and the current speed plus ``current_speed_offsets_mps``;
-  - following: quintic polynomials to a point ``follow_gap_m + headway x v_leader`` behind the
-    *predicted* leader of a target lane (the closest neighbour ahead in that lane at t = 0) at T,
-    at the leader's predicted speed, ax = 0; paired only with lateral candidates into that lane;
-  - braking: constant deceleration ``brake_decels_mps2`` from t = 0 to a stop (or to 5 s), then held
-    (the emergency option a polynomial to a target speed cannot give: a quartic stop from 30 m/s in 5 s
-    peaks at 9 m/s²);
-* after its horizon a candidate holds its end state (constant speed, constant y) up to the
-  planning horizon of 5 s (125 frames at 25 Hz), so all candidates are judged over the same 5 s.
-
-Candidates are the pairs (i, j). Cost (Werling's terms; weights in ``FrenetWeights``)::
-
-    k_jerk_lon ∫ x'''² dt + k_jerk_lat ∫ y'''² dt + k_time (T_lon + T_lat)
-    + k_offset (y_T - centre of the target lane)² + k_goal_lane |target lane - goal lane|
-    + k_speed (mean speed over 5 s - v_des)² + k_headway D_headway + k_rss D_rss
-
-with the goal (from the goal predictor, as ``sf`` and ``gnp`` use it) giving the preferred lane (the
-goal's lane) and the desired speed ``v_des`` = goal progress / 5 s. D_headway and D_rss [s] are soft
-following terms (``FrenetFollowing``): about ∫ Σ_n max(0, 1 - gap_n / distance) dt over the neighbours
-ahead in the ego's path, with the desired distance ``standstill_gap_m + desired_headway_s × v`` and the
-RSS distance (the ego reacts and brakes comfortably behind a leader that brakes hard), against the
-*cautious* prediction: every neighbour is at the smaller x of the shared IDM prediction and of an
-extrapolation of its t = 0 state (constant speed; constant deceleration to a stop when it is braking),
-because IDM lets a braking leader re-accelerate towards the top speed of its history. A braking
-candidate's jerk term prices its step in acceleration at t = 0 as a ramp over ``brake_onset_s``.
-
-Rejected (not *valid*):
-
-* infeasible: longitudinal acceleration outside [-``max_decel_mps2``, ``max_accel_mps2``], backwards
-  motion, lateral acceleration above ``max_lat_accel_mps2``, a curvature bound above
-  ``max_curvature_1pm``, the ego box beyond a road edge;
-* unsafe: against the neighbours' *predicted* futures (IDM prediction by default, the one every
-  physics planner gets, never the recorded future), at any of the 125 frames a neighbour is in the
-  ego's path (boxes overlapping laterally with ``lat_margin_m`` added) and closer bumper to bumper than
-  ``front_gap_m`` (ahead) / ``rear_gap_m`` (behind) or than ``ttc_s`` times the closing speed (a
-  1-D TTC below ``ttc_s``: the thresholds ``sf-opt`` and LetsPi's reflection use). Contact (plain box
-  overlap) is a special case. With ``cautious_check`` (default) a pair is unsafe when it is so against the
-  IDM prediction *or* the cautious one.
-
-The cheapest valid candidate wins. When none is valid, the *least unsafe* one: the latest first
-contact with a predicted neighbour (then the fewest contact (neighbour, frame) pairs), where a lane
-change with a margin violation against a neighbour in its target lane counts as if its first contact
-came ``occupied_lane_change_penalty_s`` earlier (without a predicted contact: that long before the end;
-an escape into an occupied lane rarely completes), then feasible before infeasible, then the latest and
-fewest margin violations, then cost.
-
-Batched: the lattice is evaluated as arrays (B, I, F) and (B, J, F); the pair checks need no
-(B, I, J, F) float array because a pair overlaps a neighbour at a frame exactly when its longitudinal
-candidate overlaps longitudinally *and* its lateral candidate overlaps laterally: the per-candidate
-flags are packed into bit strings and every pair is one AND of two of them. Costs add the same way.
-No Python loop runs over scenarios or candidates (only over chunks of scenarios, to bound memory).
+The road is straight in the ego frame, so the Frenet coordinates are s = x and d = y. Every scenario gets the
+same lattice (``FrenetSampling``): quintic lateral candidates to lane centres (plus offsets); quartic
+longitudinal candidates to target speeds, quintic ones to a point behind the predicted leader of the target
+lane, and constant braking; each holds its end state up to the 5 s horizon. A pair (i, j) is valid when
+feasible (``FrenetLimits``) and clear of the predicted neighbours with margins (``FrenetSafety``), against the
+IDM prediction and the cautious one (``_cautious_prediction``). The cheapest valid pair wins (Werling's cost
+terms plus soft following terms, ``Lattice.cost``); without one, the least unsafe (``Lattice.choose``).
+Pairs are checked as ANDs of per-candidate bit strings (``_pair_checks``): no (B, I, J, F) array, no Python
+loop over scenarios or candidates. Design and calibration: notes/frenet.md.
 """
 
 from __future__ import annotations
@@ -116,16 +65,10 @@ class _Frozen(BaseModel):
 
 
 class FrenetWeights(_Frozen):
-    """Cost weights. The defaults are hand-set starting values of ``letspi fit frenet``; the planner uses the
-    fitted ones shipped in ``letspi/data/frenet_weights.json`` (``shipped_settings``).
-
-    Units: k_jerk_lon, k_jerk_lat per (m²/s⁵) (the integral of squared jerk over the horizon);
-    k_time per s of horizon; k_offset per m² of end offset from the target lane's centre; k_goal_lane
-    per lane between the target lane and the goal's lane; k_speed per (m/s)² of mean-speed deviation
-    from the desired speed; k_headway and k_rss per second of full deficit of the desired following
-    distance and of the RSS distance (``FrenetFollowing``). Only ratios matter (the argmin is
-    unchanged when all are scaled), so ``k_speed`` is the unit the others are measured in.
-    """
+    """Cost weights (defaults: ``letspi fit frenet``'s starting values; the planner uses the shipped fit).
+    Per unit of: k_jerk_lon, k_jerk_lat ∫ jerk² dt [m²/s⁵]; k_time horizon [s]; k_offset end offset² from the
+    target lane's centre [m²]; k_goal_lane lanes from the goal's lane; k_speed (mean speed - v_des)² [(m/s)²];
+    k_headway, k_rss following deficit [s]. Only ratios matter."""
 
     k_jerk_lon: float = Field(default=0.1, ge=0)
     k_jerk_lat: float = Field(default=0.1, ge=0)
@@ -141,10 +84,8 @@ WEIGHT_NAMES: tuple[str, ...] = tuple(FrenetWeights.model_fields)
 
 
 class FrenetSampling(_Frozen):
-    """The lattice (the same for every scenario). Defaults: horizons 3, 4, 5 s; current, left and right
-    lane, centre and ±0.5 m; goal speed ±2 m/s; current speed -8, -4, 0, +2 m/s; a stop (0 m/s);
-    following at 1 and 2 s, 3 m behind the leader (more than the safety check's front gap); braking at
-    a constant 3, 5 and 8 m/s² from t = 0 (to a stop, or to 5 s)."""
+    """The lattice, the same for every scenario: horizons, lanes and offsets of the lateral candidates; speed
+    offsets, following headways and braking decelerations of the longitudinal ones."""
 
     horizons_s: tuple[float, ...] = (3.0, 4.0, 5.0)
     lane_changes: tuple[int, ...] = (0, 1, -1)  # lanes relative to the current one, +1 = left (+y)
@@ -174,34 +115,24 @@ class FrenetLimits(_Frozen):
 
 
 class FrenetSafety(_Frozen):
-    """The collision check against the predicted neighbours (margins; module doc)."""
+    """Unsafe: a neighbour in the ego's path (lateral overlap plus ``lat_margin_m``) closer bumper to bumper
+    than ``front_gap_m`` / ``rear_gap_m`` or than ``ttc_s`` x the closing speed, at any frame."""
 
     front_gap_m: float = Field(default=2.0, ge=0)
     rear_gap_m: float = Field(default=0.5, ge=0)
     ttc_s: float = Field(default=1.5, ge=0)
     lat_margin_m: float = Field(default=0.3, ge=0)
-    #: check against the cautious prediction too (``FrenetFollowing``: no re-acceleration, braking goes on)
+    #: check against the cautious prediction too (``_cautious_prediction``)
     cautious_check: bool = True
 
 
 class FrenetFollowing(_Frozen):
-    """The soft following terms and the fallback rule (module doc).
-
-    Desired following distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS distance (Shalev-Shwartz
-    et al. 2017, without the acceleration during the reaction) ``standstill_gap_m + max(0, v_ego ×
-    rss_reaction_s + v_ego² / (2 rss_ego_decel_mps2) - v_lead² / (2 rss_leader_decel_mps2))``: the ego,
-    reacting after ``rss_reaction_s`` and braking comfortably, stops behind a leader that brakes hard. Both
-    deficits are graded in ``levels`` steps (the bumper gap below 1/K, 2/K, .. K/K of the distance).
-    Leaders are taken from a *cautious* prediction beside the IDM one: every neighbour is at the smaller x
-    of the IDM prediction and of its constant-velocity extrapolation, or, when it brakes harder than
-    ``leader_braking_min_mps2`` at t = 0 (its mean deceleration over the last ``leader_braking_window_s`` of
-    history), of its constant-deceleration extrapolation to a stop or for ``leader_braking_max_s`` and then at
-    constant speed (IDM lets a braking or slow leader
-    re-accelerate towards the top speed of its history). With ``FrenetSafety.cautious_check`` the safety
-    check runs against both predictions.
-    When no candidate is valid, a lane change into an occupied target lane (a margin violation with a
-    neighbour in that lane) counts as if its first contact came ``occupied_lane_change_penalty_s`` earlier.
-    """
+    """The soft following terms (against the cautious prediction), the cautious prediction's settings and the
+    fallback's occupied-lane penalty. Desired distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS
+    distance (Shalev-Shwartz et al. 2017) ``standstill_gap_m + max(0, v_ego × rss_reaction_s + v_ego² /
+    (2 rss_ego_decel_mps2) - v_lead² / (2 rss_leader_decel_mps2))``; deficits graded in ``levels`` steps.
+    Without a valid candidate, a lane change with a margin violation in its target lane counts as if its first
+    contact came ``occupied_lane_change_penalty_s`` earlier."""
 
     desired_headway_s: float = Field(default=1.5, ge=0)
     standstill_gap_m: float = Field(default=2.0, ge=0)
@@ -312,19 +243,13 @@ def evaluate_held(c: np.ndarray, horizon_s: np.ndarray, t_s: np.ndarray) -> tupl
 class Lattice(Batched):
     """Weight-independent part of the planner for B scenarios: candidates, their checks and cost terms.
 
-    Longitudinal (B, I): ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (B, I) (a braking candidate ends when it
-    stops), ``lon_mode`` (I,) (0 speed, 1 follow, 2 brake), ``lon_lane`` (I,) lane change the candidate
-    pairs with (``ANY_LANE`` for all),
-    ``lon_target_speed_mps``, ``lon_exists``, ``lon_feasible``, ``lon_jerk``, ``lon_mean_speed_mps``.
-    Lateral (B, J): ``lat_coef`` (B, J, 6), ``lat_horizon_s`` (J,), ``lat_lane`` (J,), ``lat_offset_m``
-    (J,), ``lat_target_y_m``, ``lat_exists``, ``lat_feasible``, ``lat_jerk``, ``lat_lanes_from_goal`` (lanes
-    between the target lane and the goal's lane).
-    Pairs (B, I, J): ``pair_ok`` (both exist and pair), ``feasible`` (with the curvature bound),
-    ``contact`` and ``violation`` (unsafety scores of predicted contacts / margin violations, 0 = none;
-    ``_pair_checks``), ``occupied`` (a lane change with a margin violation against a neighbour in its
-    target lane), ``unsafe_rank`` (``contact`` with the occupied-lane penalty: the fallback's first key),
-    ``headway_deficit_s`` and ``rss_deficit_s`` (the following terms, s; ``FrenetFollowing``).
-    Per scenario (B,): ``v_des_mps``, ``goals_xy_m`` (B, 2).
+    Longitudinal (B, I) unless said: ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (braking: until the stop),
+    ``lon_mode`` (I,) (0 speed, 1 follow, 2 brake), ``lon_lane`` (I,) (the lane change it pairs with, or
+    ``ANY_LANE``), target speed, exists, feasible, jerk, mean speed. Lateral (B, J) unless said: ``lat_coef``
+    (B, J, 6), ``lat_horizon_s``, ``lat_lane``, ``lat_offset_m`` (J,), target y, exists, feasible, jerk, lanes
+    from the goal's lane. Pairs (B, I, J): ``pair_ok``, ``feasible``, ``contact`` / ``violation`` scores
+    (0 = none, ``_pair_checks``), ``occupied``, ``unsafe_rank`` (the fallback's first key), following
+    deficits [s]. Per scenario (B,): ``v_des_mps``; ``goals_xy_m`` (B, 2).
     """
 
     lon_coef: np.ndarray
@@ -363,7 +288,7 @@ class Lattice(Batched):
         return out
 
     def cost(self, w: FrenetWeights) -> np.ndarray:
-        """(B, I, J) cost of every pair (module doc); inf for pairs that do not exist."""
+        """(B, I, J) cost of every pair (``FrenetWeights`` terms); inf for pairs that do not exist."""
         lon = (w.k_jerk_lon * self.lon_jerk + w.k_time * self.lon_horizon_s
                + w.k_speed * (self.lon_mean_speed_mps - self.v_des_mps[:, None]) ** 2)
         lat = (w.k_jerk_lat * self.lat_jerk + w.k_time * self.lat_horizon_s[None, :]
@@ -373,7 +298,8 @@ class Lattice(Batched):
         return np.where(self.pair_ok, total, np.inf)
 
     def choose(self, w: FrenetWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Chosen (i, j) per scenario, (B,) each, with its cost and the number of valid pairs."""
+        """Chosen (i, j) per scenario, (B,) each, with its cost and the number of valid pairs: the cheapest
+        valid pair, else the least unsafe (latest first contact, then feasible, fewest violations, cost)."""
         b, _, n_j = self.pair_ok.shape
         cost = self.cost(w).reshape(b, -1)
         valid = self.valid.reshape(b, -1)
@@ -407,9 +333,8 @@ class Lattice(Batched):
 
 
 def _lon_grid(s: FrenetSampling) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per longitudinal candidate: horizon, mode, lane change (following) and a parameter (speed offset
-    headway or deceleration) and its kind (0 goal speed, 1 current speed, 2 following, 3 absolute speed,
-    4 braking), (I, 2). A braking candidate's horizon is a placeholder (5 s; it stops earlier)."""
+    """Per longitudinal candidate (I,): horizon (braking: a 5 s placeholder), mode, lane change, and (I, 2) a
+    parameter with its kind (0 goal speed, 1 current speed, 2 following, 3 absolute speed, 4 braking)."""
     rows: list[tuple[float, int, int, float, int]] = []  # horizon, mode, lane, value, kind
     for t in s.horizons_s:
         rows += [(t, LON_SPEED, ANY_LANE, d, 0) for d in s.goal_speed_offsets_mps]
@@ -640,10 +565,10 @@ class _PairChecks:
 
 def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: FrenetFollowing,
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Neighbour x and vx (B, F, N) of the cautious prediction (``FrenetFollowing``): the IDM prediction or
-    the extrapolation of the t = 0 state (constant velocity, or, for a neighbour braking harder than
-    ``leader_braking_min_mps2``, that deceleration until it stops or for ``leader_braking_max_s``, then
-    constant speed), whichever is further back."""
+    """Neighbour x and vx (B, F, N) of the cautious prediction: the IDM prediction or the extrapolation of the
+    t = 0 state, whichever is further back (IDM lets a braking leader re-accelerate towards its history's top
+    speed). The extrapolation keeps a deceleration over ``leader_braking_min_mps2`` (mean over the last
+    ``leader_braking_window_s``) until the stop or for ``leader_braking_max_s``, then the speed."""
     k = max(1, round(fol.leader_braking_window_s / DT_S))
     v_now = batch.nbr_vxy_mps[:, :, T0_INDEX, 0].astype(np.float64)
     v_then = batch.nbr_vxy_mps[:, :, T0_INDEX - k, 0].astype(np.float64)
@@ -668,20 +593,12 @@ def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: F
 
 def _pair_checks(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray, vx: np.ndarray, y: np.ndarray,
                  target_lane: np.ndarray, lane_change: np.ndarray, settings: FrenetSettings) -> _PairChecks:
-    """The safety check and the following terms of every pair against the predicted neighbours.
-
-    A pair (i, j) overlaps neighbour n at frame f iff candidate i overlaps it longitudinally and j
-    laterally. The per-candidate flags are packed into bits ((frame, neighbour) order, 64 / N frames of N
-    neighbours per 64-bit word), so a pair's overlaps are the AND of two bit strings: no (B, I, J, F)
-    array and no BLAS call (whose threads stall on a busy machine). Contact/violation score = (W - first
-    word with an overlap) x 1,000,000 + number of overlapping (neighbour, frame) pairs, W = words per
-    plan: an earlier first overlap (0.32 s resolution) is worse, then a longer or wider one.
-    Following terms: for each level k = 1..K the (frame, neighbour) pairs with a neighbour ahead in the
-    ego's path (the lateral margin) closer than k/K of the desired (RSS) distance, counted the same way
-    on every ``frame_stride``-th frame, times stride dt / K: about ∫ Σ_n max(0, 1 - gap / distance) dt [s].
-    x, vx: (B, I, F) longitudinal candidates; y: (B, J, F) lateral candidates; target_lane: (B, J) lane
-    index of each lateral candidate; lane_change: (J,) it changes lanes. float32 arithmetic (positions
-    within a few hundred metres: sub-millimetre resolution).
+    """Safety check and following terms of every pair; x, vx (B, I, F), y (B, J, F), target_lane (B, J),
+    lane_change (J,). A pair overlaps neighbour n at frame f iff i overlaps it longitudinally and j laterally,
+    so per-candidate flags are packed into 64-bit words ((frame, neighbour) order) and a pair is one AND (no
+    BLAS: its threads stall on a busy machine). Score = (W - first word with an overlap) x 1e6 + overlapping
+    (neighbour, frame) pairs: earlier is worse, then longer. Following deficit: ≈ ∫ Σ_n max(0, 1 - gap /
+    distance) dt [s], graded in K levels on every ``frame_stride``-th frame. float32 (sub-mm at 100s of m).
     """
     safety, fol = settings.safety, settings.following
     f32 = np.float32
@@ -702,9 +619,8 @@ def _pair_checks(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray,
     front_reach, rear_reach = hl + f32(safety.front_gap_m), -hl - f32(safety.rear_gap_m)
 
     def lon_flags(x_nbr: np.ndarray, v_nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Contact and margin flags (B, I, F, N), not masked by ``valid``. The margin ahead is
-        dx < hl + max(front_gap, ttc closing), i.e. dx < hl + front_gap or u < hl with u = dx - ttc closing
-        (the gap left after ttc s at the current closing speed); behind likewise: fewer array passes."""
+        """Contact and margin flags (B, I, F, N), unmasked; ahead: dx < hl + front_gap or u < hl with
+        u = dx - ttc x closing speed (one pass fewer than a max); behind likewise."""
         dx = x_nbr - xe  # (B, I, F, N), > 0: the neighbour is ahead
         u = dx - f32(safety.ttc_s) * (ve - v_nbr)  # ve - v_nbr > 0: closing on a vehicle ahead
         ahead_ok = (dx < front_reach) | (u < hl)
@@ -806,10 +722,8 @@ def shipped_settings() -> FrenetSettings:
 
 @dataclass
 class FrenetPlanner:
-    """Planner ``frenet`` (module doc); by default with the shipped weights. ``info`` per scenario: the chosen
-    candidate's lane change (``target_lane``: -1 right, 0 keep, +1 left), lateral offset, longitudinal mode
-    (0 speed, 1 follow, 2 brake), target speed, both horizons, its cost, ``n_safe`` (valid candidates) and
-    ``found_safe``."""
+    """Planner ``frenet`` (shipped weights by default). ``info``: the chosen pair's ``target_lane`` (-1 right,
+    0 keep, +1 left), offset, ``lon_mode``, target speed, horizons, cost, ``n_safe`` and ``found_safe``."""
 
     settings: FrenetSettings = field(default_factory=shipped_settings)
     goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)

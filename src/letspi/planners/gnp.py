@@ -1,8 +1,7 @@
 """``gnp``: the Goal-based Neural Physics baseline as a planner (model in ``letspi.learned.gnp_model``).
 
-It rolls out with goals from the learned goal predictor and **predicted** neighbour motion (IDM by
-default). GNP's public code moves neighbours along their recorded future during the rollout; that
-leaks the future, so the oracle mode is refused here.
+It rolls out against predicted neighbours: GNP's public code moves neighbours along their recorded future,
+which leaks it, so the oracle mode is refused.
 """
 
 from __future__ import annotations
@@ -45,11 +44,8 @@ class GnpConfig(Config):
 
 @dataclass
 class GnpPlanner(PredictingPlanner):
-    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours.
-
-    ``info`` per scenario: the social force parameters used (tau varies) and the neighbour weights
-    (``nbr_weight`` (B, N)).
-    """
+    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours; ``info``: the
+    parameters used and ``nbr_weight`` (B, N)."""
 
     model: GnpModel
     name: str = "gnp"

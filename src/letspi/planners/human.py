@@ -1,7 +1,5 @@
-"""``human``: ground-truth replay, the reference row of every table.
-
-It reads the ego's recorded future, which no real planner may do; its metrics say how safe the
-human drivers in the data were (zero collisions on collision-free data is the harness's sanity check).
+"""``human``: ground-truth replay, the reference row of every table (reads the recorded future, as no planner
+may; zero collisions on collision-free data is the harness's sanity check).
 """
 
 from __future__ import annotations

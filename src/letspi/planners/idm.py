@@ -1,10 +1,7 @@
-"""``idm``: the paper's longitudinal baseline. The ego follows its in-lane leader with IDM;
-neighbours move by the chosen prediction mode.
+"""``idm``: the paper's longitudinal baseline: the ego follows its in-lane leader with IDM.
 
-Lateral motion (IDM has none): the ego settles into the lane it is heading for, the lane of
-``y0 + vy0 · LATERAL_LOOKAHEAD_S``, along a critically damped path from its t = 0 lateral position
-and speed (time constant ``LATERAL_TIME_CONSTANT_S``). Freezing y instead would stop an ego that is
-mid-lane-change sideways within one 0.04 s step (≈ 30 m/s² lateral), which no driver does.
+Laterally the ego settles, critically damped, into the lane it is heading for (that of
+``y0 + vy0 · LATERAL_LOOKAHEAD_S``): freezing y would stop a lane change within one step (≈ 30 m/s²).
 """
 
 from __future__ import annotations

@@ -1,34 +1,11 @@
-"""LLM planners: ``llm`` (single shot), ``letspi-memory`` (memory-collection phase with reflection),
-``letspi-fast`` (fast-inference phase with retrieved memories) and ``letspi-fs`` (the FS ablation:
-the fast prompt with three static examples instead of retrieval).
+"""LLM planners: ``llm`` (single shot), ``letspi-memory`` (memory collection with reflection), ``letspi-fast``
+(retrieved memories) and ``letspi-fs`` (three static examples instead of retrieval).
 
-They are ``ProposingPlanner``s (``letspi.planners.base``): ``propose`` makes the LLM call(s) of one
-scenario at a time (``proposes_per_scenario``) and is thread-safe (``concurrent_safe``): the harness
-keeps ``--concurrency`` scenarios in flight (``letspi.execution.ordered``), all asking the planner's one
-``advisor``, and pools their proposals. ``simulate`` runs the social force rollout and the safety
-shield batched over every proposal it is given (a part of an evaluation, a chunk of the closed
-loop); a scenario's plan does not depend on which others share the batch. ``plan`` does both (any
-batch size: the proposals one by one, the physics at once). ``last_*`` attributes describe the most
-recent proposal to finish (for ``letspi plan``, one scenario).
-Per-scenario extras (``PlanBatch.info``) record the LLM side: tokens, fallbacks, clamps, reflection
-iterations, whether the final plan was validated, and the timing honesty columns:
-
-* ``llm_calls`` / ``llm_cached_calls``: model calls made for the scenario, and how many the response
-  cache served; ``llm_cached`` is True when all of them were (the row's time is then a cache lookup);
-* ``llm_latency_s``: wall time of the calls that really ran the model now;
-* ``llm_original_latency_s``: what every call cost when it was first made (cache hits: the latency
-  recorded with the cached reply), so a fully cached rerun still reports the model's cost.
-
-Safety shield (beyond the paper; on by default, ``--no-shield`` is the paper-faithful ablation):
-before a plan is returned, the reflection checks run once more against the *predicted* neighbours
-(the planner's own prediction from history; no LLM call, milliseconds). If the plan fails, the
-alternatives (the retrieved memories' parameters for ``letspi-fast``, the fitted ``sf`` parameters,
-then ``sf-opt``'s candidate grid around them, cheapest first) are simulated and checked in one batch
-(those of every failing plan of the batch together), and the safest one is returned instead: the
-first safe alternative in that order, else the least unsafe plan of all (possibly the original).
-Info columns: ``shielded`` (the plan was replaced), ``shield_checked`` (the shield ran),
-``shield_safe`` (the returned plan passes the checks), ``shield_source`` (0 = the LLM's plan, 1..k =
-retrieved memory k, -1 = the fitted ``sf`` parameters, -2 = a grid candidate).
+``propose`` makes one scenario's LLM calls (``proposes_per_scenario``) and is thread-safe, so the harness
+keeps many scenarios in flight; ``simulate`` rolls out and shields every proposal at once. The safety shield
+(beyond the paper; ``--no-shield`` is the ablation) replaces a plan failing the reflection checks against the
+prediction by the first safe alternative (presets, retrieved memories, the fitted ``sf`` parameters,
+``sf-opt``'s grid), else the least unsafe plan of all. Info columns: the ``*_OUTPUTS`` declarations.
 """
 
 from __future__ import annotations
@@ -251,16 +228,10 @@ def shield_plans(
     first_stage: int = SHIELD_FIRST_STAGE,
     reports: Sequence[SafetyReport] | None = None,
 ) -> ShieldedPlans:
-    """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by its safest
-    alternative.
-
-    alternatives[i]: (source, params, lon_factor, lane_factor) of scenario i, tried in order: the first
-    safe one wins; if none is, the least unsafe one, if it is less unsafe than the plan itself. The
-    alternatives are simulated and checked batched over every failing plan, in two stages: the first
-    ``first_stage`` of each (retrieved memories, fitted parameters), then the rest only for the plans
-    none of those made safe. The outcome is that of checking all of them (a plan's rollout and
-    check do not depend on its batch). goals_xy_m (B, 2): the plans' goals; ``context.goals_xy_m``:
-    the unadjusted goals the alternatives' factors apply to.
+    """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by the first safe of
+    its ``alternatives[i]`` (source, params, lon_factor, lane_factor), else the least unsafe if less unsafe than
+    the plan. Batched in two stages (the first ``first_stage`` alternatives, then the rest where none was safe)
+    with the outcome of checking all. Factors apply to ``context.goals_xy_m``; ``goals_xy_m`` (B, 2): the plans'.
     """
     b = len(batch)
     if reports is None:  # the plans' own reports (the caller may have them already)
@@ -302,8 +273,7 @@ def shield_plans(
 
 
 def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None) -> list[Alternative]:
-    """The fitted parameters with the neutral goal, then ``sf-opt``'s grid around them, cheapest first
-    (``SearchSpace`` cost: goal change, lane change, stronger repulsion)."""
+    """The fitted parameters with the neutral goal, then ``sf-opt``'s grid around them, cheapest first."""
     space = space or SearchSpace()
     grid = space.grid()
     cost = (np.abs(grid[:, 1] - NEUTRAL_LON_FACTOR) + space.lane_change_cost * np.abs(grid[:, 2])
@@ -341,8 +311,7 @@ _UNSHIELDED = {"shielded": 0.0, "shield_checked": 0.0, "shield_safe": float("nan
 
 
 def fitted_proposal(advisor: ParamAdvisor, r_col_m: float) -> Proposal:
-    """The parameters a planner falls back to (the advisor's fallback reply: the fitted ``sf``
-    parameters, neutral goal), as a proposal that made no LLM call."""
+    """The advisor's fallback reply (the fitted ``sf`` parameters, neutral goal) as a proposal without a call."""
     reply = advisor.fallback_reply
     return Proposal(params=SocialForceParams(**reply.params(), r_col_m=r_col_m), lon_factor=reply.lon_factor,
                     lane_factor=reply.lane_factor, rationale="no LLM answer in force: the fitted parameters")
@@ -368,13 +337,8 @@ def _proposals(rows: Sequence[_Row]) -> Proposals:
 
 @dataclass
 class LetsPiMemoryPlanner:
-    """The memory-collection phase as a planner; optionally stores each experience in ``bank``.
-
-    ``phase.thresholds.max_iterations == 0`` makes it the single-shot ``llm`` planner (and the
-    "w/o reflection" ablation); ``phase.goal_adjustment = False`` the "w/o goal adjustment" one.
-    ``propose`` runs the reflection loop of each scenario (its LLM calls and one simulation per round);
-    ``simulate`` rolls the final proposals out and shields them, batched.
-    """
+    """The memory-collection phase as a planner, storing each experience in ``bank`` if given;
+    ``max_iterations == 0`` makes it the single-shot ``llm`` planner (the "w/o reflection" ablation)."""
 
     phase: MemoryPhase
     bank: MemoryBank | None = None
@@ -498,12 +462,8 @@ class LetsPiFastPlanner:
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                         shield_params: SocialForceParams | None, thresholds: ReflectionThresholds, *,
                         with_memories: bool, decider: Decider | None = None) -> PlanBatch:
-    """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield
-    each plan with the alternatives: the retrieved memories' (``with_memories``) and the fitted ones.
-
-    With a ``decider`` the plans are also checked against the adverse futures (info ``adverse_failed``,
-    unless the proposals carry it) and a plan the shield replaces is replaced first by the presets that
-    pass every check, the most progress first (``shield_source`` ``PRESET_SOURCE``)."""
+    """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield it. With
+    a ``decider``: info ``adverse_failed``, and the presets passing every check are the first alternatives."""
     if PROPOSED_XY in proposals.extra:  # rolled out by the planner already
         sim = SimulatedPlan(*(np.asarray(proposals.extra[k]) for k in (PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS)))
     else:
@@ -540,8 +500,7 @@ PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS = "proposed_xy_m", "proposed_vxy_mps",
 
 def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider: Decider,
                          rows: list[int], extra: Mapping[str, np.ndarray]) -> dict[int, list[Alternative]]:
-    """Per scenario of ``rows``, the presets that pass every check, the most progress first (from the
-    checks in ``extra`` where the planner made them, else checked here)."""
+    """Per scenario of ``rows``, the presets passing every check, most progress first (``extra``'s checks, if any)."""
     n_presets = len(decider.presets)
     passes, progress = np.zeros((len(rows), n_presets), dtype=bool), np.full((len(rows), n_presets), np.nan)
     known = np.zeros(len(rows), dtype=bool)
@@ -590,12 +549,8 @@ def _sf_alternatives(params: SocialForceParams) -> tuple[Alternative, ...]:
 
 
 class MemoryPlannerConfig(Config):
-    """``llm`` (single shot: ``phase.reflection.max_iterations`` = 0) or ``letspi-memory``.
-
-    ``shield``: the safety shield (beyond the paper) replaces a plan that fails the reflection checks
-    by the fitted ``sf`` plan when that is safer. Not part of the phase: the stored experiences are
-    the same with and without it.
-    """
+    """``llm`` (single shot: ``max_iterations`` 0) or ``letspi-memory``. ``shield`` is not part of the phase:
+    stored experiences are the same with and without it."""
 
     kind: Literal["llm", "letspi-memory"] = "letspi-memory"
     phase: MemoryPhaseConfig

@@ -1,9 +1,7 @@
 """``mlp``: the regressor ablation of the LLM planners (model in ``letspi.learned.param_mlp``).
 
-Per scenario it predicts the eight values an LLM answers (six social-force parameters, two goal
-factors) from the matching features, then plans exactly as ``letspi-fast`` does with an LLM's
-answer: goal adjustment of the predicted goal and a social force rollout against predicted
-neighbours (``letspi.method.reflection.simulate_proposal``). Vectorised over the batch; no LLM.
+It predicts the eight values an LLM answers from the matching features, then plans as ``letspi-fast`` does
+with an LLM's answer (``simulate_proposal``), vectorised, no LLM.
 """
 
 from __future__ import annotations
@@ -41,11 +39,8 @@ class MlpConfig(SocialForcePlannerFields):
 
 @dataclass
 class ParamMlpPlanner(PredictingPlanner):
-    """Planner ``mlp``: regressed parameters and goal factors, predicted goals and neighbours.
-
-    ``r_col_m``: the fitted ``sf`` decay length (the LLM does not choose it either).
-    ``info``: the eight predicted values per scenario.
-    """
+    """Planner ``mlp``: regressed parameters and goal factors, predicted goals and neighbours; ``r_col_m``: the
+    fitted ``sf`` value (the LLM does not choose it either); ``info``: the eight predicted values."""
 
     model: ParamMlp
     r_col_m: float

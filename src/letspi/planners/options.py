@@ -1,17 +1,8 @@
 """Planner options: the user settings a planner kind reads, declared beside the planner as plain data.
 
-A ``PlannerOption`` is one setting (name, type, default, help, unit). Each planner module declares
-the options of its kind (``letspi.planners.sf.OPTIONS``, ``letspi.planners.frenet.OPTIONS``, ...;
-options several kinds share, such as the goal source or the LLM, are declared once in
-``letspi.planners.config`` and ``letspi.planners.llm``), and its entry in the planner table
-(``letspi.assembly.planner_table``) lists them. Everything else derives from those declarations:
-the CLI gives every command that takes planners one flag per option of the table
-(``letspi.cli.options``), ``letspi planners`` lists them, and ``PlannerOptions`` holds the values a
-user chose, by option name, every other option at its declared default.
-
-An option changes answers only through the configuration it resolves into (``Resolver``: a file is
-read and fingerprinted, a name is checked): that configuration, not the option, is what keys results.
-An option declared outside letspi (a planner kind loaded at run time) is the same plain data.
+Each planner module declares its kind's options and its planner-table entry lists them; the CLI flags,
+``letspi planners`` and ``PlannerOptions`` all derive from those declarations. An option changes answers
+only through the configuration it resolves into, which is what keys results.
 """
 
 from __future__ import annotations
@@ -26,19 +17,9 @@ T = TypeVar("T")
 
 @dataclass(frozen=True)
 class PlannerOption(Generic[T]):
-    """One user setting of one or more planner kinds.
-
-    Attributes:
-        name: identifier of the value in ``PlannerOptions`` (``goals``, ``frenet_weights_file``).
-        type: the value's type as the CLI parses it (``str``, ``int``, ``float``, ``bool``,
-            ``Path | None``, ``float | None``, ...).
-        default: the value when the user gives none (None: the option's documented fallback, e.g. a
-            shipped file or an environment variable, chosen where it is resolved).
-        help: one sentence for the CLI's help and ``letspi planners``.
-        unit: the unit of a number (``s``, ``m``), shown with the help; empty for none.
-        flag: the CLI flag when it is not ``--`` + the name with dashes (a bool gets ``--no-`` too).
-        choices: the allowed values of a text option (shown in the help; checked where resolved).
-    """
+    """One user setting of one or more planner kinds: ``name`` in ``PlannerOptions``, ``type`` as the CLI parses
+    it, ``default`` (None: a fallback chosen where it is resolved), one-sentence ``help``, ``unit`` of a number,
+    ``flag`` when not ``--name-with-dashes`` (a bool gets ``--no-`` too), allowed ``choices`` of a text option."""
 
     name: str
     type: Any
@@ -66,18 +47,13 @@ class PlannerOption(Generic[T]):
 
 
 def file_option(name: str, help: str, *, flag: str = "") -> PlannerOption[Path | None]:
-    """A file or directory setting: a path, or None for its documented default (a shipped file, an
-    environment variable)."""
+    """A file or directory setting: a path, or None for its default (a shipped file, an environment variable)."""
     return PlannerOption[Path | None](name, Path | None, None, help, flag=flag)
 
 
 class PlannerOptions:
-    """What the user asked for: planner option values by name; any option not given has its default.
-
-    ``PlannerOptions(goals="kinematic", top_k=5)``; read with ``options.get(GOALS)`` (typed by the
-    declaration). Immutable: ``replace(**values)`` returns a changed copy. Names are checked against
-    the declared options where options are resolved (``check``), so a misspelt name is an error.
-    """
+    """Planner option values by name (others at their defaults), immutable: ``PlannerOptions(top_k=5)``,
+    ``options.get(TOP_K)``, ``replace(**values)``; ``check`` rejects misspelt names."""
 
     _values: dict[str, Any]
 
@@ -113,8 +89,7 @@ class PlannerOptions:
 
 
 def unique_options(groups: Iterable[Iterable[PlannerOption[Any]]]) -> tuple[PlannerOption[Any], ...]:
-    """The options of several kinds, each once, in first-seen order (``ValueError`` when two different
-    declarations share a name: one name, one meaning)."""
+    """The options of several kinds, each once, in first-seen order (``ValueError``: two declarations, one name)."""
     seen: dict[str, PlannerOption[Any]] = {}
     for group in groups:
         for option in group:

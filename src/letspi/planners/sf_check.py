@@ -1,10 +1,7 @@
-"""``sf-check``: the decision step's presets, checks and shield, no model (an ablation of LetsPi).
+"""``sf-check``: the decision step's presets, checks and shield without a model (an ablation of LetsPi).
 
-How much of LetsPi's gain does the physics give without a model? The same presets and checks as
-``letspi-fast`` (``letspi.planners.decision.DecisionConfig``), the rule ``letspi.method.decide.rule_choice``
-(the defaults when they pass every check, else the preset failing the fewest, then the most
-progress) where the risk gate says the scene is risky (everywhere without a gate), and the same
-shield as the LLM planners. Batched over scenarios; no model call.
+The same presets, checks and shield as ``letspi-fast``, choosing by ``rule_choice`` where the risk gate
+consults (everywhere without a gate): how much of LetsPi's gain the physics gives alone. Batched.
 """
 
 from __future__ import annotations
@@ -50,7 +47,7 @@ class SfCheckConfig(SocialForcePlannerFields):
 
 @dataclass
 class DecisionPlanner(PredictingPlanner):
-    """``sf-check`` (module docstring): batched over scenarios, no model call."""
+    """``sf-check``: batched over scenarios, no model call."""
 
     params: SocialForceParams
     decider: Decider
@@ -59,8 +56,7 @@ class DecisionPlanner(PredictingPlanner):
     batch_size: int = 256
 
     def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, GatedChecks]:
-        """(B,) the preset index of each scenario and the checks it came from (every preset's only where
-        the rule needs them: ``Decider.gated_checks``)."""
+        """(B,) each scenario's preset index and the checks it came from (``Decider.gated_checks``)."""
         gated = self.decider.gated_checks(batch, context.goals_xy_m, context.neighbours)
         return gated.rule(), gated
 

@@ -1,22 +1,10 @@
-"""``sf-opt``: per-scenario search over social-force parameters and goal adjustments.
+"""``sf-opt``: per-scenario search over social-force parameters and goal adjustments ("is the LLM needed?").
 
-The reviewer's baseline for "is the LLM needed?": every scenario tries the same candidate set
-(repulsion strength multipliers × longitudinal goal factors × lane factors around the fitted
-parameters), simulates each against the *predicted* neighbours (never the ground truth), and keeps
-
-1. among candidates that are safe by the reflection thresholds (no contact, on the road,
-   front and rear TTC ≥ 1.5 s, in-path gap ≥ 2 m to the predicted neighbours; see
-   ``letspi.safety.plan_check``), the one closest to the unadjusted plan (cost: |lon − neutral| +
-   lane-change penalty × |lane| + repulsion penalty);
-2. if none is safe, the one with the largest min(TTC, cap) and then box gap.
-
-The search is staged (``staged_search``): candidates are tried cheapest first (``search_order``), a
-few at a time (``SEARCH_STAGES``), each stage one vectorised rollout and check of the scenarios still
-without a safe candidate. The first safe candidate in that order is the cheapest safe one, so most
-scenarios stop after the neutral candidate; a scenario with none safe tries all C and gets the
-fallback. The plans are bit-identical to rolling out and checking all C candidates of every scenario
-(``benchmarks.replaced.sf_opt_all_candidates``, tests/test_perf_equivalence.py); the info
-``n_candidates_tried`` says how far each scenario's search went.
+Every scenario tries the same grid (repulsion multipliers x longitudinal x lane goal factors around the
+fitted parameters) against the predicted neighbours and keeps the cheapest candidate safe by the reflection
+thresholds (cost: distance from the unadjusted plan), else the best ``fallback_scores``. The search is staged
+cheapest first (``SEARCH_STAGES``), so most scenarios stop after the neutral candidate, with plans identical
+to checking every candidate; info ``n_candidates_tried`` says how far each search went.
 """
 
 from __future__ import annotations
@@ -104,8 +92,7 @@ def candidate_costs(space: SearchSpace) -> np.ndarray:
 
 
 def search_order(space: SearchSpace) -> np.ndarray:
-    """(C,) candidate indices, cheapest first, equal costs in grid order: the first safe one in this order
-    is the one ``argmin`` over the safe candidates' costs picks."""
+    """(C,) candidate indices, cheapest first, ties in grid order (the first safe one is the cheapest safe)."""
     cost = candidate_costs(space)
     order: np.ndarray = np.lexsort((np.arange(len(cost)), cost))
     return order
@@ -113,8 +100,7 @@ def search_order(space: SearchSpace) -> np.ndarray:
 
 def candidate_rows(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray, proposals: Proposals,
                    rows: np.ndarray, cand: np.ndarray) -> tuple[SocialForceParams, np.ndarray]:
-    """Candidate ``cand[r]`` (grid index) of scenario ``rows[r]``: its (clamped) social force parameters and
-    its goal (R, 2)."""
+    """Candidate ``cand[r]`` (grid index) of scenario ``rows[r]``: its (clamped) parameters and goal (R, 2)."""
     grid = space.grid()
     k_scale, lon, lane = (grid[cand, i] for i in range(3))
     base = SocialForceParams.from_matrix(proposals.params.as_matrix()[rows])
@@ -126,8 +112,7 @@ def candidate_rows(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndar
 
 def candidates(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray,
                proposals: Proposals) -> tuple[np.ndarray, SocialForceParams, np.ndarray]:
-    """Every scenario's candidate grid, scenario-major: the scenario of each candidate row (B C,), their
-    (clamped) social force parameters and their goals (B C, 2)."""
+    """Every scenario's candidate grid, scenario-major: each row's scenario (B C,), parameters and goals (B C, 2)."""
     b, c = len(batch), len(space.grid())
     rep = np.repeat(np.arange(b), c)  # candidate row r belongs to scenario rep[r]
     params, goals = candidate_rows(space, batch, goals_xy_m, proposals, rep, np.tile(np.arange(c), b))
@@ -135,8 +120,7 @@ def candidates(space: SearchSpace, batch: ScenarioBatch, goals_xy_m: np.ndarray,
 
 
 def fallback_scores(space: SearchSpace, check: SafetyCheck) -> np.ndarray:
-    """(R,) the ranking of candidates when none is safe: no contact, then on the road, then larger capped
-    TTC, then larger gap (the largest wins)."""
+    """(R,) the ranking when none is safe (largest wins): no contact, on the road, capped TTC, then gap."""
     ttc = np.minimum(np.minimum(check.min_ttc_s, check.min_rear_ttc_s), space.ttc_cap_s)
     gap = np.nan_to_num(check.min_box_gap_m, nan=-1e9, posinf=1e9)
     out: np.ndarray = -(1e6 * check.collision + 1e3 * check.off_road) + ttc + 0.01 * gap
@@ -145,9 +129,8 @@ def fallback_scores(space: SearchSpace, check: SafetyCheck) -> np.ndarray:
 
 def staged_search(space: SearchSpace, batch: ScenarioBatch, context: PlanningContext,
                   proposals: Proposals) -> PlanBatch:
-    """Each scenario's plan from its candidates (module docstring): stage by stage in ``search_order``, the
-    scenarios without a safe candidate yet roll out and check the stage's candidates; the first safe one
-    is taken, and where none is safe the best ``fallback_scores`` (ties: the first in grid order)."""
+    """Each scenario's plan: stage by stage in ``search_order``, scenarios without a safe candidate yet check the
+    stage's candidates; the first safe one wins, else the best ``fallback_scores`` (ties: grid order)."""
     b, grid = len(batch), space.grid()
     pred = context.neighbours
     scene = SocialForceScene.from_batch(batch, pred)  # built once; each stage takes its candidate rows

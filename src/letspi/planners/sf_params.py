@@ -1,13 +1,5 @@
-"""Fitted social-force parameters on disk: the values plus the data they came from.
-
-File format (JSON)::
-
-    {"params": {"tau_s": ..., "k_np": ..., ...},
-     "provenance": {"scenarios_file": ..., "n_train": ..., "split_seed": ..., ...},
-     "objective": {...}}
-
-The package ships one fit (``letspi/data/sf_params.json``, from ``letspi fit sf`` on generated
-traffic with a different seed than the demo's); ``--sf-params FILE`` points letspi at another.
+"""Fitted social-force parameters on disk (a ``FittedFile`` with field ``params``); the package ships the fit
+of ``letspi fit sf`` on generated traffic, ``--sf-params FILE`` chooses another.
 """
 
 from __future__ import annotations

@@ -14,8 +14,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 
 
 def load_training_scenarios(paths: Sequence[Path]) -> tuple[ScenarioBatch, list[dict[str, Any]]]:
-    """All scenarios of ``paths`` in one batch and each file's provenance record (for the manifest).
-    Vehicles of different files stay apart through ``recording_key`` (see ``letspi.scenario.split``)."""
+    """All scenarios of ``paths`` in one batch (files' vehicles stay apart) and each file's provenance record."""
     if not paths:
         raise ValueError("no scenario file given")
     batches, infos = [], []
@@ -29,8 +28,7 @@ def load_training_scenarios(paths: Sequence[Path]) -> tuple[ScenarioBatch, list[
 
 def split(batch: ScenarioBatch, val_fraction: float, seed: int, max_train: int | None = None,
           max_val: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(train, validation) indices by ego vehicle (``letspi.scenario.split.split_by_vehicle``),
-    optionally subsampled (deterministic for ``seed``)."""
+    """(train, validation) indices split by ego vehicle, optionally subsampled (deterministic for ``seed``)."""
     train, val = split_by_vehicle(batch, 1.0 - val_fraction, seed)
     rng = np.random.default_rng(seed + 1)
     train = subsample(train, max_train, rng)  # first: the validation draw continues the same generator

@@ -1,17 +1,10 @@
 """End-to-end training of the GNP baseline through the differentiable social force rollout.
 
-For every training scenario the rollout inputs that do not depend on the network are computed once
-in NumPy, exactly as ``GnpPlanner`` does at inference: the goal (top goal of the goal predictor)
-and the **predicted** neighbour motion (IDM by default; the recorded neighbour future is never an
-input). The network (``GnpNet``) sets tau and the per-neighbour weights; ``rollout_torch`` plans
-125 steps; the loss compares the plan with the recorded ego future:
-
-    L = mean_t |p_t - p_t^human|                                     (ADE, m)
-        + collision_weight * mean_t sum_j overlap_x * overlap_y      (box overlap with the recorded
-                                                                      neighbours, m^2)
-
-The recorded neighbours appear only in the loss (supervision), never in the rollout. AdamW, the
-epoch with the lowest validation loss is kept; deterministic for a seed on CPU.
+Goals (the goal predictor's top goal) and predicted neighbour motion are computed once, as ``GnpPlanner``
+does at inference; the recorded neighbour future is never a rollout input. ``GnpNet`` sets tau and the
+per-neighbour weights, ``rollout_torch`` plans, and the loss is
+``mean_t |p_t - p_t^human|`` [m] + ``collision_weight * mean_t sum_j overlap_x * overlap_y`` [m^2] (box
+overlap with the recorded neighbours). AdamW; the best validation epoch is kept; deterministic on CPU.
 """
 
 from __future__ import annotations
@@ -101,9 +94,8 @@ def train_gnp_model(
     progress: Callable[[int], None] | None = None,
     manifest_extra: dict[str, Any] | None = None,
 ) -> TrainResult:
-    """Train on the by-vehicle training split of ``batch`` (``progress(1)`` after the data
-    preparation and after every epoch); validation metrics for gnp and for plain sf (weights 1,
-    the base tau) with the same goals and neighbours."""
+    """Train on the by-vehicle training split (``progress(1)`` after preparation and each epoch); validation
+    metrics for gnp and for plain sf (weights 1) with the same goals and neighbours."""
     mode = NeighbourPredictionMode(cfg.neighbour_mode)
     if mode is NeighbourPredictionMode.GROUND_TRUTH_ORACLE:
         raise ValueError("GNP trains with predicted neighbours, not the recorded future")

@@ -1,15 +1,8 @@
-"""Training of the transformer multi-goal predictor (winner-takes-all over K goals).
+"""Training of the transformer multi-goal predictor: winner-takes-all over K goals (``wta_loss``).
 
-Loss per scenario, with the recorded ego position at the 5 s horizon ``y`` and the winner
-``k* = argmin_k |g_k - y|`` (Huber with delta 1 m, in metres)::
-
-    L = huber(g_k* - y) + center_weight * huber(g_0 - y) + cls_weight * CE(logits, k*)
-
-Only the winning goal regresses, so the K heads specialise into modes (keep lane / change left /
-right, faster / slower); the classifier learns which mode is likely. Goal 0 is regressed on every
-scenario too: it becomes the central estimate, which the planners' top goal usually is (measured:
-without it the top-1 error was 7 % worse). AdamW with a one-cycle learning-rate schedule; the epoch
-with the lowest validation loss is kept. Deterministic for a seed on CPU (single thread by default).
+Only the winning goal regresses, so the K heads specialise into modes (keep lane, change left/right,
+faster/slower) and the classifier learns which is likely. AdamW with a one-cycle schedule; the best
+validation epoch is kept; deterministic for a seed on CPU.
 """
 
 from __future__ import annotations
@@ -37,11 +30,8 @@ from letspi.scenario.types import ScenarioBatch
 
 def wta_loss(goals: torch.Tensor, logits: torch.Tensor, truth: torch.Tensor,
              cls_weight: float, center_weight: float = 0.0) -> torch.Tensor:
-    """Winner-takes-all loss: goals (B, K, 2) [m], logits (B, K), truth (B, 2) [m] -> scalar.
-
-    ``center_weight`` > 0 also regresses goal 0 on every scenario, making it the central (median)
-    estimate while the other heads specialise on the alternatives.
-    """
+    """Mean of ``huber(g_k* - y) + center_weight * huber(g_0 - y) + cls_weight * CE(logits, k*)``, k* the closest
+    goal (Huber delta 1 m); goals (B, K, 2) [m], logits (B, K), truth (B, 2) [m]."""
     dist = torch.linalg.vector_norm(goals - truth[:, None, :], dim=-1)
     best = dist.argmin(dim=1)
     win = goals[torch.arange(len(goals)), best]
@@ -58,10 +48,7 @@ def train_goal_model(
     progress: Callable[[int], None] | None = None,
     manifest_extra: dict[str, Any] | None = None,
 ) -> TrainResult:
-    """Train on the by-vehicle training split of ``batch``; validation metrics on the rest.
-
-    ``progress`` is called with 1 after every epoch.
-    """
+    """Train on the by-vehicle training split of ``batch`` (``progress(1)`` after each epoch); validate on the rest."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     t_start = time.perf_counter()

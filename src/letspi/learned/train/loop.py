@@ -1,10 +1,7 @@
 """The training loop and manifest pieces shared by letspi's trained models (torch only).
 
-``train_steps`` is the optimiser loop (loss, backward, clipping, optimiser and scheduler steps, a
-callback per step) over any batches; ``fit`` runs it for epochs of ``shuffled_batches`` from its own
-seeded generator, steps AdamW (optionally one-cycle), validates after every epoch and restores the
-best state (``BestState``), so a seed fixes the result. ``run_steps`` runs it for a step budget with
-resumable checkpoints (the LoRA fine-tuning of the embedded LLM: long runs that must survive a kill).
+``train_steps`` is the one optimiser loop; ``fit`` runs it for seeded epochs and keeps the best validation
+state; ``run_steps`` runs it for a step budget with resumable checkpoints (LoRA fine-tuning).
 """
 
 from __future__ import annotations
@@ -53,11 +50,8 @@ def train_steps(
     clip_norm: float | None = GRAD_CLIP_NORM,
     on_step: Callable[[int, float], None] | None = None,
 ) -> list[float]:
-    """One optimiser step per batch: loss, backward, gradient clipping (``clip_norm``; None: none),
-    ``optimiser`` and ``scheduler`` steps. ``on_step(steps_done, loss)`` after each; returns the losses.
-
-    The one optimiser loop of letspi's training code: epochs (``fit``) and step budgets call it with
-    their own batches (any objects ``batch_loss`` understands: index tensors, collated examples)."""
+    """One optimiser step per batch (anything ``batch_loss`` takes): loss, backward, clipping to ``clip_norm``
+    (None: none), optimiser and scheduler steps, ``on_step(steps_done, loss)``; returns the losses."""
     losses: list[float] = []
     for batch in batches:
         loss = batch_loss(batch)
@@ -75,15 +69,13 @@ def train_steps(
 
 
 def shuffled_batches(n: int, batch_size: int, generator: torch.Generator) -> list[torch.Tensor]:
-    """One epoch's mini-batches of row indices: a permutation of ``range(n)`` drawn from ``generator``,
-    cut into ``batch_size`` pieces (the last may be shorter)."""
+    """One epoch's mini-batches: a permutation of ``range(n)`` from ``generator`` cut into ``batch_size`` pieces."""
     perm = torch.randperm(n, generator=generator)
     return [perm[s : s + batch_size] for s in range(0, len(perm), batch_size)]
 
 
 class BestState:
-    """Checkpoint hook: keeps a copy of the model's state with the lowest validation loss so far
-    (every state when there is no validation: the last one wins) and restores it at the end."""
+    """Keeps the model state with the lowest validation loss (without validation: the last) to restore it."""
 
     def __init__(self, model: torch.nn.Module) -> None:
         self.state, self.val_loss = copy.deepcopy(model.state_dict()), float("inf")
@@ -113,10 +105,8 @@ def fit(
     optimiser: torch.optim.Optimizer | None = None,
     clip_norm: float | None = GRAD_CLIP_NORM,
 ) -> FitHistory:
-    """Train ``net`` in place for ``epochs`` epochs; ``batch_loss(indices)`` is the loss of a training
-    mini-batch, ``val_loss()`` the validation loss (None: no validation, the last epoch is kept).
-    ``optimiser``: default AdamW(``lr``, ``weight_decay``) over all parameters. ``progress(1)`` after
-    every epoch."""
+    """Train ``net`` in place for ``epochs``; ``batch_loss(indices)``: a mini-batch's loss; ``val_loss()`` (None:
+    keep the last epoch). ``optimiser``: default AdamW(``lr``, ``weight_decay``). ``progress(1)`` per epoch."""
     opt = optimiser or torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
     sched = None
     if one_cycle:
@@ -280,16 +270,11 @@ def run_steps(
     fingerprint: dict[str, Any] | None = None,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> StepHistory:
-    """``total_steps`` AdamW steps over ``params`` (``train_steps``) on mini-batches of ``batch_size``
-    training indices, reshuffled (seeded) every epoch; ``batch_loss(indices)`` is the mini-batch loss and
-    ``lr_factor(step)`` scales the learning rate (LambdaLR).
-
-    Checkpoints (``checkpoint_dir``): every ``checkpoint_every_s`` seconds of training and at the end,
-    the trainable state, optimiser, schedule, batch order, losses and ``fingerprint`` (what identifies
-    the run: data, settings) are written atomically to ``CHECKPOINT_FILE``. A run that finds a
-    checkpoint with the same fingerprint continues from it (same batches, same result as an unbroken
-    run); another fingerprint is refused (``CheckpointMismatchError`` naming the differing fields).
-    """
+    """``total_steps`` AdamW steps over ``params`` on seeded, per-epoch reshuffled mini-batches;
+    ``lr_factor(step)`` scales the learning rate. Every ``checkpoint_every_s`` and at the end the whole run
+    state and ``fingerprint`` (data, settings) go atomically to ``checkpoint_dir / CHECKPOINT_FILE``; a
+    checkpoint with the same fingerprint is resumed (same result as an unbroken run), another is refused
+    (``CheckpointMismatchError`` naming the differing fields)."""
     opt = torch.optim.AdamW(params, lr=lr, weight_decay=weight_decay)
     run = _StepRun(opt, torch.optim.lr_scheduler.LambdaLR(opt, lr_factor or (lambda _step: 1.0)),
                    np.random.default_rng(seed), fingerprint or {}, [], [])

@@ -1,7 +1,5 @@
-"""torch mirrors of the NumPy inference code in ``letspi.learned.layers`` / ``goal_model`` / ``gnp_model``.
-
-Parameter names (``state_dict`` keys) are what the NumPy side reads, so ``export_state`` output loads
-straight into ``LearnedGoalPredictor`` / ``GnpModel``.
+"""torch mirrors of ``letspi.learned.layers`` / ``goal_model`` / ``gnp_model``; their ``state_dict`` keys are
+what the NumPy side reads, so ``export_state`` output loads straight into the inference models.
 """
 
 from __future__ import annotations
@@ -117,11 +115,8 @@ def _logit(p: float) -> float:
 
 
 class GnpNet(nn.Module):
-    """Per-scenario tau [s] (B,) and per-neighbour repulsion weights (B, N); mirrors ``GnpModel``.
-
-    The output layers start at zero weight with biases giving ``tau = tau_init`` and weights 1, so
-    training starts from (about) the fixed-parameter social force model.
-    """
+    """Per-scenario tau [s] (B,) and per-neighbour repulsion weights (B, N); mirrors ``GnpModel``. Zero-initialised
+    output layers start training from the fixed-parameter model (``tau_init``, weights 1)."""
 
     def __init__(self, cfg: EncoderConfig, tau_init_s: float) -> None:
         super().__init__()

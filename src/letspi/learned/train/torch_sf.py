@@ -1,12 +1,8 @@
 """Differentiable torch twin of ``letspi.physics.social_force`` (with per-neighbour weights).
 
-It reproduces the NumPy rollout operation by operation, including every guard and clamp of the
-module docstring there (remaining time >= 1 s with the pass-through goal, the v0 cap, v_des_x >= 0,
-|v_des_y| <= 2 m/s, the box distance, neighbour classes, force-shifted edges, acceleration clamps,
-the no-reverse floor), so that in float64 it agrees with ``rollout_social_force`` /
-``letspi.learned.gnp_model.rollout_weighted`` to ~1e-12 (``tests/test_learned_torch_sf.py``).
-Gradients flow to tau (and the other parameters) and to the neighbour weights. Square roots use a
-zero-safe form (same value; zero gradient at 0 instead of NaN).
+It reproduces the NumPy rollout operation by operation, every guard and clamp included, so in float64 it
+agrees with ``letspi.learned.gnp_model.rollout_weighted`` to ~1e-12 (``tests/test_learned_torch_sf.py``).
+Gradients flow to every parameter and the neighbour weights; square roots are zero-safe (no NaN gradient).
 """
 
 from __future__ import annotations
@@ -158,11 +154,8 @@ def rollout_torch(
     dt_s: float = DT_S,
     max_speed_mps: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Positions (B, F, 2) [m] and velocities (B, F, 2) [m/s] at t = dt .. F dt.
-
-    params: tensors (B,) keyed by ``PARAM_NAMES`` (tau_s, k_np, k_nf, k_nl, k_boundary, k_cline,
-    r_col_m); goals_xy_m (B, 2); nbr_weights (B, N) or None (= 1); max_speed_mps (B,) or the default.
-    """
+    """Positions (B, F, 2) [m] and velocities (B, F, 2) [m/s] at t = dt .. F dt. ``params``: tensors (B,) keyed
+    by ``PARAM_NAMES``; goals_xy_m (B, 2); nbr_weights (B, N) or None (= 1); max_speed_mps (B,) or default."""
     f = scene.n_steps
     terms = _rollout_terms(scene, params, goals_xy_m, nbr_weights, dt_s, max_speed_mps)
     ex, ey = scene.ego_xy0_m[:, 0], scene.ego_xy0_m[:, 1]

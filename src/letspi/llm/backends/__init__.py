@@ -1,8 +1,4 @@
-"""Backends implementing ``letspi.llm.types.LLMBackend``.
-
-Importing this package imports no optional dependency: llama-cpp-python is imported when a
-``LlamaCppBackend`` is first used.
-"""
+"""Backends implementing ``letspi.llm.types.LLMBackend`` (no optional dependency imported here)."""
 
 from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.backends.ollama import OllamaBackend

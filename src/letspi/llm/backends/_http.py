@@ -20,9 +20,8 @@ KEEPALIVE_CONNECTIONS = 256
 
 
 def pooled_client() -> httpx.Client:
-    """An ``httpx.Client`` for many concurrent requests: no cap on connections (the runner bounds
-    requests in flight, and a capped pool would make waiting for a connection count against the
-    request's timeout), up to ``KEEPALIVE_CONNECTIONS`` kept alive."""
+    """An ``httpx.Client`` for many concurrent requests: no connection cap (the runner bounds requests in
+    flight; waiting for a pooled connection would count against the timeout)."""
     return httpx.Client(limits=httpx.Limits(max_connections=None, max_keepalive_connections=KEEPALIVE_CONNECTIONS))
 
 
@@ -63,10 +62,7 @@ def error_text(resp: httpx.Response) -> str:
 
 
 def parse_retry_after(value: str | None, *, now: float | None = None) -> float | None:
-    """Seconds to wait from a ``Retry-After`` header (delay-seconds or an HTTP date), or None.
-
-    A date in the past gives 0; a malformed value gives None (no server guidance).
-    """
+    """Seconds to wait from a ``Retry-After`` header (delay-seconds or an HTTP date; past date: 0), or None."""
     if value is None:
         return None
     if _SECONDS_RE.fullmatch(value):

@@ -1,45 +1,14 @@
 """Embedded llama.cpp backend (llama-cpp-python), for ``llamacpp:MODEL`` specs.
 
-* A LoRA adapter GGUF (``lora_path``; ``llamacpp:smollm2-135m-letspi`` finds its own, see
-  ``letspi.llm.models.locate_adapter``) is applied by llama.cpp when the model is loaded.
-* One ``Llama`` instance per (model file, adapter, context size, runtime) per process, shared by every
-  backend object: llama.cpp keeps the previous prompt's KV cache, so consecutive calls that share a
-  static prompt prefix only evaluate the changed tail.
-* Decoding is constrained by the JSON schema (``response_format={"type": "json_object",
-  "schema": ...}``), greedy (temperature 0) with a fixed seed.
-* Timeouts: generation is streamed and abandoned when the deadline passes (``LLMTimeoutError``);
-  prompt evaluation itself cannot be interrupted.
-
-**Flash attention is on** (``LlamaRuntime.flash_attn``; ``LETSPI_LLAMA_FLASH_ATTN=0`` turns it off).
-Measured with llama-cpp-python 0.3.36 and the packaged SmolLM2 Q4_1 (notes/embedded_model.md): without
-it, attention multiplies F16 K/V through llamafile's tinyBLAS when a prompt is evaluated in batches and
-through ggml's one-row kernels token by token; the two disagree by up to 6.5 % of the largest logit
-(AVX2 build) and 4.8 % (AVX-512 build), enough to flip near-ties ("What is the capital of France?"
--> "La femme de France..." on an AVX2 build). With flash attention, batched and token-by-token
-logits are bit-identical on both builds, and closer to float32 torch (4.6 % vs 6.5 % max).
-
-**Self-check at load** (``self_check``): the logits of a fixed prompt at three positions, evaluated
-in batches (the production path) and token by token, must agree (argmax, and a relative difference
-<= the model's tolerance, larger with a LoRA adapter: ``letspi.llm.models.batch_tolerance``). On
-disagreement the model is reloaded to evaluate prompts token by token (slower, correct by
-construction) with one warning line; ``LETSPI_LLAMA_SELF_CHECK=strict``
-refuses instead (``ModelSelfCheckError``), ``=off`` skips the check. The result is kept on the loaded
-model (``LoadedLlama.check``) and reported by ``letspi llm check`` and the benchmarks.
-
-**Threads under contention**: llama.cpp's OpenMP workers meet at a barrier after every operation
-(hundreds per token). With another process on the cores, a worker whose partner is descheduled
-spins, then waits a whole scheduler slice: a 2-thread evaluation on a busy 2-core machine collapses
-instead of slowing down; a worker that sleeps at once (passive waiting) pays a wake-up at every
-barrier instead, which on a quiet machine made a request 1.8x slower than spinning (2.39 s vs 1.29 s,
-``python -m benchmarks.speed llm --contention 2``). We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` with a bounded
-spin, ``GOMP_SPINCOUNT=100000`` (libgomp's spin count overrides the policy's; about 0.1 ms), before
-llama.cpp is first imported (unless the user set them): a worker spins across the short gaps between
-operations and sleeps when its partner is descheduled; and (2) choose the
-thread count per call from the CPUs this process may use and the processes runnable right now
-(``choose_threads``; ``LETSPI_LLAMA_THREADS=N`` fixes it).
-
-Models are opened by ``letspi.llm.backends.llamacpp_open`` (the AMX workaround and the probe that catches a
-load that would kill the process).
+* One ``Llama`` per (model file, LoRA adapter, context size, runtime) per process, shared by every backend
+  object: llama.cpp keeps the KV cache, so calls sharing a prompt prefix only evaluate the changed tail.
+* Decoding: greedy, seeded, constrained by the JSON schema. Generation is streamed and abandoned at the
+  deadline (``LLMTimeoutError``); prompt evaluation itself cannot be interrupted.
+* Flash attention is on (``LETSPI_LLAMA_FLASH_ATTN=0`` turns it off) and a self-check at load compares
+  batched with token-by-token logits (``self_check``): without flash attention the two paths can disagree
+  enough to flip an answer (docs/llm.md).
+* Threads are chosen per call from the CPUs free right now (``choose_threads``): two threads on a busy
+  2-core machine wait on each other at every barrier.
 """
 
 from __future__ import annotations
@@ -88,11 +57,8 @@ CHECK_TEXT: Final = (
 
 @dataclass(frozen=True)
 class LlamaRuntime:
-    """llama.cpp options that can change an answer (part of the LLM configuration key via ``identity``).
-
-    ``flash_attn``: see the module docstring. ``self_check``: ``on`` (fall back to token-by-token
-    prompt evaluation on disagreement), ``strict`` (refuse) or ``off``.
-    """
+    """llama.cpp options that can change an answer (keyed via ``identity``). ``self_check``: ``on`` (fall back
+    to token-by-token evaluation on disagreement), ``strict`` (refuse) or ``off``."""
 
     flash_attn: bool = True
     self_check: Literal["on", "strict", "off"] = "on"
@@ -109,8 +75,8 @@ class LlamaRuntime:
         return cls(flash_attn=fa == "1", self_check=check)  # type: ignore[arg-type]
 
     def identity(self) -> str:
-        """What enters keys: the library version and the attention path (the check's fallback evaluates
-        the same model token by token, which a passing check shows to give the same logits)."""
+        """What enters keys: the library version and the attention path (not the check's fallback, which
+        gives the logits a passing check would)."""
         return f"llama-cpp-python={llama_cpp_version()};flash_attn={int(self.flash_attn)}"
 
 
@@ -135,10 +101,7 @@ def runnable_tasks() -> int | None:
 def choose_threads(max_threads: int, *, cpus: int | None = None, runnable: int | None = None,
                    env: dict[str, str] | None = None) -> int:
     """Threads for the next evaluation: ``$LETSPI_LLAMA_THREADS`` if set, else the usable CPUs not
-    taken by other runnable tasks (``runnable`` counts this thread too), between 1 and ``max_threads``.
-
-    On 2 cores with one other busy process this gives 1 thread: a lone thread keeps its core,
-    where 2 threads would wait on each other at every barrier (module docstring)."""
+    taken by other runnable tasks (``runnable`` counts this thread too), between 1 and ``max_threads``."""
     env = dict(os.environ) if env is None else env
     fixed = env.get(THREADS_ENV, "").strip()
     if fixed:
@@ -159,12 +122,9 @@ def choose_threads(max_threads: int, *, cpus: int | None = None, runnable: int |
 
 @dataclass(frozen=True)
 class SelfCheckResult:
-    """Batched vs token-by-token logits of ``CHECK_TEXT`` at ``positions`` (token counts).
-
-    ``max_rel_diff``: max over positions of max|batched - sequential| / max|sequential|.
-    ``verdict``: ``agree`` (argmax equal everywhere, ``max_rel_diff <= tolerance``), ``disagree``,
-    or ``skipped``. ``mode``: how prompts are evaluated after the check (``batched`` or ``token-by-token``).
-    """
+    """Batched vs token-by-token logits of ``CHECK_TEXT`` at ``positions`` (token counts). ``max_rel_diff``: max
+    over positions of max|batched - sequential| / max|sequential|. ``verdict``: ``agree`` (argmax equal, within
+    ``tolerance``), ``disagree`` or ``skipped``; ``mode``: how prompts are evaluated after the check."""
 
     verdict: Literal["agree", "disagree", "skipped"]
     mode: Literal["batched", "token-by-token"]
@@ -302,10 +262,8 @@ def shared_llama(model_path: Path, *, n_ctx: int = 4096, n_threads: int = DEFAUL
 
 
 class LlamaCppBackend:
-    """``llamacpp:gemma3-270m``, ``llamacpp:smollm2-135m``, ``llamacpp:smollm2-135m-letspi`` or
-    ``llamacpp:/path/model.gguf``. ``lora_path``: a LoRA adapter GGUF (default: the fine-tuned model's
-    own, ``locate_adapter``; None for the others). ``n_threads``: the most threads a call uses
-    (``choose_threads`` picks fewer when other processes keep the CPUs busy)."""
+    """``llamacpp:NAME`` (a packaged model) or ``llamacpp:/path/model.gguf``. ``lora_path``: a LoRA adapter
+    GGUF (default: the fine-tuned model's own, ``locate_adapter``). ``n_threads``: the most a call uses."""
 
     def __init__(
         self, model: str, *, n_ctx: int = 4096, n_threads: int = DEFAULT_MAX_THREADS,

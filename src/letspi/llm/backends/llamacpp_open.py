@@ -1,17 +1,12 @@
 """The one way into llama.cpp: every model letspi runs is opened by ``open_llama``.
 
-* **AMX workaround.** Wheels built with ``GGML_NATIVE`` on CPUs that advertise AMX repack quantized
-  weights for AMX tiles ("extra buffer types"); in VMs that advertise AMX without enabling it the first
-  multi-token prompt faults. When the build has AMX kernels, models load with ``use_extra_bufts = False``
-  (``LETSPI_LLAMA_EXTRA_BUFTS=1`` keeps them, ``=0`` always disables them).
-* **Probe.** The first load of each (llama.cpp build, CPU flags, model format, attention path, extra
-  buffer types) runs in a child process that evaluates a short prompt in one batch and token by token.
-  A fault there (SIGILL, SIGSEGV, ...) cannot kill the caller: a quantized file falls back to its F16
-  copy with one warning, anything else stops with one line naming the format, the CPU feature and the
-  rebuild command (``LlamaFaultError``). Verdicts are cached in ``$LETSPI_CACHE_DIR/llama_probes/``;
-  ``LETSPI_LLAMA_PROBE=0`` skips the probe.
-
-The child is ``python -m letspi.llm.backends.llamacpp_open probe MODEL.gguf`` (prints ``ok``, or dies).
+* AMX workaround: where the build has AMX kernels, models load with ``use_extra_bufts = False`` (VMs that
+  advertise AMX without enabling it fault on the repacked weights); ``LETSPI_LLAMA_EXTRA_BUFTS=1``/``0``
+  forces it.
+* Probe: the first load of each (build, CPU flags, format, settings) runs in a child process
+  (``python -m letspi.llm.backends.llamacpp_open probe MODEL.gguf``), so a fault cannot kill the caller: a
+  quantized file falls back to its F16 copy, anything else raises ``LlamaFaultError``. Verdicts are cached
+  in ``$LETSPI_CACHE_DIR/llama_probes/``; ``LETSPI_LLAMA_PROBE=0`` skips the probe.
 """
 
 from __future__ import annotations
@@ -45,8 +40,7 @@ INSTALL_HINT: Final = (
 )
 PROBE_ENV: Final = "LETSPI_LLAMA_PROBE"
 EXTRA_BUFTS_ENV: Final = "LETSPI_LLAMA_EXTRA_BUFTS"
-#: libgomp spin iterations before a waiting OpenMP worker sleeps (notes/embedded_model.md: measured
-#: against 0 and unbounded on a busy 2-core machine)
+#: libgomp spin iterations (~0.1 ms) before a waiting OpenMP worker sleeps (notes/embedded_model.md)
 OMP_SPIN_COUNT: Final = 100_000
 PROBE_TIMEOUT_S: Final = 300.0
 PROBE_TEXT: Final = "A car drives at 30 m/s on a highway. The car ahead is 20 m away and brakes hard, so the driver"
@@ -61,8 +55,7 @@ def llama_cpp_version() -> str:
 
 
 def import_llama_cpp() -> Any:
-    """``llama_cpp``, imported with letspi's OpenMP settings (before libgomp loads: waiting workers spin
-    briefly, then sleep, so a busy machine does not stall every barrier)."""
+    """``llama_cpp``, imported with letspi's OpenMP settings (waiting workers spin briefly, then sleep)."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
     try:
@@ -153,8 +146,7 @@ def cpu_name() -> str:
 
 
 def build_identity() -> str:
-    """The installed llama.cpp build: llama-cpp-python's version and a digest of its shared libraries' names,
-    sizes and times (a rebuild in place changes them), read without importing it."""
+    """llama-cpp-python's version and a digest of its shared libraries' names, sizes and times (not imported)."""
     h = hashlib.sha256()
     spec = importlib.util.find_spec("llama_cpp")
     if spec is not None and spec.submodule_search_locations:
@@ -180,9 +172,8 @@ def probe_key(fmt: str, flash_attn: bool, n_threads: int) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class ProbeResult:
-    """``verdict``: ``ok``; ``fault`` (the child was killed by ``signal_name``); ``error`` (it raised:
-    a broken file is reported by the real load); ``timeout``. ``system_info``: the build's line, when the
-    child printed it before failing."""
+    """``verdict``: ``ok``; ``fault`` (the child was killed by ``signal_name``); ``error`` (it raised: the real
+    load reports it); ``timeout``. ``system_info``: the build's line, if printed before failing."""
 
     verdict: Literal["ok", "fault", "error", "timeout"]
     signal_name: str = ""
@@ -291,8 +282,8 @@ _RUNNABLE_LOCK = threading.Lock()
 
 def runnable_model(model_path: Path, *, flash_attn: bool = True, n_threads: int = 2, fallback: bool = True,
                    runner: ProbeRunner = run_probe) -> Path:
-    """``model_path``, or its F16 copy where llama.cpp faults on its quantized kernels here (one warning),
-    after the probe (module docstring). Raises ``LlamaFaultError`` where nothing runs."""
+    """``model_path``, or its F16 copy where its quantized kernels fault here (one warning).
+    Raises ``LlamaFaultError`` where nothing runs."""
     model_path = Path(model_path)
     if os.environ.get(PROBE_ENV, "1").strip() == "0":
         return model_path

@@ -1,5 +1,4 @@
-"""llama-cpp-python's OpenAI-compatible server through letspi's loader: the probe (a faulting quantized
-``--model`` runs as its F16 copy) and the AMX workaround apply, as for the embedded backend.
+"""llama-cpp-python's OpenAI-compatible server opened through ``open_llama`` (probe and AMX workaround apply).
 
     python -m letspi.llm.backends.llamacpp_server --model FILE.gguf --port 8000 [llama_cpp.server options]
 """

@@ -1,7 +1,6 @@
-"""Ollama backend (``ollama:MODEL``, e.g. ``ollama:llama3.1:8b``) over the REST ``/api/chat``.
+"""Ollama backend (``ollama:MODEL``) over the REST ``/api/chat``, not streamed.
 
-The JSON schema goes in ``format`` (Ollama >= 0.5 constrains decoding with it); temperature,
-seed and ``num_predict`` go in ``options``; ``stream`` is false. The server is
+The JSON schema goes in ``format`` (Ollama >= 0.5 constrains decoding with it). The server is
 ``$OLLAMA_HOST`` (default ``http://localhost:11434``; a bare ``host:port`` gets ``http://``).
 """
 

@@ -1,28 +1,11 @@
-"""OpenAI-compatible chat backend (``openai:MODEL@http://host:port/v1``).
+"""OpenAI-compatible chat backend (``openai:MODEL@http://host:port/v1``): vLLM, llama.cpp servers, LM Studio, OpenAI.
 
-Works with vLLM, the llama.cpp server, llama-cpp-python's server, LM Studio and OpenAI. The
-base URL comes from the spec, else ``$OPENAI_BASE_URL``, else OpenAI's; the key from the
-``api_key`` argument, else ``$OPENAI_API_KEY`` (no header when neither is set: local servers
-do not need one).
-
-Structured output: servers disagree on ``response_format``. We try, in order,
-``{"type": "json_schema", ...}`` (OpenAI, vLLM, LM Studio, llama.cpp server),
-``{"type": "json_object", "schema": ...}`` (llama-cpp-python's server) and plain
-``{"type": "json_object"}``. In the default ``"auto"`` mode the backend moves to the next mode:
-
-* **for good**, when the server rejects the request with an error that names the response
-  format (400/422; llama-cpp-python's server answers 500 with a validation error): the server
-  said it does not take that format;
-* **for this request only**, when the server accepts the format but the reply holds no JSON
-  object (a server that ignores a format it does not know, or one bad reply): the request is
-  resent at once with the next mode. Later requests use the established mode again;
-* **for good after** ``DEMOTE_AFTER_NO_JSON`` (3) **consecutive** requests of that kind, i.e.
-  each time the established mode gave no JSON *and* a simpler mode did. A reply with JSON in the
-  established mode resets the count; a request for which no mode gave JSON does not count
-  (the model failed, not the format).
-
-So one bad reply never changes how later requests are sent. ``format_mode=...`` fixes the mode.
-The mode actually used for a request is in ``LLMResponse.extra["format_mode"]``.
+Base URL: the spec, else ``$OPENAI_BASE_URL``, else OpenAI's; key: ``api_key``, else ``$OPENAI_API_KEY``
+(no header when neither is set). Servers disagree on ``response_format``; ``format_mode="auto"`` tries
+``FORMAT_MODES`` in order and moves on: for good when the server rejects a format by name (400/422, or 500
+with a validation error); for one request when a reply holds no JSON; for good after
+``DEMOTE_AFTER_NO_JSON`` consecutive requests where only a simpler mode gave JSON. So one bad reply never
+changes later requests. The mode used is in ``LLMResponse.extra["format_mode"]``.
 """
 
 from __future__ import annotations
@@ -95,7 +78,7 @@ class OpenAICompatBackend:
 
     @property
     def format_mode(self) -> str:
-        """The established structured-output mode (see module docstring for when it changes)."""
+        """The established structured-output mode."""
         return FORMAT_MODES[self._mode_index]
 
     def complete(

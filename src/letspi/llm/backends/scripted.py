@@ -1,12 +1,9 @@
 """A scripted backend: a deterministic test double for control-flow tests and offline pipelines.
 
-It does not run a model. Each call consumes the next step of a script: a reply text, an
-exception to raise (e.g. ``LLMTransportError("HTTP 500")``), or a ``ScriptedStep`` that can also
-simulate latency (a step slower than the call's timeout raises ``LLMTimeoutError`` without
-sleeping). When the script is exhausted it repeats ``default`` (or raises if that is None).
-Every call's messages are recorded in ``calls`` for assertions.
-
-``scripted:default`` (via ``make_backend``) always answers with ``DEFAULT_REPLY``.
+Each call consumes the next step: a reply text, an exception to raise, or a ``ScriptedStep`` with a
+latency (one over the call's timeout raises ``LLMTimeoutError`` without sleeping); an exhausted script
+repeats ``default`` (or raises if None). Calls' messages are recorded in ``calls``. ``scripted:default``
+always answers ``DEFAULT_REPLY``.
 """
 
 from __future__ import annotations
@@ -38,7 +35,7 @@ def default_reply_text() -> str:
 
 
 class ScriptedBackend:
-    """Replays a script of replies and errors (a test double; see module docstring)."""
+    """Replays a script of replies and errors."""
 
     def __init__(
         self,
