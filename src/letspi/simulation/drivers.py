@@ -1,11 +1,8 @@
 """Driver parameters of reactive neighbours, estimated from their (simulated) history.
 
-Desired speed: the highest speed the vehicle drove in its history (``letspi.physics.idm``'s rule),
-clipped to ``DriverModelConfig.desired_speed_bounds_mps``. Time headway: a low quantile of the time
-gaps it kept to an in-path leader (another vehicle of the scenario ahead of it whose box overlaps
-laterally), over the history frames with such a leader closer than ``max_leader_gap_s``; drivers
-follow at their desired headway when they follow at all, and a low quantile keeps free-driving
-frames from inflating it. Without any leader the configured default is used.
+Desired speed: the highest speed driven (``letspi.physics.idm``'s rule), clipped. Time headway: a low
+quantile of the time gaps to an in-path leader (ahead, boxes overlapping laterally) closer than
+``max_leader_gap_s`` (a low quantile, so free-driving frames do not inflate it); without a leader the default.
 """
 
 from __future__ import annotations

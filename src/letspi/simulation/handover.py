@@ -1,12 +1,5 @@
-"""``closed-loop-hybrid``: which log-replayed neighbours the ego's actions now reach.
-
-A neighbour ahead of the ego cannot be influenced by it (in a real car-following world it drives as
-recorded unless the ego overtakes it), so replaying its log keeps the recorded events, such as a
-leader's hard brake or a cut-in, exactly. A neighbour behind the ego in a lane the ego's box covers
-is where the ego's braking or lane change reaches it: replayed, it would rear-end an ego that brakes
-earlier or harder than the human did, so it is handed to SUMO's driver model. The rule is in
-``HandoverConfig``; this module evaluates it, vectorised over scenarios and neighbour slots.
-"""
+"""``closed-loop-hybrid``: which log-replayed neighbours the ego's actions now reach (``HandoverConfig``'s
+rule, vectorised over scenarios and neighbour slots), and the hybrid settings that enter keys."""
 
 from __future__ import annotations
 

@@ -1,15 +1,9 @@
 """Straight SUMO networks for closed-loop runs: one road per scenario ("slot"), cached per lane layout.
 
-A network holds ``n_slots`` parallel one-way roads (edges ``s0``, ``s1``, ...), ``slot_spacing_m``
-apart, all with the same lanes. Scenarios with that lane layout are simulated side by side, one per
-slot, in one SUMO instance. SUMO coordinates of slot k relate to a scenario's ego frame (x forward,
-y left; the ego frame is already aligned with the road) by a translation::
-
-    X = x + x_origin_m            Y = y + y_offset_m,  y_offset_m = left_edge_y_m[k] - (left road edge y)
-
-Lanes are built right to left from the scenario's markings (SUMO lane 0 = rightmost = between
-``marking_y_m[0]`` and ``marking_y_m[1]``); widths are rounded to 1 cm (the layout key), so a
-scenario's inner markings sit within a few millimetres of SUMO's.
+A network holds ``n_slots`` parallel one-way roads (edges ``s0``, ``s1``, ...) ``slot_spacing_m`` apart.
+Slot k's SUMO coordinates are a translation of the scenario's ego frame (x forward, y left):
+``X = x + x_origin_m``, ``Y = y + left_edge_y_m[k] - (left road edge y)``. SUMO lane 0 is the rightmost
+(``marking_y_m[0]`` to ``marking_y_m[1]``); widths are rounded to 1 cm (the layout key).
 """
 
 from __future__ import annotations

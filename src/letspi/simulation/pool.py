@@ -1,17 +1,9 @@
-"""Worker processes for closed-loop runs: one planner and one libsumo per process.
+"""Worker processes for closed-loop runs: one planner and one libsumo per spawned process.
 
-Each worker is a spawned process (a fresh interpreter: libsumo allows one simulation per process,
-and nothing of the parent's state, a loaded model or a running simulation, is inherited) connected
-by its own pipe. The parent sends a worker one chunk at a time, only when it is idle, so neither
-side ever blocks on a full pipe. A worker that dies (killed, out of memory) is noticed through its
-process sentinel: its unfinished chunk goes back to the queue and a replacement starts, up to
-``max_restarts`` times; results arrive only whole, so nothing is lost or duplicated. An exception
-inside a worker ends the run with the worker's traceback.
-
-Stopping: workers ignore Ctrl-C (``letspi.execution.interrupt``). When the run ends early (Ctrl-C in
-the parent, an error, a consumer that stops iterating) the parent terminates them at once (a worker
-closes its SUMO and removes its files on the way out); the chunks they were simulating are
-simulated again by the rerun. Only a run that finished tells its idle workers to exit and waits.
+The parent sends an idle worker one chunk at a time over its pipe (neither side blocks on a full pipe).
+A worker that dies is noticed through its sentinel: its chunk is requeued and a replacement starts, up
+to ``max_restarts`` times; an exception in a worker ends the run with its traceback. Workers ignore
+Ctrl-C; a run that ends early terminates them at once, and the rerun simulates their chunks again.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
-"""Closed-loop chunks on Ray: one actor per worker, each with its own planner and libsumo.
+"""Closed-loop chunks on Ray: one long-lived actor per worker, each with its own planner and libsumo.
 
-An actor is a long-lived worker process, so the planner (and any model it loads) and the SUMO
-session are built once per actor, as in ``letspi.simulation.pool``. Each actor gets one chunk at a
-time; an actor that dies is restarted by Ray and its chunk retried (``max_restarts``), so nothing
-is lost or duplicated. Needs the optional extra ``ray`` (``pip install 'letspi[ray]'``).
-
-On a cluster every node needs letspi (and libsumo) installed in the same environment; chunks and
-results travel through Ray's object store (about 30 kB per scenario and direction).
+Each actor gets one chunk at a time; one that dies is restarted by Ray and its chunk retried
+(``max_restarts``). Needs ``pip install 'letspi[ray]'``, and on a cluster letspi and libsumo on every node.
 """
 
 from __future__ import annotations

@@ -1,29 +1,9 @@
-"""The planner's view at a replanning instant: a ScenarioBatch built from the simulated history.
+"""The planner's view at a replanning instant (``replanning_batch``), and the engine's replanning step.
 
-At frame ``c`` of the scenario window (``T0_INDEX`` = the original t = 0) the replanning batch is
-the source batch shifted in time by ``c - T0_INDEX`` frames and re-centred at the ego's simulated
-box centre at ``c``. The ego frame is a translation (plus a fixed 180 degree turn) of the image axes,
-so re-centring is a translation: every ``*_xy_m`` field and ``marking_y_m`` move with the ego;
-velocities and accelerations are unchanged.
-
-The batch is built generically from ``ScenarioBatch``'s dataclass fields, so fields added later are
-carried along: a field with a frame axis (the first non-batch axis whose length is the batch's frame
-count) is windowed, anything else is copied. Then the simulated states overwrite the history
-frames of the ego and neighbour fields. Future frames are NaN / invalid / 0 for planners that must
-not see them (``future="none"``), or the recorded log from ``c`` on (``future="log"``, for
-``human`` and oracle modes), NaN beyond the end of the recording.
-
-The replanning step of the engine
----------------------------------
-The engine (``letspi.simulation.engine``) asks a ``Replanner`` after every simulated frame for
-plans: ``replanner.plans(frame, states)`` returns a ``Replan`` (plans for the scenarios due at that
-frame, in the source scenario's ego frame, and until which frame each is followed) or None. The
-engine only follows plans; *when* to plan, with what, and at what cost is the replanner's business.
-``PeriodicReplanner``: every scenario at t = 0 and then every ``replan_every`` frames, one batched
-planner call. ``letspi.simulation.dual_rate.DualRateReplanner`` (the LLM planners): the LLM sets
-parameters at t = 0 and every ``llm_period_s``, the physics replans every ``replan_every`` frames
-with the parameters in force. ``frames`` lists the frames at which plans may be made (the slots of
-``ClosedLoopChunk.plan_xy_m``). Both record ``planner_cpu_ms`` per scenario and replan.
+The view is the source batch shifted by ``frame - T0_INDEX`` frames and re-centred at the ego's simulated
+centre (a translation); every field with a frame axis is windowed (new fields follow), the simulated
+states overwrite the history, and the future is blank (``future="none"``) or the log (``future="log"``).
+A ``Replanner`` returns the plans due at a frame (a ``Replan``) or None; the engine only follows plans.
 """
 
 from __future__ import annotations
@@ -126,12 +106,8 @@ def replanning_batch(
 def _shifted_fields(
     source: ScenarioBatch, sim: SimulatedStates, frame: int, future: FuturePolicy
 ) -> dict[str, np.ndarray]:
-    """Every field of ``source`` with its frame axis shifted so that ``frame`` becomes ``T0_INDEX``.
-
-    The ego's and the neighbours' own states come from ``sim`` over the history; with
-    ``future="none"`` every frame after ``T0_INDEX`` is blanked (fill value). Fields without a
-    frame axis are copied.
-    """
+    """Every field of ``source`` shifted so that ``frame`` becomes ``T0_INDEX``: the own states' history
+    from ``sim``, the future blanked with ``future="none"``, fields without a frame axis copied."""
     n_frames = source.ego_xy_m.shape[1]
     shift = frame - T0_INDEX
     hist = slice(0, T0_INDEX + 1)
@@ -211,11 +187,11 @@ class Replan:
 
 
 class Replanner(Protocol):
-    """The engine's replanning step: plans for the scenarios due at a frame (module docstring).
+    """The engine's replanning step: plans for the scenarios due at a frame.
 
-    ``frames``: every frame (source indexing, >= ``T0_INDEX``) at which ``plans`` may return plans,
-    ascending. ``plans(frame, states)``: called after each simulated frame with the states
-    simulated so far (frames <= ``frame`` filled); returns None when nothing is due.
+    ``frames``: every frame (source indexing, >= ``T0_INDEX``, ascending) at which ``plans`` may return
+    plans (the slots of ``ClosedLoopChunk.plan_xy_m``). ``plans(frame, states)``: called after each
+    simulated frame (frames <= ``frame`` filled); None when nothing is due.
     """
 
     @property

@@ -34,18 +34,15 @@ class ClosedLoopChunk:
         replan_step: (R,) frames after t = 0 at which plans were made (0, 25, ... for 1 s).
         plan_xy_m: (K, R, F, 2) every plan, in the same frame; plan_goal_xy_m: (K, R, 2).
         plan_info: per-replan planner extras, each (K, R) (1-D ``PlanBatch.info`` entries).
-        plan_nonfinite: (K,) a plan had non-finite values, or left the simulated area (more than
-            15 m beyond a road edge), where the ego needed it; the ego then kept its velocity until
-            the next replan.
+        plan_nonfinite: (K,) a plan the ego needed was not finite or left the simulated area
+            (``OFF_ROAD_MARGIN_M`` beyond a road edge); the ego kept its velocity until the next replan.
         sumo_contact: (K, N, F) SUMO reported a collision between the ego and that neighbour (all
             False from the replay, which runs no SUMO).
         sumo_nbr_collisions: (K,) SUMO collision reports (pairs x frames) among the neighbours.
         plan_s: (K,) planner wall time per scenario [s] (batched calls split evenly).
         sim_s: (K,) the rest of the chunk's wall time (SUMO, bookkeeping) per scenario [s].
-        cpu_s: (K,) CPU time of the simulating process per scenario [s] (planner included; on a
-            shared machine it is the load-independent cost).
-        simulator: ``sumo`` (``letspi.simulation.engine``) or ``replay`` (``letspi.simulation.replay``:
-            closed-loop-log without SUMO, so without SUMO's collision check).
+        cpu_s: (K,) CPU time of the simulating process per scenario [s] (planner included).
+        simulator: ``sumo`` or ``replay`` (closed-loop-log without SUMO's collision check).
     """
 
     indices: np.ndarray

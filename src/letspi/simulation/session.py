@@ -1,14 +1,8 @@
-"""One SUMO instance per process, reloaded per lane layout (libsumo, or TraCI for the GUI).
+"""One SUMO instance per process, reloaded per lane layout: libsumo (in-process, one simulation per
+process) or TraCI (a subprocess over a socket; the GUI). Both expose the API module ``session.api``.
 
-libsumo runs SUMO inside the Python process (one simulation per process, no socket: the fast path);
-the ``traci`` backend starts ``sumo`` / ``sumo-gui`` as a subprocess and talks over a socket (slower,
-but the only way to watch a run). Both expose the same API module, which the engine uses as
-``session.api``.
-
-libsumo 1.28 prints a warning when the installed pyarrow differs from the libarrow it was built
-against. libsumo's wheel bundles its own, renamed libarrow (``libsumo.libs/libarrow-*.so``), and
-letspi does not use SUMO's Parquet output, so the two never meet; the warning is swallowed on
-import (tests check Parquet I/O and a libsumo simulation in one process).
+libsumo 1.28 warns on import when pyarrow differs from its bundled, renamed libarrow; letspi does not
+use SUMO's Parquet output, so the warning is swallowed.
 """
 
 from __future__ import annotations
@@ -86,8 +80,8 @@ def sumo_arguments(net: SlotNetwork, config: ClosedLoopConfig) -> list[str]:
 class SumoSession:
     """A SUMO instance that (re)loads slot networks; use as a context manager.
 
-    ``open(widths, n_slots)`` returns a network with a clean simulation at time 0 (reloading
-    costs milliseconds; building a new network, once per layout and slot count, ~0.1 s).
+    ``open(widths, n_slots)`` returns a network with a clean simulation at time 0 (a network is built once
+    per layout and slot count, then reloaded).
     """
 
     def __init__(self, config: ClosedLoopConfig, work_dir: Path | None = None) -> None:

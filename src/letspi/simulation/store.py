@@ -1,16 +1,9 @@
 """Resumable closed-loop output: one directory per (planner, mode, replanning period, scenarios).
 
-Layout::
-
-    DIR/run.json                 planner, mode, replan_s, scenario count and fingerprint (resume guard)
-    DIR/traj-NNNNN.npz           the chunk's trajectories (ego, neighbours, plans, SUMO contacts)
-    DIR/part-NNNNN.parquet       one row per scenario: the open-loop metric columns on the simulated
-                                 trajectories, SUMO's collision flag, timings, per-replan extras
-
-A chunk is written when it is complete, trajectories first and the Parquet part last (both via a
-temporary file and an atomic rename): a part file is the commit of its chunk. A run that is
-killed loses at most the chunks in flight; rerunning skips every scenario id already in a part.
-This is the shape the harness (``letspi.evaluation``) can adopt per planner directory.
+``run.json`` (the run's record: a resume guard), ``traj-NNNNN.npz`` (a chunk's trajectories and plans)
+and ``part-NNNNN.parquet`` (one row per scenario: metrics, SUMO collisions, timings, per-replan extras).
+Both files of a chunk are written atomically, the part last: a part file commits its chunk, and a
+rerun skips every scenario id already in a part.
 """
 
 from __future__ import annotations
