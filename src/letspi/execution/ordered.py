@@ -1,28 +1,11 @@
-"""Run one task per scenario, N at a time, and store their results through one writer in scenario order.
+"""Run one task per scenario, N at a time (threads), and store the results through one writer in scenario order.
 
-Design (issue 13)
------------------
-* **Threads.** Each scenario's work (goal prediction, prompt, LLM calls, rollouts, reflection) is one
-  task on a ``ThreadPoolExecutor`` of ``concurrency`` workers. The code is synchronous end to end
-  (httpx, NumPy, SQLite); while a worker waits for the LLM server it holds no GIL, so N workers keep
-  N requests in flight without a second, asynchronous code path. ``concurrency = 1`` runs every task
-  in the calling thread (no pool): the embedded model's behaviour and Ctrl-C stay exactly as before.
-* **One writer, scenario order.** Completed results wait in a reorder buffer; the calling thread
-  writes result k only after results 0..k-1 were written (or failed). The order in which tasks
-  *finish* therefore never changes what is stored, nor the order in which it is stored (memory-bank
-  row ids included). A killed run has stored a prefix of the scenarios it was given (minus
-  failures); rerunning stores the rest in the same order, so the result equals an uninterrupted run.
-* **Failures.** A task that raises ``RequestFailedError`` (its LLM requests failed in transport)
-  is a *failed* scenario: nothing is written for it, the writer moves on, and the run ends with
-  ``ScenariosFailedError`` so a rerun retries it. Any other exception stops the run: no new tasks,
-  queued ones cancelled, the advisor's circuit breaker tripped so tasks in flight stop before their
-  next request (and their backoff waits end), the in-order prefix of what finished is written, and
-  the *first* error is raised (one message). The breaker itself stops the run after a bounded
-  number of consecutive transport failures (``letspi.llm.guard``).
-* **Bounded memory.** At most ``concurrency + reorder_window`` scenarios are between submission and
-  writing: a slow scenario holds back writing, not memory.
-
-``concurrency`` is not part of any configuration key: it changes how fast answers come, not which.
+The calling thread writes result k only after results 0..k-1 were written or failed, so neither the
+finishing order nor an interrupted run changes what is stored; ``concurrency`` is in no key. A task
+raising ``RequestFailedError`` is a failed scenario (nothing written; the run ends with
+``ScenariosFailedError``). Any other exception stops the run: queued tasks cancelled, the advisor's
+breaker tripped, the in-order prefix written, the first error raised. At most ``concurrency +
+reorder_window`` scenarios are between submission and writing.
 """
 
 from __future__ import annotations
@@ -237,11 +220,9 @@ def run_ordered(
     is_fallback: Callable[[R], bool] | None = None,
     progress: Callable[[RunStatus], None] | None = None,
 ) -> RunStats:
-    """``work(i)`` for every i of ``indices`` (``config.concurrency`` at a time); ``write(i, result)``
-    in the order of ``indices``, in the calling thread (module docstring). ``advisor``: the LLM
-    advisor the tasks use (its breaker is reset and tripped by the run, its request counters reported).
-    Raises the first stopping error, or ``ScenariosFailedError`` after a run that left scenarios unstored.
-    """
+    """``work(i)`` for every i of ``indices`` (``config.concurrency`` at a time); ``write(i, result)`` in
+    the order of ``indices``, in the calling thread. ``advisor``: the tasks' LLM advisor (its breaker reset
+    and tripped by the run). Raises the first stopping error, or ``ScenariosFailedError``."""
     config = config or RunnerConfig()
     n = len(indices)
     if advisor is not None:
@@ -341,13 +322,9 @@ def run_ordered(
 
 class BlockCache(Generic[T]):
     """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), on first use,
-    by whichever thread asks first (the others wait for it); thread-safe.
-
-    Tasks that run one scenario each use it for what is cheaper batched (goal and neighbour prediction
-    of a block of scenarios). The blocks are fixed positions of the whole input, not of the work left
-    or of the order tasks run in, so a value never depends on the concurrency, on timing or on what
-    an interrupted run already stored. ``compute(positions)`` gets a slice of positions.
-    """
+    by whichever thread asks first (the others wait); thread-safe. ``compute(positions)`` gets a slice.
+    Blocks are fixed positions of the whole input, so a value never depends on the concurrency, timing
+    or what an interrupted run already stored."""
 
     def __init__(self, size: int, n: int, compute: Callable[[slice], T]) -> None:
         if size < 1:
