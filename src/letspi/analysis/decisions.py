@@ -1,18 +1,11 @@
-"""What deciding planners decided, and what it bought, from evaluation directories (``letspi analyze decisions``).
+"""What deciding planners decided, and what it bought (``letspi analyze decisions``).
 
-Reads one or more results directories of ``letspi evaluate`` (e.g. one per traffic layout), pairs every
-planner with a reference planner (default ``sf``) on the windows both hold (scenario digest, per
-directory), pools the pairs over the directories and reports per planner:
-
-* the rates and means of the evaluation (contact, at-fault contact, success; the plans' progress along
-  the road, read from the stored plans: the x of their last frame) with the paired differences to the
-  reference: exact McNemar counts for rates (``letspi.metrics.stats.paired_rate``, windows grouped by
-  ego vehicle for the interval), and the relative progress difference;
-* for planners with the decision step's columns (``info_decision``; ``letspi.planners.decision``):
-  the share of each decision, how often the defaults were kept where the reference's plan (the
-  defaults) was collision-free in the recorded future and changed where it collided, the share of
-  windows the model was consulted on, and the median live planning time over all windows and over
-  the consulted ones (rows served by the response cache are left out, as the evaluation does).
+Pairs every planner of one or more ``letspi evaluate`` directories with a reference planner (default
+``sf``) on the windows both hold, pools the pairs and reports per planner the rates and progress (the x
+of the plan's last frame) with paired differences (``letspi.metrics.stats.paired_rate``, grouped by ego
+vehicle) and, with the decision step's columns, the share of each decision, the defaults kept where the
+reference's plan was safe and changed where it collided, the share consulted and the median live
+planning time (cached rows left out).
 """
 
 from __future__ import annotations
