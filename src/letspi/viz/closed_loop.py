@@ -1,18 +1,9 @@
 """The closed-loop panel: the same scenario open loop and closed loop, one above the other.
 
-Each row shows the road, every neighbour's path over the 5 s horizon (the recorded future in open
-loop; the replayed or SUMO-driven one in closed loop), the ego's path, and every plan the ego made
-(open loop: the single plan; closed loop: one per replan, each starting where the ego was when it
-was made, so the receding horizon is visible). A collision is marked where it happens, with both
-boxes. Drawn from arrays only (nothing is re-planned); the y axis is stretched (not to scale).
-
-Artists carry gids: ``ego_path:<row>``, ``plan:<row>:<r>``, ``replan:<row>``, ``nbr_path:<row>:<j>``,
-``collision:<row>``, ``road_edge:<k>`` / ``lane_line:<k>``.
-
-Example, from a ``letspi.simulation.ClosedLoopChunk`` row ``i`` and an open-loop plan::
-
-    closed = LoopOutcome("closed-loop-log", chunk.ego_xy_m[i], chunk.nbr_xy_m[i], chunk.nbr_valid[i],
-                         chunk.plan_xy_m[i], chunk.replan_step, collision_step=..., collision_nbr=...)
+Each row: the road, the neighbours' paths over 5 s, the ego's path and every plan it made (closed loop:
+one per replan, from where the ego was), a collision marked with both boxes. Drawn from arrays only; the
+y axis is stretched. Artist gids: ``ego_path:<row>``, ``plan:<row>:<r>``, ``replan:<row>``,
+``nbr_path:<row>:<j>``, ``collision:<row>``, ``road_edge:<k>`` / ``lane_line:<k>``.
 """
 
 from __future__ import annotations

@@ -1,9 +1,4 @@
-"""What the pictures draw, computed from a scenario and its plans (no Matplotlib here).
-
-* ``PlanTrack``: one planner's plan for one scenario (rows of a ``PlanBatch``).
-* ``neighbour_groups``: each neighbour slot's lane relation to the ego at t = 0 (colour group).
-* ``preceding_gap``: bumper-to-bumper gap to the vehicle ahead in the ego's lane, per frame.
-"""
+"""What the pictures draw, computed from a scenario and its plans (no Matplotlib here)."""
 
 from __future__ import annotations
 
@@ -55,11 +50,8 @@ def plan_track(name: str, plan: PlanBatch, row: int = 0) -> PlanTrack:
 
 
 def plan_tracks(plans: Mapping[str, PlanBatch] | None, index: int, batch_size: int) -> list[PlanTrack]:
-    """Plans for scenario ``index`` of a batch of ``batch_size``.
-
-    Each ``PlanBatch`` holds either that scenario alone (B = 1) or the whole batch (B =
-    ``batch_size``, row ``index`` is used); anything else is a ``ValueError``.
-    """
+    """Plans for scenario ``index`` of a batch of ``batch_size``: each ``PlanBatch`` holds that scenario
+    alone (B = 1) or the whole batch (row ``index`` is used); anything else is a ``ValueError``."""
     out: list[PlanTrack] = []
     for name, plan in (plans or {}).items():
         b = plan.xy_m.shape[0]

@@ -1,11 +1,5 @@
-"""Text panels of the reflection loop: the safety analysis report and the LLM's response per iteration.
-
-The reflection module produces one ``IterationRecord`` per iteration (the plan it checked, the
-report it wrote, what the LLM answered). ``draw_iteration`` renders one record as two framed text
-panels side by side, as in the paper's Figs 4-5: left the safety analysis report (with the checked
-plan's metrics), right the LLM response (rationale, goal adjustment factors, parameters).
-Text is wrapped to the panel width and shown verbatim (no mathtext: ``$`` is literal).
-"""
+"""Text panels of the reflection loop (the paper's Figs 4-5): per ``IterationRecord`` the safety analysis
+report (left) and the LLM's response (right), wrapped and verbatim (no mathtext: ``$`` is literal)."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
-"""Panel rows (``letspi.viz.closed_loop.LoopOutcome``) from stored results.
-
-* ``stored_outcome``: one stored row (open-loop or closed-loop results directory) as a panel row:
-  the ego path that was scored, every plan, the neighbours the metrics saw (recorded future in open
-  loop; replayed or SUMO-driven in closed loop).
-* ``first_plan_outcome``: for a closed-loop row without open-loop results, the plan made at t = 0
-  against the recorded neighbours, scored on the spot (it is the open-loop plan: the engine's
-  first plan equals it, bit for bit).
-"""
+"""Panel rows (``letspi.viz.closed_loop.LoopOutcome``) from stored results: ``stored_outcome`` (what was
+scored, with the neighbours the metrics saw) and ``first_plan_outcome`` (a closed-loop row's plan made at
+t = 0 against the recorded neighbours: the open-loop plan, scored on the spot)."""
 
 from __future__ import annotations
 

@@ -1,22 +1,9 @@
 """Shared look of every letspi picture: fonts, the Okabe–Ito colour-blind-safe palette, role colours.
 
-Each drawn role has one colour (and line style) everywhere, so a reader who learnt the trajectory
-diagram can read the time-space diagram and the report without a second legend:
-
-=================  =========================  =====================================
-role               colour                     line
-=================  =========================  =====================================
-ego past           black                      solid
-ego ground truth   black                      dashed
-plan (planner k)   ``PLAN_COLOURS[k]``        solid, dots every second
-same-lane nbr      orange                     past solid, future dashed
-adjacent-lane nbr  sky blue                   past solid, future dashed
-other nbr          grey                       past solid, future dashed
-goal (predicted)   vermillion star
-adjusted goal      diamond in the plan colour (arrow from the goal)
-=================  =========================  =====================================
-
-Artists carry a ``gid`` (see ``gid_*`` helpers) so tests and callers can find them in a figure.
+One colour per role everywhere, so one legend serves every picture: ego black (past solid, ground truth
+dashed); planner k ``PLAN_COLOURS[k]`` (solid, a dot every second); neighbours orange (same lane), sky
+blue (adjacent) or grey (past solid, future dashed); predicted goal a vermillion star, adjusted goal a
+diamond in the plan colour. Artists carry a ``gid`` (``gid_*``) so tests and callers can find them.
 """
 
 from __future__ import annotations

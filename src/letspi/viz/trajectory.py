@@ -1,10 +1,8 @@
 """The trajectory diagram: road, ego past / plans / ground truth, neighbours, goal and adjusted goals.
 
-Drawn in the ego frame (x forward, y left, origin = ego centre at t = 0) with equal aspect, so
-distances and lane widths are true to scale. Every artist has a ``gid`` (``letspi.viz.style``):
-``ego_past``, ``ego_truth``, ``plan:<name>``, ``nbr_past:<id>``, ``nbr_future:<id>``,
-``nbr_box:<id>``, ``ego_box``, ``lane_line:<k>`` / ``road_edge:<k>``, ``goal``,
-``adjusted_goal:<name>``.
+Ego frame with equal aspect (true to scale). gids: ``ego_past``, ``ego_truth``, ``plan:<name>``,
+``nbr_past:<id>``, ``nbr_future:<id>``, ``nbr_box:<id>``, ``ego_box``, ``lane_line:<k>`` /
+``road_edge:<k>``, ``goal``, ``adjusted_goal:<name>``.
 """
 
 from __future__ import annotations
