@@ -1,16 +1,9 @@
 """A suite's scenarios: generated once, cached by the content of their definition, and reused.
 
-Cache layout (``$LETSPI_BENCHMARK_CACHE``, default ``~/.cache/letspi/benchmark``)::
-
-    traffic/<traffic key>/seed_<S>/NN_*.csv, NN_events.csv, NN_generation.json, done.json
-    scenarios/<key>/scenarios.arrow
-
-``<traffic key>`` is a digest of the suite's traffic definition (preset resolved to its full
-configuration, seeds, minutes, ...) and :data:`DATA_FORMAT`; ``<key>`` adds the extraction (and, for
-real HighD, the recording ids and the digests of the files seen). Any change makes new data; a change
-of the extraction alone reuses the traffic. Each seed is
-generated in its own process (two seeds run side by side on two cores); a seed directory counts once
-its ``done.json`` is written, so an interrupted generation resumes with the seeds still missing.
+Cache (``$LETSPI_BENCHMARK_CACHE``, default ``~/.cache/letspi/benchmark``): ``traffic/<traffic key>/seed_<S>/``
+(recordings, events, ``done.json``) and ``scenarios/<key>/scenarios.arrow``. The traffic key digests the
+traffic definition and ``DATA_FORMAT``; ``<key>`` adds the extraction (real HighD: ids and file digests),
+so an extraction change reuses the traffic. A seed counts once its ``done.json`` is written (resume).
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
 """The leaderboard of a suite run: every planner per mode with 95 % intervals and paired deltas against
-the reference planner, as JSON (byte-identical for identical results), Markdown and HTML.
+the reference planner, as JSON, Markdown and HTML, from the stored rows on the windows all planners have.
 
-Computed from the per-scenario rows the harness stored, on the windows every listed planner has:
-
-* rates (``*_pct``, from a per-window flag): value in %, Wilson interval at the effective sample size of
-  windows grouped by ego vehicle (``vehicle_wilson_interval``, as ``metrics.json``);
-* means (``ade_m``, ``fde_m``): mean of the finite values, vehicle-bootstrap interval (windows of one
-  ego vehicle resampled together, ``letspi.metrics.stats``);
-* paired, each planner against the reference on the same windows: rates get the windows only the
-  planner fails (``n_only_planner``), only the reference fails, both fail, the exact McNemar p and the
-  vehicle-bootstrap interval of the difference (planner - reference, points) and the design effect of
-  the discordant windows (``discordant_design_effect``: variance inflation from windows of one vehicle);
-  means the difference and its interval.
-
-Nothing that varies between identical runs (wall times, dates, paths) enters ``leaderboard.json``;
-timings go to ``timing.json``. Floats are rounded to 6 significant digits.
+Rates (``*_pct``): Wilson interval grouped by ego vehicle; means (``ade_m``, ``fde_m``): vehicle
+bootstrap. Paired, planner − reference: for rates the windows only the planner / only the reference /
+both fail, the exact McNemar p, the interval of the difference [points] and ``discordant_design_effect``;
+for means the difference and its interval. ``leaderboard.json`` holds nothing that varies between
+identical runs (timings go to ``timing.json``; floats rounded to 6 significant digits).
 """
 
 from __future__ import annotations

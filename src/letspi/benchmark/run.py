@@ -1,13 +1,7 @@
 """Run a suite: its data (cached), every planner in each of its modes (resumable), the leaderboard.
 
-Layout of a suite's results directory::
-
-    OUT/leaderboard.json, leaderboard.md, leaderboard.html
-    OUT/timing.json                     wall time of each stage (data, each mode, each planner of a
-                                        closed-loop mode), load average
-    OUT/<mode slug>/                    a ``letspi evaluate`` results directory (+ report.html)
-
-Rerunning resumes every mode where it stopped and reuses the cached data; more planners join.
+``OUT/leaderboard.{json,md,html}``, ``OUT/timing.json`` (wall time per stage, load average) and
+``OUT/<mode slug>/`` (a ``letspi evaluate`` directory). A rerun resumes each mode; more planners join.
 """
 
 from __future__ import annotations

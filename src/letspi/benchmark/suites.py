@@ -1,20 +1,9 @@
-"""The benchmark suites: one table, one entry per suite; everything that makes a result is in the entry.
+"""The benchmark suites: one table (``SUITES``), one entry per suite pinning everything that makes a result.
 
-A :class:`Suite` pins
-
-* the traffic: generator preset (resolved to its full :class:`~letspi.trafficgen.config.TrafficConfig`
-  plus overrides), layout, seeds, minutes, lanes, flow; or, for real HighD, the recording ids and
-  the content digests of their files;
-* the extraction: focus, critical share, number of windows, sampling seed, stride;
-* the evaluation modes and their replanning periods (and, for LLM planners, the dual-rate period and
-  a fixed answer latency, so closed-loop results do not depend on the machine);
-* the metrics configuration.
-
-Its id is ``NAME@vVERSION-DIGEST8``: the digest is the first 8 hex digits of the BLAKE2b hash of the
-canonical JSON of :meth:`Suite.definition`, so any change to a suite's content (including a changed
-preset default or metrics threshold) changes its id; ``tests/test_benchmark.py`` pins every digest.
-Generator seeds of suites are in ``letspi.scenario.provenance.SUITE_SEEDS`` (1000-1999), which
-``letspi fit`` and ``letspi train llm-data`` refuse.
+A ``Suite`` pins the traffic (preset resolved to its full configuration, or real HighD ids and file
+digests), the extraction, the modes and the metrics configuration (docs/benchmark.md). Its id is
+``NAME@vVERSION-DIGEST8``: BLAKE2b of the canonical JSON of ``Suite.definition``, so any content change
+changes it (``tests/test_benchmark.py`` pins every id). Suite seeds lie in ``SUITE_SEEDS``.
 """
 
 from __future__ import annotations
@@ -79,10 +68,9 @@ class GeneratedTraffic:
 class RealHighD:
     """Real HighD recordings from the user's licensed copy, chosen by id.
 
-    file_digests: recording id -> SHA-256 (first 16 hex digits) of its three CSV files as the suite
-    expects them (``letspi benchmark run`` prints the digests it sees; a run on other files is refused,
-    or only warned about with ``--allow-other-files``). Empty: not pinned yet, the leaderboard records
-    the digests seen so results can still be matched between users.
+    file_digests: recording id -> SHA-256 (first 16 hex digits) of its three CSV files; other files are
+    refused (``--allow-other-files``: warned about). Empty: not pinned yet (the leaderboard records the
+    digests seen).
     """
 
     recording_ids: tuple[int, ...]
@@ -147,14 +135,14 @@ class Mode:
 
 
 OPEN_LOOP: Final = Mode("open-loop")
-#: issue 28's closed loop: physics replans every 0.2 s, the LLM is asked every 2.5 s; 2,000 of the windows
+#: the suites' closed loop: physics replans every 0.2 s, the LLM is asked every 2.5 s; 2,000 of the windows
 CLOSED_LOOP_DUAL_RATE: Final = Mode("closed-loop-log", replan_s=0.2, llm_period_s=2.5, llm_latency_s=1.5,
                                     n_windows=2000)
 
 
 @dataclass(frozen=True)
 class Suite:
-    """One benchmark suite (module docstring). ``scripted``: what the reader must know about the events
+    """One benchmark suite. ``scripted``: what the reader must know about the events
     in the traffic (scripted or not, and how many), shown by ``list``/``show`` and in the leaderboard."""
 
     name: str

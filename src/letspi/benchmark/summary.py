@@ -1,13 +1,8 @@
 """One table over several suites' leaderboards (``letspi benchmark summary``): the README's headline.
 
-Each cell is one planner on one suite and mode, read from that run's ``leaderboard.json`` (nothing is
-recomputed): CR at fault % with its 95 % interval, the paired McNemar p against the suite's reference
-where the planner is not the reference, and SR %. Planners a run did not evaluate show "–".
-
-A planner is *dominated* on a suite and mode when another planner (not the reference-free ``human``,
-whose plan is the recorded future) has both a lower CR at fault and a higher SR there, each by more than
-the other's interval allows, i.e. the two intervals do not overlap on either metric. ``dominated_by``
-lists those pairs: issue 27 asks that no baseline dominate ``frenet`` on any suite.
+Per planner and suite mode, read from ``leaderboard.json`` (nothing recomputed): CR at fault % with its
+interval, the McNemar p against the reference, SR % ("–" where not evaluated). A planner is dominated
+when another (not ``human``) has CR-at-fault and SR intervals wholly better on both (``dominated_by``).
 """
 
 from __future__ import annotations
