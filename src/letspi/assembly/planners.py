@@ -1,11 +1,8 @@
 """Planners by kind: options -> configuration -> planner, through the table (the entry point of assembly).
 
-``build_planners(["sf", "fast=letspi-fast"], options)`` resolves each ``KIND`` or ``LABEL=KIND`` with
-one ``Resolver`` (files read and fingerprinted once) and builds it with one ``Builder`` (models
-loaded once); ``resolve_planner`` and ``build_planner`` are the two halves. A ``BuiltPlanner`` is a
-planner with its configuration (whose key identifies its results) and what its kind's table entry
-says it can do (``reads_future``, ``dual_rate``): capabilities come from the table, never from the
-planner object.
+``build_planners(["sf", "fast=letspi-fast"], options)`` resolves each with one ``Resolver`` and builds it
+with one ``Builder``; ``resolve_planner`` and ``build_planner`` are the two halves. A ``BuiltPlanner``
+carries its configuration (its key) and its kind's capabilities from the table, never from the planner.
 """
 
 from __future__ import annotations

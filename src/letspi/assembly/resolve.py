@@ -1,13 +1,9 @@
 """Requests -> configurations: read every file and environment variable once, fingerprint them.
 
-``PlannerOptions`` (``letspi.planners.options``) is what a user asks for (CLI flags: a model spec,
-a goal source, a parameter file, ...). ``Resolver`` turns it into the frozen building blocks of
-planner configurations (``letspi.planners.config``; each kind's configuration is assembled from
-them by its entry in ``letspi.assembly.planner_table``), whose content keys identify results: the
-parameter *values* instead of a file name, the SHA-256 of the weights a goal source or an embedded
-model uses, the text of the prompts, a snapshot of the memory bank. Environment variables that
-change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``, ``$LETSPI_MLP_WEIGHTS``) are read
-here and nowhere else, so they always show up in a configuration.
+``Resolver`` turns ``PlannerOptions`` into the frozen building blocks of planner configurations, whose
+content identifies results: parameter values rather than a file name, the SHA-256 of weights, the prompt
+text, a memory-bank snapshot. Environment variables that change answers (``$LETSPI_GOAL_WEIGHTS``,
+``$LETSPI_GNP_WEIGHTS``, ``$LETSPI_MLP_WEIGHTS``) are read here only, so they always show in a configuration.
 """
 
 from __future__ import annotations
@@ -125,7 +121,7 @@ def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str
 
 
 class Resolver:
-    """Turns ``PlannerOptions`` into the building blocks of configurations (see the module docstring).
+    """Turns ``PlannerOptions`` into the building blocks of configurations.
 
     ``env`` defaults to ``os.environ``; tests pass a dict. Fingerprints are computed once per resolver.
     """
