@@ -12,12 +12,13 @@ import pytest
 from letspi.assembly.build import Builder, ConfigurationChangedError
 from letspi.assembly.planners import build_planner, build_planners, parse_planner_arg, resolve_planner
 from letspi.assembly.resolve import Resolver
+from letspi.keyed import diff
 from letspi.learned.weights import shipped_weights_dir
 from letspi.llm.cache import ResponseCache
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
 from letspi.physics.params import SocialForceParams
-from letspi.planners.config import GOAL_WEIGHTS_ENV, diff
+from letspi.planners.config import GOAL_WEIGHTS_ENV
 from letspi.planners.gnp import GNP_WEIGHTS_ENV
 from letspi.planners.options import PlannerOptions
 from letspi.planners.sf import SfConfig

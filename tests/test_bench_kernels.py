@@ -1,5 +1,5 @@
-"""``letspi bench physics``'s kernel timings: new and replaced kernels run on the same scenes, agree bit for
-bit, and the comparison notices a one-ulp difference."""
+"""The kernel timings of ``python -m benchmarks.speed physics``: new and replaced kernels run on the same
+scenes, agree bit for bit, and the comparison notices a one-ulp difference."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ import json
 import numpy as np
 from typer.testing import CliRunner
 
-from letspi.bench.kernels import KERNELS, identical
-from letspi.bench.physics import synthetic_batch
-from letspi.cli.app import app
+from benchmarks.kernels import KERNELS, identical
+from benchmarks.physics import synthetic_batch
+from benchmarks.speed import app as speed_app
 from letspi.physics.neighbours import predict_idm
 from letspi.physics.types import NeighbourPrediction
 
 
 def test_bench_physics_times_each_kernel_beside_the_one_it_replaced() -> None:
-    result = CliRunner().invoke(app, ["bench", "physics", "--n", "0", "--frenet-n", "0", "--kernel-n", "6", "--json"])
+    result = CliRunner().invoke(speed_app, ["physics", "--n", "0", "--frenet-n", "0", "--kernel-n", "6", "--json"])
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)
     assert not any(k.startswith(("rollout_", "metrics_", "frenet_")) for k in out)  # --n 0, --frenet-n 0 skip them

@@ -1,4 +1,4 @@
-"""Degenerate scenes through every planner and metric: no crash, no NaN (``letspi bench robustness``)."""
+"""Degenerate scenes through every planner and metric: no crash, no NaN (``python -m benchmarks.speed robustness``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import letspi.bench.robustness as robustness
-from letspi.cli.app import app
+import benchmarks.robustness as robustness
+from benchmarks.speed import app as speed_app
 from letspi.constants import MAX_NEIGHBOURS, T0_INDEX
 from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 
@@ -34,7 +34,7 @@ def test_degenerate_scenes_are_what_they_claim() -> None:
 
 
 def test_bench_robustness_has_no_crash_and_no_nan() -> None:
-    result = CliRunner().invoke(app, ["bench", "robustness", "--n", "30", "--n-llm", "6", "--json"])
+    result = CliRunner().invoke(speed_app, ["robustness", "--n", "30", "--n-llm", "6", "--json"])
     assert result.exit_code == 0, result.output
     out = json.loads(result.stdout)
     assert out["scenarios_by_kind"] == dict.fromkeys(DEGENERATE_KINDS, 5)
@@ -57,6 +57,6 @@ def test_a_nan_metric_is_counted_and_fails_the_bench(monkeypatch: pytest.MonkeyP
 
     monkeypatch.setattr(robustness, "compute_metrics", leaky)
     monkeypatch.setattr(robustness, "PLAIN_PLANNERS", ("cv",))
-    result = CliRunner().invoke(app, ["bench", "robustness", "--n", "6", "--n-llm", "0"])
+    result = CliRunner().invoke(speed_app, ["robustness", "--n", "6", "--n-llm", "0"])
     assert result.exit_code == 1
     assert "cv NaN by metric: {'min_ttc_s': 6}" in result.output

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 import letspi.evaluation.harness as harness
 import letspi.scenario.store as store
-from letspi.bench.llm_server import Fault, LlmTestServer
+from benchmarks.llm_server import Fault, LlmTestServer
 from letspi.cli.app import app
 from letspi.highd.io import write_recording
 from letspi.planners.sf import SocialForcePlanner

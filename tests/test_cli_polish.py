@@ -9,8 +9,8 @@ from typing import Any
 import typer
 from typer.testing import CliRunner
 
+from benchmarks.speed import format_number
 from letspi.cli.app import app
-from letspi.cli.bench import format_number
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 
@@ -33,7 +33,7 @@ def test_version() -> None:
 
 def test_help_texts_show_no_bool_type_and_keep_brackets() -> None:
     commands = _commands(typer.main.get_command(app))
-    assert ("bench", "robustness") in commands and ("train", "goals") in commands
+    assert ("benchmark", "run") in commands and ("train", "goals") in commands
     for path in [(), *commands]:
         result = runner.invoke(app, [*path, "--help"])
         assert result.exit_code == 0, (path, result.output)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from letspi.bench.physics import synthetic_batch
+from benchmarks.physics import synthetic_batch
 from letspi.constants import N_FUTURE, T0_INDEX
 from letspi.metrics.compute import compute_metrics
 from letspi.planners.cv import ConstantVelocityPlanner

@@ -1,4 +1,4 @@
-"""N scenarios in flight against a real local HTTP server (``letspi.bench.llm_server``): one writer in
+"""N scenarios in flight against a real local HTTP server (``benchmarks.llm_server``): one writer in
 scenario order, Retry-After per request, a circuit breaker for a dead server, exact resume."""
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import pytest
 from concurrency_support import bank_rows, collect_into, options, scenarios, stored_results
 from typer.testing import CliRunner
 
+from benchmarks.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planners
 from letspi.assembly.resolve import Resolver
-from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.cli.app import app
 from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.execution.ordered import RunnerConfig, ScenariosFailedError, run_ordered

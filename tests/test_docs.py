@@ -19,6 +19,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
+from benchmarks.speed import app as speed_app
 from letspi.cli.app import app
 from letspi.metrics import reference_markdown
 
@@ -29,7 +30,6 @@ OPERATORS = {"&&", "||", "|", ";", "&", "(", ")"}
 REDIRECTS = {">", ">>", "<", "2>", "2>&1", ">&"}
 ENV_ASSIGNMENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=")
 FENCE = re.compile(r"^(\s*)(`{3,}|~{3,})\s*([\w+-]*)")
-INLINE = re.compile(r"(?<!`)`(letspi [^`]+)`(?!`)")
 METRICS_REFERENCE = ROOT / "docs" / "metrics-reference.md"
 GENERATED_MARK = "<!-- generated below: letspi.metrics.reference_markdown() -->"
 
@@ -68,18 +68,22 @@ def _tokens(line: str) -> list[str]:
     return list(lexer)
 
 
-def letspi_invocations(line: str) -> list[list[str]]:
-    """The argument lists of every ``letspi`` command in one shell line (after ``VAR=x`` prefixes,
-    ``&&``, ``||``, ``|`` or ``;``); redirections and their targets are dropped."""
+LETSPI: tuple[str, ...] = ("letspi",)
+SPEED: tuple[str, ...] = ("python", "-m", "benchmarks.speed")
+
+
+def letspi_invocations(line: str, program: tuple[str, ...] = LETSPI) -> list[list[str]]:
+    """The argument lists of every ``program`` command (``letspi``, or ``SPEED``) in one shell line (after
+    ``VAR=x`` prefixes, ``&&``, ``||``, ``|`` or ``;``); redirections and their targets are dropped."""
     found: list[list[str]] = []
     segment: list[str] = []
     for tok in [*_tokens(line), ";"]:
         if tok in OPERATORS:
             while segment and ENV_ASSIGNMENT.match(segment[0]):
                 segment.pop(0)
-            if segment and segment[0] == "letspi":
+            if tuple(segment[:len(program)]) == program:
                 args, skip = [], False
-                for arg in segment[1:]:
+                for arg in segment[len(program):]:
                     if skip:
                         skip = False
                     elif arg in REDIRECTS:
@@ -93,8 +97,9 @@ def letspi_invocations(line: str) -> list[list[str]]:
     return found
 
 
-def extract_commands(text: str, source: str) -> list[DocCommand]:
-    """Every ``letspi`` invocation of a Markdown text (see the module docstring for where)."""
+def extract_commands(text: str, source: str, program: tuple[str, ...] = LETSPI) -> list[DocCommand]:
+    """Every ``program`` invocation of a Markdown text (see the module docstring for where)."""
+    inline = re.compile(rf"(?<!`)`({re.escape(' '.join(program))} [^`]+)`(?!`)")
     commands: list[DocCommand] = []
     lang, fence, block = None, "", []  # inside a fence: its language and the fence string
     for lineno, line in enumerate(text.splitlines(), start=1):
@@ -110,14 +115,14 @@ def extract_commands(text: str, source: str) -> list[DocCommand]:
             else:
                 logical = []
             for n, ln in logical:
-                commands += [DocCommand(f"{source}:{n}", tuple(a)) for a in letspi_invocations(ln)]
+                commands += [DocCommand(f"{source}:{n}", tuple(a)) for a in letspi_invocations(ln, program)]
             lang = None
             continue
         if lang is not None:
             block.append((lineno, line))
         else:
-            for span in INLINE.findall(line):
-                commands += [DocCommand(f"{source}:{lineno}", tuple(a)) for a in letspi_invocations(span)]
+            for span in inline.findall(line):
+                commands += [DocCommand(f"{source}:{lineno}", tuple(a)) for a in letspi_invocations(span, program)]
     return commands
 
 
@@ -202,6 +207,17 @@ def test_every_documented_command_and_option_exists(root, documented):
     assert not errors, "\n".join(errors)
 
 
+def test_every_self_benchmark_command_in_the_docs_and_notes_exists() -> None:
+    """``python -m benchmarks.speed ...`` lines (repository only) name its commands and options."""
+    speed = typer.main.get_command(speed_app)
+    commands = []
+    for doc in [*DOC_FILES, *sorted((ROOT / "notes").glob("*.md"))]:
+        commands += extract_commands(doc.read_text(encoding="utf-8"), str(doc.relative_to(ROOT)), SPEED)
+    assert len(commands) >= 10
+    errors = [e for cmd in commands for e in check_command(speed, cmd).errors]
+    assert not errors, "\n".join(errors)
+
+
 def test_every_documented_command_path_answers_help_with_its_options(root, documented):
     """``letspi PATH --help`` of each documented command path renders (in-process) and shows every
     option the docs use there."""
@@ -273,7 +289,7 @@ letspi evaluate --scenarios s.arrow --planner sf \\
     --frobnicate 3 --out ev
 LETSPI_GOAL_WEIGHTS=w letspi evaluate ... --mode closed-loop-log && letspi data nosuch --x 1
 pip install -e . && letspi demo --no-shield | tee log.txt
-letspi --debug bench robustness --json > out.json
+letspi --debug planners --json > out.json
 ```
 
 ```
@@ -296,7 +312,7 @@ def test_checker_finds_commands_in_every_form():
         ("fake.md:8", ("evaluate", "...", "--mode", "closed-loop-log")),
         ("fake.md:8", ("data", "nosuch", "--x", "1")),
         ("fake.md:9", ("demo", "--no-shield")),
-        ("fake.md:10", ("--debug", "bench", "robustness", "--json")),
+        ("fake.md:10", ("--debug", "planners", "--json")),
         ("fake.md:18", ("report", "ev", "--bogus")),
     ]
 

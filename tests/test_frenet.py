@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from letspi.bench.physics import synthetic_batch
+from benchmarks.physics import synthetic_batch
 from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.frenet import (

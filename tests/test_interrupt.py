@@ -6,7 +6,7 @@ and exits 130; a second SIGINT ends it at once; no worker or child process outli
 completes the work without duplicates. The runs are real: the ``letspi`` CLI (or, for the mechanism
 itself, a small program using the module) in a child process, signalled as a terminal or ``kill``
 would signal it. The exit is given a generous bound here (a run that waited for a request in flight
-of 120 s would fail it); the seconds per mode are measured by ``letspi bench interrupt``.
+of 120 s would fail it); the seconds per mode are measured by ``python -m benchmarks.speed interrupt``.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import pandas as pd
 import pytest
 from concurrency_support import scenarios
 
-from letspi.bench.interrupt import Stopped, letspi_command, run_and_stop
-from letspi.bench.llm_concurrency import _child_env, real_server_available, start_llama_server
-from letspi.bench.llm_server import ChatRequest, Fault, LlmTestServer
+from benchmarks.interrupt import Stopped, letspi_command, run_and_stop
+from benchmarks.llm_concurrency import _child_env, real_server_available, start_llama_server
+from benchmarks.llm_server import ChatRequest, Fault, LlmTestServer
 from letspi.evaluation.harness import load_planner_results
 from letspi.execution.interrupt import Tally, WorkerPool, stop_line
 from letspi.method.memory import MemoryBank
@@ -326,9 +326,9 @@ def _bank_rows(path: Path) -> int:
 
 @pytest.mark.slow
 def test_the_interrupt_benchmark_reports_each_mode(tmp_path: Path) -> None:
-    """``letspi bench interrupt`` on two modes: exit 130, one stop line whose count is what is on
+    """``python -m benchmarks.speed interrupt`` on two modes: exit 130, one stop line whose count is what is on
     disk, nothing left running, and a rerun that completes without duplicates."""
-    from letspi.bench.interrupt import bench_interrupt
+    from benchmarks.interrupt import bench_interrupt
 
     # open loop (sf-opt) must still be running at the signal (1,500 scenarios took 7.7 s with start-up, idle machine)
     result = bench_interrupt(scenarios(6000, seed=13), n=6000, n_llm=24, modes=["open-loop", "collect"],

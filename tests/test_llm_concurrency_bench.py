@@ -1,4 +1,4 @@
-"""``letspi bench llm --concurrency``: the numbers it prints come from real requests and add up."""
+"""``python -m benchmarks.speed llm --concurrency``: the numbers it prints come from real requests and add up."""
 
 from __future__ import annotations
 
@@ -6,12 +6,12 @@ import json
 
 from typer.testing import CliRunner
 
-from letspi.bench.llm_concurrency import prefix_reuse
-from letspi.cli.app import app
+from benchmarks.llm_concurrency import prefix_reuse
+from benchmarks.speed import app as speed_app
 
 
 def test_bench_concurrency_json_reports_scenarios_per_s_per_level() -> None:
-    result = CliRunner().invoke(app, ["bench", "llm", "--concurrency", "1,4", "--server-latency-ms", "50",
+    result = CliRunner().invoke(speed_app, ["llm", "--concurrency", "1,4", "--server-latency-ms", "50",
                                       "--no-pipeline", "--no-real-server", "--json"])
     assert result.exit_code == 0, result.output
     out = json.loads(result.output)

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.llm_concurrency import prefix_reuse, real_server_available, start_llama_server
 from letspi.assembly.planners import build_planners
-from letspi.bench.llm import bench_scenarios
-from letspi.bench.llm_concurrency import prefix_reuse, real_server_available, start_llama_server
 from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.latency import bench_scenarios
 from letspi.llm.prompts import render_fast_prompt
 from letspi.llm.schema import reply_json_schema
 from letspi.planners.options import PlannerOptions

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from letspi.bench.retrieval import bench_retrieval
+from benchmarks.retrieval import bench_retrieval
 from letspi.method.matching import top_k
 from letspi.method.memory import SCHEMA_VERSION, Experience, MemoryBank, MemoryBankError
 from letspi.method.reflection import Proposal, ReflectionContext, reflect

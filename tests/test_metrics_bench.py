@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from letspi.bench.metrics import _reference_core, bench_metrics, synthetic_batch
+from benchmarks.metrics import _reference_core, bench_metrics, synthetic_batch
 from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.ttc import rear_ttc_1d, ttc_1d

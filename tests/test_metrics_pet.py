@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_metrics_helpers import constant_speed_plan, inputs, make
 
-from letspi.bench.metrics import _reference_pet, synthetic_batch
+from benchmarks.metrics import _reference_pet, synthetic_batch
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.distance import distances
 from letspi.metrics.inputs import MetricInputs

@@ -35,7 +35,7 @@ OUTSIDE = re.compile(r"(?<![\w.~-])/(?:work|tmp|root|home)/[\w.-]*")
 
 def _repository_files() -> list[str]:
     out = [p.name for p in ROOT.glob("*.py")]
-    for folder in ("src", "tests", "scripts", "notes", "docs", ".ci", "examples"):
+    for folder in ("src", "tests", "scripts", "benchmarks", "notes", "docs", ".ci", "examples"):
         out += [str(p.relative_to(ROOT)) for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts]
     return out
 

@@ -1,7 +1,7 @@
 """Optimised paths give bit-identical results to the algorithms they replaced (issue 27, speed).
 
-Each test runs the replaced algorithm (kept as it was in ``letspi.bench.replaced``, which
-``letspi bench physics`` also times) next to the optimised one on crowded random scenes and asserts
+Each test runs the replaced algorithm (kept as it was in ``benchmarks.replaced``, which
+``python -m benchmarks.speed physics`` also times) next to the optimised one on crowded random scenes and asserts
 exact equality (``np.array_equal``, NaN = NaN): benchmark results are byte-identical before and after,
 so any difference, even in the last bit, is a failure.
 """
@@ -15,8 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from letspi.assembly.planners import build_planners
-from letspi.bench.replaced import (
+from benchmarks.replaced import (
     check_inputs_mirrored,
     idm_acceleration_per_call,
     predict_idm_concatenating,
@@ -25,6 +24,7 @@ from letspi.bench.replaced import (
     sf_opt_all_candidates,
     sf_opt_on_repeated_batch,
 )
+from letspi.assembly.planners import build_planners
 from letspi.evaluation.harness import evaluate, load_planner_results
 from letspi.learned.trees import Tree, TreeEnsemble
 from letspi.method.decide import load_risk_model

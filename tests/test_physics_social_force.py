@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from letspi.bench.physics import random_params, synthetic_batch
+from benchmarks.physics import random_params, synthetic_batch
 from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.neighbours import predict_constant_velocity
 from letspi.physics.params import (

@@ -11,12 +11,13 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
+from benchmarks.speed import app as speed_app
 from letspi.assembly.planner_table import BUILT_IN, FutureUse, PlannerKind, PlannerTable
 from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.cli.app import app
 from letspi.cli.options import planner_options
+from letspi.keyed import Config
 from letspi.llm.compact import PROMPT_STYLES
-from letspi.planners.config import Config
 from letspi.planners.cv import ConstantVelocityPlanner
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
 from letspi.planners.options import PlannerOption, PlannerOptions, unique_options
@@ -26,11 +27,13 @@ from letspi.scenario.types import concat_batches
 
 runner = CliRunner()
 #: the commands that take planners (their planner flags come from the table)
-PLANNER_COMMANDS = (["evaluate"], ["plan"], ["plot"], ["bench", "closed-loop"], ["benchmark", "run"])
+PLANNER_COMMANDS = (["evaluate"], ["plan"], ["plot"], ["speed", "closed-loop"], ["benchmark", "run"])
 
 
 def _help(*command: str) -> str:
-    result = runner.invoke(app, [*command, "--help"], terminal_width=400)
+    """``letspi COMMAND --help``, or ``python -m benchmarks.speed COMMAND --help`` for ``("speed", COMMAND)``."""
+    cli, args = (speed_app, command[1:]) if command[0] == "speed" else (app, command)
+    result = runner.invoke(cli, [*args, "--help"], terminal_width=400)
     assert result.exit_code == 0, result.output
     return result.output
 
@@ -39,7 +42,7 @@ def _help(*command: str) -> str:
 def test_every_setting_of_every_kind_is_a_flag_of_every_command_that_takes_planners(command: list[str]) -> None:
     text = _help(*command)
     missing = [o.cli_flag for o in BUILT_IN.options() if o.cli_flag not in text]
-    exempt = {"--cache"} if command == ["bench", "closed-loop"] else set()  # the bench times LLMs uncached
+    exempt = {"--cache"} if command == ["speed", "closed-loop"] else set()  # the bench times LLMs uncached
     assert set(missing) == exempt, missing
 
 
@@ -47,7 +50,7 @@ def test_the_commands_of_one_part_offer_exactly_its_settings() -> None:
     collect = _help("collect")
     assert "--max-iterations" in collect and "--prompt-style" in collect and "--sf-params" in collect
     assert "--top-k" not in collect and "--shield" not in collect  # not settings of memory collection
-    robustness = _help("bench", "robustness")
+    robustness = _help("speed", "robustness")
     assert "--mlp-weights" in robustness and "--frenet-weights" in robustness and "--llm " not in robustness
     ablate = _help("ablate")
     assert "--memory-fraction" in ablate and "--frenet-weights" not in ablate

@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 from concurrency_support import collect_into, options, scenarios, stored_results
 
+from benchmarks.llm_server import LlmTestServer
 from letspi.assembly.planners import BuiltPlanner, build_planners
-from letspi.bench.llm_server import LlmTestServer
 from letspi.evaluation import concurrent
 from letspi.evaluation.harness import evaluate
 from letspi.execution.ordered import BlockCache

@@ -25,11 +25,11 @@ from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.assembly.resolve import Resolver
 from letspi.evaluation.closed_loop import mode_settings, planner_evaluation
 from letspi.evaluation.harness import planner_record, run_record
+from letspi.keyed import key_of
 from letspi.learned.weights import save_weights
 from letspi.method.memory import MemoryBank
 from letspi.metrics.config import MetricsConfig
 from letspi.physics.params import SocialForceParams
-from letspi.planners.config import key_of
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
 from letspi.planners.options import PlannerOptions
 from letspi.planners.sf_params import save_sf_params

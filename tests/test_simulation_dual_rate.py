@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmarks.speed import app as speed_app
 from letspi.assembly.planner_table import BUILT_IN
 from letspi.assembly.planners import BuiltPlanner
-from letspi.cli.app import app
 from letspi.constants import N_TOTAL, T0_INDEX
 from letspi.llm.backends.scripted import ScriptedBackend
 from letspi.llm.client import ParamAdvisor
@@ -160,7 +160,7 @@ def test_dual_rate_letspi_in_the_engine_asks_twice_per_5_s_scenario_and_records_
 @pytest.mark.sumo
 def test_bench_closed_loop_of_an_llm_planner_reports_real_time_calls_and_the_first_answer(tmp_path: Path) -> None:
     scenarios = save_scenarios(_scenes(3), tmp_path / "s.arrow")
-    result = CliRunner().invoke(app, ["bench", "closed-loop", "--planner", "llm", "--llm", "scripted:default",
+    result = CliRunner().invoke(speed_app, ["closed-loop", "--planner", "llm", "--llm", "scripted:default",
                                       "--scenarios", str(scenarios), "--n", "2", "--replan-s", "0.2",
                                       "--llm-latency-s", "0.4", "--json"])
     assert result.exit_code == 0, result.output
@@ -171,6 +171,6 @@ def test_bench_closed_loop_of_an_llm_planner_reports_real_time_calls_and_the_fir
     assert out["llm_answer_latency_s_mean"] == pytest.approx(0.4)
     assert 0 < out["wall_s_per_scenario_mean"] <= out["wall_s_per_scenario_max"]
     assert out["planner_cpu_ms_per_scenario_per_replan"] > 0
-    code = CliRunner().invoke(app, ["bench", "closed-loop", "--planner", "llm", "--llm", "scripted:default",
+    code = CliRunner().invoke(speed_app, ["closed-loop", "--planner", "llm", "--llm", "scripted:default",
                                     "--scenarios", str(scenarios), "--n", "1", "--llm-period-s", "-1"])
     assert code.exit_code == 2 and "--llm-period-s must be a positive number" in code.output

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_simulation_support import FailingPlanner, as_built, generated_batch
 
-from letspi.bench.closed_loop import bench_closed_loop
+from benchmarks.closed_loop import bench_closed_loop
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import (

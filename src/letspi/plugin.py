@@ -20,8 +20,8 @@ from letspi.assembly.build import Builder
 from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, PlannerKind
 from letspi.assembly.resolve import Resolver
 from letspi.constants import DT_S, N_FUTURE, N_HISTORY, T0_INDEX
+from letspi.keyed import Config
 from letspi.planners.base import PlanBatch, Planner
-from letspi.planners.config import Config
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 

@@ -15,13 +15,15 @@ import numpy as np
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.config import LlmConfig
 from letspi.llm.schema import fallback_reply_from_params
 from letspi.llm.spec import make_backend
+from letspi.method.config import MemoryPhaseConfig
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
-from letspi.planners.config import GoalsConfig, LlmConfig, MemoryPhaseConfig, SfParamsConfig
+from letspi.planners.config import GoalsConfig, SfParamsConfig
 from letspi.planners.llm import FastPlannerConfig
 
 

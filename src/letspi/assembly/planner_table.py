@@ -28,13 +28,14 @@ from pydantic import Field, TypeAdapter
 
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import Resolver
+from letspi.keyed import Config
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners import frenet, gnp, idm, mlp, sf, sf_check, sf_opt
 from letspi.planners.base import Planner
-from letspi.planners.config import GOALS, Config, GoalsConfig, PlannerConfig
+from letspi.planners.config import GOALS, GoalsConfig, PlannerConfig
 from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
 from letspi.planners.frenet import FRENET_WEIGHTS, FrenetConfig, FrenetPlanner, FrenetSettings, load_frenet_weights
 from letspi.planners.gnp import GnpConfig, GnpPlanner

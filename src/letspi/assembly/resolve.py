@@ -18,36 +18,28 @@ from letspi.learned.weights import MANIFEST_FILE, WEIGHTS_FILE, WeightsError, lo
 from letspi.llm.backends.llamacpp import LlamaRuntime
 from letspi.llm.backends.llamacpp_open import runnable_model
 from letspi.llm.compact import PROMPT_STYLES
+from letspi.llm.config import LlmConfig
 from letspi.llm.fingerprint import prompt_fingerprint
 from letspi.llm.models import adapter_prompt_style, is_fine_tuned, locate_adapter, locate_model
 from letspi.llm.spec import parse_spec
+from letspi.method.config import DecisionConfig, MemoryPhaseConfig, MemoryRef
 from letspi.method.decide import recommended_threshold
 from letspi.method.memory import MemoryBank
 from letspi.method.prompt_samples import prompt_text_samples
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.config import (
-    ADVERSE,
-    DECIDE,
-    GATE,
-    GATE_THRESHOLD,
     GOAL_SOURCES,
     GOAL_WEIGHTS,
     GOAL_WEIGHTS_ENV,
     GOALS,
     NEIGHBOURS,
-    PRESETS,
-    RISK_MODEL,
     SF_PARAMS,
-    VERIFY,
-    DecisionConfig,
     GoalsConfig,
-    LlmConfig,
-    MemoryPhaseConfig,
-    MemoryRef,
     SfParamsConfig,
     WeightsConfig,
 )
+from letspi.planners.decision import ADVERSE, DECIDE, GATE, GATE_THRESHOLD, PRESETS, RISK_MODEL, VERIFY
 from letspi.planners.gnp import GNP_WEIGHTS, GNP_WEIGHTS_ENV
 from letspi.planners.llm import (
     ALLOW_SAME_VEHICLE,

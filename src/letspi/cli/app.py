@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from letspi.cli import analyze, bench, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
+from letspi.cli import analyze, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
 from letspi.cli.common import DEBUG_ENV
 from letspi.evaluation.harness import letspi_version
 from letspi.execution import interrupt
@@ -42,7 +42,6 @@ def main_options(
 
 app.add_typer(data.app, name="data")
 app.add_typer(analyze.app, name="analyze")
-app.add_typer(bench.app, name="bench")
 app.add_typer(benchmark.app, name="benchmark")
 app.add_typer(fit.app, name="fit")
 app.add_typer(export.app, name="export")

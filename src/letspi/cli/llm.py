@@ -10,12 +10,11 @@ from typing import Annotated
 import typer
 
 from letspi.assembly.resolve import prompt_sha256
-from letspi.bench.llm import bench_models, bench_scenarios
-from letspi.bench.llm_runtime import standard_messages
 from letspi.fsutil import atomic_write_text
 from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.fingerprint import prompt_samples
+from letspi.llm.latency import bench_models, bench_scenarios, standard_messages
 from letspi.llm.models import EMBEDDED_MODELS, is_fine_tuned
 from letspi.llm.prompts import render_fast_prompt, render_physics_prompt, system_prompt
 from letspi.llm.types import DecodingSettings, LLMConfigError, LLMError, message

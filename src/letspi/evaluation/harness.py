@@ -67,6 +67,7 @@ from letspi.evaluation.concurrent import plan_concurrently, planner_concurrency,
 from letspi.execution.interrupt import WorkerPool
 from letspi.execution.ordered import RunnerConfig, RunStats, RunStatus, ScenariosFailedError
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
+from letspi.keyed import diff, key_of
 from letspi.metrics.aggregate import AggValue, aggregate_metrics, render_markdown_table
 from letspi.metrics.compute import ScenarioMetrics, compute_metrics
 from letspi.metrics.config import MetricsConfig
@@ -83,7 +84,6 @@ from letspi.metrics.uncertainty import (
     rate_statistic,
     statistics_record,
 )
-from letspi.planners.config import diff, key_of
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import load_scenarios

@@ -1,6 +1,6 @@
 """The prompt fingerprint: SHA-256 of the prompts as rendered for a fixed set of scenes.
 
-Every configuration that asks a model records it (``letspi.planners.config.LlmConfig.prompt_sha256``),
+Every configuration that asks a model records it (``letspi.llm.config.LlmConfig.prompt_sha256``),
 so whatever changes the text a model reads changes the key of its results, and nothing else does: a
 comment, a renamed variable or a function split into steps leaves it as it is.
 

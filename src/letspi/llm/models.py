@@ -10,7 +10,7 @@
   importing the package (its ``__init__`` imports the ``llm`` CLI tool, which we do not need).
   llama.cpp has no repacked CPU kernels for Q4_1, so the choice prompt evaluates at 175 tokens/s on
   2 cores; we convert the file once to F16 (``runtime_copy``; 384 tokens/s, measured by
-  ``letspi bench llm --formats``) into ``$LETSPI_CACHE_DIR/models/``. F16 holds the Q4_1 weights as
+  ``python -m benchmarks.speed llm --formats``) into ``$LETSPI_CACHE_DIR/models/``. F16 holds the Q4_1 weights as
   dequantized (the values the LoRA was trained on: ``letspi.finetune.train`` dequantizes the same
   file), and the converted file's SHA-256 enters the configuration key like any model file.
   ``packaged_smollm2_path`` is the file as shipped (training reads it).

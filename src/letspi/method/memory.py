@@ -4,7 +4,7 @@ Storage decisions
 -----------------
 * One table ``experiences``, unique per ``(scenario_digest, config_key)``: the scenario's content
   digest (``letspi.scenario.identity``; ids repeat across regenerated data) and the content key of the
-  collection configuration (``letspi.planners.config.MemoryPhaseConfig.key()``: model and weights,
+  collection configuration (``letspi.method.config.MemoryPhaseConfig.key()``: model and weights,
   decoding, prompt text, goals, neighbours, sf parameters, thresholds, iterations, goal adjustment).
   Several configurations and datasets share one file without mixing.
 * **Fallbacks are never experience.** A result whose final proposal is a fallback (the model gave

@@ -185,7 +185,7 @@ class MemoryPhase:
     """Runs the memory-collection pipeline on one scenario at a time.
 
     ``config_key`` identifies everything that changes its answers (the content key of the
-    configuration it was built from, ``letspi.planners.config.MemoryPhaseConfig.key()``); its
+    configuration it was built from, ``letspi.method.config.MemoryPhaseConfig.key()``); its
     experiences are stored under it.
     """
 

@@ -8,8 +8,8 @@ from typing import Literal
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
+from letspi.keyed import Config
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import Config
 from letspi.scenario.types import ScenarioBatch
 
 

@@ -1,6 +1,6 @@
 """What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario.
 
-Their decision step is configured by ``letspi.planners.config.DecisionConfig`` (presets, adverse
+Their decision step is configured by ``letspi.method.config.DecisionConfig`` (presets, adverse
 futures, risk gate); without one a planner plans, and records, exactly as before.
 
 Per-scenario info columns (``DECISION_COLUMNS``; NAMES.md "Per-scenario decision columns"):
@@ -14,15 +14,38 @@ its checks; for the memory phase the trail of its rounds and the model's rationa
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from letspi.planners.base import PlanningContext
+from letspi.planners.options import PlannerOption, file_option
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.types import ScenarioBatch
 
 DECISION_COLUMNS: tuple[str, ...] = ("decision", "consulted", "risk_score", "adverse_failed", "refinements",
                                      "reason")
+
+# Options of the decision step (``letspi.method.config.DecisionConfig``): letspi-fast, letspi-memory, llm,
+# letspi-fs, sf-check
+DECIDE = PlannerOption[bool | None](
+    "decide", bool | None, None,
+    "LetsPi's decision step: presets checked against the prediction and the adverse futures, a risk gate "
+    "(default: on for the choice prompt style and sf-check)")
+PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets")
+ADVERSE = PlannerOption("adverse", bool, True, "Decision step: check plans against the adverse futures too "
+                        "(off: against the prediction only)")
+GATE = PlannerOption("gate", bool, True, "Decision step: the risk gate of letspi-fast and sf-check (off: the model "
+                     "is asked on every scenario)")
+GATE_THRESHOLD = PlannerOption[float | None](
+    "gate_threshold", float | None, None,
+    "Decision step: the risk score above which the gate asks the model (default: the risk model's recommended "
+    "threshold)")
+RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk model (default: the shipped one)",
+                         flag="--risk-model")
+VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a model's choice that fails more checks "
+                       "than another preset is replaced by the rule's choice (off: the model's answer stands)")
+DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY)
 
 
 def decision_info(option: Sequence[str], consulted: np.ndarray, risk_score: np.ndarray,

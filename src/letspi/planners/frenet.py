@@ -73,13 +73,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.arrays import Batched
 from letspi.constants import DT_S, HORIZON_S, N_FUTURE, T0_INDEX
+from letspi.keyed import Config
 from letspi.metrics.kinematics import off_road
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.lanes import lane_centres_m, lane_index_of
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.types import NeighbourPrediction
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig
+from letspi.planners.config import PREDICTION_OPTIONS, GoalsConfig
 from letspi.planners.fitted import FittedFile
 from letspi.planners.options import PlannerOption, file_option
 from letspi.scenario.types import ScenarioBatch

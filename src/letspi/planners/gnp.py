@@ -12,13 +12,14 @@ from typing import Any, Literal
 
 import numpy as np
 
+from letspi.keyed import Config
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
-from letspi.planners.config import PREDICTION_OPTIONS, Config, GoalsConfig, WeightsConfig
+from letspi.planners.config import PREDICTION_OPTIONS, GoalsConfig, WeightsConfig
 from letspi.planners.options import PlannerOption, file_option
 from letspi.scenario.types import ScenarioBatch
 

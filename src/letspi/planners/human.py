@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from letspi.keyed import Config
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import Config
 from letspi.scenario.types import ScenarioBatch
 
 

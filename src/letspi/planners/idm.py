@@ -15,10 +15,11 @@ from typing import Any, Literal
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
+from letspi.keyed import Config
 from letspi.physics.idm import rollout_idm_ego
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.base import PlanBatch
-from letspi.planners.config import NEIGHBOURS, Config
+from letspi.planners.config import NEIGHBOURS
 from letspi.planners.options import PlannerOption
 from letspi.scenario.queries import OFF_ROAD, lane_centres_y_m, lane_index_of
 from letspi.scenario.types import ScenarioBatch

@@ -41,8 +41,11 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
+from letspi.keyed import Config
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
+from letspi.llm.config import LlmConfig
+from letspi.method.config import DecisionConfig, MemoryPhaseConfig, MemoryRef
 from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, preference_order
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
@@ -61,22 +64,16 @@ from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
-from letspi.planners.config import (
+from letspi.planners.config import SOCIAL_FORCE_OPTIONS, GoalsConfig, SfParamsConfig
+from letspi.planners.decision import (
     ADVERSE,
     DECIDE,
     DECISION_OPTIONS,
     PRESETS,
     RISK_MODEL,
-    SOCIAL_FORCE_OPTIONS,
-    Config,
-    DecisionConfig,
-    GoalsConfig,
-    LlmConfig,
-    MemoryPhaseConfig,
-    MemoryRef,
-    SfParamsConfig,
+    adverse_failed_names,
+    decision_info,
 )
-from letspi.planners.decision import adverse_failed_names, decision_info
 from letspi.planners.options import PlannerOption, file_option
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests

@@ -14,12 +14,13 @@ from typing import Any, Literal
 
 import numpy as np
 
+from letspi.method.config import DecisionConfig
 from letspi.method.decide import Decider, GatedChecks
 from letspi.method.phases import decision_reason
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
-from letspi.planners.config import DECISION_OPTIONS, SOCIAL_FORCE_OPTIONS, DecisionConfig, SocialForcePlannerFields
-from letspi.planners.decision import decision_info
+from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
+from letspi.planners.decision import DECISION_OPTIONS, decision_info
 from letspi.planners.llm import (
     PRESETS_CHECKED,
     PRESETS_PASS_ALL,

@@ -15,7 +15,7 @@ few at a time (``SEARCH_STAGES``), each stage one vectorised rollout and check o
 without a safe candidate. The first safe candidate in that order is the cheapest safe one, so most
 scenarios stop after the neutral candidate; a scenario with none safe tries all C and gets the
 fallback. The plans are bit-identical to rolling out and checking all C candidates of every scenario
-(``letspi.bench.replaced.sf_opt_all_candidates``, tests/test_perf_equivalence.py); the info
+(``benchmarks.replaced.sf_opt_all_candidates``, tests/test_perf_equivalence.py); the info
 ``n_candidates_tried`` says how far each scenario's search went.
 """
 

@@ -1,4 +1,4 @@
-"""Random and degenerate straight-road scenes for robustness checks (``letspi bench robustness``).
+"""Random and degenerate straight-road scenes for robustness checks (``python -m benchmarks.speed robustness``).
 
 Kinds (``DEGENERATE_KINDS``; every scene is a valid ``ScenarioBatch`` a recording could produce,
 except ``nan_gaps``, which also holds the damage a broken converter could leave):

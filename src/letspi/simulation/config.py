@@ -104,7 +104,7 @@ class HandoverConfig:
 
 
 #: scenarios per chunk: SUMO (one road each in one network; and LLM planners anywhere) and the log replay,
-#: whose planners are batched NumPy, faster per scenario in larger batches (``letspi bench closed-loop``)
+#: whose planners are batched NumPy, faster per scenario in larger batches (``python -m benchmarks.speed closed-loop``)
 DEFAULT_CHUNK_SUMO: Final = 32
 DEFAULT_CHUNK_REPLAY: Final = 256
 

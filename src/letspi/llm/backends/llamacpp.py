@@ -31,7 +31,7 @@ model (``LoadedLlama.check``) and reported by ``letspi llm check`` and the bench
 spins, then waits a whole scheduler slice: a 2-thread evaluation on a busy 2-core machine collapses
 instead of slowing down; a worker that sleeps at once (passive waiting) pays a wake-up at every
 barrier instead, which on a quiet machine made a request 1.8x slower than spinning (2.39 s vs 1.29 s,
-``letspi bench llm --contention 2``). We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` with a bounded
+``python -m benchmarks.speed llm --contention 2``). We therefore (1) set ``OMP_WAIT_POLICY=PASSIVE`` with a bounded
 spin, ``GOMP_SPINCOUNT=100000`` (libgomp's spin count overrides the policy's; about 0.1 ms), before
 llama.cpp is first imported (unless the user set them): a worker spins across the short gaps between
 operations and sleeps when its partner is descheduled; and (2) choose the

@@ -37,7 +37,7 @@ from letspi.fsutil import atomic_write_text
 from letspi.llm.cache import default_cache_dir
 from letspi.llm.gguf_info import GGUFHeaderError, is_float_format, model_format
 from letspi.llm.models import runtime_copy
-from letspi.llm.types import LlamaFaultError, MissingDependencyError, ModelNotFoundError
+from letspi.llm.types import LlamaFaultError, MissingDependencyError
 
 INSTALL_HINT: Final = (
     "the llamacpp backend needs llama-cpp-python: pip install llama-cpp-python "
@@ -302,10 +302,8 @@ def runnable_model(model_path: Path, *, flash_attn: bool = True, n_threads: int 
             return _RUNNABLE[memo]
         try:
             fmt = model_format(model_path)
-        except GGUFHeaderError as exc:
-            raise ModelNotFoundError(str(exc)) from None
-        except FileNotFoundError:
-            raise ModelNotFoundError(f"GGUF model file not found: {model_path}") from None
+        except (GGUFHeaderError, OSError):  # nothing to probe: llama.cpp's own load reports the file
+            return model_path
         result = probe_verdict(model_path, fmt, flash_attn=flash_attn, n_threads=n_threads, runner=runner)
         chosen = model_path
         if result.verdict == "timeout":

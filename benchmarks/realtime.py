@@ -1,4 +1,4 @@
-"""``letspi bench closed-loop`` with an LLM planner: does dual-rate LetsPi run in real time?
+"""``python -m benchmarks.speed closed-loop`` with an LLM planner: does dual-rate LetsPi run in real time?
 
 Each of ``n`` scenarios (5 s after t = 0) is simulated alone (``chunk_size=1``), with its LLM calls,
 by one in-process worker: the planner is built and the model loaded first (``build_s``), then
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.bench.closed_loop import bench_scenarios
+from benchmarks.closed_loop import bench_scenarios
 from letspi.constants import DT_S, HORIZON_S
 from letspi.planners.options import PlannerOptions
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec

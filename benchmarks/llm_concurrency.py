@@ -2,7 +2,7 @@
 
 ``bench_concurrency()`` measures, for each concurrency N:
 
-* **concurrency** (the headline): against ``letspi.bench.llm_server`` in its own process, answering
+* **concurrency** (the headline): against ``benchmarks.llm_server`` in its own process, answering
   every request after an injected latency (mean ``server_latency_ms``, spread +-``jitter``, many
   slots). A scenario here is the fast phase's LLM step: render the fast prompt (three memory
   examples) for one scene, send it, parse and validate the reply, and hand it to the runner's
@@ -42,10 +42,10 @@ import httpx
 import numpy as np
 
 import letspi
+from benchmarks.llm_server import latency_for, request_keys
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planners
 from letspi.assembly.resolve import Resolver
-from letspi.bench.llm_server import latency_for, request_keys
 from letspi.evaluation.harness import evaluate
 from letspi.execution.interrupt import CHILD_GRACE_S, received
 from letspi.execution.ordered import RunnerConfig, RunStats, run_ordered
@@ -124,8 +124,8 @@ class _Process:
 
 
 def start_test_server(latency_ms: float, jitter: float, slots: int = 0) -> tuple[_Process, str]:
-    """``letspi.bench.llm_server`` in its own process; returns it and its base URL."""
-    server = _Process([sys.executable, "-m", "letspi.bench.llm_server", "--port", "0", "--latency-ms",
+    """``benchmarks.llm_server`` in its own process; returns it and its base URL."""
+    server = _Process([sys.executable, "-m", "benchmarks.llm_server", "--port", "0", "--latency-ms",
                        str(latency_ms), "--jitter", str(jitter), "--slots", str(slots)])
     assert server.proc.stdout is not None
     line = server.proc.stdout.readline().decode()

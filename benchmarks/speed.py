@@ -1,4 +1,4 @@
-"""``letspi bench``: benchmarks that print measured numbers (and ratios to a reference run)."""
+"""``python -m benchmarks.speed``: benchmarks that print measured numbers (and ratios to a reference run)."""
 
 from __future__ import annotations
 
@@ -14,30 +14,30 @@ from rich.console import Console
 from rich.pretty import pprint
 from rich.table import Table
 
+from benchmarks.closed_loop import bench_closed_loop, bench_scenarios
+from benchmarks.data import bench_data
+from benchmarks.interrupt import MODES as INTERRUPT_MODES
+from benchmarks.interrupt import bench_interrupt
+from benchmarks.kernels import KERNELS, bench_kernels
+from benchmarks.llm_concurrency import bench_concurrency
+from benchmarks.llm_format import bench_formats
+from benchmarks.llm_runtime import CONFIGS, bench_runtime
+from benchmarks.metrics import bench_metrics
+from benchmarks.physics import bench_frenet, bench_rollout
+from benchmarks.realtime import bench_real_time
+from benchmarks.retrieval import bench_phases, bench_retrieval
+from benchmarks.robustness import PLAIN_PLANNERS, bench_robustness
 from letspi.assembly.planner_table import planner_table
-from letspi.bench.closed_loop import bench_closed_loop, bench_scenarios
-from letspi.bench.data import bench_data
-from letspi.bench.interrupt import MODES as INTERRUPT_MODES
-from letspi.bench.interrupt import bench_interrupt
-from letspi.bench.kernels import KERNELS, bench_kernels
-from letspi.bench.llm import bench_models
-from letspi.bench.llm_concurrency import bench_concurrency
-from letspi.bench.llm_format import bench_formats
-from letspi.bench.llm_runtime import CONFIGS, bench_runtime
-from letspi.bench.metrics import bench_metrics
-from letspi.bench.physics import bench_frenet, bench_rollout
-from letspi.bench.realtime import bench_real_time
-from letspi.bench.retrieval import bench_phases, bench_retrieval
-from letspi.bench.robustness import PLAIN_PLANNERS, bench_robustness
 from letspi.cli.common import console, user_errors
 from letspi.cli.options import planner_options
+from letspi.llm.latency import bench_models
 from letspi.planners.llm import DEFAULT_FAST_LLM, DEFAULT_LLM
 from letspi.planners.options import PlannerOptions
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
-app = typer.Typer(help="Benchmarks: print measured speed numbers.",
-                  no_args_is_help=True, rich_markup_mode=None)
+app = typer.Typer(help="letspi's self-benchmarks: measured speed (and robustness, Ctrl-C) numbers, with ratios "
+                       "to a reference run.", no_args_is_help=True, rich_markup_mode=None)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
 
@@ -77,7 +77,7 @@ def data_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Generation time, extraction scenarios/s for one recording, load time of 10,000 scenarios."""
-    _emit(bench_data(minutes=minutes, seed=seed, n_load=n_load), as_json, "letspi bench data")
+    _emit(bench_data(minutes=minutes, seed=seed, n_load=n_load), as_json, "speed data")
 
 
 @app.command("physics")
@@ -102,15 +102,15 @@ def physics_cmd(
     result = {**{f"rollout_{k}": v for k, v in rollout.items()}, **{f"metrics_{k}": v for k, v in metrics.items()},
               **{f"frenet_{k}": v for k, v in frenet.items()}, **{f"kernel_{k}": v for k, v in kernels.items()}}
     if as_json or not kernels:
-        _emit(result, as_json, "letspi bench physics")
+        _emit(result, as_json, "speed physics")
         return
     if rollout or metrics or frenet:
-        _emit({k: v for k, v in result.items() if not k.startswith("kernel_")}, False, "letspi bench physics")
+        _emit({k: v for k, v in result.items() if not k.startswith("kernel_")}, False, "speed physics")
     _kernel_table(kernels)
 
 
 def _kernel_table(result: dict[str, float]) -> None:
-    table = Table(title=f"letspi bench physics: kernels new vs replaced, {format_number(result['n_scenarios'])} "
+    table = Table(title=f"speed physics: kernels new vs replaced, {format_number(result['n_scenarios'])} "
                         f"scenarios, {format_number(result['sf_opt_candidates'])} sf-opt candidates each "
                         "(ms, best of 3)")
     for col in ("kernel", "new CPU", "old CPU", "old/new", "new wall", "old wall", "same"):
@@ -126,7 +126,7 @@ def _kernel_table(result: dict[str, float]) -> None:
 
 
 def _runtime_table(result: dict[str, Any]) -> None:
-    table = Table(title=f"letspi bench llm --contention {result['hogs']}: {result['model']}, uncached planning "
+    table = Table(title=f"speed llm --contention {result['hogs']}: {result['model']}, uncached planning "
                         f"request (median of {result['repeats']})")
     for col in ("configuration", "quiet s", "busy s", "busy / quiet", "threads quiet / busy", "load quiet / busy"):
         table.add_column(col, justify="left" if col == "configuration" else "right")
@@ -173,7 +173,7 @@ def _levels(text: str, option: str) -> tuple[int, ...]:
 
 
 def _concurrency_table(result: dict[str, Any]) -> None:
-    table = Table(title=f"letspi bench llm --concurrency (test server, {result['server_latency_ms']} ms)")
+    table = Table(title=f"speed llm --concurrency (test server, {result['server_latency_ms']} ms)")
     for col in ("concurrency", "scenarios/s", "x concurrency 1", "client overhead ms/request", "client CPU ms/request",
                 "pipeline scenarios/s", "pipeline x 1"):
         table.add_column(col, justify="right")
@@ -247,7 +247,7 @@ def llm_cmd(
     if as_json:
         typer.echo(json.dumps(result, indent=2, default=float))
         return
-    Console().rule("letspi bench llm")
+    Console().rule("speed llm")
     pprint(result, expand_all=True)
 
 
@@ -292,7 +292,7 @@ def closed_loop_cmd(
             result = bench_closed_loop(scenarios=scenarios, n=256 if n is None else n, planner=planner, mode=mode,
                                        replan_s=replan_s, workers=workers, chunk_size=chunk_size, minutes=minutes,
                                        seed=seed, options=options)
-    _emit(result, as_json, "letspi bench closed-loop")  # type: ignore[arg-type]
+    _emit(result, as_json, "speed closed-loop")  # type: ignore[arg-type]
 
 
 @app.command("robustness")
@@ -316,7 +316,7 @@ def robustness_cmd(
     if as_json:
         typer.echo(json.dumps(result, indent=2))
     else:
-        kinds = Table(title=f"letspi bench robustness: {format_number(n)} scenes (seed {seed})")
+        kinds = Table(title=f"speed robustness: {format_number(n)} scenes (seed {seed})")
         kinds.add_column("kind")
         kinds.add_column("scenes", justify="right")
         for k, v in result["scenarios_by_kind"].items():
@@ -373,7 +373,7 @@ def interrupt_cmd(
     if as_json:
         typer.echo(json.dumps(result, indent=2))
         return
-    table = Table(title=f"letspi bench interrupt: SIGINT {format_number(after_s)} s in, {format_number(n)} scenarios "
+    table = Table(title=f"speed interrupt: SIGINT {format_number(after_s)} s in, {format_number(n)} scenarios "
                         f"(load {result['loadavg_start']} -> {result['loadavg_end']})")
     for col in ("mode", "s to exit", "exit", "kept", "left", "rerun rows", "dup"):
         table.add_column(col, justify="left" if col in ("mode", "kept") else "right")
@@ -389,3 +389,7 @@ def interrupt_cmd(
                       f"{format_number(rerun['rows'])}/{format_number(rerun['expected_rows'])}" if rerun else "-",
                       format_number(rerun["duplicates"]) if rerun else "-")
     Console().print(table)
+
+
+if __name__ == "__main__":
+    app(prog_name="python -m benchmarks.speed")

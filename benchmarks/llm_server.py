@@ -12,7 +12,7 @@ function of the request's messages alone (a hash), after an injected latency, so
   ``Retry-After``, HTTP 500, a dead server), and ``log`` records arrivals and completions.
 
 HTTP/1.1 keep-alive and a deep listen backlog: 64 clients connect at once without refused
-connections. ``python -m letspi.bench.llm_server --port 0 --latency-ms 200`` runs it in its own
+connections. ``python -m benchmarks.llm_server --port 0 --latency-ms 200`` runs it in its own
 process (the benchmark does, so the server's work does not share the client's interpreter) and
 prints ``listening on PORT``.
 """

@@ -1,7 +1,7 @@
 """Benchmark: the physics kernels issue 27's speed work made faster, new beside old in one process.
 
-``bench_kernels`` times each kernel and the algorithm it replaced (``letspi.bench.replaced``) on the
-same synthetic highway scenes (``letspi.bench.physics.synthetic_batch``, 8 neighbours each), checks
+``bench_kernels`` times each kernel and the algorithm it replaced (``benchmarks.replaced``) on the
+same synthetic highway scenes (``benchmarks.physics.synthetic_batch``, 8 neighbours each), checks
 that both give identical arrays, and reports the ratio old / new:
 
 * ``predict_idm``: the IDM neighbour prediction of the closed-loop planners (``idm``, ``frenet``,
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from letspi.bench.physics import synthetic_batch
-from letspi.bench.replaced import (
+from benchmarks.physics import synthetic_batch
+from benchmarks.replaced import (
     check_inputs_mirrored,
     predict_idm_concatenating,
     repeated,

@@ -16,7 +16,7 @@ latency stays <= 3x the quiet figure. ``flash_attention_off`` adds the quiet lat
 attention (what the attention change costs or saves). Every figure comes with the load average
 read before it, so a figure taken on a machine busy with something else shows it.
 
-``python -m letspi.bench.llm_runtime --child ...`` is the child (JSON on stdout).
+``python -m benchmarks.llm_runtime --child ...`` is the child (JSON on stdout).
 """
 
 from __future__ import annotations
@@ -32,11 +32,9 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from letspi.llm.backends.llamacpp import LlamaCppBackend
-from letspi.llm.compact import render_compact_prompt
-from letspi.llm.describe import describe_scenario
+from letspi.llm.latency import standard_messages
 from letspi.llm.schema import reply_json_schema
 from letspi.llm.types import DecodingSettings
-from letspi.scenario.build import VehicleSpec, straight_road_scenario
 
 HOG_CODE: Final = "while True:\n    pass\n"
 CONFIGS: Final[dict[str, dict[str, str]]] = {
@@ -51,14 +49,6 @@ CONFIGS: Final[dict[str, dict[str, str]]] = {
     # threads chosen per call
     "active-adaptive": {"OMP_WAIT_POLICY": "ACTIVE", "LETSPI_LLAMA_THREADS": "", "LETSPI_LLAMA_FLASH_ATTN": "1"},
 }
-
-
-def standard_messages() -> list[Any]:
-    """The compact prompt of the standard scene: 30 m/s, a leader 15 m ahead at 22 m/s, 3 lanes."""
-    batch = straight_road_scenario(neighbours=[VehicleSpec(x0_m=15.0, speed_mps=22.0),
-                                               VehicleSpec(x0_m=-25.0, speed_mps=31.0, lane_offset=1)],
-                                   scenario_id="standard")
-    return list(render_compact_prompt(describe_scenario(batch, (150.0, 0.0))))
 
 
 def _child(model: str, repeats: int) -> dict[str, Any]:
@@ -85,7 +75,7 @@ def _child(model: str, repeats: int) -> dict[str, Any]:
 def _run_child(model: str, repeats: int, config: str) -> dict[str, Any]:
     env = {**os.environ, **CONFIGS[config]}
     env = {k: v for k, v in env.items() if v != ""}
-    out = subprocess.run([sys.executable, "-m", "letspi.bench.llm_runtime", "--child", "--model", model,
+    out = subprocess.run([sys.executable, "-m", "benchmarks.llm_runtime", "--child", "--model", model,
                           "--repeats", str(repeats)], env=env, capture_output=True, text=True, check=False)
     if out.returncode != 0:
         raise RuntimeError(f"benchmark child ({config}) failed: {out.stderr.strip()[-2000:]}")
@@ -125,7 +115,7 @@ def bench_runtime(model: str = "smollm2-135m-letspi", *, hogs: int = 2, repeats:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m letspi.bench.llm_runtime")
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.llm_runtime")
     parser.add_argument("--child", action="store_true")
     parser.add_argument("--model", default="smollm2-135m-letspi")
     parser.add_argument("--repeats", type=int, default=5)

@@ -1,4 +1,4 @@
-"""``letspi bench data``: how fast the data pipeline is (numbers, not pass/fail)."""
+"""``python -m benchmarks.speed data``: how fast the data pipeline is (numbers, not pass/fail)."""
 
 from __future__ import annotations
 

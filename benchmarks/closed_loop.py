@@ -1,4 +1,4 @@
-"""``letspi bench closed-loop``: closed-loop throughput per worker and the multi-worker speed-up.
+"""``python -m benchmarks.speed closed-loop``: closed-loop throughput per worker and the multi-worker speed-up.
 
 Everything is measured in one process run, on the same scenarios:
 

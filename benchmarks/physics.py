@@ -1,6 +1,6 @@
 """Benchmark: batched social force rollout vs the scalar per-scenario reference loop.
 
-Run ``python -m letspi.bench.physics [n_scenarios]``. NumPy's element-wise kernels are
+Run ``python -m benchmarks.physics [n_scenarios]``. NumPy's element-wise kernels are
 single-threaded, so the batched timing is a one-core number; the thread variables below only stop
 BLAS from spreading out should any linear algebra be involved (they must be set before NumPy loads).
 """

@@ -5,7 +5,7 @@ plans with and without a lane change), times the vectorised metrics on all scena
 scalar ``_reference`` implementations on a subset (extrapolated), and reports scenarios/s and
 the speed-up. The references are also what the tests compare the vectorised code against.
 
-Run: ``python -m letspi.bench.metrics [n_scenarios]``.
+Run: ``python -m benchmarks.metrics [n_scenarios]``.
 """
 
 from __future__ import annotations

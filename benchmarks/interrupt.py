@@ -1,4 +1,4 @@
-"""``letspi bench interrupt``: how fast each long command stops on Ctrl-C, what it keeps, and whether
+"""``python -m benchmarks.speed interrupt``: how fast each long command stops on Ctrl-C, what it keeps, and whether
 the rerun completes it without duplicates (``letspi.execution.interrupt``).
 
 Each mode runs the real ``letspi`` command in a child process of its own session (as a shell runs a
@@ -33,8 +33,8 @@ from typing import Any
 
 import pandas as pd
 
-from letspi.bench.llm_concurrency import _child_env
-from letspi.bench.llm_server import LlmTestServer
+from benchmarks.llm_concurrency import _child_env
+from benchmarks.llm_server import LlmTestServer
 from letspi.evaluation.harness import load_planner_results, planner_dir_name
 from letspi.execution.interrupt import alive, descendants
 from letspi.finetune.labels import PARTS_DIR

@@ -1,4 +1,4 @@
-"""Benchmark the embedded models: latency, tokens, prefix and cache speedups, and behaviour.
+"""Latency and behaviour of LLM specs on hand-built scenes (``letspi llm bench``, ``letspi llm check``).
 
 ``bench_models()`` runs, for each embedded model, on hand-built straight-road scenarios:
 
@@ -30,6 +30,7 @@ from typing import Any
 from letspi.llm.backends.llamacpp import LlamaCppBackend
 from letspi.llm.cache import ResponseCache
 from letspi.llm.client import ParamAdvisor, RetryPolicy
+from letspi.llm.compact import render_compact_prompt
 from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import NUMERIC_FIELDS, PlannerReply, Variant, reply_json_schema
@@ -197,3 +198,11 @@ def bench_models(
         entry["bench_wall_s"] = round(time.perf_counter() - t0, 1)
         result[model] = entry
     return result
+
+
+def standard_messages() -> list[Any]:
+    """The compact prompt of the standard scene: 30 m/s, a leader 15 m ahead at 22 m/s, 3 lanes."""
+    batch = straight_road_scenario(neighbours=[VehicleSpec(x0_m=15.0, speed_mps=22.0),
+                                               VehicleSpec(x0_m=-25.0, speed_mps=31.0, lane_offset=1)],
+                                   scenario_id="standard")
+    return list(render_compact_prompt(describe_scenario(batch, (150.0, 0.0))))

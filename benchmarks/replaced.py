@@ -1,5 +1,5 @@
 """The algorithms issue 27's speed work replaced, kept as the reference the new ones are measured and
-checked against (``letspi bench physics``: the ratio; tests/test_perf_equivalence.py: bit-identical
+checked against (``python -m benchmarks.speed physics``: the ratio; tests/test_perf_equivalence.py: bit-identical
 results). Each computes exactly what letspi computed before; none is used to plan.
 
 * ``predict_idm_concatenating``: the IDM neighbour prediction that concatenated [neighbours, ego] and

@@ -1,4 +1,4 @@
-"""Memory retrieval benchmark (for ``letspi bench llm``): top-k over the whole bank at 10k and 100k experiences.
+"""Memory retrieval benchmark (``python -m benchmarks.speed llm``): top-k over the whole bank at 10k and 100k entries.
 
 For each size a temporary bank is filled with synthetic experiences (plausible feature ranges, one
 transaction), closed and reopened (cold), then timed:
