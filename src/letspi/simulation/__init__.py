@@ -1,9 +1,5 @@
-"""Closed-loop evaluation: log-replay, reactive and hybrid traffic, receding-horizon replanning.
-
-SUMO simulates the reactive and hybrid modes (``engine``); ``closed-loop-log`` runs in NumPy by default
-(``replay``). ``run_closed_loop`` yields ``ClosedLoopChunk``s, ``run_closed_loop_to_dir`` writes them
-resumably, ``chunk_metrics`` scores them with the open-loop metric code.
-"""
+"""Closed-loop evaluation: log-replay, reactive and hybrid traffic, receding-horizon replanning. SUMO simulates the
+reactive and hybrid modes (``engine``); ``closed-loop-log`` runs in NumPy by default (``replay``)."""
 
 from letspi.simulation.config import (
     CLOSED_LOOP_MODES,

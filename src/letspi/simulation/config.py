@@ -1,10 +1,7 @@
 """Settings of the closed-loop engine (typed, frozen; SI units in the names).
 
-``EvaluationMode`` names the four modes (docs/evaluation.md): ``closed-loop-log`` (neighbours replay
-their log), ``closed-loop-reactive`` (SUMO's IDM + SL2015 drive every neighbour after t = 0),
-``closed-loop-hybrid`` (a neighbour is handed to SUMO once the ego can reach it; scripted-event actors
-replay their log throughout) and ``open-loop``, which the harness runs and ``ClosedLoopConfig`` refuses.
-``ClosedLoopConfig`` is the one closed-loop settings type: validated once, read by the engine alone.
+``EvaluationMode`` names the four modes (docs/evaluation.md); ``open-loop`` is the harness's, and
+``ClosedLoopConfig``, the one closed-loop settings type (validated once, read by the engine alone), refuses it.
 """
 
 from __future__ import annotations
@@ -44,14 +41,10 @@ OFF_ROAD_MARGIN_M = 15.0
 
 @dataclass(frozen=True)
 class DriverModelConfig:
-    """SUMO driver parameters of released neighbours (reactive and hybrid modes).
-
-    Fixed: IDM with ``accel_mps2`` / ``decel_mps2``, braking up to ``emergency_decel_mps2``, standstill
-    gap ``min_gap_m``, no imperfection. Per vehicle from its history (``letspi.simulation.drivers``): the
-    desired speed (clipped to ``desired_speed_bounds_mps``) and the time headway (``headway_quantile`` of
-    its gaps to an in-path leader within ``max_leader_gap_s``, clipped to ``headway_bounds_s``; else
-    ``default_headway_s``).
-    """
+    """SUMO driver parameters of released neighbours (reactive and hybrid modes): fixed IDM accelerations, standstill
+    gap and no imperfection; per vehicle from its history (``letspi.simulation.drivers``) the desired speed (clipped
+    to ``desired_speed_bounds_mps``) and time headway (``headway_quantile`` of its gaps to an in-path leader within
+    ``max_leader_gap_s``, clipped to ``headway_bounds_s``; else ``default_headway_s``)."""
 
     accel_mps2: float = 1.5
     decel_mps2: float = 3.0
@@ -82,15 +75,11 @@ class DriverModelConfig:
 
 @dataclass(frozen=True)
 class HandoverConfig:
-    """When ``closed-loop-hybrid`` hands a log-replayed neighbour to SUMO (``letspi.simulation.handover``).
-
-    Checked every frame after t = 0 on the previous frame's positions; scripted-event actors are never
-    handed over. A neighbour is handed over when the lane of its centre is one the ego's box covers (or
-    at most ``lanes`` lanes beside those) and its front bumper is at least ``behind_m`` behind the ego's
-    rear bumper. The hand-over is final (the log position would jump); position and speed stay continuous.
-    ``follow_log_speed``: a handed-over vehicle is commanded its recorded speed, lowered where SUMO's car
-    following needs it (speed mode 25), until its log ends; else it drives at its desired speed.
-    """
+    """When ``closed-loop-hybrid`` hands a log-replayed neighbour to SUMO for good (``letspi.simulation.handover``):
+    checked every frame after t = 0, scripted-event actors never; when the lane of its centre is one the ego's box
+    covers (or at most ``lanes`` lanes beside those) and its front bumper is at least ``behind_m`` behind the ego's
+    rear bumper. ``follow_log_speed``: it is commanded its recorded speed, lowered where SUMO's car following needs
+    it, until its log ends; else it drives at its desired speed."""
 
     lanes: int = 0
     behind_m: float = 0.0
@@ -119,21 +108,15 @@ class ClosedLoopConfig:
         planner_replan_s: label -> that planner's own period [s]; ``for_planner(label)`` applies it.
         workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
         ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
-        chunk_size: scenarios simulated together (lockstep, one batched planner call per replan), also
-            the unit of work and of resumable output; in no key. None: ``scenarios_per_chunk``'s default.
-        lateral_resolution_m: SUMO's sublane resolution [m] (the sublane model makes SUMO's collision
-            check lateral; the resolution only shapes reactive neighbours' lane changes).
+        chunk_size: scenarios simulated together (lockstep, one batched planner call per replan; the unit of
+            work and of resumable output; in no key). None: ``scenarios_per_chunk``'s default.
+        lateral_resolution_m: SUMO's sublane resolution [m] (shapes only reactive neighbours' lane changes).
         road_behind_m, road_ahead_m: the simulated road behind / ahead of the ego's t = 0 position [m].
         slot_spacing_m: lateral distance between the parallel roads of one network [m].
         sumo_backend: ``libsumo`` (in-process, one simulation per process) or ``traci`` (a subprocess).
-        sumo_gui: run ``sumo-gui`` (implies ``traci``; for debugging a few scenarios).
-        simulator: ``sumo``, ``replay`` (``closed-loop-log`` in NumPy, ``letspi.simulation.replay``: the
-            same trajectories, no SUMO collision flag) or ``auto`` (``replay`` for ``closed-loop-log``
-            without the GUI, else ``sumo``).
-        driver: parameters of SUMO-driven neighbours (reactive and hybrid).
-        handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
-        dual_rate: LLM period and latency of the dual-rate planners (``letspi.simulation.dual_rate``).
-    """
+        sumo_gui: run ``sumo-gui`` (implies ``traci``). simulator: ``sumo``, ``replay`` (``closed-loop-log``
+            in NumPy: no SUMO collision flag) or ``auto`` (``replay`` for ``closed-loop-log`` without the GUI).
+        driver, handover, dual_rate: SUMO's driver model, the hybrid hand-over, the LLM planners' timing."""
 
     mode: EvaluationMode = EvaluationMode.LOG
     replan_s: float = DEFAULT_REPLAN_S

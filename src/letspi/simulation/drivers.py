@@ -1,9 +1,5 @@
-"""Driver parameters of reactive neighbours, estimated from their (simulated) history.
-
-Desired speed: the highest speed driven (``letspi.physics.idm``'s rule), clipped. Time headway: a low
-quantile of the time gaps to an in-path leader (ahead, boxes overlapping laterally) closer than
-``max_leader_gap_s`` (a low quantile, so free-driving frames do not inflate it); without a leader the default.
-"""
+"""Driver parameters of reactive neighbours from their (simulated) history: the highest speed driven, and a low
+quantile of the time gaps to an in-path leader (low, so free-driving frames do not inflate it)."""
 
 from __future__ import annotations
 
@@ -23,12 +19,9 @@ def estimate_driver_params(
     width_m: np.ndarray,
     config: DriverModelConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Desired speed [m/s] and time headway [s] of every vehicle of K scenarios.
-
-    xy_m: (K, V, H, 2) box centres over H history frames (NaN where absent); vx_mps: (K, V, H)
-    longitudinal speeds; valid: (K, V, H); length_m, width_m: (K, V). All V vehicles of a scenario
-    (ego included) count as potential leaders. Returns two (K, V) float64 arrays.
-    """
+    """Desired speed [m/s] and time headway [s], two (K, V) float64 arrays, of every vehicle of K scenarios. xy_m:
+    (K, V, H, 2) box centres over H history frames (NaN where absent); vx_mps: (K, V, H); valid: (K, V, H); length_m,
+    width_m: (K, V). Every vehicle, the ego included, may be a leader."""
     xy = np.asarray(xy_m, dtype=np.float64)
     ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
     vx = np.where(ok, np.asarray(vx_mps, dtype=np.float64), np.nan)

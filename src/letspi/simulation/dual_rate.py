@@ -1,10 +1,5 @@
-"""Dual-rate LetsPi in the closed loop: the engine's replanning step for LLM planners.
-
-Every ``replan_every`` frames ``DualRateReplanner`` builds the view and context, takes the proposals in
-force from the ``DualRateSchedule`` (which makes the LLM calls due) and plans the group with the physics
-in one batched call. ``Replan.info``: the plan's info overridden by the schedule's (``llm_calls`` counts
-the calls made at this replan) and ``planner_cpu_ms`` (context and physics, LLM calls excluded).
-"""
+"""Dual-rate LetsPi in the closed loop: the engine's replanning step for LLM planners (the schedule makes the LLM
+calls due; the physics plans the group every ``replan_every`` frames in one batched call)."""
 
 from __future__ import annotations
 

@@ -1,11 +1,9 @@
 """The closed-loop simulation of one chunk in SUMO: K scenarios side by side (one road each), in lockstep.
 
-Every frame (0.04 s) ``simulate_group`` runs ``_Lockstep``'s five steps: who drives (the log up to t = 0,
-then the ego its plan and each neighbour its log or SUMO's IDM + SL2015, as the mode says), bookkeeping
-(log-driven vehicles inserted one frame early: SUMO checks no collisions in an insertion step), the
-simulation step (``moveToXY`` keepRoute 2, one SUMO step, states read back), the contact check and
-replanning. Vehicles are axis-aligned boxes as in the metrics (SUMO's front bumper: centre + half a
-length along x); collisions are contact only (``--collision.mingap-factor 0``), reported every frame.
+Every 0.04 s frame ``simulate_group`` runs ``_Lockstep``'s five steps: who drives, bookkeeping (log-driven vehicles
+are inserted one frame early: SUMO checks no collisions in an insertion step), the simulation step (``moveToXY``
+keepRoute 2: exact positions), the contact check and replanning. Vehicles are axis-aligned boxes as in the metrics;
+collisions are contact only, reported every frame an overlap lasts.
 """
 
 from __future__ import annotations
@@ -108,12 +106,9 @@ class _Group:
 
 @dataclass(frozen=True)
 class _Drive:
-    """Who drives each of the V vehicles in one frame (all (V,) bool).
-
-    log: placed on its log this frame (everyone up to t = 0; after it the neighbours not yet handed
-    over); want_log: log-driven and recorded at this frame; preroll: log-driven, recorded only from
-    the next frame on (inserted one frame early); plan: the ego following its plan (after t = 0).
-    """
+    """Who drives each of the V vehicles in one frame (all (V,) bool). log: placed on its log (everyone up to t = 0,
+    then the neighbours not handed over); want_log: log-driven and recorded now; preroll: log-driven, recorded from
+    the next frame (inserted early); plan: the ego following its plan (after t = 0)."""
 
     log: np.ndarray
     want_log: np.ndarray
@@ -361,12 +356,8 @@ def simulate_group(
     scripted_nbr: np.ndarray | None = None,
     replanner: Replanner | None = None,
 ) -> ClosedLoopChunk:
-    """Simulate K scenarios of one lane layout together. The chunk's ``indices`` are 0..K-1.
-
-    scripted_nbr: (K, N) bool, neighbour slots that replay their log all along in
-    ``closed-loop-hybrid`` (actors of scripted events). replanner: the replanning step (default:
-    ``PeriodicReplanner`` every ``config.replan_s``). The mode and the period are ``config``'s.
-    """
+    """Simulate K scenarios of one lane layout together (chunk ``indices`` 0..K-1). scripted_nbr: (K, N) bool, slots
+    that replay their log throughout in ``closed-loop-hybrid``; replanner: default ``PeriodicReplanner``."""
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     sim = _Lockstep(session, batch, config, run_tag, scripted_nbr)

@@ -1,10 +1,6 @@
-"""Worker processes for closed-loop runs: one planner and one libsumo per spawned process.
-
-The parent sends an idle worker one chunk at a time over its pipe (neither side blocks on a full pipe).
-A worker that dies is noticed through its sentinel: its chunk is requeued and a replacement starts, up
-to ``max_restarts`` times; an exception in a worker ends the run with its traceback. Workers ignore
-Ctrl-C; a run that ends early terminates them at once, and the rerun simulates their chunks again.
-"""
+"""Worker processes for closed-loop runs: one planner and one libsumo per spawned process, one chunk at a time. A
+dead worker's chunk is requeued (``max_restarts`` replacements); workers ignore Ctrl-C and are terminated when a run
+ends early."""
 
 from __future__ import annotations
 

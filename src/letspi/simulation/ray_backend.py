@@ -1,8 +1,5 @@
-"""Closed-loop chunks on Ray: one long-lived actor per worker, each with its own planner and libsumo.
-
-Each actor gets one chunk at a time; one that dies is restarted by Ray and its chunk retried
-(``max_restarts``). Needs ``pip install 'letspi[ray]'``, and on a cluster letspi and libsumo on every node.
-"""
+"""Closed-loop chunks on Ray: one long-lived actor per worker (its own planner and libsumo), one chunk at a time,
+restarted and retried by Ray (``max_restarts``). Needs ``pip install 'letspi[ray]'``."""
 
 from __future__ import annotations
 
@@ -42,9 +39,8 @@ class RayChunkWorker:
 
 
 def ensure_ray(address: str, num_cpus: int) -> ModuleType:
-    """Ray, initialised: an existing instance is used as is; "local" starts one with ``num_cpus``.
-    Ctrl-C shuts down what this call started (``letspi.execution.interrupt.on_stop``): a local
-    instance's processes, or this driver's connection to a cluster."""
+    """Ray, initialised: an existing instance as is; "local" starts one with ``num_cpus``. Ctrl-C shuts down what
+    this call started (``on_stop``)."""
     ray = import_ray()
     if not ray.is_initialized():
         on_stop(ray.shutdown)  # before init: Ctrl-C during the start also ends what it started

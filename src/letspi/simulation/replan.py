@@ -1,10 +1,5 @@
-"""The planner's view at a replanning instant (``replanning_batch``), and the engine's replanning step.
-
-The view is the source batch shifted by ``frame - T0_INDEX`` frames and re-centred at the ego's simulated
-centre (a translation); every field with a frame axis is windowed (new fields follow), the simulated
-states overwrite the history, and the future is blank (``future="none"``) or the log (``future="log"``).
-A ``Replanner`` returns the plans due at a frame (a ``Replan``) or None; the engine only follows plans.
-"""
+"""The planner's view at a replanning instant (``replanning_batch``), and the engine's replanning step
+(``Replanner``: the plans due at a frame, or None; the engine only follows plans)."""
 
 from __future__ import annotations
 
@@ -25,12 +20,9 @@ FuturePolicy = Literal["none", "log"]
 
 @dataclass(frozen=True)
 class SimulatedStates:
-    """Simulated states of K scenarios, indexed by the source batch's frames (T of them).
-
-    ego_xy_m, ego_vxy_mps, ego_axy_mps2: (K, T, 2) box centre / velocity / acceleration, ego frame
-    of the source scenario. ego_lane_id: (K, T). nbr_xy_m, nbr_vxy_mps: (K, N, T, 2);
-    nbr_valid: (K, N, T); nbr_lane_id: (K, N, T). Frames not simulated yet are NaN / False / 0.
-    """
+    """Simulated states of K scenarios over the source batch's T frames (not simulated yet: NaN / False / 0).
+    ego_xy_m, ego_vxy_mps, ego_axy_mps2: (K, T, 2) in the source ego frame; ego_lane_id: (K, T); nbr_xy_m,
+    nbr_vxy_mps: (K, N, T, 2); nbr_valid, nbr_lane_id: (K, N, T)."""
 
     ego_xy_m: np.ndarray
     ego_vxy_mps: np.ndarray
@@ -83,11 +75,10 @@ def lane_ids_from_y(marking_y_m: np.ndarray, lane_ids: np.ndarray, y_m: np.ndarr
 def replanning_batch(
     source: ScenarioBatch, sim: SimulatedStates, frame: int, future: FuturePolicy = "none"
 ) -> tuple[ScenarioBatch, np.ndarray]:
-    """The batch a planner sees at ``frame`` (>= ``T0_INDEX``) and the re-centring offset.
-
-    Returns ``(batch, centre_xy_m)``: ``centre_xy_m`` (K, 2) is the ego's simulated centre at
-    ``frame`` in the source ego frame; add it to a plan's positions to bring them back.
-    """
+    """The batch a planner sees at ``frame`` (>= ``T0_INDEX``), and ``centre_xy_m`` (K, 2), the ego's simulated
+    centre there (source ego frame), to add to its plans. The view is the source shifted by ``frame - T0_INDEX``
+    frames and re-centred; the simulated states overwrite the history; the future is blank (``future="none"``) or the
+    log (``future="log"``)."""
     n_frames = source.ego_xy_m.shape[1]
     if not T0_INDEX <= frame < n_frames:
         raise ValueError(f"replanning frame {frame} outside [{T0_INDEX}, {n_frames})")
@@ -168,14 +159,10 @@ class Replan:
 
     Attributes:
         rows: (D,) int positions (0..K-1) of the scenarios that got a plan.
-        xy_m, vxy_mps: (D, F, 2) planned ego centres / velocities in the *source* scenario's ego
-            frame (already moved back from the replanning view's frame); point i is frame + 1 + i.
-        goals_xy_m: (D, 2) the goals the plans aimed at (source ego frame), NaN if none.
-        follow_until: (D,) int: the last frame each plan is followed (a later plan takes over from its
-            own frame on); at most ``frame + F`` and ``N_TOTAL - 1``.
-        info: per-scenario numbers of the planner (name -> (D,)), recorded per replan.
-        plan_s: wall time spent planning [s] (all D scenarios).
-    """
+        xy_m, vxy_mps: (D, F, 2) plans in the *source* ego frame; point i is at frame + 1 + i.
+        goals_xy_m: (D, 2) their goals (source ego frame), NaN if none.
+        follow_until: (D,) int, the last frame each plan is followed (at most ``frame + F``, ``N_TOTAL - 1``).
+        info: per-scenario numbers of the planner (name -> (D,)); plan_s: planning wall time [s]."""
 
     rows: np.ndarray
     xy_m: np.ndarray
@@ -187,12 +174,9 @@ class Replan:
 
 
 class Replanner(Protocol):
-    """The engine's replanning step: plans for the scenarios due at a frame.
-
-    ``frames``: every frame (source indexing, >= ``T0_INDEX``, ascending) at which ``plans`` may return
-    plans (the slots of ``ClosedLoopChunk.plan_xy_m``). ``plans(frame, states)``: called after each
-    simulated frame (frames <= ``frame`` filled); None when nothing is due.
-    """
+    """The engine's replanning step. ``frames``: the frames (>= ``T0_INDEX``, ascending) at which ``plans`` may plan
+    (the slots of ``ClosedLoopChunk.plan_xy_m``); ``plans(frame, states)``: after each simulated frame; None when
+    nothing is due."""
 
     @property
     def frames(self) -> Sequence[int]: ...
@@ -221,11 +205,8 @@ def plan_in_batches(planner: Planner, batch: ScenarioBatch) -> PlanBatch:
 
 
 class PeriodicReplanner:
-    """Every scenario at t = 0 and every ``replan_every`` frames after it, one batched planner call.
-
-    ``future``: what the planner sees of the recorded future (``replanning_batch``). Only
-    one-dimensional numeric ``PlanBatch.info`` entries are kept (one number per scenario and replan).
-    """
+    """Every scenario at t = 0 and every ``replan_every`` frames, one batched planner call; only 1-D numeric
+    ``PlanBatch.info`` entries are kept."""
 
     def __init__(self, planner: Planner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy) -> None:
         self.planner = planner

@@ -1,10 +1,5 @@
-"""``closed-loop-log`` without SUMO: the neighbours replay their log, the ego follows its plans.
-
-There SUMO would only echo the positions it is given, so ``simulate_replay_group`` builds the same
-``ClosedLoopChunk`` in NumPy: neighbours on their log (NaN, invalid, lane 0 where unrecorded), the ego
-on its log up to t = 0 and then on its commands, with the same replanning step and ``follow_plans``.
-Its ``simulator`` is ``"replay"``: no SUMO contact check, so no ``sumo_collision`` column.
-"""
+"""``closed-loop-log`` without SUMO, which would only echo the positions it is given: the same ``ClosedLoopChunk`` in
+NumPy, with the same replanning step and ``follow_plans``, but no SUMO contact check (``simulator="replay"``)."""
 
 from __future__ import annotations
 
@@ -42,10 +37,7 @@ def simulate_replay_group(
     future: FuturePolicy,
     replanner: Replanner | None = None,
 ) -> ClosedLoopChunk:
-    """``closed-loop-log`` of K scenarios without SUMO; the chunk's ``indices`` are 0..K-1.
-
-    Same arguments and result as ``letspi.simulation.engine.simulate_group`` in ``closed-loop-log``.
-    """
+    """``closed-loop-log`` of K scenarios without SUMO: arguments and result as ``simulate_group``."""
     if config.mode is not EvaluationMode.LOG:
         raise ValueError(f"the replay simulates closed-loop-log only, not {config.mode.value} "
                          "(its neighbours need SUMO's driver models)")

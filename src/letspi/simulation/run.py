@@ -1,8 +1,4 @@
-"""``run_closed_loop``: closed-loop simulation of a batch, in-process, in worker processes or on Ray.
-
-The batch is cut into chunks of one lane layout, each simulated in lockstep; chunks are yielded in
-completion order with their scenarios' positions in the batch, so a caller can write and resume per chunk.
-"""
+"""``run_closed_loop``: closed-loop simulation of a batch, in-process, in worker processes or on Ray."""
 
 from __future__ import annotations
 
@@ -28,19 +24,12 @@ def run_closed_loop(
     max_worker_restarts: int = 2,
     scripted_nbr: np.ndarray | None = None,
 ) -> Generator[ClosedLoopChunk, None, None]:
-    """Simulate ``batch`` (or its rows ``indices``) closed loop; yield one ``ClosedLoopChunk`` per chunk.
-
-    A caller that stops early (Ctrl-C while it writes a chunk) closes the generator
-    (``contextlib.closing``): worker processes and Ray actors stop at once, not when it is collected.
-
-    planner_spec: a ``PlannerSpec`` (built inside each worker) or a ``BuiltPlanner`` (used as is).
-    config: the run (default ``ClosedLoopConfig()``), this planner's period applied (``for_planner``);
-    ``workers`` processes, or actors on Ray (``ray_address``: "local" unless Ray runs, "auto" or an address).
-    max_worker_restarts: workers that may die and be replaced before the run fails (their unfinished
-    chunks are simulated again: nothing is lost or duplicated).
-    scripted_nbr: (B, N) bool over ``batch``: neighbour slots that replay their log throughout in
-    ``closed-loop-hybrid``; None = none.
-    """
+    """Simulate ``batch`` (or its rows ``indices``) closed loop; yield ``ClosedLoopChunk``s in completion order,
+    chunks of one lane layout. Close the generator to stop workers at once (``contextlib.closing``). planner_spec: a
+    ``PlannerSpec`` (built in each worker) or a ``BuiltPlanner`` (used as is). config: default
+    ``ClosedLoopConfig()``, this planner's period applied. max_worker_restarts: workers that may die before the run
+    fails (their chunks are simulated again). scripted_nbr: (B, N) bool, slots that replay their log in
+    ``closed-loop-hybrid``."""
     cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
     tasks = make_tasks(batch, cfg, indices, scripted_nbr, dual_rate=runs_dual_rate(planner_spec))
     if not tasks:

@@ -1,11 +1,6 @@
-"""Dual-rate LetsPi: the LLM sets the strategy slowly, the physics replans fast (docs/evaluation.md).
-
-The LLM of a ``ProposingPlanner`` is asked at t = 0 and every ``llm_period_s``; an answer takes effect
-after a fixed ``llm_latency_s`` (called synchronously, applied that much later in simulated time;
-reproducible) or its measured latency (a background call, the simulation paced to real time while an
-answer is out; applied at the first replan after it arrived). Until then ``default_proposals`` hold.
-``DualRateSchedule`` keeps the proposals in force per scenario.
-"""
+"""Dual-rate LetsPi: the LLM sets the strategy slowly, the physics replans fast (docs/evaluation.md). An answer takes
+effect after a fixed latency (reproducible) or its measured one (a background call, the simulation paced to real
+time); until then ``default_proposals`` hold."""
 
 from __future__ import annotations
 
@@ -30,13 +25,8 @@ CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_
 
 @dataclass(frozen=True)
 class DualRateConfig:
-    """How often the LLM is asked and when its answers take effect.
-
-    Attributes:
-        llm_period_s: LLM calls at t = 0 and every this many seconds (>= the horizon: t = 0 only).
-        llm_latency_s: None = the measured latency (asynchronous, real-time pacing; not
-            reproducible); a number >= 0 = this fixed latency (reproducible; in the key).
-    """
+    """How often the LLM is asked: ``llm_period_s`` (t = 0 and every period; >= the horizon: t = 0 only), and when
+    its answers take effect: ``llm_latency_s`` (None: measured, not reproducible; else fixed, in the key)."""
 
     llm_period_s: float = DEFAULT_LLM_PERIOD_S
     llm_latency_s: float | None = None
@@ -90,15 +80,11 @@ class _Call:
 
 @dataclass
 class DualRateSchedule:
-    """The proposals in force for K scenarios simulated in lockstep.
-
-    ``step(step, view, context)``, at every physics replan (``step``: frames after t = 0, ascending), makes
-    the LLM calls due, applies the answers whose latency has passed and returns the proposals in force (K)
-    and per-scenario (K,) info: ``CALL_INFO_KEYS`` of the calls made (measured: arrived) at this replan,
-    ``llm_in_force`` (1 once an LLM answer is), ``params_age_s`` (age of the call in force [s]; NaN while
-    the fitted parameters are) and ``llm_answer_latency_s`` (of an answer applied now, else NaN).
-    ``concurrency``: LLM calls in flight at once. ``clock`` is injectable for tests. Call ``close()`` at the end.
-    """
+    """The proposals in force for K scenarios simulated in lockstep. ``step(step, view, context)`` at every physics
+    replan (``step``: frames after t = 0) makes the LLM calls due, applies the answers whose latency has passed and
+    returns the proposals in force and (K,) info: ``CALL_INFO_KEYS`` of the calls made (measured: arrived) now,
+    ``llm_in_force``, ``params_age_s`` [s] (NaN while the fitted parameters hold) and ``llm_answer_latency_s``.
+    ``concurrency``: calls in flight at once. Call ``close()`` at the end."""
 
     planner: DualRatePlanner
     k: int

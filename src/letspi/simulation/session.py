@@ -1,9 +1,5 @@
-"""One SUMO instance per process, reloaded per lane layout: libsumo (in-process, one simulation per
-process) or TraCI (a subprocess over a socket; the GUI). Both expose the API module ``session.api``.
-
-libsumo 1.28 warns on import when pyarrow differs from its bundled, renamed libarrow; letspi does not
-use SUMO's Parquet output, so the warning is swallowed.
-"""
+"""One SUMO instance per process, reloaded per lane layout: libsumo (in-process, one per process) or TraCI (a
+subprocess; the GUI). libsumo's harmless pyarrow warning on import is swallowed."""
 
 from __future__ import annotations
 
@@ -78,11 +74,8 @@ def sumo_arguments(net: SlotNetwork, config: ClosedLoopConfig) -> list[str]:
 
 
 class SumoSession:
-    """A SUMO instance that (re)loads slot networks; use as a context manager.
-
-    ``open(widths, n_slots)`` returns a network with a clean simulation at time 0 (a network is built once
-    per layout and slot count, then reloaded).
-    """
+    """A SUMO instance that (re)loads slot networks (a context manager); ``open(widths, n_slots)`` returns a network
+    with a clean simulation at time 0."""
 
     def __init__(self, config: ClosedLoopConfig, work_dir: Path | None = None) -> None:
         self.config = config

@@ -1,9 +1,5 @@
-"""The one seam between the closed-loop engine and planner construction.
-
-Workers build their planner from a picklable ``PlannerSpec`` (its frozen configuration), so models load
-once per worker and nothing unpicklable crosses a process boundary; in this process a ``BuiltPlanner``
-is used as it is. What a planner can do (read the future, run dual-rate) comes from the planner table.
-"""
+"""The one seam between the closed-loop engine and planner construction: workers build their planner from a picklable
+``PlannerSpec``, so models load once per worker and nothing unpicklable crosses processes."""
 
 from __future__ import annotations
 
@@ -19,14 +15,9 @@ from letspi.planners.options import PlannerOptions
 
 @dataclass(frozen=True)
 class PlannerSpec:
-    """A planner by its configuration (picklable) and its label.
-
-    Attributes:
-        config: the planner's frozen configuration; its key identifies the planner in results.
-        name: the label of its results (default: the configuration's kind).
-        kind_source: the import path of a kind loaded by path (``--planner mypkg.mod:NAME``), which a
-            worker process loads before building; None for built-in and installed kinds.
-    """
+    """A planner by its configuration (picklable; its key identifies the planner in results) and its label ``name``
+    (default: the kind). kind_source: the import path of a kind loaded by path, which a worker loads first; None for
+    built-in and installed kinds."""
 
     config: PlannerConfig
     name: str = ""

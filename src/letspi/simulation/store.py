@@ -1,10 +1,5 @@
-"""Resumable closed-loop output: one directory per (planner, mode, replanning period, scenarios).
-
-``run.json`` (the run's record: a resume guard), ``traj-NNNNN.npz`` (a chunk's trajectories and plans)
-and ``part-NNNNN.parquet`` (one row per scenario: metrics, SUMO collisions, timings, per-replan extras).
-Both files of a chunk are written atomically, the part last: a part file commits its chunk, and a
-rerun skips every scenario id already in a part.
-"""
+"""Resumable closed-loop output, one directory per run: ``run.json`` (a resume guard), per chunk ``traj-NNNNN.npz``
+and ``part-NNNNN.parquet`` (one row per scenario), written atomically, the part last (its commit)."""
 
 from __future__ import annotations
 
@@ -176,11 +171,8 @@ def run_closed_loop_to_dir(
     progress: Callable[[int], None] | None = None,
     scripted_nbr: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows.
-
-    Arguments as ``run_closed_loop``; ``progress`` is called with the number of scenarios done
-    (first with those found from an earlier run).
-    """
+    """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows. Arguments as
+    ``run_closed_loop``; ``progress(n)`` gets the scenarios done (first those of an earlier run)."""
     cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
     settings = hybrid_settings(cfg, scripted_nbr) if cfg.mode is EvaluationMode.HYBRID else None
     store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch, settings)
