@@ -1,12 +1,7 @@
-"""What deciding planners decided, and what it bought (``letspi analyze decisions``).
-
-Pairs every planner of one or more ``letspi evaluate`` directories with a reference planner (default
-``sf``) on the windows both hold, pools the pairs and reports per planner the rates and progress (the x
-of the plan's last frame) with paired differences (``letspi.metrics.stats.paired_rate``, grouped by ego
-vehicle) and, with the decision step's columns, the share of each decision, the defaults kept where the
-reference's plan was safe and changed where it collided, the share consulted and the median live
-planning time (cached rows left out).
-"""
+"""What deciding planners decided, and what it bought (``letspi analyze decisions``): every planner of one or more
+results directories paired with a reference (default ``sf``) on shared windows, pooled: rates and progress with
+paired differences (grouped by ego vehicle), decision shares, defaults kept where the reference was safe and changed
+where it collided, the share consulted, the median live planning time."""
 
 from __future__ import annotations
 

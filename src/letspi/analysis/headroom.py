@@ -1,13 +1,11 @@
 """How much could any choice of the LLM's eight numbers gain on a set of windows? (``letspi analyze headroom``)
 
-Each row is a chooser picking one option (``letspi.finetune.options``) per window; all are scored on the
-same windows against the recorded future, so they pair: ``defaults`` (what ``sf`` plans); ``best constant``
-(the option with the fewest at-fault collisions over the file; ties: successes, then progress); ``oracle,
-all options`` / ``oracle, presets`` (the hindsight-best per window: the bound of any chooser); the no-model
-``rule`` (the defaults unless their plan fails a check against the prediction or an adverse future, else
-the preset passing most; needs plan-time checks); ``history chooser (CV)`` (logistic regression from the
-risk features to the hindsight-best preset, ``folds``-fold cross-validation grouped by ego vehicle).
-The risk AUCs: how well history, and the adverse-future checks, predict that the defaults collide at fault.
+Each row is a chooser picking one option (``letspi.finetune.options``) per window, all scored on the same windows
+against the recorded future: ``defaults`` (``sf``); ``best constant`` (the fewest at-fault collisions over the file;
+ties: successes, progress); the hindsight oracles over all options and over the presets (the bound of any chooser);
+the no-model ``rule`` (the defaults unless their plan fails a check, else the preset passing most); a ``history
+chooser (CV)`` (logistic regression from the risk features, grouped by ego vehicle). The risk AUCs: how well history
+and the checks predict the defaults' at-fault collisions.
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
-"""The paper's ablations as presets (§IV-E, Tables IV-V; the kinds in docs/method.md).
-
-Each writes ``DIR/ablations/<kind>/`` like any evaluation; memory-size and llm-combinations also write
-``DIR/ablations/memory_size.json`` / ``llm_combinations.json`` (shapes in ``letspi.viz.report``) for
-``letspi report``. Every row is built from its own configuration, so its key says what it ran.
-"""
+"""The paper's ablations as presets (§IV-E, Tables IV-V; docs/method.md), each written to ``DIR/ablations/<kind>/``;
+memory-size and llm-combinations also write ``DIR/ablations/memory_size.json`` / ``llm_combinations.json`` (shapes in
+``letspi.viz.report``). Each row's key says what it ran."""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
-"""Closed-loop modes of ``letspi evaluate``: the harness's directory, metrics and resume, SUMO's simulation.
-
-``evaluate_closed_loop`` runs ``harness.evaluate`` with a ``ClosedLoopRunner``. What differs from open
-loop: ``run.json``'s identity adds the mode and ``mode_settings`` (a directory never mixes modes); each
-planner's key adds ``planner_evaluation``; rows are scored on the simulated trajectories and add the
-columns of ``letspi.simulation.store.chunk_frame``; the plan columns hold the simulated ego (goal: the
-plan made at t = 0), and the ``cl_*`` columns what the closed-loop panel draws (``closed_loop_rows``).
-"""
+"""Closed-loop modes of ``letspi evaluate``: ``harness.evaluate`` with a ``ClosedLoopRunner`` into the same
+directory. ``run.json``'s identity adds the mode and ``mode_settings``, each planner's key ``planner_evaluation``;
+rows are scored on the simulated trajectories (the plan columns hold the simulated ego; the ``cl_*`` columns what the
+closed-loop panel draws)."""
 
 from __future__ import annotations
 
@@ -60,10 +56,9 @@ class ClosedLoopSetupError(ValueError):
 
 
 def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = None) -> dict[str, Any]:
-    """What of the simulation changes answers (``run.json``): road and sublane model; the driver model
-    where SUMO drives neighbours; in ``closed-loop-hybrid`` the hand-over rule and the scripted neighbours
-    (count and digest of the (B, N) ``scripted_nbr``); ``simulator: replay`` for the replay (absent with
-    SUMO, so SUMO runs keep their keys). Not the workers, the chunk size or the GUI."""
+    """What of the simulation changes answers (``run.json``): road and sublane model; the driver model where SUMO
+    drives neighbours; in ``closed-loop-hybrid`` the hand-over rule and scripted neighbours (count and digest);
+    ``simulator: replay`` for the replay (absent with SUMO). Not the workers, the chunk size or the GUI."""
     out: dict[str, Any] = {"lateral_resolution_m": config.lateral_resolution_m,
                            "road_behind_m": config.road_behind_m, "road_ahead_m": config.road_ahead_m}
     if config.mode.has_drivers:
@@ -76,9 +71,8 @@ def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = No
 
 
 def planner_evaluation(config: ClosedLoopConfig, label: str, dual_rate: bool = False) -> dict[str, Any]:
-    """What joins the configuration key of the planner labelled ``label``: the mode and its replanning
-    period; for a planner run dual-rate (the LLM planners) also its LLM period and fixed latency (or
-    ``measured``)."""
+    """What joins the key of the planner labelled ``label``: the mode and its replanning period; for a dual-rate
+    planner also its LLM period and fixed latency (or ``measured``)."""
     out: dict[str, Any] = {"mode": config.mode.value, "replan_s": round(config.replan_s_of(label), 6)}
     if dual_rate:
         out["dual_rate"] = config.dual_rate.identity()
@@ -108,13 +102,9 @@ def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[f
 
 @dataclass(frozen=True)
 class ScriptedNeighbours:
-    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``).
-
-    Attributes:
-        mask: (B, N) bool, the slots that keep their recorded behaviour.
-        source: the HighD directory whose ``NN_events.csv`` were read, or None.
-        matched: scenarios whose recording has an events file there.
-    """
+    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``): ``mask`` (B, N) bool, the slots that
+    keep their recorded behaviour; ``source``, the HighD directory read (or None); ``matched``, scenarios whose
+    recording has an events file there."""
 
     mask: np.ndarray
     source: Path | None

@@ -1,12 +1,7 @@
-"""LLM planners in the harness: proposals made N at a time, physics and metrics batched per part.
-
-A thread-safe ``ProposingPlanner`` that calls a model per scenario runs through ``letspi.execution.ordered``:
-each scenario's proposal is one task (its context computed batched per fixed block of ``CONTEXT_BLOCK``
-positions); the calling thread runs ``simulate`` and the metrics over each part (``PART_SCENARIOS`` rows,
-or sooner after ``PART_FLUSH_S``) and writes it in scenario order. Concurrency, part boundaries and
-resumes change nothing stored. ``inference_s``: the scenario's own proposal time (server queueing
-included) plus its share of the batched context and physics.
-"""
+"""LLM planners in the harness: proposals made N at a time (``letspi.execution.ordered``; context batched per block
+of ``CONTEXT_BLOCK`` positions), physics and metrics batched per part (``PART_SCENARIOS`` rows, or after
+``PART_FLUSH_S``), parts written in scenario order. ``inference_s``: the scenario's own proposal time (server
+queueing included) plus its share of the batched context and physics."""
 
 from __future__ import annotations
 
@@ -104,10 +99,9 @@ def plan_concurrently(
     runner: RunnerConfig,
     progress: Callable[[int, RunStatus | None], None] | None = None,
 ) -> RunStats:
-    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score
-    and write them per part in scenario order, in this thread. Raises what
-    ``run_ordered`` raises, after writing every row it accepted. ``reads_future``: the planner sees the
-    recorded future (else the history only)."""
+    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score and write them
+    per part in scenario order, in this thread. Raises what ``run_ordered`` raises, after writing every row it
+    accepted. ``reads_future``: the planner sees the recorded future."""
     seen_all = batch if reads_future else batch.history()
     contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
                                                        lambda rows: planner.context(seen_all.take(rows)))

@@ -1,12 +1,7 @@
-"""Ctrl-C: how every long command stops (docs/reliability.md describes what a user sees).
-
-Inside ``handling()`` (the ``letspi`` command) the first SIGINT or SIGTERM becomes ``KeyboardInterrupt``
-in the main thread, even when SIGINT started ignored (``letspi ... &`` in a script). Worker processes
-never see it (``start_worker``, ``enter_worker``, ``WorkerPool``): their parent ends them. On the way out
-``stop_children`` runs the ``on_stop`` cleanups and ends every descendant, the command prints
-``stop_line`` and exits 130 (143 after SIGTERM). A second signal kills the descendants and exits at
-once. Library use and in-process tests keep Python's own Ctrl-C.
-"""
+"""Ctrl-C: how every long command stops (docs/reliability.md). Inside ``handling()`` the first SIGINT or SIGTERM
+becomes ``KeyboardInterrupt`` (even when SIGINT started ignored); worker processes never see it; ``finish`` ends
+every descendant, prints ``stop_line`` and exits 130 (143 after SIGTERM); a second signal exits at once. Library use
+and in-process tests keep Python's own Ctrl-C."""
 
 from __future__ import annotations
 
@@ -72,9 +67,8 @@ def stop_line(stored: int | None = None, total: int | None = None, *, resumes: b
 
 @dataclass
 class Tally:
-    """What a running command keeps if it is stopped: its ``total`` units of work (scenario rows,
-    memories, labelled scenarios, training steps) and how to count those stored, read from disk when
-    the stop comes. ``resumes`` as in ``stop_line``."""
+    """What a running command keeps if stopped: its ``total`` units of work and how to count those stored (read from
+    disk when the stop comes). ``resumes`` as in ``stop_line``."""
 
     resumes: bool = False
     total: int | None = None
@@ -134,10 +128,8 @@ def start_worker(process: BaseProcess) -> None:
 
 
 def enter_worker() -> None:
-    """First call in a worker process: ignore Ctrl-C (the parent decides when the worker stops) and
-    drop one that arrived during start-up (``start_worker``); SIGTERM, the parent's stop, raises
-    ``SystemExit`` so the worker's own cleanup runs. BLAS runs on one thread (the workers share the
-    cores; the matrix products are small); llama.cpp's own threads keep their setting."""
+    """First call in a worker process: ignore Ctrl-C (its parent stops it) and drop one that arrived during start-up;
+    SIGTERM raises ``SystemExit`` so the worker's cleanup runs. BLAS runs on one thread here."""
     os.environ["OPENBLAS_NUM_THREADS"] = "1"  # OpenBLAS builds loaded later (SciPy's) read it when they load
     threadpool_limits(1, user_api="blas")  # NumPy's, loaded with this module
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards a pending SIGINT
@@ -287,9 +279,8 @@ def _signal_all(pids: list[int], signum: int) -> None:
 
 
 def stop_children(grace_s: float = CHILD_GRACE_S) -> None:
-    """End what this process started and is still running (only inside ``handling()``): the registered
-    cleanups (``on_stop``), then SIGTERM to every descendant process, SIGKILL to those still running
-    after ``grace_s``."""
+    """End what this process started (only inside ``handling()``): the ``on_stop`` cleanups, then SIGTERM to every
+    descendant process, SIGKILL to those still running after ``grace_s``."""
     if not _state.active:
         return
     cleanups = list(_state.cleanups.values())
@@ -334,9 +325,8 @@ def _flush() -> None:
 
 
 def finish() -> NoReturn:
-    """Leave after a stop signal: end the child processes, print the stop line if the command printed
-    none (stopped while starting, or a command without a ``Tally``), and exit at once with
-    ``exit_code()``."""
+    """Leave after a stop signal: end the child processes, print the stop line if the command printed none, and exit
+    at once with ``exit_code()``."""
     stop_children()
     if not _state.reported:
         sys.stderr.write(stop_line(resumes=None) + "\n")
@@ -350,9 +340,8 @@ def finish() -> NoReturn:
 
 @contextmanager
 def handling() -> Iterator[None]:
-    """Stop signals for the block (in the main thread; the ``letspi`` command runs inside it): the
-    first becomes ``KeyboardInterrupt``, the second ends the process at once; after the first,
-    leaving the block ends child processes and exits (``finish``)."""
+    """Stop signals for the block (main thread; the ``letspi`` command runs inside it): the first becomes
+    ``KeyboardInterrupt`` and leaving the block then ``finish``es; the second ends the process at once."""
     previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     _state.active, _state.signum, _state.count, _state.reported = True, None, 0, False
     for s in STOP_SIGNALS:

@@ -1,12 +1,8 @@
-"""Run one task per scenario, N at a time (threads), and store the results through one writer in scenario order.
-
-The calling thread writes result k only after results 0..k-1 were written or failed, so neither the
-finishing order nor an interrupted run changes what is stored; ``concurrency`` is in no key. A task
-raising ``RequestFailedError`` is a failed scenario (nothing written; the run ends with
-``ScenariosFailedError``). Any other exception stops the run: queued tasks cancelled, the advisor's
-breaker tripped, the in-order prefix written, the first error raised. At most ``concurrency +
-reorder_window`` scenarios are between submission and writing.
-"""
+"""Run one task per scenario, N at a time (threads), and store the results through one writer in scenario order, so
+neither the finishing order nor an interrupted run changes what is stored (``concurrency`` is in no key). A task
+raising ``RequestFailedError`` is a failed scenario (nothing written; the run ends with ``ScenariosFailedError``);
+any other exception stops the run: queued tasks cancelled, the advisor's breaker tripped, the in-order prefix
+written, the first error raised."""
 
 from __future__ import annotations
 
@@ -33,13 +29,9 @@ PROGRESS_INTERVAL_S = 0.5
 
 @dataclass(frozen=True)
 class RunnerConfig:
-    """How a run executes (never what it answers).
-
-    concurrency: scenarios in flight at once (1: in the calling thread).
-    max_consecutive_failures: failed requests in a row that stop the run (None:
-        ``default_failure_budget(concurrency)`` = max(8, 2 N)).
-    reorder_window: finished scenarios that may wait for an earlier one before submission pauses.
-    """
+    """How a run executes (never what it answers). concurrency: scenarios in flight (1: in the calling thread).
+    max_consecutive_failures: failed requests in a row that stop the run (None: ``default_failure_budget``, max(8, 2
+    N)). reorder_window: finished scenarios that may wait for an earlier one before submission pauses."""
 
     concurrency: int = 1
     max_consecutive_failures: int | None = None
@@ -60,9 +52,8 @@ class RunnerConfig:
 
 @dataclass(frozen=True)
 class RunStatus:
-    """A progress snapshot. ``done`` counts scenarios finished in this run (written or failed);
-    ``requests_in_flight`` is the advisor's count (None without one); ``running`` counts scenario
-    tasks between submission and completion."""
+    """A progress snapshot: ``done`` (finished in this run, written or failed), ``requests_in_flight`` (None without
+    an advisor) and ``running`` (tasks between submission and completion)."""
 
     done: int
     total: int
@@ -321,10 +312,9 @@ def run_ordered(
 
 
 class BlockCache(Generic[T]):
-    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), on first use,
-    by whichever thread asks first (the others wait); thread-safe. ``compute(positions)`` gets a slice.
-    Blocks are fixed positions of the whole input, so a value never depends on the concurrency, timing
-    or what an interrupted run already stored."""
+    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), by whichever thread asks
+    first (the others wait), so a value never depends on the concurrency or on what a run already stored.
+    ``compute(positions)`` gets a slice."""
 
     def __init__(self, size: int, n: int, compute: Callable[[slice], T]) -> None:
         if size < 1:
