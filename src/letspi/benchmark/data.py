@@ -1,10 +1,6 @@
-"""A suite's scenarios: generated once, cached by the content of their definition, and reused.
-
-Cache (``$LETSPI_BENCHMARK_CACHE``, default ``~/.cache/letspi/benchmark``): ``traffic/<traffic key>/seed_<S>/``
-(recordings, events, ``done.json``) and ``scenarios/<key>/scenarios.arrow``. The traffic key digests the
-traffic definition and ``DATA_FORMAT``; ``<key>`` adds the extraction (real HighD: ids and file digests),
-so an extraction change reuses the traffic. A seed counts once its ``done.json`` is written (resume).
-"""
+"""A suite's scenarios, cached by the content of their definition (``$LETSPI_BENCHMARK_CACHE``, default
+``~/.cache/letspi/benchmark``): ``traffic/<traffic key>/seed_<S>/`` and ``scenarios/<key>/scenarios.arrow``,
+``<key>`` adding the extraction to the traffic key. A seed counts once its ``done.json`` is written."""
 
 from __future__ import annotations
 
@@ -49,10 +45,8 @@ def cache_root() -> Path:
 
 @dataclass(frozen=True)
 class SuiteData:
-    """The scenarios of a suite and how long they took (0 when reused from the cache).
-
-    file_digests: real HighD only, the digests of the recordings' files that were read.
-    """
+    """The scenarios of a suite and how long they took (0 when cached); ``file_digests``: real HighD only, the
+    digests of the files read."""
 
     scenarios_file: Path
     generation_s: float

@@ -1,12 +1,7 @@
-"""The leaderboard of a suite run: every planner per mode with 95 % intervals and paired deltas against
-the reference planner, as JSON, Markdown and HTML, from the stored rows on the windows all planners have.
-
-Rates (``*_pct``): Wilson interval grouped by ego vehicle; means (``ade_m``, ``fde_m``): vehicle
-bootstrap. Paired, planner − reference: for rates the windows only the planner / only the reference /
-both fail, the exact McNemar p, the interval of the difference [points] and ``discordant_design_effect``;
-for means the difference and its interval. ``leaderboard.json`` holds nothing that varies between
-identical runs (timings go to ``timing.json``; floats rounded to 6 significant digits).
-"""
+"""The leaderboard of a suite run, as JSON, Markdown and HTML: every planner per mode on the windows all have, with
+95 % intervals (rates: Wilson grouped by ego vehicle; means: vehicle bootstrap) and paired deltas against the
+reference (rates: discordant counts, exact McNemar p, ``discordant_design_effect``). ``leaderboard.json`` holds
+nothing that varies between identical runs (floats to 6 significant digits)."""
 
 from __future__ import annotations
 

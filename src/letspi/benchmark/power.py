@@ -1,10 +1,7 @@
-"""How many windows a paired comparison needs: the exact power of the two-sided exact McNemar test.
-
-On n shared windows A alone fails with probability ``p_only_a``, B alone with ``p_only_b``. The discordant
-count D is Binomial(n, p_only_a + p_only_b); given D = d, A's share is Binomial(d, p_only_a / (p_only_a +
-p_only_b)), and the test rejects in either tail of Binomial(d, 1/2) of mass <= alpha / 2. A 1-point
-difference at discordance psi: p_only_a = (psi + 0.01) / 2, p_only_b = (psi - 0.01) / 2.
-"""
+"""How many windows a paired comparison needs: the exact power of the two-sided exact McNemar test. A alone fails
+with probability ``p_only_a``, B with ``p_only_b``; the discordant count is Binomial(n, p_only_a + p_only_b), A's
+share of it Binomial(d, p_only_a / (p_only_a + p_only_b)), the rejection region the tails of Binomial(d, 1/2) of mass
+<= alpha / 2. A 1-point difference at discordance psi: p_only_a = (psi + 0.01) / 2."""
 
 from __future__ import annotations
 

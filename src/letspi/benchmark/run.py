@@ -1,8 +1,5 @@
-"""Run a suite: its data (cached), every planner in each of its modes (resumable), the leaderboard.
-
-``OUT/leaderboard.{json,md,html}``, ``OUT/timing.json`` (wall time per stage, load average) and
-``OUT/<mode slug>/`` (a ``letspi evaluate`` directory). A rerun resumes each mode; more planners join.
-"""
+"""Run a suite: its data (cached), every planner in each mode (a ``letspi evaluate`` directory per mode, resumed),
+``leaderboard.{json,md,html}`` and ``timing.json``."""
 
 from __future__ import annotations
 

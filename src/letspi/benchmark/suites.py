@@ -1,10 +1,6 @@
-"""The benchmark suites: one table (``SUITES``), one entry per suite pinning everything that makes a result.
-
-A ``Suite`` pins the traffic (preset resolved to its full configuration, or real HighD ids and file
-digests), the extraction, the modes and the metrics configuration (docs/benchmark.md). Its id is
-``NAME@vVERSION-DIGEST8``: BLAKE2b of the canonical JSON of ``Suite.definition``, so any content change
-changes it (``tests/test_benchmark.py`` pins every id). Suite seeds lie in ``SUITE_SEEDS``.
-"""
+"""The benchmark suites: one table (``SUITES``), one entry per suite pinning everything that makes a result
+(docs/benchmark.md). The id ``NAME@vVERSION-DIGEST8`` hashes ``Suite.definition`` (``tests/test_benchmark.py`` pins
+every id)."""
 
 from __future__ import annotations
 
@@ -28,13 +24,9 @@ REFERENCE_PLANNER: Final = "sf"
 
 @dataclass(frozen=True)
 class GeneratedTraffic:
-    """Traffic made by letspi's SUMO generator: one run per seed, each cut into recordings.
-
-    preset: ``letspi data generate --criticality``; overrides: ``--set KEY=VALUE`` pairs;
-    layout: road layout; seeds: generator seeds (in ``SUITE_SEEDS``); minutes: recorded minutes per
-    seed; recording_minutes: length of each recording; lanes_per_direction; flow_veh_per_h (None: the
-    generator's default).
-    """
+    """Traffic of letspi's SUMO generator, one run per seed (in ``SUITE_SEEDS``) cut into recordings: preset
+    (``--criticality``), overrides (``--set KEY=VALUE``), layout, seeds, minutes and recording_minutes,
+    lanes_per_direction, flow_veh_per_h (None: the generator's default)."""
 
     preset: str
     layout: str
@@ -66,12 +58,8 @@ class GeneratedTraffic:
 
 @dataclass(frozen=True)
 class RealHighD:
-    """Real HighD recordings from the user's licensed copy, chosen by id.
-
-    file_digests: recording id -> SHA-256 (first 16 hex digits) of its three CSV files; other files are
-    refused (``--allow-other-files``: warned about). Empty: not pinned yet (the leaderboard records the
-    digests seen).
-    """
+    """Real HighD recordings from the user's licensed copy, by id. ``file_digests``: id -> SHA-256 (16 hex digits) of
+    its three CSV files; other files are refused (``--allow-other-files``: warned). Empty: not pinned yet."""
 
     recording_ids: tuple[int, ...]
     file_digests: Mapping[int, str] = field(default_factory=dict)
@@ -106,10 +94,9 @@ class Extraction:
 
 @dataclass(frozen=True)
 class Mode:
-    """One evaluation mode of a suite. Closed loop: every planner replans every ``replan_s``; LLM planners
-    ask their model every ``llm_period_s`` and an answer takes effect ``llm_latency_s`` after its call
-    (fixed, so results do not depend on the machine). ``n_windows``: evaluate a random subset of this
-    many of the suite's windows (drawn with the extraction seed; None: all of them)."""
+    """One evaluation mode of a suite: closed loop replans every ``replan_s``; LLM planners ask every
+    ``llm_period_s`` with a fixed answer latency ``llm_latency_s``; ``n_windows``: a random subset (extraction seed;
+    None: all)."""
 
     mode: str
     replan_s: float | None = None

@@ -1,9 +1,5 @@
-"""One table over several suites' leaderboards (``letspi benchmark summary``): the README's headline.
-
-Per planner and suite mode, read from ``leaderboard.json`` (nothing recomputed): CR at fault % with its
-interval, the McNemar p against the reference, SR % ("–" where not evaluated). A planner is dominated
-when another (not ``human``) has CR-at-fault and SR intervals wholly better on both (``dominated_by``).
-"""
+"""One table over several suites' leaderboards (``letspi benchmark summary``), read from ``leaderboard.json``; a
+planner is dominated when another (not ``human``) has both CR-at-fault and SR intervals wholly better."""
 
 from __future__ import annotations
 
@@ -28,9 +24,8 @@ def load_boards(results: Sequence[Path]) -> list[dict[str, Any]]:
 
 
 def columns(boards: Sequence[Mapping[str, Any]]) -> list[tuple[str, str, Mapping[str, Any]]]:
-    """(suite name, mode slug, mode board) for every mode of every board, open loop first. Boards of one
-    suite id (e.g. the baselines' run and the LLM planners' run of the same suite) share a column: their
-    planners are merged (each planner's paired statistics stay those of its own run, on the same windows)."""
+    """(suite name, mode slug, mode board) for every mode of every board, open loop first; boards of one suite id
+    share a column (each planner's paired statistics stay those of its own run)."""
     merged: dict[tuple[str, str], dict[str, Any]] = {}
     names: dict[tuple[str, str], str] = {}
     for board in boards:

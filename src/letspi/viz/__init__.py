@@ -1,7 +1,5 @@
-"""Pictures and reports: trajectory and time-space diagrams, LLM panels, the HTML evaluation report.
-
-Figures are ``matplotlib.figure.Figure`` objects (no pyplot state; PNG through Agg).
-"""
+"""Pictures and reports: trajectory and time-space diagrams, LLM panels, the HTML evaluation report. Figures are
+``matplotlib.figure.Figure`` objects (no pyplot state; PNG through Agg)."""
 
 from letspi.viz.figure import plot_scenario
 from letspi.viz.llm_panel import IterationRecord

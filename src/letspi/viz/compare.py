@@ -1,9 +1,6 @@
-"""Two results directories side by side, paired on the windows both hold: ``letspi compare`` (docs/evaluation.md).
-
-Each planner of B is paired with the same label in A, or with ``reference`` in A (then the modes must
-agree). Writes ``compare.md``, ``compare.json`` (A the reference of "paired") and ``compare.html`` with
-the scenarios whose collision outcome differs drawn as panels (A above, B below).
-"""
+"""Two results directories side by side, paired on the windows both hold (``letspi compare``; docs/evaluation.md):
+``compare.md``, ``compare.json`` and ``compare.html`` with the scenarios whose collision outcome differs drawn as
+panels (A above, B below)."""
 
 from __future__ import annotations
 
@@ -67,10 +64,8 @@ def scenarios_file_of(directory: Path) -> Path | None:
 
 @dataclass
 class Comparison:
-    """Planners of B paired with planners of A on their shared windows. Keyed by B's
-    label: ``reference_of`` (A's label), both aggregates and intervals over the shared windows,
-    ``paired`` records (A = reference), and the digests whose collision outcome differs
-    (``only_a``: collides in A only)."""
+    """Planners of B paired with planners of A on their shared windows, keyed by B's label: ``reference_of``,
+    aggregates and intervals, ``paired`` records (A = reference), digests whose collision outcome differs."""
 
     a: Path
     b: Path

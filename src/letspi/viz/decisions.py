@@ -1,9 +1,6 @@
-"""The report's "Decisions" section: what the deciding planners chose, why, and the chosen plan beside sf's.
-
-Per planner with the decision step's columns: the decision shares, the share consulted, and up to ``n``
-scenarios where it left the defaults (first where ``sf`` collided and it did not, then the riskiest),
-each with its reason, failed adverse futures, refinements, shield, and its stored plan beside sf's.
-"""
+"""The report's "Decisions" section: per deciding planner its decision shares, the share consulted, and up to ``n``
+scenarios where it left the defaults (first where ``sf`` collided and it did not), each with its reason and checks
+and its stored plan beside sf's."""
 
 from __future__ import annotations
 

@@ -63,22 +63,16 @@ def plot_scenario(
     title: str | None = None,
     width_in: float = DEFAULT_WIDTH_IN,
 ) -> Figure:
-    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations).
+    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations); returns the figure.
 
     Args:
-        batch: scenarios (ego frame).
-        index: which scenario of ``batch``.
-        plans: planner name -> ``PlanBatch`` holding that scenario alone (B = 1) or the whole
-            ``batch`` (row ``index`` is drawn). Drawn in the given order with ``style.PLAN_COLOURS``.
-        iterations: reflection iterations of an LLM planner; adds one text row per iteration.
+        plans: planner name -> ``PlanBatch`` of that scenario alone (B = 1) or of the whole ``batch``; drawn
+            in order with ``style.PLAN_COLOURS``.
+        iterations: reflection iterations of an LLM planner (one text row each).
         out_png: if given, the figure is saved there (PNG, parent directories created).
         goal_xy_m: the unadjusted goal (2,); default: ``KinematicGoalPredictor``'s goal.
-        title: figure title; default names the scenario and its recording.
-        width_in: figure width [in]; heights follow from the road's aspect and the text.
-    Returns:
-        The figure; axes are labelled ``trajectory``, ``time_space``, ``gap``, ``safety_report:<k>``,
-        ``response:<k>`` (``Axes.get_label()``).
-    """
+        title: default names the scenario and its recording; width_in: figure width [in].
+    Axes are labelled ``trajectory``, ``time_space``, ``gap``, ``safety_report:<k>``, ``response:<k>``."""
     if not 0 <= index < len(batch):
         raise IndexError(f"scenario index {index} outside 0..{len(batch) - 1}")
     scenario = batch.take([index])

@@ -1,6 +1,5 @@
-"""Panel rows (``letspi.viz.closed_loop.LoopOutcome``) from stored results: ``stored_outcome`` (what was
-scored, with the neighbours the metrics saw) and ``first_plan_outcome`` (a closed-loop row's plan made at
-t = 0 against the recorded neighbours: the open-loop plan, scored on the spot)."""
+"""Panel rows (``LoopOutcome``) from stored results: ``stored_outcome`` (what was scored) and ``first_plan_outcome``
+(a closed-loop row's plan made at t = 0, i.e. the open-loop plan, scored on the spot)."""
 
 from __future__ import annotations
 
@@ -92,8 +91,7 @@ def closed_loop_report_figure(scenario: ScenarioBatch, rec: Mapping[str, Any], n
 
 def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, closed: ClosedLoopConfig,
                    config: MetricsConfig | None = None, scripted_nbr: np.ndarray | None = None) -> Figure:
-    """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel: the
-    planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``).
+    """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel (``letspi plot --mode``);
     ``scripted_nbr`` (1, N): neighbours that keep their log in ``closed-loop-hybrid``."""
     seen = scenario if built.reads_future else scenario.history()
     plan = built.planner.plan(seen)

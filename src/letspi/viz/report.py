@@ -1,12 +1,10 @@
 """``write_report``: a self-contained HTML report of an evaluation directory (images inline as base64 PNG).
 
-Sections, each skipped without its input: metrics with intervals and the paired comparison; per-planner
-distributions (min TTC capped at ``ttc_cap_s``, min gap, min PET); the worst scenarios drawn from their
-stored plans (never re-planned; a scenario whose digest no longer matches is listed, not drawn; closed
-loop as the closed-loop panel); the deciding planners' decisions; ablations from ``DIR/ablations/``:
-``memory_size.json`` ``{"total": N (optional), "points": [{"memory_size": .., "metrics": {..}}, ..]}`` and
-``llm_combinations.json`` ``{"combinations": [{"name", "fast", "physics", "metrics": {..}}, ..]}``, with
-``metrics.json`` keys. A file that cannot be read yields a warning in its section, not an error.
+Sections, each skipped without its input: metrics, distributions, the worst scenarios drawn from their stored plans
+(never re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
+"points": [{"memory_size": .., "metrics": {..}}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name",
+"fast", "physics", "metrics": {..}}, ..]}`` (``metrics.json`` keys); a file that cannot be read yields a warning in
+its section.
 """
 
 from __future__ import annotations
@@ -372,15 +370,8 @@ def write_report(
     with_diagrams: bool = True,
     config: MetricsConfig | None = None,
 ) -> Path:
-    """Write the HTML report of ``eval_dir`` and return its path.
-
-    Args:
-        eval_dir: an evaluation directory (``letspi.evaluation.harness`` layout).
-        out_html: output file; default ``eval_dir/report.html``.
-        n_worst: worst scenarios shown per planner.
-        with_diagrams: draw the worst scenarios with their stored plans (False: list them only; faster).
-        config: metrics configuration (for the TTC cap of the distributions).
-    """
+    """Write the HTML report of ``eval_dir`` (default ``eval_dir/report.html``) and return its path. ``n_worst``:
+    worst scenarios per planner; ``with_diagrams`` False lists them only; ``config`` gives the TTC cap."""
     eval_dir = Path(eval_dir)
     out = Path(out_html) if out_html is not None else eval_dir / "report.html"
     config = config or MetricsConfig()

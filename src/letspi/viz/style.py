@@ -1,10 +1,6 @@
-"""Shared look of every letspi picture: fonts, the Okabe–Ito colour-blind-safe palette, role colours.
-
-One colour per role everywhere, so one legend serves every picture: ego black (past solid, ground truth
-dashed); planner k ``PLAN_COLOURS[k]`` (solid, a dot every second); neighbours orange (same lane), sky
-blue (adjacent) or grey (past solid, future dashed); predicted goal a vermillion star, adjusted goal a
-diamond in the plan colour. Artists carry a ``gid`` (``gid_*``) so tests and callers can find them.
-"""
+"""Shared look of every picture: fonts, the Okabe–Ito colour-blind-safe palette, one colour per role: ego black
+(truth dashed), planner k ``PLAN_COLOURS[k]``, neighbours orange (same lane), sky blue (adjacent) or grey (future
+dashed), goal a vermillion star, adjusted goal a diamond. Artists carry a ``gid`` (``gid_*``)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
-"""The time-space diagram: x(t) of the ego, its plans and the neighbours, and below it the gap to the
-preceding vehicle (``preceding_gap``, minimum in the legend; the line breaks where the leader changes).
-gids: ``ts:ego_past``, ``ts:ego_truth``, ``ts:plan:<name>``, ``ts:nbr:<id>``, ``gap:truth``, ``gap:plan:<name>``.
-"""
+"""The time-space diagram: x(t) of the ego, its plans and the neighbours, and the gap to the preceding vehicle (the
+line breaks where the leader changes). gids: ``ts:ego_past``, ``ts:ego_truth``, ``ts:plan:<name>``, ``ts:nbr:<id>``,
+``gap:truth``, ``gap:plan:<name>``."""
 
 from __future__ import annotations
 
