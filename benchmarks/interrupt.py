@@ -35,7 +35,7 @@ import pandas as pd
 
 from benchmarks.llm_concurrency import _child_env
 from benchmarks.llm_server import LlmTestServer
-from letspi.evaluation.harness import load_planner_results, planner_dir_name
+from letspi.evaluation.results import load_planner_results, planner_dir_name
 from letspi.execution.interrupt import alive, descendants
 from letspi.finetune.labels import PARTS_DIR
 from letspi.method.memory import MemoryBank

@@ -46,7 +46,7 @@ from benchmarks.llm_server import latency_for, request_keys
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planners
 from letspi.assembly.resolve import Resolver
-from letspi.evaluation.harness import evaluate
+from letspi.evaluation.harness import EvaluationSettings, evaluate
 from letspi.execution.interrupt import CHILD_GRACE_S, received
 from letspi.execution.ordered import RunnerConfig, RunStats, run_ordered
 from letspi.llm.client import ParamAdvisor, RetryPolicy
@@ -205,8 +205,8 @@ def pipeline_level(spec: str, bank: Path, work_dir: Path, concurrency: int, n: i
     runs: dict[str, RunStats] = {}
     batch = bench_batch(n, seed=seed)
     cpu0, t0 = time.process_time(), time.perf_counter()
-    evaluate(planners, batch, work_dir / f"eval-{concurrency}-{n}-{seed}", concurrency=concurrency,
-             on_run=lambda name, st: runs.__setitem__(name, st))
+    evaluate(planners, batch, work_dir / f"eval-{concurrency}-{n}-{seed}", EvaluationSettings(
+        concurrency=concurrency, on_run=lambda name, st: runs.__setitem__(name, st)))
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     run = runs["letspi-fast"]
     return {"scenarios": n, "seconds": round(wall, 3), "scenarios_per_s": round(n / wall, 3),

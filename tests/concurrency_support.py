@@ -12,7 +12,7 @@ import pandas as pd
 
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import Resolver
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.execution.ordered import RunnerConfig
 from letspi.llm.client import RetryPolicy
 from letspi.method.memory import MemoryBank

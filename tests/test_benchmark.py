@@ -25,7 +25,8 @@ from letspi.benchmark.suites import (
     get_suite,
 )
 from letspi.cli.app import app
-from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.evaluation.harness import evaluate
+from letspi.evaluation.results import load_planner_results
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests

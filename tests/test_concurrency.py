@@ -21,7 +21,8 @@ from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planners
 from letspi.assembly.resolve import Resolver
 from letspi.cli.app import app
-from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import load_planner_results
 from letspi.execution.ordered import RunnerConfig, ScenariosFailedError, run_ordered
 from letspi.llm.client import RetryPolicy
 from letspi.llm.guard import CircuitBreaker
@@ -123,7 +124,7 @@ def test_shuffled_completion_order_gives_the_same_evaluation_rows(tmp_path: Path
         collect_into(tmp_path / "bank.sqlite", srv.spec(), batch, concurrency=8)
         for n in (1, 8):
             planners = build_planners(["letspi-fast", "llm"], options(srv.spec(), tmp_path / "bank.sqlite"))
-            evaluate(planners, batch, tmp_path / f"eval{n}", concurrency=n)
+            evaluate(planners, batch, tmp_path / f"eval{n}", EvaluationSettings(concurrency=n))
     for name in ("letspi-fast", "llm"):
         one, eight = stored_results(tmp_path / "eval1", name), stored_results(tmp_path / "eval8", name)
         assert len(one) == 16
@@ -144,7 +145,7 @@ def test_retry_after_delays_that_request_and_nothing_else(tmp_path: Path) -> Non
 
     with LlmTestServer(latency_s=0.05, fault=fault) as srv:
         planners = build_planners(["llm"], options(srv.spec(), max_iterations=0))
-        evaluate(planners, batch, tmp_path / "eval", concurrency=4)
+        evaluate(planners, batch, tmp_path / "eval", EvaluationSettings(concurrency=4))
         mine = [r.arrived for r in srv.arrivals if r.scenario_key == target[0]]
         others = [r.arrived for r in srv.arrivals if r.scenario_key != target[0]]
     assert len(mine) == 2 and mine[1] - mine[0] >= 1.0  # 429, then the retry after >= 1 s
@@ -286,7 +287,7 @@ def test_kill_9_mid_evaluation_then_rerun_gives_the_uninterrupted_results(tmp_pa
     parts = tmp_path / "killed" / "eval" / "per_scenario" / "llm"
     with LlmTestServer(latency_s=0.03, jitter=0.9) as srv:
         evaluate(build_planners(["llm"], options(srv.spec(), max_iterations=1)), batch, tmp_path / "reference",
-                 concurrency=8)
+             EvaluationSettings(concurrency=8))
         _run(tmp_path / "killed", srv.spec(), scenario_file, "evaluate",
              kill_when=lambda: len(list(parts.glob("part-*.parquet"))) >= 2)
         stored = sum(len(pd.read_parquet(p, columns=["row"])) for p in parts.glob("part-*.parquet"))

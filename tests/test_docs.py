@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from benchmarks.speed import app as speed_app
 from letspi.cli.app import app
+from letspi.evaluation.summary import outputs_reference_markdown
 from letspi.metrics import reference_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -238,7 +239,7 @@ def test_every_documented_command_path_answers_help_with_its_options(root, docum
 def metrics_reference_text() -> str:
     """docs/metrics-reference.md as it should be: its hand-written head, then the generated reference."""
     head = METRICS_REFERENCE.read_text(encoding="utf-8").split(GENERATED_MARK)[0]
-    return f"{head}{GENERATED_MARK}\n\n{reference_markdown().rstrip()}\n"
+    return f"{head}{GENERATED_MARK}\n\n{reference_markdown().rstrip()}\n\n{outputs_reference_markdown().rstrip()}\n"
 
 
 def test_metrics_reference_page_is_generated_from_the_registry():

@@ -28,7 +28,8 @@ from letspi.evaluation.closed_loop import (
     closed_loop_rows,
     evaluate_closed_loop,
 )
-from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import EvaluationDirError, load_planner_results
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.cv import CvConfig
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
@@ -274,7 +275,7 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     batch = _brake_batch()
     scen = save_scenarios(batch, tmp_path / "brake.arrow")
     built = BuiltPlanner("brake", CvConfig(), BrakePlanner(8.0))
-    evaluate([built], batch, tmp_path / "open", scenarios_file=str(scen))
+    evaluate([built], batch, tmp_path / "open", EvaluationSettings(scenarios_file=str(scen)))
     evaluate_closed_loop([built], batch, tmp_path / "reactive", ClosedLoopConfig(REACTIVE), scenarios_file=str(scen))
     result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(tmp_path / "reactive"), "--out",
                                  str(tmp_path / "cmp")])
@@ -305,7 +306,7 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     assert result.exit_code == 2 and "share no scenario" in result.output
     # and so are other metrics configurations, or other planners in another mode
     strict = tmp_path / "strict"
-    evaluate([built], batch, strict, config=MetricsConfig(low_ttc_s=3.0))
+    evaluate([built], batch, strict, EvaluationSettings(metrics=MetricsConfig(low_ttc_s=3.0)))
     result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(strict)])
     assert result.exit_code == 2 and "different metrics configurations" in result.output
     result = runner.invoke(app, ["compare", str(tmp_path / "open"), str(tmp_path / "reactive"), "--reference", "brake"])

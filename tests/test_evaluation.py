@@ -17,7 +17,9 @@ import pandas as pd
 import pytest
 
 from letspi.assembly.planners import BuiltPlanner, build_planners
-from letspi.evaluation.harness import EvaluationDirError, evaluate, load_planner_results, load_plans, timing_summary
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import EvaluationDirError, load_planner_results, load_plans
+from letspi.evaluation.summary import timing_summary
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch
 from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
@@ -63,7 +65,7 @@ def _crashy(crash_on: int) -> BuiltPlanner:
 
 
 def test_outputs_have_the_documented_keys(tmp_path: Path) -> None:
-    res = evaluate(_built("human", "cv"), _batch(), tmp_path, scenarios_file="mem")
+    res = evaluate(_built("human", "cv"), _batch(), tmp_path, EvaluationSettings(scenarios_file="mem"))
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
     assert set(on_disk["planners"]) == {"human", "cv"}
     for key in PAPER_KEYS:
@@ -110,18 +112,18 @@ def test_crash_then_rerun_resumes_without_duplicates(tmp_path: Path) -> None:
 
 
 def test_refuses_other_scenarios_even_with_the_same_ids(tmp_path: Path) -> None:
-    evaluate(_built("human"), _batch(3), tmp_path, scenarios_file="a.arrow")
+    evaluate(_built("human"), _batch(3), tmp_path, EvaluationSettings(scenarios_file="a.arrow"))
     with pytest.raises(EvaluationDirError, match="other scenarios: the directory holds 3 scenarios from a.arrow"):
-        evaluate(_built("human"), _batch(4), tmp_path, scenarios_file="b.arrow")
+        evaluate(_built("human"), _batch(4), tmp_path, EvaluationSettings(scenarios_file="b.arrow"))
     # regenerated data: the same scenario ids, other content (a faster leader) -> refused, not mixed
     with pytest.raises(EvaluationDirError, match="dataset digest"):
-        evaluate(_built("human"), _batch(3, speed_mps=31.0), tmp_path, scenarios_file="a.arrow")
+        evaluate(_built("human"), _batch(3, speed_mps=31.0), tmp_path, EvaluationSettings(scenarios_file="a.arrow"))
 
 
 def test_refuses_another_metrics_configuration(tmp_path: Path) -> None:
     evaluate(_built("cv"), _batch(3), tmp_path)
     with pytest.raises(EvaluationDirError, match=r"metrics_config.low_ttc_s: 2.0 -> 3.0"):
-        evaluate(_built("cv"), _batch(3), tmp_path, config=MetricsConfig(low_ttc_s=3.0))
+        evaluate(_built("cv"), _batch(3), tmp_path, EvaluationSettings(metrics=MetricsConfig(low_ttc_s=3.0)))
 
 
 def test_later_planners_join_the_table(tmp_path: Path) -> None:

@@ -16,7 +16,8 @@ from typer.testing import CliRunner
 
 from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.cli.app import app
-from letspi.evaluation.harness import evaluate, load_planner_results, stored_vehicles
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import load_planner_results, stored_vehicles
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.stats import (
     bootstrap_mean_interval,
@@ -61,7 +62,7 @@ def _without_timing(entry: dict[str, Any]) -> dict[str, Any]:
 
 def test_metrics_json_has_an_interval_for_every_rate_and_mean_and_pairs_with_sf(tmp_path: Path) -> None:
     batch = _batch()
-    evaluate(_planners(), batch, tmp_path, scenarios_file="mem")
+    evaluate(_planners(), batch, tmp_path, EvaluationSettings(scenarios_file="mem"))
     summary = json.loads((tmp_path / "metrics.json").read_text())
     methods = summary["statistics"]["interval_methods"]
     assert methods["cr_pct"] == "vehicle-wilson" and methods["ttc_s"] == "vehicle-bootstrap"
@@ -120,7 +121,7 @@ def test_reference_is_chosen_refused_or_taken_from_an_earlier_run(tmp_path: Path
     batch = _batch()
     sf, cv, brake = _planners()
     with pytest.raises(ValueError, match="--reference 'nope' is not among the planners"):
-        evaluate([cv, brake], batch, tmp_path / "x", reference="nope")
+        evaluate([cv, brake], batch, tmp_path / "x", EvaluationSettings(reference="nope"))
     assert not (tmp_path / "x").exists()  # refused before anything ran
     # without sf: the first planner of the run
     evaluate([cv, brake], batch, tmp_path / "y")

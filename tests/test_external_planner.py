@@ -19,7 +19,7 @@ from test_evaluation_statistics import _batch
 import letspi.api as lp
 from letspi.assembly import planner_table as table_module
 from letspi.assembly.planner_table import PlannerKindError, kind_origin, load_kind, planner_table
-from letspi.evaluation.harness import EvaluationDirError
+from letspi.evaluation.results import EvaluationDirError
 from letspi.scenario.store import save_scenarios
 from letspi.simulation.spec import PlannerSpec, reads_recorded_future
 

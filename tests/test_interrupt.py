@@ -25,7 +25,7 @@ from concurrency_support import scenarios
 from benchmarks.interrupt import Stopped, letspi_command, run_and_stop
 from benchmarks.llm_concurrency import _child_env, real_server_available, start_llama_server
 from benchmarks.llm_server import ChatRequest, Fault, LlmTestServer
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.execution.interrupt import Tally, WorkerPool, stop_line
 from letspi.method.memory import MemoryBank
 from letspi.scenario.identity import scenario_digests

@@ -15,7 +15,8 @@ import pytest
 
 from benchmarks.llm_concurrency import prefix_reuse, real_server_available, start_llama_server
 from letspi.assembly.planners import build_planners
-from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import load_planner_results
 from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.latency import bench_scenarios
@@ -65,7 +66,7 @@ def test_concurrent_evaluation_against_the_real_server(llama_server: tuple[str, 
     planners = build_planners(["llm"], options)
     planners[0].planner.advisor.retry = RetryPolicy(max_attempts=2, timeout_s=600.0)  # type: ignore[attr-defined]
     runs = {}
-    evaluate(planners, batch, tmp_path / "eval", concurrency=2, on_run=runs.__setitem__)
+    evaluate(planners, batch, tmp_path / "eval", EvaluationSettings(concurrency=2, on_run=runs.__setitem__))
     rows = load_planner_results(tmp_path / "eval", "llm")
     assert len(rows) == 3 and runs["llm"].written == 3 and runs["llm"].failed == 0
     assert runs["llm"].requests is not None and runs["llm"].requests.requests >= 3

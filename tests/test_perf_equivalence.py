@@ -25,7 +25,8 @@ from benchmarks.replaced import (
     sf_opt_on_repeated_batch,
 )
 from letspi.assembly.planners import build_planners
-from letspi.evaluation.harness import evaluate, load_planner_results
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import load_planner_results
 from letspi.learned.trees import Tree, TreeEnsemble
 from letspi.method.decide import load_risk_model
 from letspi.physics.idm import CAR_IDM, IdmKernel, IdmParams, idm_acceleration
@@ -186,8 +187,8 @@ def test_open_loop_in_worker_processes_stores_the_same_rows(tmp_path: Path, scen
     file = tmp_path / "scenes.arrow"
     save_scenarios(scenes, file)
     planners = build_planners(["cv", "sf", "sf-opt"], DEFAULT_OPTIONS)
-    evaluate(planners, scenes, tmp_path / "one", scenarios_file=str(file))
-    evaluate(planners, scenes, tmp_path / "two", scenarios_file=str(file), workers=2)
+    evaluate(planners, scenes, tmp_path / "one", EvaluationSettings(scenarios_file=str(file)))
+    evaluate(planners, scenes, tmp_path / "two", EvaluationSettings(scenarios_file=str(file), workers=2))
     for p in planners:
         a = load_planner_results(tmp_path / "one", p.name, with_plans=True).sort_values("row").reset_index(drop=True)
         b = load_planner_results(tmp_path / "two", p.name, with_plans=True).sort_values("row").reset_index(drop=True)

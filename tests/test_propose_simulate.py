@@ -17,7 +17,7 @@ from concurrency_support import collect_into, options, scenarios, stored_results
 from benchmarks.llm_server import LlmTestServer
 from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.evaluation import concurrent
-from letspi.evaluation.harness import evaluate
+from letspi.evaluation.harness import EvaluationSettings, evaluate
 from letspi.execution.ordered import BlockCache
 from letspi.planners.base import PlanBatch, Proposals, ProposingPlanner
 from letspi.planners.options import PlannerOptions
@@ -127,10 +127,10 @@ def test_evaluate_pools_proposals_per_part_and_stores_the_per_scenario_results(
     of one scenario with contexts of one scenario (per-scenario physics, in sequence) store."""
     srv, bank = llm_setup
     batch = scenarios(14, seed=6)
-    evaluate(_llm_planners(srv, bank), batch, tmp_path / "pooled", concurrency=4)
+    evaluate(_llm_planners(srv, bank), batch, tmp_path / "pooled", EvaluationSettings(concurrency=4))
     monkeypatch.setattr(concurrent, "PART_SCENARIOS", 1)
     monkeypatch.setattr(concurrent, "CONTEXT_BLOCK", 1)
-    evaluate(_llm_planners(srv, bank), batch, tmp_path / "single", concurrency=1)
+    evaluate(_llm_planners(srv, bank), batch, tmp_path / "single", EvaluationSettings(concurrency=1))
     for name in ("letspi-fast", "llm", "no-shield"):
         pooled, single = stored_results(tmp_path / "pooled", name), stored_results(tmp_path / "single", name)
         assert len(pooled) == 14

@@ -24,7 +24,7 @@ import pytest
 from letspi.assembly.planners import build_planners, resolve_planner
 from letspi.assembly.resolve import Resolver
 from letspi.evaluation.closed_loop import mode_settings, planner_evaluation
-from letspi.evaluation.harness import planner_record, run_record
+from letspi.evaluation.results import planner_record, run_record
 from letspi.keyed import key_of
 from letspi.learned.weights import save_weights
 from letspi.method.memory import MemoryBank

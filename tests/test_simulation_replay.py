@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from letspi.cli.app import app
 from letspi.constants import N_TOTAL, T0_INDEX
 from letspi.evaluation.closed_loop import mode_settings
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.metrics.compute import human_future
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch

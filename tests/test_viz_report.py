@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from letspi.assembly.planners import build_planners
 from letspi.cli import viz as viz_cli
-from letspi.evaluation.harness import evaluate
+from letspi.evaluation.harness import EvaluationSettings, evaluate
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
@@ -36,7 +36,8 @@ def eval_dir(tmp_path_factory):
     ])
     scen = save_scenarios(batch, root / "scenarios.arrow")
     out = root / "evaluation"
-    evaluate(build_planners(["human", "cv"], PlannerOptions()), batch, out, scenarios_file=str(scen))
+    evaluate(build_planners(["human", "cv"], PlannerOptions()), batch, out,
+             EvaluationSettings(scenarios_file=str(scen)))
     return out
 
 

@@ -24,8 +24,10 @@ import pandas as pd
 
 from letspi.assembly.planners import BuiltPlanner, build_planners
 from letspi.evaluation.closed_loop import evaluate_closed_loop
+from letspi.evaluation.harness import EvaluationSettings
 from letspi.evaluation.harness import evaluate as run_evaluation
-from letspi.evaluation.harness import load_planner_results, read_summary, summary_markdown
+from letspi.evaluation.results import load_planner_results, read_summary
+from letspi.evaluation.summary import summary_markdown
 from letspi.metrics.aggregate import TABLE_COLUMNS
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import PlanBatch, Planner
@@ -91,8 +93,8 @@ def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | 
         evaluate_closed_loop(list(planners), batch, Path(out), closed_loop, scenarios_file=source,
                              config=metrics_config, reference=reference)
     else:
-        run_evaluation(list(planners), batch, Path(out), scenarios_file=source, config=metrics_config,
-                       reference=reference)
+        run_evaluation(list(planners), batch, Path(out), EvaluationSettings(
+            scenarios_file=source, metrics=metrics_config or MetricsConfig(), reference=reference))
     return open_results(out)
 
 
@@ -143,7 +145,7 @@ class Results:
     def per_scenario(self, name: str, *, with_plans: bool = False) -> pd.DataFrame:
         """One planner's stored rows, in dataset order: ``scenario_id``, ``scenario_digest``, ``row``,
         ``vehicle_key``, every per-window metric (docs/metrics-reference.md), ``inference_s`` and the
-        plan's ``info_*`` columns; ``with_plans`` adds the plans (flat float32 arrays)."""
+        planner's declared outputs (``letspi.planners.outputs.column``); ``with_plans`` adds the plans."""
         self._check(name)
         return load_planner_results(self.directory, name, with_plans=with_plans)
 

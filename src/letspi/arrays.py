@@ -1,11 +1,7 @@
 """Dataclasses of arrays that share a leading batch axis (scenarios, windows, memories).
 
-``Batched``: ``len(x)`` is the length of the first field's first axis (the batch size B).
-``Rows``: every field is an array with the batch axis first; ``x.take(rows)`` keeps those rows of each
-field (an index array, a boolean mask or a slice), as ``numpy`` indexing does.
-
-A class whose fields are laid out otherwise (the batch axis last, or per-candidate arrays beside the
-per-scenario ones) takes ``Batched`` and writes its own ``take``.
+``Batched``: ``len(x)`` is the first field's first axis. ``Rows``: every field has the batch axis first, and
+``x.take(rows)`` keeps those rows (index array, mask or slice). Other layouts take ``Batched`` with their own ``take``.
 """
 
 from __future__ import annotations

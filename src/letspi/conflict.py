@@ -1,14 +1,7 @@
-"""Surrogate safety measures of a car-following pair, from bumper gap and closing speed.
+"""Surrogate safety measures of a car-following pair from bumper gap s [m] and closing speed dv [m/s], element-wise.
 
-The one place the TTC and DRAC formulas are written; the planners' metrics
-(``letspi.metrics.ttc``, ``letspi.metrics.drac``) and the highD-format derivation
-(``letspi.highd.derive``, ``letspi.highd.criticality``) differ only in what they report where the
-formula is undefined, which the callers pass in:
-
-* TTC [s] = s / dv while closing in (gap s > 0 m, closing speed dv > 0 m/s);
-* DRAC [m/s²] = dv² / (2 s) while closing in: the constant deceleration that just avoids contact.
-
-Element-wise over arrays of any (broadcastable) shape; NaN closing speed counts as not closing.
+The one place the formulas are written: TTC [s] = s / dv and DRAC [m/s²] = dv² / (2 s) while closing in (s > 0,
+dv > 0; NaN dv is not closing). Callers (``letspi.metrics``, ``letspi.highd``) pass what to report elsewhere.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Fixed quantities of the planning problem (paper §IV-B).
 
-Time indexing used everywhere in letspi: a scenario holds ``N_TOTAL`` frames; frame index
-``T0_INDEX`` is the planning instant t = 0 (the last history frame). History is
-``[0, T0_INDEX]`` inclusive (75 frames = 3 s), the future ``[T0_INDEX + 1, N_TOTAL)``
-(125 frames = 5 s).
+A scenario holds ``N_TOTAL`` frames; ``T0_INDEX`` is the planning instant t = 0 (the last history frame). History
+is ``[0, T0_INDEX]`` (75 frames, 3 s), the future ``[T0_INDEX + 1, N_TOTAL)`` (125 frames, 5 s).
 """
 
 from typing import Final

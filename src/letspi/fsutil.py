@@ -1,15 +1,9 @@
 """Crash-safe file writes and one writer per output.
 
-Writes: write a temporary file beside the target, fsync it, rename it over the target, fsync the
-directory. A reader sees the old file or the new one, never a torn one, and a completed write
-survives a crash of the process or the machine.
-
-Writers: ``writer_lock`` lets one process at a time write a results directory or a memory bank;
-two writers would interleave their parts and store scenarios twice.
-
-Provenance: ``provenance_path``, ``provenance_command`` and ``provenance_record`` write the paths a
-manifest records without the directories of the machine that wrote it (a fitted file or an adapter
-ships inside letspi; the digest recorded beside a path identifies the file).
+Writes go to a temporary file beside the target, fsynced and renamed over it, then the directory is fsynced:
+a reader sees the old or the new file, and a completed write survives a crash. ``writer_lock`` lets one process
+at a time write a results directory or a memory bank. ``provenance_*`` record paths in manifests without the
+writing machine's directories.
 """
 
 from __future__ import annotations
@@ -104,9 +98,9 @@ _ABSOLUTE_WORD = re.compile(r"(?<![^\s=])/[^\s'\"]+")
 
 
 def provenance_record(value: Any) -> Any:
-    """``value`` (a JSON-like record: dicts, lists, strings, paths, numbers) with every absolute path in it
-    through ``provenance_path``: a ``Path``, a string that is one, or a word of a text that is one (a
-    command line such as ``letspi train llm --data /abs/labels31``); every other character as it is."""
+    """``value`` (dicts, lists, strings, paths, numbers) with every absolute path in it through ``provenance_path``: a
+    ``Path``, a string that is one, or a word of a text that is one (such as a command line).
+    """
     if isinstance(value, dict):
         return {k: provenance_record(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -123,12 +117,9 @@ SETTINGS_FILE = "settings.json"
 
 def resume_directory(out: Path, settings: Mapping[str, Any], *, what: str, instead: str,
                      parts_dir: str = "parts") -> tuple[Path, bool]:
-    """Prepare the output directory ``out`` of a resumable run that stores its work in ``out/parts_dir``:
-    both created, temporaries a killed writer left removed; ``settings.json`` pins what a rerun must match.
-
-    Returns (the parts directory, True when this run wrote the settings: a fresh start). A rerun with other
-    settings gets ``ValueError`` naming the changed keys ("OUT: holds WHAT made with other settings (keys);
-    INSTEAD or delete it") and nothing is touched.
+    """Prepare the output ``out`` of a resumable run that stores its work in ``out/parts_dir`` (both created, a killed
+    writer's temporaries removed; ``settings.json`` pins what a rerun must match). Returns (the parts directory,
+    True on a fresh start); a rerun with other settings gets a ``ValueError`` naming the changed keys, untouched.
     """
     out = Path(out)
     parts = out / parts_dir
@@ -195,13 +186,10 @@ def _acquire(lock: Path, output: Path) -> TextIO:
 
 @contextmanager
 def writer_lock(output: Path, command: str = "", *, directory: bool = True) -> Iterator[Path]:
-    """Hold the exclusive writer lock of ``output``, a results directory (created if missing) or a file
-    such as a memory bank (``directory=False``): one writer at a time.
-
-    A second process gets ``OutputLockedError`` at once, naming the holder's pid. The lock is an
-    ``flock``, which the kernel releases when its holder dies, so the lock of a killed process is
-    taken over. The lock file records pid, command and start time for that message and is removed on
-    release, and so is a directory this call created if nothing was written into it.
+    """Hold the exclusive writer lock (an ``flock``, released by the kernel when its holder dies) of ``output``, a
+    results directory (created if missing) or a file such as a memory bank (``directory=False``). Another process
+    gets ``OutputLockedError`` at once, naming the holder's pid; on release the lock file goes, and so does a
+    directory this call created if nothing was written into it.
     """
     output = Path(output)
     created = directory and not output.exists()

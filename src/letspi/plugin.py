@@ -10,9 +10,11 @@ from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, PlannerK
 from letspi.assembly.resolve import Resolver
 from letspi.constants import DT_S, N_FUTURE, N_HISTORY, T0_INDEX
 from letspi.keyed import Config
+from letspi.metrics.registry import Agg
 from letspi.planners.base import PlanBatch, Planner
 from letspi.planners.options import PlannerOption
+from letspi.planners.outputs import output
 from letspi.scenario.types import ScenarioBatch
 
-__all__ = ["DT_S", "ENTRY_POINT_GROUP", "N_FUTURE", "N_HISTORY", "T0_INDEX", "Builder", "Config", "FutureUse",
-           "PlanBatch", "Planner", "PlannerKind", "PlannerOption", "Resolver", "ScenarioBatch"]
+__all__ = ["DT_S", "ENTRY_POINT_GROUP", "N_FUTURE", "N_HISTORY", "T0_INDEX", "Agg", "Builder", "Config", "FutureUse",
+           "PlanBatch", "Planner", "PlannerKind", "PlannerOption", "Resolver", "ScenarioBatch", "output"]

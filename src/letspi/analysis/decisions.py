@@ -14,8 +14,11 @@ import numpy as np
 import pandas as pd
 
 from letspi.constants import N_FUTURE
-from letspi.evaluation.harness import load_planner_results, stored_vehicles
+from letspi.evaluation.results import load_planner_results, stored_vehicles
+from letspi.evaluation.summary import cached
 from letspi.metrics.stats import paired_rate, wilson_interval
+from letspi.planners.decision import CONSULTED, DECISION
+from letspi.planners.outputs import column as output_column
 
 RATES = (("collision", "CR"), ("collision_at_fault", "CR at fault"), ("success", "SR"))
 
@@ -23,12 +26,6 @@ RATES = (("collision", "CR"), ("collision_at_fault", "CR at fault"), ("success",
 def _progress(frame: pd.DataFrame) -> np.ndarray:
     """(n,) the x of each stored plan's last frame [m] (ego frame: the progress along the road)."""
     return np.array([np.asarray(p, dtype=np.float64).reshape(N_FUTURE, 2)[-1, 0] for p in frame["plan_xy_m"]])
-
-
-def _cached(frame: pd.DataFrame) -> np.ndarray:
-    if "info_llm_cached" not in frame:
-        return np.zeros(len(frame), dtype=bool)
-    return np.asarray(frame["info_llm_cached"], dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -78,12 +75,13 @@ def planner_report(p: Paired, name: str, reference: str) -> dict[str, Any]:
     prog, ref_prog = _progress(a), _progress(b)
     out["progress_m"] = {"mean": float(prog.mean()), "reference_mean": float(ref_prog.mean()),
                          "diff_pct": float(100 * (prog.mean() / ref_prog.mean() - 1.0))}
-    if "info_decision" in a:
-        decision = a["info_decision"].astype(str).to_numpy()
+    if output_column(DECISION) in a:
+        decision = a[output_column(DECISION)].astype(str).to_numpy()
         ref_collides = np.asarray(b["collision"], dtype=bool)
         kept = decision == "default"
-        consulted = np.asarray(a["info_consulted"], dtype=bool) if "info_consulted" in a else np.ones(n, bool)
-        live = ~_cached(a)
+        col = output_column(CONSULTED)
+        consulted = np.asarray(a[col], dtype=bool) if col in a else np.ones(n, bool)
+        live = ~cached(a)
         t = np.asarray(a["inference_s"], dtype=np.float64)
         counts = pd.Series(decision).value_counts()
         out["decisions"] = {

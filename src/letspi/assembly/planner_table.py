@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import functools
 import importlib
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from importlib.metadata import entry_points
@@ -32,6 +32,7 @@ from letspi.keyed import Config
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
 from letspi.method.thresholds import ReflectionThresholds
+from letspi.metrics.registry import Metric
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners import frenet, gnp, idm, mlp, sf, sf_check, sf_opt
 from letspi.planners.base import Planner
@@ -44,8 +45,10 @@ from letspi.planners.idm import IdmConfig, IdmPlanner
 from letspi.planners.llm import (
     FAST_LLM,
     FAST_OPTIONS,
+    FAST_PLANNER_OUTPUTS,
     LLM,
     MEMORY_PLANNER_OPTIONS,
+    MEMORY_PLANNER_OUTPUTS,
     SHIELD,
     SINGLE_SHOT_OPTIONS,
     TOP_K_OPTION,
@@ -56,6 +59,7 @@ from letspi.planners.llm import (
 )
 from letspi.planners.mlp import MlpConfig, ParamMlpPlanner
 from letspi.planners.options import PlannerOption, PlannerOptions, unique_options
+from letspi.planners.outputs import undeclared
 from letspi.planners.sf import SfConfig, SocialForcePlanner
 from letspi.planners.sf_check import DecisionPlanner, SfCheckConfig
 from letspi.planners.sf_opt import SfOptConfig, SocialForceSearchPlanner
@@ -105,11 +109,20 @@ class PlannerKind(Generic[C]):
     inputs: Callable[[C], PredictionInputs] | None = None
     dual_rate: bool = False
     demo: frozenset[DemoTable] = frozenset()
+    outputs: tuple[Metric, ...] = ()
 
     def __post_init__(self) -> None:
         if (self.future is FutureUse.ORACLE_INPUTS) != (self.inputs is not None):
             raise ValueError(f"planner kind {self.name!r}: give inputs exactly when future is ORACLE_INPUTS")
         unique_options([self.options])
+
+    def check_outputs(self, info: Mapping[str, object]) -> None:
+        """Refuse per-scenario info the kind does not declare (its ``outputs``)."""
+        extra = undeclared(info, self.outputs)
+        if extra:
+            raise PlannerOutputError(
+                f"planner kind {self.name!r} reported per-scenario info it does not declare: {', '.join(extra)}; add "
+                f"each to its PlannerKind(outputs=...), e.g. letspi.plugin.output({extra[0]!r}, UNIT, DTYPE, DOC)")
 
     def reads_future(self, config: C) -> bool:
         """Whether a planner built from ``config`` reads the recorded future."""
@@ -143,6 +156,10 @@ class PlannerTable:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(self._by_name)
+
+    def outputs(self) -> tuple[Metric, ...]:
+        """Every kind's declared per-scenario outputs, each name once (the first declaration)."""
+        return tuple({o.name: o for kind in reversed(self.kinds) for o in kind.outputs}.values())
 
     def with_kinds(self, *kinds: PlannerKind[Any]) -> PlannerTable:
         return PlannerTable((*self.kinds, *kinds))
@@ -321,32 +338,37 @@ BUILT_IN_KINDS: tuple[PlannerKind[Any], ...] = (
                 inputs=lambda c: (None, c.neighbours), demo=BASELINE),
     PlannerKind("sf", "social force with the fixed parameters of `letspi fit sf`", SfConfig,
                 lambda r: SfConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params), _build_sf,
-                sf.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
+                sf.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE, outputs=sf.OUTPUTS),
     PlannerKind("sf-opt", "per-scenario search over 27 social force candidates checked against predicted neighbours",
                 SfOptConfig, lambda r: SfOptConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params),
-                _build_sf_opt, sf_opt.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
+                _build_sf_opt, sf_opt.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE, outputs=sf_opt.OUTPUTS),
     PlannerKind("sf-check", "the decision step without a model: presets checked against the prediction and the "
                 "adverse futures, the defaults unless a check fails (where the risk gate fires), the LLM shield",
                 SfCheckConfig, _resolve_sf_check, _build_sf_check, sf_check.OPTIONS, inputs=_goals_and_neighbours,
-                demo=frozenset({DemoTable.HEAD_TO_HEAD})),
+                demo=frozenset({DemoTable.HEAD_TO_HEAD}), outputs=sf_check.OUTPUTS),
     PlannerKind("gnp", "Goal-based Neural Physics: learned tau and neighbour weights, learned goals", GnpConfig,
-                _resolve_gnp, _build_gnp, gnp.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE),
+                _resolve_gnp, _build_gnp, gnp.OPTIONS, inputs=_goals_and_neighbours, demo=BASELINE,
+                outputs=gnp.OUTPUTS),
     PlannerKind("frenet", "Werling-style lattice: quintic/quartic candidates to lanes, speeds and predicted leaders; "
                 "the cheapest one clear of the predicted neighbours (weights from `letspi fit frenet`)", FrenetConfig,
-                _resolve_frenet, _build_frenet, frenet.OPTIONS, inputs=_goals_and_neighbours),
+                _resolve_frenet, _build_frenet, frenet.OPTIONS, inputs=_goals_and_neighbours, outputs=frenet.OUTPUTS),
     PlannerKind("mlp", "regressor ablation: an MLP maps matching features to the eight LLM answers (needs "
-                "--mlp-weights)", MlpConfig, _resolve_mlp, _build_mlp, mlp.OPTIONS, inputs=_goals_and_neighbours),
+                "--mlp-weights)", MlpConfig, _resolve_mlp, _build_mlp, mlp.OPTIONS, inputs=_goals_and_neighbours,
+                outputs=mlp.OUTPUTS),
     PlannerKind("llm", "single-shot LLM: physics-informed prompt, no reflection, no memory", MemoryPlannerConfig,
-                _resolve_memory("llm"), _build_memory, SINGLE_SHOT_OPTIONS, inputs=_phase_inputs, dual_rate=True),
+                _resolve_memory("llm"), _build_memory, SINGLE_SHOT_OPTIONS, inputs=_phase_inputs, dual_rate=True,
+                outputs=MEMORY_PLANNER_OUTPUTS),
     PlannerKind("letspi-memory", "LetsPi's memory collection phase as a planner: prompt and reflection",
                 MemoryPlannerConfig, _resolve_memory("letspi-memory"), _build_memory, MEMORY_PLANNER_OPTIONS,
-                inputs=_phase_inputs, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD})),
+                inputs=_phase_inputs, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD}),
+                outputs=MEMORY_PLANNER_OUTPUTS),
     PlannerKind("letspi-fast", "LetsPi's fast inference phase: top-k retrieved memories in the fast prompt (needs "
                 "--memory)", FastPlannerConfig, _resolve_fast("letspi-fast"), _build_fast, FAST_OPTIONS,
-                inputs=_goals_and_neighbours, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD})),
+                inputs=_goals_and_neighbours, dual_rate=True, demo=frozenset({DemoTable.HEAD_TO_HEAD}),
+                outputs=FAST_PLANNER_OUTPUTS),
     PlannerKind("letspi-fs", "the FS ablation: the fast prompt with three static examples (needs --memory)",
                 FastPlannerConfig, _resolve_fast("letspi-fs"), _build_fast, FAST_OPTIONS, inputs=_goals_and_neighbours,
-                dual_rate=True),
+                dual_rate=True, outputs=FAST_PLANNER_OUTPUTS),
 )
 #: the built-in kinds
 BUILT_IN = PlannerTable(BUILT_IN_KINDS)
@@ -357,6 +379,10 @@ BUILT_IN = PlannerTable(BUILT_IN_KINDS)
 ENTRY_POINT_GROUP: Final = "letspi.planners"
 #: where to read how to write one
 PLUGIN_DOC: Final = "docs/your-planner.md"
+
+
+class PlannerOutputError(ValueError):
+    """A planner reported per-scenario info its kind does not declare (the message names it and the fix)."""
 
 
 class PlannerKindError(ValueError):

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from letspi.assembly.build import Builder
 from letspi.assembly.planner_table import BUILT_IN, PlannerTable, is_import_path, load_kind, planner_table
 from letspi.assembly.resolve import Resolver
+from letspi.metrics.registry import Metric
 from letspi.planners.base import Planner
 from letspi.planners.config import PlannerConfig
 from letspi.planners.llm import LLM_CACHE
@@ -42,6 +43,15 @@ class BuiltPlanner:
     def reads_future(self) -> bool:
         """It gets the recorded future (``human``, oracle goals or neighbours); others see history only."""
         return (self.table or BUILT_IN).reads_future(self.config)
+
+    @property
+    def outputs(self) -> tuple[Metric, ...]:
+        """The per-scenario values its kind declares (``PlannerKind.outputs``)."""
+        return (self.table or BUILT_IN).kind_of(self.config).outputs
+
+    def check_outputs(self, info: Mapping[str, object]) -> None:
+        """Refuse per-scenario info its kind does not declare."""
+        (self.table or BUILT_IN).kind_of(self.config).check_outputs(info)
 
     @property
     def dual_rate(self) -> bool:

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from letspi.benchmark.suites import Suite
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.metrics.stats import (
     bootstrap_mean_interval,
     design_effect,

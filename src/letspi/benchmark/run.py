@@ -19,8 +19,9 @@ from letspi.benchmark.data import SuiteData, prepare_data
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_html, to_json, to_markdown
 from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
 from letspi.evaluation.closed_loop import evaluate_closed_loop
-from letspi.evaluation.harness import ProgressCallback, ProgressFactory
+from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
 from letspi.evaluation.harness import evaluate as evaluate_open_loop
+from letspi.evaluation.results import ProgressCallback
 from letspi.fsutil import atomic_write_text
 from letspi.planners.mlp import MlpConfig
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
@@ -118,8 +119,9 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             batch = full
         clock = _PlannerClock(progress_factory)
         if mode.mode == "open-loop":
-            evaluate_open_loop(planners, batch, eval_dir, scenarios_file=str(data.scenarios_file), config=suite.metrics,
-                               progress_factory=clock, workers=workers)
+            evaluate_open_loop(planners, batch, eval_dir, EvaluationSettings(
+                scenarios_file=str(data.scenarios_file), metrics=suite.metrics, progress_factory=clock,
+                workers=workers))
         else:
             evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers),
                                  scenarios_file=str(data.scenarios_file), config=suite.metrics, progress_factory=clock)

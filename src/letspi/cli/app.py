@@ -9,7 +9,7 @@ import typer
 
 from letspi.cli import analyze, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
 from letspi.cli.common import DEBUG_ENV
-from letspi.evaluation.harness import letspi_version
+from letspi.evaluation.results import letspi_version
 from letspi.execution import interrupt
 
 

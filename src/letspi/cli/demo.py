@@ -15,7 +15,9 @@ from letspi.assembly.resolve import Resolver
 from letspi.cli.common import console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
 from letspi.cli.options import planner_options
-from letspi.evaluation.harness import evaluate, read_summary, summary_markdown
+from letspi.evaluation.harness import EvaluationSettings, evaluate
+from letspi.evaluation.results import read_summary
+from letspi.evaluation.summary import summary_markdown
 from letspi.highd.io import list_recording_ids, read_recordings
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import collect
@@ -75,8 +77,8 @@ def demo(
         console.print(f"[green]{len(batch)} scenarios[/green] from {len(recs)} recording(s) -> {scenarios_file}")
         planners = build_planners(list(BASELINES), options)
         with progress_bar() as bar:
-            evaluate(planners, batch, eval_dir, scenarios_file=str(scenarios_file),
-                     progress_factory=progress_factory(bar))
+            evaluate(planners, batch, eval_dir, EvaluationSettings(scenarios_file=str(scenarios_file),
+                                                                   progress_factory=progress_factory(bar)))
         typer.echo(summary_markdown(read_summary(eval_dir), [p.name for p in planners]))
         report = write_report(eval_dir)
         outputs = [f"{highd_dir}/ (HighD CSV)", str(scenarios_file), f"{eval_dir}/metrics.json, metrics.md, "
@@ -128,8 +130,8 @@ def _llm_demo(batch: ScenarioBatch, out: Path, options: PlannerOptions, n_collec
     planners: list[BuiltPlanner] = build_planners(list(HEAD_TO_HEAD), options, builder=builder)
     eval_dir = out / "evaluation-llm"
     with progress_bar() as bar:
-        evaluate(planners, batch.take(eval_rows), eval_dir, scenarios_file=str(eval_file),
-                 progress_factory=progress_factory(bar))
+        evaluate(planners, batch.take(eval_rows), eval_dir,
+                 EvaluationSettings(scenarios_file=str(eval_file), progress_factory=progress_factory(bar)))
     typer.echo(f"\nLetsPi with {llm} on {len(eval_rows)} scenarios of held-back ego vehicles "
                f"(memory from {len(collect_rows)} scenarios of other vehicles):")
     typer.echo(summary_markdown(read_summary(eval_dir), [p.name for p in planners]))

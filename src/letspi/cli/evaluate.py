@@ -29,14 +29,10 @@ from letspi.evaluation.closed_loop import (
     parse_replan_options,
     scripted_for,
 )
-from letspi.evaluation.harness import (
-    ProgressCallback,
-    ProgressFactory,
-    read_summary,
-    stored_rows,
-    summary_markdown,
-)
+from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
+from letspi.evaluation.results import ProgressCallback, read_summary, stored_rows
+from letspi.evaluation.summary import summary_markdown
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue
 from letspi.planners.options import PlannerOptions
@@ -179,9 +175,9 @@ def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path,
             return evaluate_closed_loop(planners, batch, out, closed, scenarios_file=str(scenarios),
                                         progress_factory=progress_factory(bar),
                                         scripted_nbr=None if scripted is None else scripted.mask, reference=reference)
-        return run_evaluation(planners, batch, out, scenarios_file=str(scenarios),
-                              progress_factory=progress_factory(bar), concurrency=concurrency, on_run=print_run,
-                              reference=reference)
+        return run_evaluation(planners, batch, out, EvaluationSettings(
+            scenarios_file=str(scenarios), progress_factory=progress_factory(bar), concurrency=concurrency,
+            on_run=print_run, reference=reference))
 
 
 @planner_options()

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from letspi.cli.common import console, user_errors
-from letspi.evaluation.harness import load_plans
+from letspi.evaluation.results import load_plans
 from letspi.scenario.store import count_scenarios, load_scenarios
 
 app = typer.Typer(help="Export scenarios and plans to other tools' formats.", no_args_is_help=True,

@@ -29,7 +29,8 @@ from letspi.cli.common import (
 from letspi.cli.evaluate import load_limited, progress_factory
 from letspi.cli.options import planner_options
 from letspi.evaluation.ablations import ABLATION_KINDS, run_ablation
-from letspi.evaluation.harness import read_summary, summary_markdown
+from letspi.evaluation.results import read_summary
+from letspi.evaluation.summary import summary_markdown
 from letspi.execution.ordered import RunnerConfig, ScenariosFailedError
 from letspi.fsutil import writer_lock
 from letspi.llm.describe import describe_scenario

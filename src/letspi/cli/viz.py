@@ -11,7 +11,7 @@ from letspi.assembly.planners import build_planners
 from letspi.cli.common import console, user_errors
 from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import events_directory, scripted_for
-from letspi.evaluation.harness import planner_dir_name
+from letspi.evaluation.results import planner_dir_name
 from letspi.planners.llm import LetsPiMemoryPlanner
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.store import load_scenarios

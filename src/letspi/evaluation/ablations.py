@@ -12,7 +12,7 @@ from typing import Any
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import BuiltPlanner, build_planner, resolve_planner
 from letspi.assembly.resolve import Resolver
-from letspi.evaluation.harness import ProgressFactory, evaluate
+from letspi.evaluation.harness import EvaluationSettings, ProgressFactory, evaluate
 from letspi.execution.ordered import RunnerConfig, RunStats
 from letspi.fsutil import atomic_write_text
 from letspi.llm.spec import default_concurrency
@@ -51,8 +51,8 @@ def run_ablation(
     target = abl_root / kind
 
     def run(planners: list[BuiltPlanner]) -> dict[str, dict[str, AggValue]]:
-        out = evaluate(planners, batch, target, scenarios_file=scenarios_file, progress_factory=progress_factory,
-                       concurrency=concurrency, on_run=on_run)
+        out = evaluate(planners, batch, target, EvaluationSettings(
+            scenarios_file=scenarios_file, progress_factory=progress_factory, concurrency=concurrency, on_run=on_run))
         return {p.name: out[p.name] for p in planners}
 
     def built(kind_: str, name: str, opts: PlannerOptions = options) -> BuiltPlanner:

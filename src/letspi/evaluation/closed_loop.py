@@ -20,18 +20,15 @@ import pandas as pd
 
 from letspi.assembly.planners import BuiltPlanner
 from letspi.constants import N_FUTURE
-from letspi.evaluation.harness import (
-    PartWriter,
-    ProgressCallback,
-    ProgressFactory,
-    evaluate,
-    load_planner_results,
-)
+from letspi.evaluation.harness import EvaluationSettings, ProgressFactory, evaluate
+from letspi.evaluation.results import PartWriter, ProgressCallback, load_planner_results
 from letspi.execution.ordered import RunStats
 from letspi.metrics.aggregate import AggValue
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.uncertainty import GROUP_COLUMN
+from letspi.planners.llm import LLM_CACHED, LLM_CALLS
+from letspi.planners.outputs import column
 from letspi.scenario.scripted import recording_events, scripted_neighbours
 from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import read_scenario_meta
@@ -40,7 +37,7 @@ from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, ch
 from letspi.simulation.config import DEFAULT_REPLAN_S, EvaluationMode
 from letspi.simulation.handover import hybrid_settings
 from letspi.simulation.spec import PlannerSpecLike
-from letspi.simulation.store import chunk_frame
+from letspi.simulation.store import CLOSED_LOOP_OUTPUTS, LLM_CALLS_TOTAL, chunk_frame
 from letspi.trafficgen.binaries import sumo_home
 
 #: closed-loop per-scenario array columns (flat float32 in the parts; shapes per row)
@@ -187,11 +184,12 @@ def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.nda
     frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
     frame.insert(2, "row", idx)
     frame.insert(3, GROUP_COLUMN, [str(v) for v in vehicles[idx]])
-    if "llm_calls" in chunk.plan_info:  # model calls of all replans (``info_llm_calls``: the t = 0 plan's)
-        frame["info_llm_calls_total"] = np.nansum(np.asarray(chunk.plan_info["llm_calls"], dtype=np.float64), axis=1)
-    if "llm_cached" in chunk.plan_info:  # a row's time is "cached" only if no replan called the model
-        cached = np.asarray(chunk.plan_info["llm_cached"], dtype=np.float64)
-        frame["info_llm_cached"] = np.all(np.nan_to_num(cached, nan=1.0) > 0.5, axis=1)
+    if LLM_CALLS.name in chunk.plan_info:  # model calls of all replans (``LLM_CALLS``: the t = 0 plan's)
+        calls = np.asarray(chunk.plan_info[LLM_CALLS.name], dtype=np.float64)
+        frame[column(LLM_CALLS_TOTAL)] = np.nansum(calls, axis=1)
+    if LLM_CACHED.name in chunk.plan_info:  # a row's time is "cached" only if no replan called the model
+        cached = np.asarray(chunk.plan_info[LLM_CACHED.name], dtype=np.float64)
+        frame[column(LLM_CACHED)] = np.all(np.nan_to_num(cached, nan=1.0) > 0.5, axis=1)
     return frame
 
 
@@ -310,7 +308,7 @@ def evaluate_closed_loop(
         raise ClosedLoopSetupError(f"--replan-s for unknown planner label(s): {', '.join(unknown)}")
     if settings.mode is not EvaluationMode.HYBRID:
         scripted_nbr = None
-    return evaluate(planners, batch, Path(out_dir), scenarios_file=scenarios_file, config=config,
-                    mode=settings.mode, progress_factory=progress_factory,
-                    mode_settings=mode_settings(settings, scripted_nbr),
-                    runner=ClosedLoopRunner(settings, scripted_nbr), reference=reference)
+    return evaluate(planners, batch, Path(out_dir), EvaluationSettings(
+        scenarios_file=scenarios_file, metrics=config or MetricsConfig(), mode=settings.mode,
+        mode_settings=mode_settings(settings, scripted_nbr), runner=ClosedLoopRunner(settings, scripted_nbr),
+        mode_outputs=CLOSED_LOOP_OUTPUTS, reference=reference, progress_factory=progress_factory))

@@ -1,13 +1,6 @@
 """Physical contact in a HighD recording: pairs of boxes that overlap in the same frame.
 
-HighD boxes are axis-aligned (x along the road, ``width`` = vehicle length, ``height`` = vehicle
-width, ``x, y`` the top-left corner). Two boxes are in contact when both their x and y intervals
-overlap with positive length; boxes that only touch are not.
-
-The search is a sweep over x per frame, vectorised over the whole recording: rows are sorted by
-(frame, x) and each box is paired with exactly the boxes of the same frame whose left edge lies
-before its right edge (found with one ``searchsorted``), then the y intervals are compared. This
-is exact (no neighbour-count cut-off) and linear in the number of x-overlapping pairs.
+Boxes are in contact when both their x and y intervals overlap with positive length (touching is not contact).
 """
 
 from __future__ import annotations
@@ -23,13 +16,9 @@ _OVERLAP_COLUMNS = ["frame", "id_a", "id_b", "overlap_x_m", "overlap_y_m"]
 def overlapping_boxes(tracks: pd.DataFrame) -> pd.DataFrame:
     """All pairs of boxes with positive-area overlap in the same frame.
 
-    Args:
-        tracks: HighD tracks (columns ``frame, id, x, y, width, height`` at least), N rows.
-
-    Returns:
-        One row per overlapping pair and frame: ``frame``, ``id_a`` < ``id_b``, and the overlap
-        lengths ``overlap_x_m``, ``overlap_y_m`` [m]; sorted by (frame, id_a, id_b). Empty (with
-        these columns) when no boxes overlap.
+    ``tracks``: HighD tracks (at least ``frame, id, x, y, width, height``). Returns one row per pair and frame:
+    ``frame``, ``id_a`` < ``id_b``, ``overlap_x_m``, ``overlap_y_m`` [m], sorted by (frame, id_a, id_b); empty
+    (with these columns) when no boxes overlap.
     """
     if len(tracks) == 0:
         return pd.DataFrame(columns=_OVERLAP_COLUMNS)

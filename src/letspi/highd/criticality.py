@@ -1,19 +1,9 @@
 """Criticality profile of HighD recordings: how much conflict the recorded traffic contains.
 
-Per vehicle (HighD ``tracksMeta`` definitions, -1 = never had a preceding vehicle / no valid value):
-
-- ``minTTC`` [s]: smallest positive 1-D time-to-collision with the preceding vehicle (gap closing);
-- ``minTHW`` [s]: smallest time headway dhw / speed;
-- ``minDHW`` [m]: smallest distance headway to the preceding vehicle;
-- ``maxDRAC`` [m/s²] (computed here from the tracks): largest deceleration rate to avoid a crash,
-  closing_speed² / (2 · dhw), over frames with a preceding vehicle that is being closed in on
-  (closing speed = |xVelocity| - |precedingXVelocity|, both of the same travel direction).
-
-A vehicle counts as "under 3 s" when ``0 <= minTTC < 3``; vehicles without a value (-1) never
-count, and every share is of **all** vehicles of the recordings. Flow per lane counts vehicles
-whose box centre crosses the section in the middle of the recorded x range while in that lane,
-per hour of recording. Contacts are box overlaps (:func:`letspi.highd.contacts.overlapping_boxes`).
-Events come from ``NN_events.csv`` when present (letspi's SUMO generator writes them).
+Per vehicle: ``minTTC`` [s], ``minTHW`` [s], ``minDHW`` [m] from tracksMeta (-1 = no value) and ``maxDRAC``
+[m/s²] computed here: the largest closing_speed² / (2 · dhw) while closing in on a preceding vehicle (closing
+speed = |xVelocity| - |precedingXVelocity|). Shares are of **all** vehicles ("under 3 s" = ``0 <= minTTC < 3``).
+Flow per lane counts crossings of the middle of the recorded x range, per hour of recording.
 """
 
 from __future__ import annotations
@@ -49,13 +39,9 @@ DRAC_THRESHOLD_MPS2 = 3.0  # SUMO's SSM default conflict threshold
 
 @dataclass(frozen=True)
 class MeasureSummary:
-    """Distribution of one per-vehicle minimum over all vehicles.
-
-    Attributes:
-        n_defined: vehicles with a value (not -1).
-        share_below: threshold (as text, e.g. ``"3.0"``) -> share of all vehicles with
-            ``0 <= value < threshold``.
-        p5, median: 5th percentile and median over the vehicles with a value (NaN if none).
+    """Distribution of one per-vehicle minimum: ``n_defined`` vehicles with a value (not -1); ``share_below``
+    threshold text (``"3"``) -> share of all vehicles with ``0 <= value < threshold``; ``p5`` and ``median``
+    over the defined values (NaN if none).
     """
 
     n_defined: int
@@ -66,25 +52,13 @@ class MeasureSummary:
 
 @dataclass(frozen=True)
 class CriticalityProfile:
-    """Summary of one or more recordings; see the module docstring for the definitions.
+    """Summary of one or more recordings (definitions in the module docstring); shares are of all vehicles.
 
-    Attributes:
-        n_recordings: recordings summarised.
-        recorded_minutes: summed recording durations [min].
-        n_vehicles: vehicles (tracks) in total.
-        truck_share: share of class "Truck".
-        min_ttc_s, min_thw_s, min_dhw_m: per-vehicle minima of tracksMeta.
-        drac_above_3_share: share of vehicles whose max DRAC exceeds 3 m/s².
-        lane_changes_per_vehicle: mean numLaneChanges.
-        lane_changer_share: share of vehicles with at least one lane change.
-        flow_veh_per_h_by_lane: laneId -> vehicles per hour crossing the middle section.
-        contact_pairs: distinct vehicle pairs whose boxes overlap at least once.
-        contact_frames: (pair, frame) overlaps in total.
-        events_by_kind: scripted events per kind (empty when no events files).
-        event_vehicle_share: share of vehicles that act in or react to a scripted event
-            (``id`` or ``other_id`` of an events file).
-        low_ttc_event_share: of the vehicles with 0 <= minTTC < 3 s, the share that are such
-            event vehicles (the rest comes from the traffic itself); NaN when there are none.
+    ``drac_above_3_share``: max DRAC > 3 m/s². ``flow_veh_per_h_by_lane``: laneId -> vehicles per hour.
+    ``contact_pairs``: distinct pairs whose boxes overlap at least once; ``contact_frames``: (pair, frame)
+    overlaps. ``events_by_kind``: scripted events per kind (empty without events files).
+    ``event_vehicle_share``: vehicles that act in or react to an event (``id``/``other_id``);
+    ``low_ttc_event_share``: of the vehicles with 0 <= minTTC < 3 s, the share that are event vehicles (NaN if none).
     """
 
     n_recordings: int
@@ -112,11 +86,8 @@ class CriticalityProfile:
 
 
 def vehicle_criticality(rec: Recording) -> pd.DataFrame:
-    """Per-vehicle criticality of one recording.
-
-    Returns:
-        One row per vehicle: ``id, class, drivingDirection, minTTC, minTHW, minDHW,
-        numLaneChanges`` (from tracksMeta) and ``maxDRAC`` [m/s²] (0 when never closing in).
+    """Per-vehicle criticality of one recording: tracksMeta's ``id, class, drivingDirection, minTTC, minTHW,
+    minDHW, numLaneChanges`` and ``maxDRAC`` [m/s²] (0 when never closing in).
     """
     tr = rec.tracks
     vx = tr["xVelocity"].to_numpy(np.float64)
@@ -133,11 +104,7 @@ def vehicle_criticality(rec: Recording) -> pd.DataFrame:
 
 
 def lane_flows(rec: Recording) -> tuple[pd.Series, float]:
-    """Vehicles crossing the middle section of the recorded x range, by laneId.
-
-    Returns:
-        (counts indexed by laneId, recording duration [h]).
-    """
+    """Vehicles crossing the middle of the recorded x range, by laneId, and the recording's duration [h]."""
     tr = rec.tracks  # sorted by (id, frame)
     cx = tr["x"].to_numpy(np.float64) + tr["width"].to_numpy(np.float64) / 2.0
     x_mid = 0.5 * (float(tr["x"].min()) + float((tr["x"] + tr["width"]).max()))
@@ -160,11 +127,9 @@ def _summary(values: np.ndarray, thresholds: Sequence[float], n_all: int) -> Mea
 
 def criticality_profile(recordings: Sequence[Recording],
                         events: Sequence[pd.DataFrame | None] | None = None) -> CriticalityProfile:
-    """Profile of recordings taken together (vehicles pooled, flows summed over durations).
+    """Profile of recordings taken together (vehicles pooled, flows over the summed durations).
 
-    Args:
-        recordings: one or more recordings.
-        events: the ``NN_events.csv`` table of each recording (``None`` where absent), same order.
+    ``events``: each recording's ``NN_events.csv`` table (None where absent), same order. ValueError without recordings.
     """
     if not recordings:
         raise ValueError("no recordings to profile")

@@ -1,39 +1,17 @@
-"""Build a complete HighD :class:`Recording` from raw per-frame vehicle states.
+"""Build a complete HighD ``Recording`` from raw per-frame vehicle states, vectorised over all rows.
 
-Every derived column of the official format is computed here, vectorised over all rows
-(sorting + shifting within (frame, direction, lane) groups, ``merge_asof`` for adjacent lanes).
+Where HighD leaves a definition open, letspi chooses:
 
-Definitions (HighD leaves some of them open; these are the choices of this package):
-
-- Progress coordinate ``s``: position along the direction of travel, ``s = +x`` for
-  drivingDirection 2 and ``s = -x`` for drivingDirection 1. "Ahead" means larger ``s``.
-- ``laneId`` = 1 + number of lane markings (upper and lower together) with image y strictly
-  smaller than the box centre y. The markings are first rounded to the 2 decimals they get in
-  ``NN_recordingMeta.csv`` so lane ids agree with what a reader recomputes from the file.
-- ``precedingId`` / ``followingId``: nearest vehicle ahead / behind by box centre in the same
-  lane and the same driving direction in the same frame; 0 = none.
-- ``left*`` / ``right*``: left/right relative to the travel direction (direction 2: left =
-  smaller image y = laneId - 1; direction 1: left = larger image y = laneId + 1). In that lane,
-  *alongside* = boxes overlap longitudinally (the one reaching furthest ahead if several),
-  *preceding* = nearest vehicle entirely ahead (its rear ≥ ego front), *following* = nearest
-  vehicle entirely behind (its front ≤ ego rear).
-- ``dhw`` [m]: **bumper-to-bumper gap**, rear bumper of the preceding vehicle minus front bumper
-  of the ego (negative if the boxes overlap, e.g. during a merge); 0 when there is no preceding
-  vehicle.
-- ``thw`` [s] = dhw / |xVelocity|; 0 when there is no preceding vehicle or the ego stands still.
-- ``ttc`` [s] = dhw / closing speed when closing (ego faster than the preceding vehicle along the
-  travel direction) and dhw > 0; otherwise 0 (HighD's "missing").
-- ``frontSightDistance`` / ``backSightDistance`` [m]: distance from the front / rear bumper to
-  the end / start of the recorded section in the travel direction. The section spans
-  ``[min(x), max(x + width)]`` over all boxes of the recording.
-- tracksMeta ``traveledDistance`` [m]: path length of the box centre (sum of Euclidean steps);
-  ``min/max/meanXVelocity`` [m/s]: of ``|xVelocity|`` (speeds, positive in both directions);
-  ``minDHW``/``minTHW``/``minTTC``: minima over frames where the value is defined (preceding
-  vehicle present; for TTC, ttc > 0), -1 when never defined; ``numLaneChanges``: number of
-  laneId changes between consecutive frames.
-- recordingMeta ``duration`` [s] = (last frame - first frame + 1) / frameRate;
-  ``totalDrivenDistance`` = sum of traveledDistance; ``totalDrivenTime`` = sum of numFrames /
-  frameRate.
+- ``s`` = progress along the travel direction (``+x`` for drivingDirection 2, ``-x`` for 1); ahead = larger ``s``.
+- ``laneId`` = 1 + number of markings (both carriageways) above the box centre, the markings rounded to the
+  2 decimals of ``NN_recordingMeta.csv`` so that a reader recomputes the same lanes.
+- ``precedingId``/``followingId``: nearest box centre ahead/behind in the same lane and direction (0 = none).
+- left/right are relative to travel (direction 2: left = laneId - 1); in that lane *alongside* = overlapping
+  along x (the one reaching furthest ahead), *preceding*/*following* = nearest one entirely ahead/behind.
+- ``dhw`` [m] is the **bumper-to-bumper gap** (negative when boxes overlap, 0 without a preceding vehicle);
+  ``thw`` = dhw / |xVelocity|; ``ttc`` = dhw / closing speed when closing and dhw > 0, else 0 (HighD's missing).
+- tracksMeta's minima are over the frames where the value is defined (-1 when never); its speeds are of
+  ``|xVelocity|``; sight distances are to the ends of the section ``[min(x), max(x + width)]``.
 """
 
 from __future__ import annotations
@@ -97,16 +75,10 @@ def _check_inputs(states: pd.DataFrame, vehicles: pd.DataFrame) -> None:
 def _neighbour_ids(
     group: np.ndarray, s_centre: np.ndarray, ids: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Same-group nearest neighbours ahead/behind along ``s``.
+    """Nearest neighbours ahead/behind along ``s`` within a group.
 
-    Args:
-        group: (N,) int64 group key (frame, direction, lane).
-        s_centre: (N,) float64 progress coordinate of the box centre [m].
-        ids: (N,) int64 vehicle ids.
-
-    Returns:
-        preceding id, following id (0 = none), preceding row index, following row index (-1 = none),
-        each of shape (N,).
+    ``group`` (N,) int64 key (frame, direction, lane), ``s_centre`` (N,) [m], ``ids`` (N,). Returns the preceding and
+    following ids (0 = none) and row indices (-1 = none), (N,) each.
     """
     n = len(ids)
     order = np.lexsort((s_centre, group))
@@ -131,10 +103,7 @@ def _asof(
     direction: str,
     allow_exact_matches: bool,
 ) -> dict[str, np.ndarray]:
-    """Per query, the target values of the asof-match on ``s`` within the same key (NaN if none).
-
-    Shapes: queries (Q,), targets (T,); returns a dict of (Q,) float64 arrays aligned with the queries.
-    """
+    """Per query (Q,), the target (T,) values asof-matched on ``s`` in the same key: (Q,) float64, NaN if none."""
     left = pd.DataFrame({"key": query_key, "s": query_s, "q": np.arange(len(query_key))})
     right = pd.DataFrame({"key": target_key, "s": target_s, **target_values})
     merged = pd.merge_asof(
@@ -164,28 +133,18 @@ def build_recording(states: pd.DataFrame, vehicles: pd.DataFrame, *, recording_i
                     upper_markings_y_m: Sequence[float], lower_markings_y_m: Sequence[float], frame_rate_hz: int = 25,
                     location_id: int = 0, speed_limit_mps: float = -1.0, month: str = "01", week_day: str = "Mon",
                     start_time: str = "08:00") -> Recording:
-    """Compute all derived HighD columns and return a complete, valid :class:`Recording`.
+    """Compute all derived HighD columns and return a complete, valid ``Recording`` (tracks sorted by (id, frame)).
 
     Args:
-        states: one row per vehicle per frame; columns ``frame`` (int, consecutive per vehicle),
-            ``id`` (int > 0), ``x, y`` [m] (top-left box corner, image axes, y down), ``width``
-            [m] (vehicle length, along x), ``height`` [m] (vehicle width), ``xVelocity,
-            yVelocity`` [m/s], ``xAcceleration, yAcceleration`` [m/s²] (signed, image axes).
-        vehicles: one row per vehicle; ``id``, ``class`` ("Car"/"Truck"), ``drivingDirection``
-            (1 = towards -x on the upper lanes, 2 = towards +x on the lower lanes).
-        recording_id: the ``NN`` of the file names.
-        upper_markings_y_m: image y [m] of the upper carriageway's markings (road edges included).
-        lower_markings_y_m: same for the lower carriageway.
-        frame_rate_hz, location_id, speed_limit_mps (-1 = none), month, week_day, start_time:
-            copied into recordingMeta.
+        states: one row per vehicle per frame: ``frame`` (consecutive per vehicle), ``id`` (> 0), ``x, y`` [m]
+            (top-left box corner, image axes, y down), ``width`` [m] (vehicle length), ``height`` [m] (its width),
+            ``xVelocity, yVelocity`` [m/s], ``xAcceleration, yAcceleration`` [m/s²].
+        vehicles: one row per vehicle: ``id``, ``class`` ("Car"/"Truck"), ``drivingDirection`` (1 = towards -x on
+            the upper lanes, 2 = towards +x on the lower lanes).
+        upper_markings_y_m, lower_markings_y_m: image y [m] of each carriageway's markings, road edges included.
+        The other keywords are copied into recordingMeta (``speed_limit_mps`` -1 = none).
 
-    Returns:
-        The recording; tracks sorted by (id, frame). See the module docstring for the
-        definitions of the derived quantities (dhw is the bumper-to-bumper gap).
-
-    Raises:
-        ValueError: missing columns, unknown ids/classes/directions, non-finite values, or
-            frames of a vehicle that are not consecutive.
+    Raises ValueError on missing columns, unknown ids/classes/directions, non-finite values or non-consecutive frames.
     """
     _check_inputs(states, vehicles)
     veh = vehicles.set_index("id")

@@ -6,20 +6,12 @@ from pathlib import Path
 
 
 class HighDFormatError(ValueError):
-    """A HighD file or in-memory :class:`~letspi.highd.types.Recording` violates the format.
+    """A HighD file or in-memory ``Recording`` violates the format.
 
-    Attributes:
-        path: the offending file. For a recording validated in memory (before writing), the path
-            of the file the data would be written to.
-        column: the offending HighD column name, if the problem is tied to one column.
-        line: 1-based line number in the CSV file, counting the header as line 1 (so the first
-            data row is line 2). For an in-memory recording it is the line the row would occupy
-            in the written file (rows sorted by (id, frame) for tracks). ``None`` when the problem
-            is not tied to one line (missing file, missing column, ...).
-        reason: the bare description of the problem, without the location prefix.
-
-    The message reads ``<file name>: column '<col>', line <n>: <reason>`` with the parts that are
-    known, e.g. ``01_tracks.csv: column 'xVelocity', line 17: not a number ('abc')``.
+    ``path``: the offending file (in memory: the file the data would be written to); ``column``: the HighD column,
+    if any; ``line``: 1-based CSV line, header = line 1 (in memory: the line the row would occupy, tracks sorted by
+    (id, frame)), None when not tied to a line; ``reason``: the bare problem. The message reads e.g.
+    ``01_tracks.csv: column 'xVelocity', line 17: not a number ('abc')``, with the parts that are known.
     """
 
     def __init__(
@@ -43,7 +35,7 @@ class HighDFormatError(ValueError):
 
     @property
     def row(self) -> int | None:
-        """Alias of :attr:`line` (1-based CSV line number, header = line 1)."""
+        """Alias of ``line``."""
         return self.line
 
     def _format(self) -> str:

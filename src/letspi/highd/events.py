@@ -1,39 +1,17 @@
-"""``NN_events.csv``: scripted traffic events beside a HighD recording (a letspi extension).
+"""``NN_events.csv``: scripted traffic events beside a HighD recording (a letspi extension; real HighD has none).
 
-HighD itself has no such file; letspi's SUMO generator writes one per recording so that the
-critical situations it injected can be found again. One row per event, in the recording's own
-frame numbers and vehicle ids:
+One row per event whose actor is in the recording at the start frame, in its frames and ids; empty cells are
+"not applicable". Columns (units as named):
 
-======================  =====================================================================
-column                  meaning
-======================  =====================================================================
-``frame``               HighD frame (of this recording) at which the event starts
-``id``                  HighD id of the acting vehicle (the braking leader, the vehicle cutting
-                        in, the truck pulling out)
-``kind``                ``hard_brake``, ``cut_in`` or ``truck_pullout``
-``other_id``            HighD id of the vehicle it acts on (the follower that must react; for a
-                        lane change the vehicle it ends up in front of), 0 = none recorded
-``lane_id``             HighD laneId of the actor at the start
-``target_lane_id``      laneId the actor changes to (lane changes), else equal to ``lane_id``
-``speed_mps``           actor speed at the start [m/s]
-``target_speed_mps``    speed the actor brakes to (``hard_brake``), else empty
-``decel_mps2``          commanded deceleration (``hard_brake``) [m/s²], else empty
-``duration_s``          braking duration (``hard_brake``) or lane-change duration [s]
-``gap_m``               bumper-to-bumper gap between ``other_id`` and the actor at the start [m]
-``reaction_s``          reaction time of the driver of ``other_id`` [s]
-``held_s``              how long ``other_id`` kept its speed from ``frame`` on [s]: until it
-                        perceived the event (at once for a braking leader; when the lane
-                        changer's centre crossed into its lane, 2 s after the start, for a
-                        cut-in) plus its reaction time, or less when released early because
-                        avoiding contact would otherwise have needed harder braking than the
-                        generator allows; 0 = not held
-``other_decel_mps2``    deceleration ``other_id`` then brakes with (``hard_brake``: a share of
-                        the leader's, built up at the generator's jerk) until it no longer
-                        closes in [m/s²]; empty when SUMO's car following takes over at once
-======================  =====================================================================
-
-Empty cells are "not applicable". Events whose actor is not in the recording at the start frame
-are not written.
+- ``frame`` start; ``id`` the actor (braking leader, car cutting in, truck pulling out); ``kind`` (``EVENT_KINDS``);
+  ``other_id`` the vehicle that must react (after a lane change: the one behind), 0 = none.
+- ``lane_id``, ``target_lane_id``: the actor's laneId at the start and after its lane change (else equal);
+  ``speed_mps`` at the start; ``target_speed_mps``, ``decel_mps2`` of a ``hard_brake``; ``duration_s`` of the
+  braking or lane change; ``gap_m`` bumper gap other -> actor at the start; ``reaction_s`` of ``other_id``.
+- ``held_s``: how long ``other_id`` kept its speed from ``frame`` on: until it perceived the event (a braking leader
+  at once, a cut-in when the changer's centre crossed into its lane) plus its reaction time, or less (released
+  early rather than brake harder than allowed; 0 = not held); ``other_decel_mps2``: its braking after that until it
+  no longer closes in (``hard_brake``: a share of the leader's, at the generator's jerk; empty: SUMO took over).
 """
 
 from __future__ import annotations
@@ -69,11 +47,9 @@ def write_events(events: pd.DataFrame, directory: Path, recording_id: int) -> Pa
 
 
 def read_events(directory: Path, recording_id: int) -> pd.DataFrame | None:
-    """``NN_events.csv`` of a recording, or ``None`` when there is none (e.g. real HighD data).
+    """``NN_events.csv`` of a recording, or None when there is none (e.g. real HighD data).
 
-    Raises:
-        ValueError: naming the file and the column when a column is missing, an integer column
-            holds something else, or a kind is unknown.
+    ValueError naming the file, column and line: a missing column, a non-integer in an integer column, an unknown kind.
     """
     path = Path(directory) / events_file(recording_id)
     if not path.exists():

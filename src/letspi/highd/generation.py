@@ -1,10 +1,8 @@
-"""``NN_generation.json``: how a generated recording was made (a letspi extension, like ``NN_events.csv``).
+"""``NN_generation.json``: how a generated recording was made (a letspi extension; real HighD has none).
 
-letspi's SUMO generator writes one per recording: the generator seed, the recorded minutes, lanes,
-flow and the full traffic configuration, the accepted attempt and the letspi version. Scenario
-extraction copies it into the scenario file's provenance (``generation``), which is how commands
-that must not train on benchmark traffic (``letspi fit``, ``letspi train llm-data``) recognise it.
-Real HighD recordings have none.
+letspi's SUMO generator writes one per recording (seed, minutes, lanes, flow, the traffic configuration, the
+accepted attempt, letspi version). Scenario extraction copies it into the scenario file's provenance
+(``generation``), which is how commands that must not train on benchmark traffic recognise it.
 """
 
 from __future__ import annotations
@@ -31,10 +29,8 @@ def write_generation(record: dict[str, Any], directory: Path, recording_id: int)
 
 
 def read_generation(directory: Path, recording_id: int) -> dict[str, Any] | None:
-    """``NN_generation.json`` of a recording, or None when there is none (real HighD, older letspi).
-
-    Raises:
-        ValueError: naming the file when it is not a JSON object with an integer ``seed``.
+    """``NN_generation.json`` of a recording, or None when there is none; ValueError naming the file when it is not
+    a JSON object with an integer ``seed``.
     """
     path = Path(directory) / generation_file(recording_id)
     if not path.exists():

@@ -1,10 +1,7 @@
 """Read and write HighD recordings (``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``).
 
-Reading uses pandas' C parser with explicit dtypes (fast path), then vectorised validation. Only
-when a check fails is the file scanned again (slow path) to name the offending line and column.
-
-Error locations (:class:`~letspi.highd.errors.HighDFormatError`) are 1-based CSV line numbers
-counting the header as line 1, so the first data row is line 2.
+Reading parses with explicit dtypes and validates vectorised; only on a failure is the file scanned again to
+name the column and the 1-based CSV line (header = line 1) in a ``HighDFormatError``.
 """
 
 from __future__ import annotations
@@ -107,11 +104,7 @@ def _in_memory_line(row: int) -> int:
 
 
 def list_recording_ids(directory: Path) -> list[int]:
-    """Recording ids ``NN`` found in ``directory``, ascending.
-
-    A recording counts when any of its three files (``NN_tracks.csv``, ``NN_tracksMeta.csv``,
-    ``NN_recordingMeta.csv``) is present; reading it then reports any missing sibling.
-    """
+    """Recording ids ``NN`` in ``directory``, ascending; any one of a recording's three files counts."""
     directory = Path(directory)
     if not directory.is_dir():
         raise FileNotFoundError(f"not a directory: {directory}")
@@ -141,11 +134,7 @@ def _read_header(path: Path) -> list[str]:
 
 
 def _data_lines(path: Path, n_fields: int) -> list[int]:
-    """Line numbers of the data rows pandas keeps (blank lines are skipped, like pandas does).
-
-    Raises on the first row whose field count differs from the header's (a truncated or
-    malformed line).
-    """
+    """Line numbers of the data rows pandas keeps (blank lines skipped); raises at a wrong field count."""
     lines: list[int] = []
     with path.open("r", newline="", encoding="utf-8-sig") as fh:
         next(fh, None)
@@ -202,11 +191,7 @@ def _describe(value: str, kind: str) -> str:
 
 
 def _locate_parse_error(path: Path, header: list[str], spec: _TableSpec, cause: Exception | None) -> None:
-    """Slow path: find and raise the exact line/column that made the fast parse fail.
-
-    One pass counts fields per line, one dtype-inferred parse finds the bad rows per column
-    (much faster than parsing everything as text: ~3 s instead of ~15 s for 1M rows).
-    """
+    """Slow path: raise the line and column that made the fast parse fail (field counts, then a typed parse)."""
     if isinstance(cause, UnicodeDecodeError):
         raise HighDFormatError(path, f"not UTF-8 text ({cause.reason} at byte {cause.start})") from cause
     data_lines = _data_lines(path, len(header))  # raises on a wrong field count
@@ -229,10 +214,8 @@ def _locate_parse_error(path: Path, header: list[str], spec: _TableSpec, cause: 
 
 
 def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, _LineOf]:
-    """Parse one HighD CSV into a frame with exactly ``spec.columns`` in official order.
-
-    Returns the frame and a lazy map from data-row position to CSV line number (the map scans
-    the file only when called, i.e. only on the error path).
+    """One HighD CSV with exactly ``spec.columns`` in official order, and a lazy map data row -> CSV line (the map
+    reads the file only when called, i.e. on the error path).
     """
     header = _read_header(path)
     for col in spec.columns:
@@ -309,15 +292,10 @@ def _scalar(value: object, col: str) -> object:
 
 
 def read_recording(directory: Path, recording_id: int) -> Recording:
-    """Read recording ``recording_id`` from ``directory`` and validate it.
+    """Read and validate recording ``recording_id`` of ``directory``.
 
-    Returns:
-        A :class:`Recording` with ``tracks`` sorted by (id, frame), integer columns as int64,
-        float columns as float64 and string columns as str.
-
-    Raises:
-        HighDFormatError: any deviation from the HighD format; the message names the file and,
-            where applicable, the column and the 1-based CSV line (header = line 1).
+    Tracks are sorted by (id, frame); columns are int64, float64 or str. Raises ``HighDFormatError`` naming the file
+    and, where it applies, the column and the 1-based CSV line (header = line 1).
     """
     directory = Path(directory)
     rm_path = directory / recording_meta_file(recording_id)
@@ -425,20 +403,16 @@ def _prepare(rec: Recording, directory: Path) -> tuple[list[Path], list[pd.DataF
 
 
 def validate_recording(rec: Recording) -> None:
-    """Validate an in-memory recording with the same rules as reading.
-
-    Raises:
-        HighDFormatError: with ``path`` the bare file name the data would be written to and
-            ``line`` the line the row would occupy in that file (tracks sorted by (id, frame)).
+    """Validate an in-memory recording as reading would; the ``HighDFormatError`` names the bare file name the data
+    would go to and the line the row would occupy (tracks sorted by (id, frame)).
     """
     _prepare(rec, Path())
 
 
 def _fixed_point(values: np.ndarray) -> pa.Array:
-    """``values`` (N,) float64 as text with ``FLOAT_DECIMALS`` decimals (``-0.50``, ``0.00``, ``12.34``).
-
-    Vectorised in Arrow through integer hundredths: ``str.format`` per value would take ~10 s per
-    million rows. Values rounding to zero print without a sign (never ``-0.00``)."""
+    """``values`` (N,) float64 as text with ``FLOAT_DECIMALS`` decimals, vectorised in Arrow through integer hundredths;
+    values rounding to zero print without a sign (never ``-0.00``).
+    """
     scale = 10**FLOAT_DECIMALS
     units = np.round(values * scale).astype(np.int64)
     magnitude = np.abs(units)
@@ -449,13 +423,7 @@ def _fixed_point(values: np.ndarray) -> pa.Array:
 
 
 def _write_csv(frame: pd.DataFrame, fh: IO[bytes]) -> None:
-    """Write ``frame`` (already coerced: int64/float64/str columns) as a HighD CSV.
-
-    pyarrow's writer is ~8x faster than ``DataFrame.to_csv`` with a float format (1M tracks
-    rows: ~1 s instead of ~10 s); floats are formatted beforehand (:func:`_fixed_point`). Strings
-    are never quoted (validation rejects ',', '"' and newlines in them), matching the unquoted
-    official files.
-    """
+    """Write a coerced frame as a HighD CSV with pyarrow: floats pre-formatted, strings never quoted."""
     columns = {c: _fixed_point(frame[c].to_numpy()) if frame[c].dtype == np.float64
                else pa.array(frame[c].to_numpy()) for c in frame.columns}
     fh.write((",".join(frame.columns) + "\n").encode("utf-8"))
@@ -470,17 +438,11 @@ def _default_file_mode() -> int:
 
 
 def write_recording(rec: Recording, directory: Path) -> list[Path]:
-    """Validate ``rec`` and write its three HighD CSVs into ``directory`` (created if needed).
+    """Validate ``rec`` and write its three CSVs into ``directory`` (created if needed).
 
-    Atomic per recording as far as the file system allows: all three files are first written to
-    hidden temporary files in ``directory`` and only renamed (``os.replace``) once all three were
-    written; on any failure the temporary files are removed and existing files are untouched.
-
-    Returns:
-        Paths written: ``[NN_recordingMeta.csv, NN_tracksMeta.csv, NN_tracks.csv]``.
-
-    Raises:
-        HighDFormatError: ``rec`` is not valid HighD (nothing is written).
+    All three go to hidden temporary files first and are renamed only once all were written; on failure nothing
+    existing changes. Returns ``[NN_recordingMeta.csv, NN_tracksMeta.csv, NN_tracks.csv]``. Raises
+    ``HighDFormatError`` (nothing written) when ``rec`` is not valid HighD.
     """
     directory = Path(directory)
     paths, frames = _prepare(rec, directory)
@@ -505,11 +467,10 @@ def write_recording(rec: Recording, directory: Path) -> list[Path]:
 
 def write_highway_image(directory: Path, recording_id: int, upper_markings_y_m: Sequence[float],
                         lower_markings_y_m: Sequence[float], length_m: float) -> Path:
-    """Draw the road of a recording as its ``NN_highway.png`` (real HighD ships the aerial view there).
+    """Draw the road of a recording as its ``NN_highway.png`` (where real HighD has its aerial view).
 
-    Grey carriageways between their edge markings and white lane lines, image axes as the tracks
-    (x right, y down) at ``HIGHWAY_IMAGE_M_PER_PX``, so tools that draw tracks over HighD's image
-    (and ``lxd-io``, which needs the file to list a recording) work on generated recordings.
+    Grey carriageways, white markings, image axes as the tracks at ``HIGHWAY_IMAGE_M_PER_PX``, so tools that draw
+    over HighD's image (``lxd-io`` needs the file to list a recording) work on generated recordings.
     """
     upper, lower = np.sort(np.asarray(upper_markings_y_m)), np.sort(np.asarray(lower_markings_y_m))
     height_px = int(np.ceil((lower[-1] + upper[0]) / HIGHWAY_IMAGE_M_PER_PX))

@@ -1,19 +1,9 @@
-"""Traffic marginals of HighD recordings, beside the values the highD authors published.
+"""Traffic marginals of HighD recordings beside what the highD authors published (``letspi data info --compare-highd``).
 
-``letspi data info DIR --compare-highd`` prints them side by side, so a generated preset (``realistic``)
-can be checked against real highway traffic. Measured per recording directory:
-
-* vehicles, truck share (class "Truck"), recorded minutes;
-* lane changes: share of vehicles with at least one (``numLaneChanges`` > 0) and lane changes per
-  vehicle;
-* time in view: median of ``numFrames`` / frame rate over vehicles;
-* speed [m/s]: mean of ``|xVelocity|`` over the rows of each class, and of each lane (``laneId``,
-  numbered per carriageway from the inner lane: 1 = the leftmost lane of the direction);
-* time headway [s]: percentiles of ``thw`` over rows that have a preceding vehicle (thw > 0) and the
-  share of those rows under 1 s.
-
-Published values (``PUBLISHED_HIGHD``) are only those found in the cited sources; the others print as
-"–": the highD paper shows speed and headway distributions as figures, not numbers.
+Measured: vehicles, truck share, recorded minutes; share of lane-changing vehicles and lane changes per vehicle;
+median time in view; mean ``|xVelocity|`` [m/s] per class and per lane (numbered per carriageway from its
+leftmost lane, 1); time headway [s] percentiles over rows with a preceding vehicle and the share under 1 s.
+``PUBLISHED_HIGHD`` holds only values found in the cited sources; the rest print as "–".
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
-"""The HighD file format: column names and types, exactly as the official format defines them.
-
-Files per recording ``NN`` (two-digit, zero-padded): ``NN_tracks.csv`` (one row per vehicle per
-frame), ``NN_tracksMeta.csv`` (one row per vehicle), ``NN_recordingMeta.csv`` (one row).
-
-Image axes: x to the right, **y down**, metres. ``x, y`` in tracks are the *top-left corner* of
-the bounding box; ``width`` is the vehicle length (along x) and ``height`` its width.
+"""The HighD file format: column names and types of ``NN_tracks.csv``, ``NN_tracksMeta.csv`` and
+``NN_recordingMeta.csv`` as the official format defines them. Image axes: x right, **y down**, metres; ``x, y``
+is the box's top-left corner, ``width`` the vehicle length (along x), ``height`` its width.
 """
 
 from typing import Final

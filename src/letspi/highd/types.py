@@ -10,15 +10,10 @@ import pandas as pd
 
 @dataclass(frozen=True)
 class Recording:
-    """One HighD recording.
+    """One HighD recording, HighD column names throughout.
 
-    Attributes:
-        recording_id: the ``NN`` of the file names.
-        meta: the single row of ``NN_recordingMeta.csv`` as a dict keyed by HighD column names
-            (``upperLaneMarkings``/``lowerLaneMarkings`` kept as the ';'-separated strings).
-        tracks_meta: ``NN_tracksMeta.csv``; one row per vehicle, HighD column names.
-        tracks: ``NN_tracks.csv``; one row per vehicle per frame, HighD column names,
-            sorted by (id, frame).
+    ``meta``: the one row of ``NN_recordingMeta.csv`` (lane markings kept as ';'-separated strings);
+    ``tracks_meta``: one row per vehicle; ``tracks``: one row per vehicle per frame, sorted by (id, frame).
     """
 
     recording_id: int
@@ -32,17 +27,17 @@ class Recording:
 
     @property
     def upper_markings_y_m(self) -> np.ndarray:
-        """Upper carriageway lane markings, image y [m], ascending. Shape (M_upper,)."""
+        """Upper carriageway markings, image y [m], ascending, (M_upper,)."""
         return parse_markings(str(self.meta["upperLaneMarkings"]))
 
     @property
     def lower_markings_y_m(self) -> np.ndarray:
-        """Lower carriageway lane markings, image y [m], ascending. Shape (M_lower,)."""
+        """Lower carriageway markings, image y [m], ascending, (M_lower,)."""
         return parse_markings(str(self.meta["lowerLaneMarkings"]))
 
 
 def parse_markings(text: str) -> np.ndarray:
-    """Parse a HighD ';'-separated marking list into an ascending float array."""
+    """A ';'-separated HighD marking list as an ascending float array."""
     values = [float(v) for v in text.split(";") if v.strip()]
     return np.sort(np.asarray(values, dtype=np.float64))
 

@@ -1,21 +1,9 @@
-"""Semantic validation of HighD tables, shared by reading and writing (``letspi.highd.io``).
+"""Semantic validation of parsed HighD tables, shared by reading and writing (``letspi.highd.io``).
 
-The tables reaching these checks are already parsed with the official columns and dtypes; here
-every value and every cross-file relation is checked, vectorised. Each check raises a
-:class:`~letspi.highd.errors.HighDFormatError` naming the file, the column and the 1-based CSV line
-(``line_of`` maps a 0-based row to it). Checks, in order:
-
-* recordingMeta: one row; ``id`` matches the file name; ``frameRate`` > 0; ``speedLimit`` -1 (none)
-  or positive; both marking lists are finite numbers, at least two each (the road edges), the
-  upper carriageway's above (smaller image y than) the lower one's; vehicle counts not negative.
-* tracksMeta: unique positive ids; known class and drivingDirection; positive width/height;
-  ``initialFrame`` >= 1; ``numFrames`` = finalFrame - initialFrame + 1; ``numLaneChanges`` >= 0;
-  ``numVehicles``/``numCars``/``numTrucks`` of recordingMeta equal its rows and classes.
-* tracks: every id is in tracksMeta; frames >= 1 and consecutive per vehicle; frame range per
-  vehicle as in tracksMeta; width/height positive and equal to tracksMeta's (a vehicle whose
-  first row already disagrees is blamed on tracksMeta); ``laneId`` is a lane the markings define
-  (``1 + number of markings above``: 1 .. M + 1) on the vehicle's own carriageway; neighbour ids
-  (``precedingId`` ... ``rightFollowingId``) are 0 or another vehicle of tracksMeta.
+Every value and every cross-file relation is checked, vectorised; each check raises a ``HighDFormatError``
+naming the file, the column and the 1-based CSV line (``line_of`` maps a 0-based row to it). A vehicle whose
+sizes disagree from its first track row on is blamed on tracksMeta; ``laneId`` must be a lane of the markings
+(1 .. M + 1) on the vehicle's own carriageway; neighbour ids are 0 or another vehicle of tracksMeta.
 """
 
 from __future__ import annotations
@@ -47,7 +35,7 @@ def _first(mask: np.ndarray) -> int | None:
 
 
 def markings_of(path: Path, meta: pd.DataFrame, line_of: LineOf) -> tuple[np.ndarray, np.ndarray]:
-    """The upper and lower markings (ascending image y), checked (see module docstring)."""
+    """The upper and lower markings (ascending image y), at least two each, finite, the upper above the lower."""
     row = meta.iloc[0]
     out = []
     for col in ("upperLaneMarkings", "lowerLaneMarkings"):

@@ -1,32 +1,14 @@
-"""Export scenarios (and planners' plans) to the CommonRoad format with ``commonroad-io``.
+"""Export scenarios and plans to CommonRoad files with ``commonroad-io`` (extra ``commonroad``, imported here).
 
-Needs the optional extra ``commonroad`` (``pip install 'letspi[commonroad]'``: commonroad-io 2024.x,
-which pins protobuf 3.20.2, and CommonRoad's drivability checker). This module imports
-``commonroad`` at module level; the rest of letspi imports it only inside ``letspi export commonroad``.
-
-One letspi scenario becomes one CommonRoad scenario file, in the scenario's ego frame (x along the
-carriageway, y to the left, metres; CommonRoad's plane is right-handed too), time step 0 = the
-planning instant t = 0, dt = 0.04 s:
-
-* **road**: one lanelet per lane of the ego's carriageway, between consecutive lane markings
-  (right to left, ids 1..L), straight along x over the extent of every exported trajectory plus
-  ``road_margin_m``; adjacent lanelets are linked (same direction); the outer markings are solid
-  (road edges), the inner ones dashed;
-* **neighbours** (the 8 slots a planner sees) and **context vehicles** (the other recorded vehicles the
-  evaluation scores) become dynamic obstacles (car or truck, their box size) with their *recorded*
-  futures as trajectory predictions: ids 100 + slot and 200 + context slot. A neighbour starts at
-  t = 0; a vehicle that appears later starts at its first recorded future frame; a vehicle that
-  leaves ends there (the first contiguous run of recorded frames is exported);
-* the ego is the **planning problem** (id 1): its t = 0 state and, as the goal, the region the
-  success test accepts at 5 s: the recorded human endpoint ± max(5 m, 10 % of the human's progress)
-  along x, the width of the human's final lane, at time step 125.
-
-Orientation: ``heading`` (default) = atan2(vy, vx) of each state, as a vehicle's yaw; ``axis_aligned``
-= 0 for every state, which keeps letspi's geometry exactly (HighD boxes, and letspi's collision test,
-are axis-aligned), so a CommonRoad collision check then sees the very boxes letspi scores.
-
-Plans become CommonRoad *solutions* (point-mass model, states at time steps 0..125: position,
-velocity, velocity_y), one file per scenario and planner.
+One letspi scenario is one CommonRoad scenario in its ego frame (right-handed, metres), time step 0 = t = 0,
+dt = 0.04 s: one lanelet per lane of the ego's carriageway (right to left, ids 1..L, straight along x over every
+exported trajectory plus ``road_margin_m``; adjacent lanelets linked; outer markings solid, inner dashed); the
+neighbours (ids 100 + slot) and context vehicles (200 + slot) as dynamic obstacles with their *recorded* futures
+(the first contiguous run of recorded frames); the ego as the planning problem (id 1), its goal the region the
+success test accepts at step 125: the human endpoint ± max(5 m, 10 % of its progress) along x, the width of
+the human's final lane. Orientation ``heading`` = atan2(vy, vx); ``axis_aligned`` = 0 keeps letspi's geometry
+exactly, so a CommonRoad collision check sees the boxes letspi scores. Plans become point-mass *solutions*
+(steps 0..125), one file per scenario and planner.
 """
 
 from __future__ import annotations
@@ -183,9 +165,8 @@ def goal_region(batch: ScenarioBatch, index: int, config: MetricsConfig | None =
 def to_commonroad(batch: ScenarioBatch, index: int, *, orientation: Orientation = "heading",
                   road_margin_m: float = 50.0, extra_xy_m: np.ndarray | None = None,
                   ) -> tuple[Scenario, PlanningProblemSet]:
-    """Scenario ``index`` of ``batch`` (with its recorded future) as a CommonRoad scenario and planning problem.
-
-    extra_xy_m: more positions (e.g. plans, (..., 2)) the road must cover.
+    """Scenario ``index`` of ``batch`` (with its recorded future) as a CommonRoad scenario and planning problem;
+    ``extra_xy_m`` (..., 2): more positions (e.g. plans) the road must cover.
     """
     if orientation not in ORIENTATIONS:
         raise ValueError(f"orientation must be one of {ORIENTATIONS}, got {orientation!r}")

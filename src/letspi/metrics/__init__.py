@@ -1,9 +1,5 @@
-"""letspi.metrics: surrogate safety and quality metrics of planned ego trajectories.
-
-Entry points: ``compute_metrics`` (per scenario, vectorised over scenarios, neighbours and time),
-``aggregate_metrics`` (paper Table III keys and extras) and ``render_markdown_table``. Every
-per-scenario metric is declared once in ``letspi.metrics.registry``; one computation per module;
-geometry conventions in ``letspi.metrics.inputs``.
+"""Surrogate safety and quality metrics of planned ego trajectories: ``compute_metrics`` (per scenario),
+``aggregate_metrics`` (Table III keys) and ``render_markdown_table``; each metric declared once in ``registry``.
 """
 
 from letspi.metrics.aggregate import (

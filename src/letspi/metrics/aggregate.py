@@ -1,19 +1,10 @@
-"""Aggregation of per-scenario metrics into the paper's Table III, and its markdown rendering.
+"""Aggregation of per-scenario metrics into the paper's Table III (``metrics.json``), and its markdown tables.
 
-Every key of the aggregated dict (the schema of ``metrics.json``) comes from the registry
-(``letspi.metrics.registry.METRICS``); the reference below is generated from it, so it cannot
-drift from the code. Values are float, int, str or None (None = no scenario had a finite value;
-NaN and inf are never emitted).
-
-Configuration. Threshold decisions are taken here, on the raw per-scenario values, with the
-``MetricsConfig`` in effect: ``lt_pct`` / ``rear_lt_pct`` (``low_ttc_s``), the capped TTC and PET
-means (``ttc_cap_s``, ``pet_cap_s``) and ``drac_high_pct`` (``drac_high_mps2``). The config in
-effect is the one passed, else the one recorded in the frame (``compute_metrics`` writes
-``metrics_config`` beside the metrics), never a silent default. Everything else was decided per
-scenario by ``compute_metrics``; a passed config whose per-scenario fields differ from the
-recorded one is refused (the values would not mean what the config says), as is a frame mixing
-configurations that differ in them. The result records ``metrics_config_key`` (the key of the
-config in effect) and the four thresholds it applied.
+Every key comes from ``letspi.metrics.registry.METRICS`` (reference below); values are float, int, str or None
+(no finite value; NaN and inf are never emitted). Thresholds (``MetricsConfig.AGGREGATE_FIELDS``) apply here to
+the raw values with the config in effect: the one passed, else the one recorded in the frame, never a silent
+default. A config differing from the recorded one in a per-scenario field is refused, as is a frame mixing such
+configs; the result records ``metrics_config_key`` and the thresholds applied.
 
 """
 
@@ -72,9 +63,9 @@ def _pct(flags: np.ndarray) -> float | None:
 
 
 def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.ndarray:
-    """The (n,) per-scenario values behind a rate or mean key: bool for a rate (its share is the
-    key's value), float64 for a mean (the mean of the finite entries is the key's value; a capped
-    mean has no non-finite entry left). The one definition of what a rate or mean key averages."""
+    """The (n,) per-scenario values behind a rate or mean key: bool for a rate (the key is their share), float64 for a
+    mean (the key is the mean of the finite entries). The one definition of what such a key averages.
+    """
     t = agg.threshold_value(config)
     if agg.how == "pct_equal":
         return np.asarray(values.astype(str) == str(t))
@@ -93,13 +84,16 @@ def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.n
     raise ValueError(f"{agg.key}: {agg.how!r} is neither a rate nor a mean")
 
 
-def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
+def apply_agg(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
     """One aggregation of one (n,) column (``registry.HOW_DOC``)."""
     if agg.how in RATE_HOWS:
         return _pct(scenario_values(agg, values, config))
     if agg.how in MEAN_HOWS:
         return finite_mean(scenario_values(agg, values, config))[0]
     v = values.astype(np.float64)
+    if agg.how == "pct_mean":
+        mean = finite_mean(v)[0]
+        return None if mean is None else 100.0 * mean
     if agg.how == "finite_n":
         return finite_mean(v)[1]
     if agg.how == "inf_n":
@@ -112,11 +106,8 @@ def _apply(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
 
 
 def recorded_config(frame: pd.DataFrame) -> MetricsConfig | None:
-    """The ``MetricsConfig`` recorded in a per-scenario frame, None for a frame without one.
-
-    Raises ValueError if the rows were computed with configurations that differ in a
-    per-scenario field (a mix of different metrics); rows that differ only in aggregate or
-    reflection thresholds yield the first row's config.
+    """The ``MetricsConfig`` recorded in a per-scenario frame (None without one); ValueError when rows differ in a
+    per-scenario field (rows differing only in aggregate or reflection thresholds give the first row's config).
     """
     column = CONFIG_COLUMNS[1]
     if column not in frame or not len(frame):
@@ -165,13 +156,11 @@ def aggregate_metrics(
     inference_time_s: np.ndarray | Sequence[float] | float | None = None,
     config: MetricsConfig | None = None,
 ) -> dict[str, AggValue]:
-    """Aggregate per-scenario metrics into the contract above (module doc).
+    """Aggregate per-scenario metrics into the keys of the module docstring.
 
-    metrics: ``compute_metrics``' result or its frame (extra columns such as ``scenario_id`` are
-    ignored; a ``scenario_digest`` column must not repeat a digest). inference_time_s: planning
-    times [s] (any number of them, e.g. only the uncached rows; their finite mean is reported) or
-    one number; when None, an ``inference_s`` column of the frame is used if present, else None.
-    config: thresholds to apply (module doc); None = the config recorded with the metrics.
+    ``metrics``: ``compute_metrics``' result or its frame (extra columns ignored; ``scenario_digest`` must not
+    repeat). ``inference_time_s``: planning times [s] (their finite mean is reported) or one number; None: the
+    frame's ``inference_s`` column if present. ``config``: None = the config recorded with the metrics.
     """
     if isinstance(metrics, ScenarioMetrics):
         df = metrics.to_frame()
@@ -196,7 +185,7 @@ def aggregate_metrics(
         else:
             raise KeyError(f"per-scenario column {m.name!r} missing: not a compute_metrics frame of this version")
         for a in m.aggregates:
-            out[a.key] = _apply(a, values, cfg)
+            out[a.key] = apply_agg(a, values, cfg)
     out["metrics_config_key"] = cfg.key()
     for field in MetricsConfig.AGGREGATE_FIELDS:
         out[field] = float(getattr(cfg, field))
@@ -299,12 +288,9 @@ def _num(agg: Mapping[str, AggValue], key: str, default: float) -> str:
 def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2,
                           intervals: IntervalsByPlanner | None = None,
                           paired: Mapping[str, object] | None = None) -> str:
-    """Paper-style markdown tables (one row per planner) from ``{planner: aggregate_metrics(...)}``.
-
-    The headline table holds the paper's columns plus CR at fault; a safety detail table follows
-    (front and rear TTC, collisions by kind, capped PET, SR against the planner's own goal), then
-    notes: how each column is computed, with the thresholds recorded in the results, and per
-    planner how many scenarios had a finite TTC / PET, so infinite values are never silently dropped.
+    """Paper-style markdown tables from ``{planner: aggregate_metrics(...)}``: the headline (paper columns and CR at
+    fault), a safety detail table, and notes on how each column is computed with the thresholds applied and how
+    many scenarios had a finite TTC / PET.
     """
     first: Mapping[str, AggValue] = next(iter(results.values()), {})
     default = MetricsConfig()

@@ -1,18 +1,10 @@
 """Collision tests (paper "CR").
 
-Primary (``collision``): the axis-aligned boxes of the planned ego and a valid neighbour overlap
-(strictly: touching is not a collision) at some future step. This is real contact.
-
-Paper variant (``collision_2m``): the paper counts "vehicle contact (distance < 2.0 m)" without
-saying which distance. Both literal readings are poor on a highway: centre distance < 2 m
-misses nearly every rear-end contact (two touching 4.5 m cars are 4.5 m apart centre to
-centre), and box gap < 2 m flags every ordinary adjacent-lane pass (3.75 m lanes minus 1.8 m
-widths leave about 1.9 m). Default reading, ``mode="longitudinal_gap"``: a collision when the
-boxes overlap, or when a neighbour **in the ego's path** (boxes overlapping laterally) is less than
-``threshold_m`` bumper to bumper ahead or behind. It keeps the paper's intent (too close is as bad as
-contact) along the axis where 2 m is a meaningful margin and leaves side-by-side driving alone.
-``mode="centre_distance"`` and ``mode="box_gap"`` give the two literal readings. The threshold is
-configurable (``MetricsConfig.collision_2m_m``).
+``collision``: the boxes of the planned ego and a valid neighbour overlap (touching is not) at some future step:
+real contact. ``collision_2m``: the paper's "distance < 2.0 m", which it does not define. Default
+``mode="longitudinal_gap"``: overlap, or a neighbour in the ego's path (boxes overlapping laterally) less than
+``threshold_m`` bumper to bumper ahead or behind; ``"centre_distance"`` and ``"box_gap"`` are the two literal
+readings (``MetricsConfig.collision_2m_m`` / ``collision_2m_mode``).
 """
 
 from __future__ import annotations

@@ -1,14 +1,8 @@
 """``compute_metrics``: every per-scenario metric of a batch of planned ego trajectories.
 
-The result is a ``ScenarioMetrics``: one (B,) array per column of the registry
-(``letspi.metrics.registry.METRICS``: names, units, dtypes and docs live there, once) and the
-``MetricsConfig`` used. Definitions live in the modules: ``ttc`` (front and rear 1-D TTC),
-``ttc2d``, ``pet``, ``drac``, ``distance``, ``collision``, ``fault``, ``kinematics``, ``success``.
-Infinite values are kept (+inf = no conflict); ``aggregate`` handles them.
-
-Metrics are computed against the ground truth of the batch given: the neighbours' recorded
-futures and, for ADE/FDE and the success reference, the recorded ego future. Any number N of
-neighbour slots works (the batch's N, or more via ``MetricInputs.with_neighbours``).
+Returns a ``ScenarioMetrics``, one (B,) array per registry column, computed by the modules ``ttc``, ``ttc2d``,
+``pet``, ``drac``, ``distance``, ``collision``, ``fault``, ``kinematics`` and ``success`` against the batch's
+ground truth (neighbours' and ego's recorded futures). +inf (no conflict) is kept; ``aggregate`` handles it.
 """
 
 from __future__ import annotations
@@ -56,12 +50,10 @@ class _Route:
 
 @dataclass(frozen=True, eq=False)
 class ScenarioMetrics:
-    """Per-scenario metrics of B scenarios and the configuration they were computed with.
+    """Per-scenario metrics of B scenarios and the ``config`` they were computed with.
 
-    columns: one (B,) array per computed registry metric (``registry.computed_metrics()``, in that
-    order, with the registry's dtype). Columns read as attributes (``m.min_ttc_s``) or items
-    (``m["min_ttc_s"]``). Rows are in batch order (no scenario id: the caller holds
-    ``batch.scenario_id``).
+    ``columns``: one (B,) array per computed registry metric, in registry order and dtype, read as attributes
+    (``m.min_ttc_s``) or items; rows in batch order (the caller holds ``batch.scenario_id``).
     """
 
     columns: Mapping[str, np.ndarray]
@@ -85,11 +77,8 @@ class ScenarioMetrics:
         return len(next(iter(self.columns.values()))) if self.columns else 0
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per scenario (batch order): every metric column, then ``metrics_config_key`` and
-        ``metrics_config`` (the configuration as canonical JSON), so a stored frame says how it
-        was computed and ``aggregate_metrics`` can check it.
-
-        Scenario ids are not included (callers add ``batch.scenario_id`` as they need).
+        """One row per scenario in batch order: every metric column, then ``metrics_config_key`` and ``metrics_config``
+        (canonical JSON), so a stored frame says how it was computed; no scenario ids.
         """
         b = len(self)
         frame = pd.DataFrame(dict(self.columns))
@@ -200,9 +189,9 @@ def _compute_chunk(
 
 @dataclass(frozen=True)
 class PlanOutcomes:
-    """(B,) each: the outcome columns of ``compute_metrics`` a search over many candidate plans needs,
-    with the same values (``collision``, ``collision_at_fault``, ``success``, ``min_ttc_s``), and
-    ``progress_m``, the planned end position along the road [m] (x of the last frame; ego frame)."""
+    """(B,) each: the ``compute_metrics`` outcomes a search over candidate plans needs (``collision``,
+    ``collision_at_fault``, ``success``, ``min_ttc_s``, same values) and ``progress_m``, the plan's final x [m].
+    """
 
     collision: np.ndarray
     collision_at_fault: np.ndarray
@@ -245,12 +234,10 @@ def compute_metrics(
 ) -> ScenarioMetrics:
     """All per-scenario metrics of planned ego futures against the batch's ground truth.
 
-    batch: B scenarios. ego_future_xy_m, ego_future_vxy_mps: (B, F, 2) planned box centres [m]
-    and velocities [m/s] in the ego frame for the F = 125 future frames. goals_xy_m: (B, 2) the
-    planner's own goal [m] for ``goal_reached`` / ``success_self``, or None (that criterion then
-    holds); ``success`` is judged against the recorded human endpoint either way. config: None
-    means ``MetricsConfig()`` (recorded in the result). Processed in chunks of
-    ``config.chunk_size`` scenarios (vectorised within a chunk) to bound memory.
+    ``ego_future_xy_m``, ``ego_future_vxy_mps``: (B, F, 2) planned centres [m] and velocities [m/s], ego frame, F = 125.
+    ``goals_xy_m``: (B, 2) the planner's own goal for ``success_self``, or None (that criterion holds); ``success`` is
+    judged against the human either way. ``config`` None = ``MetricsConfig()``. Chunks of ``config.chunk_size``
+    scenarios bound memory.
     """
     cfg = config if config is not None else MetricsConfig()
     xy = np.asarray(ego_future_xy_m, dtype=np.float64)

@@ -1,17 +1,8 @@
 """Thresholds and tolerances of every metric in one frozen pydantic model (``MetricsConfig``).
 
-Which fields matter where (``MetricsConfig.AGGREGATE_FIELDS`` etc.):
-
-* **per-scenario** fields decide values that ``compute_metrics`` stores per scenario (collision
-  variant, PET cells, success tolerances, at-fault rules, ``dt_s``);
-* **aggregate** fields (``low_ttc_s``, ``ttc_cap_s``, ``pet_cap_s``, ``drac_high_mps2``) are applied
-  by ``aggregate_metrics`` to the raw per-scenario values, so one run can be re-aggregated with
-  other thresholds;
-* **reflection** fields are read by the reflection module only and change no metric value;
-* ``chunk_size`` is engineering: it changes memory use, never a value, and is left out of the key.
-
-``key()`` is a content hash of every field but ``chunk_size``: it identifies the configuration in
-per-scenario frames and in ``metrics.json``.
+Field groups: per-scenario fields decide values ``compute_metrics`` stores; ``AGGREGATE_FIELDS`` are applied by
+``aggregate_metrics`` to raw values (a run can be re-aggregated with others); ``REFLECTION_FIELDS`` change no
+metric; ``chunk_size`` changes memory use only. ``key()`` hashes every field but ``chunk_size``.
 """
 
 from __future__ import annotations
@@ -28,32 +19,17 @@ Collision2mMode = Literal["longitudinal_gap", "centre_distance", "box_gap"]
 
 
 class MetricsConfig(BaseModel):
-    """Settings of ``compute_metrics`` and ``aggregate_metrics``. SI units throughout.
+    """Settings of ``compute_metrics`` and ``aggregate_metrics``; SI units.
 
-    Evaluation thresholds (paper Table III), applied by ``aggregate_metrics``:
-        low_ttc_s: a scenario is "low TTC" (LT) when its minimum 1-D TTC is below this [s].
-        ttc_cap_s: the table's TTC averages min(TTC, ttc_cap_s) over all scenarios [s].
-        pet_cap_s: ``pet_capped_s`` averages min(PET, pet_cap_s) over all scenarios [s]; default
-            5 s = the horizon, the largest PET a 5 s window can measure.
-        drac_high_mps2: ``drac_high_pct`` counts maximum DRAC above this [m/s^2] (SUMO: 3).
-    Per-scenario:
-        collision_2m_m / collision_2m_mode: the paper's "distance < 2.0 m" collision variant
-            (``collision_2m``); see ``letspi.metrics.collision`` for the three readings.
-        pet_cell_m: PET grid cell size [m] (0.5-1 m is the usual range; at most 1 m so every
-            vehicle covers at least one cell centre across its width).
-        Success (``letspi.metrics.success``): max_abs_acc_lon_mps2, max_abs_acc_lat_mps2,
-            off_road_tol_m, success_requires_no_collision_2m; against the recorded human endpoint
-            sr_progress_tol_rel, sr_progress_tol_m, sr_lat_tol_m; against the planner's own goal
-            (``success_self``) goal_tol_lon_m, goal_tol_lat_m.
-        At fault (``letspi.metrics.fault``): fault_reaction_time_s, fault_comfort_decel_mps2.
-        dt_s: time step of the future [s].
-    Reflection thresholds (paper §III, reflection module; kept here so the reflection module and
-    the evaluation read one source, but independent of the evaluation thresholds above):
-        reflection_ttc_s (1.5 s), reflection_min_dist_m (2.0 m; which distance it applies to is
-        the reflection module's choice, see ``letspi.metrics.collision`` for the trade-offs),
-        reflection_pet_s (None = PET not used by reflection).
-    Engineering: chunk_size (scenarios per vectorised chunk, bounds memory: the (B, N, F)
-        temporaries are chunk_size x N x F float64).
+    Aggregate (paper Table III): ``low_ttc_s`` (LT: minimum 1-D TTC below it), ``ttc_cap_s`` (the table's TTC
+    averages min(TTC, cap)), ``pet_cap_s`` (``pet_capped_s``; default 5 s, the horizon), ``drac_high_mps2``
+    (``drac_high_pct``). Per-scenario: ``collision_2m_m`` / ``collision_2m_mode`` (``letspi.metrics.collision``);
+    ``pet_cell_m`` (<= 1 m, so every vehicle covers a cell centre across its width); success tolerances
+    (``letspi.metrics.success``: ``max_abs_acc_*``, ``off_road_tol_m``, ``success_requires_no_collision_2m``,
+    ``sr_*`` against the human endpoint, ``goal_tol_*`` against the planner's goal); at fault
+    (``fault_reaction_time_s``, ``fault_comfort_decel_mps2``); ``dt_s``. Reflection (paper §III; independent of the
+    evaluation): ``reflection_ttc_s``, ``reflection_min_dist_m``, ``reflection_pet_s`` (None: unused).
+    ``chunk_size``: scenarios per vectorised chunk ((B, N, F) float64 temporaries of chunk_size rows).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")

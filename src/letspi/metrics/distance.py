@@ -1,15 +1,8 @@
-"""Minimum distances between the planned ego and the neighbours (paper "minD").
+"""Minimum distances between the planned ego and the neighbours (paper "minD"), over valid neighbours and steps.
 
-Two different numbers, both reported:
-
-* ``min_centre_dist_m``: Euclidean distance between box centres. The paper's minD (Table III,
-  13-18 m averages) has this magnitude; ``aggregate`` uses it as ``min_dist_m``.
-* ``min_box_gap_m``: Euclidean distance between the axis-aligned boxes, i.e.
-  hypot(max(|dx| - hx, 0), max(|dy| - hy, 0)) with hx, hy the half-size sums; 0 when the boxes
-  touch or overlap. This is the physically meaningful clearance (a rear-end contact has a
-  centre distance of about one car length, but a box gap of 0).
-
-Minima are over valid neighbours and the F future steps; +inf (step/nbr -1) with no neighbour.
+``min_centre_dist_m``: between box centres, the paper's minD magnitude (``min_dist_m`` in ``aggregate``).
+``min_box_gap_m``: between the boxes, hypot(max(|dx| - hx, 0), max(|dy| - hy, 0)) with half-size sums hx, hy;
+0 on contact: the clearance. +inf (step/nbr -1) without a neighbour.
 """
 
 from __future__ import annotations

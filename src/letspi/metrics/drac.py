@@ -1,9 +1,7 @@
-"""Deceleration rate to avoid a crash with the preceding vehicle.
+"""Deceleration rate to avoid a crash with the preceding vehicle (as defined in ``letspi.metrics.ttc``).
 
-DRAC = dv^2 / (2 s) [m/s^2] with s the bumper gap and dv = vx_ego - vx_nbr > 0 the closing speed
-towards the preceding vehicle (same preceding-vehicle definition as ``letspi.metrics.ttc``).
-0 when there is no preceding vehicle or it is not being closed on; +inf when the boxes already
-overlap (s <= 0: no finite deceleration avoids the crash). SUMO flags DRAC > 3.0 m/s^2.
+DRAC = dv² / (2 s) [m/s²], s the bumper gap, dv = vx_ego - vx_nbr > 0; 0 without a preceding vehicle or when not
+closing; +inf when the boxes already overlap. SUMO flags DRAC > 3.0 m/s².
 """
 
 from __future__ import annotations

@@ -1,35 +1,13 @@
-"""At-fault collisions: who caused a contact between the planned ego and a replayed neighbour.
+"""At-fault collisions: who caused a contact between the planned ego and a replayed (non-reactive) neighbour.
 
-Neighbours are replayed from the recording: they do not react to the plan. As nuPlan does for
-replayed ("non-reactive") agents, a contact the ego could not have avoided is not charged to it.
-Every colliding ego-neighbour pair is classified once, at its first contact step s (the step at
-which the boxes first overlap):
-
-* **side**: the boxes came together laterally: they did not overlap laterally at some step
-  within ``fault_reaction_time_s`` (1 s) before s (including the step just before contact, a
-  pure side swipe). At fault when the ego did at least half of the lateral closing: from the last
-  step without lateral overlap to s, the ego's lateral displacement towards the neighbour is at
-  least the neighbour's towards the ego (an ego lane change into a car; an ego cutting in less
-  than 1 s ahead of a follower that then hits it). A neighbour that swerves or cuts in into a
-  straight-driving ego within that second is not the ego's fault: a driver needs about a second
-  to react (SUMO's action step lengths span 0.2-1.0 s).
-* **front**: otherwise, if the neighbour's centre was ahead of the ego's just before contact: the
-  ego ran into a vehicle ahead that had been in its path for at least the reaction time. At fault
-  (nuPlan: active front and stopped-track collisions are at fault).
-* **rear**: otherwise: the replayed follower ran into the ego. Not at fault, unless the ego braked
-  harder than allowed before the contact: at some step f <= s its deceleration -a_x(f) exceeded
-  max(``fault_comfort_decel_mps2``, the largest need so far), where the need at a step is the
-  larger of the ego's DRAC towards its own preceding vehicle (the deceleration that avoids hitting
-  it, ``letspi.metrics.drac``) and the deceleration of that preceding vehicle. So braking up to
-  3 m/s^2 (the comfort bound: SUMO's DRAC threshold, about 0.3 g, which a follower keeping a
-  reasonable headway absorbs) is always allowed, harder braking only when a leader braked as
-  hard or the closing situation required it; once such a need arose, braking up to it stays
-  allowed for the rest of the plan. Brake-checking a follower without cause is at fault.
-
-Steps before t = 0 are not examined (the inputs hold the future only): a contact within the first
-second whose lateral approach began before t = 0 is judged longitudinally. Decelerations are
-finite differences of the planned velocities from the t = 0 state (``kinematics``); neighbour
-decelerations are differences of their recorded velocities (the first step copies the second).
+As in nuPlan, a contact the ego could not have avoided is not charged to it. Each colliding pair is classified
+at its first contact step s: **side** when the boxes did not overlap laterally at some step within
+``fault_reaction_time_s`` before s, at fault when the ego did at least half of the lateral closing since;
+otherwise **front** when the neighbour's centre was ahead of the ego's just before contact, at fault; otherwise
+**rear**, at fault only when at some step f <= s the ego braked harder than max(``fault_comfort_decel_mps2``,
+the largest need so far), a need being the larger of the ego's DRAC towards its preceding vehicle and that
+vehicle's deceleration. Only future steps count; decelerations are finite differences from the t = 0 state
+(``kinematics``), the neighbours' of their recorded velocities (the first step copies the second).
 """
 
 from __future__ import annotations
@@ -47,11 +25,10 @@ NONE, FRONT, SIDE, REAR = range(4)
 
 @dataclass(frozen=True)
 class FaultResult:
-    """Per pair (B, N): pair_kind (int8 code into ``KINDS``), pair_at_fault (bool), pair_contact_step
-    (first contact step, -1 none). Per scenario (B,): collision_kind (str, kind of the first collision:
-    the pair of ``collision_step`` / ``collision_nbr``; "none" without contact), collision_at_fault
-    (any pair at fault), collision_fault_step / collision_fault_nbr (the first at-fault contact,
-    -1 none)."""
+    """Per pair (B, N): ``pair_kind`` (int8 code into ``KINDS``), ``pair_at_fault``, ``pair_contact_step`` (-1 none).
+    Per scenario (B,): ``collision_kind`` of the first collision ("none" without), ``collision_at_fault`` (any pair),
+    ``collision_fault_step`` / ``collision_fault_nbr`` of the first at-fault contact (-1 none).
+    """
 
     pair_kind: np.ndarray
     pair_at_fault: np.ndarray
@@ -126,12 +103,10 @@ def at_fault_collisions(
     comfort_decel_mps2: float = 3.0,
     dt_s: float = 0.04,
 ) -> FaultResult:
-    """Classify every colliding pair and flag the ego's fault (rules: module doc).
+    """Classify every colliding pair and flag the ego's fault (rules: module docstring).
 
-    overlap: (B, N, F) box overlap (``collision.boxes_overlap``); first_step, first_nbr: (B,) the
-    scenario's first collision (``CollisionResult.collision_step`` / ``collision_nbr``);
-    ego_acc_lon_mps2: (B, F) planned longitudinal acceleration (``KinematicsResult.acc_mps2[..., 0]``);
-    drac_mps2, preceding_nbr: (B, F) the ego's DRAC and preceding slot per step (``drac``, ``ttc``).
+    ``overlap`` (B, N, F) box overlap; ``first_step``, ``first_nbr`` (B,) the first collision; ``ego_acc_lon_mps2``
+    (B, F) planned longitudinal acceleration; ``drac_mps2``, ``preceding_nbr`` (B, F) from ``drac`` and ``ttc``.
     """
     b, n, _ = overlap.shape
     pair_kind = np.zeros((b, n), dtype=np.int8)

@@ -1,13 +1,8 @@
 """Shared inputs and helpers of the metrics.
 
-Geometry convention (all metrics): vehicles are **axis-aligned boxes** in the ego frame
-(x forward, y left), length along x and width along y; headings are ignored. On a highway the
-heading stays within a few degrees of the road axis, so the error is at most a few centimetres
-of box extent (a 4.5 m car at 3 degrees spans 0.24 m more laterally).
-
-Time convention: the future axis F holds frames ``T0_INDEX + 1 ...``; step f is at time
-``(f + 1) * dt`` after t = 0. "step" fields are indices 0..F-1 into this axis, -1 for none;
-"nbr" fields are neighbour slots 0..N-1 of the batch, -1 for none.
+Vehicles are **axis-aligned boxes** in the ego frame (length along x, width along y); headings are ignored. The
+future axis F holds frames ``T0_INDEX + 1 ...`` (step f at (f + 1) dt); "step" fields index it and "nbr" fields
+the neighbour slots, -1 for none.
 """
 
 from __future__ import annotations
@@ -24,11 +19,9 @@ from letspi.scenario.types import ScenarioBatch
 class MetricInputs:
     """What every metric needs, as float64 arrays.
 
-    ego_xy_m, ego_vxy_mps: (B, F, 2) planned box centres / velocities, ego frame.
-    ego_length_m, ego_width_m: (B,).
-    nbr_xy_m, nbr_vxy_mps: (B, N, F, 2) ground-truth neighbour futures (NaN where invalid).
-    nbr_valid: (B, N, F) bool. nbr_length_m, nbr_width_m: (B, N).
-    N is free: the batch's neighbour slots, plus any appended with ``with_neighbours``.
+    ``ego_xy_m``, ``ego_vxy_mps`` (B, F, 2) planned centres and velocities; ``ego_length_m``, ``ego_width_m`` (B,);
+    ``nbr_xy_m``, ``nbr_vxy_mps`` (B, N, F, 2) ground-truth futures (NaN where invalid), ``nbr_valid`` (B, N, F),
+    ``nbr_length_m``, ``nbr_width_m`` (B, N). N is free (``with_neighbours``).
     """
 
     ego_xy_m: np.ndarray
@@ -76,11 +69,8 @@ class MetricInputs:
         length_m: np.ndarray,
         width_m: np.ndarray,
     ) -> MetricInputs:
-        """These inputs with K more neighbour slots appended (slots N..N+K-1 of the result).
-
-        xy_m, vxy_mps: (B, K, F, 2); valid: (B, K, F) bool; length_m, width_m: (B, K). For vehicles
-        the planner does not see but the plan must be checked against (context vehicles): every
-        metric works for any N, and "*_nbr" results index the combined slots.
+        """These inputs with K more slots appended (slots N..N+K-1): ``xy_m``, ``vxy_mps`` (B, K, F, 2), ``valid`` (B,
+        K, F), ``length_m``, ``width_m`` (B, K); for vehicles the planner does not see but the plan is checked against.
         """
         xy = np.asarray(xy_m, dtype=np.float64)
         ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
@@ -141,11 +131,8 @@ class MetricInputs:
 
 
 def min_over_nbr_time(values: np.ndarray, *, maximise: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-scenario min (or max) of a (B, N, F) array with the (step, nbr) where it occurs.
-
-    NaN is ignored (treated as +inf for a min, -inf for a max). Returns value (B,), step (B,),
-    nbr (B,); step and nbr are -1 when there is no extreme (all +inf for a min, -inf for a max).
-    Ties go to the earliest step, then the lowest neighbour slot.
+    """Per-scenario min (or max) of a (B, N, F) array, NaN ignored, with its step and nbr (B,) each (-1 when all are
+    +inf for a min, -inf for a max); ties go to the earliest step, then the lowest slot.
     """
     b, n, f = values.shape
     fill = -np.inf if maximise else np.inf

@@ -1,11 +1,8 @@
 """Kinematic quality of a planned trajectory: ADE/FDE, accelerations, jerk, lane changes, off-road.
 
-Accelerations and jerk are finite differences at dt (0.04 s) over the t = 0 state followed by
-the F planned states: a_f = (v_f - v_{f-1}) / dt with v_{-1} the ego velocity at t = 0, and
-j_f = (a_f - a_{f-1}) / dt with a_{-1} the ego acceleration at t = 0 (from the data), so a plan
-that starts with a velocity or acceleration jump is charged for it. Components are road-aligned:
-the ego frame's x axis is the carriageway direction (lane markings are lines y = const), so
-"longitudinal" = x and "lateral" = y; the norm is reported too.
+Accelerations and jerk are finite differences at dt over the t = 0 state and the F planned states (the t = 0
+velocity and acceleration come from the data), so a plan that starts with a jump is charged for it. x is
+longitudinal and y lateral (the markings are lines y = const); norms are reported too.
 """
 
 from __future__ import annotations
@@ -43,10 +40,7 @@ def _nan_peak(x: np.ndarray) -> np.ndarray:
 def finite_difference_kinematics(
     plan_vxy_mps: np.ndarray, v0_mps: np.ndarray, a0_mps2: np.ndarray, dt_s: float = DT_S
 ) -> KinematicsResult:
-    """Accelerations and jerk of (B, F, 2) planned velocities from the t = 0 state (module doc).
-
-    v0_mps, a0_mps2: (B, 2) ego velocity and acceleration at t = 0.
-    """
+    """Accelerations and jerk of (B, F, 2) planned velocities from the t = 0 state ``v0_mps``, ``a0_mps2`` (B, 2)."""
     v = np.concatenate([v0_mps[:, None], plan_vxy_mps], axis=1)
     acc = np.diff(v, axis=1) / dt_s
     jerk = np.diff(np.concatenate([a0_mps2[:, None], acc], axis=1), axis=1) / dt_s
@@ -61,19 +55,15 @@ def finite_difference_kinematics(
 
 
 def lane_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
-    """Lane index of lateral positions: number of markings strictly below y, minus 1.
-
-    y_m (B, F); marking_y_m (B, M) ascending, NaN padded. 0 = rightmost lane, -1 = right of the
-    road, M - 1 = left of it. NaN y gives -1.
+    """Lane index of lateral positions ``y_m`` (B, F): markings (B, M, ascending, NaN padded) strictly below, minus 1;
+    0 = rightmost lane, -1 right of the road or NaN, M - 1 left of it.
     """
     return (marking_y_m[:, None, :] < y_m[..., None]).sum(axis=-1) - 1
 
 
 def count_lane_changes(y0_m: np.ndarray, plan_y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
-    """Number of lane changes (B,) of the planned centre, counting from the lane at t = 0.
-
-    Every step at which the centre's lane index differs from the previous step's counts once, so
-    a lane change and back counts 2. No hysteresis: a centre weaving on a marking counts each crossing.
+    """Number of lane changes (B,) of the planned centre from the lane at t = 0: every step whose lane index differs
+    from the previous one counts (a change and back is 2; no hysteresis).
     """
     lanes = lane_index(np.concatenate([y0_m[:, None], plan_y_m], axis=1), marking_y_m)
     return (np.diff(lanes, axis=1) != 0).sum(axis=1)
@@ -95,10 +85,8 @@ def off_road(
     marking_is_edge: np.ndarray,
     tol_m: float = 0.0,
 ) -> np.ndarray:
-    """(B,) bool: at some step the ego box extends more than ``tol_m`` beyond a road edge.
-
-    plan_y_m (B, F) planned centre y; ego_width_m (B,). NaN positions are not flagged here
-    (``success`` checks finiteness separately).
+    """(B,) bool: at some step the ego box (centres ``plan_y_m`` (B, F), ``ego_width_m`` (B,)) extends more than
+    ``tol_m`` beyond a road edge; NaN positions are not flagged here.
     """
     right, left = road_edges(marking_y_m, marking_is_edge)
     hw = 0.5 * ego_width_m[:, None]

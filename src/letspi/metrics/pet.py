@@ -1,47 +1,13 @@
 """Post-encroachment time by the grid method (Allen et al. 1978).
 
-Definition (per ego-neighbour pair). Space is cut into square cells of ``cell_m`` (default 0.5 m)
-aligned with the ego frame (cell (i, j) = [i c, (i+1) c) x [j c, (j+1) c), centre
-((i + 1/2) c, (j + 1/2) c)). **A box occupies a cell when it covers the cell's centre** (strictly:
-a box edge through the centre does not occupy it). For a cell occupied by both vehicles within
-the F future steps, with occupancy intervals [a1, b1] (first vehicle) and [a2, b2] (second), the
-cell's PET is t_enter(second) - t_exit(first) = a2 - b1, and 0 when the occupancies overlap in time.
-PET of the pair = min over shared cells; PET of the scenario = min over neighbours.
-
-Why the centre rule. The earlier rule (a box occupies every cell its interior merely touches)
-let two disjoint boxes occupy the same cell at the same time: two cars side by side 0.3 m apart
-both reach into the 0.5 m cell between them and got PET 0 s although they never touch. With the
-centre rule a cell stands for one point of the road (its centre), so PET is the point-wise PET
-of Allen's definition sampled on the cell centres: two vehicles occupy a cell at the same frame
-only if both boxes cover that point, i.e. only on real contact; side-by-side driving without
-lateral encroachment shares no cell (PET undefined); a vehicle that really drives over road the
-other used gets the time between the two, as before. The centre rule keeps each occupancy a
-rectangle of cells (per-axis index ranges), which the algorithm below needs; an area-fraction
-rule would not (corner cells). Each box edge is quantised by at most half a cell, so PET carries
-a quantisation of about cell / speed (0.02 s at 25 m/s, 0.5 m cells) plus the frame period dt
-(occupancy is sampled at frames). ``cell_m`` must not exceed the smallest vehicle dimension
-(config: at most 1 m), otherwise a box could cover no centre along an axis.
-
-Encounters included: **every valid neighbour whose swept cells share at least one cell with the
-ego's swept cells within the 5 s horizon, in either order** (the ego first, e.g. a follower in
-the target lane entering where the ego was, or the neighbour first, e.g. the ego following a
-leader or cutting in behind it). For same-lane following this is the bumper-to-bumper time gap
-(plus up to one frame and one cell of quantisation). Occupancy before t = 0 is not used (history
-excluded), so a leader further ahead than the ego travels in 5 s gives no encounter.
-Undefined PET (no shared cell) is **+inf** (like TTC with no conflict); ``aggregate`` averages
-the finite values (``pet_s``) and, beside it, min(PET, cap) over all scenarios (``pet_capped_s``).
-Time resolution is the frame period dt, so a non-zero PET is at least dt.
-
-Algorithm (vectorised, no loop over scenarios). Equivalent form: PET = dt * min |f1 - f2| over
-frame pairs (ego at f1, neighbour at f2) whose boxes share a cell; this equals the per-cell
-definition whenever each vehicle's occupancy of a cell is one contiguous run of frames (true for
-motion monotone along each axis, e.g. forward driving with a single lane change).
-For every pair and ego frame f1 the neighbour frames whose cell columns intersect the ego's form
-a range [lo, hi] found by a batched ``searchsorted`` (exact when the neighbour's x is
-non-decreasing: highway traffic in the ego frame travels +x). A short loop over the ego's cell
-rows (the lateral axis, a handful of 0.5 m rows) then finds, with next/previous-occupied-frame
-tables, the neighbour frame in [lo, hi] covering that row closest to f1. Cost is O(rows x F) per
-candidate pair instead of O(F^2) or O(cells x F).
+Cells of ``cell_m`` in the ego frame; a box occupies a cell when it strictly covers the cell's **centre**. For a
+cell both vehicles occupy within the F future steps, PET = t_enter(second) - t_exit(first), 0 when the
+occupancies overlap in time; a pair's PET is the minimum over shared cells, a scenario's over neighbours, +inf
+when no cell is shared. Every valid neighbour counts, in either order (same-lane following gives the bumper
+time gap plus up to a frame and a cell); history is not used. ``cell_m`` must not exceed the smallest vehicle
+dimension. Computed as dt · min |f1 - f2| over frame pairs whose boxes share a cell (the same when each
+occupancy is one run of frames), with a ``searchsorted`` over frames (exact for non-decreasing neighbour x) and
+a loop over the ego's cell rows.
 """
 
 from __future__ import annotations
@@ -60,9 +26,9 @@ _NO_FRAME = 1 << 20  # sentinel frame index / frame distance
 
 @dataclass(frozen=True)
 class PETResult:
-    """Per pair (B, N): pet_s (+inf undefined), pet_step (step at which the second vehicle enters
-    the conflict cell, -1 undefined), ego_first (the ego occupied the conflict cell first).
-    Per scenario (B,): min_pet_s, min_pet_step, min_pet_nbr (-1 when undefined)."""
+    """Per pair (B, N): ``pet_s`` (+inf undefined), ``pet_step`` (the second vehicle enters the conflict cell, -1
+    undefined), ``ego_first``. Per scenario (B,): ``min_pet_s``, ``min_pet_step``, ``min_pet_nbr`` (-1 undefined).
+    """
 
     pet_s: np.ndarray
     pet_step: np.ndarray
@@ -73,11 +39,8 @@ class PETResult:
 
 
 def _cell_range(lo_m: np.ndarray, hi_m: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the first and last cell whose centre lies strictly inside (lo, hi) (int64).
-
-    Cell i has its centre at (i + 1/2) c, so the range is i0 = floor(lo / c - 1/2) + 1 ..
-    i1 = ceil(hi / c - 1/2) - 1. Non-finite input, or an interval that covers no centre, gives
-    the empty range (+_NONE, -_NONE) (so that "ranges intersect" tests stay correct).
+    """First and last cell (int64) whose centre (i + 1/2) c lies strictly inside (lo, hi); non-finite input or no
+    centre covered gives the empty range (+_NONE, -_NONE), so "ranges intersect" tests stay correct.
     """
     with np.errstate(invalid="ignore"):
         i0 = np.floor(lo_m / cell_m - 0.5) + 1.0
@@ -160,10 +123,8 @@ def _pair_min_frame_distance(
     row0: np.ndarray,
     row1: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """min |f1 - f2| over frames where ego (f1) and neighbour (f2) cell rectangles intersect.
-
-    Inputs are (P, F) cell index ranges per pair (ego then neighbour) and the ego's row span
-    (P,). Returns (distance, f1, f2), each (P,); distance >= _NO_FRAME when they never share a cell.
+    """min |f1 - f2| over frames where the ego's (f1) and the neighbour's (f2) cell rectangles intersect, from (P, F)
+    cell ranges per pair and the ego's row span (P,); (distance, f1, f2) (P,), distance >= _NO_FRAME when never.
     """
     p, f = ex0.shape
     frames = np.broadcast_to(np.arange(f, dtype=np.int64), (p, f))

@@ -1,22 +1,10 @@
 """The one registry of per-scenario metrics: each declared once, with how it aggregates.
 
-A ``Metric`` is one per-scenario column of ``compute_metrics`` (name with its unit, dtype, doc,
-where ``compute_metrics`` takes it from) and the ``Agg`` keys it contributes to ``metrics.json``
-(``aggregate_metrics``). ``ScenarioMetrics`` columns, the per-scenario frame, the aggregate keys
-and their documentation (``reference_markdown``; the ``letspi.metrics.aggregate`` docstring) are
-all derived from ``METRICS``. Adding a metric = one ``Metric`` entry here plus, if it is a new
-kind of computation, its module and one line in ``letspi.metrics.compute._compute_chunk``.
-
-``source`` is ``"group.attribute"`` of the intermediate results of ``compute_metrics`` (groups:
-ttc, rear, ttc2d, pet, drac, dist, coll, fault, kin, route, ok; see ``evaluate``), or None for a
-column the caller supplies (``inference_s``, written by the evaluation harness).
-
-Conventions: units in names (_s seconds, _m metres, _mps2 m/s^2, _mps3 m/s^3, _pct percent,
-_n counts); "*_step" columns index the future axis (0..F-1, time (step + 1) dt after t = 0) and
-"*_nbr" columns the neighbour slots 0..N-1 of the batch; both are -1 when there is no such event.
-+inf marks "no conflict" (TTC, PET); aggregates never emit NaN or inf.
-
-``print(letspi.metrics.reference_markdown())`` prints the reference (markdown).
+A ``Metric`` is one column of ``compute_metrics`` (name with unit, dtype, doc, ``source``: ``"group.attribute"`` of
+its intermediate results, or None for a column the caller supplies) and the ``Agg`` keys it adds to
+``metrics.json``; ``ScenarioMetrics``, the frame, the keys and their reference (``reference_markdown``) derive
+from ``METRICS``. Units are in names (_s, _m, _mps2, _mps3, _pct, _n); "*_step" and "*_nbr" columns are -1 for no
+event; +inf marks "no conflict"; aggregates never emit NaN or inf.
 """
 
 from __future__ import annotations
@@ -29,7 +17,8 @@ from letspi.metrics.config import MetricsConfig
 from letspi.metrics.stats import N_RESAMPLES, SEED
 
 AggHow = Literal[
-    "finite_mean", "finite_n", "capped_mean", "n_at_or_above", "inf_n", "pct", "pct_below", "pct_above", "pct_equal"
+    "finite_mean", "finite_n", "capped_mean", "n_at_or_above", "inf_n", "pct", "pct_below", "pct_above", "pct_equal",
+    "pct_mean",
 ]
 Dtype = Literal["float64", "int64", "bool", "str"]
 
@@ -50,15 +39,14 @@ HOW_DOC: MappingProxyType[str, str] = MappingProxyType({
     "pct_below": "share of all scenarios with value < {t} (+inf is not below)",
     "pct_above": "share of all scenarios with value > {t} (inf included)",
     "pct_equal": "share of scenarios where it equals {t!r}",
+    "pct_mean": "100 x the mean of the finite values (a per-scenario fraction, as a percentage)",
 })
 
 
 @dataclass(frozen=True)
 class Agg:
-    """One ``metrics.json`` key computed from one per-scenario column.
-
-    threshold: the cap / threshold of ``how``: a ``MetricsConfig`` field name (applied with the
-    aggregation's config) or a fixed number; for ``pct_equal`` the value compared with.
+    """One ``metrics.json`` key computed from one per-scenario column; ``threshold``: the cap or threshold of ``how``
+    (a ``MetricsConfig`` field name or a number; for ``pct_equal`` the value compared with).
     """
 
     key: str

@@ -1,15 +1,8 @@
 """Where a neighbour is relative to the ego at a step: front / rear / side (for reflection reports).
 
-Classification of axis-aligned boxes from the centre offset (dx, dy) = c_nbr - c_ego and the
-half-size sums (hx, hy):
-
-* boxes overlap laterally (|dy| < hy): "front" if dx > 0 else "rear" (a car in the ego's path);
-* else boxes overlap longitudinally (|dx| < hx): "side" (alongside);
-* else (diagonal): the axis with the larger box gap decides: |dx| - hx >= |dy| - hy -> front/rear,
-  otherwise side.
-
-With ``left_right=True`` "side" is split into "left" (dy > 0) and "right". "none" marks a missing
-neighbour (slot -1, invalid or NaN).
+From the centre offset (dx, dy) = c_nbr - c_ego and the half-size sums (hx, hy): lateral overlap (|dy| < hy)
+gives "front" if dx > 0 else "rear"; else longitudinal overlap (|dx| < hx) "side"; else the axis with the larger
+box gap decides. ``left_right=True`` splits "side" into "left" (dy > 0) and "right"; "none" marks a missing slot.
 """
 
 from __future__ import annotations
@@ -35,10 +28,8 @@ def classify_offset(
 
 
 def relative_position(inp: MetricInputs, step: np.ndarray, nbr: np.ndarray, *, left_right: bool = False) -> np.ndarray:
-    """Class of neighbour slot ``nbr[b]`` at future step ``step[b]`` for every scenario, (B,) str.
-
-    step, nbr: (B,) ints such as ``ScenarioMetrics.min_ttc_step`` / ``min_ttc_nbr``; -1 gives "none".
-    """
+    """Class (B,) str of slot ``nbr[b]`` at future step ``step[b]`` (e.g. ``min_ttc_step`` / ``min_ttc_nbr``); -1 gives
+    "none"."""
     b = inp.ego_xy_m.shape[0]
     ok = (np.asarray(step) >= 0) & (np.asarray(nbr) >= 0)
     s = np.where(ok, step, 0)

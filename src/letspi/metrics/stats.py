@@ -1,27 +1,11 @@
 """Uncertainty of evaluation figures: Wilson intervals, exact McNemar tests, vehicle (cluster) bootstrap.
 
-Every rate and mean letspi reports carries a 95 % interval, and every comparison of two planners on
-the same windows is paired. The functions here are the statistics; ``letspi.metrics.uncertainty``
-applies them to the metrics of ``letspi.metrics.registry`` with the same definition as each point value.
-
-* Rates: ``wilson_interval`` (scipy's ``binomtest(k, n).proportion_ci(method="wilson")``) for
-  independent trials; ``vehicle_wilson_interval`` for windows grouped by ego vehicle: Wilson with the
-  effective sample size n / ``design_effect`` (Korn & Graubard 1998). Windows of one vehicle overlap
-  and share its traffic: on 300 critical windows of 144 vehicles the design effect of CR is 2-4.
-* Means: ``bootstrap_mean_interval``, a percentile bootstrap that resamples whole **groups** (the ego
-  vehicle of a window, ``letspi.scenario.split.vehicle_keys``), never single windows: windows of one
-  vehicle overlap (stride 20 frames of 200) and share its traffic, so they are not independent.
-  Non-finite values (+inf "no conflict", NaN) are left out of the mean, as ``finite_mean`` does,
-  while their groups are still resampled (a ratio estimator: sum of the finite values over their count).
-* Paired comparisons of two planners on the same windows: ``paired_rate`` (discordant counts, the
-  exact McNemar p of ``mcnemar_exact``, and the vehicle-bootstrap interval of the difference in
-  percentage points) and ``paired_mean`` (difference over the finite pairs and its interval).
-
-Reproducibility: the bootstrap draws its resamples from ``numpy.random.default_rng(seed)`` over the
-groups in sorted order, so the same inputs give the same draws; interval ends are rounded to
-``SIGNIFICANT_DIGITS`` significant digits (far below the bootstrap's own Monte-Carlo error, about
-1 % of the interval's width at 2,000 resamples) so that results written to JSON are byte-identical
-across runs and BLAS builds.
+Windows of one ego vehicle overlap and share its traffic, so they are not independent: rates get Wilson
+intervals at the effective sample size n / ``design_effect`` (Korn & Graubard 1998), means a percentile bootstrap
+over whole groups (``letspi.scenario.split.vehicle_keys``), non-finite values left out of the mean but their
+groups still resampled. Paired comparisons on the same windows: ``paired_rate`` (exact McNemar) and
+``paired_mean``. Resamples come from ``numpy.random.default_rng(seed)`` over the sorted groups and interval ends
+are rounded to ``SIGNIFICANT_DIGITS``, so results are byte-identical across runs and BLAS builds.
 """
 
 from __future__ import annotations
@@ -87,12 +71,9 @@ def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
 
 
 def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any]) -> float:
-    """How much the grouping of windows by vehicle inflates the variance of their share, >= 1.
-
-    The variance of the share p when whole groups are sampled (the ratio estimator's linearisation,
-    G / (G - 1) * sum_g (y_g - p m_g)² / n², with y_g events and m_g windows of group g) over the
-    binomial p (1 - p) / n; 1 where it cannot be estimated (p of 0 or 1, fewer than 2 groups) and
-    never below 1 (Korn & Graubard 1998)."""
+    """How much grouping windows by vehicle inflates the variance of their share, >= 1 (Korn & Graubard 1998):
+    G / (G - 1) · Σ_g (y_g - p m_g)² / n² over p (1 - p) / n; 1 when not estimable (p 0 or 1, < 2 groups).
+    """
     y = np.asarray(flags, dtype=np.float64)
     inverse, n_groups = group_index(groups)
     if len(inverse) != len(y):
@@ -109,10 +90,9 @@ def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Seque
 
 def vehicle_wilson_interval(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any],
                             level: float = LEVEL) -> Interval:
-    """Wilson interval of the share of ``flags`` (n,) whose windows come in ``groups`` (n,) (their ego
-    vehicles): Wilson with the effective sample size n / ``design_effect`` (Korn & Graubard 1998), so
-    that the correlated windows of one vehicle do not count as independent evidence. With one
-    window per vehicle it is ``wilson_interval``; (NaN, NaN) when n is 0."""
+    """Wilson interval of the share of ``flags`` (n,) at the effective sample size n / ``design_effect`` of their
+    ``groups`` (n,); ``wilson_interval`` with one window per vehicle, (NaN, NaN) when n is 0.
+    """
     y = np.asarray(flags, dtype=bool)
     if not len(y):
         return NAN_INTERVAL
@@ -161,12 +141,10 @@ def resample_counts(n_groups: int, n_resamples: int = N_RESAMPLES, seed: int = S
 
 def bootstrap_mean_intervals(values: np.ndarray, groups: np.ndarray | Sequence[Any], level: float = LEVEL,
                              n_resamples: int = N_RESAMPLES, seed: int = SEED) -> np.ndarray:
-    """Vehicle-bootstrap percentile intervals of the finite means of K columns at once.
+    """Vehicle-bootstrap percentile intervals of the finite means of K columns at once (shared resamples).
 
-    values: (n, K) float (or (n,)); non-finite entries are left out of their column's mean.
-    groups: (n,) group of each row (any values; compared as strings).
-    Returns (K, 2) [low, high], NaN for a column with fewer than 2 groups holding a finite value
-    (the spread between vehicles cannot be estimated). The K columns share the resamples.
+    ``values`` (n, K) or (n,), non-finite entries left out; ``groups`` (n,), compared as strings. Returns (K, 2),
+    NaN for a column with fewer than 2 groups holding a finite value.
     """
     _check_level(level)
     v = np.asarray(values, dtype=np.float64)
@@ -214,10 +192,8 @@ def _json_float(x: float) -> float | None:
 
 @dataclass(frozen=True)
 class PairedRate:
-    """Paired comparison of a rate of A and B on the same windows.
-
-    n_only_a: windows where A's flag is set and B's is not (for CR: only A collides); diff: rate of
-    A minus rate of B in percentage points; diff_ci95: its vehicle-bootstrap interval.
+    """Paired comparison of a rate of A and B on the same windows: ``n_only_a`` windows where only A's flag is set;
+    ``diff`` A minus B in percentage points, ``diff_ci95`` its vehicle-bootstrap interval.
     """
 
     n_pairs: int

@@ -1,32 +1,14 @@
-"""Success of a plan (paper "SR", which the paper does not define precisely; defined here).
+"""Success of a plan (paper "SR", which the paper does not define precisely), tolerances in ``MetricsConfig``.
 
-A plan succeeds (``success``) when all of these hold (tolerances in ``MetricsConfig``):
+``success``: 1. every planned position and velocity is finite; 2. peak |a_lon| <= ``max_abs_acc_lon_mps2`` and
+|a_lat| <= ``max_abs_acc_lat_mps2`` (``kinematics``, including the step from t = 0); 3. not ``off_road``;
+4. ``reference_reached``: the final centre is in the recorded human's final lane or within ``sr_lat_tol_m`` of it
+laterally, and its progress x(5 s) - x(0) is within max(``sr_progress_tol_m``, ``sr_progress_tol_rel`` · the
+human's) of the human's; 5. no box overlap (nor a 2 m variant if ``success_requires_no_collision_2m``).
 
-1. finite: every planned position and velocity is a finite number;
-2. feasible: peak |a_lon| <= ``max_abs_acc_lon_mps2`` (8 m/s^2: about the braking limit of a car)
-   and peak |a_lat| <= ``max_abs_acc_lat_mps2`` (4 m/s^2: well above highway lane-change levels),
-   from ``letspi.metrics.kinematics`` (including the step from the t = 0 state);
-3. on the road: ``off_road`` is False;
-4. reference reached (``reference_reached``): the plan ends where the recorded human driver
-   ended, judged the same way for every planner:
-   * lane: the final planned centre is in the lane of the human's final centre (lane index from
-     the markings), or within ``sr_lat_tol_m`` (0.5 m) of it laterally (a human that ends on a
-     marking, mid lane change, then accepts both lanes it straddles to within half a metre);
-   * progress: the longitudinal progress from the t = 0 position, x_plan(5 s) - x(0), is within
-     max(``sr_progress_tol_m``, ``sr_progress_tol_rel`` x |x_human(5 s) - x(0)|) of the human's
-     (5 m, 10 %). At highway speed (30 m/s, 150 m in 5 s) that is +-15 m: a mean speed within
-     3 m/s of the human's, an endpoint within half a second of travel. A plan that stops 30 %
-     short (45 m) fails, so does one that ends a lane off. The 5 m floor (about a car length)
-     keeps slow traffic from demanding sub-metre agreement.
-5. no collision: no box overlap (and, if ``success_requires_no_collision_2m``, no 2 m variant).
-
-The goal a planner chose for itself is *not* the reference: human, constant velocity and IDM
-return their own endpoint as "goal" and would pass by construction, and a planner that shortens
-its goal would still "succeed". The self-goal test is kept apart: ``goal_reached`` (final centre
-within ``goal_tol_lon_m`` = 5 m along x and ``goal_tol_lat_m`` = 1 m along y of the planner's
-goal; True when no goal is given) and ``success_self`` (criteria 1, 2, 3, 5 and ``goal_reached``).
-The human reference is the batch's ground-truth ego future: metrics are always computed against
-the ground truth of the batch given.
+The planner's own goal is not the reference (planners that return their own endpoint would pass by
+construction): ``goal_reached`` (final centre within ``goal_tol_lon_m`` / ``goal_tol_lat_m`` of the goal; True
+without one) and ``success_self`` (criteria 1, 2, 3, 5 and ``goal_reached``) keep that test apart.
 """
 
 from __future__ import annotations
@@ -60,10 +42,8 @@ def reference_reached(
     marking_y_m: np.ndarray,
     config: MetricsConfig,
 ) -> np.ndarray:
-    """(B,) bool: the plan ends in the human's final lane with the human's progress (module doc).
-
-    plan_end_xy_m, human_end_xy_m: (B, 2) final centres; start_x_m: (B,) ego x at t = 0;
-    marking_y_m: (B, M) lane markings (ascending, NaN padded). NaN plans give False.
+    """(B,) bool: the plan ends in the human's final lane with the human's progress (module docstring).
+    ``plan_end_xy_m``, ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M). NaN plans give False.
     """
     plan_lane = lane_index(plan_end_xy_m[:, 1:2], marking_y_m)[:, 0]
     human_lane = lane_index(human_end_xy_m[:, 1:2], marking_y_m)[:, 0]
@@ -91,10 +71,8 @@ def success(
     start_x_m: np.ndarray,
     marking_y_m: np.ndarray,
 ) -> SuccessResult:
-    """Evaluate the success criteria (module doc).
-
-    plan_xy_m, plan_vxy_mps: (B, F, 2); peaks and flags (B,); goals_xy_m: (B, 2) or None;
-    human_end_xy_m: (B, 2) recorded final ego centre; start_x_m: (B,); marking_y_m: (B, M).
+    """Evaluate the success criteria (module docstring): ``plan_xy_m``, ``plan_vxy_mps`` (B, F, 2); peaks and flags
+    (B,); ``goals_xy_m`` (B, 2) or None; ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M).
     """
     b = plan_xy_m.shape[0]
     finite = np.isfinite(plan_xy_m).all(axis=(1, 2)) & np.isfinite(plan_vxy_mps).all(axis=(1, 2))

@@ -1,22 +1,9 @@
 """1-D time-to-collision with the preceding vehicle (paper §IV-C "TTC"), and rear TTC.
 
-Preceding vehicle at step f: among the valid neighbours whose centre is ahead of the ego's
-centre (dx > 0) and whose box **overlaps the ego's box laterally** (|dy| < (W_ego + W_nbr) / 2),
-the one with the smallest dx. The geometric choice (rather than HighD lane ids) follows the
-*planned* ego, which may sit between lanes during a lane change, and needs no lane ids for
-the plan; a vehicle straddling the line is preceding for both lanes it touches.
-
-Gap s = dx - (L_ego + L_nbr) / 2 (bumper to bumper); closing speed dv = vx_ego - vx_nbr.
-TTC = 0 if s <= 0 (boxes overlap: collision), s / dv if dv > 0, +inf otherwise (no preceding
-vehicle, or not closing). Units: s, m, m/s. A neighbour overlapping the ego with its centre
-behind the ego's is a follower, not preceding: such contacts show in ``collision`` and in the
-rear TTC.
-
-Rear TTC (``rear_ttc_1d``) is the same definition mirrored: the following vehicle at step f is the
-valid neighbour with its centre behind the ego's (dx < 0), overlapping the ego's box laterally,
-with the largest dx (the nearest); gap s = -dx - (L_ego + L_nbr) / 2, closing speed
-dv = vx_nbr - vx_ego. It is what a lane change in front of a faster car, or hard braking in front
-of a follower, costs, and what the front TTC cannot see.
+Preceding at step f: of the valid neighbours ahead (dx > 0) whose boxes overlap the ego's laterally
+(|dy| < (W_ego + W_nbr) / 2), the one with the smallest dx, so it follows the planned ego between lanes. Gap
+s = dx - (L_ego + L_nbr) / 2, dv = vx_ego - vx_nbr; TTC = 0 if s <= 0, s / dv if dv > 0, else +inf. Rear TTC
+mirrors it for the nearest follower (dx < 0): s = -dx - (L_ego + L_nbr) / 2, dv = vx_nbr - vx_ego.
 """
 
 from __future__ import annotations
@@ -31,11 +18,8 @@ from letspi.metrics.inputs import MetricInputs, min_over_time
 
 @dataclass(frozen=True)
 class PrecedingVehicle:
-    """The preceding (or, for the rear TTC, following) vehicle per step, (B, F) each.
-
-    nbr: slot index, -1 when none. gap_m: bumper-to-bumper gap (+inf when none).
-    closing_mps: speed at which the gap shrinks, vx_ego - vx_nbr ahead, vx_nbr - vx_ego behind
-    (NaN when none).
+    """The preceding (or, for the rear TTC, following) vehicle per step, (B, F) each: ``nbr`` slot (-1 none),
+    ``gap_m`` bumper gap (+inf none), ``closing_mps`` how fast the gap shrinks (NaN none).
     """
 
     nbr: np.ndarray
@@ -45,9 +29,8 @@ class PrecedingVehicle:
 
 @dataclass(frozen=True)
 class TTCResult:
-    """ttc_s (B, F) per step; min_ttc_s (B,) with min_ttc_step / min_ttc_nbr (B,), -1 if inf.
-
-    ``preceding`` is the vehicle the TTC is taken with (the follower for ``rear_ttc_1d``).
+    """``ttc_s`` (B, F); ``min_ttc_s`` (B,) with ``min_ttc_step`` / ``min_ttc_nbr`` (-1 if inf); ``preceding`` the
+    vehicle it is taken with (the follower for ``rear_ttc_1d``).
     """
 
     ttc_s: np.ndarray
@@ -84,10 +67,7 @@ def following_vehicle(inp: MetricInputs) -> PrecedingVehicle:
 
 
 def ttc_from_gap(gap_m: np.ndarray, closing_mps: np.ndarray) -> np.ndarray:
-    """TTC [s] from bumper gap [m] and closing speed [m/s]: 0 if gap <= 0, gap/dv if dv > 0, else inf.
-
-    NaN closing speed (no preceding vehicle) gives +inf.
-    """
+    """TTC [s] from bumper gap [m] and closing speed [m/s]: 0 if gap <= 0, gap/dv if dv > 0, else (or NaN dv) +inf."""
     return time_to_collision_s(gap_m, closing_mps, contact_s=0.0, not_closing_s=np.inf)
 
 

@@ -1,12 +1,8 @@
-"""2-D time-to-collision of axis-aligned boxes under constant relative velocity.
+"""2-D time-to-collision of axis-aligned boxes under constant relative velocity [s].
 
-For each ego-neighbour pair and step, with relative position p = c_nbr - c_ego and relative
-velocity v = v_nbr - v_ego, the boxes overlap along an axis while |p + v t| < h (h = half-size
-sum on that axis). Per axis this is the open interval (entry, exit) = sorted((-h - p)/v, (h - p)/v);
-with v = 0 it is (-inf, inf) if |p| < h else empty. The boxes overlap while both axes do:
-TTC = max(entry_x, entry_y) if max(entry) < min(exit) and min(exit) > 0, clipped at 0 (already
-overlapping -> 0); otherwise +inf (parallel without overlap, diverging, or missing each other).
-Headings are ignored (axis-aligned boxes). Units: s.
+Per pair and step, with p = c_nbr - c_ego and v = v_nbr - v_ego, the boxes overlap along an axis while
+|p + v t| < h (half-size sum). TTC is the first time both axes overlap, if that is before both exits and the
+overlap is not past (0 when already overlapping); otherwise +inf.
 """
 
 from __future__ import annotations
@@ -45,10 +41,7 @@ def _axis_interval(p: np.ndarray, v: np.ndarray, h: np.ndarray) -> tuple[np.ndar
 def box_ttc_2d(
     px: np.ndarray, py: np.ndarray, vx: np.ndarray, vy: np.ndarray, hx: np.ndarray, hy: np.ndarray
 ) -> np.ndarray:
-    """2-D TTC [s] of two axis-aligned boxes from relative position/velocity and half-size sums.
-
-    All arguments broadcast together; NaN inputs give +inf.
-    """
+    """2-D TTC [s] of two boxes from relative position and velocity and half-size sums; broadcasts, NaN gives +inf."""
     ex, xx = _axis_interval(px, vx, hx)
     ey, xy = _axis_interval(py, vy, hy)
     entry = np.maximum(ex, ey)

@@ -1,19 +1,8 @@
 """Intervals and paired comparisons of the aggregated metrics: ``metrics.json``'s "intervals" and "paired".
 
-Each rate and mean key of ``aggregate_metrics`` is the average of one per-scenario value
-(``letspi.metrics.aggregate.scenario_values``: e.g. ``lt_pct`` averages ``min_ttc_s < low_ttc_s``,
-``ttc_s`` averages ``min(min_ttc_s, ttc_cap_s)``, ``pet_s`` the finite ``min_pet_s``). Its interval and
-its paired difference are computed from exactly those values, so they describe the figure printed:
-
-* a rate (``*_pct``): 95 % Wilson interval of its k of n scenarios, with the effective sample size
-  of windows grouped by vehicle (``vehicle_wilson_interval``: n / design effect; plain Wilson with one
-  window per vehicle); paired: windows where only the planner / only the reference / both have the
-  event, exact McNemar p, and the vehicle-bootstrap interval of the difference in percentage points;
-* a mean: 95 % vehicle-bootstrap interval (``letspi.metrics.stats``) of the mean of the finite
-  values; paired: the mean difference over the windows where both are finite, with its interval.
-
-Counts (``*_n``) carry no interval. The frames passed need a ``vehicle_key`` column (the group of
-the bootstrap: the window's ego vehicle) and, to be paired, ``scenario_digest``.
+Each rate or mean key's interval and paired difference come from exactly the per-scenario values it averages
+(``aggregate.scenario_values``), with the statistics of ``letspi.metrics.stats``; counts (``*_n``) get none.
+The frames need a ``vehicle_key`` column and, to be paired, ``scenario_digest``.
 """
 
 from __future__ import annotations

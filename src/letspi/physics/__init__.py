@@ -1,9 +1,4 @@
-"""letspi.physics: the social force planner, IDM, neighbour prediction and goal prediction.
-
-Modules: ``params`` (parameters, ranges), ``social_force`` (batched rollout, force terms),
-``reference`` (scalar reference loop), ``idm``, ``neighbours`` (prediction modes), ``goals``
-(goal predictors, goal adjustment), ``lanes`` (lane geometry), ``types`` (result containers).
-"""
+"""The social force planner, IDM, neighbour prediction and goal prediction (ego frame, SI units)."""
 
 from letspi.physics.goals import (
     GoalPrediction,

@@ -1,11 +1,8 @@
-"""Ego goal prediction (where the ego should be at the horizon) and the paper's goal adjustment.
+"""Ego goal prediction (where the ego should be at the horizon) and the paper's goal adjustment (§III-E).
 
-* ``GoalPredictor``: protocol, ``predict_goals(batch) -> GoalPrediction`` with K >= 1 candidate
-  goals per scenario, best first. A learned (transformer) predictor will implement it too.
-* ``KinematicGoalPredictor``: constant acceleration fitted to the last ~1 s of history plus a
-  lane-change intention from lateral motion; goals snapped to a lane centre and kept on the road.
-* ``OracleGoalPredictor``: ORACLE, the recorded ego position at the horizon (leaks the future).
-* ``adjust_goals``: the paper's longitudinal / lane adjustment factors (§III-E, "Goal Adjustment").
+``GoalPredictor`` returns K >= 1 candidate goals per scenario, best first: ``KinematicGoalPredictor``
+(constant acceleration and a lane-change intention from the history) or ``OracleGoalPredictor`` (the recorded
+position: leaks the future). ``adjust_goals`` applies the longitudinal and lane factors.
 """
 
 from __future__ import annotations
@@ -62,10 +59,7 @@ def _single_goal(goals_xy_m: np.ndarray) -> GoalPrediction:
 
 
 def _poly_fit_weights(n_frames: int, degree: int, dt_s: float) -> np.ndarray:
-    """Least-squares weights W (degree + 1, n) so that W @ samples = polynomial coefficients at t = 0.
-
-    Samples are at t = -(n - 1) dt ... 0; coefficient i multiplies t^i.
-    """
+    """Least-squares weights W (degree + 1, n): W @ samples at t = -(n - 1) dt ... 0 gives the coefficients of t^i."""
     t = (np.arange(n_frames) - (n_frames - 1)) * dt_s
     design = np.vander(t, degree + 1, increasing=True)
     return np.linalg.pinv(design)
@@ -75,13 +69,10 @@ def _poly_fit_weights(n_frames: int, degree: int, dt_s: float) -> np.ndarray:
 class KinematicGoalPredictor:
     """Constant-acceleration extrapolation with a lane-change intention (K = 1).
 
-    Longitudinal: a quadratic least-squares fit of x over the last ``fit_window_s`` of history gives
-    speed and acceleration at t = 0 (robust to frame noise, unlike finite differences); the
-    acceleration is clipped to ``accel_clip_mps2`` (a 1 s trend should not be extrapolated beyond
-    plausible levels for 5 s), speed floored at 0 and the vehicle stops rather than reverses.
-    Lateral: a linear fit gives the lateral speed; the position projected ``lateral_lookahead_s``
-    ahead picks the target lane (at most one lane from the current one); the goal's y is that lane's
-    centre. Goals stay on the road (y between the outermost lane centres, x >= current x).
+    A quadratic least-squares fit of x over the last ``fit_window_s`` gives speed and acceleration at t = 0 (the
+    latter clipped to ``accel_clip_mps2``; the vehicle stops rather than reverses). A linear fit of y gives the
+    lateral speed; the position ``lateral_lookahead_s`` ahead picks the target lane (at most one lane away), whose
+    centre is the goal's y. Goals stay on the road and never behind the ego.
     """
 
     fit_window_s: float = 1.0
@@ -113,10 +104,8 @@ class KinematicGoalPredictor:
 
 
 def snap_lateral_goal(y_now_m: np.ndarray, y_projected_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
-    """Centre of the lane ``y_projected_m`` falls in, at most one lane from the current one, (B,).
-
-    Scenarios without lane markings keep ``y_now_m``.
-    """
+    """Centre of the lane ``y_projected_m`` falls in, at most one lane from the current one, (B,); ``y_now_m`` without
+    markings."""
     centres = lane_centres_m(marking_y_m)
     cur = lane_index_of(y_now_m, marking_y_m)
     target = lane_index_of(y_projected_m, marking_y_m)
@@ -153,17 +142,13 @@ def adjust_goals(
     *,
     default_lane_width_m: float = DEFAULT_LANE_WIDTH_M,
 ) -> np.ndarray:
-    """Apply the paper's goal adjustment factors; returns (B, 2) goals in the ego frame [m].
+    """Apply the paper's goal adjustment factors; (B, 2) goals in the ego frame [m].
 
-    lon_factor (B,) in [0, 1]: the longitudinal goal distance ``g_x - x0`` is scaled by
-    ``1.2 - 0.5 f`` (0 -> +20 %, 1 -> -30 %, linear).
-    lane_factor (B,) in [-1, 1]: ``-1`` moves the goal fully to the centre of the lane left of the
-    goal's lane (+y), ``+1`` to the one on the right; partial values move proportionally from the
-    goal's current y. Where that lane does not exist the shift is towards the goal's own lane
-    centre at most. The result is clamped between the outermost lane centres, which keeps it on the
-    road. Factors outside their ranges are clamped; a NaN factor means "no adjustment" (scale 1,
-    no lane shift).
-    Without markings, lane shifts use ``default_lane_width_m`` and no road clamp.
+    ``lon_factor`` (B,) in [0, 1] scales the goal distance ``g_x - x0`` by ``1.2 - 0.5 f``. ``lane_factor`` (B,) in
+    [-1, 1] moves the goal's y towards the centre of the lane left (-1) or right (+1) of the goal's lane,
+    proportionally; where that lane does not exist, at most to the goal's own lane centre. Results stay between the
+    outermost lane centres. Out-of-range factors are clamped; NaN means no adjustment. Without markings, lane
+    shifts use ``default_lane_width_m`` and nothing is clamped.
     """
     g = np.asarray(goals_xy_m, dtype=np.float64).reshape(-1, 2)
     b = g.shape[0]

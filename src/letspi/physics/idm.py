@@ -1,29 +1,11 @@
 """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), batched.
 
-``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``
-with gap s (bumper to bumper) and approach rate dv = v - v_leader.
-
-Parameters (the values of Treiber's traffic simulator): cars T 1.5 s, s0 2 m, a 1.0 m/s^2,
-b 2.0 m/s^2, delta 4; trucks T 2.0 s, a 0.7 m/s^2.
-
-Safeguards (documented deviations from the textbook model):
-* the gap in the interaction term is floored at ``s0 / 2`` (1 m): finite when boxes touch or
-  overlap; below that the deceleration clip dominates anyway;
-* acceleration clipped to [-9, a_max] m/s^2 (-9 is emergency braking on dry asphalt; Treiber
-  clips at 16-18, which a real car cannot deliver);
-* speeds never become negative (velocity floored at 0 after the update);
-* the desired speed v0 is floored at 1 m/s (keeps ``(v / v0)^delta`` finite);
-* integration: semi-implicit Euler at the scenario's dt, as in the social force rollout.
-
-Desired speed (our choice, ``desired_speed_from_history``): the highest longitudinal speed the
-vehicle showed in its visible 3 s history, i.e. at least its current speed. A vehicle that has just
-braked behind a leader still wants its earlier speed; speed limits are not used because most HighD
-sections have none and drivers deviate from posted ones.
-
-Planner use (``rollout_idm_ego``): the ego drives longitudinally only and keeps its lateral position
-(no lane changes); its leader at each step is the closest valid neighbour ahead that is in the ego's
-lane (lateral centre offset < half a lane width, or boxes overlapping laterally), using the
-neighbours' predicted trajectories.
+``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``, gap s
+bumper to bumper, dv = v - v_leader; Treiber's values (cars T 1.5 s, s0 2 m, a 1.0, b 2.0 m/s², delta 4; trucks
+T 2.0 s, a 0.7 m/s²). Safeguards: s floored at s0 / 2, a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s;
+semi-implicit Euler. The desired speed is the highest speed of the visible history (``desired_speed_from_history``).
+``rollout_idm_ego`` drives the ego longitudinally behind its in-lane leader (centre offset < half a lane, or
+boxes overlapping laterally) among the predicted neighbours, keeping its lateral position.
 """
 
 from __future__ import annotations
@@ -45,11 +27,8 @@ GAP_FLOOR_FRACTION = 0.5
 
 @dataclass(frozen=True)
 class IdmParams:
-    """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s^2],
-    comfortable deceleration b [m/s^2], exponent delta [-].
-
-    Each field is a float (one driver) or an array broadcastable to the vehicle array shape (one
-    value per vehicle, e.g. from ``for_classes``); the IDM functions broadcast either.
+    """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s²], comfortable deceleration b
+    [m/s²], exponent delta; each a float or an array broadcastable to the vehicles (``for_classes``).
     """
 
     time_headway_s: FloatOrArray = 1.5
@@ -74,10 +53,8 @@ TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
 
 
 class IdmKernel:
-    """The IDM acceleration of a set of vehicles with their per-vehicle constants prepared once, for
-    rollouts that evaluate it every step (``idm_acceleration`` is one evaluation: same arithmetic).
-
-    desired_speed_mps and the fields of ``params`` broadcast to the vehicle array shape.
+    """The IDM acceleration with per-vehicle constants prepared once, for rollouts (same arithmetic as
+    ``idm_acceleration``); ``desired_speed_mps`` and ``params`` broadcast to the vehicle shape.
     """
 
     def __init__(self, desired_speed_mps: np.ndarray, params: IdmParams = CAR_IDM) -> None:
@@ -110,18 +87,15 @@ def idm_acceleration(
     leader_speed_mps: np.ndarray,
     params: IdmParams = CAR_IDM,
 ) -> np.ndarray:
-    """IDM acceleration [m/s^2] with the module's safeguards; all inputs broadcast together.
-
-    gap_m: bumper-to-bumper gap to the leader, ``inf`` without a leader (then ``leader_speed_mps``
-    is ignored and may be NaN).
+    """IDM acceleration [m/s²] with the module's safeguards; inputs broadcast together. ``gap_m``: bumper-to-bumper
+    gap, ``inf`` without a leader (``leader_speed_mps`` is then ignored and may be NaN).
     """
     return IdmKernel(desired_speed_mps, params)(speed_mps, gap_m, leader_speed_mps)
 
 
 def desired_speed_from_history(speed_mps: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Highest finite longitudinal speed over the history frames (last axis), floored at 1 m/s.
-
-    speed_mps (..., H); valid (..., H) bool or None. Returns (...,); 1 m/s where nothing is known.
+    """Highest finite speed over the history frames (last axis) of ``speed_mps`` (..., H), where ``valid``; (...,),
+    floored at 1 m/s.
     """
     v = np.asarray(speed_mps, dtype=np.float64)
     ok = np.isfinite(v) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(v))
@@ -136,8 +110,7 @@ def step_speed(speed_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> np
 
 def _neighbours_from_t0(batch: ScenarioBatch, neighbours: NeighbourPrediction
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Neighbour positions (B, N, F+1, 2), x velocities and validity (B, N, F+1): at t = 0 (observed),
-    then predicted, so index k is the state at t = k dt."""
+    """Neighbour positions (B, N, F+1, 2), x velocities and validity (B, N, F+1): index k is t = k dt, observed at 0."""
     nxy = np.concatenate(
         [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
     )
@@ -157,12 +130,9 @@ def rollout_idm_ego(
     params: IdmParams | None = None,
     dt_s: float = DT_S,
 ) -> RolloutResult:
-    """Planner-level IDM: the ego follows its in-lane leader and keeps its lateral position.
-
-    neighbours: predicted neighbour trajectories (B, N, F, ...); F sets the horizon.
-    desired_speed_mps (B,): default ``desired_speed_from_history`` of the ego's history.
-    params: default car/truck values by ``batch.ego_class``.
-    Returns positions with constant y = y(t0) and zero lateral velocity/acceleration.
+    """Planner-level IDM: the ego follows its in-lane leader among the predicted ``neighbours`` (B, N, F, ...) and
+    keeps its lateral position (zero lateral velocity and acceleration). Defaults: ``desired_speed_mps`` from the
+    ego's history, ``params`` by ``batch.ego_class``.
     """
     n = len(batch)
     f = int(neighbours.xy_m.shape[2])

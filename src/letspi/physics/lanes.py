@@ -1,8 +1,5 @@
-"""Lane geometry from the ego-frame lane markings (shared by the force model, IDM and goals).
-
-Markings are horizontal lines ``y = marking_y_m`` in the ego frame, ascending (right road edge
-first, left road edge last), NaN-padded to the widest scenario of a batch (see
-``letspi.scenario.types``). Lane k lies between markings k and k + 1.
+"""Lane geometry from the ego-frame markings: lines ``y = marking_y_m`` (B, M), ascending from the right road edge,
+NaN padded; lane k lies between markings k and k + 1.
 """
 
 from __future__ import annotations
@@ -31,10 +28,8 @@ def lane_width_m(marking_y_m: np.ndarray, default_m: float = DEFAULT_LANE_WIDTH_
 
 
 def lane_index_of(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
-    """Index of the lane containing ``y_m`` (B,), clipped into the road's lanes; -1 without lanes.
-
-    A point on the right of the right edge maps to lane 0, on the left of the left edge to the
-    leftmost lane (clipping: callers want the nearest lane, not an error).
+    """Index of the lane containing ``y_m`` (B,), clipped into the road's lanes (beyond an edge: the nearest lane);
+    -1 without lanes.
     """
     my = np.asarray(marking_y_m, dtype=np.float64)
     y = np.asarray(y_m, dtype=np.float64)

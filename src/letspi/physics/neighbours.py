@@ -1,18 +1,9 @@
 """Neighbour trajectory prediction over the planning horizon (what the ego planner reacts to).
 
-Modes (``NeighbourPredictionMode``):
-
-* ``constant_velocity``: position at t = 0 plus velocity at t = 0 times t.
-* ``idm``: the paper's choice. Each neighbour follows its leader with IDM (``letspi.physics.idm``)
-  and keeps its lateral position. Its leader is fixed at t = 0: the closest vehicle ahead (by
-  centre x) in the same HighD lane at t = 0 among the visible neighbours and the ego, whose
-  future is predicted with constant velocity (the planner does not know its own plan yet).
-  Neighbours are simulated jointly, so a follower reacts to its leader's *predicted* braking.
-* ``ground_truth_oracle``: the recorded future. ORACLE: it leaks the future and is only for
-  upper-bound experiments; it keeps the recording's validity, including vehicles that enter later.
-
-Neighbours not visible at t = 0 (no state to start from) cannot be predicted by the predictive
-modes: their prediction is invalid for the whole horizon (xy, vxy set to 0).
+``NeighbourPredictionMode``: ``constant_velocity``; ``idm`` (the paper's): each neighbour follows, with IDM, its
+leader fixed at t = 0 (nearest ahead in its HighD lane among the visible neighbours and the ego, the ego at
+constant velocity) and keeps its lateral position, all simulated jointly; ``ground_truth_oracle``: the recorded
+future (leaks it: upper bounds only). Neighbours not visible at t = 0 cannot be predicted: invalid, xy and vxy 0.
 """
 
 from __future__ import annotations
@@ -43,7 +34,7 @@ def _t0_state(batch: ScenarioBatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def predict_constant_velocity(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
-    """Constant-velocity prediction for t = dt .. n_steps dt; (B, N, F, 2), (B, N, F, 2), (B, N, F)."""
+    """Constant-velocity prediction for t = dt .. n_steps dt: (B, N, F, 2) positions and velocities, (B, N, F) valid."""
     xy0, vxy0, ok = _t0_state(batch)
     t = (np.arange(1, n_steps + 1) * dt_s)[None, None, :, None]
     b, n = ok.shape
@@ -59,9 +50,8 @@ def predict_constant_velocity(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_
 
 
 def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
-    """Leader of each neighbour at t = 0, (B, N) int: a neighbour slot, N for the ego, -1 for none.
-
-    Closest by centre x among vehicles ahead in the same HighD lane at t = 0 (visible ones only).
+    """Leader of each neighbour at t = 0, (B, N): a neighbour slot, N for the ego, -1 for none (nearest ahead by
+    centre x in the same HighD lane, visible vehicles only).
     """
     xy0, _, ok = _t0_state(batch)
     b, n = ok.shape
@@ -86,10 +76,10 @@ def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
 
 @dataclass(frozen=True)
 class IdmStart:
-    """What the IDM prediction starts from, (B, N) each: positions x and speeds v at t = 0 (v floored
-    at 0), whether a neighbour is visible (``ok``) and has a leader, the leader's slot in [neighbours,
-    ego] (0 without one), desired speeds, car/truck parameters, half length sums with the leader; and
-    the ego's x and speed (B,), which it keeps (constant velocity)."""
+    """The t = 0 state of the IDM prediction, (B, N) each: x, v (>= 0), y, visibility ``ok``, ``has_leader``, the
+    leader's slot in [neighbours, ego], desired speeds, car/truck parameters, half length sums with the leader;
+    and the ego's x and speed (B,), which it keeps.
+    """
 
     x: np.ndarray
     v: np.ndarray
@@ -105,7 +95,7 @@ class IdmStart:
 
 
 def idm_start(batch: ScenarioBatch) -> IdmStart:
-    """The t = 0 state and constants of ``predict_idm`` (module docstring)."""
+    """The t = 0 state and constants of ``predict_idm``."""
     xy0, vxy0, ok = _t0_state(batch)
     leader = idm_leaders(batch)
     has_leader = leader >= 0
@@ -125,7 +115,7 @@ def idm_start(batch: ScenarioBatch) -> IdmStart:
 
 
 def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_S) -> NeighbourPrediction:
-    """IDM prediction (see module docstring); shapes as ``predict_constant_velocity``."""
+    """IDM prediction (module docstring); shapes as ``predict_constant_velocity``."""
     st = idm_start(batch)
     b, n = st.ok.shape
     x, v, half_len, ego_x, ego_v = st.x, st.v, st.half_len_m, st.ego_x_m, st.ego_v_mps
@@ -151,8 +141,7 @@ def predict_idm(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_s: float = DT_
 
 
 def idm_prediction_of(st: IdmStart, xs: np.ndarray, vs: np.ndarray) -> NeighbourPrediction:
-    """The prediction of simulated x positions and speeds (B, N, F): invisible neighbours invalid (0),
-    lateral positions kept."""
+    """The prediction of simulated x positions and speeds (B, N, F): invisible neighbours invalid (0), y kept."""
     b, n, n_steps = xs.shape
     ok = st.ok
     valid = np.broadcast_to(ok[:, :, None], (b, n, n_steps)).copy()
@@ -178,7 +167,7 @@ def ground_truth_oracle(batch: ScenarioBatch, n_steps: int = N_FUTURE) -> Neighb
 def predict_neighbours(
     batch: ScenarioBatch, mode: NeighbourPredictionMode | str, n_steps: int = N_FUTURE
 ) -> NeighbourPrediction:
-    """Dispatch on ``mode``; returns (xy (B, N, F, 2), vxy (B, N, F, 2), valid (B, N, F))."""
+    """Dispatch on ``mode``: xy (B, N, F, 2), vxy (B, N, F, 2), valid (B, N, F)."""
     mode = NeighbourPredictionMode(mode)
     if mode is NeighbourPredictionMode.CONSTANT_VELOCITY:
         return predict_constant_velocity(batch, n_steps)

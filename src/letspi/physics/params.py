@@ -1,23 +1,11 @@
-"""Social force parameters (``SocialForceParams``: one scenario or a batch, the same type).
+"""Social force parameters (``SocialForceParams``: one scenario or a batch, the same type); unit mass.
 
-Units (unit mass, so forces are accelerations):
-
-==============  ======  ==================================================================
-name            unit    meaning
-==============  ======  ==================================================================
-tau_s           s       relaxation time of the goal attraction (Eq. 4)
-k_np            m/s^2   repulsion from a preceding vehicle at zero gap (Eq. 6)
-k_nf            m/s^2   repulsion from a following vehicle at zero gap
-k_nl            m/s^2   repulsion from a lateral (adjacent-lane) vehicle at zero gap
-k_boundary      m^3/s^2 strength of the road-edge potential ``k * 0.5 / d^2`` (Eq. 7)
-k_cline         m^2/s^2 height of the lane-line potential ``k * exp(-d^2 / (2 sigma^2))``;
-                        its peak force is ``0.61 * k / sigma`` = ``0.50 * k`` m/s^2 (sigma 1.22 m)
-r_col_m         m       decay length of the neighbour repulsion ``k * exp(-d / r_col)``
-==============  ======  ==================================================================
-
-``PARAM_RANGES`` are hard physical limits (what LLM output is clamped to); ``TYPICAL_RANGES`` are the
-plausible starting ranges from the units and typical values: guidance for prompts and the bounds of
-the ``sf`` fit (``letspi.fitting.sf``), not limits.
+``tau_s`` [s]: relaxation time of the goal attraction; ``k_np``, ``k_nf``, ``k_nl`` [m/s²]: repulsion from a
+preceding, following and adjacent-lane vehicle at zero gap; ``k_boundary`` [m³/s²]: road-edge potential
+``k 0.5 / d²``; ``k_cline`` [m²/s²]: lane-line potential ``k exp(-d² / (2 sigma²))`` (peak force 0.50 k m/s² at
+sigma 1.22 m); ``r_col_m`` [m]: decay length of the neighbour repulsion ``k exp(-d / r_col)``. ``PARAM_RANGES``
+are hard limits (LLM output is clamped to them); ``TYPICAL_RANGES`` are plausible starting ranges, guidance for
+prompts and the bounds of the ``sf`` fit, not limits.
 """
 
 from __future__ import annotations
@@ -76,9 +64,8 @@ FloatOrArray: TypeAlias = Any
 class SocialForceParams:
     """Social force parameters of one scenario or of a batch (units in the module docstring).
 
-    Every field holds float64 values of one common shape: ``()`` for one parameter set (stored as
-    ``np.float64``, a ``float``) or ``(B,)`` for one set per scenario. ``broadcast``, ``stack`` and
-    ``from_matrix`` build batches, ``row`` takes one set out of a batch; equality compares values.
+    Every field holds float64 of one shape: ``()`` for one set (an ``np.float64``) or ``(B,)``. ``broadcast``,
+    ``stack`` and ``from_matrix`` build batches, ``row`` takes one set out; equality compares values.
     """
 
     tau_s: FloatOrArray = 1.0

@@ -1,9 +1,5 @@
-"""Scalar reference implementation of the social force rollout (tests and benchmark only).
-
-``rollout_social_force_reference`` loops over scenarios, steps and neighbours with Python floats
-and implements the same equations as ``social_force.rollout_social_force_scene`` written out
-term by term. It is slow by design: it exists to check the batched code and to measure what
-vectorisation buys.
+"""Scalar reference of the social force rollout (tests and benchmark only): the equations of
+``social_force.rollout_social_force_scene`` written out term by term in Python loops, slow by design.
 """
 
 from __future__ import annotations

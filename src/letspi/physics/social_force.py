@@ -1,68 +1,17 @@
-"""Batched social force rollout of the ego vehicle (paper §III-D, Eq. 2-7).
+"""Batched social force rollout of the ego (paper §III-D, Eq. 2-7): unit mass, ego frame (x forward, y left).
 
-Model (unit mass, ego frame: x forward, y left)::
+``a = F_goal + F_neighbours + F_lane_lines + F_edges``, ``F_goal = (v0 e - v) / tau`` with v0 = |g - p| / remaining
+time; a neighbour pushes with ``k_class exp(-d / r_col)``. Deviations from the paper (rationale in
+notes/rationale-data-physics-metrics.md):
 
-    a = F_goal + F_preceding + F_following + F_lateral + F_lane_line + F_edge      (Eq. 2, 5)
-    F_goal = (v_des - v) / tau,  v_des = v0 * e,  e = (g - p) / |g - p|,
-    v0 = |g - p| / remaining_time                                                  (Eq. 4)
-    neighbour j: magnitude k_class * exp(-d_j / r_col)                             (Eq. 6)
-    lane line l: U = k_cline * exp(-d^2 / (2 sigma^2)), sigma = 1.22 m              (Eq. 7)
-    road edge e: U = k_boundary * 0.5 / d^2 (force-shifted, see below)             (Eq. 7)
-
-Deviations from the paper's equations, and why
------------------------------------------------
-1. Integration: semi-implicit (symplectic) Euler, ``v += a dt`` then ``p += v_new dt``, instead of
-   the explicit Euler of Eq. 3. It is as cheap and does not pump energy into the stiff
-   repulsion terms (GNP and PySocialForce do the same).
-2. Neighbour distance ``d_j``: the distance between the two axis-aligned vehicle boxes,
-   ``hypot(max(|dx| - (L_e + L_j)/2, 0), max(|dy| - (W_e + W_j)/2, 0))``, not the centre distance
-   ``|r_nj|``. For same-lane vehicles this is the bumper-to-bumper gap, so ``k`` is the push at
-   contact whatever the vehicle lengths (a truck's centre is 9 m from its rear bumper). Overlapping
-   boxes give d = 0: the force is bounded by k, never singular.
-3. Neighbour classes and force directions (recomputed every step from the current positions):
-   * in line: ``|dy| < max(lane_width / 2, (W_e + W_j) / 2)`` (same lane, or boxes overlap
-     laterally). Ahead (dx > 0) -> *preceding*: pushes -x only with ``k_np``. Behind -> *following*:
-     pushes +x only with ``k_nf``.
-   * *lateral*: not in line and ``|dy| < 1.5 lane_width`` (the adjacent lanes): pushes along -sign(dy)
-     only, with ``k_nl``. An adjacent-lane car ahead therefore nudges the ego sideways instead of
-     braking it (the isotropic gradient of Eq. 6 would brake the ego for every car in the next lane).
-   * further lanes: no force (they cannot interact within one step of a lane change).
-   Longitudinal-only in-line forces also keep a slightly offset leader from steering the ego.
-4. Lane lines: Gaussian width sigma = 1.22 m (GNP) instead of ``exp(-d^2)`` (sigma = 0.71 m), so the
-   well spans the lane; distance from the ego centre. Both lines of a lane cancel at its centre.
-5. Road edges: ``0.5 k / d^2`` with d measured inward from the ego's *side* (centre distance minus
-   half the ego width), force-shifted so it vanishes at the lane centre:
-   ``F = k (1/d^3 - 1/d_c^3)`` for ``d < d_c = max(lane_width/2 - W_e/2, 0.3 m)``, else 0, with d
-   clamped to >= 0.1 m. Un-shifted, the slowly decaying 1/d^3 tail pushes every car in an outer
-   lane ~0.15 m/s^2 off its lane centre. The edge always pushes towards the road interior, also
-   once the ego is past it (a signed distance would push it further out).
-6. Goal attraction guards: remaining time clamped to >= 1 s (the paper's ``(T - t) dt`` -> 0 at the
-   horizon). Clamping alone makes v0 = dist / 1 s collapse to 0 over the last second, so every
-   plan would brake hard (-9 m/s^2 measured) at its end although the goal is a point to pass
-   through, not to stop at. Therefore, once the remaining time is below the 1 s floor, the goal
-   moves on longitudinally at the plan's mean speed ``u = max(g_x - x_0, 0) / T``:
-   ``g_eff = g + (u (1 s - remaining), 0)``. An ego on schedule keeps v0 = u; one behind schedule
-   by delta asks for u + delta / 1 s (bounded). Laterally the goal stays put (no overshoot).
-   v0 is capped at ``max_speed_mps``, by default ``min(50, max(v_x0, u) + 5)`` m/s: the paper's v0
-   grows without bound while a slower leader holds the ego back from an unreachable goal (a
-   constant-velocity goal through a slower leader), until the goal term beats any ``k_np`` and the
-   ego rams the leader (measured: 32 m/s ego, 22 m/s leader 25.5 m ahead, default parameters,
-   goal at 160 m: overlap 1.9 m; with the cap the gap stays positive). The desired velocity never points backwards
-   (``v_des_x >= 0``) and its lateral part is capped at 2 m/s (a goal behind and beside the ego
-   would otherwise ask for a sideways dash at highway speed); ``|g - p|`` is floored at 1e-9 m.
-7. Plausibility clamps on the total acceleration: longitudinal [-9, +4] m/s^2 (emergency braking on
-   dry asphalt / strong car acceleration), lateral +-3 m/s^2 (well above lane-change levels of
-   ~1 m/s^2). The ego never reverses: ``v_x`` is floored at 0 after the velocity update (the reported
-   acceleration is the effective one).
-8. Neighbour states: the force at step k (t = k dt) uses the neighbours at t = k dt: the observed
-   state at t = 0, then the prediction. Invalid or non-finite neighbour samples exert no force.
-
-1-D check (tests/test_physics_social_force.py): ego wants 35 m/s (v0 cap 35, goal
-far ahead), leader at 25 m/s with a 60 m bumper gap, r_col 10 m, tau 1 s, 30 s horizon. Steady
-bumper gap = r_col ln(k_np tau / 10 m/s) exactly: k_np 10 collides (boxes overlap by 3.3 m),
-k_np 20 settles at 6.93 m (minimum 5.15 m during the approach), k_np 30 at 10.99 m (minimum 9.2 m).
-The potential uses the box distance (item 2): with the centre distance every gap would be one car
-length (4.5 m) smaller for the same k_np.
+1. Semi-implicit Euler (``v += a dt``, then ``p += v dt``); the force at step k uses the neighbours at t = k dt.
+2. ``d`` is the box-to-box distance (the bumper gap in lane, 0 when boxes overlap), not the centre distance.
+3. In line (``|dy| < max(lane_width, W_e + W_j) / 2``) a neighbour pushes along x only, ahead ``-k_np``, behind
+   ``+k_nf``; in an adjacent lane (``|dy| < 1.5 lane_width``) along -sign(dy) only (``k_nl``); further, not at all.
+4. Lane lines are Gaussian wells of sigma = 1.22 m; road edges push inward ``k (1/d^3 - 1/d_c^3)`` from the
+   ego's side, up to ``d_c = max((lane_width - W_e) / 2, 0.3 m)``.
+5. Remaining time >= 1 s, below which the goal moves on at the plan's mean speed; v0 <= ``max_speed_mps``;
+   ``v_des_x >= 0``, ``|v_des_y| <= 2 m/s``. Clamps: a_x in [-9, 4], |a_y| <= 3 m/s²; v_x >= 0.
 """
 
 from __future__ import annotations
@@ -99,9 +48,10 @@ FAR_M = 1.0e12
 
 def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Markings (B, M) -> crossable lines compacted to the front, (B, L) y [m] (FAR_M when unknown) and
-    known flags, and the right and left road edges (B,) [m] (-FAR_M / FAR_M when absent). Only the
-    outermost edges act; a single edge is the right one when it lies below the ego, else the left one."""
+    """Markings (B, M) -> crossable lines compacted to the front, (B, L) y [m] (``FAR_M`` when unknown) with known
+    flags, and the right and left road edges (B,) [m] (``-FAR_M`` / ``FAR_M`` when absent); a single edge is the right
+    one when it lies below the ego.
+    """
     known = np.isfinite(my)
     is_edge = np.asarray(marking_is_edge, dtype=bool).reshape(my.shape[0], -1) & known
     is_line = known & ~is_edge
@@ -120,18 +70,12 @@ def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.nd
 
 @dataclass(frozen=True)
 class SocialForceScene(Batched):
-    """Everything a rollout needs besides parameters and goals: float64, sanitised, and laid out
-    step-major / batch-last so the time loop reads contiguous slabs.
+    """Everything a rollout needs besides parameters and goals: float64, sanitised, step-major and batch-last.
 
-    ego_xy0_m, ego_vxy0_mps (B, 2): ego state at t = 0 (non-finite -> 0).
-    ego_length_m, ego_width_m (B,).
-    nbr_x_m, nbr_y_m (F + 1, N, B): neighbour centres at t = 0, dt, ..., F dt (index 0 = t = 0);
-        ``FAR_M`` where invalid.
-    nbr_valid (F + 1, N, B) bool.
-    nbr_length_m, nbr_width_m (N, B): 0 for empty slots / non-finite sizes.
-    line_y_m (L, B): crossable lane lines (``FAR_M`` padding); line_known (L, B) bool.
-    right_edge_y_m, left_edge_y_m (B,): road edges (``-FAR_M`` / ``+FAR_M`` when absent).
-    lane_width_m (B,).
+    ``ego_xy0_m``, ``ego_vxy0_mps`` (B, 2) (non-finite -> 0); ``ego_length_m``, ``ego_width_m``, ``lane_width_m`` (B,);
+    ``nbr_x_m``, ``nbr_y_m``, ``nbr_valid`` (F + 1, N, B), index 0 = t = 0, ``FAR_M`` where invalid; ``nbr_length_m``,
+    ``nbr_width_m`` (N, B), 0 for empty slots; ``line_y_m``, ``line_known`` (L, B); ``right_edge_y_m``,
+    ``left_edge_y_m`` (B,), ``-FAR_M`` / ``+FAR_M`` when absent.
     """
 
     ego_xy0_m: np.ndarray
@@ -158,9 +102,9 @@ class SocialForceScene(Batched):
         return int(self.nbr_x_m.shape[1])
 
     def take(self, indices: np.ndarray | slice) -> SocialForceScene:
-        """A sub-scene of the selected scenarios (batch is the last axis of the per-step arrays), laid out
-        as ``from_arrays`` lays it out (C-contiguous: NumPy's kernels, ``exp`` among them, may round
-        differently on strided arrays, and a sub-scene must roll out exactly as a scene built from it)."""
+        """A sub-scene of the selected scenarios, C-contiguous as ``from_arrays`` lays it out (NumPy may round
+        differently on strided arrays, and a sub-scene must roll out exactly as a scene built from it).
+        """
         out = {}
         for name, value in vars(self).items():
             batch_last = name.startswith("nbr_") or name.startswith("line_")
@@ -184,12 +128,9 @@ class SocialForceScene(Batched):
     ) -> SocialForceScene:
         """Build a scene from batch-first arrays.
 
-        ego_xy0_m, ego_vxy0_mps (B, 2); ego_length_m, ego_width_m (B,);
-        nbr_xy_m (B, N, F + 1, 2) with index 0 = t = 0, or a list of time chunks (B, N, F_i, 2) that
-        concatenate to it (saves one copy); nbr_valid (B, N, F + 1) or matching chunks;
-        nbr_length_m, nbr_width_m (B, N); marking_y_m (B, M) ascending, NaN-padded;
-        marking_is_edge (B, M). Non-finite neighbour samples become invalid, non-finite sizes 0,
-        non-finite ego state 0. Only the outermost edges (lowest / highest y) act as road edges.
+        ``nbr_xy_m`` (B, N, F + 1, 2), index 0 = t = 0, or time chunks (B, N, F_i, 2) that concatenate to it (saves a
+        copy); ``nbr_valid`` (B, N, F + 1) likewise; sizes (B,) / (B, N); ``marking_y_m`` (B, M) ascending, NaN padded.
+        Non-finite neighbour samples become invalid, non-finite sizes and ego states 0.
         """
         ego_xy = np.nan_to_num(np.asarray(ego_xy0_m, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
         ego_v = np.nan_to_num(np.asarray(ego_vxy0_mps, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
@@ -242,9 +183,8 @@ class SocialForceScene(Batched):
 def _step_major(
     xy_parts: list[np.ndarray], valid_parts: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Time chunks (B, N, F_i, 2) / (B, N, F_i) -> x, y (F + 1, N, B) float64 and valid (F + 1, N, B).
-
-    Invalid or non-finite samples become invalid, with x = ``FAR_M`` and y = 0.
+    """Time chunks (B, N, F_i, 2) / (B, N, F_i) -> x, y (F + 1, N, B) float64 and valid; invalid or non-finite samples
+    get x = ``FAR_M``, y = 0.
     """
     b, n = xy_parts[0].shape[:2]
     total = sum(int(p.shape[2]) for p in xy_parts)
@@ -268,10 +208,8 @@ def _step_major(
 
 @dataclass(frozen=True)
 class ForceTerms:
-    """Force components at one instant, each (B, 2) in m/s^2 (unit mass), before the clamps.
-
-    ``total`` is their sum; ``clamped`` the acceleration actually applied (longitudinal/lateral
-    clamps; the no-reverse floor acts on the velocity and is not included).
+    """Force components at one instant, each (B, 2) [m/s²]; ``total`` their sum, ``clamped`` the acceleration applied
+    (the no-reverse floor acts on the velocity and is not included).
     """
 
     goal: np.ndarray
@@ -308,10 +246,8 @@ def _edge_push(side_m: np.ndarray, cutoff_m: np.ndarray, shift: np.ndarray) -> n
 
 
 class _Kernel:
-    """Per-scenario constants of the force model and the force evaluation at one instant.
-
-    Ego arrays are (B,); neighbour arrays (N, B); lane-line arrays (L, B). One evaluation
-    allocates only (N, B)-sized temporaries.
+    """Per-scenario constants of the force model and the forces at one instant: ego arrays (B,), neighbours (N, B),
+    lane lines (L, B).
     """
 
     def __init__(self, scene: SocialForceScene, params: SocialForceParams, goals_xy_m: np.ndarray,
@@ -392,8 +328,8 @@ class _Kernel:
 
 
 def default_max_speed_mps(scene: SocialForceScene, goals_xy_m: np.ndarray, dt_s: float = DT_S) -> np.ndarray:
-    """Default cap on v0, (B,): ``min(50, max(v_x0, u) + 5)`` m/s with the plan's mean speed
-    ``u = max(g_x - x_0, 0) / T`` (module docstring, item 6)."""
+    """Default cap on v0, (B,): ``min(50, max(v_x0, u) + 5)`` m/s with the plan's mean speed ``u = max(g_x - x_0, 0) /
+    T``."""
     horizon_s = max(scene.n_steps * dt_s, dt_s)
     u = np.maximum(np.asarray(goals_xy_m, dtype=np.float64)[:, 0] - scene.ego_xy0_m[:, 0], 0.0) / horizon_s
     fastest = np.maximum(np.maximum(scene.ego_vxy0_mps[:, 0], 0.0), u)
@@ -425,10 +361,8 @@ def social_force_terms(
     dt_s: float = DT_S,
     max_speed_mps: float | np.ndarray | None = None,
 ) -> ForceTerms:
-    """The force components acting on the ego at step ``step`` (t = step * dt), for inspection.
-
-    ``ego_xy_m``/``ego_vxy_mps`` (B, 2) is the ego state at that instant; neighbours are taken from
-    ``scene`` at the same step; the remaining time is ``(F - step) dt`` as in the rollout.
+    """The force components on the ego in state ``ego_xy_m``, ``ego_vxy_mps`` (B, 2) at step ``step`` (t = step dt),
+    with the neighbours and remaining time of that step, for inspection.
     """
     n = len(scene)
     goals = _goals(goals_xy_m, n)
@@ -459,11 +393,10 @@ def rollout_social_force_scene(
     max_speed_mps: float | np.ndarray | None = None,
     nbr_weights: np.ndarray | None = None,
 ) -> RolloutResult:
-    """Roll the ego out for ``scene.n_steps`` steps of ``dt_s`` (semi-implicit Euler).
+    """Roll the ego out for ``scene.n_steps`` steps of ``dt_s``.
 
-    params: one set for all scenarios or a batch (B,); goals_xy_m (B, 2) in the ego frame [m];
-    max_speed_mps: cap on the desired speed v0, scalar or (B,); default ``default_max_speed_mps``.
-    nbr_weights: (B, N) multipliers of each neighbour's repulsion (GNP learns them); None = 1.
+    ``params``: one set or a batch (B,); ``goals_xy_m`` (B, 2) [m]; ``max_speed_mps``: cap on v0, scalar or (B,)
+    (default ``default_max_speed_mps``); ``nbr_weights`` (B, N): multipliers of each neighbour's repulsion (GNP).
     """
     n = len(scene)
     f = scene.n_steps
@@ -517,10 +450,8 @@ def rollout_social_force(
     *,
     max_speed_mps: float | np.ndarray | None = None,
 ) -> RolloutResult:
-    """Plan the ego of every scenario in ``batch`` (F = the prediction's horizon, usually 125).
-
-    goals_xy_m (B, 2) [m, ego frame]; neighbours: predicted (B, N, F, ...) arrays, e.g. from
-    ``letspi.physics.neighbours.predict_neighbours``; ego state, sizes and markings from ``batch``.
+    """Plan the ego of every scenario in ``batch`` towards ``goals_xy_m`` (B, 2) [m], given the neighbours' prediction
+    (B, N, F, ...) whose horizon F sets the plan's (usually 125).
     """
     scene = SocialForceScene.from_batch(batch, neighbours)
     return rollout_social_force_scene(scene, params, goals_xy_m, max_speed_mps=max_speed_mps)

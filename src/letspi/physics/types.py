@@ -1,7 +1,5 @@
-"""Result containers shared by the physics models (data only).
-
-Time convention: a rollout of F steps starts from the state at t = 0 (frame ``T0_INDEX``) and
-reports the states at t = dt, 2 dt, ..., F dt, i.e. the future frames ``T0_INDEX + 1 ...``.
+"""Result containers of the physics models: a rollout of F steps starts from t = 0 (frame ``T0_INDEX``) and reports
+t = dt ... F dt (the future frames ``T0_INDEX + 1 ...``).
 """
 
 from __future__ import annotations
@@ -16,13 +14,9 @@ from letspi.constants import DT_S
 
 @dataclass(frozen=True)
 class RolloutResult:
-    """A planned ego trajectory per scenario (ego frame, float64).
-
-    xy_m (B, F, 2): positions at t = (k + 1) dt, k = 0..F-1.
-    vxy_mps (B, F, 2): velocities at the same instants.
-    axy_mps2 (B, F, 2): the acceleration applied during step k (from t = k dt to (k + 1) dt), after
-        all clamps, so that ``vxy[k] = vxy[k - 1] + dt * axy[k]`` holds exactly.
-    dt_s: the step length.
+    """A planned ego trajectory per scenario (ego frame, float64): ``xy_m``, ``vxy_mps`` (B, F, 2) at t = (k + 1) dt;
+    ``axy_mps2`` (B, F, 2) the acceleration applied during step k after all clamps, so that
+    ``vxy[k] = vxy[k - 1] + dt axy[k]`` exactly.
     """
 
     xy_m: np.ndarray
@@ -39,10 +33,8 @@ class RolloutResult:
 
 
 class NeighbourPrediction(NamedTuple):
-    """Predicted neighbour trajectories over the future frames (ego frame, float64).
-
-    xy_m (B, N, F, 2) and vxy_mps (B, N, F, 2) at t = (k + 1) dt; 0 where invalid.
-    valid (B, N, F) bool: the prediction exists (the neighbour slot is occupied and predictable).
+    """Predicted neighbour trajectories (ego frame, float64): ``xy_m``, ``vxy_mps`` (B, N, F, 2) at t = (k + 1) dt, 0
+    where invalid; ``valid`` (B, N, F) bool (the slot is occupied and predictable).
     """
 
     xy_m: np.ndarray

@@ -18,13 +18,26 @@ from typing import Any
 
 import numpy as np
 
+from letspi.metrics.registry import Agg, Metric
 from letspi.planners.base import PlanningContext
 from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.outputs import output
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.types import ScenarioBatch
 
-DECISION_COLUMNS: tuple[str, ...] = ("decision", "consulted", "risk_score", "adverse_failed", "refinements",
-                                     "reason")
+DECISION = output("decision", "preset", "str", "the chosen preset, or custom for a model's own numbers")
+CONSULTED = output("consulted", "bool", "bool", "the model (or the rule) was asked: the risk gate fired",
+                   Agg("consulted_pct", "pct", "share of scenarios where the risk gate asked the model"))
+RISK_SCORE = output("risk_score", "1", "float64", "the risk gate's probability that the defaults collide "
+                    "(NaN: no gate)")
+ADVERSE_FAILED = output("adverse_failed", "futures", "str", "adverse futures the first proposal's plan fails, "
+                        "comma-separated")
+REFINEMENTS = output("refinements", "n", "float64", "reflection rounds after the first proposal")
+REASON = output("reason", "text", "str", "why, in one line: the risk against the gate, what the defaults fail, what "
+                "was chosen and its checks")
+#: what every deciding planner records (``decision_info``)
+DECISION_OUTPUTS: tuple[Metric, ...] = (DECISION, CONSULTED, RISK_SCORE, ADVERSE_FAILED, REFINEMENTS, REASON)
+DECISION_COLUMNS: tuple[str, ...] = tuple(o.name for o in DECISION_OUTPUTS)
 
 # Options of the decision step (``letspi.method.config.DecisionConfig``): letspi-fast, letspi-memory, llm,
 # letspi-fs, sf-check

@@ -75,6 +75,7 @@ from letspi.arrays import Batched
 from letspi.constants import DT_S, HORIZON_S, N_FUTURE, T0_INDEX
 from letspi.keyed import Config
 from letspi.metrics.kinematics import off_road
+from letspi.metrics.registry import Metric
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor
 from letspi.physics.lanes import lane_centres_m, lane_index_of
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
@@ -83,6 +84,7 @@ from letspi.planners.base import PlanBatch
 from letspi.planners.config import PREDICTION_OPTIONS, GoalsConfig
 from letspi.planners.fitted import FittedFile
 from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.outputs import output
 from letspi.scenario.types import ScenarioBatch
 
 SHIPPED_WEIGHTS_FILE = "frenet_weights.json"
@@ -94,6 +96,17 @@ FRENET_WEIGHTS = file_option(
     "frenet_weights_file",
     "Cost weights of the frenet planner (from `letspi fit frenet`; default: the shipped fit)", flag="--frenet-weights")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, FRENET_WEIGHTS)
+OUTPUTS: tuple[Metric, ...] = (
+    output("target_lane", "lane", "int64", "lane index the chosen candidate ends in"),
+    output("lateral_offset_m", "m", "float64", "lateral offset of the chosen candidate's end from its lane centre"),
+    output("lateral_horizon_s", "s", "float64", "duration of the chosen lateral motion"),
+    output("lon_mode", "mode", "int64", "longitudinal mode of the chosen candidate: 0 speed, 1 follow, 2 brake"),
+    output("target_speed_mps", "m/s", "float64", "end speed of the chosen longitudinal motion"),
+    output("lon_horizon_s", "s", "float64", "duration of the chosen longitudinal motion"),
+    output("cost", "1", "float64", "the chosen candidate's weighted cost"),
+    output("n_safe", "n", "int64", "candidates clear of the predicted neighbours"),
+    output("found_safe", "bool", "bool", "some candidate was clear of the predicted neighbours"),
+)
 
 
 class _Frozen(BaseModel):

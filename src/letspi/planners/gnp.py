@@ -15,12 +15,14 @@ import numpy as np
 from letspi.keyed import Config
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
+from letspi.metrics.registry import Metric
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES
 from letspi.physics.social_force import SocialForceScene
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import PREDICTION_OPTIONS, GoalsConfig, WeightsConfig
 from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.outputs import PARAM_OUTPUTS, output
 from letspi.scenario.types import ScenarioBatch
 
 GNP_WEIGHTS_ENV = "LETSPI_GNP_WEIGHTS"
@@ -28,6 +30,10 @@ GNP_WEIGHTS = file_option(
     "gnp_weights",
     f"Weights of the gnp planner (from `letspi train gnp`; default: ${GNP_WEIGHTS_ENV}, else the shipped ones)")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, GNP_WEIGHTS)
+OUTPUTS: tuple[Metric, ...] = (
+    *PARAM_OUTPUTS,
+    output("nbr_weight", "1", "float64", "(B, N) learned weight of each neighbour slot's repulsion"),
+)
 
 
 class GnpConfig(Config):

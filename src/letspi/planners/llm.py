@@ -60,6 +60,7 @@ from letspi.method.reflection import (
     simulate_proposal,
 )
 from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
+from letspi.metrics.registry import Agg, Metric
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
@@ -69,12 +70,14 @@ from letspi.planners.decision import (
     ADVERSE,
     DECIDE,
     DECISION_OPTIONS,
+    DECISION_OUTPUTS,
     PRESETS,
     RISK_MODEL,
     adverse_failed_names,
     decision_info,
 )
 from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS, output
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
@@ -131,6 +134,39 @@ FAST_OPTIONS: tuple[PlannerOption[Any], ...] = (
     MEMORY_FRACTION, MEMORY_SEED, SHIELD, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
 
 
+LLM_CACHED = output("llm_cached", "bool", "bool", "every model call of the scenario was served by the response "
+                    "cache (its time is a lookup: left out of inference_s)")
+LLM_CALLS = output("llm_calls", "n", "float64", "model calls made for the scenario",
+                   Agg("llm_calls_per_scenario", "finite_mean", "model calls per scenario"))
+LLM_ORIGINAL_LATENCY = output("llm_original_latency_s", "s", "float64", "what the scenario's calls cost when first "
+                              "made (cached replies included)", Agg("llm_original_latency_s", "finite_mean"))
+FALLBACK = output("fallback", "bool", "bool", "the final plan uses the fallback parameters (no valid answer)",
+                  Agg("fallback_pct", "pct", "share of scenarios planned with the fallback parameters"))
+#: what every LLM planner reports (``_info``)
+LLM_OUTPUTS: tuple[Metric, ...] = (
+    *PARAM_OUTPUTS, LON_FACTOR, LANE_FACTOR, LLM_CALLS,
+    output("llm_cached_calls", "n", "float64", "model calls the response cache served"),
+    LLM_CACHED,
+    output("llm_latency_s", "s", "float64", "wall time of the calls that ran the model now"),
+    LLM_ORIGINAL_LATENCY,
+    output("prompt_tokens", "n", "float64", "prompt tokens of the scenario's calls"),
+    output("completion_tokens", "n", "float64", "completion tokens of the scenario's calls"),
+    FALLBACK,
+    output("any_fallback", "bool", "bool", "some proposal of the scenario fell back"),
+    output("n_clamped", "n", "int64", "fields of the final answer clamped into their ranges"),
+)
+#: the memory phase (``llm``, ``letspi-memory``): its reflection
+MEMORY_OUTPUTS: tuple[Metric, ...] = (
+    output("iterations", "n", "float64", "proposals made (1 + refinements)"),
+    output("validated", "bool", "float64", "1 when the final plan passed the reflection's checks, else 0"),
+)
+#: the fast phase (``letspi-fast``, ``letspi-fs``): its retrieval
+FAST_OUTPUTS: tuple[Metric, ...] = (
+    output("n_retrieved", "n", "float64", "memories retrieved for the fast prompt"),
+    output("top_similarity", "1", "float64", "similarity of the best retrieved memory"),
+)
+
+
 def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float]) -> dict[str, np.ndarray]:
     """Per-scenario extras of the final proposal; calls, tokens and timing summed over ``proposals``."""
 
@@ -167,6 +203,22 @@ MEMORY_ALTERNATIVES = "memory_alternatives"
 _ALTERNATIVE_COLUMNS = len(PARAM_NAMES) + 2
 #: alternatives per failing plan simulated first (the retrieved memories and the fitted parameters)
 SHIELD_FIRST_STAGE = 4
+
+
+SHIELDED = output("shielded", "bool", "float64", "1 when the safety shield replaced the plan, else 0",
+                  Agg("shielded_pct", "pct", "share of plans the safety shield replaced"))
+#: what the safety shield records (``ShieldedPlans.info``)
+SHIELD_OUTPUTS: tuple[Metric, ...] = (
+    SHIELDED,
+    output("shield_checked", "bool", "float64", "1 when the shield checked the plan"),
+    output("shield_safe", "bool", "float64", "1 when the returned plan passes the checks (NaN: not checked)"),
+    output("shield_source", "code", "float64", "where the returned plan came from: its own (0), a memory (k >= 1), "
+           "the fitted sf parameters (-1), sf-opt's grid (-2) or a preset (-3)"),
+)
+#: what the memory-phase planners (``llm``, ``letspi-memory``) and the fast ones (``letspi-fast``, ``letspi-fs``)
+#: report; the decision outputs only with the decision step
+MEMORY_PLANNER_OUTPUTS: tuple[Metric, ...] = (*LLM_OUTPUTS, *MEMORY_OUTPUTS, *SHIELD_OUTPUTS, *DECISION_OUTPUTS)
+FAST_PLANNER_OUTPUTS: tuple[Metric, ...] = (*LLM_OUTPUTS, *FAST_OUTPUTS, *SHIELD_OUTPUTS, *DECISION_OUTPUTS)
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,12 @@ import numpy as np
 
 from letspi.learned.param_mlp import OUTPUT_FIELDS, ParamMlp
 from letspi.method.reflection import simulate_proposal
+from letspi.metrics.registry import Metric
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields, WeightsConfig
 from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS
 from letspi.scenario.features import scenario_features
 from letspi.scenario.types import ScenarioBatch
 
@@ -27,6 +29,7 @@ MLP_WEIGHTS = file_option(
     "mlp_weights",
     f"Weights of the mlp regressor (from `letspi train mlp`; default: ${MLP_WEIGHTS_ENV}; nothing is shipped)")
 OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, MLP_WEIGHTS)
+OUTPUTS: tuple[Metric, ...] = (*PARAM_OUTPUTS, LON_FACTOR, LANE_FACTOR)
 
 
 class MlpConfig(SocialForcePlannerFields):

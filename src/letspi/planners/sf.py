@@ -8,14 +8,17 @@ from typing import Any, Literal
 
 import numpy as np
 
+from letspi.metrics.registry import Metric
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import rollout_social_force
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
+from letspi.planners.outputs import PARAM_OUTPUTS
 from letspi.scenario.types import ScenarioBatch
 
 OPTIONS: tuple[PlannerOption[Any], ...] = SOCIAL_FORCE_OPTIONS
+OUTPUTS: tuple[Metric, ...] = PARAM_OUTPUTS
 
 
 class SfConfig(SocialForcePlannerFields):

@@ -17,10 +17,11 @@ import numpy as np
 from letspi.method.config import DecisionConfig
 from letspi.method.decide import Decider, GatedChecks
 from letspi.method.phases import decision_reason
+from letspi.metrics.registry import Metric
 from letspi.physics.params import SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
-from letspi.planners.decision import DECISION_OPTIONS, decision_info
+from letspi.planners.decision import DECISION_OPTIONS, DECISION_OUTPUTS, decision_info
 from letspi.planners.llm import (
     PRESETS_CHECKED,
     PRESETS_PASS_ALL,
@@ -29,12 +30,14 @@ from letspi.planners.llm import (
     PROPOSED_VXY,
     PROPOSED_XY,
     SHIELD,
+    SHIELD_OUTPUTS,
     simulate_and_shield,
 )
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
 OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD)
+OUTPUTS: tuple[Metric, ...] = (*DECISION_OUTPUTS, *SHIELD_OUTPUTS)
 
 
 class SfCheckConfig(SocialForcePlannerFields):

@@ -29,16 +29,24 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from letspi.constants import N_FUTURE
+from letspi.metrics.registry import Metric
 from letspi.physics.goals import NEUTRAL_LON_FACTOR, adjust_goals
 from letspi.physics.params import SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene
 from letspi.planners.base import PlanBatch, PlanningContext, PredictingPlanner, Proposals
 from letspi.planners.config import SOCIAL_FORCE_OPTIONS, SocialForcePlannerFields
 from letspi.planners.options import PlannerOption
+from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, output
 from letspi.safety.plan_check import SafetyCheck, check_plans
 from letspi.scenario.types import ScenarioBatch
 
 OPTIONS: tuple[PlannerOption[Any], ...] = SOCIAL_FORCE_OPTIONS
+OUTPUTS: tuple[Metric, ...] = (
+    output("k_scale", "1", "float64", "the chosen candidate's scale of the fitted repulsion gains"),
+    LON_FACTOR, LANE_FACTOR,
+    output("found_safe", "bool", "bool", "a candidate passed every plan check (else the least unsafe one)"),
+    output("n_candidates_tried", "n", "int64", "candidates simulated before the first safe one (27: all)"),
+)
 
 
 class SearchSpace(BaseModel):

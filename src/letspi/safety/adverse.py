@@ -1,33 +1,15 @@
-"""Adverse futures: what could happen that the neighbour prediction does not foresee.
+"""Adverse futures: plausible events the (calm) neighbour prediction does not foresee, from the history only.
 
-The IDM prediction (``letspi.physics.neighbours``) lets every neighbour drive on calmly, so a plan
-checked only against it is never tested against the events that make highway traffic critical. From
-the observed scene (history only: what a planner may know at t = 0) this module derives a few
-*adverse* variants of a prediction, each one a plausible event:
-
-* ``leader-brakes``: the nearest vehicle ahead in the ego's lane and in each adjacent lane (the
-  leader the plan follows, wherever it goes) brakes hard from t = 0: ``brake_decel_mps2`` for
-  ``brake_duration_s``, then keeps the lower speed (the scripted hard brakes of
-  ``letspi.trafficgen.events`` are 4-8 m/s^2 for 1.5-3 s). Only leaders within ``brake_range_m``
-  (bumper gap) are considered.
-* ``cut-in``: a vehicle in an adjacent lane whose recent lateral speed points towards the ego lane
-  (at least ``cut_in_min_lateral_mps``, averaged over the last ``lateral_window_s`` of history)
-  completes its lane change: it moves to the ego lane's centre at the larger of its own lateral
-  speed and ``cut_in_lateral_mps`` (a 4 s lane change of a 3.75 m lane is 0.94 m/s), longitudinally
-  as predicted.
-* ``follower-keeps``: the vehicles behind the ego (its lane and the adjacent ones, within
-  ``follower_range_m``) keep their t = 0 speed instead of reacting: a follower that does not brake
-  for an ego that brakes or changes lanes in front of it.
-
-A future that has no actor in a scene (no leader in range, nobody drifting towards the ego lane, no
-follower) equals the base prediction there; ``AdverseFutures.applies`` says where it differs.
-
-``check_futures`` checks plans against the base prediction and every adverse future with the same
-checks as the reflection (``letspi.safety.plan_check``), vectorised over scenarios x futures;
-``FutureChecks.failed`` applies the (laxer) thresholds of an adverse future: an adverse event is
-allowed to make a plan uncomfortable, not to make it collide (``AdverseSettings.ttc_s``,
-``min_gap_m``). Used by reflection (which future failed, in the report), the safety shield and the
-decision step of the fast phase (``letspi.method.decide``).
+``leader-brakes``: the nearest vehicle ahead within ``brake_range_m`` (bumper gap) in the ego's lane and in each
+adjacent lane brakes at ``brake_decel_mps2`` for ``brake_duration_s`` from t = 0, then keeps its speed.
+``cut-in``: an adjacent-lane vehicle whose mean lateral speed over the last ``lateral_window_s`` points towards
+the ego lane (>= ``cut_in_min_lateral_mps``) moves to the ego lane's centre at the larger of that speed and
+``cut_in_lateral_mps``, longitudinally as predicted. ``follower-keeps``: the vehicles behind the ego within
+``follower_range_m`` (its lane and the adjacent ones) keep their t = 0 speed instead of reacting. A future
+without an actor in a scene equals the base prediction there (``AdverseFutures.applies``). ``check_futures``
+runs the reflection's checks (``plan_check``) against the base and every adverse future;
+``FutureChecks.failed`` applies the laxer adverse thresholds: an adverse event may make a plan uncomfortable,
+not make it collide.
 """
 
 from __future__ import annotations
@@ -82,11 +64,8 @@ class AdverseSettings(BaseModel):
 
 @dataclass(frozen=True)
 class AdverseFutures:
-    """Adverse variants of a prediction.
-
-    names: (A,) the futures (``AdverseFuture`` values), in ``AdverseSettings.futures`` order.
-    xy_m, vxy_mps: (A, B, N, F, 2); valid (A, B, N, F): the predicted neighbours in each future.
-    applies: (A, B) bool: the future differs from the base prediction in that scenario.
+    """Adverse variants of a prediction: ``names`` (A,) in ``AdverseSettings.futures`` order; ``xy_m``, ``vxy_mps``
+    (A, B, N, F, 2) and ``valid`` (A, B, N, F); ``applies`` (A, B): the future differs from the base there.
     """
 
     names: tuple[str, ...]
@@ -117,12 +96,9 @@ def _recent_lateral_mps(batch: ScenarioBatch, window_s: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Scene:
-    """What the futures are derived from: the base prediction (B, N, F, ...) and t = 0 states (B, N).
-
-    x0, y0, vx0: neighbour centres and speeds relative to the ego at t = 0 [m, m/s]; lane / ego_lane:
-    lane indices between the markings; near_lane: visible, in the ego's lane or an adjacent one;
-    bumper_gap: |x0| minus the half lengths [m]; ego_centre (B, 1): the ego lane's centre line y [m];
-    t (F,): the future instants [s].
+    """What the futures are derived from: the base prediction (B, N, F, ...) and t = 0 states (B, N): ``x0``, ``y0``,
+    ``vx0`` relative to the ego [m, m/s]; lane indices; ``near_lane`` (visible, in the ego's or an adjacent lane);
+    ``bumper_gap`` [m]; ``ego_centre`` (B, 1) the ego lane's centre y [m]; ``t`` (F,) the future instants [s].
     """
 
     xy: np.ndarray
@@ -213,10 +189,7 @@ _VARIANTS = {AdverseFuture.LEADER_BRAKES: _leader_brakes, AdverseFuture.CUT_IN: 
 
 def adverse_futures(batch: ScenarioBatch, base: NeighbourPrediction,
                     settings: AdverseSettings | None = None) -> AdverseFutures:
-    """The adverse variants of ``base`` (B, N, F, ...) for the observed scenes ``batch`` (history suffices).
-
-    Vectorised over scenarios and neighbours; see the module docstring for the futures.
-    """
+    """The adverse variants of ``base`` (B, N, F, ...) for the observed scenes ``batch`` (history suffices)."""
     s = settings or AdverseSettings()
     valid = np.asarray(base.valid, dtype=bool)
     xy = np.asarray(base.xy_m, dtype=np.float64)
@@ -237,11 +210,9 @@ def adverse_futures(batch: ScenarioBatch, base: NeighbourPrediction,
 
 @dataclass(frozen=True)
 class FutureChecks:
-    """Plans checked against the base prediction (column 0, ``PREDICTED``) and each adverse future.
-
-    names: (1 + A,). Arrays (B, 1 + A): collision, min_ttc_s (front), min_rear_ttc_s, min_path_gap_m,
-    contact_time_s (first contact, NaN without), applies (column 0 always True). off_road (B,): the plan
-    leaves the road (the same in every future).
+    """Plans checked against the base prediction (column 0, ``PREDICTED``) and each adverse future: ``names`` (1 + A,);
+    (B, 1 + A) ``collision``, ``min_ttc_s``, ``min_rear_ttc_s``, ``min_path_gap_m``, ``contact_time_s`` (NaN without),
+    ``applies`` (column 0 always True); ``off_road`` (B,), the same in every future.
     """
 
     names: tuple[str, ...]

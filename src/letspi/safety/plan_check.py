@@ -1,7 +1,5 @@
-"""Safety of candidate plans against *predicted* neighbours (what a planner may know at t = 0).
-
-Used by ``sf-opt`` to choose among candidates and later by LetsPi's reflection module. The
-evaluation harness, by contrast, scores the chosen plan against the ground-truth futures.
+"""Safety of candidate plans against *predicted* neighbours (what a planner may know at t = 0), for ``sf-opt`` and
+LetsPi's reflection; the evaluation scores the chosen plan against the ground-truth futures instead.
 """
 
 from __future__ import annotations
@@ -21,14 +19,9 @@ from letspi.scenario.types import ScenarioBatch
 
 @dataclass(frozen=True)
 class SafetyCheck:
-    """(B,) each; steps/slots are -1 for none.
-
-    ``min_ttc_s``: 1-D TTC with the vehicle ahead in the ego's path (+inf if none closes in);
-    ``min_rear_ttc_s``: the same for a vehicle closing in from behind in the ego's path (a lane
-    change in front of a faster car shows up here, not in the front TTC).
-    ``min_path_gap_m``: smallest bumper-to-bumper gap to a vehicle in the ego's path (lateral box
-    overlap), ahead or behind: the "distance < 2 m" reading that does not flag ordinary
-    adjacent-lane passes (3.75 m lanes leave ~1.95 m between boxes side by side).
+    """(B,) each; steps and slots -1 for none. ``min_ttc_s`` / ``min_rear_ttc_s``: 1-D TTC with the vehicle ahead /
+    behind in the ego's path (+inf if none closes in); ``min_path_gap_m``: smallest bumper gap to a vehicle in the
+    ego's path (lateral box overlap), ahead or behind: a "distance < 2 m" that ignores adjacent-lane passes.
     """
 
     min_ttc_s: np.ndarray
@@ -59,10 +52,8 @@ def predicted_inputs(
     batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, neighbours: NeighbourPrediction,
     rows: np.ndarray | None = None,
 ) -> MetricInputs:
-    """Metric inputs pairing plans (P, F, 2) with predicted neighbour futures (B, N, F, 2).
-
-    rows: (P,) the scenario of each plan (several candidate plans of one scenario share its neighbours);
-    None: one plan per scenario (P = B).
+    """Metric inputs pairing plans (P, F, 2) with predicted neighbour futures (B, N, F, 2); ``rows`` (P,): the scenario
+    of each plan (candidates of one scenario share its neighbours), None: one plan per scenario.
     """
     def per_plan(a: np.ndarray) -> np.ndarray:
         return a if rows is None else a[rows]

@@ -1,7 +1,5 @@
-"""Hand-built scenarios on a straight road with known answers (tests, examples, benchmarks).
-
-Vehicles move at constant acceleration (speed floored at 0) over the whole 8 s window, so every
-quantity is known in closed form. Everything is already in the ego frame (see ``types``).
+"""Hand-built straight-road scenarios with known answers: constant accelerations (speed floored at 0) over the
+whole 8 s window, already in the ego frame.
 """
 
 from __future__ import annotations
@@ -18,10 +16,8 @@ LANE_WIDTH_M = 3.75
 
 @dataclass(frozen=True)
 class VehicleSpec:
-    """A neighbour on the straight road.
-
-    ``x0_m`` is its centre's x at t = 0 in the ego frame; ``lane_offset`` counts lanes to the
-    left of the ego's lane (+1 = left lane, -1 = right lane); ``y_offset_m`` shifts it within the lane.
+    """A neighbour on the straight road: ``x0_m`` its centre's x at t = 0 in the ego frame; ``lane_offset`` lanes to
+    the left of the ego's (+1 left, -1 right); ``y_offset_m`` a shift within the lane.
     """
 
     x0_m: float
@@ -65,9 +61,8 @@ def straight_road_scenario(
 ) -> ScenarioBatch:
     """A batch of one driving-direction-2 scenario on ``n_lanes`` lanes; ``ego_lane_index`` 0 = rightmost lane.
 
-    The ego drives at the centre of its lane. Lane ids follow HighD for an ``n_lanes`` + ``n_lanes``
-    road: the lower carriageway has ids ``n_lanes + 3 ... 2 * n_lanes + 2``, rightmost largest.
-    ``context`` vehicles are scored but never shown to a planner (future frames only; ids from 100).
+    The ego drives at its lane's centre; lane ids are HighD's for an ``n_lanes`` + ``n_lanes`` road. ``context``
+    vehicles are scored but never shown to a planner (future frames only, ids from 100).
     """
     if not 0 <= ego_lane_index < n_lanes:
         raise ValueError(f"ego_lane_index {ego_lane_index} outside 0..{n_lanes - 1}")

@@ -1,16 +1,8 @@
 """Random and degenerate straight-road scenes for robustness checks (``python -m benchmarks.speed robustness``).
 
-Kinds (``DEGENERATE_KINDS``; every scene is a valid ``ScenarioBatch`` a recording could produce,
-except ``nan_gaps``, which also holds the damage a broken converter could leave):
-
-* ``random``: 0-8 neighbours anywhere within +-80 m on 1-4 lanes, speeds 0-45 m/s, accelerations
-  -6..+3 m/s^2, cars and trucks, some appearing or disappearing during the window.
-* ``no_neighbours``: the ego alone.
-* ``overlap``: 8 neighbours whose boxes overlap the ego's at t = 0 (collision from the start).
-* ``zero_speed``: ego and neighbours standing still (a jam), or the ego stopped behind moving cars.
-* ``one_lane``: a 1-lane road (no lane change possible), neighbours ahead and behind.
-* ``nan_gaps``: neighbour tracks with NaN runs: gaps where the vehicle is not visible (``nbr_valid``
-  False) and, in some scenes, NaN positions/velocities on frames marked valid.
+``DEGENERATE_KINDS``: ``random`` (0-8 neighbours within ±80 m on 1-4 lanes, speeds 0-45 m/s, some appearing
+late), ``no_neighbours``, ``overlap`` (8 boxes overlapping the ego at t = 0), ``zero_speed``, ``one_lane`` and
+``nan_gaps`` (NaN runs in neighbour tracks, some on frames still marked valid: the one kind no recording makes).
 """
 
 from __future__ import annotations

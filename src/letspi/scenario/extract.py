@@ -1,26 +1,11 @@
 """HighD recordings → ego-centric planning scenarios (paper §IV-B).
 
-Every vehicle with at least ``N_TOTAL`` frames yields windows of ``N_TOTAL`` frames starting at its
-first frame and then every ``stride_frames`` frames. In each window:
-
-* the ego's states are transformed into the ego frame (see ``letspi.scenario.types``);
-* **neighbours** (what a planner sees) are chosen at t = 0 from what is visible then: the other
-  vehicles **of the same driving direction** present at t = 0 whose centre is within
-  ``NEIGHBOUR_RADIUS_M`` of the ego's centre at t = 0, the ``MAX_NEIGHBOURS`` closest first (distances
-  compared at 1 mm resolution; ties: lower id). No frame after t = 0 influences the choice, so the
-  selection itself cannot leak the future. Their whole window (history and recorded future) is kept.
-* **context vehicles** (what the evaluation checks, never shown to a planner): every other vehicle of
-  the same direction present in the recorded future whose centre comes within ``CONTEXT_RADIUS_M`` of
-  the ego's recorded centre at some future frame, closest first, at most ``MAX_CONTEXT`` of them; only
-  their future frames are stored. A plan that leaves the human's path is thereby scored against cars
-  that entered the scene later or were beyond the 8 nearest at t = 0.
-
-Opposite-carriageway traffic is separated by the median and never interacts, so it is left out.
-
-Scenario selection (``sample_windows``): uniform random sampling by default, as in the paper;
-``critical_share`` oversamples windows whose recorded future holds a conflict of the ego
-(``critical_windows``: a per-frame TTC to its leader below ``CRITICAL_TTC_S``, a DRAC above
-``CRITICAL_DRAC_MPS2``, or a scripted event of ``NN_events.csv`` involving it).
+Every vehicle with at least ``N_TOTAL`` frames yields windows from its first frame on, every ``stride_frames``.
+**Neighbours** (what a planner sees) are the same-direction vehicles present at t = 0 within
+``NEIGHBOUR_RADIUS_M``, the ``MAX_NEIGHBOURS`` closest first (1 mm resolution, ties: lower id): no later frame
+counts, so the selection cannot leak the future. **Context vehicles** (scored, never shown to a planner) are
+the other same-direction vehicles that come within ``CONTEXT_RADIUS_M`` of the ego's recorded future, closest
+approach first, at most ``MAX_CONTEXT``, future frames only. The opposite carriageway never interacts.
 """
 
 from __future__ import annotations
@@ -58,10 +43,8 @@ _CLASS_CODES = {"Car": VEHICLE_CLASS_CAR, "Truck": VEHICLE_CLASS_TRUCK}
 
 @dataclass(frozen=True)
 class WindowIndex:
-    """Which windows exist, before any are extracted. All arrays have shape (W,).
-
-    ``start_frame`` is the HighD frame of the window's first frame; t = 0 is
-    ``start_frame + T0_INDEX``.
+    """Which windows exist, before any are extracted; arrays (W,). ``start_frame`` is the HighD frame of the window's
+    first frame; t = 0 is ``start_frame + T0_INDEX``.
     """
 
     recording_id: np.ndarray
@@ -110,14 +93,10 @@ def critical_windows(
     windows: WindowIndex,
     events: Mapping[int, pd.DataFrame | None] | None = None,
 ) -> np.ndarray:
-    """(W,) bool: whether each window's recorded *future* holds a conflict of its ego.
-
-    A conflict is a frame after t = 0 whose per-frame TTC to the preceding vehicle (HighD ``ttc``,
-    > 0 when defined) is below ``CRITICAL_TTC_S``, or whose DRAC = closing speed / (2 TTC) exceeds
-    ``CRITICAL_DRAC_MPS2``, or a scripted event (``events``: recording id -> ``NN_events.csv`` rows)
-    with the ego as actor or as the vehicle acted on, starting within ``EVENT_LEAD_FRAMES`` before
-    t = 0 or in the future. Used only to *select* scenarios (training and evaluation sets), never by
-    a planner.
+    """(W,) bool: whether each window's recorded *future* holds a conflict of its ego (for selecting scenarios only):
+    a frame with HighD's ``ttc`` (> 0) below ``CRITICAL_TTC_S`` or DRAC = closing / (2 TTC) above
+    ``CRITICAL_DRAC_MPS2``, or a scripted event (``events``: recording id -> ``NN_events.csv``) with the ego as
+    ``id`` or ``other_id`` starting at most ``EVENT_LEAD_FRAMES`` before t = 0.
     """
     out = np.zeros(len(windows), dtype=bool)
     for rec in recordings:
@@ -157,12 +136,8 @@ def sample_windows(
     critical: np.ndarray | None = None,
     critical_share: float = 0.0,
 ) -> WindowIndex:
-    """Up to ``max_n`` windows drawn without replacement, reproducible by ``seed``.
-
-    Uniform by default (the paper). With ``critical`` ((W,) bool, ``critical_windows``) and
-    ``critical_share`` F > 0, round(F · max_n) windows are drawn from the critical ones (all of them if
-    fewer) and the rest uniformly from the remaining windows. The result is sorted by (recording, ego,
-    start) so extraction reads each recording once.
+    """Up to ``max_n`` windows drawn without replacement by ``seed``: uniform (the paper), or with ``critical`` (W,) and
+    ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start).
     """
     if not 0.0 <= critical_share <= 1.0:
         raise ValueError(f"critical_share must be in [0, 1], got {critical_share}")

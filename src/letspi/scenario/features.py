@@ -1,21 +1,10 @@
 """Scenario features for memory matching (paper §III-E), from what is observable at t = 0.
 
-Columns of ``scenario_features`` (B, 6), in this order (``FEATURE_NAMES``):
-
-0. ``n_vehicles``: neighbours visible at t = 0 (count).
-1. ``ego_speed_mps``: ego speed at t = 0.
-2. ``lane_change``: 1.0 if the ego changes lane during its history or its lateral speed at
-   t = 0 exceeds ``LANE_CHANGE_LAT_SPEED_MPS`` (an intention the planner can see), else 0.0.
-   The paper does not say how it detects a lane change; the future is never used here.
-3. ``min_dist_m``: minimum centre distance to a visible neighbour at t = 0.
-4. ``mean_dist_m``: mean centre distance to visible neighbours at t = 0.
-5. ``mean_nbr_speed_mps``: mean speed of visible neighbours at t = 0.
-
-With no visible neighbour, distances are ``NEIGHBOUR_RADIUS_M`` (100 m: "nobody within range")
-and the mean neighbour speed is the ego's own speed, so such scenarios match each other. A
-neighbour flagged valid at t = 0 whose position or velocity is not finite (a gap in its track)
-counts as not visible; a non-finite ego speed counts as 0. So every feature is finite (the memory
-bank refuses non-finite features).
+``scenario_features`` (B, 6), columns ``FEATURE_NAMES``: visible neighbours; ego speed; ``lane_change`` (1.0 when
+the ego changed lane in its history or its lateral speed exceeds ``LANE_CHANGE_LAT_SPEED_MPS``); min and mean
+centre distance to the visible neighbours; their mean speed. Always finite (the memory bank refuses others):
+without a visible neighbour the distances are ``NEIGHBOUR_RADIUS_M`` and the speed the ego's; a neighbour
+with non-finite values at t = 0 is not visible; a non-finite ego speed counts as 0.
 """
 
 from __future__ import annotations
@@ -39,7 +28,7 @@ LANE_CHANGE_LAT_SPEED_MPS: Final = 0.5
 
 
 def scenario_features(batch: ScenarioBatch) -> np.ndarray:
-    """Matching features (B, 6) float64; see the module docstring for columns and units."""
+    """Matching features (B, 6) float64 (columns in the module docstring)."""
     t0 = T0_INDEX
     ego_xy = np.nan_to_num(batch.ego_xy_m[:, t0].astype(np.float64))  # the origin by construction
     ego_v = batch.ego_vxy_mps[:, t0].astype(np.float64)

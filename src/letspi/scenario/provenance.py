@@ -1,11 +1,8 @@
 """Where a scenario file's traffic came from, and the generator seeds the benchmark suites reserve.
 
-``letspi data scenarios`` (and ``letspi benchmark run``) record in the scenario file's provenance
-the ``NN_generation.json`` of every generated recording they cut windows from
-(``letspi.highd.generation``): the generator seed among them. Generator seeds in
-:data:`SUITE_SEEDS` make the benchmark suites' traffic; the commands that fit or label on
-scenarios (``letspi fit sf``, ``letspi fit frenet``, ``letspi train llm-data``) refuse files made
-from them, so no published model has seen a suite's traffic.
+A scenario file's provenance records the ``NN_generation.json`` (with the generator seed) of every generated
+recording it was cut from. Seeds in ``SUITE_SEEDS`` make the suites' traffic; the commands that fit or label
+on scenarios refuse files made from them, so no published model has seen a suite's traffic.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """Questions about scenarios that planners, metrics and prompts ask (vectorised over the batch).
 
-Relations between the ego and a neighbour at a frame use the lanes of the ego frame:
-``preceding``/``following`` = same lane, ahead/behind (nearest by centre x);
-``left``/``right`` = the adjacent lane to the left/right, nearest by |Δx| (ahead, alongside or behind).
-A lane is identified by its index between markings (0 = rightmost) computed from the centre y.
+Relations use the ego-frame lanes (index between markings, 0 = rightmost, from the centre y):
+``preceding``/``following``: same lane, nearest ahead/behind by centre x; ``left``/``right``: the adjacent lane,
+nearest by |Δx| (ahead, alongside or behind).
 """
 
 from __future__ import annotations
@@ -20,13 +19,8 @@ OFF_ROAD = -1
 
 
 def lane_index_of(marking_y_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
-    """Lane index (0 = rightmost) of lateral positions, ``OFF_ROAD`` (-1) outside the road edges.
-
-    Args:
-        marking_y_m: (B, M) ascending marking positions, NaN padded at the end.
-        y_m: (B, ...) lateral positions in the ego frame.
-    Returns:
-        int array shaped like ``y_m``.
+    """Lane index (0 = rightmost) of lateral positions ``y_m`` (B, ...), ``OFF_ROAD`` (-1) outside the road edges;
+    ``marking_y_m`` (B, M) ascending, NaN padded at the end. Returns ints shaped like ``y_m``.
     """
     marking = np.asarray(marking_y_m, dtype=np.float64)
     y = np.asarray(y_m, dtype=np.float64)

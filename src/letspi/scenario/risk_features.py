@@ -1,22 +1,13 @@
 """History features of risk: what the 3 s history says about the next seconds (observable at t = 0).
 
-The columns of ``risk_features`` (B, ``len(RISK_FEATURE_NAMES)``), float64, always finite (a missing
-vehicle gets the "nobody there" value: a gap of ``FAR_M``, zero relative speeds):
-
-* ego: speed [m/s], longitudinal acceleration [m/s^2], |lateral speed| [m/s];
-* the **leader** (nearest ahead in the ego's lane at t = 0): bumper gap [m], closing speed (ego minus
-  leader, > 0 closing) [m/s], its acceleration over the last ``RECENT_S`` [m/s^2], time headway
-  (gap / ego speed, capped at ``THW_CAP_S``) [s], inverse TTC (closing / gap, >= 0) [1/s];
-* the **second vehicle ahead** in the ego's lane (a braking wave is visible there first): gap to the
-  leader [m], closing speed of the leader on it [m/s], its acceleration [m/s^2];
-* the **follower** (nearest behind in the ego's lane): bumper gap [m], closing speed [m/s];
-* the **adjacent lanes**: the largest recent lateral speed of a vehicle within ``ADJACENT_RANGE_M``
-  towards the ego lane [m/s] and its longitudinal offset [m]; the bumper gaps to the nearest vehicle
-  ahead and behind in the left and in the right lane [m] (``FAR_M`` also when there is no such lane);
-* density: vehicles visible at t = 0.
-
-Lanes are the lanes between the ego-frame markings (``letspi.scenario.queries.lane_index_of``);
-relative positions are centre offsets at t = 0, gaps bumper to bumper.
+``risk_features`` (B, ``len(RISK_FEATURE_NAMES)``) float64, always finite; columns in that order, units as named:
+ego speed, longitudinal acceleration, |lateral speed|; the **leader** (nearest ahead in the ego's lane): bumper
+gap, closing speed (> 0 closing), its acceleration over the last ``RECENT_S``, time headway (capped at
+``THW_CAP_S``), inverse TTC (>= 0); the **second vehicle ahead** (a braking wave shows there first): gap to the
+leader, the leader's closing speed on it, its acceleration; the **follower**: gap, closing speed; the adjacent
+vehicle moving fastest towards the ego lane within ``ADJACENT_RANGE_M``: lateral speed, longitudinal offset;
+bumper gaps to the nearest vehicle ahead and behind in the left and the right lane; vehicles visible at t = 0.
+A missing vehicle gets a gap of ``FAR_M`` and zero relative speeds; a missing lane gaps of 0 (no room).
 """
 
 from __future__ import annotations
@@ -143,7 +134,7 @@ def _side_features(o: _Observed, batch: ScenarioBatch, n_recent: int) -> list[np
 
 
 def risk_features(batch: ScenarioBatch) -> np.ndarray:
-    """(B, F) risk features of the observed scenes (see the module docstring; the history suffices)."""
+    """(B, F) risk features of the observed scenes (columns in the module docstring; the history suffices)."""
     n_recent = max(round(RECENT_S / DT_S), 1)
     o = _observed(batch, n_recent)
     ego_v = np.nan_to_num(batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64))

@@ -1,19 +1,10 @@
-"""Which neighbours of a scenario act in a scripted event (``NN_events.csv``).
+"""Which neighbours of a scenario act in a scripted event (``NN_events.csv``, ``letspi.highd.events``).
 
-Generated recordings carry a file of the critical events letspi's SUMO generator injected (hard
-brakes, cut-ins, truck pull-outs; ``letspi.highd.events``). In ``closed-loop-hybrid`` the actors of
-those events keep their recorded behaviour wherever they are, so the event happens in every run.
-
-A neighbour slot is *scripted* in a window when its vehicle is the actor (``id``) of an event that
-is under way during the window's future: the event starts no later than the window's last frame
-and ends, ``duration_s`` plus ``EVENT_TAIL_S`` after its start, no earlier than t = 0. The tail
-covers what follows the scripted part (a braked leader keeps its lower speed for up to 4 s,
-``EventConfig.hard_brake_hold_s``; a lane change settles). The vehicle acted on (``other_id``, a
-follower that must react) is not scripted: its recorded reaction answers the recorded traffic,
-and in the simulation it should answer what the ego does.
-
-Recording ids repeat across datasets, so events are matched to scenarios by ``recording_key``
-(a content hash of the recording's meta files), never by id alone.
+In ``closed-loop-hybrid`` the actors of those events keep their recorded behaviour, so the event happens in every
+run. A neighbour slot is *scripted* when its vehicle is the actor (``id``) of an event under way in the window's
+future: starting no later than its last frame and ending (``duration_s`` + ``EVENT_TAIL_S`` after its start, for
+what follows the scripted part) no earlier than t = 0. The vehicle acted on (``other_id``) is not scripted: in
+the simulation it should answer what the ego does. Events match by ``recording_key``, as recording ids repeat.
 """
 
 from __future__ import annotations
@@ -47,10 +38,8 @@ def recording_events(directory: Path) -> dict[str, pd.DataFrame]:
 
 
 def scripted_neighbours(batch: ScenarioBatch, events: Mapping[str, pd.DataFrame]) -> np.ndarray:
-    """(B, N) bool: neighbour slots whose vehicle acts in an event under way in the window's future.
-
-    ``events``: ``recording_key`` -> events table (``recording_events``); scenarios of recordings
-    without one have no scripted neighbours.
+    """(B, N) bool: neighbour slots whose vehicle acts in an event under way in the window's future; ``events``:
+    ``recording_key`` -> events table (``recording_events``).
     """
     out = np.zeros(batch.nbr_id.shape, dtype=bool)
     keys = np.asarray(batch.recording_key).astype(str)

@@ -1,8 +1,7 @@
-"""Train/test splits that keep one vehicle's overlapping windows on one side.
+"""Train/test splits that keep one ego vehicle's windows on one side.
 
-Windows of one ego vehicle overlap (stride 20 frames, windows of 200): putting some in a training
-(or memory) set and others in the evaluation set leaks the evaluation scenarios' futures into training.
-Every split in letspi is therefore by ego vehicle (recording id, ego id) or by recording.
+A vehicle's windows overlap (stride 20 of 200 frames), so splitting them would leak evaluation futures into
+training: every split is by ego vehicle (recording, ego id) or by recording.
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
-"""ScenarioBatch ↔ Arrow file, one row per scenario, with a schema version and checksums.
+"""ScenarioBatch ↔ Arrow IPC file (zstd; Parquet with a ``.parquet`` suffix), one row per scenario.
 
-Format: an Arrow IPC file (Feather v2), zstd-compressed. Array fields are stored flattened as
-fixed-size lists, their per-scenario shape in the schema metadata, so loading is a reshape of one
-contiguous buffer per field. Why not Parquet: decoding nested lists from Parquet took 1.5 s for
-10,000 scenarios here, the Arrow file 0.3 s (and 51 MB instead of 70 MB). Parquet files with the
-same schema (``compression``/suffix ``.parquet``) are still written and read on request.
-Writes go to a temporary file (flushed to disk) that replaces the target only when complete.
-
-Integrity: neither format checks its data (a zstd frame without a checksum decodes a flipped
-byte into a silently different number), so the metadata holds a CRC-32 of every column's
-decoded values and the row count. Loading verifies them (about 2 GB/s) and reads all-or-nothing:
-a damaged file raises ``ScenarioFileError`` saying "truncated or corrupted", never returns part
-of a batch or different numbers. Files written before checksums existed load unverified.
-
-Every anticipated problem raises ``ScenarioFileError`` (a ``ValueError``) whose message starts
-with the file's path: missing or unreadable file, not a letspi file, truncated or corrupted file,
-schema version other than ``SCHEMA_VERSION``, index out of range.
+Array fields are flattened fixed-size lists with their shapes in the schema metadata, which also holds the
+schema version and a CRC-32 of every column; loading verifies them and reads all-or-nothing, and writes replace
+the target only when complete. Every anticipated problem raises ``ScenarioFileError`` (a ``ValueError``) whose
+message starts with the path. Files without checksums load unverified.
 """
 
 from __future__ import annotations
@@ -62,9 +50,8 @@ def _corrupted(path: Path, detail: object) -> ScenarioFileError:
 
 
 def _column_crc(column: pa.Array | pa.ChunkedArray) -> int:
-    """CRC-32 of a column's row count, null count and values (lists flattened, strings NUL-joined).
-
-    Independent of the container: Parquet reads fixed-size lists back as plain lists.
+    """CRC-32 of a column's row count, null count and values (lists flattened, strings NUL-joined); the same for
+    Arrow and Parquet (which reads fixed-size lists back as plain lists).
     """
     arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
     crc = zlib.crc32(f"{len(arr)}|{arr.null_count}".encode())

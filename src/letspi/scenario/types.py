@@ -1,26 +1,11 @@
-"""Planning scenarios as a struct of arrays (data only; behaviour lives in other modules).
+"""Planning scenarios as a struct of arrays: ``ScenarioBatch``, one type for one or many scenarios.
 
-One type for one or many scenarios: a single scenario is a ``ScenarioBatch`` of one.
-
-The ego frame (the one coordinate system every scenario array uses)
--------------------------------------------------------------------
-* Origin: the ego's box centre at t = 0 (frame index ``T0_INDEX``). Fixed for the scenario.
-* x: the ego's direction of travel; y: to the *left* of travel. Right-handed, SI units.
-* From HighD image axes (x right, y down; see ``letspi.highd.schema``) with the ego centre
-  ``(cx0, cy0)`` at t = 0:
-
-  - driving direction 2 (lower carriageway, travels +x): ``x = cx - cx0``, ``y = -(cy - cy0)``
-  - driving direction 1 (upper carriageway, travels -x): ``x = -(cx - cx0)``, ``y = cy - cy0``
-
-  i.e. direction-1 scenarios are turned by 180 degrees (both axes mirrored), which keeps the
-  frame right-handed; velocities and accelerations transform with the same signs.
-* Lane markings of the ego's carriageway become horizontal lines ``y = marking_y_m``.
-  The outermost two are road edges (not crossable), the others crossable lane lines.
-
-Shapes: B scenarios, T = ``N_TOTAL`` (200) frames (``N_HISTORY`` = 75 in a history-only view),
-N = ``MAX_NEIGHBOURS`` (8) neighbour slots,
-M lane markings (padded with NaN to the widest scenario in the batch). Frame ``T0_INDEX`` (74)
-is t = 0; frames after it are the ground-truth future, for evaluation only.
+The ego frame of every array: origin at the ego's box centre at t = 0, x along its travel, y to its left, SI
+units. From HighD image axes (y down) with the ego centre ``(cx0, cy0)``: direction 2 has
+``x = cx - cx0, y = -(cy - cy0)``, direction 1 ``x = -(cx - cx0), y = cy - cy0`` (a 180° turn, right-handed);
+velocities alike. Markings become lines ``y = marking_y_m``, the outermost two road edges. Shapes: B scenarios,
+T = ``N_TOTAL`` frames (``N_HISTORY`` in a history-only view), N neighbour slots, M markings; frame ``T0_INDEX``
+is t = 0, later frames are ground truth for evaluation only.
 """
 
 from __future__ import annotations
@@ -48,37 +33,22 @@ _TIME_FIELDS = ("ego_xy_m", "ego_vxy_mps", "ego_axy_mps2", "ego_lane_id", "nbr_x
 
 @dataclass(frozen=True)
 class ScenarioBatch:
-    """B ego-centric planning scenarios. All arrays share the leading batch axis.
+    """B ego-centric planning scenarios; every array has the leading batch axis.
 
-    Meta (shape (B,)):
-        scenario_id: str, ``"r{recording:02d}_v{ego_id}_f{frame0}"``, unique per window.
-        recording_id, location_id, ego_id, frame0 (HighD frame number at t = 0): int32.
-        recording_key: str, a content hash of the source recording: recording ids repeat across
-            datasets (every generated run has recording 1), so a vehicle is (recording_key, ego_id).
-        driving_direction: int8, 1 or 2 (HighD convention).
-        speed_limit_mps: float32, NaN when the road has none.
-        ego_class: int8 (``VEHICLE_CLASS_*``); ego_length_m, ego_width_m: float32.
-    Ego (T = 200 frames):
-        ego_xy_m (B, T, 2), ego_vxy_mps (B, T, 2), ego_axy_mps2 (B, T, 2): float32, ego frame.
-        ego_lane_id (B, T): int8, HighD laneId.
-    Neighbours (what a planner sees; N = 8 slots, chosen at t = 0 from the vehicles visible then,
-    closest first (``letspi.scenario.extract``); empty slots have id 0, class -1, size 0 and are never
-    valid):
-        nbr_id (B, N) int32; nbr_class (B, N) int8; nbr_length_m, nbr_width_m (B, N) float32.
-        nbr_xy_m, nbr_vxy_mps (B, N, T, 2) float32 (NaN where not visible).
-        nbr_valid (B, N, T) bool: the vehicle is in the recording at that frame.
-        nbr_lane_id (B, N, T) int8 (0 where not visible).
-    Road (M markings, ascending y, i.e. from the right road edge to the left one):
-        marking_y_m (B, M) float32, NaN padded.
-        marking_is_edge (B, M) bool: road edge (True) or crossable lane line (False).
-        lane_ids (B, M - 1) int8: HighD laneId of the lane between marking k and k + 1
-            (0 for padding).
-    Context vehicles (scored by the evaluation, never shown to a planner: the other vehicles of the
-    recorded future near the ego; C slots padded to the batch's widest, F = ``N_FUTURE`` future frames
-    only, frame f is t = (f + 1) dt; empty slots have id 0 and are never valid):
-        ctx_id (B, C) int32; ctx_class (B, C) int8; ctx_length_m, ctx_width_m (B, C) float32.
-        ctx_xy_m, ctx_vxy_mps (B, C, F, 2) float32 (NaN where not present); ctx_valid (B, C, F) bool.
-        A history-only view has C = 0.
+    Meta (B,): ``scenario_id`` str ``"r{recording:02d}_v{ego_id}_f{frame0}"``; ``recording_id``, ``location_id``,
+    ``ego_id``, ``frame0`` (HighD frame at t = 0) int32; ``recording_key`` str, a content hash of the recording (ids
+    repeat across datasets, so a vehicle is (recording_key, ego_id)); ``driving_direction`` int8 (1 or 2);
+    ``speed_limit_mps`` float32 (NaN: none); ``ego_class`` int8 (``VEHICLE_CLASS_*``); ``ego_length_m``,
+    ``ego_width_m``. Ego: ``ego_xy_m``, ``ego_vxy_mps``, ``ego_axy_mps2`` (B, T, 2) float32; ``ego_lane_id`` (B, T)
+    int8, HighD laneId. Neighbours (what a planner sees, chosen at t = 0): ``nbr_id`` (B, N) int32, ``nbr_class`` int8,
+    ``nbr_length_m``, ``nbr_width_m`` float32; ``nbr_xy_m``, ``nbr_vxy_mps`` (B, N, T, 2) float32, NaN where not
+    visible; ``nbr_valid`` (B, N, T) bool (in the recording then); ``nbr_lane_id`` (B, N, T) int8, 0 where not visible.
+    Empty slots have id 0, class -1, size 0 and are never valid. Road (M markings ascending in y, right edge to left
+    edge): ``marking_y_m`` (B, M) float32, NaN padded; ``marking_is_edge`` (B, M) bool; ``lane_ids`` (B, M - 1) int8,
+    laneId between markings k and k + 1 (0: padding). Context vehicles (scored, never shown to a planner; C slots padded
+    to the widest; F = ``N_FUTURE`` frames, frame f at t = (f + 1) dt; C = 0 in a history-only view): ``ctx_id`` int32,
+    ``ctx_class`` int8, ``ctx_length_m``, ``ctx_width_m`` float32 (B, C); ``ctx_xy_m``, ``ctx_vxy_mps`` (B, C, F, 2)
+    float32, NaN where absent; ``ctx_valid`` (B, C, F) bool.
     """
 
     scenario_id: np.ndarray
@@ -170,10 +140,8 @@ class ScenarioBatch:
         return self.n_frames > N_HISTORY
 
     def history(self) -> ScenarioBatch:
-        """What a planner may see: the same scenarios with every per-frame array cut at t = 0.
-
-        Frames after ``T0_INDEX`` are absent (not blanked), so code that reads the future by mistake
-        fails loudly instead of planning with it.
+        """What a planner may see: every per-frame array cut at t = 0 and no context vehicles. The future is absent, not
+        blanked, so code that reads it by mistake fails loudly.
         """
         if not self.has_future:
             return self

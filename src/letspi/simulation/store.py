@@ -17,6 +17,8 @@ import pandas as pd
 
 from letspi.metrics.compute import ScenarioMetrics
 from letspi.metrics.config import MetricsConfig
+from letspi.metrics.registry import Agg, Metric
+from letspi.planners.outputs import AS_NAMED, column, output, over_replans
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.simulation.handover import hybrid_settings
@@ -30,6 +32,44 @@ _TRAJ_FIELDS = (
     "nbr_handover_step", "replan_step", "plan_xy_m", "plan_goal_xy_m", "plan_nonfinite", "sumo_contact",
     "sumo_nbr_collisions", "plan_s", "sim_s", "cpu_s",
 )  # fmt: skip
+
+
+def _named(name: str, unit: str, dtype: str, doc: str, *aggregates: Agg) -> Metric:
+    return Metric(name, unit, dtype, doc, AS_NAMED, tuple(aggregates))  # type: ignore[arg-type]
+
+
+#: per-replan values the closed loop adds to every planner's outputs (``letspi.simulation.replan``,
+#: ``letspi.simulation.schedule``); stored like outputs, at t = 0 and as the mean over the replans
+REPLAN_OUTPUTS: tuple[Metric, ...] = (
+    output("planner_cpu_ms", "ms", "float64", "CPU time of the replan per scenario (model calls included)"),
+    output("llm_in_force", "bool", "float64", "dual rate: 1 once a model answer is in force"),
+    output("params_age_s", "s", "float64", "dual rate: time since the parameters in force were asked for"),
+    output("llm_answer_latency_s", "s", "float64", "dual rate: latency of an answer applied at this replan "
+           "(NaN: none)"),
+)
+LLM_CALLS_TOTAL = output("llm_calls_total", "n", "float64", "model calls of all replans of the window",
+                         Agg("llm_calls_per_scenario", "finite_mean", "model calls per scenario"))
+#: what a closed-loop run stores beside the metrics and the planner's own outputs
+CLOSED_LOOP_OUTPUTS: tuple[Metric, ...] = (
+    *REPLAN_OUTPUTS,
+    output("planner_cpu_ms" + "_mean_over_replans", "ms", "float64", "planner CPU per scenario and replan",
+           Agg("planner_cpu_ms_per_replan", "finite_mean")),
+    output("params_age_s" + "_mean_over_replans", "s", "float64", "dual rate: age of the parameters in force",
+           Agg("llm_params_age_s", "finite_mean")),
+    output("llm_in_force" + "_mean_over_replans", "1", "float64", "dual rate: share of replans with an answer in force",
+           Agg("llm_in_force_pct", "pct_mean")),
+    LLM_CALLS_TOTAL,
+    _named("n_replans", "n", "int64", "replans of the window", Agg("replans_per_scenario", "finite_mean")),
+    _named("sim_s", "s", "float64", "wall time of the window's simulation", Agg("sim_s", "finite_mean")),
+    _named("cpu_s", "s", "float64", "CPU time of the window's simulation"),
+    _named("nbr_reactive", "n", "int64", "neighbours the simulator drove (hand-overs)",
+           Agg("nbr_reactive_per_scenario", "finite_mean")),
+    _named("plan_nonfinite", "n", "int64", "replans whose plan was not finite"),
+    _named("sumo_collision", "bool", "bool", "SUMO's own collision check (SUMO runs only)",
+           Agg("sumo_cr_pct", "pct", "share of windows SUMO saw collide")),
+    _named("sumo_collision_step", "step", "int64", "step of SUMO's first collision (-1 none)"),
+    _named("sumo_nbr_collisions", "n", "int64", "collisions among the neighbours SUMO saw"),
+)
 
 
 class ClosedLoopStoreError(ValueError):
@@ -59,8 +99,8 @@ def chunk_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics) -> pd.DataFram
     frame["sim_s"] = chunk.sim_s
     frame["cpu_s"] = chunk.cpu_s
     for key, arr in chunk.plan_info.items():
-        frame[f"info_{key}"] = arr[:, 0]  # the plan made at t = 0, as in open loop
-        frame[f"info_{key}_mean_over_replans"] = np.nanmean(arr, axis=1)
+        frame[column(key)] = arr[:, 0]  # the plan made at t = 0, as in open loop
+        frame[over_replans(key)] = np.nanmean(arr, axis=1)
     return frame
 
 

@@ -1,7 +1,4 @@
-"""letspi.trafficgen: HighD-format recordings of a two-direction highway simulated with SUMO (critical events, layouts).
-
-Public entry point: :func:`letspi.trafficgen.generate.generate_highd` (re-exported here).
-"""
+"""HighD-format recordings of a two-direction highway simulated with SUMO; entry point ``generate_highd``."""
 
 from letspi.trafficgen.generate import default_flow_veh_per_h, generate_highd, simulate_recordings
 

@@ -1,12 +1,9 @@
 """Typed configuration of generated traffic: drivers, scripted events, road layout; presets.
 
-A :class:`TrafficConfig` is everything that shapes the generated traffic besides seed, duration,
-lanes and flow. The three presets ``calm``, ``highd`` (default) and ``stress`` are instances of
-it; every knob can be changed with :func:`with_overrides` (``"events.hard_brake_per_min=2"``),
-which the CLI exposes as ``letspi data generate --set KEY=VALUE``.
-
-Ranges are ``(low, high)`` tuples of uniform draws. Validation happens on construction and names
-the offending field.
+A ``TrafficConfig`` is everything that shapes the traffic besides seed, duration, lanes and flow; the presets
+``calm``, ``highd`` (default), ``stress`` and ``realistic`` are instances. ``with_overrides`` changes any field by
+dotted key (``letspi data generate --set events.hard_brake_per_min=2``). Ranges are ``(low, high)`` tuples of
+uniform draws; construction validates and names the offending field.
 """
 
 from __future__ import annotations
@@ -42,34 +39,19 @@ class DriverConfig:
     """Per-driver behaviour drawn for every vehicle.
 
     Attributes:
-        reaction_time_s: range of the per-driver reaction time [s] (rounded to 0.04 s steps).
-            In SUMO it is EIDM's ``treaction`` (its decision interval; SUMO's docs say EIDM must
-            not be combined with ``actionStepLength``, which produced collisions and 1,000 m/s²
-            spikes when tried), and the time a follower keeps its speed in a scripted event.
-            The desired headway ``tau`` is raised to at least the reaction time.
-        car_headway_s: (mean, sd) of the desired time headway of cars and vans [s].
-        min_headway_s: lower clip of the desired time headway of cars and vans [s].
-        assertive_share: share of car drivers with ``lcAssertive`` > 1 (LC2013 divides the gap
-            it requires on the target lane by it: tight cut-ins).
-        assertive_range: range of ``lcAssertive`` for those drivers.
-        impatient_share: share of car drivers who are impatient: desired speed +10 %, headway at
-            ``min_headway_s``, eager to overtake (``lcSpeedGain`` x2, ``lcSpeedGainLookahead``
-            2 s), reluctant to keep right, uncooperative and assertive. (SUMO's own
-            ``lcImpatience`` only exists in the sublane model, about 2x slower.)
-        lane_change_perception: followers perceive a vehicle changing into their lane only when
-            its centre crosses into the lane (when HighD assigns it the lane) and react after
-            their reaction time; SUMO's followers would brake from the first moment of the
-            change. Applies to every lane change into the recorded window (natural or
-            scripted); see :mod:`letspi.trafficgen.reactions`.
-        lc_speed_gain_scale: multiplies every driver's drawn LC2013 ``lcSpeedGain`` (eagerness to
-            change lanes for speed; < 1 = fewer overtaking lane changes). 1 keeps the drawn values.
-        lc_keep_right_scale: multiplies every driver's drawn ``lcKeepRight`` (eagerness to return
-            to the right lane; < 1 = fewer keep-right lane changes).
-        epsilon_acc_mps2: EIDM ``epsilonacc``: between two decision points (every reaction time)
-            a driver reacts at once only when its desired deceleration grows by more than this
-            [m/s²] (SUMO's default 1); larger values make the reaction time apply to sharper
-            changes too. A desired deceleration beyond the emergency deceleration always
-            triggers an immediate reaction.
+        reaction_time_s: range [s], rounded to 0.04 s steps: EIDM's ``treaction`` and how long a follower keeps its
+            speed in a scripted event; the desired headway ``tau`` is raised to at least it.
+        car_headway_s: (mean, sd) of cars' and vans' desired time headway [s]; ``min_headway_s``: its lower clip [s].
+        assertive_share, assertive_range: share of car drivers with ``lcAssertive`` > 1 (LC2013 divides the gap it
+            requires by it: tight cut-ins), and its range.
+        impatient_share: share of impatient car drivers: desired speed +10 %, headway at ``min_headway_s``, eager to
+            overtake (``lcSpeedGain`` x2, lookahead 2 s), reluctant to keep right, uncooperative, assertive.
+        lane_change_perception: followers perceive a vehicle changing into their lane only when its centre crosses
+            into it and react after their reaction time (every lane change into the window; ``reactions``).
+        lc_speed_gain_scale, lc_keep_right_scale: multiply every drawn LC2013 ``lcSpeedGain`` / ``lcKeepRight``
+            (< 1: fewer overtaking / keep-right lane changes).
+        epsilon_acc_mps2: EIDM ``epsilonacc`` [m/s²]: between decision points a driver reacts at once only when its
+            desired deceleration grows by more than this (SUMO's default 1), and always beyond emergency deceleration.
     """
 
     reaction_time_s: tuple[float, float] = (0.2, 1.0)
@@ -98,46 +80,24 @@ class DriverConfig:
 
 @dataclass(frozen=True)
 class EventConfig:
-    """Scripted events injected through libsumo while the simulation runs.
+    """Scripted events injected through libsumo; rates are per simulated minute on the whole window (both directions).
 
-    Rates are events per simulated minute on the whole recorded window (both directions). An
-    event is started on a vehicle inside the upstream part of the recorded window, so that it
-    and its consequences are recorded.
+    An event starts on a vehicle in the upstream part of the recorded window, so that it and its consequences are
+    recorded. Ranges are drawn per event.
 
     Attributes:
-        hard_brake_per_min: hard-braking leaders per minute.
-        hard_brake_decel_mps2: range of the commanded deceleration [m/s²].
-        hard_brake_duration_s: range of the braking duration [s].
-        hard_brake_hold_s: range of the time the lower speed is kept before driving on [s].
-        hard_brake_min_speed_mps: the leader never brakes below this speed [m/s] (only leaders
-            fast enough for the drawn deceleration and duration are chosen).
-        hard_brake_max_headway_s: the leader's follower must be within this time gap [s].
-        cut_in_per_min: forced cut-ins per minute (a car changes into a short gap in front of a
-            faster follower; ``changeLane`` with laneChangeMode 256, which still avoids
-            immediate collisions).
-        cut_in_gap_m: range of the bumper-to-bumper gap to the new follower at the start of the
-            lane change [m].
-        cut_in_closing_mps: range of the new follower's speed excess over the cutting car [m/s].
-        cut_in_ttc_s: range of the follower's TTC at the moment the changer's centre crosses
-            into its lane (2 s into the change), had it kept its speed: how tight the cut-in is.
-        truck_pullout_per_min: slow trucks pulling out of the right lane per minute.
-        truck_pullout_gap_m: range of the gap to the faster follower on the target lane [m].
-        truck_pullout_closing_mps: range of that follower's speed excess over the truck [m/s].
-        truck_pullout_ttc_s: as ``cut_in_ttc_s`` for trucks.
-        follower_reaction: the follower concerned keeps its speed until it perceives the event
-            (at once for a braking leader; when the lane changer's centre crosses into its lane
-            for a cut-in, which is also when HighD assigns it the lane) plus its reaction time.
-        follower_brake_ratio: after its reaction, the follower of a braking leader brakes with
-            this share of the leader's deceleration (drawn per event; drivers rarely match a
-            hard-braking leader at once) until it no longer closes in; then SUMO takes over.
-        follower_jerk_mps3: how fast that braking builds up [m/s³].
-        release_decel_mps2: a held follower is released at once when avoiding contact would
-            need more than this constant deceleration (computed from the gap, both speeds and
-            the leader's remaining braking), so SUMO's car following (emergency deceleration
-            9 m/s²) always has a margin; values above 9 produce rear-end contacts (the contact
-            policy then re-simulates). A TTC threshold is not used: with a braking leader the
-            same TTC can be harmless or unavoidable.
-        release_gap_m: ... or when its gap drops below this [m].
+        hard_brake_*: rate; deceleration [m/s²], duration [s] and hold of the lower speed [s]; the minimum speed the
+            leader brakes to [m/s] (only leaders fast enough are chosen); the largest time gap of its follower [s].
+        cut_in_*: rate of cars changing into a short gap before a faster follower (``changeLane``, lane-change mode
+            256); the gap at the start [m], the follower's speed excess [m/s], and its TTC [s] when the changer's
+            centre crosses into its lane (2 s in) had it kept its speed. ``truck_pullout_*``: the same for trucks.
+        follower_reaction: the follower keeps its speed until it perceives the event (at once for a braking leader,
+            at the crossing for a cut-in) plus its reaction time.
+        follower_brake_ratio, follower_jerk_mps3: it then brakes with this share of the braking leader's deceleration,
+            built up at this jerk [m/s³], until it no longer closes in; then SUMO takes over.
+        release_decel_mps2, release_gap_m: a held follower is released at once when avoiding contact would need more
+            than this constant deceleration [m/s²] (leaving SUMO's 9 m/s² emergency deceleration a margin), or when
+            its gap drops below this [m].
     """
 
     hard_brake_per_min: float = 3.0
@@ -186,18 +146,12 @@ class EventConfig:
 
 @dataclass(frozen=True)
 class LayoutConfig:
-    """Road layout. HighD recordings have no ramps: only the main carriageway is recorded.
+    """Road layout; only the main carriageway is recorded (HighD has no ramps).
 
-    Attributes:
-        kind: ``straight``; ``on_ramp`` (a one-lane ramp feeds an acceleration lane to the right
-            of the main carriageway that ends inside the window); ``lane_drop`` (the carriageway
-            has one more lane upstream, the right one ends inside the window).
-        aux_lane_m: where the acceleration lane / the ending lane ends, measured from the window
-            entry [m]; the acceleration lane is 250 m long, so the default 300 m puts all of it
-            but the first 50 m inside the window.
-        ramp_share: share of each direction's flow that enters from the ramp (``on_ramp``).
-        lc_strategic: LC2013 ``lcStrategic`` of every driver on the non-straight layouts (SUMO's
-            default 1 makes drivers on an ending lane leave it far upstream, outside the window).
+    ``kind``: ``straight``; ``on_ramp`` (a one-lane ramp feeds a 250 m acceleration lane right of the carriageway);
+    ``lane_drop`` (one more lane upstream, the right one ends). ``aux_lane_m``: where that lane ends, from the window
+    entry [m]. ``ramp_share``: share of each direction's flow entering from the ramp. ``lc_strategic``: every
+    driver's LC2013 ``lcStrategic`` on those layouts (SUMO's 1 makes drivers leave an ending lane far upstream).
     """
 
     kind: Layout = "straight"
@@ -215,16 +169,10 @@ class LayoutConfig:
 
 @dataclass(frozen=True)
 class TrafficConfig:
-    """Everything that shapes the generated traffic (besides seed, duration, lanes and flow).
+    """Everything that shapes the generated traffic besides seed, duration, lanes and flow.
 
-    Attributes:
-        name: preset it was derived from (informative).
-        drivers: per-driver behaviour.
-        events: scripted events.
-        layout: road layout.
-        truck_share: share of trucks in the demand.
-        max_attempts: simulations tried (seed, then derived sub-seeds) until one has no contact;
-            see :mod:`letspi.trafficgen.generate`.
+    ``name``: the preset it derives from (informative); ``truck_share``: of the demand; ``max_attempts``: simulations
+    tried (the seed, then derived sub-seeds) until one has no contact.
     """
 
     name: str = "highd"
@@ -257,13 +205,8 @@ STRESS = TrafficConfig(
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
                        cut_in_ttc_s=(0.4, 3.0)),
 )
-#: Calibrated against highD's published marginals (measured in docs/data.md, "The realistic preset"):
-#: vehicles changing lanes near highD's 5 % (the ``highd`` preset: 29 %; 4.1 % and 5.3 % on 10 minutes
-#: of seeds 5 and 6) with LC2013's eagerness to overtake and to keep right scaled down and no impatient
-#: drivers; few scripted events; trucks 17 % of the demand (highD's recording 01: 17.6 %). Every
-#: remaining natural lane change is an overtaking one (to the left): lcSpeedGain sets the share. Less
-#: overtaking means longer platoons, so cars' desired headway is 1.1 s (not 1.0 s), which keeps the
-#: time-headway marginals of the former preset (lcSpeedGain x0.02, 1.0 s; 7.5-7.7 % changing lanes).
+#: Calibrated against highD's published marginals (docs/data.md, "The realistic preset"): LC2013's eagerness
+#: to overtake and to keep right scaled down, no impatient drivers, few events, trucks 17 %, cars' headway 1.1 s.
 REALISTIC = TrafficConfig(
     name="realistic",
     drivers=DriverConfig(car_headway_s=(1.1, 0.3), impatient_share=0.0, lc_speed_gain_scale=0.008,
@@ -306,11 +249,10 @@ def _parse_value(text: str, current: object, key: str) -> object:
 
 
 def with_overrides(config: TrafficConfig, overrides: Mapping[str, str]) -> TrafficConfig:
-    """Return ``config`` with dotted-key overrides applied (``{"events.cut_in_per_min": "3"}``).
+    """``config`` with dotted-key overrides applied (``{"events.cut_in_per_min": "3"}``).
 
-    Raises:
-        ValueError: unknown key (the message lists the valid ones) or a value of the wrong type
-            or out of range (naming the key).
+    ValueError for an unknown key (listing the valid ones) or a value of the wrong type or out of range (naming the
+    key).
     """
     out = config
     for key, text in overrides.items():
@@ -336,7 +278,7 @@ def _replace_path(obj: object, path: list[str], text: str, key: str) -> typing.A
 
 
 def setting_keys(config: TrafficConfig | None = None) -> list[str]:
-    """All dotted keys accepted by :func:`with_overrides`."""
+    """All dotted keys ``with_overrides`` accepts."""
     def walk(obj: object, prefix: str) -> list[str]:
         keys: list[str] = []
         for f in dataclasses.fields(obj):  # type: ignore[arg-type]

@@ -1,21 +1,10 @@
 """SUMO FCD -> HighD ``states``/``vehicles`` frames (image axes, top-left box corner).
 
-Conventions:
-- SUMO FCD ``x, y`` is the **front-bumper centre**, SUMO y points **up**.
-- HighD image axes: x right, y **down**; ``x, y`` is the top-left corner of the axis-aligned box,
-  ``width`` = vehicle length, ``height`` = vehicle width. Image x = SUMO x - window start,
-  image y = ``image_y_ref_m`` - SUMO y (see :mod:`letspi.trafficgen.network`).
-- Box centre = front centre minus half the length along the heading; the heading is taken from
-  the (smoothed) front trajectory so that it is as smooth as the trajectory itself.
-- Velocities/accelerations are time derivatives (central differences, one-sided at track ends)
-  of the written box centre: they are consistent with the positions by construction.
-
-SUMO's continuous (non-sublane) lane change moves the vehicle sideways at constant lateral
-speed, i.e. with lateral-acceleration spikes of about 25 m/s² at its start and end when
-differentiated at 25 Hz. Each lane-change ramp is therefore re-timed with a quintic
-"smootherstep" profile over the same start/end instants and lane centres (peak lateral
-acceleration 5.77·w/T², about 1.35 m/s² for w = 3.75 m, T = 4 s; zero lateral speed and
-acceleration at both ends). Start, end and target lane are SUMO's, only the shape changes.
+SUMO's FCD ``x, y`` is the front-bumper centre, y up; image x = SUMO x - window start, image y = ``image_y_ref_m``
+- SUMO y. The box centre lies half a length behind the front along the heading of the smoothed front trajectory;
+velocities and accelerations are central differences of the written centres (consistent with the positions).
+SUMO's constant-speed lateral lane-change ramps are re-timed with a quintic smootherstep between the same
+start/end instants and lanes (zero lateral speed and acceleration at both ends).
 """
 
 from __future__ import annotations
@@ -37,13 +26,10 @@ _REST_TOL_M = 1e-3  # a vehicle within 1 mm of a lane centre is not changing lan
 
 @dataclass(frozen=True)
 class ImageTracks:
-    """All vehicles over the whole simulation in HighD image axes (before window clipping).
+    """All vehicles over the whole simulation in HighD image axes, before window clipping.
 
-    Attributes:
-        data: columns ``step`` (simulation step index, time / 0.04 s), ``sumo_id``, ``x``, ``y``
-            (top-left corner, image axes) [m], ``width`` (length), ``height`` (width) [m],
-            ``xVelocity``, ``yVelocity`` [m/s], ``xAcceleration``, ``yAcceleration`` [m/s²],
-            ``drivingDirection``, ``class``; sorted by (sumo_id, step).
+    ``data``: ``step`` (time / 0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²],
+    ``drivingDirection``, ``class``; sorted by (sumo_id, step).
     """
 
     data: pd.DataFrame
@@ -58,16 +44,9 @@ def smooth_lane_changes(t: np.ndarray, y: np.ndarray, vehicle: np.ndarray,
                         centres: np.ndarray) -> np.ndarray:
     """Replace SUMO's linear lateral ramps by quintic ones between the same anchor samples.
 
-    Args:
-        t: time [s], shape (N,), sorted within each vehicle.
-        y: lateral coordinate [m] (SUMO y of the front), shape (N,).
-        vehicle: integer vehicle code per row, shape (N,); rows of one vehicle are contiguous.
-        centres: lane-centre y [m] per row (nearest-centre search uses all centres of the row's
-            carriageway), shape (N, n_lanes).
-
-    Returns:
-        The smoothed lateral coordinate, shape (N,). Ramps touching the start or end of a
-        vehicle's data (no anchor at rest) are left unchanged.
+    ``t`` (N,) [s] sorted within each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of
+    one vehicle contiguous; ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed
+    (N,) y; ramps touching a vehicle's first or last row (no anchor at rest) stay unchanged.
     """
     out = y.copy()
     moving = np.min(np.abs(y[:, None] - centres), axis=1) > _REST_TOL_M
@@ -87,10 +66,8 @@ def smooth_lane_changes(t: np.ndarray, y: np.ndarray, vehicle: np.ndarray,
 
 
 def _gradient(values: np.ndarray, t: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
-    """d(values)/dt per vehicle: central differences inside, one-sided at each track's ends.
-
-    ``first``/``last`` flag the first/last row of each vehicle; single-row tracks get 0.
-    """
+    """d(values)/dt per vehicle: central differences, one-sided at each track's ends (``first``/``last`` flags); 0 for
+    single rows."""
     n = len(values)
     prev = np.arange(n) - 1
     nxt = np.arange(n) + 1
@@ -118,12 +95,9 @@ def _box_centres(fx: np.ndarray, fy: np.ndarray, t: np.ndarray, first: np.ndarra
 
 
 def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNetwork) -> ImageTracks:
-    """Convert SUMO FCD (front centre, y up) to HighD image-axis boxes with derivatives.
+    """Convert SUMO FCD (``read_fcd``: front centre, y up) to HighD image-axis boxes with derivatives.
 
-    Args:
-        fcd: output of :func:`letspi.trafficgen.simulate.read_fcd` (sorted by id, time).
-        specs: the inserted vehicles (dimensions, class, direction).
-        network: geometry and image transform.
+    ``specs`` give each vehicle's dimensions, class (vans become "Car") and direction.
     """
     spec_table = pd.DataFrame({
         "sumo_id": [s.vid for s in specs],
@@ -183,16 +157,10 @@ def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int, window
                    lower_y_m: tuple[float, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Cut one recording out of the image tracks.
 
-    A vehicle is recorded in the frames where its whole box lies in ``[0, window_m]`` along x,
-    its box centre lies on its main carriageway (image y within ``upper_y_m`` for direction 1,
-    ``lower_y_m`` for direction 2, when given: ramps and auxiliary lanes are not recorded) and
-    the step is in ``[first_step, first_step + n_steps)``; only its first contiguous run of
-    such frames is kept, and runs of a single frame are dropped. Frames start at 1; vehicle ids
-    start at 1, ordered by first frame, then driving direction, then x.
-
-    Returns:
-        ``(states, vehicles)``: ``states`` with :data:`STATE_COLUMNS` sorted by (id, frame),
-        ``vehicles`` with ``id, class, drivingDirection`` (plus ``sumo_id`` for tracing).
+    A vehicle is recorded in the steps ``[first_step, first_step + n_steps)`` where its whole box is in ``[0,
+    window_m]`` along x and (when the bands are given) its centre on its main carriageway; only its first contiguous run
+    is kept, single frames are dropped. Frames and ids start at 1, ids ordered by first frame, direction, x. Returns
+    ``states`` (``STATE_COLUMNS``, sorted by (id, frame)) and ``vehicles`` (``id, class, drivingDirection, sumo_id``).
     """
     d = tracks.data
     inside = ((d["step"] >= first_step) & (d["step"] < first_step + n_steps)

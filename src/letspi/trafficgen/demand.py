@@ -1,21 +1,9 @@
-"""Traffic demand: per-vehicle types (car / van / truck) and seeded arrivals per lane and direction.
+"""Traffic demand: per-vehicle SUMO types (car / van / truck) and seeded arrivals per lane and direction.
 
-Every vehicle gets its own SUMO ``vType`` so that dimensions and driver parameters vary from
-vehicle to vehicle like in real data; all randomness comes from one ``numpy`` generator seeded by
-the caller, so a seed fully determines the demand (SUMO itself runs with sigma = 0).
-
-Car following is SUMO's EIDM (IDM with the constant-acceleration heuristic, "coolness", and a
-jerk limit) with all its driver-error processes switched off (sigma, sigmaleader, sigmagap,
-sigmaerror = 0): deterministic and smooth (Krauss' random dawdling gives unrealistic jerk at
-25 Hz). Plain IDM over-reacts to a vehicle that changes in front of it; EIDM's heuristic lets
-followers absorb tight cut-ins with moderate braking. Lane changing is LC2013 (keep-right, no
-overtaking on the right) with per-driver eagerness, cooperativeness and assertiveness
-(``lcSigma`` stays 0). HighD only knows "Car" and "Truck": vans are simulated with van dimensions and dynamics
-but labelled "Car", exactly as HighD labels them.
-
-Per-driver reaction time, headways, assertive and impatient drivers follow a
-:class:`~letspi.trafficgen.config.DriverConfig`; the reaction time is EIDM's ``treaction`` (SUMO's docs
-say EIDM must not be combined with ``actionStepLength``) and ``tau`` is at least the reaction time.
+Every vehicle gets its own ``vType`` (dimensions and driver parameters vary as in real data); one numpy generator
+seeded by the caller is the only randomness (SUMO runs with sigma = 0). Car following is EIDM with its
+driver-error processes off, lane changing LC2013 with per-driver eagerness, cooperativeness and assertiveness.
+Vans are simulated as vans but labelled "Car", as HighD labels them.
 """
 
 from __future__ import annotations
@@ -43,14 +31,8 @@ jams form."""
 
 @dataclass(frozen=True)
 class DemandConfig:
-    """Demand parameters.
-
-    Attributes:
-        truck_share: fraction of trucks among all vehicles (HighD: roughly 15-25 %).
-        van_share: fraction of vans (labelled "Car" in HighD files).
-        min_headway_s: minimum time headway [s] between insertions on one lane; the rest of the
-            headway is exponential (shifted-exponential arrivals, a standard free-flow model).
-        drivers: per-driver behaviour (reaction time, headways, assertive/impatient shares).
+    """Demand: ``truck_share`` and ``van_share`` of all vehicles; ``min_headway_s`` [s] between insertions on one lane
+    plus an exponential rest (shifted-exponential free-flow arrivals); ``drivers``: per-driver behaviour.
     """
 
     truck_share: float = 0.15
@@ -61,30 +43,13 @@ class DemandConfig:
 
 @dataclass(frozen=True)
 class VehicleSpec:
-    """One vehicle to insert.
+    """One vehicle to insert (all units SI).
 
-    Attributes:
-        vid: SUMO vehicle id.
-        kind: "car", "van" or "truck".
-        route: SUMO route id.
-        east: eastbound (HighD direction 2) or westbound (direction 1).
-        lane: SUMO lane index at insertion (0 = rightmost).
-        depart_s: insertion time [s].
-        length_m, width_m: dimensions [m].
-        desired_speed_mps: desired speed [m/s] (= desiredMaxSpeed * speedFactor).
-        accel_mps2: (E)IDM maximum acceleration a [m/s²].
-        decel_mps2: (E)IDM comfortable deceleration b [m/s²].
-        headway_s: (E)IDM desired time headway T [s].
-        min_gap_m: (E)IDM jam distance s0 [m].
-        lc_speed_gain: LC2013 ``lcSpeedGain`` (eagerness to overtake for speed).
-        lc_keep_right: LC2013 ``lcKeepRight`` (eagerness to return to the right).
-        lc_cooperative: LC2013 ``lcCooperative`` (willingness to make room, < 1 = less).
-        lc_assertive: LC2013 ``lcAssertive`` (the required gaps are divided by this, > 1 =
-            smaller accepted gaps, i.e. tighter cut-ins).
-        reaction_time_s: the driver's reaction time [s] (EIDM ``treaction``).
-        epsilon_acc_mps2: EIDM ``epsilonacc`` [m/s²] (see ``DriverConfig``).
-        lc_lookahead_s: LC2013 ``lcSpeedGainLookahead`` [s] (0 = SUMO's default).
-        impatient: drawn as an impatient driver.
+    SUMO ``vid``, ``kind``, ``route``; ``east`` (HighD direction 2); insertion ``lane`` (0 = rightmost) and
+    ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0 as ``accel_mps2``,
+    ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``, ``lcCooperative``,
+    ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead`` (``lc_lookahead_s``, 0 = SUMO's
+    default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``.
     """
 
     vid: str
@@ -137,14 +102,10 @@ def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, lo: float,
 
 
 def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig) -> dict[str, float | bool]:
-    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters for one vehicle of a class.
+    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters of one vehicle of a class.
 
-    Drivers are heterogeneous on purpose: desired time headways from tailgating (0.6 s) to
-    cautious (1.6 s for cars, up to 2.1 s for trucks), varied acceleration/braking, a wide spread
-    of desired speeds (fast cars close in on slower ones) and lane-change styles from
-    cooperative to assertive (some accept about half the usual gaps: cut-ins). The ranges
-    follow what HighD shows: time headways of 0.6-1.0 s are common on the left lanes,
-    and speed differences of 10+ m/s between adjacent lanes occur.
+    Heterogeneous on purpose, as HighD shows: desired headways from 0.6 s to 2.1 s, a wide spread of desired speeds,
+    lane-change styles from cooperative to assertive.
     """
     if kind == "truck":
         params = _truck_params(rng)
@@ -253,17 +214,9 @@ def sample_demand(
     end_s: float,
     config: DemandConfig | None = None,
 ) -> list[VehicleSpec]:
-    """Draw all vehicles for all entries, sorted by departure time.
+    """All vehicles of all ``entries`` (route, direction, lanes, flow share), departing before ``end_s`` [s].
 
-    Args:
-        rng: seeded generator (the only source of randomness).
-        entries: where traffic is inserted (route, direction, lanes, share of the flow).
-        flow_veh_per_h: demand per direction [veh/h].
-        end_s: no insertions at or after this time [s].
-        config: class shares, headway model and drivers.
-
-    Returns:
-        Vehicle specs ordered by (depart_s, vid).
+    ``flow_veh_per_h`` is per direction; ``rng`` is the only randomness. Returns specs ordered by (depart_s, vid).
     """
     cfg = config or DemandConfig()
     specs: list[VehicleSpec] = []
@@ -300,10 +253,8 @@ _VCLASS: dict[Kind, str] = {"car": "passenger", "van": "delivery", "truck": "tru
 
 def write_routes(path: Path, specs: list[VehicleSpec], routes: dict[str, list[str]],
                  lc_strategic: float | None = None) -> None:
-    """Write the SUMO route file: one vType per vehicle, the given routes (id -> edges).
-
-    ``lc_strategic`` (if given) is every driver's LC2013 ``lcStrategic``.
-    """
+    """Write the SUMO route file: one vType per vehicle and the routes (id -> edges); ``lc_strategic``: every
+    driver's, if given."""
     strategic = f'lcStrategic="{lc_strategic:g}" ' if lc_strategic is not None else ""
     lines = ["<routes>"]
     lines += [f'  <route id={quoteattr(rid)} edges={quoteattr(" ".join(edges))}/>' for rid, edges in routes.items()]

@@ -1,31 +1,15 @@
 """Scripted critical events and lane-change perception, injected through libsumo while stepping.
 
-Three kinds of scripted events (knobs in :class:`letspi.trafficgen.config.EventConfig`):
+Kinds (knobs in ``EventConfig``): ``hard_brake`` (a leader with a close follower brakes hard, ``slowDown`` under
+speed mode 27, holds, then drives on); ``cut_in`` (a car changes into a gap before a faster follower,
+``changeLane`` under lane-change mode 256); ``truck_pullout`` (a truck leaves the right lane the same way).
+Lane-change perception holds the closing follower of *every* lane change into the window until the changer's
+centre crosses into its lane, plus its reaction time (``reactions``).
 
-- ``hard_brake``: a leader with a close follower brakes at 4-8 m/s² for 1.5-3 s
-  (``slowDown`` with speed mode 27 = default without the deceleration bound), keeps the lower
-  speed for a moment, then drives on under its own car-following model. Its follower keeps its
-  speed for its reaction time, then brakes with a share of the leader's deceleration.
-- ``cut_in``: a car changes lanes into a gap in front of a faster follower (``changeLane``
-  under laneChangeMode 256: no autonomous changes, only immediate collisions avoided; the
-  default mode 1621 is restored afterwards).
-- ``truck_pullout``: a truck in the right lane pulls out in front of faster traffic (same
-  mechanism as ``cut_in``).
-
-Lane-change perception (``DriverConfig.lane_change_perception``): for *every* lane change into
-the recorded window, natural or scripted, the follower on the target lane that is closing in
-perceives the changer only when its centre crosses into the lane, and reacts after its reaction
-time (:mod:`letspi.trafficgen.reactions`); SUMO's followers would otherwise brake from the first
-moment of the change.
-
-Timing: ``on_step(t)`` gets SUMO's current time t, the time of the *next* step (the state read
-then is that of the step t - 0.04 s, whose FCD row carries that earlier time); commands given
-then act in step t, which is recorded as the event time: the first frame with the change.
-
-Events start only on vehicles whose whole box is inside the upstream part of the recorded window,
-lane-centred, not braking and not involved in another event, so that every event is recorded
-with its consequences. Vehicles near the window are read through one context subscription;
-candidates are chosen with the injector's own seeded generator among them in id order.
+Timing: ``on_step(t)`` gets SUMO's current time t, that of the next step (the vehicles are in the state of step
+t - 0.04 s); commands act in step t, which is recorded as the event time. Events start only on lane-centred,
+steady vehicles in no other event, in the upstream part of the window; candidates are drawn in id order with
+the injector's own seeded generator.
 """
 
 from __future__ import annotations
@@ -58,14 +42,7 @@ KINDS = ("hard_brake", "cut_in", "truck_pullout")
 
 @dataclass(frozen=True)
 class VehicleInfo:
-    """Static per-vehicle data the injector needs.
-
-    Attributes:
-        length_m: vehicle length [m].
-        east: True for the eastbound carriageway (HighD direction 2).
-        truck: class truck.
-        reaction_s: the driver's reaction time [s].
-    """
+    """Static per-vehicle data: ``length_m``, ``east`` (HighD direction 2), ``truck``, ``reaction_s`` [s]."""
 
     length_m: float
     east: bool
@@ -75,12 +52,7 @@ class VehicleInfo:
 
 @dataclass(frozen=True)
 class Window:
-    """The recorded window and the main lanes in SUMO coordinates.
-
-    Attributes:
-        x0_m, x1_m: SUMO x range of the recorded window [m].
-        east_centres_y_m, west_centres_y_m: SUMO y of the main lane centres (index 0 = rightmost).
-    """
+    """The recorded window in SUMO coordinates: x range [m] and the main lane centres' y [m] (index 0 = rightmost)."""
 
     x0_m: float
     x1_m: float
@@ -90,26 +62,12 @@ class Window:
 
 @dataclass(frozen=True)
 class EventRecord:
-    """One injected event in simulation terms (converted to HighD ids/frames when written).
+    """One injected event in simulation terms (converted to HighD ids and frames when written, as ``NN_events.csv``).
 
-    Attributes:
-        time_s: first simulation time at which the event acts [s].
-        kind: ``hard_brake``, ``cut_in``, ``truck_pullout`` (``failed``: a lane change SUMO
-            did not carry out; never written).
-        actor: SUMO id of the acting vehicle.
-        other: SUMO id of the follower concerned.
-        lane: main-lane index of the actor at the start (0 = rightmost).
-        target_lane: lane index it changes to (lane changes), else ``lane``.
-        speed_mps: actor speed at the start [m/s].
-        target_speed_mps: braking target speed [m/s] (NaN for lane changes).
-        decel_mps2: commanded deceleration [m/s²] (NaN for lane changes).
-        duration_s: braking or lane-change duration [s].
-        gap_m: bumper-to-bumper gap follower -> actor at the start [m].
-        reaction_s: the follower's reaction time [s] (0 if followers are not held).
-        held_s: how long the follower kept its speed from the start [s] (shorter than
-            perception + reaction when released early for safety; 0 if not held).
-        other_decel_mps2: deceleration the follower brakes with after its reaction
-            (``hard_brake``; NaN when SUMO's car following takes over right away).
+    ``time_s``: first time it acts [s]; ``kind`` (``failed``: a lane change SUMO did not carry out, never written);
+    ``actor``, ``other``: SUMO ids; ``lane``, ``target_lane``: main-lane indices (0 = rightmost); ``target_speed_mps``
+    and ``decel_mps2`` are NaN for lane changes; ``reaction_s`` is 0 when followers are not held; ``held_s``: how long
+    the follower kept its speed; ``other_decel_mps2``: NaN when SUMO's car following takes over at once.
     """
 
     time_s: float
@@ -158,8 +116,7 @@ class _Pending:
 class EventInjector:
     """Schedules and runs the scripted events and lane-change perception of one simulation.
 
-    Use: after every ``simulationStep`` whose end time ``t`` is >= :meth:`next_wakeup`, call
-    :meth:`on_step(t) <on_step>`. Between wake-ups the simulation may be advanced in one call.
+    After every ``simulationStep`` whose end time ``t`` is >= ``next_wakeup()``, call ``on_step(t)``.
     """
 
     sim: Any  # the libsumo module
@@ -332,10 +289,8 @@ class EventInjector:
 
     @staticmethod
     def _lane_neighbours(snap: _Snapshot, i: int, lane: int) -> tuple[int, int, bool]:
-        """In ``lane`` of vehicle i's carriageway: (row behind i, row ahead of i, someone alongside).
-
-        Rows are -1 when there is none. "Behind" = front at or behind i's rear, "ahead" = rear at or
-        ahead of i's front, "alongside" = overlapping i's extent along the road.
+        """In ``lane`` of vehicle i's carriageway: (row entirely behind i, row entirely ahead, someone overlapping i
+        along the road); rows are -1 when there is none.
         """
         same = (snap.east == snap.east[i]) & (snap.lane == lane) & (np.arange(len(snap.ids)) != i)
         rows = np.flatnonzero(same)

@@ -1,27 +1,13 @@
 """Generate HighD-format recordings of a two-direction highway with SUMO.
 
-Pipeline: :mod:`network` (netconvert, plain XML, layout) -> :mod:`demand` (seeded vehicles and
-drivers) -> :mod:`simulate` (libsumo stepping, FCD at 25 Hz) with :mod:`events` (scripted critical
-events) -> :mod:`convert` (image axes, 420 m window, main carriageway) ->
-``letspi.highd.derive.build_recording`` (lanes, neighbours, dhw/thw/ttc, metas) ->
-``letspi.highd.io.write_recording`` and ``NN_events.csv``.
+Pipeline: ``network`` -> ``demand`` -> ``simulate`` with ``events`` -> ``convert`` (image axes, 420 m window) ->
+``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording`` and ``NN_events.csv``. Recording
+starts after ``warmup_s``, and every vehicle drives ``approach_m`` before the window, so it arrives settled.
+Equal seeds give identical files (seeded demand and events, SUMO with sigma = 0 and one thread).
 
-Timeline: the simulation runs ``warmup_s`` + ``minutes`` * 60 seconds; recording starts after the
-warm-up so the road is populated, and every vehicle has driven ``approach_m`` (700 m) before it
-enters the window, so it arrives at speed, in a lane chosen by the lane-change model and with
-car-following spacing. Events start only after the warm-up.
-
-Determinism: a seed fixes the demand (numpy generator), the event schedule (a second, independent
-generator) and SUMO's seed; SUMO runs with sigma = 0 (EIDM with its driver-error processes off)
-and one thread, so equal seeds give identical files.
-
-No contact, ever: a run is rejected when SUMO reports a collision (``--collision.mingap-factor 0``:
-physical contact only) or when any two boxes of the written window overlap (the HighD boxes are
-axis-aligned and the lateral lane-change profile is re-timed, so this is checked on the boxes
-themselves). A rejected run is re-simulated from scratch with a sub-seed derived from the seed
-(``attempt`` 1, 2, ... of :func:`derived_seed`), up to ``TrafficConfig.max_attempts`` runs; the
-result stays a deterministic function of the seed. If every attempt has contact, generation fails
-with an error naming the seed and the contacts instead of writing overlapping boxes.
+No contact, ever: a run with a SUMO collision (physical contact only) or any overlapping boxes in the written
+window is re-simulated with a sub-seed (``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; when all
+have contact, generation fails naming the seed and the contacts.
 """
 
 from __future__ import annotations
@@ -76,21 +62,13 @@ def derived_seed(seed: int, attempt: int) -> int:
 
 @dataclass
 class SimulatedRecordings:
-    """Everything a generation run produced in memory (before writing).
+    """Everything a generation run produced in memory, before writing.
 
-    Attributes:
-        network: the road (markings, transform). Its ``net_file`` is deleted after the run.
-        chunks: one ``(states, vehicles)`` pair per recording, see :func:`clip_to_window`.
-        first_steps: simulation step of frame 1 of each recording (frame = step - first + 1).
-        events: one table per recording: the events in HighD frames, with ``id``/``other_id``
-            still SUMO ids (``sumo_id``/``other_sumo_id``) and SUMO lane indices.
-        collisions: collisions SUMO reported in the accepted run (always empty).
-        sim_wall_time_s: wall time of the SUMO run(s), all attempts [s].
-        sim_cpu_time_s: CPU time of the SUMO run(s), all attempts [s].
-        attempt: which attempt was accepted (0 = the seed itself).
-        rejected: one line per rejected attempt saying why.
-        failed_events: forced lane changes SUMO did not carry out (not written).
-        perceived_lane_changes: followers held by lane-change perception (accepted run).
+    ``chunks``: one ``(states, vehicles)`` per recording (``clip_to_window``); ``first_steps``: the simulation step of
+    each recording's frame 1; ``events``: per recording, in HighD frames but with SUMO ids and lane indices;
+    ``collisions``: SUMO's in the accepted run (always empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the
+    accepted one (0 = the seed); ``rejected``: why each earlier one was. The network's ``net_file`` is deleted after the
+    run.
     """
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
@@ -167,10 +145,9 @@ def simulate_recordings(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns). See :func:`generate_highd`.
+    """Simulate and cut recordings in memory (no derived columns); see ``generate_highd``.
 
-    ``ssm_file``: equip every vehicle with SUMO's SSM device writing there (the accepted attempt's
-    output remains; see :mod:`letspi.trafficgen.ssm`).
+    ``ssm_file``: every vehicle carries SUMO's SSM device writing there (the accepted attempt's output remains).
     """
     _check_request(minutes, lanes_per_direction, recording_minutes)
     cfg = traffic or traffic_preset("highd")
@@ -288,19 +265,10 @@ def _highd_events(table: pd.DataFrame, vehicles: pd.DataFrame, states: pd.DataFr
 
 @dataclass(frozen=True)
 class GenerationReport:
-    """What :func:`generate_highd` wrote and how long it took.
+    """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took.
 
-    Attributes:
-        paths: the written ``NN_recordingMeta.csv`` files, in recording order.
-        simulated_minutes: recorded minutes (the warm-up excluded).
-        wall_time_s: wall time of the whole generation [s].
-        sumo_wall_time_s: of which SUMO stepping (all attempts) [s].
-        sumo_cpu_time_s: CPU time of the SUMO stepping (all attempts) [s].
-        attempt: accepted attempt (0 = the seed itself).
-        rejected: why earlier attempts were rejected.
-        events_written: scripted events written, all recordings.
-        failed_events: forced lane changes SUMO refused (not written).
-        perceived_lane_changes: followers held by lane-change perception.
+    Wall and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
+    ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception.
     """
 
     paths: list[Path]
@@ -359,33 +327,14 @@ def generate_highd(
     traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> GenerationReport:
-    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir``.
+    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir`` (created if missing).
 
-    Args:
-        out_dir: output directory (created if missing); receives ``NN_tracks.csv``,
-            ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv`` and ``NN_events.csv`` for NN = 01, 02, ...
-        minutes: recorded (simulated) minutes, after a 90 s warm-up.
-        seed: random seed; equal seeds give identical recordings.
-        lanes_per_direction: 2 or 3 lanes per (main) carriageway.
-        flow_veh_per_h: demand per direction [veh/h]; default about 733 veh/h per lane
-            (2,200 on 3 lanes), free flow with frequent interactions.
-        recording_minutes: split the run into consecutive recordings of this length
-            (the last may be shorter); default one recording for the whole run. Vehicles
-            crossing a split are cut, as in real recordings.
-        criticality: preset ``calm``, ``highd`` (default) or ``stress`` (ignored if ``traffic``
-            is given).
-        traffic: full traffic configuration (drivers, events, layout).
-        progress: called with the fraction done, in [0, 1].
-
-    Returns:
-        What was written (``paths``: the ``NN_recordingMeta.csv`` files, in recording order) and how
-        long it took (timings, attempts, events).
-
-    Vehicles are cars, vans and trucks; HighD has only "Car"/"Truck", so vans are written as
-    "Car" with van dimensions. The window is 420 m long (image x in [0, 420]); a vehicle is in a
-    frame when its whole box is inside and its centre is on the main carriageway. Direction 1
-    drives towards -x on the upper lanes, direction 2 towards +x on the lower lanes. No speed
-    limit (speedLimit -1).
+    ``minutes`` are recorded after a 90 s warm-up; equal seeds give identical files; ``flow_veh_per_h`` per
+    direction defaults to about 733 per lane; ``recording_minutes`` splits the run into consecutive recordings
+    (vehicles crossing a split are cut); ``criticality`` names a preset, ignored when ``traffic`` is given. Writes
+    ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png`` and
+    ``NN_generation.json`` (NN = 01, 02, ...): a 420 m window in which a vehicle is recorded while its whole box is
+    inside and its centre on the main carriageway; no speed limit (speedLimit -1).
     """
     started = time.perf_counter()
     out = Path(out_dir)

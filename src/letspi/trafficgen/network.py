@@ -1,28 +1,10 @@
-"""Two-direction highway built with SUMO's ``netconvert`` from plain XML; three layouts.
+"""Two-direction highway built with SUMO's ``netconvert`` from plain XML, in three layouts.
 
-Layout ``straight`` (SUMO coordinates, metres, y pointing **up**)::
-
-    y = median + n*w  ───────────────────────────────  upper road edge (direction 1, towards -x)
-                      <──── westbound lanes (edges "W…")
-    y = median        ───────────────────────────────
-                      (median strip)
-    y = 0             ───────────────────────────────
-                      ────> eastbound lanes (edges "E…")   (direction 2, towards +x)
-    y = -n*w          ───────────────────────────────  lower road edge
-
-Both directions drive ``approach_m`` before the recorded window in the middle. The other layouts
-add an **auxiliary lane** on the right of each carriageway that ends inside the window:
-
-- ``on_ramp``: a one-lane ramp joins an acceleration lane (250 m long in total) that ends
-  ``aux_lane_m`` after the window entry; ramp traffic must merge onto the main carriageway.
-- ``lane_drop``: the carriageway has n + 1 lanes upstream; its right lane ends ``aux_lane_m``
-  after the window entry, so its traffic must merge.
-
-HighD has no ramps and one fixed set of lane markings per recording, so the **main carriageway**
-(the n lanes that run through the whole window) is what is recorded: its markings are written,
-and a vehicle on the auxiliary lane (or the ramp) enters the recording when its box centre
-crosses onto the main carriageway. Lane positions are always read back from the generated
-``.net.xml`` (netconvert may shift coordinates).
+SUMO coordinates, y **up**: eastbound lanes (edges "E…", HighD direction 2) below y = 0, westbound ("W…",
+direction 1) above the median; both drive ``approach_m`` before the recorded window in the middle. ``on_ramp``
+adds a ramp joining an acceleration lane, ``lane_drop`` an extra right lane upstream; both end ``aux_lane_m`` past
+the window entry. Only the **main carriageway** (the n lanes through the whole window) is recorded; lane
+positions are read back from the ``.net.xml`` (netconvert may shift coordinates).
 """
 
 from __future__ import annotations
@@ -47,17 +29,11 @@ _RAMP_SPEED_MPS = 27.8  # 100 km/h on the ramp
 
 @dataclass(frozen=True)
 class HighwayGeometry:
-    """Design parameters of the generated highway.
+    """Design parameters of the generated highway [m, m/s].
 
-    Attributes:
-        lanes_per_direction: lanes on each (main) carriageway (2 or 3).
-        lane_width_m: lane width [m] (German autobahn: 3.5-3.75 m).
-        median_m: distance between the two inner road edges [m].
-        approach_m: warm-up stretch driven before the window, per direction [m].
-        window_m: length of the recorded window [m] (HighD: about 420 m).
-        lane_speed_mps: lane speed in SUMO [m/s]; set high to model an unrestricted autobahn,
-            vehicles are limited by their own ``desiredMaxSpeed``.
-        image_top_m: image y [m] given to the upper road edge (HighD images start at a few metres).
+    ``lanes_per_direction`` (2 or 3); ``median_m``: between the inner road edges; ``approach_m``: driven before the
+    window per direction; ``window_m``: HighD's is about 420 m; ``lane_speed_mps``: high, so vehicles keep their own
+    desired speed; ``image_top_m``: image y of the upper road edge.
     """
 
     lanes_per_direction: int = 3
@@ -75,14 +51,8 @@ class HighwayGeometry:
 
 @dataclass(frozen=True)
 class Entry:
-    """Where traffic is inserted.
-
-    Attributes:
-        route: route id in the route file.
-        east: eastbound (HighD direction 2) or westbound.
-        n_lanes: lanes at insertion (SUMO index 0 = rightmost).
-        flow_share: share of the direction's flow inserted here.
-        ramp: True for an on-ramp entry.
+    """Where traffic is inserted: ``route`` id, ``east`` (HighD direction 2), ``n_lanes`` (index 0 = rightmost),
+    ``flow_share`` of the direction's flow, ``ramp``.
     """
 
     route: str
@@ -94,21 +64,12 @@ class Entry:
 
 @dataclass(frozen=True)
 class HighwayNetwork:
-    """The generated network, as read back from the ``.net.xml``.
+    """The generated network as read back from the ``.net.xml`` (in a temporary directory).
 
-    Attributes:
-        net_file: path of the ``.net.xml`` (inside a temporary directory).
-        geometry: the design parameters it was built from.
-        layout: the layout it was built with.
-        window_x0_m: SUMO x [m] of the window's left end (image x = SUMO x - window_x0_m).
-        image_y_ref_m: image y = image_y_ref_m - SUMO y [m].
-        east_centres_y_m: SUMO y of the eastbound main lane centres (index 0 = rightmost).
-        west_centres_y_m: same for the westbound main lanes.
-        east_aux_y_m, west_aux_y_m: SUMO y of the auxiliary lane centre (NaN for ``straight``).
-        upper_markings_y_m: image y of the upper main carriageway markings, ascending (edges included).
-        lower_markings_y_m: image y of the lower main carriageway markings, ascending (edges included).
-        routes: route id -> edge ids.
-        entries: where traffic is inserted.
+    Image x = SUMO x - ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main
+    lane centres (index 0 = rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``);
+    ``upper/lower_markings_y_m``: image y of the main carriageways' markings, ascending, road edges included;
+    ``routes``: route id -> edges; ``entries``: where traffic is inserted.
     """
 
     net_file: Path
@@ -260,15 +221,8 @@ def _netconvert(directory: Path, geometry: HighwayGeometry, plan: _Plan) -> Path
 
 
 def build_network(directory: Path, geometry: HighwayGeometry, layout: LayoutConfig | None = None) -> HighwayNetwork:
-    """Write plain XML into ``directory``, run netconvert and read the lane layout back.
-
-    Args:
-        directory: an existing (temporary) directory that receives the files.
-        geometry: design parameters.
-        layout: road layout (default straight).
-
-    Returns:
-        The network description with the SUMO -> HighD image transform.
+    """Write the plain XML of ``geometry`` and ``layout`` (default straight) into ``directory``, run netconvert and read
+    the lanes back: the network with its SUMO -> HighD image transform.
     """
     lay = layout or LayoutConfig()
     plan = _plan(geometry, lay)

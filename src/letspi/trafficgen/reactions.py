@@ -1,23 +1,11 @@
-"""Driver reaction for SUMO followers: keep speed until perception + reaction, then brake.
+"""Driver reaction for SUMO followers: keep speed until perception + reaction, then brake, then release.
 
-SUMO's EIDM reacts within one 0.04 s step whenever its desired deceleration jumps, and a vehicle
-changing into a lane is seen by the followers there from the first moment of its lane change.
-Human drivers do not: they perceive a braking leader at once (brake lights) but act only after
-their reaction time, and they perceive a vehicle changing into their lane when it crosses into it
-(its centre crosses the marking, which is also when HighD assigns it the lane). :class:`Reactions`
-imposes that on chosen followers through libsumo:
-
-1. **hold**: the follower keeps its speed (``setSpeed`` under speed mode 30, i.e. without the
-   safe-speed bound; lane-change mode 256, no own lane changes) until it has perceived the
-   situation and its reaction time has passed;
-2. **brake** (optional, used for braking leaders): it then brakes with a jerk-limited ramp up to
-   a given deceleration until it no longer closes in on a leader that stopped braking;
-3. **release**: SUMO's car following takes over again.
-
-Safety: at every step the constant deceleration that would still avoid contact is computed
-(:func:`required_decel`, from the gap, both speeds and the leader's remaining braking); when it
-exceeds ``release_decel_mps2``, or the gap falls below ``release_gap_m``, the follower is released
-at once, leaving SUMO's emergency deceleration (9 m/s²) a margin.
+SUMO's EIDM reacts within one step and sees a lane changer from the first moment of its change; human drivers
+see a braking leader at once but act after their reaction time, and see a changer when its centre crosses into
+their lane. ``Reactions`` imposes that through libsumo: **hold** the speed (speed mode 30, no own lane changes),
+optionally **brake** on a jerk-limited ramp until no longer closing in, then **release** to SUMO. A follower is
+released at once when avoiding contact would need more than ``release_decel_mps2`` (``required_decel``) or its
+gap falls below ``release_gap_m``.
 """
 
 from __future__ import annotations
@@ -43,10 +31,9 @@ def required_decel(gap_m: float, v_f_mps: float, v_l_mps: float, d_l_mps2: float
                    margin_m: float = 1.0) -> float:
     """Smallest constant deceleration [m/s²] that keeps a follower ``margin_m`` behind its leader.
 
-    The leader brakes at ``d_l_mps2`` from ``v_l_mps`` down to ``v_l_end_mps`` and then keeps
-    that speed; the follower brakes from ``v_f_mps`` down to the leader's final speed.
-    Evaluated on a grid (0.25 m/s² steps up to 12, 12 s horizon at 0.04 s); returns 12.25 when
-    even 12 m/s² is not enough and 0 when no braking is needed.
+    The leader brakes at ``d_l_mps2`` from ``v_l_mps`` to ``v_l_end_mps`` and keeps that speed; the follower brakes from
+    ``v_f_mps`` to the leader's final speed. On a grid (0.25 m/s² steps up to 12, 12 s at 0.04 s): 0 when no braking
+    is needed, 12.25 when 12 is not enough.
     """
     t = _T_GRID
     if d_l_mps2 > 0.0:
@@ -69,15 +56,8 @@ def required_decel(gap_m: float, v_f_mps: float, v_l_mps: float, d_l_mps2: float
 class Hold:
     """One follower under imposed reaction.
 
-    Attributes:
-        follower: SUMO id of the held vehicle.
-        leader: SUMO id of the vehicle it reacts to.
-        start_s: first simulation time the hold acts.
-        react_at_s: perception + reaction over: from here it brakes or is released.
-        brake_decel_mps2: > 0: brake like a driver after the reaction (else release).
-        leader_target_mps, leader_decel_mps2, leader_brake_end_s: a scripted braking leader's plan.
-        on_release: called with the time the follower kept its speed [s] when it is released.
-        braking_since_s: set when the braking phase begins.
+    Held from ``start_s`` until ``react_at_s`` (perception + reaction), then braking at ``brake_decel_mps2`` when > 0,
+    else released; ``leader_*``: a scripted braking leader's plan; ``on_release`` gets the time it kept its speed [s].
     """
 
     follower: str

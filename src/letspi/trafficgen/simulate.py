@@ -1,11 +1,8 @@
-"""Run SUMO through libsumo (in-process) and read its floating-car-data (FCD) output.
+"""Run SUMO through libsumo (in-process) and read its floating-car data (FCD).
 
-SUMO itself writes the trajectories (FCD as CSV, parsed with pyarrow: faster than per-step
-queries); Python only steps the simulation so that :mod:`letspi.trafficgen.events` can inject
-scripted events. Between events the simulation advances many steps per call
-(``simulationStep(t)``), so stepping from Python costs next to nothing.
-
-libsumo allows one simulation per process at a time; :func:`run_sumo` always closes it.
+SUMO writes the trajectories (FCD CSV, parsed with pyarrow); Python only steps, many steps per call between the
+hook's wake-ups, so that ``events`` can inject scripted events. One simulation per process at a time;
+``run_sumo`` always closes it.
 """
 
 from __future__ import annotations
@@ -33,11 +30,7 @@ _PROGRESS_CHUNK_S = 10.0  # longest single advance, so progress is reported regu
 
 @dataclass(frozen=True)
 class Collision:
-    """A collision reported by SUMO (``--collision-output``).
-
-    Attributes:
-        time_s: simulation time [s]; collider, victim: SUMO ids; kind: SUMO's collision type.
-    """
+    """A collision SUMO reported: time ``time_s`` [s], SUMO ids ``collider`` and ``victim``, SUMO's ``kind``."""
 
     time_s: float
     collider: str
@@ -49,15 +42,9 @@ class Collision:
 class SimulationResult:
     """FCD of all vehicles on the whole road plus simulator diagnostics.
 
-    Attributes:
-        fcd: columns ``time`` [s], ``id`` (SUMO id), ``x``, ``y`` (front-bumper centre, SUMO
-            axes, y up) [m], ``speed`` [m/s], ``acceleration`` [m/s²]; sorted by (id, time).
-        collisions: collisions reported by SUMO (physical contact only: mingap-factor 0).
-        wall_time_s: wall time of the simulation (stepping, without reading the FCD) [s].
-        cpu_time_s: CPU time of this process during the simulation (SUMO runs in-process) [s];
-            less sensitive than wall time to other load on the machine.
-        events: the hook's ``records`` (see :func:`run_sumo`).
-        hook_stats: the hook's ``stats()`` counters.
+    ``fcd``: ``time`` [s], ``id``, ``x``, ``y`` (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s],
+    ``acceleration`` [m/s²], sorted by (id, time); ``collisions``: physical contact only; ``wall_time_s``,
+    ``cpu_time_s``: of the stepping [s]; ``events``, ``hook_stats``: the hook's ``records`` and ``stats()``.
     """
 
     fcd: pd.DataFrame
@@ -112,26 +99,13 @@ def run_sumo(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
-    """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD.
+    """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD (rows with SUMO x in ``x_range_m``).
 
-    Args:
-        net_file: the ``.net.xml``.
-        route_file: the route file with vTypes and vehicles.
-        work_dir: directory for the FCD/log files (a temporary directory of the caller).
-        end_s: simulation end time [s].
-        seed: SUMO's random seed (no randomness is left with the sigmas at 0; set for safety).
-        lane_change_duration_s: duration of a (non-sublane) lane change [s]; > 0 makes lane
-            changes continuous instead of instantaneous jumps.
-        x_range_m: keep only FCD rows with SUMO x in this range [m] (saves memory).
-        make_hook: called with the libsumo module once the simulation is loaded; returns an
-            object with ``next_wakeup() -> float``, ``on_step(t)``, ``stats()`` and a
-            ``records`` list (the event injector). ``on_step(t)`` is called whenever SUMO's
-            current time t (that of the next step to run; the vehicles are in the state of the
-            step t - 0.04 s) has reached ``next_wakeup()``; commands given then act in step t.
-        ssm_file: if given, every vehicle carries SUMO's SSM device writing into this file: TTC,
-            DRAC and PET with their time lines (``trajectories``) for every encounter whose TTC
-            falls below 5 s, DRAC exceeds 3 m/s² or PET falls below 2 s, within 100 m.
-        progress: called with the fraction of simulated time done, in [0, 1].
+    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes
+    lane changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
+    ``on_step(t)`` runs whenever SUMO's time t has reached ``next_wakeup()`` (timing as in ``events``). ``ssm_file``:
+    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or
+    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done.
     """
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
@@ -206,12 +180,8 @@ def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable
 
 
 def read_fcd(path: Path, *, x_range_m: tuple[float, float] | None = None) -> pd.DataFrame:
-    """Read a SUMO FCD CSV (``--fcd-output x.csv``) into tidy columns sorted by (id, time).
-
-    Args:
-        path: the CSV written by SUMO (';'-separated, columns ``timestep_time``, ``vehicle_*``).
-        x_range_m: if given, keep only rows with ``lo <= x <= hi`` (SUMO x, metres); filtered in
-            Arrow before conversion to pandas to keep memory low.
+    """A SUMO FCD CSV (';'-separated) as ``time, id, x, y, speed, acceleration`` sorted by (id, time), read in a stream;
+    ``x_range_m`` keeps only rows with SUMO x in ``[lo, hi]`` [m].
     """
     reader = pacsv.open_csv(
         path,

@@ -1,27 +1,10 @@
-"""Independent check of the recordings' TTC against SUMO's own SSM device.
+"""Independent check of the recordings' TTC against SUMO's own SSM device (``ssm_check``).
 
-SUMO's SSM device (``--device.ssm.probability 1``) computes, for every lead/follow encounter of
-every vehicle, TTC = space gap / speed difference with the space gap measured along the lanes
-from the follower's front bumper to the leader's rear bumper (encounter types 2
-FOLLOWING_FOLLOWER and 3 FOLLOWING_LEADER), every simulation step. The recordings' TTC is
-HighD's: the preceding vehicle is the nearest one ahead in the same laneId (lane of the box
-centre), the gap is taken between the written boxes and the speeds are central differences of
-the written positions. :func:`ssm_check` simulates one recording with the SSM device on,
-restricts SUMO's TTC time lines to the frames in which both vehicles are recorded, and compares:
-
-- per (follower, leader, frame): the two TTC values where both exist;
-- per vehicle: the recording's ``minTTC`` (tracksMeta) with SUMO's minimum over its recorded
-  frames.
-
-Known reasons for differences (SUMO's SSM documentation and this package's conversion):
-SUMO treats a vehicle changing lanes as on both lanes (its leaders and followers change at the
-start of the manoeuvre), HighD assigns a lane by the box centre, so around lane changes one side
-has a TTC the other lacks; the device tracks every vehicle ahead within its range, HighD only
-the nearest (``precedingId``); SUMO's speeds are the step's speeds, the recording's are central
-differences of positions (half a step apart, so they differ by about a·0.02 s); the recording's
-lateral lane-change profile is re-timed (only lanes matter here, and they switch at the same
-time); the device writes only encounters whose TTC falls below its threshold (5 s here) and
-only within its range (100 m).
+SUMO's device computes, every step and for every lead/follow encounter, TTC = gap along the lanes (front to
+rear bumper) / speed difference. The recordings' TTC is HighD's: nearest vehicle ahead in the same laneId, gap
+between the written boxes, speeds from central differences. Compared: per (follower, leader, frame) where both
+exist, and per vehicle ``minTTC`` with SUMO's minimum over its recorded frames. Expected differences: SUMO puts a
+lane changer on both lanes, tracks every vehicle ahead within 100 m (HighD the nearest), writes only TTC < 5 s.
 """
 
 from __future__ import annotations
@@ -47,11 +30,8 @@ SSM_TTC_THRESHOLD_S = 5.0  # the device's TTC threshold set in simulate.run_sumo
 
 
 def read_ssm_ttc(path: Path) -> pd.DataFrame:
-    """Per-step TTC of all lead/follow encounters in an SSM output file.
-
-    Returns:
-        Columns ``time_s``, ``follower``, ``leader`` (SUMO ids), ``ttc_s``; one row per step of
-        an encounter with a defined TTC, duplicates (the same pair seen by both devices) removed.
+    """Per-step TTC of all lead/follow encounters of an SSM output file: ``time_s``, ``follower``, ``leader`` (SUMO
+    ids), ``ttc_s``; one row per step with a defined TTC, pairs seen by both devices once.
     """
     rows: list[pd.DataFrame] = []
     for _, elem in ET.iterparse(path, events=("end",)):
@@ -77,30 +57,12 @@ def read_ssm_ttc(path: Path) -> pd.DataFrame:
 
 @dataclass(frozen=True)
 class SsmComparison:
-    """Agreement between the recording's TTC and SUMO's SSM device on one recording.
+    """Agreement of a recording's TTC with SUMO's SSM device, for TTCs below the device threshold (5 s).
 
-    Attributes:
-        recorded_minutes: length of the recording [min].
-        vehicles: vehicles in the recording.
-        frames_both: (follower, frame) pairs where both have a TTC below the device threshold
-            for the same leader.
-        frame_median_abs_diff_s: median |TTC_recording - TTC_SUMO| over those [s].
-        frame_p95_abs_diff_s: 95th percentile of that difference [s].
-        frame_within_5pct: share of those pairs agreeing within 5 %.
-        frames_only_recording: recording has a TTC below the threshold for a leader SUMO's device
-            does not report at that frame (counts (follower, frame)).
-        frames_only_ssm: the reverse.
-        frames_only_ssm_other_lane: of those, frames where the two vehicles have different HighD
-            laneIds (SUMO already/still counts a lane changer on both lanes).
-        frames_only_ssm_above_threshold: of those, frames where the recording has a TTC for the
-            same leader but at or above the threshold (both near it).
-        frames_only_ssm_not_preceding: of those, frames in the same laneId where the recording's
-            preceding vehicle is another one (the device also tracks vehicles further ahead;
-            HighD's TTC is with the nearest).
-        vehicles_below_3s_recording: vehicles with 0 <= minTTC < 3 s in tracksMeta.
-        vehicles_below_3s_ssm: vehicles whose SUMO minimum over their recorded frames is < 3 s.
-        vehicles_below_3s_both: in both sets.
-        vehicle_median_abs_diff_s: median |minTTC - SUMO minimum| over vehicles below 3 s in both [s].
+    ``frames_both``: (follower, frame) pairs both have for the same leader, ``frame_*``: median and p95 |difference|
+    [s], share within 5 %. ``frames_only_*``: pairs only one has; of SUMO's, ``_other_lane`` (a lane changer),
+    ``_above_threshold`` (the recording's TTC is >= 5 s) and ``_not_preceding`` (HighD's leader is another).
+    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both.
     """
 
     recorded_minutes: float
@@ -180,15 +142,9 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
 
 def ssm_check(*, minutes: float, seed: int, traffic: TrafficConfig, lanes_per_direction: int = 3,
               keep_dir: Path | None = None, progress: Callable[[float], None] | None = None) -> SsmComparison:
-    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs.
+    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs (``compare_ttc``).
 
-    Args:
-        minutes: recorded minutes.
-        seed: seed of the traffic (as for generation).
-        traffic: traffic configuration.
-        lanes_per_direction: 2 or 3.
-        keep_dir: if given, the SSM XML and the HighD files are written there for inspection.
-        progress: fraction done, in [0, 1].
+    ``keep_dir``: if given, the SSM XML and the HighD files are written there for inspection.
     """
 
     work = Path(tempfile.mkdtemp(prefix="letspi_ssm_"))

@@ -12,14 +12,8 @@ from typing import Any
 
 import pandas as pd
 
-from letspi.evaluation.harness import (
-    live_inference_s,
-    load_planner_results,
-    paired_record,
-    planner_statistics,
-    stored_vehicles,
-    timing_summary,
-)
+from letspi.evaluation.results import load_planner_results, stored_vehicles
+from letspi.evaluation.summary import live_inference_s, paired_record, planner_statistics, timing_summary
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.aggregate import aggregate_metrics, format_with_interval, paired_rows
 from letspi.metrics.uncertainty import GROUP_COLUMN, align, intervals

@@ -12,8 +12,11 @@ import numpy as np
 import pandas as pd
 
 from letspi.constants import N_FUTURE
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.planners.base import PlanBatch
+from letspi.planners.decision import ADVERSE_FAILED, CONSULTED, DECISION, REASON, REFINEMENTS, RISK_SCORE
+from letspi.planners.llm import SHIELDED
+from letspi.planners.outputs import column
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.viz.figure import plot_scenario
@@ -42,21 +45,21 @@ def _plan(rec: pd.Series) -> PlanBatch:
 
 
 def _summary(frame: pd.DataFrame) -> str:
-    counts = frame["info_decision"].astype(str).value_counts()
+    counts = frame[column(DECISION)].astype(str).value_counts()
     shares = ", ".join(f"{k} {100 * v / len(frame):.1f} %" for k, v in counts.items())
-    consulted = np.asarray(frame.get("info_consulted", pd.Series(np.ones(len(frame)))), dtype=bool).mean()
-    shielded = np.asarray(frame.get("info_shielded", pd.Series(np.zeros(len(frame)))), dtype=np.float64).mean()
+    consulted = np.asarray(frame.get(column(CONSULTED), pd.Series(np.ones(len(frame)))), dtype=bool).mean()
+    shielded = np.asarray(frame.get(column(SHIELDED), pd.Series(np.zeros(len(frame)))), dtype=np.float64).mean()
     return (f"{len(frame)} windows: {shares}; the model was consulted on {100 * consulted:.1f} %, the shield "
             f"replaced {100 * shielded:.1f} % of the plans.")
 
 
 def _caption(rec: pd.Series, ref: pd.Series | None, reference: str) -> str:
-    parts = [f"decision {rec['info_decision']}", str(rec.get("info_reason", "")) or "no reason recorded"]
-    if rec.get("info_adverse_failed"):
-        parts.append(f"first proposal failed {rec['info_adverse_failed']}")
-    if float(rec.get("info_refinements", 0) or 0) > 0:
-        parts.append(f"{int(rec['info_refinements'])} refinement round(s)")
-    if float(rec.get("info_shielded", 0) or 0) > 0:
+    parts = [f"decision {rec[column(DECISION)]}", str(rec.get(column(REASON), "")) or "no reason recorded"]
+    if rec.get(column(ADVERSE_FAILED)):
+        parts.append(f"first proposal failed {rec[column(ADVERSE_FAILED)]}")
+    if float(rec.get(column(REFINEMENTS), 0) or 0) > 0:
+        parts.append(f"{int(rec[column(REFINEMENTS)])} refinement round(s)")
+    if float(rec.get(column(SHIELDED), 0) or 0) > 0:
         parts.append("the shield replaced the plan")
     outcome = "collided" if bool(rec["collision"]) else "no contact"
     if ref is not None:
@@ -72,16 +75,16 @@ def decision_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame], scenar
                 if reference in frames else None)
     n_file = count_scenarios(scenarios_file) if scenarios_file is not None else 0
     for name, frame in frames.items():
-        if "info_decision" not in frame or name == reference or not len(frame):
+        if column(DECISION) not in frame or name == reference or not len(frame):
             continue
         sec = DecisionSection(name=name, anchor=f"decisions-{abs(hash(name)) % 10**8}", summary=_summary(frame))
         mine = load_planner_results(eval_dir, name, with_plans=True)
-        changed = mine[mine["info_decision"].astype(str) != "default"]
+        changed = mine[mine[column(DECISION)].astype(str) != "default"]
         if ref_rows is not None and len(changed):
             ref_collides = np.array([bool(ref_rows.loc[d, "collision"]) if d in ref_rows.index else False
                                      for d in changed["scenario_digest"]])
             fixed = ref_collides & ~np.asarray(changed["collision"], dtype=bool)
-            risk = np.nan_to_num(np.asarray(changed.get("info_risk_score", 0.0), dtype=np.float64))
+            risk = np.nan_to_num(np.asarray(changed.get(column(RISK_SCORE), 0.0), dtype=np.float64))
             changed = changed.iloc[np.lexsort((-risk, ~fixed))]
         for _, rec in changed.head(n).iterrows():
             digest = str(rec["scenario_digest"])
@@ -97,7 +100,7 @@ def decision_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame], scenar
                 example.note = "scenario not found unchanged in the scenarios file: no diagram"
             else:
                 plans = {name: _plan(rec), **({reference: _plan(ref)} if ref is not None else {})}
-                fig = plot_scenario(scene, 0, plans, title=f"{name} ({rec['info_decision']}) beside {reference}: "
+                fig = plot_scenario(scene, 0, plans, title=f"{name} ({rec[column(DECISION)]}) beside {reference}: "
                                                            f"scenario {rec['scenario_id']}", width_in=13.0)
                 example.image = figure_uri(fig)  # type: ignore[operator]
             sec.examples.append(example)

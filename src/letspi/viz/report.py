@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 
 from letspi.constants import N_FUTURE
 from letspi.evaluation.closed_loop import CL_PLAN_XY
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.aggregate import TABLE_COLUMNS, format_with_interval, paired_caption, paired_rows
 from letspi.metrics.config import MetricsConfig

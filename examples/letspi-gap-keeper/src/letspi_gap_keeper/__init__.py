@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from letspi.plugin import Builder, Config, FutureUse, Planner, PlannerKind, PlannerOption, Resolver
+from letspi.plugin import Agg, Builder, Config, FutureUse, Planner, PlannerKind, PlannerOption, Resolver, output
 from letspi_gap_keeper.planner import GapKeeperPlanner
 
 __all__ = ["KIND", "GapKeeperConfig", "GapKeeperPlanner"]
@@ -40,6 +40,11 @@ def build(b: Builder, c: GapKeeperConfig, label: str) -> tuple[Planner, float]:
     return GapKeeperPlanner(time_gap_s=c.time_gap_s, name=label), 0.0
 
 
+#: what it reports per scenario beside the plan (stored as the column info_gap_keeper_leader); its share of
+#: windows becomes the metrics.json key gap_keeper_leader_pct
+OUTPUTS = (output("gap_keeper_leader", "bool", "bool", "a leader was within reach in the ego lane",
+                  Agg("gap_keeper_leader_pct", "pct", "share of windows with a leader to keep the gap to")),)
+
 KIND = PlannerKind("gap-keeper", "keeps its lane and a time gap to the vehicle ahead (the example plug-in "
                    "package, examples/letspi-gap-keeper)", GapKeeperConfig, resolve, build, options=(TIME_GAP,),
-                   future=FutureUse.NEVER)
+                   future=FutureUse.NEVER, outputs=OUTPUTS)
