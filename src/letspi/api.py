@@ -1,15 +1,11 @@
-"""The Python API: load scenarios, build planners, plan, evaluate, and read the results as DataFrames.
-
-What the CLI does, from Python, over the same keyed, resumable, timed harness (docs/your-planner.md)::
+"""The Python API: load scenarios, build planners, plan, evaluate, and read the results as DataFrames, over the same
+keyed, resumable harness as the CLI (docs/your-planner.md)::
 
     import letspi.api as lp
-
     batch = lp.load_scenarios("data/scenarios.arrow", limit=300)
     planners = lp.planners("sf", "frenet", goals="kinematic")   # KIND or LABEL=KIND, planner options
     results = lp.evaluate(planners, batch, "runs/mine")         # rerun: resumes, adds planners
     results.summary(), results.per_scenario("frenet"), results.paired_summary()   # DataFrames
-
-``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``).
 """
 
 from __future__ import annotations
@@ -59,18 +55,16 @@ def load_scenarios(path: str | Path, *, limit: int | None = None,
 
 
 def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
-    """Build planners from ``KIND`` or ``LABEL=KIND`` specs (``letspi planners`` lists the kinds) with
-    planner options by name (``goals="kinematic"``, ``sf_params_file=...``: the planner options of the
-    planner table, the CLI's planner flags; ``letspi planners --json`` lists them). Models load once, here."""
+    """Build planners from ``KIND`` or ``LABEL=KIND`` specs with planner options by name (``goals="kinematic"``,
+    ``sf_params_file=...``: the CLI's planner flags; ``letspi planners --json`` lists them). Models load here."""
     if not specs:
         raise ValueError("name at least one planner, e.g. planners('sf')")
     return build_planners(list(specs), PlannerOptions(**options))
 
 
 def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
-    """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
-    unless its kind reads the recorded future (an oracle; a bare planner object gets the history). Untimed
-    and unscored: ``evaluate`` for that."""
+    """The plans of one planner for ``batch`` given the harness's view (the history only, unless its kind reads the
+    recorded future); untimed and unscored."""
     if isinstance(planner, BuiltPlanner):
         return planner.planner.plan(batch if planner.reads_future else batch.history())
     return planner.plan(batch.history())
@@ -79,10 +73,9 @@ def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
 def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
              limit: int | None = None, reference: str | None = None,
              metrics_config: MetricsConfig | None = None, closed_loop: ClosedLoopConfig | None = None) -> Results:
-    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file with an optional ``limit``) into
-    the results directory ``out``, as ``letspi evaluate`` does (keyed; a repeated call resumes and keeps
-    earlier planners). ``reference``: default ``sf`` when present. Open loop unless ``closed_loop`` is
-    given (``closed-loop-hybrid`` here without scripted neighbours). Returns the directory's ``Results``."""
+    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file and ``limit``) into ``out`` as ``letspi
+    evaluate`` does (a repeated call resumes, keeps earlier planners). ``reference``: default ``sf``. Open loop
+    unless ``closed_loop`` is given (hybrid without scripted neighbours). Returns the directory's ``Results``."""
     if isinstance(scenarios, ScenarioBatch):
         if limit is not None:
             raise ValueError("limit applies to a scenario file; pass batch.take(...) instead")

@@ -1,9 +1,7 @@
-"""Everything a planner from outside letspi needs, in one import (docs/your-planner.md).
-
-A kind is a ``PlannerKind``: its ``Config`` subclass (``kind`` literal, ``version`` field, every setting in
-its key), its ``PlannerOption``s (prefixed with the kind's name), ``resolve`` and ``build``. It joins
-through the ``ENTRY_POINT_GROUP`` entry-point group or ``--planner package.module:KIND``.
-"""
+"""Everything a planner from outside letspi needs, in one import (docs/your-planner.md): a ``PlannerKind`` with its
+``Config`` (a ``version`` field; every field in its key), ``PlannerOption``s prefixed with the kind's name,
+``resolve``, ``build`` and declared ``outputs`` (``output``). It joins through the ``ENTRY_POINT_GROUP`` entry-point
+group or ``--planner package.module:KIND``."""
 
 from letspi.assembly.build import Builder
 from letspi.assembly.planner_table import ENTRY_POINT_GROUP, FutureUse, PlannerKind

@@ -96,8 +96,8 @@ class PlannerKind(Generic[C]):
     load time [s]). options: the ``PlannerOption``s ``resolve`` reads. future: whether it reads the
     recorded future; for ``ORACLE_INPUTS``, ``inputs`` says which goal source and neighbour
     prediction a configuration uses. dual_rate: the closed loop runs it dual-rate (the planner is a
-    ``letspi.simulation.schedule.DualRatePlanner``). demo: the tables of ``letspi demo`` showing it.
-    """
+    ``DualRatePlanner``). demo: the tables of ``letspi demo`` showing it. outputs: the per-scenario
+    info it reports, declared (``letspi.planners.outputs.output``); anything else is refused."""
 
     name: str
     description: str

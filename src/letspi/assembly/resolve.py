@@ -1,10 +1,5 @@
-"""Requests -> configurations: read every file and environment variable once, fingerprint them.
-
-``Resolver`` turns ``PlannerOptions`` into the frozen building blocks of planner configurations, whose
-content identifies results: parameter values rather than a file name, the SHA-256 of weights, the prompt
-text, a memory-bank snapshot. Environment variables that change answers (``$LETSPI_GOAL_WEIGHTS``,
-``$LETSPI_GNP_WEIGHTS``, ``$LETSPI_MLP_WEIGHTS``) are read here only, so they always show in a configuration.
-"""
+"""Requests -> configurations: every file and environment variable read once and fingerprinted (parameter values,
+weights' SHA-256, prompt text, a memory snapshot), so what changes answers is in a configuration's key."""
 
 from __future__ import annotations
 
@@ -92,9 +87,8 @@ def prompt_sha256() -> str:
 
 
 def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str] | None = None) -> GoalsConfig:
-    """The goal source ``source`` (``learned``: the weights of ``weights``, else ``$LETSPI_GOAL_WEIGHTS``,
-    else the shipped ones, fingerprinted; without usable shipped weights it falls back to ``kinematic``
-    and says why)."""
+    """The goal source ``source`` (``learned``: ``weights``, else ``$LETSPI_GOAL_WEIGHTS``, else the shipped ones,
+    fingerprinted; without usable shipped weights ``kinematic``, saying why)."""
     if source not in GOAL_SOURCES:
         raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
     if source != "learned":
@@ -113,10 +107,8 @@ def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str
 
 
 class Resolver:
-    """Turns ``PlannerOptions`` into the building blocks of configurations.
-
-    ``env`` defaults to ``os.environ``; tests pass a dict. Fingerprints are computed once per resolver.
-    """
+    """Turns ``PlannerOptions`` into the building blocks of configurations; ``env`` defaults to ``os.environ``.
+    Fingerprints are computed once per resolver."""
 
     def __init__(self, options: PlannerOptions | None = None, env: Mapping[str, str] | None = None) -> None:
         self.options = options or DEFAULT_OPTIONS

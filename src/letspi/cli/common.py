@@ -1,9 +1,6 @@
-"""Shared CLI helpers: progress bars and the one error path of every command (``user_errors``).
-
-An anticipated failure ends in one or two lines on stderr naming the file, field or address and what to
-do (``--debug`` or ``LETSPI_DEBUG=1``: the traceback). Exit codes: 2 bad input or setup, 1 an internal
-error (a bug), 130 interrupted (143 after SIGTERM).
-"""
+"""Shared CLI helpers: progress bars and the one error path of every command (``user_errors``): one or two lines
+naming the file, field or address (``--debug``: the traceback); exit 2 bad input or setup, 1 a bug, 130 interrupted
+(143 after SIGTERM)."""
 
 from __future__ import annotations
 
