@@ -1,5 +1,5 @@
-"""Requests -> configurations: every file and environment variable read once and fingerprinted (parameter values,
-weights' SHA-256, prompt text, a memory snapshot), so what changes answers is in a configuration's key."""
+"""Requests -> configurations: every file and environment variable that changes answers is read here only, once, and
+fingerprinted (parameter values, weights' SHA-256, prompt text, a memory snapshot) into a configuration."""
 
 from __future__ import annotations
 
