@@ -1,22 +1,11 @@
-"""The Python API: load scenarios, build planners, plan, evaluate, and read the results as DataFrames.
-
-What the CLI does, from Python, with the same keyed, resumable, timed harness underneath::
+"""The Python API: load scenarios, build planners, plan, evaluate, and read the results as DataFrames, over the same
+keyed, resumable harness as the CLI (docs/your-planner.md)::
 
     import letspi.api as lp
-
     batch = lp.load_scenarios("data/scenarios.arrow", limit=300)
     planners = lp.planners("sf", "frenet", goals="kinematic")   # KIND or LABEL=KIND, planner options
     results = lp.evaluate(planners, batch, "runs/mine")         # rerun: resumes, adds planners
-    print(results.table())                # metrics.md: values with 95 % intervals, paired with sf
-    results.summary()                     # DataFrame, one row per planner: value, low, high per metric
-    results.per_scenario("frenet")        # DataFrame, one row per window: metrics, timing, plan info
-    results.paired_summary()              # DataFrame, one row per planner and metric: Δ, interval, p
-
-    plan = lp.plan(planners[0], batch.take(range(5)))           # a PlanBatch: (B, F, 2) positions ...
-
-``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``). Everything here is a
-thin layer over ``letspi.evaluation.harness`` (layout, keys, resume, timing) and
-``letspi.metrics.uncertainty`` (intervals, paired comparisons); see docs/evaluation.md.
+    results.summary(), results.per_scenario("frenet"), results.paired_summary()   # DataFrames
 """
 
 from __future__ import annotations
@@ -66,18 +55,16 @@ def load_scenarios(path: str | Path, *, limit: int | None = None,
 
 
 def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
-    """Build planners from ``KIND`` or ``LABEL=KIND`` specs (``letspi planners`` lists the kinds) with
-    planner options by name (``goals="kinematic"``, ``sf_params_file=...``: the planner options of the
-    planner table, the CLI's planner flags; ``letspi planners --json`` lists them). Models load once, here."""
+    """Build planners from ``KIND`` or ``LABEL=KIND`` specs with planner options by name (``goals="kinematic"``,
+    ``sf_params_file=...``: the CLI's planner flags; ``letspi planners --json`` lists them). Models load here."""
     if not specs:
         raise ValueError("name at least one planner, e.g. planners('sf')")
     return build_planners(list(specs), PlannerOptions(**options))
 
 
 def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
-    """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
-    unless its kind reads the recorded future (an oracle; a bare planner object gets the history). Untimed
-    and unscored: ``evaluate`` for that."""
+    """The plans of one planner for ``batch`` given the harness's view (the history only, unless its kind reads the
+    recorded future); untimed and unscored."""
     if isinstance(planner, BuiltPlanner):
         return planner.planner.plan(batch if planner.reads_future else batch.history())
     return planner.plan(batch.history())
@@ -86,14 +73,9 @@ def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
 def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
              limit: int | None = None, reference: str | None = None,
              metrics_config: MetricsConfig | None = None, closed_loop: ClosedLoopConfig | None = None) -> Results:
-    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file with an optional ``limit``) into
-    the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and plans stored,
-    keyed by dataset, metrics configuration and planner configuration; an interrupted or repeated call
-    resumes; planners of earlier calls are kept. ``reference``: the planner the others are compared with
-    (default ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g.
-    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (the log replay; the other modes run
-    SUMO; ``closed-loop-hybrid`` here
-    without scripted neighbours). Returns the directory's ``Results``."""
+    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file and ``limit``) into ``out`` as ``letspi
+    evaluate`` does (a repeated call resumes, keeps earlier planners). ``reference``: default ``sf``. Open loop
+    unless ``closed_loop`` is given (hybrid without scripted neighbours). Returns the directory's ``Results``."""
     if isinstance(scenarios, ScenarioBatch):
         if limit is not None:
             raise ValueError("limit applies to a scenario file; pass batch.take(...) instead")
@@ -117,12 +99,8 @@ def open_results(directory: str | Path) -> Results:
 
 @dataclass(frozen=True)
 class Results:
-    """One results directory: its ``metrics.json`` and its per-window rows, as Python values and DataFrames.
-
-    ``summary()`` and ``paired_summary()`` tabulate the aggregates with their 95 % intervals and the
-    paired comparisons; ``per_scenario(name)`` gives one planner's rows; ``table()`` is metrics.md's
-    text and ``report()`` writes the HTML report.
-    """
+    """One results directory: its ``metrics.json`` and its per-window rows, as Python values and DataFrames
+    (``table()``: metrics.md's text; ``report()`` writes the HTML report)."""
 
     directory: Path
     raw: dict[str, Any]

@@ -1,23 +1,9 @@
-"""Everything a planner from outside letspi needs, in one import (docs/your-planner.md).
+"""Everything a planner or an LLM backend from outside letspi needs, in one import (docs/your-planner.md).
 
-A planner kind is plain data, a ``PlannerKind``: a name and a one-line description, a configuration
-class (a ``Config`` subclass with a ``kind`` literal, a ``version`` field and every setting that
-changes its plans: all of them enter its result key), the ``PlannerOption``s it reads (named with
-the kind's name as prefix), ``resolve`` (options -> configuration, through a ``Resolver``) and
-``build`` (configuration -> planner and model load time, through a ``Builder``) and the ``outputs`` its
-plans' ``info`` reports (``output(name, unit, dtype, doc, *Agg)``: stored as ``info_<name>``). A planner has a
-``name``, a ``batch_size``, ``reads_future = False`` and ``plan(ScenarioBatch) -> PlanBatch``; it
-sees the history only (``T0_INDEX`` is t = 0) and plans ``N_FUTURE`` steps of ``DT_S``.
-
-An installed package offers its kind in the ``ENTRY_POINT_GROUP`` entry-point group::
-
-    [project.entry-points."letspi.planners"]
-    gap-keeper = "letspi_gap_keeper:KIND"
-
-and ``letspi planners`` lists it; ``--planner package.module:KIND`` loads one without installing.
-
-An LLM backend is a ``BackendKind`` (prefix, factory, spec forms, default concurrency) named in the
-``LLM_BACKENDS_GROUP`` group under its prefix; ``letspi llm backends`` lists it
+A planner is a ``PlannerKind`` with its ``Config`` (a ``version`` field; every field in its key),
+``PlannerOption``s prefixed with the kind's name, ``resolve``, ``build`` and declared ``outputs`` (``output``).
+It joins through the ``ENTRY_POINT_GROUP`` entry-point group or ``--planner package.module:KIND``. An LLM
+backend is a ``BackendKind`` named in the ``LLM_BACKENDS_GROUP`` group under its prefix
 (docs/architecture.md#add-an-llm-backend).
 """
 

@@ -1,19 +1,7 @@
-"""What deciding planners decided, and what it bought, from evaluation directories (``letspi analyze decisions``).
-
-Reads one or more results directories of ``letspi evaluate`` (e.g. one per traffic layout), pairs every
-planner with a reference planner (default ``sf``) on the windows both hold (scenario digest, per
-directory), pools the pairs over the directories and reports per planner:
-
-* the rates and means of the evaluation (contact, at-fault contact, success; the plans' progress along
-  the road, read from the stored plans: the x of their last frame) with the paired differences to the
-  reference: exact McNemar counts for rates (``letspi.metrics.stats.paired_rate``, windows grouped by
-  ego vehicle for the interval), and the relative progress difference;
-* for planners with the decision step's columns (the ``decision`` output of ``letspi.planners.decision``):
-  the share of each decision, how often the defaults were kept where the reference's plan (the
-  defaults) was collision-free in the recorded future and changed where it collided, the share of
-  windows the model was consulted on, and the median live planning time over all windows and over
-  the consulted ones (rows served by the response cache are left out, as the evaluation does).
-"""
+"""What deciding planners decided, and what it bought (``letspi analyze decisions``): every planner of one or more
+results directories paired with a reference (default ``sf``) on shared windows, pooled: rates and progress with
+paired differences (grouped by ego vehicle), decision shares, defaults kept where the reference was safe and changed
+where it collided, the share consulted, the median live planning time."""
 
 from __future__ import annotations
 

@@ -1,24 +1,11 @@
-"""How much can any choice of the LLM's eight numbers gain on a set of windows? (``letspi analyze headroom``)
+"""How much could any choice of the LLM's eight numbers gain on a set of windows? (``letspi analyze headroom``)
 
-On one scenario file, every row of the table is a *chooser*: a rule that picks one option (an answer
-of the eight numbers, ``letspi.finetune.options``) per window. All rows are scored on the same windows
-against the recorded future (hindsight), so they pair:
-
-* ``defaults``: the fitted ``sf`` parameters, neutral goal, everywhere (what ``sf`` plans);
-* ``best constant``: the one option with the fewest at-fault collisions over the file (ties: more
-  successes, then more progress), everywhere; an oracle over the file, not over windows;
-* ``oracle, all options`` / ``oracle, presets``: per window the best option in hindsight
-  (``hindsight_utility``) among all options / among the presets: the bound of any chooser;
-* ``rule: defaults unless an adverse future fails`` (plan-time checks needed): keep the defaults when
-  their plan passes the checks against the predicted neighbours and every adverse future; otherwise
-  the preset that passes the most of them, then the most progress: the no-model chooser;
-* ``history chooser (CV)``: a multinomial logistic regression from the history's risk features
-  (``letspi.scenario.risk_features``) to the hindsight-best preset, in ``folds``-fold cross-validation
-  grouped by ego vehicle (no vehicle's windows on both sides), each window chosen by the model that
-  did not see its vehicle.
-
-And the risk AUC: how well "the defaults will collide (at fault)" is predicted from the history
-(logistic regression, grouped cross-validation) and from "the defaults fail an adverse future".
+Each row is a chooser picking one option (``letspi.finetune.options``) per window, all scored on the same windows
+against the recorded future: ``defaults`` (``sf``); ``best constant`` (the fewest at-fault collisions over the file;
+ties: successes, progress); the hindsight oracles over all options and over the presets (the bound of any chooser);
+the no-model ``rule`` (the defaults unless their plan fails a check, else the preset passing most); a ``history
+chooser (CV)`` (logistic regression from the risk features, grouped by ego vehicle). The risk AUCs: how well history
+and the checks predict the defaults' at-fault collisions.
 """
 
 from __future__ import annotations

@@ -1,12 +1,5 @@
-"""Configurations -> shared objects: goal predictors, LLM advisors, LetsPi phases.
-
-``Builder`` is what a planner kind's build step (``letspi.assembly.planner_table``) builds with, and
-``letspi.assembly.planners.build_planner`` the one entry that turns a configuration into a planner.
-It shares what is expensive between everything it builds: one ``ParamAdvisor`` (and so
-one loaded model) per LLM configuration, one goal predictor per goal configuration. Building an LLM
-planner loads its model at once and reports the time as ``BuiltPlanner.load_s``, so model loading
-never hides inside the first scenario's inference time.
-"""
+"""Configurations -> shared objects: goal predictors, LLM advisors, LetsPi phases. ``Builder`` loads one model per
+LLM configuration and one goal predictor per goal configuration, at build time (``BuiltPlanner.load_s``)."""
 
 from __future__ import annotations
 
@@ -36,11 +29,8 @@ class ConfigurationChangedError(ValueError):
 
 @dataclass
 class Builder:
-    """Builds planners and phases from configurations, sharing models (see the module docstring).
-
-    ``cache``: the LLM response cache (``"default"``: ``ResponseCache()`` when a configuration asks
-    for it; ``None``: never). Tests pass a ``ResponseCache`` in a temporary directory.
-    """
+    """Builds planners and phases from configurations, sharing models. ``cache``: the LLM response cache
+    (``"default"``: ``ResponseCache()`` when a configuration asks for it; ``None``: never)."""
 
     cache: ResponseCache | str | None = "default"
     _advisors: dict[tuple[str, str, bool], tuple[ParamAdvisor, float]] = field(default_factory=dict)

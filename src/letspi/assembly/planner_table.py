@@ -1,35 +1,16 @@
-"""The one table of planner kinds: each kind is one entry, everything else is derived from it.
+"""The one table of planner kinds: each kind is one ``PlannerKind`` entry; everything else derives from it.
 
-An entry names a kind, says in one line what it is, and gives its configuration class (defined
-beside the planner, in its module under ``letspi.planners``), the options it reads (declared beside
-the planner too, ``letspi.planners.options``), how those options resolve into the configuration
-(``Resolver``: files and environment read once, fingerprinted), how the configuration is built into
-a planner (``Builder``: models shared, load time reported) and what the planner can do: whether it
-reads the recorded future and whether the closed loop runs it dual-rate. From the table come the
-kinds ``--planner`` accepts, the CLI's planner flags (``letspi.cli.options``), the discriminated
-configuration union (``PlannerTable.parse_config``), the error for an unknown name, the demo's
-and the robustness bench's planner lists and ``letspi planners``.
+An entry gives a kind's configuration class and ``PlannerOption``s (declared beside the planner), how
+options resolve into the configuration (``Resolver``) and how it is built (``Builder``), and what the
+planner can do (reads the recorded future, runs dual-rate). The CLI's planner flags, the configuration
+union (``PlannerTable.parse_config``) and every planner listing derive from it. Adding a planner: one
+module in ``letspi/planners/`` plus one entry in ``BUILT_IN_KINDS``.
 
-Adding a planner: write ``letspi/planners/<name>.py`` with the planner, its ``Config`` subclass (a
-``kind: Literal["<name>"]`` field and everything that changes its answers) and the
-``PlannerOption``s of its own settings, then add one ``PlannerKind`` to ``BUILT_IN_KINDS`` below;
-nothing in ``letspi.cli`` changes.
-
-The table is a value, not a registry: nothing is registered on import. ``planner_table()`` is the
-table every command uses: the built-in kinds, then the kinds of installed packages and those named
-by import path. Such a kind is plain data like these: a ``PlannerKind`` whose ``Config`` subclass
-has a ``version`` field (what makes its results differ: every field enters its result key), its
-``PlannerOption``s, and ``resolve``/``build`` functions over the public ``Resolver`` and ``Builder``
-(``letspi.plugin`` exports them; docs/your-planner.md):
-
-* installed: a package names its ``PlannerKind`` in the ``letspi.planners`` entry-point group
-  (``installed_kinds``, read once per process; one that fails to load or clashes with a kind or an
-  option of the table is left out and reported by ``letspi planners``);
-* by import path: ``--planner mypkg.mod:NAME`` (``load_kind``; remembered for the process, so that
-  the table of every later command and worker has it).
-
-Commands that pick planners themselves (the benchmark suites' defaults, the robustness bench) use
-``BUILT_IN``, so what is installed never changes their results.
+The table is a value, not a registry. ``planner_table()`` adds to the built-in kinds those installed
+packages name in the ``letspi.planners`` entry-point group (``installed_kinds``; one that fails to load or
+clashes is left out and reported by ``letspi planners``) and those named by import path (``--planner
+mypkg.mod:NAME``: ``load_kind``, remembered for the process). An outside kind's ``Config`` has a
+``version`` field (docs/your-planner.md). Commands that pick planners themselves use ``BUILT_IN``.
 """
 
 from __future__ import annotations
@@ -114,10 +95,9 @@ class PlannerKind(Generic[C]):
     resolve: options -> configuration. build: (builder, configuration, label) -> (planner, model
     load time [s]). options: the ``PlannerOption``s ``resolve`` reads. future: whether it reads the
     recorded future; for ``ORACLE_INPUTS``, ``inputs`` says which goal source and neighbour
-    prediction a configuration uses. dual_rate: the closed loop asks its model at t = 0 and every
-    LLM period and replans the physics in between (``letspi.simulation.dual_rate``; the planner is a
-    ``letspi.simulation.schedule.DualRatePlanner``). demo: the tables of ``letspi demo`` showing it.
-    """
+    prediction a configuration uses. dual_rate: the closed loop runs it dual-rate (the planner is a
+    ``DualRatePlanner``). demo: the tables of ``letspi demo`` showing it. outputs: the per-scenario
+    info it reports, declared (``letspi.planners.outputs.output``); anything else is refused."""
 
     name: str
     description: str
@@ -160,7 +140,7 @@ class PlannerKind(Generic[C]):
 
 @dataclass(frozen=True)
 class PlannerTable:
-    """Planner kinds by name (module docstring): a value; ``with_kinds`` makes a larger one."""
+    """Planner kinds by name: a value; ``with_kinds`` makes a larger one."""
 
     kinds: tuple[PlannerKind[Any], ...]
     _by_name: dict[str, PlannerKind[Any]] = field(init=False, repr=False, compare=False)
@@ -445,8 +425,7 @@ class InstalledKinds:
 
 @functools.cache
 def installed_kinds() -> InstalledKinds:
-    """The kinds installed packages name in ``ENTRY_POINT_GROUP`` (by entry-point name; module docstring).
-    Read once per process."""
+    """The kinds installed packages name in ``ENTRY_POINT_GROUP`` (by entry-point name); read once per process."""
     kinds: list[PlannerKind[Any]] = []
     origins: dict[str, str] = {}
     problems: list[str] = []
@@ -515,7 +494,7 @@ def loaded_from(name: str) -> str | None:
 
 def planner_table(extra: Sequence[PlannerKind[Any]] = ()) -> PlannerTable:
     """The table of every kind a command offers: the built-in ones, the installed ones, those loaded by
-    import path, and ``extra`` (module docstring)."""
+    import path, and ``extra``."""
     kinds: dict[str, PlannerKind[Any]] = {}
     for kind in (*installed_kinds().kinds, *_BY_PATH.values(), *extra):
         kinds.setdefault(kind.name, kind)

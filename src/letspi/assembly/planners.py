@@ -1,12 +1,5 @@
-"""Planners by kind: options -> configuration -> planner, through the table (the entry point of assembly).
-
-``build_planners(["sf", "fast=letspi-fast"], options)`` resolves each ``KIND`` or ``LABEL=KIND`` with
-one ``Resolver`` (files read and fingerprinted once) and builds it with one ``Builder`` (models
-loaded once); ``resolve_planner`` and ``build_planner`` are the two halves. A ``BuiltPlanner`` is a
-planner with its configuration (whose key identifies its results) and what its kind's table entry
-says it can do (``reads_future``, ``dual_rate``): capabilities come from the table, never from the
-planner object.
-"""
+"""Planners by kind: options -> configuration (one ``Resolver``) -> planner (one ``Builder``), through the table;
+``build_planners(["sf", "fast=letspi-fast"], options)`` does both halves."""
 
 from __future__ import annotations
 
@@ -25,12 +18,8 @@ from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 
 @dataclass
 class BuiltPlanner:
-    """A planner with the configuration it was built from.
-
-    name: the label of its results (short; ``config`` holds everything). load_s: model loading at
-    build time [s] (0 for planners without a model), reported apart from inference time. table: the
-    table its kind is an entry of (its capabilities); None: the built-in kinds (a picklable reference).
-    """
+    """A planner with the configuration it was built from (its key). name: the label of its results; load_s: model
+    loading at build time [s]; table: its kind's table (capabilities; None: the built-in table, picklable)."""
 
     name: str
     config: PlannerConfig

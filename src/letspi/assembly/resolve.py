@@ -1,14 +1,5 @@
-"""Requests -> configurations: read every file and environment variable once, fingerprint them.
-
-``PlannerOptions`` (``letspi.planners.options``) is what a user asks for (CLI flags: a model spec,
-a goal source, a parameter file, ...). ``Resolver`` turns it into the frozen building blocks of
-planner configurations (``letspi.planners.config``; each kind's configuration is assembled from
-them by its entry in ``letspi.assembly.planner_table``), whose content keys identify results: the
-parameter *values* instead of a file name, the SHA-256 of the weights a goal source or an embedded
-model uses, the text of the prompts, a snapshot of the memory bank. Environment variables that
-change answers (``$LETSPI_GOAL_WEIGHTS``, ``$LETSPI_GNP_WEIGHTS``, ``$LETSPI_MLP_WEIGHTS``) are read
-here and nowhere else, so they always show up in a configuration.
-"""
+"""Requests -> configurations: every file and environment variable that changes answers is read here only, once, and
+fingerprinted (parameter values, weights' SHA-256, prompt text, a memory snapshot) into a configuration."""
 
 from __future__ import annotations
 
@@ -109,9 +100,8 @@ def prompt_sha256() -> str:
 
 
 def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str] | None = None) -> GoalsConfig:
-    """The goal source ``source`` (``learned``: the weights of ``weights``, else ``$LETSPI_GOAL_WEIGHTS``,
-    else the shipped ones, fingerprinted; without usable shipped weights it falls back to ``kinematic``
-    and says why)."""
+    """The goal source ``source`` (``learned``: ``weights``, else ``$LETSPI_GOAL_WEIGHTS``, else the shipped ones,
+    fingerprinted; without usable shipped weights ``kinematic``, saying why)."""
     if source not in GOAL_SOURCES:
         raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
     if source != "learned":
@@ -130,10 +120,8 @@ def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str
 
 
 class Resolver:
-    """Turns ``PlannerOptions`` into the building blocks of configurations (see the module docstring).
-
-    ``env`` defaults to ``os.environ``; tests pass a dict. Fingerprints are computed once per resolver.
-    """
+    """Turns ``PlannerOptions`` into the building blocks of configurations; ``env`` defaults to ``os.environ``.
+    Fingerprints are computed once per resolver."""
 
     def __init__(self, options: PlannerOptions | None = None, env: Mapping[str, str] | None = None) -> None:
         self.options = options or DEFAULT_OPTIONS

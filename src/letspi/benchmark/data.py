@@ -1,17 +1,6 @@
-"""A suite's scenarios: generated once, cached by the content of their definition, and reused.
-
-Cache layout (``$LETSPI_BENCHMARK_CACHE``, default ``~/.cache/letspi/benchmark``)::
-
-    traffic/<traffic key>/seed_<S>/NN_*.csv, NN_events.csv, NN_generation.json, done.json
-    scenarios/<key>/scenarios.arrow
-
-``<traffic key>`` is a digest of the suite's traffic definition (preset resolved to its full
-configuration, seeds, minutes, ...) and :data:`DATA_FORMAT`; ``<key>`` adds the extraction (and, for
-real HighD, the recording ids and the digests of the files seen). Any change makes new data; a change
-of the extraction alone reuses the traffic. Each seed is
-generated in its own process (two seeds run side by side on two cores); a seed directory counts once
-its ``done.json`` is written, so an interrupted generation resumes with the seeds still missing.
-"""
+"""A suite's scenarios, cached by the content of their definition (``$LETSPI_BENCHMARK_CACHE``, default
+``~/.cache/letspi/benchmark``): ``traffic/<traffic key>/seed_<S>/`` and ``scenarios/<key>/scenarios.arrow``,
+``<key>`` adding the extraction to the traffic key. A seed counts once its ``done.json`` is written."""
 
 from __future__ import annotations
 
@@ -56,10 +45,8 @@ def cache_root() -> Path:
 
 @dataclass(frozen=True)
 class SuiteData:
-    """The scenarios of a suite and how long they took (0 when reused from the cache).
-
-    file_digests: real HighD only, the digests of the recordings' files that were read.
-    """
+    """The scenarios of a suite and how long they took (0 when cached); ``file_digests``: real HighD only, the
+    digests of the files read."""
 
     scenarios_file: Path
     generation_s: float

@@ -1,21 +1,7 @@
-"""The leaderboard of a suite run: every planner per mode with 95 % intervals and paired deltas against
-the reference planner, as JSON (byte-identical for identical results), Markdown and HTML.
-
-Computed from the per-scenario rows the harness stored, on the windows every listed planner has:
-
-* rates (``*_pct``, from a per-window flag): value in %, Wilson interval at the effective sample size of
-  windows grouped by ego vehicle (``vehicle_wilson_interval``, as ``metrics.json``);
-* means (``ade_m``, ``fde_m``): mean of the finite values, vehicle-bootstrap interval (windows of one
-  ego vehicle resampled together, ``letspi.metrics.stats``);
-* paired, each planner against the reference on the same windows: rates get the windows only the
-  planner fails (``n_only_planner``), only the reference fails, both fail, the exact McNemar p and the
-  vehicle-bootstrap interval of the difference (planner - reference, points) and the design effect of
-  the discordant windows (``discordant_design_effect``: variance inflation from windows of one vehicle);
-  means the difference and its interval.
-
-Nothing that varies between identical runs (wall times, dates, paths) enters ``leaderboard.json``;
-timings go to ``timing.json``. Floats are rounded to 6 significant digits.
-"""
+"""The leaderboard of a suite run, as JSON, Markdown and HTML: every planner per mode on the windows all have, with
+95 % intervals (rates: Wilson grouped by ego vehicle; means: vehicle bootstrap) and paired deltas against the
+reference (rates: discordant counts, exact McNemar p, ``discordant_design_effect``). ``leaderboard.json`` holds
+nothing that varies between identical runs (floats to 6 significant digits)."""
 
 from __future__ import annotations
 

@@ -1,17 +1,7 @@
-"""How many windows a paired comparison needs: the power of the exact McNemar test.
-
-Two planners A and B run on the same n windows. Per window, A alone fails with probability
-``p_only_a`` and B alone with ``p_only_b`` (the discordance is their sum; windows both or neither
-fail carry no information about the difference). The number of discordant windows D is
-Binomial(n, p_only_a + p_only_b); given D = d, the windows only A fails are Binomial(d, q) with
-q = p_only_a / (p_only_a + p_only_b). The two-sided exact McNemar test at level alpha rejects when
-that count lies in either tail of Binomial(d, 1/2) of mass <= alpha / 2 each. The power is the
-rejection probability summed over d, computed exactly (no normal approximation).
-
-A difference of the rates of 1 point is p_only_a - p_only_b = 0.01; at a measured discordance psi
-(discordant windows / n of a real run) the alternative is p_only_a = (psi + 0.01) / 2,
-p_only_b = (psi - 0.01) / 2.
-"""
+"""How many windows a paired comparison needs: the exact power of the two-sided exact McNemar test. A alone fails
+with probability ``p_only_a``, B with ``p_only_b``; the discordant count is Binomial(n, p_only_a + p_only_b), A's
+share of it Binomial(d, p_only_a / (p_only_a + p_only_b)), the rejection region the tails of Binomial(d, 1/2) of mass
+<= alpha / 2. A 1-point difference at discordance psi: p_only_a = (psi + 0.01) / 2."""
 
 from __future__ import annotations
 

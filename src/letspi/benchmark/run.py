@@ -1,14 +1,5 @@
-"""Run a suite: its data (cached), every planner in each of its modes (resumable), the leaderboard.
-
-Layout of a suite's results directory::
-
-    OUT/leaderboard.json, leaderboard.md, leaderboard.html
-    OUT/timing.json                     wall time of each stage (data, each mode, each planner of a
-                                        closed-loop mode), load average
-    OUT/<mode slug>/                    a ``letspi evaluate`` results directory (+ report.html)
-
-Rerunning resumes every mode where it stopped and reuses the cached data; more planners join.
-"""
+"""Run a suite: its data (cached), every planner in each mode (a ``letspi evaluate`` directory per mode, resumed),
+``leaderboard.{json,md,html}`` and ``timing.json``."""
 
 from __future__ import annotations
 

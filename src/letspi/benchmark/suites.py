@@ -1,21 +1,6 @@
-"""The benchmark suites: one table, one entry per suite; everything that makes a result is in the entry.
-
-A :class:`Suite` pins
-
-* the traffic: generator preset (resolved to its full :class:`~letspi.trafficgen.config.TrafficConfig`
-  plus overrides), layout, seeds, minutes, lanes, flow; or, for real HighD, the recording ids and
-  the content digests of their files;
-* the extraction: focus, critical share, number of windows, sampling seed, stride;
-* the evaluation modes and their replanning periods (and, for LLM planners, the dual-rate period and
-  a fixed answer latency, so closed-loop results do not depend on the machine);
-* the metrics configuration.
-
-Its id is ``NAME@vVERSION-DIGEST8``: the digest is the first 8 hex digits of the BLAKE2b hash of the
-canonical JSON of :meth:`Suite.definition`, so any change to a suite's content (including a changed
-preset default or metrics threshold) changes its id; ``tests/test_benchmark.py`` pins every digest.
-Generator seeds of suites are in ``letspi.scenario.provenance.SUITE_SEEDS`` (1000-1999), which
-``letspi fit`` and ``letspi train llm-data`` refuse.
-"""
+"""The benchmark suites: one table (``SUITES``), one entry per suite pinning everything that makes a result
+(docs/benchmark.md). The id ``NAME@vVERSION-DIGEST8`` hashes ``Suite.definition`` (``tests/test_benchmark.py`` pins
+every id)."""
 
 from __future__ import annotations
 
@@ -39,13 +24,9 @@ REFERENCE_PLANNER: Final = "sf"
 
 @dataclass(frozen=True)
 class GeneratedTraffic:
-    """Traffic made by letspi's SUMO generator: one run per seed, each cut into recordings.
-
-    preset: ``letspi data generate --criticality``; overrides: ``--set KEY=VALUE`` pairs;
-    layout: road layout; seeds: generator seeds (in ``SUITE_SEEDS``); minutes: recorded minutes per
-    seed; recording_minutes: length of each recording; lanes_per_direction; flow_veh_per_h (None: the
-    generator's default).
-    """
+    """Traffic of letspi's SUMO generator, one run per seed (in ``SUITE_SEEDS``) cut into recordings: preset
+    (``--criticality``), overrides (``--set KEY=VALUE``), layout, seeds, minutes and recording_minutes,
+    lanes_per_direction, flow_veh_per_h (None: the generator's default)."""
 
     preset: str
     layout: str
@@ -77,13 +58,8 @@ class GeneratedTraffic:
 
 @dataclass(frozen=True)
 class RealHighD:
-    """Real HighD recordings from the user's licensed copy, chosen by id.
-
-    file_digests: recording id -> SHA-256 (first 16 hex digits) of its three CSV files as the suite
-    expects them (``letspi benchmark run`` prints the digests it sees; a run on other files is refused,
-    or only warned about with ``--allow-other-files``). Empty: not pinned yet, the leaderboard records
-    the digests seen so results can still be matched between users.
-    """
+    """Real HighD recordings from the user's licensed copy, by id. ``file_digests``: id -> SHA-256 (16 hex digits) of
+    its three CSV files; other files are refused (``--allow-other-files``: warned). Empty: not pinned yet."""
 
     recording_ids: tuple[int, ...]
     file_digests: Mapping[int, str] = field(default_factory=dict)
@@ -118,10 +94,9 @@ class Extraction:
 
 @dataclass(frozen=True)
 class Mode:
-    """One evaluation mode of a suite. Closed loop: every planner replans every ``replan_s``; LLM planners
-    ask their model every ``llm_period_s`` and an answer takes effect ``llm_latency_s`` after its call
-    (fixed, so results do not depend on the machine). ``n_windows``: evaluate a random subset of this
-    many of the suite's windows (drawn with the extraction seed; None: all of them)."""
+    """One evaluation mode of a suite: closed loop replans every ``replan_s``; LLM planners ask every
+    ``llm_period_s`` with a fixed answer latency ``llm_latency_s``; ``n_windows``: a random subset (extraction seed;
+    None: all)."""
 
     mode: str
     replan_s: float | None = None
@@ -147,14 +122,14 @@ class Mode:
 
 
 OPEN_LOOP: Final = Mode("open-loop")
-#: issue 28's closed loop: physics replans every 0.2 s, the LLM is asked every 2.5 s; 2,000 of the windows
+#: the suites' closed loop: physics replans every 0.2 s, the LLM is asked every 2.5 s; 2,000 of the windows
 CLOSED_LOOP_DUAL_RATE: Final = Mode("closed-loop-log", replan_s=0.2, llm_period_s=2.5, llm_latency_s=1.5,
                                     n_windows=2000)
 
 
 @dataclass(frozen=True)
 class Suite:
-    """One benchmark suite (module docstring). ``scripted``: what the reader must know about the events
+    """One benchmark suite. ``scripted``: what the reader must know about the events
     in the traffic (scripted or not, and how many), shown by ``list``/``show`` and in the leaderboard."""
 
     name: str

@@ -1,14 +1,5 @@
-"""One table over several suites' leaderboards (``letspi benchmark summary``): the README's headline.
-
-Each cell is one planner on one suite and mode, read from that run's ``leaderboard.json`` (nothing is
-recomputed): CR at fault % with its 95 % interval, the paired McNemar p against the suite's reference
-where the planner is not the reference, and SR %. Planners a run did not evaluate show "–".
-
-A planner is *dominated* on a suite and mode when another planner (not the reference-free ``human``,
-whose plan is the recorded future) has both a lower CR at fault and a higher SR there, each by more than
-the other's interval allows, i.e. the two intervals do not overlap on either metric. ``dominated_by``
-lists those pairs: issue 27 asks that no baseline dominate ``frenet`` on any suite.
-"""
+"""One table over several suites' leaderboards (``letspi benchmark summary``), read from ``leaderboard.json``; a
+planner is dominated when another (not ``human``) has both CR-at-fault and SR intervals wholly better."""
 
 from __future__ import annotations
 
@@ -33,9 +24,8 @@ def load_boards(results: Sequence[Path]) -> list[dict[str, Any]]:
 
 
 def columns(boards: Sequence[Mapping[str, Any]]) -> list[tuple[str, str, Mapping[str, Any]]]:
-    """(suite name, mode slug, mode board) for every mode of every board, open loop first. Boards of one
-    suite id (e.g. the baselines' run and the LLM planners' run of the same suite) share a column: their
-    planners are merged (each planner's paired statistics stay those of its own run, on the same windows)."""
+    """(suite name, mode slug, mode board) for every mode of every board, open loop first; boards of one suite id
+    share a column (each planner's paired statistics stay those of its own run)."""
     merged: dict[tuple[str, str], dict[str, Any]] = {}
     names: dict[tuple[str, str], str] = {}
     for board in boards:

@@ -46,9 +46,9 @@ def headroom_cmd(
     seed: Annotated[int, typer.Option(help="Seed of the random answers and of the folds.")] = 0,
     max_windows: Annotated[int | None, typer.Option("--max", help="Only the first N windows.")] = None,
 ) -> None:
-    """The headroom of any per-window choice of the LLM's eight numbers, on one scenario file (paired):
-    defaults, best constant, hindsight oracles, the no-model rule, a history-only chooser (grouped CV),
-    risk AUC."""
+    """What any choice of the LLM's eight numbers could gain. Paired on one scenario file: the defaults,
+    the best constant, hindsight oracles, the no-model rule, a history-only chooser (grouped CV) and the
+    risk AUCs."""
     with user_errors():
         if goals not in ("learned", "kinematic"):
             raise ValueError("--goals must be learned or kinematic")
@@ -85,9 +85,9 @@ def decisions_cmd(
     reference: Annotated[str, typer.Option(help="The planner every other one is paired with.")] = "sf",
     out: Annotated[Path | None, typer.Option(help="Write decisions.json and decisions.md here.")] = None,
 ) -> None:
-    """What deciding planners decided and what it bought, pooled over results directories and paired with
-    the reference: rates with McNemar counts, progress, decision shares, kept/changed where the
-    reference was safe/collided, consulted share, median live planning time."""
+    """What deciding planners decided and what it bought. Pooled over results directories and paired with
+    the reference: rates with McNemar counts, progress, decision shares, defaults kept or changed where
+    the reference was safe or collided, the share consulted and the median live planning time."""
     with user_errors():
         reports = [planner_report(paired_rows(results, name, reference), name, reference) for name in planner]
         text = decisions_markdown(reports)

@@ -27,7 +27,7 @@ app = typer.Typer(help="Versioned benchmark suites: list, show, run; power of a 
 
 @app.command("list")
 def list_suites() -> None:
-    """Every suite: its id (name@version-digest), windows, modes and what is scripted in its traffic."""
+    """List every suite. Its id (name@version-digest), windows, modes and what is scripted in its traffic."""
     for suite in SUITES.values():
         modes = ", ".join(m.slug + (f" ({m.n_windows:,d})" if m.n_windows else "") for m in suite.modes)
         typer.echo(f"{suite.suite_id:34s} {suite.extraction.n_windows:>6,d} windows  {modes}")
@@ -39,7 +39,7 @@ def show(
     suite: Annotated[str, typer.Argument(help="Suite name (or its full id).")],
     as_json: Annotated[bool, typer.Option("--json", help="The full definition as JSON.")] = False,
 ) -> None:
-    """Everything a suite pins: traffic (resolved configuration), extraction, modes, metrics, digest."""
+    """Show everything a suite pins. Traffic (resolved configuration), extraction, modes, metrics, digest."""
     with user_errors():
         s = get_suite(suite)
     if as_json:
@@ -90,8 +90,8 @@ def run(
         "--mode", help="Only this mode of the suite (its slug, e.g. open-loop or closed-loop-log-0.2s; "
                        "repeatable; default: all): the leaderboard then holds these modes.")] = None,
 ) -> None:
-    """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
-    (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
+    """Run a suite and write its leaderboard. Generates the suite's data (cached), evaluates the planners
+    in its modes and writes leaderboard.json / .md / .html with 95 % intervals and paired deltas against sf."""
     with user_errors(resumes=True):  # the data is cached, each mode's evaluation resumes
         s = get_suite(suite)
         planners = planner or default_planners()
@@ -119,9 +119,9 @@ def summary(
     mode: Annotated[list[str] | None, typer.Option(
         "--mode", help="Only this mode (slug, e.g. open-loop; repeatable; default: all).")] = None,
 ) -> None:
-    """One Markdown table over several suites' leaderboards: per planner and suite mode, CR at fault % (95 %
-    CI), the paired McNemar p against the suite's reference and SR %; then which planners another dominates
-    (both intervals apart). Reads the leaderboards only: nothing is rerun."""
+    """One table over several suites' leaderboards. Per planner and suite mode: CR at fault % (95 % CI), the
+    paired McNemar p against the suite's reference and SR %; then which planners another dominates (both
+    intervals apart). Reads the leaderboards only: nothing is rerun."""
     with user_errors():
         text = summary_markdown(load_boards(results), planner, mode)
     typer.echo(text, nl=False)
@@ -138,9 +138,9 @@ def power(
     target_power: Annotated[float, typer.Option("--power", help="Power to reach.")] = 0.8,
     alpha: Annotated[float, typer.Option(help="Level of the two-sided exact McNemar test.")] = 0.05,
 ) -> None:
-    """Windows a paired comparison needs to detect a CR difference (exact McNemar power; windows of one
+    """Windows a paired comparison needs to detect a CR difference. Exact McNemar power; windows of one
     vehicle are correlated, so the count is multiplied by the measured design effect of the discordant
-    windows, and the power at a run's n is that of n / design effect independent windows)."""
+    windows, and the power at a run's n is that of n / design effect independent windows."""
     with user_errors():
         rows: list[tuple[str, float, int | None, float]] = []
         if results is not None:

@@ -1,11 +1,6 @@
-"""Shared CLI helpers: progress bars and the one error path of every command.
-
-Every anticipated failure ends in one or two lines on stderr that name the file, field or address
-and say what to do, with a non-zero exit code; ``--debug`` (or ``LETSPI_DEBUG=1``) shows the
-traceback instead. Exit codes: 2 bad input or setup (file, field, model, server, results key),
-1 an unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted
-(Ctrl-C; 143 after SIGTERM): one line saying how much is stored (``letspi.execution.interrupt``).
-"""
+"""Shared CLI helpers: progress bars and the one error path of every command (``user_errors``): one or two lines
+naming the file, field or address (``--debug``: the traceback); exit 2 bad input or setup, 1 a bug, 130 interrupted
+(143 after SIGTERM)."""
 
 from __future__ import annotations
 
@@ -196,12 +191,9 @@ def _fail(message: str, hint: str | None, code: int) -> typer.Exit:
 
 @contextmanager
 def user_errors(*, resumes: bool = False) -> Iterator[interrupt.Tally]:
-    """Turn anticipated failures into one or two lines and an exit code (module docstring).
-
-    Yields the command's ``Tally``: a command that resumes (``resumes=True``) calls ``track(total,
-    count)`` once it knows its work, so that Ctrl-C prints ``interrupted: N of M stored; rerun the
-    same command to resume``; the others keep nothing partial (``interrupted: nothing stored; rerun
-    the same command to start again``)."""
+    """Turn anticipated failures into one or two lines and an exit code. Yields the command's ``Tally``: a
+    command that resumes (``resumes=True``) calls ``track(total, count)`` once it knows its work, so that
+    Ctrl-C prints how much is stored."""
     tally = interrupt.Tally(resumes=resumes)
     try:
         yield tally

@@ -65,7 +65,7 @@ def generate(
                       "or drivers.reaction_time_s=0.3,1.2; --show-config lists them.")] = None,
     show_config: Annotated[bool, typer.Option(help="Print the resolved traffic configuration and exit.")] = False,
 ) -> None:
-    """Simulate a two-direction highway in SUMO and write HighD-format recordings (+ events files)."""
+    """Simulate highway traffic in SUMO as HighD recordings. Both directions, with an events file per recording."""
     with user_errors():
         overrides = _parse_settings(settings)
         if layout is not None:
@@ -108,7 +108,7 @@ def ssm_check_command(
     keep: Annotated[Path | None, typer.Option(help="Also write the recording and SUMO's SSM XML here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
-    """Compare the recordings' TTC with SUMO's SSM device (TTC per frame and per-vehicle minimum)."""
+    """Compare the recordings' TTC with SUMO's SSM device. TTC per frame and per-vehicle minimum."""
     with user_errors():
         cfg = with_overrides(traffic_preset(criticality), _parse_settings(settings))
         with progress_bar() as bar:
@@ -136,10 +136,9 @@ def scenarios(
         help="With --focus critical: the share of scenarios drawn from windows with a conflict of the ego "
              "(TTC < 3 s, DRAC > 3 m/s^2, or a scripted event).")] = 0.5,
 ) -> None:
-    """Cut recordings into 8 s ego-centric scenarios (3 s history, 5 s future) and store them.
-
-    Neighbours are chosen at t = 0 from what is visible then; other vehicles near the ego's recorded
-    future are kept as context the evaluation scores and planners never see."""
+    """Cut recordings into 8 s ego-centric scenarios. 3 s history and 5 s future; neighbours are chosen at
+    t = 0 from what is visible then; other vehicles near the ego's recorded future are kept as context the
+    evaluation scores and planners never see."""
     with user_errors():
         if focus not in ("uniform", "critical"):
             raise ValueError(f"--focus must be uniform or critical, got {focus!r}")
@@ -178,7 +177,7 @@ def info(
                                 "lane, time headway, beside the values the highD authors published.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
-    """Summarise a scenario file, or the criticality profile of HighD directories."""
+    """Summarise a scenario file or HighD directories. For HighD directories: their criticality profile."""
     with user_errors():
         dirs = [p for p in paths if p.is_dir()]
         if dirs:

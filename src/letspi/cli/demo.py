@@ -50,17 +50,12 @@ def demo(
     llm_collect: Annotated[int, typer.Option(help="Scenarios in the memory collection phase (0: skip LLMs).")] = 8,
     llm_eval: Annotated[int, typer.Option(help="Held-back scenarios for the LLM head-to-head table.")] = 8,
 ) -> None:
-    """The main job: generate (or reuse) SUMO traffic as HighD files, extract planning scenarios,
-    evaluate the baselines (the planner table's demo baselines: human, cv, idm, sf, sf-opt, gnp) and print
-    the paper-style table.
-
-    Then LetsPi itself: the memory collection phase (physics-informed prompt, reflection) with the
-    embedded model on ``llm_collect`` scenarios, and a head-to-head of baselines, letspi-memory and
-    letspi-fast on ``llm_eval`` scenarios of *other ego vehicles* (a split by vehicle: overlapping
-    windows of one vehicle never land on both sides). LLM calls take seconds each on 2 cores.
-
-    The shipped ``sf`` parameters were fitted on traffic generated with seed 1; the demo's default
-    seed 0 keeps its scenarios held out from that fit. Rerunning reuses finished work.
+    """The main job on generated traffic and the embedded model. Generates (or reuses) SUMO traffic as
+    HighD files, extracts planning scenarios, evaluates the baselines (human, cv, idm, sf, sf-opt, gnp) and
+    prints the paper-style table; then collects a memory with the embedded model on --llm-collect
+    scenarios and compares the baselines, letspi-memory and letspi-fast on --llm-eval scenarios of other
+    ego vehicles (LLM calls take seconds each). The default seed 0 keeps the scenarios out of the shipped
+    sf parameters' fit (seed 1). Rerunning reuses finished work.
     """
     highd_dir = out / "highd"
     scenarios_file = out / "scenarios.arrow"

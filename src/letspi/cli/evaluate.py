@@ -202,8 +202,8 @@ def evaluate(
     llm_latency_s: LlmLatencyOpt = None,
     reference: ReferenceOpt = None,
 ) -> None:
-    """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
-    (open loop, or closed loop in SUMO with --mode)."""
+    """Evaluate planners on scenarios. Writes DIR/metrics.json, DIR/metrics.md and per-scenario Parquet
+    parts with the plans (open loop, or closed loop with --mode)."""
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         labels = [label for label, _ in planner_kinds(planner)]
         closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),

@@ -31,9 +31,9 @@ def commonroad_cmd(
     orientation: Annotated[str, typer.Option(help="heading (atan2(vy, vx), a vehicle's yaw) or axis_aligned "
                                                   "(0: letspi's own box geometry).")] = "heading",
 ) -> None:
-    """CommonRoad scenario files: lanelets from the lane markings, neighbours and context vehicles as dynamic
-    obstacles with their recorded futures, the ego as the planning problem; optionally a planner's plans as
-    CommonRoad solutions (needs the `commonroad` extra)."""
+    """Export scenarios as CommonRoad scenario files. Lanelets from the lane markings, neighbours and context
+    vehicles as dynamic obstacles with their recorded futures, the ego as the planning problem; optionally
+    a planner's plans as CommonRoad solutions (needs the `commonroad` extra)."""
     with user_errors():
         try:
             import letspi.interop.commonroad as cr

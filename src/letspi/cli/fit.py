@@ -32,7 +32,7 @@ def fit_sf(
     evaluations: Annotated[int, typer.Option(help="Objective evaluations (Nelder-Mead).")] = 200,
     collision_weight: Annotated[float, typer.Option(help="Objective weight of the collision rate [m].")] = 50.0,
 ) -> None:
-    """Fit the fixed social-force parameters of the `sf` baseline (ADE + weighted collisions)."""
+    """Fit the `sf` baseline's social-force parameters. Objective: ADE plus weighted collisions."""
     with user_errors():
         meta = read_scenario_meta(scenarios)
         refuse_suite_traffic(scenarios, meta)
@@ -79,8 +79,8 @@ def fit_frenet(
     collision_weight: Annotated[float, typer.Option(
         help="Objective weight of the at-fault collision rate [m].")] = 50.0,
 ) -> None:
-    """Choose the `frenet` planner's cost weights on training traffic (by-vehicle split; ADE + weighted
-    at-fault collisions, low TTC and failures)."""
+    """Choose the `frenet` planner's cost weights. On training traffic split by vehicle; objective: ADE plus
+    weighted at-fault collisions, low TTC and failures."""
     with user_errors():
         if goals == "oracle":
             raise ValueError("fit the weights with the goals the planner will use (learned or kinematic), "

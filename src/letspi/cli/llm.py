@@ -45,11 +45,10 @@ def check(
     attempts: Annotated[int, typer.Option(help="Maximum calls (1 = no retry).")] = RetryPolicy.max_attempts,
     max_tokens: Annotated[int, typer.Option(help="Reply token limit.")] = DecodingSettings.max_tokens,
 ) -> None:
-    """Load SPEC, send one prompt, print latency, tokens and the parsed reply as JSON.
-
-    For embedded models also the load-time self-check (batched vs token-by-token prompt evaluation) and
-    the llama.cpp runtime. Exit code 0: the model gave a valid reply; 1: it fell back to defaults;
-    2: configuration error (including a failed strict self-check).
+    """Send one prompt to SPEC and print the reply. Prints latency, tokens and the parsed reply as JSON; for
+    embedded models also the load-time self-check (batched vs token-by-token prompt evaluation) and the
+    llama.cpp runtime. Exit code 0: the model gave a valid reply; 1: it fell back to defaults; 2:
+    configuration error (including a failed strict self-check).
     """
     if prompt not in ("auto", "tiny", "fast", "physics", "compact"):
         raise typer.BadParameter("prompt must be auto, tiny, fast, physics or compact")
@@ -118,7 +117,7 @@ def backends(
 def models(
     locate: Annotated[bool, typer.Option(help="Also resolve each model's file (assembles Gemma once).")] = False,
 ) -> None:
-    """List the embedded models (``llamacpp:NAME``) and the PyPI packages that provide them."""
+    """List the embedded models and their PyPI packages. Use one as --llm llamacpp:NAME."""
     rows = []
     for m in EMBEDDED_MODELS.values():
         row: dict[str, str] = {"spec": f"llamacpp:{m.name}", "package": m.pip_package, "description": m.description}
@@ -137,9 +136,9 @@ def fingerprint(
                                                   "file into this directory (diff two such directories to see "
                                                   "what a prompt change changes).")] = None,
 ) -> None:
-    """Print the prompt fingerprint: the SHA-256 of the prompts as rendered for fixed synthetic scenes by every
-    prompt style (``letspi.llm.fingerprint``). It is part of every LLM configuration key: when it changes,
-    stored LLM results and memory collections no longer match the configuration."""
+    """Print the prompt fingerprint. The SHA-256 of the prompts as every prompt style renders them for fixed
+    synthetic scenes; it is part of every LLM configuration key, so when it changes, stored LLM results and
+    memory collections no longer match the configuration."""
     if out is not None:
         texts = {name: s if isinstance(s, str) else messages_text(s) for name, s in prompt_samples().items()}
         texts.update(prompt_text_samples())
@@ -159,7 +158,7 @@ def bench(
     repeats: Annotated[int, typer.Option(help="Repetitions of each latency measurement (median).")] = 2,
     behaviour: Annotated[bool, typer.Option(help="Also run the five-scenario behaviour check.")] = True,
 ) -> None:
-    """Latency, tokens, prefix- and cache-hit speedups and behaviour of the embedded models (JSON)."""
+    """Benchmark the embedded models. Latency, tokens, prefix- and cache-hit speedups and behaviour (JSON)."""
     try:
         result = bench_models(
             tuple(model) if model else ("smollm2-135m", "gemma3-270m"), repeats=repeats, behaviour=behaviour

@@ -1,12 +1,5 @@
-"""Planner flags from the planner table: every command that takes planners gets them the same way.
-
-``@planner_options()`` gives a command one flag per ``PlannerOption`` its planners read (all kinds of
-the table by default; ``kinds=`` or ``declared=`` narrow it, ``exclude=`` leaves out options the
-command sets itself) and calls it with ``options: PlannerOptions`` built from them: the one place
-the CLI turns flags into options. The flags appear under "Planner options" in ``--help``; their
-names, types, defaults, units and help are the declarations' (``letspi.planners.options``), so a
-new planner setting needs no edit here.
-"""
+"""Planner flags from the planner table (under "Planner options" in ``--help``): ``@planner_options()`` is the one
+place the CLI turns flags into ``PlannerOptions``."""
 
 from __future__ import annotations
 
@@ -39,11 +32,8 @@ def option_parameter(option: PlannerOption[Any]) -> inspect.Parameter:
 
 def planner_options(*, kinds: Sequence[str] | None = None, declared: Sequence[PlannerOption[Any]] | None = None,
                     exclude: Collection[str] = ()) -> Callable[[F], F]:
-    """Decorate a command that has an ``options: PlannerOptions`` parameter (module docstring).
-
-    kinds: the planner kinds whose options become flags (default: every kind of the table);
-    declared: exactly these options instead; exclude: option names the command sets itself.
-    """
+    """Decorate a command that has an ``options: PlannerOptions`` parameter: one flag per option of ``kinds``
+    (default: every kind), or exactly ``declared``; ``exclude``: option names the command sets itself."""
     chosen = tuple(declared) if declared is not None else planner_table().options(kinds)
     unknown = set(exclude) - {o.name for o in chosen}
     if unknown:

@@ -55,12 +55,10 @@ def collect(
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
     concurrency: ConcurrencyOpt = None,
 ) -> None:
-    """Memory collection: physics-informed prompt, reasoning, reflection; stores experiences.
-
-    Experiences are keyed by the scenario's content and the collection configuration's key (printed),
-    so another configuration or dataset gets its own rows. Resumable: rerun the same command after a
-    crash; stored experiences are kept and skipped, fallbacks are retried. --concurrency scenarios run
-    at once; experiences are stored in scenario order, so the bank does not depend on it.
+    """Collect a memory bank of LLM experiences. Physics-informed prompt, reasoning and reflection; each
+    experience is keyed by the scenario's content and the collection configuration's key (printed).
+    Resumable: rerun the same command; stored experiences are skipped, fallbacks retried. --concurrency
+    scenarios run at once, stored in scenario order, so the bank does not depend on it.
     """
     with user_errors(resumes=True) as tally, writer_lock(memory, command_line(), directory=False):
         batch = load_limited(scenarios, limit)
@@ -136,8 +134,8 @@ def plan(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
     show_prompt: Annotated[bool, typer.Option(help="Include the prompt(s) sent to the LLM.")] = False,
 ) -> None:
-    """Plan one scenario and show parameters, goal, trajectory summary, metrics, the LLM's rationale,
-    reflection iterations and retrieved memories."""
+    """Plan one scenario and show the details. Parameters, goal, trajectory summary, metrics, the LLM's
+    rationale, reflection iterations and retrieved memories."""
     with user_errors():
         if index < 0:
             raise ValueError(f"--index must be >= 0, got {index}")
@@ -220,7 +218,7 @@ def ablate(
     combo: Annotated[list[str] | None, typer.Option(help="llm-combinations: MEMORY_SPEC,FAST_SPEC (repeat).")] = None,
     concurrency: ConcurrencyOpt = None,
 ) -> None:
-    """Run one of the paper's ablations and print its table (also OUT/ablations/KIND/metrics.md)."""
+    """Run one of the paper's ablations and print its table. Also written to OUT/ablations/KIND/metrics.md."""
     with user_errors(resumes=True):
         batch = load_limited(scenarios, limit)
         collect_batch = load_limited(collect_scenarios, collect_limit) if collect_scenarios is not None else None
@@ -239,7 +237,7 @@ def prompt(
     top_k: Annotated[int, typer.Option(help="Memories retrieved for the fast prompt.")] = TOP_K,
     goals: Annotated[str, typer.Option(help="Goal source: learned, kinematic or oracle.")] = "learned",
 ) -> None:
-    """Print the rendered prompt for one scenario (calls no model): the physics-informed prompt of the
+    """Print the rendered prompt for one scenario. No model is called: the physics-informed prompt of the
     memory-collection phase, or with --fast the short prompt of the fast-inference phase."""
     with user_errors():
         batch = load_scenarios(scenarios, [index])

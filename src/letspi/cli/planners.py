@@ -22,8 +22,8 @@ def _option_row(option: PlannerOption[Any]) -> dict[str, Any]:
 def planners(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list instead of a table.")] = False,
 ) -> None:
-    """List the planner kinds that --planner accepts, with the flags of their settings (from the one table in
-    letspi.assembly.planner_table)."""
+    """List the planner kinds that --planner accepts. Each with what it is, whether it reads the recorded
+    future, and the flags of its settings."""
     table = planner_table()
     rows: list[dict[str, Any]] = [{"kind": k.name, "description": k.description, "reads_future": k.future.value,
              "config": k.config_class.__name__, "dual_rate": k.dual_rate, "source": kind_origin(k.name),

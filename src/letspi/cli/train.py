@@ -61,7 +61,7 @@ def train_goals(
     threads: ThreadsOpt = GoalTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
-    """Train the transformer multi-goal predictor (winner-takes-all over K goals at the 5 s horizon)."""
+    """Train the transformer multi-goal predictor. Winner-takes-all over K goals at the 5 s horizon."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
     from letspi.learned.train.goal_train import train_goal_model
@@ -97,7 +97,7 @@ def train_gnp(
     threads: ThreadsOpt = GnpTrainConfig.threads,
     data_note: DataNoteOpt = None,
 ) -> None:
-    """Train GNP: tau per scene and a repulsion weight per neighbour, end to end through the
+    """Train the GNP baseline end to end. Tau per scene and a repulsion weight per neighbour, through the
     differentiable social force rollout (predicted goals and predicted neighbours)."""
     _require_torch()
     from letspi.learned.train.data import load_training_scenarios
@@ -140,8 +140,8 @@ def train_llm_data(
         help="Fitted SF parameters (defaults, r_col_m; default: the shipped `sf` fit).")] = None,
     goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
 ) -> None:
-    """Physics-verified labels for the LLM: per scenario, search the six social-force parameters and the
-    two goal factors, scored against the RECORDED future (hindsight; training only)."""
+    """Make physics-verified labels for the LLM. Per scenario, search the six social-force parameters and
+    the two goal factors, scored against the RECORDED future (hindsight; training only)."""
     from letspi.finetune.labels import PARTS_DIR, LabelRun, LabelSearch
 
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
@@ -179,8 +179,8 @@ def train_mlp_cmd(
     seed: SeedOpt = 0,
     threads: ThreadsOpt = 1,
 ) -> None:
-    """Train the `mlp` regressor ablation: the eight LLM answers from the matching features, on the same
-    physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
+    """Train the `mlp` regressor ablation. It predicts the eight LLM answers from the matching features, on
+    the physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
     _require_torch()
     from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
 
@@ -252,8 +252,8 @@ def train_llm(
     checkpoint_every_s: Annotated[float, typer.Option(
         help="Seconds of training between resumable checkpoints.")] = 300.0,
 ) -> None:
-    """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
-    export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
+    """Fine-tune the embedded SmolLM2-135M with LoRA. Trains on physics-verified labels (LoRA on the packaged
+    GGUF) and exports a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
     LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
     _require_torch()
     from letspi.finetune.train import LoraTrainConfig, train_lora
@@ -299,7 +299,7 @@ def train_decide(
     sf_params: Annotated[Path | None, typer.Option(help="Fitted sf parameters (default: the shipped fit).")] = None,
     goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
 ) -> None:
-    """LetsPi's decision step from training traffic: presets, the risk gate and decision-focused labels
+    """Train LetsPi's decision step on training traffic. Presets, the risk gate and decision-focused labels
     (hindsight: the recorded future decides which preset was best; never evaluation seeds)."""
     from letspi.finetune.decide_build import build_decision_data
 

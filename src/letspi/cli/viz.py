@@ -40,8 +40,8 @@ def plot(
              "simulated paths below; one PNG per planner, OUT-LABEL.png when several).")] = EvaluationMode.OPEN_LOOP,
     replan_s: Annotated[float, typer.Option("--replan-s", help="Closed loop: replanning period [s].")] = 1.0,
 ) -> None:
-    """Draw one scenario: trajectory diagram, time-space diagram with the gap to the preceding
-    vehicle, and the safety reports and LLM responses per reflection iteration (of a
+    """Draw one scenario's diagrams. The trajectory diagram, the time-space diagram with the gap to the
+    preceding vehicle, and the safety reports and LLM responses per reflection iteration (of a
     letspi-memory / llm planner, or from --iterations); with --mode closed-loop-*, the closed-loop panel."""
     with user_errors():
         if index < 0:
@@ -75,8 +75,8 @@ def report(
     worst: Annotated[int, typer.Option(help="Worst scenarios shown per planner.")] = 3,
     diagrams: Annotated[bool, typer.Option(help="Draw the worst scenarios with their stored plans.")] = True,
 ) -> None:
-    """Write a self-contained HTML report of an evaluation directory (metrics table, distributions,
-    worst scenarios with diagrams of the stored plans, ablation plots when DIR/ablations/ has them)."""
+    """Write a self-contained HTML report of an evaluation. Metrics table, distributions, worst scenarios
+    with diagrams of the stored plans, and ablation plots when DIR/ablations/ has them."""
     with user_errors():
         path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
     typer.echo(str(path))
@@ -91,11 +91,11 @@ def compare(
         help="A planner label of A: compare every planner of B with it (same evaluation mode required). "
              "Default: each planner with the planner of the same label.")] = None,
 ) -> None:
-    """Compare two evaluations on the scenarios both hold (e.g. open loop vs closed loop, or your planner
-    vs sf with --reference): per planner and metric, A and B with 95 % intervals, the paired difference
-    with its interval, and for rates the windows only A / only B fail with the exact McNemar p
-    (compare.md, compare.json), and compare.html with panels of the scenarios whose outcome differs.
-    Refused when the metrics configurations differ."""
+    """Compare two evaluations on the scenarios both hold. For example open loop against closed loop, or
+    your planner against sf with --reference: per planner and metric, A and B with 95 % intervals, the
+    paired difference with its interval, and for rates the windows only A / only B fail with the exact
+    McNemar p (compare.md, compare.json), and compare.html with panels of the scenarios whose outcome
+    differs. Refused when the metrics configurations differ."""
     with user_errors():
         target = out if out is not None else Path(b) / "compare"
         cmp = write_comparison(a, b, target, n_examples=examples, reference=reference)

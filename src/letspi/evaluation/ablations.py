@@ -1,18 +1,6 @@
-"""The paper's ablations as presets (§IV-E, Tables IV-V), each a resumable evaluation directory.
-
-``DIR/ablations/<kind>/`` holds ``metrics.json`` / ``metrics.md`` / per-scenario results like any
-evaluation; the memory-size and LLM-combination presets also write
-``DIR/ablations/memory_size.json`` and ``DIR/ablations/llm_combinations.json`` (shapes in
-``letspi.viz.report``), which ``letspi report DIR`` plots. Every row is built from its own
-configuration (``letspi.assembly``), so its key says exactly what it ran.
-
-Kinds:
-    reflection       letspi-memory with and without reflection (0 refinements)
-    goal-adjustment  letspi-memory with and without LLM goal adjustment
-    few-shot         letspi-fast (retrieved memories) vs letspi-fs (three static examples)
-    memory-size      letspi-fast with 0/1/10/50/80 % of the collected memory (nested subsets)
-    llm-combinations (memory model, fast model) pairs: collect with the first, plan with the second
-"""
+"""The paper's ablations as presets (§IV-E, Tables IV-V; docs/method.md), each written to ``DIR/ablations/<kind>/``;
+memory-size and llm-combinations also write ``DIR/ablations/memory_size.json`` / ``llm_combinations.json`` (shapes in
+``letspi.viz.report``). Each row's key says what it ran."""
 
 from __future__ import annotations
 

@@ -1,28 +1,7 @@
-"""Closed-loop modes of ``letspi evaluate``: the harness's layout, keys and resume; SUMO's simulation.
-
-``evaluate_closed_loop`` runs ``letspi.evaluation.harness.evaluate`` with a ``ClosedLoopRunner``: the
-same results directory (``run.json``, ``per_scenario/<label>/``, ``metrics.json``, ``metrics.md``),
-the same metric code and tables, resumable per chunk and keyed by scenario digest. What differs:
-
-* ``run.json``'s identity holds the mode and ``mode_settings`` (the simulation settings that change
-  answers; with SUMO-driven neighbours the driver model; in ``closed-loop-hybrid`` also the hand-over
-  rule and the digest of the scripted-neighbour mask), so a directory never mixes modes;
-* each planner's ``config.json`` key adds ``evaluation = {mode, replan_s}`` (its own period) and,
-  for the LLM planners, ``dual_rate = {llm_period_s, llm_latency_s}`` (a fixed latency, or
-  ``measured``);
-* a part's rows are scored on the simulated trajectories (``letspi.simulation.chunk_metrics``) and
-  add SUMO's collision flag, replans, simulation time (``letspi.simulation.store.chunk_frame``);
-* the plan columns hold what was scored: ``plan_xy_m`` / ``plan_vxy_mps`` the simulated ego,
-  ``plan_goal_xy_m`` the goal of the plan made at t = 0; the ``cl_*`` columns hold what the
-  closed-loop panel draws (``closed_loop_rows``): every replan's plan and goal, the replanning
-  frames, and the simulated (or replayed) neighbours.
-
-Planners run in this process (``workers=0``: the planner built by the CLI is used as is), in N
-worker processes or on Ray actors (each builds its planner from the configuration). LLM planners run
-dual-rate (``letspi.simulation.dual_rate``): their model is asked at t = 0 and every
-``--llm-period-s`` (default 2.5 s: two calls per 5 s scenario), the physics and the shield replan
-every ``--replan-s`` with the parameters in force.
-"""
+"""Closed-loop modes of ``letspi evaluate``: ``harness.evaluate`` with a ``ClosedLoopRunner`` into the same
+directory. ``run.json``'s identity adds the mode and ``mode_settings``, each planner's key ``planner_evaluation``;
+rows are scored on the simulated trajectories (the plan columns hold the simulated ego; the ``cl_*`` columns what the
+closed-loop panel draws)."""
 
 from __future__ import annotations
 
@@ -74,12 +53,9 @@ class ClosedLoopSetupError(ValueError):
 
 
 def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = None) -> dict[str, Any]:
-    """What of the simulation changes answers (``run.json``): road and sublane model; the driver model
-    where SUMO drives neighbours (log-replayed neighbours have none); in ``closed-loop-hybrid`` the
-    hand-over rule and the scripted neighbours (count and digest of ``scripted_nbr``, the run's (B, N)
-    mask); ``simulator: replay`` where the log replay runs (absent with SUMO, so SUMO runs keep their
-    keys): its rows have the same metrics but no SUMO collision columns. Not the workers, the chunk
-    size or the GUI: they change no answer."""
+    """What of the simulation changes answers (``run.json``): road and sublane model; the driver model where SUMO
+    drives neighbours; in ``closed-loop-hybrid`` the hand-over rule and scripted neighbours (count and digest);
+    ``simulator: replay`` for the replay (absent with SUMO). Not the workers, the chunk size or the GUI."""
     out: dict[str, Any] = {"lateral_resolution_m": config.lateral_resolution_m,
                            "road_behind_m": config.road_behind_m, "road_ahead_m": config.road_ahead_m}
     if config.mode.has_drivers:
@@ -92,9 +68,8 @@ def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = No
 
 
 def planner_evaluation(config: ClosedLoopConfig, label: str, dual_rate: bool = False) -> dict[str, Any]:
-    """What joins the configuration key of the planner labelled ``label``: the mode and its replanning
-    period; for a planner run dual-rate (the LLM planners) also its LLM period and fixed latency (or
-    ``measured``)."""
+    """What joins the key of the planner labelled ``label``: the mode and its replanning period; for a dual-rate
+    planner also its LLM period and fixed latency (or ``measured``)."""
     out: dict[str, Any] = {"mode": config.mode.value, "replan_s": round(config.replan_s_of(label), 6)}
     if dual_rate:
         out["dual_rate"] = config.dual_rate.identity()
@@ -124,13 +99,9 @@ def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[f
 
 @dataclass(frozen=True)
 class ScriptedNeighbours:
-    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``).
-
-    Attributes:
-        mask: (B, N) bool, the slots that keep their recorded behaviour.
-        source: the HighD directory whose ``NN_events.csv`` were read, or None.
-        matched: scenarios whose recording has an events file there.
-    """
+    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``): ``mask`` (B, N) bool, the slots that
+    keep their recorded behaviour; ``source``, the HighD directory read (or None); ``matched``, scenarios whose
+    recording has an events file there."""
 
     mask: np.ndarray
     source: Path | None
@@ -163,10 +134,8 @@ def events_directory(scenarios_file: Path | None) -> Path | None:
 
 def scripted_for(batch: ScenarioBatch, events_dir: Path | None, *, required: bool = True) -> ScriptedNeighbours:
     """Scripted neighbours of ``batch`` from the ``NN_events.csv`` of ``events_dir`` (None: none).
-
-    Raises ``ClosedLoopSetupError`` when ``required`` and the directory has no events file of any of
-    the batch's recordings (events of another dataset would silently script nothing); without
-    ``required`` (a directory found from the scenario file's provenance) that means none."""
+    Raises ``ClosedLoopSetupError`` when ``required`` and no events file matches any of the batch's
+    recordings (events of another dataset would silently script nothing); else that means none."""
     none = ScriptedNeighbours(np.zeros(batch.nbr_id.shape, dtype=bool), None, 0)
     if events_dir is None:
         return none
@@ -287,7 +256,7 @@ def planner_spec(built: BuiltPlanner, settings: ClosedLoopConfig) -> PlannerSpec
 
 @dataclass
 class ClosedLoopRunner:
-    """``harness.PlannerRunner`` of the closed-loop modes (see the module docstring). ``scripted_nbr``:
+    """``harness.PlannerRunner`` of the closed-loop modes. ``scripted_nbr``:
     (B, N) bool over the evaluated batch, the neighbours that keep their log in ``closed-loop-hybrid``."""
 
     settings: ClosedLoopConfig
@@ -331,10 +300,8 @@ def evaluate_closed_loop(
     scripted_nbr: np.ndarray | None = None,
     reference: str | None = None,
 ) -> dict[str, dict[str, AggValue]]:
-    """``harness.evaluate`` in a closed-loop mode (same outputs; module docstring for the differences).
-
-    scripted_nbr: (B, N) bool over ``batch``, neighbours that keep their recorded behaviour in
-    ``closed-loop-hybrid`` (``scripted_for``); ignored by the other modes."""
+    """``harness.evaluate`` in a closed-loop mode. scripted_nbr: (B, N) bool over ``batch``, neighbours
+    that keep their recorded behaviour in ``closed-loop-hybrid`` (``scripted_for``); else ignored."""
     check_setup(settings)
     unknown = sorted(set(settings.planner_replan_s) - {b.name for b in planners})
     if unknown:

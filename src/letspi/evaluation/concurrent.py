@@ -1,25 +1,7 @@
-"""Planners that call a model per scenario (the LLM planners) in the harness: proposals made N at a
-time, physics and metrics batched per part, parts written in scenario order.
-
-A ``ProposingPlanner`` whose ``propose`` calls a model once per scenario (``proposes_per_scenario``)
-and is thread-safe (``concurrent_safe``) runs through ``letspi.execution.ordered``:
-
-* each scenario's *proposal* is one task (prompt, LLM call(s), reflection rounds), ``concurrency``
-  in flight. Its context (goal and predicted neighbours, what the prompt and the rollout need) is
-  computed batched for a fixed block of ``CONTEXT_BLOCK`` dataset positions, by the first task of
-  the block to need it;
-* the calling thread collects the proposals in scenario order and, per part of up to
-  ``PART_SCENARIOS`` rows (or sooner, when ``PART_FLUSH_S`` passed since the last part, so a killed
-  run loses at most a few seconds of model work), runs the planner's ``simulate`` (social force
-  rollout and safety shield) and the metrics once over the whole part, then writes it.
-
-Neither the concurrency, nor the part boundaries, nor an interrupted and resumed run change what is
-stored: a scenario's context comes from its fixed block, and the physics and the metrics of a
-scenario do not depend on which other scenarios share the batch (tested to the bit,
-``tests/test_propose_simulate.py``). ``inference_s`` is the scenario's own proposal time in its task
-(with N in flight it includes waiting in the server's queue) plus its share of the batched context
-and physics.
-"""
+"""LLM planners in the harness: proposals made N at a time (``letspi.execution.ordered``; context batched per block
+of ``CONTEXT_BLOCK`` positions), physics and metrics batched per part (``PART_SCENARIOS`` rows, or after
+``PART_FLUSH_S``), parts written in scenario order. ``inference_s``: the scenario's own proposal time (server
+queueing included) plus its share of the batched context and physics."""
 
 from __future__ import annotations
 
@@ -117,10 +99,9 @@ def plan_concurrently(
     runner: RunnerConfig,
     progress: Callable[[int, RunStatus | None], None] | None = None,
 ) -> RunStats:
-    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score
-    and write them per part in scenario order, in this thread (module docstring). Raises what
-    ``run_ordered`` raises, after writing every row it accepted. ``reads_future``: the planner sees the
-    recorded future (else the history only)."""
+    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score and write them
+    per part in scenario order, in this thread. Raises what ``run_ordered`` raises, after writing every row it
+    accepted. ``reads_future``: the planner sees the recorded future."""
     seen_all = batch if reads_future else batch.history()
     contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
                                                        lambda rows: planner.context(seen_all.take(rows)))

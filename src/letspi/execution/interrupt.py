@@ -1,32 +1,7 @@
-"""Ctrl-C: how every long command stops. One design, used by the CLI and by the long loops.
-
-**First SIGINT (Ctrl-C) or SIGTERM.** ``handling()`` (the CLI's entry point) turns it into
-``KeyboardInterrupt`` in the main thread. It does so even when the process started with SIGINT
-*ignored*: a shell starts ``letspi ... &`` that way in a script, Python then keeps ignoring it, and
-``kill -INT`` used to be swallowed (the run went on to its end). Every long loop writes as it goes
-(a part, a chunk, a memory, a label file, a checkpoint), so what is complete is already on disk; the
-interrupt stops the rest:
-
-* the main thread's loops stop at their next Python step (a libsumo step, a token of the embedded
-  model, a batch of physics);
-* worker threads (``letspi.execution.ordered``) start no new LLM request: the runner trips the
-  advisor's breaker; the CLI does not wait for a request still in flight (its answer would be
-  dropped anyway): ``finish`` exits without joining those threads;
-* worker processes never see the terminal's Ctrl-C (``start_worker`` and ``enter_worker``, or
-  ``WorkerPool``): their parent terminates them at once (``letspi.simulation.pool``), and each runs
-  its own cleanup on the way out; ``stop_children`` then ends anything this process started that is
-  still running: registered cleanups first (``on_stop``: Ray's local instance), then every
-  descendant process (SIGTERM, SIGKILL after a grace period);
-* the CLI prints one line (``stop_line``: ``interrupted: N of M stored; rerun the same command to
-  resume``) and exits 130 (143 after SIGTERM).
-
-**Second signal.** The process ends at once: every descendant process is killed and the process
-exits (``os._exit``) without further cleanup. What was stored before stays valid (every file is
-written atomically).
-
-Only a process inside ``handling()`` (the ``letspi`` command) ends child processes it did not
-start itself: library use and in-process tests keep Python's own Ctrl-C.
-"""
+"""Ctrl-C: how every long command stops (docs/reliability.md). Inside ``handling()`` the first SIGINT or SIGTERM
+becomes ``KeyboardInterrupt`` (even when SIGINT started ignored); worker processes never see it; ``finish`` ends
+every descendant, prints ``stop_line`` and exits 130 (143 after SIGTERM); a second signal exits at once. Library use
+and in-process tests keep Python's own Ctrl-C."""
 
 from __future__ import annotations
 
@@ -79,11 +54,8 @@ def exit_code() -> int:
 
 
 def stop_line(stored: int | None = None, total: int | None = None, *, resumes: bool | None = False) -> str:
-    """The one line an interrupted command prints: how much of its work is stored, and what to do.
-
-    ``resumes``: True, the command resumes where it stopped, with ``stored`` of its ``total`` units
-    stored (e.g. scenario rows; the count is left out when unknown); False, it keeps nothing partial
-    and starts again; None, unknown (stopped before a command said, e.g. while starting)."""
+    """The one line an interrupted command prints. ``resumes``: True, it resumes with ``stored`` of its
+    ``total`` units stored (the count left out when unknown); False, it keeps nothing partial; None, unknown."""
     if resumes is None:
         return "interrupted: rerun the same command"
     if not resumes:
@@ -95,9 +67,8 @@ def stop_line(stored: int | None = None, total: int | None = None, *, resumes: b
 
 @dataclass
 class Tally:
-    """What a running command keeps if it is stopped: its ``total`` units of work (scenario rows,
-    memories, labelled scenarios, training steps) and how to count those stored, read from disk when
-    the stop comes. ``resumes`` as in ``stop_line``."""
+    """What a running command keeps if stopped: its ``total`` units of work and how to count those stored (read from
+    disk when the stop comes). ``resumes`` as in ``stop_line``."""
 
     resumes: bool = False
     total: int | None = None
@@ -141,10 +112,8 @@ def on_stop(cleanup: Callable[[], object]) -> Callable[[], None]:
 
 
 def start_worker(process: BaseProcess) -> None:
-    """Start a worker process that the terminal's Ctrl-C does not reach: SIGINT is blocked in this
-    thread while it starts, so the child inherits the mask and a Ctrl-C during its start-up (imports,
-    unpickling) stays pending until the child ignores it (``enter_worker``, its first call); its
-    parent alone decides when it stops. A SIGINT for this process waits for the start to end."""
+    """Start a worker process that the terminal's Ctrl-C does not reach: SIGINT is blocked while it
+    starts, so the child inherits the mask until it ignores SIGINT (``enter_worker``, its first call)."""
     if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
         process.start()
         return
@@ -159,13 +128,8 @@ def start_worker(process: BaseProcess) -> None:
 
 
 def enter_worker() -> None:
-    """First call in a worker process: ignore Ctrl-C (the parent decides when the worker stops) and
-    drop one that arrived during start-up (``start_worker``); SIGTERM, the parent's stop, raises
-    ``SystemExit`` so the worker's own cleanup runs (closing SUMO, removing its temporary files).
-
-    BLAS runs on one thread here: the workers already share the cores, and the planners' matrix products
-    are small (measured: ``sf-check`` in closed loop 230 -> 189 ms per window with one OpenBLAS thread
-    instead of two, same plans). llama.cpp's own threads are not BLAS's and keep their setting."""
+    """First call in a worker process: ignore Ctrl-C (its parent stops it) and drop one that arrived during start-up;
+    SIGTERM raises ``SystemExit`` so the worker's cleanup runs. BLAS runs on one thread here."""
     os.environ["OPENBLAS_NUM_THREADS"] = "1"  # OpenBLAS builds loaded later (SciPy's) read it when they load
     threadpool_limits(1, user_api="blas")  # NumPy's, loaded with this module
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards a pending SIGINT
@@ -182,9 +146,8 @@ def _exit_on_sigterm(signum: int, frame: FrameType | None) -> None:
 
 
 def run_worker(body: Callable[[], object]) -> None:
-    """The whole life of a worker process: ``enter_worker``, then ``body()``; stopped by SIGTERM,
-    the body's ``finally`` blocks run and the process ends at once (``os._exit``: a spawned
-    interpreter's teardown takes a second or more under load, and the parent is waiting)."""
+    """The whole life of a worker process: ``enter_worker``, then ``body()``; on SIGTERM the ``finally``
+    blocks run and the process ends at once (``os._exit``: a spawned interpreter's teardown is slow)."""
     enter_worker()
     try:
         body()
@@ -207,11 +170,8 @@ def _exit_now(stop: SystemExit) -> NoReturn:
 
 
 class WorkerPool:
-    """A pool of spawned worker processes for long items (a fresh interpreter each: one libsumo per
-    process). Its workers ignore Ctrl-C (``enter_worker``; they start while SIGINT is blocked, see
-    ``start_worker``) and, stopped by SIGTERM, run the item's cleanup and exit. Leaving the ``with``
-    block by an exception (Ctrl-C, an error) cancels the queued items and terminates the workers
-    instead of waiting for the items in flight; a block that ends normally waits for them."""
+    """A pool of spawned worker processes (one libsumo each) that ignore Ctrl-C. Leaving the ``with``
+    block by an exception cancels the queued items and terminates the workers; a normal exit waits."""
 
     def __init__(self, max_workers: int) -> None:
         self._pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=multiprocessing.get_context("spawn"),
@@ -319,9 +279,8 @@ def _signal_all(pids: list[int], signum: int) -> None:
 
 
 def stop_children(grace_s: float = CHILD_GRACE_S) -> None:
-    """End what this process started and is still running (only inside ``handling()``): the registered
-    cleanups (``on_stop``), then SIGTERM to every descendant process, SIGKILL to those still running
-    after ``grace_s``."""
+    """End what this process started (only inside ``handling()``): the ``on_stop`` cleanups, then SIGTERM to every
+    descendant process, SIGKILL to those still running after ``grace_s``."""
     if not _state.active:
         return
     cleanups = list(_state.cleanups.values())
@@ -366,9 +325,8 @@ def _flush() -> None:
 
 
 def finish() -> NoReturn:
-    """Leave after a stop signal: end the child processes, print the stop line if the command printed
-    none (stopped while starting, or a command without a ``Tally``), and exit at once with
-    ``exit_code()``."""
+    """Leave after a stop signal: end the child processes, print the stop line if the command printed none, and exit
+    at once with ``exit_code()``."""
     stop_children()
     if not _state.reported:
         sys.stderr.write(stop_line(resumes=None) + "\n")
@@ -382,9 +340,8 @@ def finish() -> NoReturn:
 
 @contextmanager
 def handling() -> Iterator[None]:
-    """Stop signals for the block (in the main thread; the ``letspi`` command runs inside it): the
-    first becomes ``KeyboardInterrupt``, the second ends the process at once; after the first,
-    leaving the block ends child processes and exits (``finish``)."""
+    """Stop signals for the block (main thread; the ``letspi`` command runs inside it): the first becomes
+    ``KeyboardInterrupt`` and leaving the block then ``finish``es; the second ends the process at once."""
     previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     _state.active, _state.signum, _state.count, _state.reported = True, None, 0, False
     for s in STOP_SIGNALS:

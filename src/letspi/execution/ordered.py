@@ -1,29 +1,8 @@
-"""Run one task per scenario, N at a time, and store their results through one writer in scenario order.
-
-Design (issue 13)
------------------
-* **Threads.** Each scenario's work (goal prediction, prompt, LLM calls, rollouts, reflection) is one
-  task on a ``ThreadPoolExecutor`` of ``concurrency`` workers. The code is synchronous end to end
-  (httpx, NumPy, SQLite); while a worker waits for the LLM server it holds no GIL, so N workers keep
-  N requests in flight without a second, asynchronous code path. ``concurrency = 1`` runs every task
-  in the calling thread (no pool): the embedded model's behaviour and Ctrl-C stay exactly as before.
-* **One writer, scenario order.** Completed results wait in a reorder buffer; the calling thread
-  writes result k only after results 0..k-1 were written (or failed). The order in which tasks
-  *finish* therefore never changes what is stored, nor the order in which it is stored (memory-bank
-  row ids included). A killed run has stored a prefix of the scenarios it was given (minus
-  failures); rerunning stores the rest in the same order, so the result equals an uninterrupted run.
-* **Failures.** A task that raises ``RequestFailedError`` (its LLM requests failed in transport)
-  is a *failed* scenario: nothing is written for it, the writer moves on, and the run ends with
-  ``ScenariosFailedError`` so a rerun retries it. Any other exception stops the run: no new tasks,
-  queued ones cancelled, the advisor's circuit breaker tripped so tasks in flight stop before their
-  next request (and their backoff waits end), the in-order prefix of what finished is written, and
-  the *first* error is raised (one message). The breaker itself stops the run after a bounded
-  number of consecutive transport failures (``letspi.llm.guard``).
-* **Bounded memory.** At most ``concurrency + reorder_window`` scenarios are between submission and
-  writing: a slow scenario holds back writing, not memory.
-
-``concurrency`` is not part of any configuration key: it changes how fast answers come, not which.
-"""
+"""Run one task per scenario, N at a time (threads), and store the results through one writer in scenario order, so
+neither the finishing order nor an interrupted run changes what is stored (``concurrency`` is in no key). A task
+raising ``RequestFailedError`` is a failed scenario (nothing written; the run ends with ``ScenariosFailedError``);
+any other exception stops the run: queued tasks cancelled, the advisor's breaker tripped, the in-order prefix
+written, the first error raised."""
 
 from __future__ import annotations
 
@@ -50,13 +29,9 @@ PROGRESS_INTERVAL_S = 0.5
 
 @dataclass(frozen=True)
 class RunnerConfig:
-    """How a run executes (never what it answers).
-
-    concurrency: scenarios in flight at once (1: in the calling thread).
-    max_consecutive_failures: failed requests in a row that stop the run (None:
-        ``default_failure_budget(concurrency)`` = max(8, 2 N)).
-    reorder_window: finished scenarios that may wait for an earlier one before submission pauses.
-    """
+    """How a run executes (never what it answers). concurrency: scenarios in flight (1: in the calling thread).
+    max_consecutive_failures: failed requests in a row that stop the run (None: ``default_failure_budget``, max(8, 2
+    N)). reorder_window: finished scenarios that may wait for an earlier one before submission pauses."""
 
     concurrency: int = 1
     max_consecutive_failures: int | None = None
@@ -77,9 +52,8 @@ class RunnerConfig:
 
 @dataclass(frozen=True)
 class RunStatus:
-    """A progress snapshot. ``done`` counts scenarios finished in this run (written or failed);
-    ``requests_in_flight`` is the advisor's count (None without one); ``running`` counts scenario
-    tasks between submission and completion."""
+    """A progress snapshot: ``done`` (finished in this run, written or failed), ``requests_in_flight`` (None without
+    an advisor) and ``running`` (tasks between submission and completion)."""
 
     done: int
     total: int
@@ -237,11 +211,9 @@ def run_ordered(
     is_fallback: Callable[[R], bool] | None = None,
     progress: Callable[[RunStatus], None] | None = None,
 ) -> RunStats:
-    """``work(i)`` for every i of ``indices`` (``config.concurrency`` at a time); ``write(i, result)``
-    in the order of ``indices``, in the calling thread (module docstring). ``advisor``: the LLM
-    advisor the tasks use (its breaker is reset and tripped by the run, its request counters reported).
-    Raises the first stopping error, or ``ScenariosFailedError`` after a run that left scenarios unstored.
-    """
+    """``work(i)`` for every i of ``indices`` (``config.concurrency`` at a time); ``write(i, result)`` in
+    the order of ``indices``, in the calling thread. ``advisor``: the tasks' LLM advisor (its breaker reset
+    and tripped by the run). Raises the first stopping error, or ``ScenariosFailedError``."""
     config = config or RunnerConfig()
     n = len(indices)
     if advisor is not None:
@@ -340,14 +312,9 @@ def run_ordered(
 
 
 class BlockCache(Generic[T]):
-    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), on first use,
-    by whichever thread asks first (the others wait for it); thread-safe.
-
-    Tasks that run one scenario each use it for what is cheaper batched (goal and neighbour prediction
-    of a block of scenarios). The blocks are fixed positions of the whole input, not of the work left
-    or of the order tasks run in, so a value never depends on the concurrency, on timing or on what
-    an interrupted run already stored. ``compute(positions)`` gets a slice of positions.
-    """
+    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), by whichever thread asks
+    first (the others wait), so a value never depends on the concurrency or on what a run already stored.
+    ``compute(positions)`` gets a slice."""
 
     def __init__(self, size: int, n: int, compute: Callable[[slice], T]) -> None:
         if size < 1:

@@ -1,19 +1,5 @@
-"""Closed-loop evaluation: log-replay, reactive and hybrid traffic, receding-horizon replanning.
-
-SUMO simulates the reactive and hybrid modes (``letspi.simulation.engine``); ``closed-loop-log``, where
-nobody but the ego moves off its log, runs in NumPy by default (``letspi.simulation.replay``, the same
-results; ``ClosedLoopConfig.simulator``).
-
-Public API:
-
-* ``run_closed_loop(planner_spec, batch, config)``:
-  an iterator of ``ClosedLoopChunk`` (simulated ego and neighbours, every plan, SUMO collisions);
-* ``chunk_metrics`` / ``scored_batch``: the open-loop metric code on the simulated trajectories;
-* ``run_closed_loop_to_dir`` / ``ClosedLoopStore``: resumable per-chunk output;
-* ``PlannerSpec`` / ``build_planner``: the picklable planner description workers build from;
-* ``ClosedLoopConfig``, ``EvaluationMode``, ``DriverModelConfig``, ``HandoverConfig``;
-* ``Replanner`` / ``Replan`` / ``PeriodicReplanner``: the engine's replanning step (``letspi.simulation.replan``).
-"""
+"""Closed-loop evaluation: log-replay, reactive and hybrid traffic, receding-horizon replanning. SUMO simulates the
+reactive and hybrid modes (``engine``); ``closed-loop-log`` runs in NumPy by default (``replay``)."""
 
 from letspi.simulation.config import (
     CLOSED_LOOP_MODES,

@@ -1,29 +1,7 @@
 """Settings of the closed-loop engine (typed, frozen; SI units in the names).
 
-Modes
------
-* ``closed-loop-log``: the neighbours replay their recorded trajectories (they cannot react);
-  the ego follows its planner and replans from the simulated history.
-* ``closed-loop-reactive``: up to t = 0 every vehicle replays the log; from then on the neighbours
-  are driven by SUMO's car-following (IDM) and sublane lane-change (SL2015) models, with a desired
-  speed and a time headway estimated from each one's history, and react to the ego (nuPlan's
-  reactive agents). The recorded events (hard brakes, cut-ins) that made a window critical are
-  gone: the released leader drives on at its desired speed.
-* ``closed-loop-hybrid``: the log where the ego cannot influence it, reactive where it can. A
-  neighbour replays its log while it is ahead of the ego (or beside it, or in a lane the ego does
-  not cover); once it is behind the ego in a lane the ego's box covers (``HandoverConfig``) it is
-  handed to SUMO for good (same driver model as ``closed-loop-reactive``, capped at its recorded
-  speed so that it deviates from the log only to react to the ego). The actors of
-  scripted events (``NN_events.csv``, the ``scripted_nbr`` mask of a run) replay their log all
-  along, wherever they are. So a leader's recorded hard brake still happens, and a follower reacts
-  to what the ego does instead of rear-ending it on the recorded path.
-
-Open loop (the paper's protocol) is the fourth ``EvaluationMode``, run by the harness
-(``letspi.evaluation.harness``), not by this package: ``ClosedLoopConfig`` refuses it.
-
-``ClosedLoopConfig`` is the one closed-loop settings type: ``letspi evaluate --mode closed-loop-*``
-builds it from the flags (and it validates them, once), the evaluation layer records what of it
-changes answers, and the engine reads the mode and each planner's replanning period from it alone.
+``EvaluationMode`` names the four modes (docs/evaluation.md); ``open-loop`` is the harness's, and
+``ClosedLoopConfig``, the one closed-loop settings type (validated once, read by the engine alone), refuses it.
 """
 
 from __future__ import annotations
@@ -63,15 +41,10 @@ OFF_ROAD_MARGIN_M = 15.0
 
 @dataclass(frozen=True)
 class DriverModelConfig:
-    """SUMO driver parameters of released neighbours (``closed-loop-reactive`` and ``closed-loop-hybrid``).
-
-    Fixed for everyone: IDM with ``accel_mps2`` / ``decel_mps2`` (comfortable), braking up to
-    ``emergency_decel_mps2``, standstill gap ``min_gap_m``, no driver imperfection.
-    Estimated per vehicle from its history (``letspi.simulation.drivers``): the desired speed (the
-    highest speed it drove, clipped to ``desired_speed_bounds_mps``) and the time headway (the
-    ``headway_quantile`` of its observed time gaps to an in-path leader, clipped to
-    ``headway_bounds_s``; ``default_headway_s`` when it never had one within ``max_leader_gap_s``).
-    """
+    """SUMO driver parameters of released neighbours (reactive and hybrid modes): fixed IDM accelerations, standstill
+    gap and no imperfection; per vehicle from its history (``letspi.simulation.drivers``) the desired speed (clipped
+    to ``desired_speed_bounds_mps``) and time headway (``headway_quantile`` of its gaps to an in-path leader within
+    ``max_leader_gap_s``, clipped to ``headway_bounds_s``; else ``default_headway_s``)."""
 
     accel_mps2: float = 1.5
     decel_mps2: float = 3.0
@@ -102,29 +75,11 @@ class DriverModelConfig:
 
 @dataclass(frozen=True)
 class HandoverConfig:
-    """When ``closed-loop-hybrid`` hands a log-replayed neighbour to SUMO (``letspi.simulation.handover``).
-
-    Checked every frame after t = 0 on the previous frame's simulated positions. A neighbour that is
-    not a scripted-event actor is handed over when both hold:
-
-    * its lane (lane of its centre) is one the ego's box covers (the ego's lane; during a lane
-      change also the lane it moves into), or at most ``lanes`` lanes beside those (``lanes = 1``:
-      the adjacent lanes too);
-    * its front bumper is at least ``behind_m`` behind the ego's rear bumper (0: fully behind; a
-      vehicle beside the ego keeps replaying its log: the ego's lane change into it is the ego's fault).
-
-    The hand-over is final (no return to the log: the log position would jump), so no hysteresis
-    band is needed; position and speed stay continuous (SUMO starts from the vehicle's place and
-    its last speed).
-
-    ``follow_log_speed``: a handed-over vehicle keeps driving at its recorded speed of each frame
-    unless SUMO's car following (the ego or another simulated vehicle ahead) needs it slower
-    (``setSpeed`` under speed mode 25: the safe speed bounds the commanded one, acceleration and
-    deceleration bounds do not); SUMO's lane-change model moves it laterally. Without it the
-    vehicle drives at its estimated desired speed, and a vehicle that a car outside the simulated
-    neighbour slots held back in the log then speeds up beyond anything recorded. Once its log
-    ends (it left the recorded road section) SUMO's driver model alone drives it.
-    """
+    """When ``closed-loop-hybrid`` hands a log-replayed neighbour to SUMO for good (``letspi.simulation.handover``):
+    checked every frame after t = 0, scripted-event actors never; when the lane of its centre is one the ego's box
+    covers (or at most ``lanes`` lanes beside those) and its front bumper is at least ``behind_m`` behind the ego's
+    rear bumper. ``follow_log_speed``: it is commanded its recorded speed, lowered where SUMO's car following needs
+    it, until its log ends; else it drives at its desired speed."""
 
     lanes: int = 0
     behind_m: float = 0.0
@@ -145,45 +100,23 @@ DEFAULT_CHUNK_REPLAY: Final = 256
 
 @dataclass(frozen=True)
 class ClosedLoopConfig:
-    """How a closed-loop run simulates (the one closed-loop settings type; module docstring).
+    """How a closed-loop run simulates.
 
     Attributes:
         mode: a closed-loop ``EvaluationMode`` (or its string value).
-        replan_s: replanning period [s] of every planner (1.0 default; 5.0 = plan once, i.e.
-            open-loop plan in a closed-loop world). Rounded to whole 0.04 s frames.
-        planner_replan_s: label -> that planner's own period [s] (e.g. a slower one for an LLM
-            planner); ``for_planner(label)`` is the configuration one planner runs under.
+        replan_s: replanning period [s] of every planner, rounded to whole 0.04 s frames (5.0: plan once).
+        planner_replan_s: label -> that planner's own period [s]; ``for_planner(label)`` applies it.
         workers: 0 = this process; N = N worker processes (or N Ray actors with ``ray_address``).
         ray_address: run on Ray: ``local`` starts a local instance, else a cluster address.
-        chunk_size: scenarios simulated together in one SUMO network or replay (stepped in
-            lockstep, replanned in one batched planner call); also the unit of work of the worker
-            processes and of resumable output (not part of any key: measured, chunk sizes 3, 32 and
-            256 give the same plans to 1e-12 m; the learned goal predictor's last bits depend on the
-            batch, and a discrete choice of ``sf-check`` or ``sf-opt`` followed such a bit in about
-            one closed-loop window of 2,000). None (default): ``DEFAULT_CHUNK_REPLAY`` for the
-            replay, whose planners run faster in larger batches; ``DEFAULT_CHUNK_SUMO`` with SUMO
-            (one road per scenario in one network) and for the dual-rate LLM planners, whose
-            measured answer latency queues a chunk's scenarios on the model (``scenarios_per_chunk``).
-        lateral_resolution_m: SUMO's sublane resolution [m]. The sublane model is needed so that
-            SUMO's collision check looks at lateral positions (the exact position, not the grid);
-            the resolution only shapes the lane-change model of reactive neighbours.
-        road_behind_m, road_ahead_m: the simulated road extends this far behind / ahead of the
-            ego's t = 0 position [m].
+        chunk_size: scenarios simulated together (lockstep, one batched planner call per replan; the unit of
+            work and of resumable output; in no key). None: ``scenarios_per_chunk``'s default.
+        lateral_resolution_m: SUMO's sublane resolution [m] (shapes only reactive neighbours' lane changes).
+        road_behind_m, road_ahead_m: the simulated road behind / ahead of the ego's t = 0 position [m].
         slot_spacing_m: lateral distance between the parallel roads of one network [m].
-        sumo_backend: ``libsumo`` (in-process, fast; one simulation per process) or ``traci``
-            (a SUMO subprocess over a socket; needed for the GUI).
-        sumo_gui: run ``sumo-gui`` (sets the traci backend; slow: for debugging a few scenarios).
-        simulator: ``sumo``, ``replay`` or ``auto`` (the default: ``replay`` in ``closed-loop-log``
-            without the GUI, else ``sumo``). The replay (``letspi.simulation.replay``) runs
-            ``closed-loop-log`` in NumPy: its neighbours only replay their log, so SUMO would only
-            echo positions; the same trajectories and metrics (tested), without SUMO's own collision
-            flag, several times faster. The other modes need SUMO's driver models.
-        driver: parameters of reactive neighbours (``closed-loop-reactive`` and ``-hybrid``).
-        handover: when ``closed-loop-hybrid`` hands a replayed neighbour to SUMO.
-        dual_rate: LLM planners (``dual_rate`` in the planner table): the LLM at t = 0 and
-            every ``llm_period_s``, its answers in force after their latency, the physics and the
-            shield every ``replan_s`` (``letspi.simulation.dual_rate``); other planners ignore it.
-    """
+        sumo_backend: ``libsumo`` (in-process, one simulation per process) or ``traci`` (a subprocess).
+        sumo_gui: run ``sumo-gui`` (implies ``traci``). simulator: ``sumo``, ``replay`` (``closed-loop-log``
+            in NumPy: no SUMO collision flag) or ``auto`` (``replay`` for ``closed-loop-log`` without the GUI).
+        driver, handover, dual_rate: SUMO's driver model, the hybrid hand-over, the LLM planners' timing."""
 
     mode: EvaluationMode = EvaluationMode.LOG
     replan_s: float = DEFAULT_REPLAN_S
@@ -253,7 +186,8 @@ class ClosedLoopConfig:
         return self if own == self.replan_s else replace(self, replan_s=own)
 
     def scenarios_per_chunk(self, dual_rate: bool = False) -> int:
-        """``chunk_size``, or the default of the simulator and the planner (``dual_rate``: an LLM planner)."""
+        """``chunk_size``, or ``DEFAULT_CHUNK_REPLAY`` for the replay (batched NumPy planners run faster in
+        larger batches), ``DEFAULT_CHUNK_SUMO`` with SUMO or a dual-rate LLM planner (``dual_rate``)."""
         if self.chunk_size is not None:
             return self.chunk_size
         return DEFAULT_CHUNK_SUMO if self.uses_sumo or dual_rate else DEFAULT_CHUNK_REPLAY

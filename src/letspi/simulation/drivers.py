@@ -1,12 +1,5 @@
-"""Driver parameters of reactive neighbours, estimated from their (simulated) history.
-
-Desired speed: the highest speed the vehicle drove in its history (``letspi.physics.idm``'s rule),
-clipped to ``DriverModelConfig.desired_speed_bounds_mps``. Time headway: a low quantile of the time
-gaps it kept to an in-path leader (another vehicle of the scenario ahead of it whose box overlaps
-laterally), over the history frames with such a leader closer than ``max_leader_gap_s``; drivers
-follow at their desired headway when they follow at all, and a low quantile keeps free-driving
-frames from inflating it. Without any leader the configured default is used.
-"""
+"""Driver parameters of reactive neighbours from their (simulated) history: the highest speed driven, and a low
+quantile of the time gaps to an in-path leader (low, so free-driving frames do not inflate it)."""
 
 from __future__ import annotations
 
@@ -26,12 +19,9 @@ def estimate_driver_params(
     width_m: np.ndarray,
     config: DriverModelConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Desired speed [m/s] and time headway [s] of every vehicle of K scenarios.
-
-    xy_m: (K, V, H, 2) box centres over H history frames (NaN where absent); vx_mps: (K, V, H)
-    longitudinal speeds; valid: (K, V, H); length_m, width_m: (K, V). All V vehicles of a scenario
-    (ego included) count as potential leaders. Returns two (K, V) float64 arrays.
-    """
+    """Desired speed [m/s] and time headway [s], two (K, V) float64 arrays, of every vehicle of K scenarios. xy_m:
+    (K, V, H, 2) box centres over H history frames (NaN where absent); vx_mps: (K, V, H); valid: (K, V, H); length_m,
+    width_m: (K, V). Every vehicle, the ego included, may be a leader."""
     xy = np.asarray(xy_m, dtype=np.float64)
     ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
     vx = np.where(ok, np.asarray(vx_mps, dtype=np.float64), np.nan)

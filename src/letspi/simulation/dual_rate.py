@@ -1,18 +1,5 @@
-"""Dual-rate LetsPi in the closed loop: the engine's replanning step for LLM planners.
-
-``DualRateReplanner`` is a ``letspi.simulation.replan.Replanner``. At t = 0 and every ``replan_every``
-frames (e.g. 0.2 s) it builds the planner's view from the simulated history, derives the context
-(goal prediction, neighbour prediction) and asks the ``DualRateSchedule``
-(``letspi.simulation.schedule``) for the proposals in force, which makes the LLM calls that are due
-(t = 0, then every ``llm_period_s``) and applies the answers whose latency has passed. The physics
-(``planner.simulate``: rollout and, when on, the safety shield) then plans every scenario of the
-group with those proposals, in one batched call.
-
-Recorded per scenario and replan (``Replan.info``): the planner's own info of the plan, overridden
-by the schedule's (``llm_calls`` etc. count the calls *made* at this replan, not the proposal in
-force), ``llm_in_force``, ``params_age_s``, ``llm_answer_latency_s`` and ``planner_cpu_ms`` (CPU time
-of this thread in context and physics per scenario; the LLM calls are not in it).
-"""
+"""Dual-rate LetsPi in the closed loop: the engine's replanning step for LLM planners (the schedule makes the LLM
+calls due; the physics plans the group every ``replan_every`` frames in one batched call)."""
 
 from __future__ import annotations
 
@@ -29,11 +16,8 @@ from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRate
 
 
 class DualRateReplanner(PeriodicReplanner):
-    """LLM at the schedule's instants, physics every ``replan_every`` frames (module docstring).
-
-    ``concurrency``: LLM calls in flight at once (the K scenarios' calls of one instant).
-    ``close()`` drops calls still outstanding (the engine's caller calls it).
-    """
+    """LLM at the schedule's instants, physics every ``replan_every`` frames. ``concurrency``: LLM calls in
+    flight at once; ``close()`` drops calls still outstanding."""
 
     def __init__(self, planner: DualRatePlanner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy,
                  config: DualRateConfig, *, concurrency: int = 1,

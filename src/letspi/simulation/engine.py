@@ -1,36 +1,9 @@
-"""The closed-loop simulation of one chunk: K scenarios side by side in one SUMO network, in lockstep.
+"""The closed-loop simulation of one chunk in SUMO: K scenarios side by side (one road each), in lockstep.
 
-Per scenario, one road (slot) carries the ego and its neighbours (the batch's neighbour slots).
-Frame by frame (0.04 s), over the scenario's 200 frames, ``simulate_group`` runs five named steps:
-
-1. **who drives** (``_Lockstep.who_drives``): every vehicle is placed on its log up to t = 0; after
-   it the ego follows its plan and each neighbour either replays its log or is driven by SUMO
-   (IDM + SL2015, desired speed and headway estimated from its history, ``_Lockstep.hand_over``):
-
-   * ``closed-loop-log``: every neighbour replays the log;
-   * ``closed-loop-reactive``: every neighbour is handed to SUMO at t = 0; vehicles that enter
-     the log later are inserted at their recorded state and handed over one frame after;
-   * ``closed-loop-hybrid``: a neighbour is handed over once it is behind the ego in a lane the
-     ego's box covers (``letspi.simulation.handover``), except the actors of scripted events
-     (``scripted_nbr``), which replay their log all along; a handed-over vehicle is commanded its
-     recorded speed, which SUMO lowers where its car following needs (``HandoverConfig``);
-
-2. **vehicle bookkeeping** (``_Lockstep.bookkeeping``): log-driven vehicles are inserted when they
-   appear in the log (one frame early, at their back-extrapolated position, because SUMO does not
-   check collisions in a vehicle's insertion step) and removed when they leave it;
-3. **simulation step** (``_Lockstep.simulation_step``): log-driven vehicles and the ego are placed
-   (``moveToXY``, keepRoute 2: exact position, lateral offset included), SUMO advances one step,
-   and every vehicle's state is read back;
-4. **contact check** (``_Lockstep.contact_check``): SUMO's collisions of the ego, per neighbour slot;
-5. **replanning** (``letspi.simulation.replan.Replanner``): at the frames it chooses (today: t = 0
-   and every ``replan_s``) the planner sees a batch built from the simulated history, all K
-   scenarios in one call; the ego then follows the plan frame by frame (``_Lockstep.follow``).
-
-Geometry convention shared with the metrics: vehicles are axis-aligned boxes; SUMO's front bumper
-is the box centre plus half a length along x (SUMO's own collision check works in lane
-coordinates, i.e. on the same boxes). Collisions are read from ``simulation.getCollisions()``
-(``--collision.mingap-factor 0``: contact only; ``--collision.action warn``: nobody is removed, an
-overlap is reported every frame it lasts).
+Every 0.04 s frame ``simulate_group`` runs ``_Lockstep``'s five steps: who drives, bookkeeping (log-driven vehicles
+are inserted one frame early: SUMO checks no collisions in an insertion step), the simulation step (``moveToXY``
+keepRoute 2: exact positions), the contact check and replanning. Vehicles are axis-aligned boxes as in the metrics;
+collisions are contact only, reported every frame an overlap lasts.
 """
 
 from __future__ import annotations
@@ -133,12 +106,9 @@ class _Group:
 
 @dataclass(frozen=True)
 class _Drive:
-    """Who drives each of the V vehicles in one frame (all (V,) bool).
-
-    log: placed on its log this frame (everyone up to t = 0; after it the neighbours not yet handed
-    over); want_log: log-driven and recorded at this frame; preroll: log-driven, recorded only from
-    the next frame on (inserted one frame early); plan: the ego following its plan (after t = 0).
-    """
+    """Who drives each of the V vehicles in one frame (all (V,) bool). log: placed on its log (everyone up to t = 0,
+    then the neighbours not handed over); want_log: log-driven and recorded now; preroll: log-driven, recorded from
+    the next frame (inserted early); plan: the ego following its plan (after t = 0)."""
 
     log: np.ndarray
     want_log: np.ndarray
@@ -190,7 +160,8 @@ class _Lockstep:
 
     def hand_over(self, f: int) -> None:
         """Hand to SUMO's driver models the neighbours, recorded at frame f - 1 and still replayed,
-        that the mode releases: all of them (reactive) or those within the ego's reach (hybrid)."""
+        that the mode releases: all of them (reactive; a late entrant one frame after it appears) or
+        those within the ego's reach, scripted actors excepted (hybrid)."""
         g = self.g
         rows = np.flatnonzero(~g.is_ego & g.present & ~g.released & g.rec_valid[:, f - 1])
         if self.mode is EvaluationMode.HYBRID:
@@ -385,12 +356,8 @@ def simulate_group(
     scripted_nbr: np.ndarray | None = None,
     replanner: Replanner | None = None,
 ) -> ClosedLoopChunk:
-    """Simulate K scenarios of one lane layout together (module doc). The chunk's ``indices`` are 0..K-1.
-
-    scripted_nbr: (K, N) bool, neighbour slots that replay their log all along in
-    ``closed-loop-hybrid`` (actors of scripted events). replanner: the replanning step (default:
-    ``PeriodicReplanner`` every ``config.replan_s``). The mode and the period are ``config``'s.
-    """
+    """Simulate K scenarios of one lane layout together (chunk ``indices`` 0..K-1). scripted_nbr: (K, N) bool, slots
+    that replay their log throughout in ``closed-loop-hybrid``; replanner: default ``PeriodicReplanner``."""
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     sim = _Lockstep(session, batch, config, run_tag, scripted_nbr)

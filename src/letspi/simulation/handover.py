@@ -1,12 +1,5 @@
-"""``closed-loop-hybrid``: which log-replayed neighbours the ego's actions now reach.
-
-A neighbour ahead of the ego cannot be influenced by it (in a real car-following world it drives as
-recorded unless the ego overtakes it), so replaying its log keeps the recorded events, such as a
-leader's hard brake or a cut-in, exactly. A neighbour behind the ego in a lane the ego's box covers
-is where the ego's braking or lane change reaches it: replayed, it would rear-end an ego that brakes
-earlier or harder than the human did, so it is handed to SUMO's driver model. The rule is in
-``HandoverConfig``; this module evaluates it, vectorised over scenarios and neighbour slots.
-"""
+"""``closed-loop-hybrid``: which log-replayed neighbours the ego's actions now reach (``HandoverConfig``'s
+rule, vectorised over scenarios and neighbour slots), and the hybrid settings that enter keys."""
 
 from __future__ import annotations
 
@@ -29,15 +22,10 @@ def within_reach(
     marking_y_m: np.ndarray,
     config: HandoverConfig,
 ) -> np.ndarray:
-    """(K, N) bool: neighbour boxes behind the ego in a lane its box covers, or ``config.lanes`` lanes
-    beside those.
-
-    ego_xy_m: (K, 2) ego box centres; ego_length_m, ego_width_m: (K,); nbr_xy_m: (K, N, 2)
-    neighbour centres (NaN = absent: never within reach); nbr_length_m: (K, N); marking_y_m: (K, M)
-    lane markings (ascending, NaN padded), all in one frame of reference. The ego covers the lanes
-    its box overlaps (one, or two during a lane change; an ego beyond a road edge covers the edge
-    lane); a neighbour is in the lane of its centre (off the road: none, never within reach).
-    """
+    """(K, N) bool: neighbours behind the ego in a lane its box covers, or ``config.lanes`` lanes beside those.
+    ego_xy_m: (K, 2) centres; ego_length_m, ego_width_m: (K,); nbr_xy_m: (K, N, 2) (NaN = absent: never within
+    reach); nbr_length_m: (K, N); marking_y_m: (K, M) ascending, NaN padded. The ego covers the lanes its box
+    overlaps (the edge lane when beyond an edge); a neighbour is in the lane of its centre (off the road: none)."""
     ego_xy = np.asarray(ego_xy_m, dtype=np.float64)
     nbr_xy = np.asarray(nbr_xy_m, dtype=np.float64)
     marks = np.asarray(marking_y_m, dtype=np.float64)

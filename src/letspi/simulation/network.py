@@ -1,16 +1,6 @@
-"""Straight SUMO networks for closed-loop runs: one road per scenario ("slot"), cached per lane layout.
-
-A network holds ``n_slots`` parallel one-way roads (edges ``s0``, ``s1``, ...), ``slot_spacing_m``
-apart, all with the same lanes. Scenarios with that lane layout are simulated side by side, one per
-slot, in one SUMO instance. SUMO coordinates of slot k relate to a scenario's ego frame (x forward,
-y left; the ego frame is already aligned with the road) by a translation::
-
-    X = x + x_origin_m            Y = y + y_offset_m,  y_offset_m = left_edge_y_m[k] - (left road edge y)
-
-Lanes are built right to left from the scenario's markings (SUMO lane 0 = rightmost = between
-``marking_y_m[0]`` and ``marking_y_m[1]``); widths are rounded to 1 cm (the layout key), so a
-scenario's inner markings sit within a few millimetres of SUMO's.
-"""
+"""Straight SUMO networks for closed-loop runs: one road per scenario ("slot"), cached per lane layout. Slot k's
+coordinates are a translation of the ego frame: ``X = x + x_origin_m``, ``Y = y + left_edge_y_m[k] - (left road edge
+y)``; SUMO lane 0 is the rightmost; widths rounded to 1 cm are the layout key."""
 
 from __future__ import annotations
 
@@ -52,15 +42,9 @@ def layout_keys(marking_y_m: np.ndarray) -> list[LayoutKey]:
 
 @dataclass(frozen=True)
 class SlotNetwork:
-    """A built network (files on disk) and its coordinate transform.
-
-    Attributes:
-        net_file, route_file: the ``.net.xml`` and the routes file (vehicle type, one route per slot).
-        widths_m: lane widths, right to left [m].
-        n_slots: parallel roads.
-        x_origin_m: SUMO x of ego-frame x = 0 [m].
-        left_edge_y_m: (n_slots,) SUMO y of each road's left edge [m].
-    """
+    """A built network (files on disk) and its transform: ``net_file``, ``route_file`` (vehicle type, a route per
+    slot), ``widths_m`` right to left [m], ``n_slots``, ``x_origin_m`` (SUMO x of ego x = 0) [m] and
+    ``left_edge_y_m`` (n_slots,) SUMO y of each road's left edge [m]."""
 
     net_file: Path
     route_file: Path

@@ -13,11 +13,8 @@ from letspi.simulation.replan import Replan
 
 
 class PlanLog:
-    """Every plan made, per scenario and replanning slot (the frames a replanner may plan at).
-
-    xy: (K, R, F, 2) plans; goals: (K, R, 2); info: per-replan planner extras, each (K, R);
-    plan_s: planner wall time summed over the replans [s].
-    """
+    """Every plan made, per scenario and replanning slot: xy (K, R, F, 2), goals (K, R, 2), info (per-replan extras,
+    each (K, R)) and plan_s (planner wall time summed over the replans) [s]."""
 
     def __init__(self, k: int, frames: Sequence[int]) -> None:
         self.frames = list(frames)
@@ -43,12 +40,9 @@ def follow_plans(
     config: ClosedLoopConfig, cmd_xy_m: np.ndarray, cmd_vxy_mps: np.ndarray, nonfinite: np.ndarray,
 ) -> None:  # fmt: skip
     """The ego commands of the scenarios that replanned at frame f, up to each plan's last frame (in place).
-
-    ego_xy_m, ego_vxy_mps: (K, 2) the simulated ego at frame f; road_y_m: (K, 2) the road's edges;
-    cmd_xy_m, cmd_vxy_mps: (K, T, 2) the commands, written for frames f + 1 .. follow_until;
-    nonfinite: (K,) set where a plan is not finite, or leaves the simulated area, where it is
-    followed: the ego keeps its velocity instead.
-    """
+    ego_xy_m, ego_vxy_mps: (K, 2) the ego at f; road_y_m: (K, 2) road edges; cmd_xy_m, cmd_vxy_mps: (K, T, 2),
+    written for f + 1 .. follow_until; nonfinite: (K,) set where a plan is not finite or leaves the simulated area:
+    the ego keeps its velocity instead."""
     rows = np.asarray(replan.rows, dtype=np.int64)
     until = np.asarray(replan.follow_until, dtype=np.int64)
     for stop in np.unique(until).tolist():

@@ -1,18 +1,6 @@
-"""Worker processes for closed-loop runs: one planner and one libsumo per process.
-
-Each worker is a spawned process (a fresh interpreter: libsumo allows one simulation per process,
-and nothing of the parent's state, a loaded model or a running simulation, is inherited) connected
-by its own pipe. The parent sends a worker one chunk at a time, only when it is idle, so neither
-side ever blocks on a full pipe. A worker that dies (killed, out of memory) is noticed through its
-process sentinel: its unfinished chunk goes back to the queue and a replacement starts, up to
-``max_restarts`` times; results arrive only whole, so nothing is lost or duplicated. An exception
-inside a worker ends the run with the worker's traceback.
-
-Stopping: workers ignore Ctrl-C (``letspi.execution.interrupt``). When the run ends early (Ctrl-C in
-the parent, an error, a consumer that stops iterating) the parent terminates them at once (a worker
-closes its SUMO and removes its files on the way out); the chunks they were simulating are
-simulated again by the rerun. Only a run that finished tells its idle workers to exit and waits.
-"""
+"""Worker processes for closed-loop runs: one planner and one libsumo per spawned process, one chunk at a time. A
+dead worker's chunk is requeued (``max_restarts`` replacements); workers ignore Ctrl-C and are terminated when a run
+ends early."""
 
 from __future__ import annotations
 

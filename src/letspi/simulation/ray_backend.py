@@ -1,13 +1,5 @@
-"""Closed-loop chunks on Ray: one actor per worker, each with its own planner and libsumo.
-
-An actor is a long-lived worker process, so the planner (and any model it loads) and the SUMO
-session are built once per actor, as in ``letspi.simulation.pool``. Each actor gets one chunk at a
-time; an actor that dies is restarted by Ray and its chunk retried (``max_restarts``), so nothing
-is lost or duplicated. Needs the optional extra ``ray`` (``pip install 'letspi[ray]'``).
-
-On a cluster every node needs letspi (and libsumo) installed in the same environment; chunks and
-results travel through Ray's object store (about 30 kB per scenario and direction).
-"""
+"""Closed-loop chunks on Ray: one long-lived actor per worker (its own planner and libsumo), one chunk at a time,
+restarted and retried by Ray (``max_restarts``). Needs ``pip install 'letspi[ray]'``."""
 
 from __future__ import annotations
 
@@ -47,9 +39,8 @@ class RayChunkWorker:
 
 
 def ensure_ray(address: str, num_cpus: int) -> ModuleType:
-    """Ray, initialised: an existing instance is used as is; "local" starts one with ``num_cpus``.
-    Ctrl-C shuts down what this call started (``letspi.execution.interrupt.on_stop``): a local
-    instance's processes, or this driver's connection to a cluster."""
+    """Ray, initialised: an existing instance as is; "local" starts one with ``num_cpus``. Ctrl-C shuts down what
+    this call started (``on_stop``)."""
     ray = import_ray()
     if not ray.is_initialized():
         on_stop(ray.shutdown)  # before init: Ctrl-C during the start also ends what it started

@@ -1,30 +1,5 @@
-"""The planner's view at a replanning instant: a ScenarioBatch built from the simulated history.
-
-At frame ``c`` of the scenario window (``T0_INDEX`` = the original t = 0) the replanning batch is
-the source batch shifted in time by ``c - T0_INDEX`` frames and re-centred at the ego's simulated
-box centre at ``c``. The ego frame is a translation (plus a fixed 180 degree turn) of the image axes,
-so re-centring is a translation: every ``*_xy_m`` field and ``marking_y_m`` move with the ego;
-velocities and accelerations are unchanged.
-
-The batch is built generically from ``ScenarioBatch``'s dataclass fields, so fields added later are
-carried along: a field with a frame axis (the first non-batch axis whose length is the batch's frame
-count) is windowed, anything else is copied. Then the simulated states overwrite the history
-frames of the ego and neighbour fields. Future frames are NaN / invalid / 0 for planners that must
-not see them (``future="none"``), or the recorded log from ``c`` on (``future="log"``, for
-``human`` and oracle modes), NaN beyond the end of the recording.
-
-The replanning step of the engine
----------------------------------
-The engine (``letspi.simulation.engine``) asks a ``Replanner`` after every simulated frame for
-plans: ``replanner.plans(frame, states)`` returns a ``Replan`` (plans for the scenarios due at that
-frame, in the source scenario's ego frame, and until which frame each is followed) or None. The
-engine only follows plans; *when* to plan, with what, and at what cost is the replanner's business.
-``PeriodicReplanner``: every scenario at t = 0 and then every ``replan_every`` frames, one batched
-planner call. ``letspi.simulation.dual_rate.DualRateReplanner`` (the LLM planners): the LLM sets
-parameters at t = 0 and every ``llm_period_s``, the physics replans every ``replan_every`` frames
-with the parameters in force. ``frames`` lists the frames at which plans may be made (the slots of
-``ClosedLoopChunk.plan_xy_m``). Both record ``planner_cpu_ms`` per scenario and replan.
-"""
+"""The planner's view at a replanning instant (``replanning_batch``), and the engine's replanning step
+(``Replanner``: the plans due at a frame, or None; the engine only follows plans)."""
 
 from __future__ import annotations
 
@@ -45,12 +20,9 @@ FuturePolicy = Literal["none", "log"]
 
 @dataclass(frozen=True)
 class SimulatedStates:
-    """Simulated states of K scenarios, indexed by the source batch's frames (T of them).
-
-    ego_xy_m, ego_vxy_mps, ego_axy_mps2: (K, T, 2) box centre / velocity / acceleration, ego frame
-    of the source scenario. ego_lane_id: (K, T). nbr_xy_m, nbr_vxy_mps: (K, N, T, 2);
-    nbr_valid: (K, N, T); nbr_lane_id: (K, N, T). Frames not simulated yet are NaN / False / 0.
-    """
+    """Simulated states of K scenarios over the source batch's T frames (not simulated yet: NaN / False / 0).
+    ego_xy_m, ego_vxy_mps, ego_axy_mps2: (K, T, 2) in the source ego frame; ego_lane_id: (K, T); nbr_xy_m,
+    nbr_vxy_mps: (K, N, T, 2); nbr_valid, nbr_lane_id: (K, N, T)."""
 
     ego_xy_m: np.ndarray
     ego_vxy_mps: np.ndarray
@@ -103,11 +75,10 @@ def lane_ids_from_y(marking_y_m: np.ndarray, lane_ids: np.ndarray, y_m: np.ndarr
 def replanning_batch(
     source: ScenarioBatch, sim: SimulatedStates, frame: int, future: FuturePolicy = "none"
 ) -> tuple[ScenarioBatch, np.ndarray]:
-    """The batch a planner sees at ``frame`` (>= ``T0_INDEX``) and the re-centring offset.
-
-    Returns ``(batch, centre_xy_m)``: ``centre_xy_m`` (K, 2) is the ego's simulated centre at
-    ``frame`` in the source ego frame; add it to a plan's positions to bring them back.
-    """
+    """The batch a planner sees at ``frame`` (>= ``T0_INDEX``), and ``centre_xy_m`` (K, 2), the ego's simulated
+    centre there (source ego frame), to add to its plans. The view is the source shifted by ``frame - T0_INDEX``
+    frames and re-centred; the simulated states overwrite the history; the future is blank (``future="none"``) or the
+    log (``future="log"``)."""
     n_frames = source.ego_xy_m.shape[1]
     if not T0_INDEX <= frame < n_frames:
         raise ValueError(f"replanning frame {frame} outside [{T0_INDEX}, {n_frames})")
@@ -126,12 +97,8 @@ def replanning_batch(
 def _shifted_fields(
     source: ScenarioBatch, sim: SimulatedStates, frame: int, future: FuturePolicy
 ) -> dict[str, np.ndarray]:
-    """Every field of ``source`` with its frame axis shifted so that ``frame`` becomes ``T0_INDEX``.
-
-    The ego's and the neighbours' own states come from ``sim`` over the history; with
-    ``future="none"`` every frame after ``T0_INDEX`` is blanked (fill value). Fields without a
-    frame axis are copied.
-    """
+    """Every field of ``source`` shifted so that ``frame`` becomes ``T0_INDEX``: the own states' history
+    from ``sim``, the future blanked with ``future="none"``, fields without a frame axis copied."""
     n_frames = source.ego_xy_m.shape[1]
     shift = frame - T0_INDEX
     hist = slice(0, T0_INDEX + 1)
@@ -192,14 +159,10 @@ class Replan:
 
     Attributes:
         rows: (D,) int positions (0..K-1) of the scenarios that got a plan.
-        xy_m, vxy_mps: (D, F, 2) planned ego centres / velocities in the *source* scenario's ego
-            frame (already moved back from the replanning view's frame); point i is frame + 1 + i.
-        goals_xy_m: (D, 2) the goals the plans aimed at (source ego frame), NaN if none.
-        follow_until: (D,) int: the last frame each plan is followed (a later plan takes over from its
-            own frame on); at most ``frame + F`` and ``N_TOTAL - 1``.
-        info: per-scenario numbers of the planner (name -> (D,)), recorded per replan.
-        plan_s: wall time spent planning [s] (all D scenarios).
-    """
+        xy_m, vxy_mps: (D, F, 2) plans in the *source* ego frame; point i is at frame + 1 + i.
+        goals_xy_m: (D, 2) their goals (source ego frame), NaN if none.
+        follow_until: (D,) int, the last frame each plan is followed (at most ``frame + F``, ``N_TOTAL - 1``).
+        info: per-scenario numbers of the planner (name -> (D,)); plan_s: planning wall time [s]."""
 
     rows: np.ndarray
     xy_m: np.ndarray
@@ -211,12 +174,9 @@ class Replan:
 
 
 class Replanner(Protocol):
-    """The engine's replanning step: plans for the scenarios due at a frame (module docstring).
-
-    ``frames``: every frame (source indexing, >= ``T0_INDEX``) at which ``plans`` may return plans,
-    ascending. ``plans(frame, states)``: called after each simulated frame with the states
-    simulated so far (frames <= ``frame`` filled); returns None when nothing is due.
-    """
+    """The engine's replanning step. ``frames``: the frames (>= ``T0_INDEX``, ascending) at which ``plans`` may plan
+    (the slots of ``ClosedLoopChunk.plan_xy_m``); ``plans(frame, states)``: after each simulated frame; None when
+    nothing is due."""
 
     @property
     def frames(self) -> Sequence[int]: ...
@@ -245,11 +205,8 @@ def plan_in_batches(planner: Planner, batch: ScenarioBatch) -> PlanBatch:
 
 
 class PeriodicReplanner:
-    """Every scenario at t = 0 and every ``replan_every`` frames after it, one batched planner call.
-
-    ``future``: what the planner sees of the recorded future (``replanning_batch``). Only
-    one-dimensional numeric ``PlanBatch.info`` entries are kept (one number per scenario and replan).
-    """
+    """Every scenario at t = 0 and every ``replan_every`` frames, one batched planner call; only 1-D numeric
+    ``PlanBatch.info`` entries are kept."""
 
     def __init__(self, planner: Planner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy) -> None:
         self.planner = planner

@@ -1,23 +1,5 @@
-"""``closed-loop-log`` without SUMO: the neighbours replay their log, the ego follows its plans.
-
-In ``closed-loop-log`` nobody but the ego is simulated: every neighbour is placed on its recorded
-position each frame, and the ego on its plan. SUMO then only echoes the positions it was given and
-reports collisions, at 21-30 ms per scenario replanned every 0.2 s (``python -m benchmarks.speed closed-loop``:
-``in_process_sim_ms_per_scenario``), more than most planners take; the replay's is under 1 ms.
-``simulate_replay_group`` produces the same ``ClosedLoopChunk`` with NumPy:
-
-* every neighbour slot holds its log where it is recorded (NaN, invalid and lane 0 elsewhere), as
-  SUMO's read-back does (SUMO reports the position it was given; the speed is the log's);
-* the ego holds its log up to t = 0, then its commands: the same replanning step
-  (``letspi.simulation.replan``), called at every frame as in SUMO's lockstep, and the same rule for
-  plans that cannot be followed (``follow_plans``: not finite, or off the simulated area);
-* no SUMO contact check: the chunk's ``simulator`` is ``"replay"`` and its ``sumo_contact`` is all
-  False, so the results carry no ``sumo_collision`` column (``letspi.simulation.store.chunk_frame``).
-  Collisions are the metric's, as in every mode.
-
-``tests/test_simulation_replay.py`` checks that SUMO and the replay give the same trajectories and
-metric rows (to float rounding) for several planners on generated traffic.
-"""
+"""``closed-loop-log`` without SUMO, which would only echo the positions it is given: the same ``ClosedLoopChunk`` in
+NumPy, with the same replanning step and ``follow_plans``, but no SUMO contact check (``simulator="replay"``)."""
 
 from __future__ import annotations
 
@@ -55,10 +37,7 @@ def simulate_replay_group(
     future: FuturePolicy,
     replanner: Replanner | None = None,
 ) -> ClosedLoopChunk:
-    """``closed-loop-log`` of K scenarios without SUMO (module docstring); the chunk's ``indices`` are 0..K-1.
-
-    Same arguments and result as ``letspi.simulation.engine.simulate_group`` in ``closed-loop-log``.
-    """
+    """``closed-loop-log`` of K scenarios without SUMO: arguments and result as ``simulate_group``."""
     if config.mode is not EvaluationMode.LOG:
         raise ValueError(f"the replay simulates closed-loop-log only, not {config.mode.value} "
                          "(its neighbours need SUMO's driver models)")

@@ -18,35 +18,23 @@ _PER_RUN = ("planner", "mode", "replan_s", "replan_step", "plan_info", "simulato
 
 @dataclass(frozen=True)
 class ClosedLoopChunk:
-    """Simulated outcome of K scenarios (F = 125 future frames, N neighbour slots, R replans).
-
-    Positions are box centres in each scenario's original ego frame (origin: the ego at t = 0).
+    """Simulated outcome of K scenarios (F = 125 future frames, N neighbour slots, R replans); positions are box centres
+    in each scenario's ego frame (origin: the ego at t = 0).
 
     Attributes:
-        indices: (K,) positions of the scenarios in the batch given to ``run_closed_loop``.
-        scenario_id: (K,) str.
-        planner, mode: the planner's name and the closed-loop mode; replan_s: the period used [s].
+        indices: (K,) positions in the batch given to ``run_closed_loop``; scenario_id: (K,) str.
+        planner, mode: the planner's name and the mode; replan_s: the period used [s].
         ego_xy_m, ego_vxy_mps: (K, F, 2) the simulated ego.
-        nbr_xy_m, nbr_vxy_mps: (K, N, F, 2) the simulated (or replayed) neighbours, NaN when absent;
-            nbr_valid: (K, N, F); nbr_lane_id: (K, N, F) HighD lane ids (0 when absent/off road).
-        nbr_handover_step: (K, N) int, the first future step (0 = the first frame after t = 0) at which
-            SUMO's driver model drove the neighbour; -1 = it replayed its log throughout (or was absent).
-        replan_step: (R,) frames after t = 0 at which plans were made (0, 25, ... for 1 s).
-        plan_xy_m: (K, R, F, 2) every plan, in the same frame; plan_goal_xy_m: (K, R, 2).
-        plan_info: per-replan planner extras, each (K, R) (1-D ``PlanBatch.info`` entries).
-        plan_nonfinite: (K,) a plan had non-finite values, or left the simulated area (more than
-            15 m beyond a road edge), where the ego needed it; the ego then kept its velocity until
-            the next replan.
-        sumo_contact: (K, N, F) SUMO reported a collision between the ego and that neighbour (all
-            False from the replay, which runs no SUMO).
+        nbr_xy_m, nbr_vxy_mps: (K, N, F, 2) the neighbours, NaN when absent; nbr_valid: (K, N, F);
+            nbr_lane_id: (K, N, F) HighD lane ids (0 when absent or off road).
+        nbr_handover_step: (K, N) the first future step SUMO drove the neighbour; -1: it replayed its log.
+        replan_step: (R,) frames after t = 0 of the plans (0, 25, ... for 1 s).
+        plan_xy_m: (K, R, F, 2) every plan; plan_goal_xy_m: (K, R, 2); plan_info: extras, each (K, R).
+        plan_nonfinite: (K,) a plan was not finite or left the simulated area; the ego kept its velocity.
+        sumo_contact: (K, N, F) SUMO's ego contacts (all False from the replay).
         sumo_nbr_collisions: (K,) SUMO collision reports (pairs x frames) among the neighbours.
-        plan_s: (K,) planner wall time per scenario [s] (batched calls split evenly).
-        sim_s: (K,) the rest of the chunk's wall time (SUMO, bookkeeping) per scenario [s].
-        cpu_s: (K,) CPU time of the simulating process per scenario [s] (planner included; on a
-            shared machine it is the load-independent cost).
-        simulator: ``sumo`` (``letspi.simulation.engine``) or ``replay`` (``letspi.simulation.replay``:
-            closed-loop-log without SUMO, so without SUMO's collision check).
-    """
+        plan_s, sim_s, cpu_s: (K,) planner wall time, the rest of the wall time and CPU time per scenario [s].
+        simulator: ``sumo`` or ``replay``."""
 
     indices: np.ndarray
     scenario_id: np.ndarray
@@ -115,11 +103,8 @@ class ClosedLoopChunk:
 
 
 def scored_batch(batch: ScenarioBatch, chunk: ClosedLoopChunk) -> ScenarioBatch:
-    """``batch`` rows of the chunk with their neighbour futures replaced by the simulated ones.
-
-    ``batch`` is the full batch given to ``run_closed_loop`` (rows are picked by
-    ``chunk.indices``). The ego's recorded future is kept: ADE/FDE stay distances to the log.
-    """
+    """``batch``'s rows of the chunk (``chunk.indices``) with the simulated neighbour futures; the ego's recorded
+    future is kept, so ADE/FDE stay distances to the log."""
     sub = batch.take(np.asarray(chunk.indices))
     fut = slice(T0_INDEX + 1, T0_INDEX + 1 + chunk.ego_xy_m.shape[1])
     nbr_xy = sub.nbr_xy_m.copy()

@@ -1,15 +1,4 @@
-"""``run_closed_loop``: closed-loop simulation of a batch, in-process, in worker processes or on Ray.
-
-The batch is cut into chunks of scenarios with one lane layout (``ClosedLoopConfig.chunk_size``
-at most); each chunk is simulated in lockstep by one SUMO instance (``letspi.simulation.engine``).
-Chunks are yielded as they finish (completion order, not batch order), each with the positions
-of its scenarios in the batch, so a caller can write and resume per chunk
-(``letspi.simulation.store``).
-
-Workers: ``workers=0`` runs in this process; ``workers=N`` starts N processes (spawned: a fresh
-interpreter, one libsumo each), each building its planner once from the picklable planner spec;
-``ray_address`` runs the same work on Ray actors (``letspi.simulation.ray_backend``).
-"""
+"""``run_closed_loop``: closed-loop simulation of a batch, in-process, in worker processes or on Ray."""
 
 from __future__ import annotations
 
@@ -35,21 +24,12 @@ def run_closed_loop(
     max_worker_restarts: int = 2,
     scripted_nbr: np.ndarray | None = None,
 ) -> Generator[ClosedLoopChunk, None, None]:
-    """Simulate ``batch`` (or its rows ``indices``) closed loop; yield one ``ClosedLoopChunk`` per chunk.
-
-    A caller that stops early (Ctrl-C while it writes a chunk) closes the generator
-    (``contextlib.closing``): worker processes and Ray actors stop at once, not when it is collected.
-
-    planner_spec: a ``PlannerSpec`` (built inside each worker) or a ``BuiltPlanner`` (used as is).
-    config: everything about the run (default ``ClosedLoopConfig()``): the mode, the replanning period
-    (this planner's own, ``config.for_planner(name)``), ``workers`` (0 = this process, N >= 1 = N
-    worker processes) and ``ray_address`` (run on Ray instead: "local" starts a local instance unless
-    Ray is already initialised, "auto" or an address joins a cluster; ``workers`` actors).
-    max_worker_restarts: worker processes (or actors) that may die and be replaced before the run
-    fails; their unfinished chunks are simulated again, so nothing is lost or duplicated.
-    scripted_nbr: (B, N) bool over ``batch``: neighbour slots that keep their recorded (scripted)
-    behaviour in ``closed-loop-hybrid`` (``letspi.scenario.scripted.scripted_neighbours``); None = none.
-    """
+    """Simulate ``batch`` (or its rows ``indices``) closed loop; yield ``ClosedLoopChunk``s in completion order,
+    chunks of one lane layout. Close the generator to stop workers at once (``contextlib.closing``). planner_spec: a
+    ``PlannerSpec`` (built in each worker) or a ``BuiltPlanner`` (used as is). config: default
+    ``ClosedLoopConfig()``, this planner's period applied. max_worker_restarts: workers that may die before the run
+    fails (their chunks are simulated again). scripted_nbr: (B, N) bool, slots that replay their log in
+    ``closed-loop-hybrid``."""
     cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
     tasks = make_tasks(batch, cfg, indices, scripted_nbr, dual_rate=runs_dual_rate(planner_spec))
     if not tasks:

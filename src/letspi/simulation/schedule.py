@@ -1,24 +1,6 @@
-"""Dual-rate, asynchronous LetsPi: the LLM sets the strategy slowly, the physics replans fast.
-
-The real-time form of the paper's fast phase (AsyncDriver, which the paper cites, runs its LLM beside
-a fast planner the same way). In closed loop, for a ``ProposingPlanner`` whose proposals come from an
-LLM (``letspi-fast``, ``llm``, ``letspi-memory``):
-
-* the LLM is asked for social force parameters and goal adjustments at t = 0 and then every
-  ``llm_period_s``, about the scene observed at that instant;
-* an answer takes effect only after its latency: a fixed ``llm_latency_s`` (reproducible: the LLM is
-  called synchronously and its answer applied that much later in simulated time; part of the
-  results' key), or the measured one (``llm_latency_s = None``: the call runs in a background
-  thread while the simulation goes on, paced to real time while an answer is outstanding, and the
-  answer applies at the first replan after it arrived);
-* until the first answer is in force, the planner's fitted parameters are (``default_proposals``);
-* the physics replans every ``replan_s`` with the parameters in force, against the neighbours
-  observed at that instant (``simulate``: goal prediction, rollout and, when on, the safety shield
-  at every replan).
-
-``DualRateSchedule`` keeps the parameters in force per scenario and says, per replan, which LLM calls
-were made and how old the parameters in force are; ``letspi.simulation`` drives it.
-"""
+"""Dual-rate LetsPi: the LLM sets the strategy slowly, the physics replans fast (docs/evaluation.md). An answer takes
+effect after a fixed latency (reproducible) or its measured one (a background call, the simulation paced to real
+time); until then ``default_proposals`` hold."""
 
 from __future__ import annotations
 
@@ -43,13 +25,8 @@ CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_
 
 @dataclass(frozen=True)
 class DualRateConfig:
-    """How often the LLM is asked and when its answers take effect (module docstring).
-
-    Attributes:
-        llm_period_s: LLM calls at t = 0 and every this many seconds (>= the horizon: t = 0 only).
-        llm_latency_s: None = the measured latency (asynchronous, real-time pacing; not
-            reproducible); a number >= 0 = this fixed latency (reproducible; in the key).
-    """
+    """How often the LLM is asked: ``llm_period_s`` (t = 0 and every period; >= the horizon: t = 0 only), and when
+    its answers take effect: ``llm_latency_s`` (None: measured, not reproducible; else fixed, in the key)."""
 
     llm_period_s: float = DEFAULT_LLM_PERIOD_S
     llm_latency_s: float | None = None
@@ -103,18 +80,11 @@ class _Call:
 
 @dataclass
 class DualRateSchedule:
-    """The parameters in force for K scenarios simulated in lockstep (module docstring).
-
-    ``step(step, view, context)`` is called at every physics replan (``step``: frames after t = 0,
-    ascending) with the planner's view of the K scenarios at that instant and its context; it makes
-    the LLM calls due, applies the answers whose latency has passed and returns the proposals in
-    force (K) and per-scenario info: ``CALL_INFO_KEYS`` of the calls made (or, measured, arrived) at
-    this replan, ``llm_in_force`` (1 once an LLM answer is in force), ``params_age_s`` (time since
-    the call whose answer is in force was made; NaN while the fitted parameters are), and
-    ``llm_answer_latency_s`` (the latency of an answer applied at this replan, NaN otherwise).
-    ``concurrency``: LLM calls in flight at once (the K calls of one instant; 1 for the embedded
-    model). ``clock`` / ``wait`` are injectable for tests. Call ``close()`` at the end.
-    """
+    """The proposals in force for K scenarios simulated in lockstep. ``step(step, view, context)`` at every physics
+    replan (``step``: frames after t = 0) makes the LLM calls due, applies the answers whose latency has passed and
+    returns the proposals in force and (K,) info: ``CALL_INFO_KEYS`` of the calls made (measured: arrived) now,
+    ``llm_in_force``, ``params_age_s`` [s] (NaN while the fitted parameters hold) and ``llm_answer_latency_s``.
+    ``concurrency``: calls in flight at once. Call ``close()`` at the end."""
 
     planner: DualRatePlanner
     k: int

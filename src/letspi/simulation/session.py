@@ -1,15 +1,5 @@
-"""One SUMO instance per process, reloaded per lane layout (libsumo, or TraCI for the GUI).
-
-libsumo runs SUMO inside the Python process (one simulation per process, no socket: the fast path);
-the ``traci`` backend starts ``sumo`` / ``sumo-gui`` as a subprocess and talks over a socket (slower,
-but the only way to watch a run). Both expose the same API module, which the engine uses as
-``session.api``.
-
-libsumo 1.28 prints a warning when the installed pyarrow differs from the libarrow it was built
-against. libsumo's wheel bundles its own, renamed libarrow (``libsumo.libs/libarrow-*.so``), and
-letspi does not use SUMO's Parquet output, so the two never meet; the warning is swallowed on
-import (tests check Parquet I/O and a libsumo simulation in one process).
-"""
+"""One SUMO instance per process, reloaded per lane layout: libsumo (in-process, one per process) or TraCI (a
+subprocess; the GUI). libsumo's harmless pyarrow warning on import is swallowed."""
 
 from __future__ import annotations
 
@@ -84,11 +74,8 @@ def sumo_arguments(net: SlotNetwork, config: ClosedLoopConfig) -> list[str]:
 
 
 class SumoSession:
-    """A SUMO instance that (re)loads slot networks; use as a context manager.
-
-    ``open(widths, n_slots)`` returns a network with a clean simulation at time 0 (reloading
-    costs milliseconds; building a new network, once per layout and slot count, ~0.1 s).
-    """
+    """A SUMO instance that (re)loads slot networks (a context manager); ``open(widths, n_slots)`` returns a network
+    with a clean simulation at time 0."""
 
     def __init__(self, config: ClosedLoopConfig, work_dir: Path | None = None) -> None:
         self.config = config

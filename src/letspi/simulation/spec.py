@@ -1,13 +1,5 @@
-"""The one seam between the closed-loop engine and planner construction.
-
-Workers (processes, Ray actors) build their planner themselves from a picklable description, so
-models and caches are loaded once per worker and nothing unpicklable crosses a process boundary.
-``build_planner`` is the only function that turns a description into a planner: it hands the
-planner's frozen configuration (``letspi.planners.config``, picklable) to
-``letspi.assembly.planners.build_planner``. In this process a ``BuiltPlanner`` is used as it is.
-What a planner can do (read the recorded future, run dual-rate) comes from its kind's entry in the
-planner table, through its configuration.
-"""
+"""The one seam between the closed-loop engine and planner construction: workers build their planner from a picklable
+``PlannerSpec``, so models load once per worker and nothing unpicklable crosses processes."""
 
 from __future__ import annotations
 
@@ -23,16 +15,9 @@ from letspi.planners.options import PlannerOptions
 
 @dataclass(frozen=True)
 class PlannerSpec:
-    """A planner by its configuration (picklable) and its label (its replanning period is the run
-    configuration's, ``ClosedLoopConfig.replan_s_of(name)``).
-
-    Attributes:
-        config: the planner's frozen configuration (``letspi.planners.config``); its key
-            identifies the planner in results.
-        name: the label of its results (default: the configuration's kind).
-        kind_source: the import path of a kind loaded by path (``--planner mypkg.mod:NAME``), which a
-            worker process loads before building; None for built-in and installed kinds.
-    """
+    """A planner by its configuration (picklable; its key identifies the planner in results) and its label ``name``
+    (default: the kind). kind_source: the import path of a kind loaded by path, which a worker loads first; None for
+    built-in and installed kinds."""
 
     config: PlannerConfig
     name: str = ""
@@ -81,10 +66,8 @@ def spec_name(spec: PlannerSpecLike) -> str:
 
 
 def reads_recorded_future(spec: PlannerSpecLike) -> bool:
-    """Whether the planner reads the recorded future (``human``, oracle goals or neighbours; from the table).
-
-    Such planners are given the log's future (shifted to each replanning instant) instead of NaN.
-    """
+    """Whether the planner reads the recorded future (from the table): it then sees the log's future
+    (shifted to each replanning instant) instead of NaN."""
     return spec.reads_future if isinstance(spec, BuiltPlanner) else spec.table().reads_future(spec.config)
 
 

@@ -1,17 +1,5 @@
-"""Resumable closed-loop output: one directory per (planner, mode, replanning period, scenarios).
-
-Layout::
-
-    DIR/run.json                 planner, mode, replan_s, scenario count and fingerprint (resume guard)
-    DIR/traj-NNNNN.npz           the chunk's trajectories (ego, neighbours, plans, SUMO contacts)
-    DIR/part-NNNNN.parquet       one row per scenario: the open-loop metric columns on the simulated
-                                 trajectories, SUMO's collision flag, timings, per-replan extras
-
-A chunk is written when it is complete, trajectories first and the Parquet part last (both via a
-temporary file and an atomic rename): a part file is the commit of its chunk. A run that is
-killed loses at most the chunks in flight; rerunning skips every scenario id already in a part.
-This is the shape the harness (``letspi.evaluation``) can adopt per planner directory.
-"""
+"""Resumable closed-loop output, one directory per run: ``run.json`` (a resume guard), per chunk ``traj-NNNNN.npz``
+and ``part-NNNNN.parquet`` (one row per scenario), written atomically, the part last (its commit)."""
 
 from __future__ import annotations
 
@@ -223,11 +211,8 @@ def run_closed_loop_to_dir(
     progress: Callable[[int], None] | None = None,
     scripted_nbr: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows.
-
-    Arguments as ``run_closed_loop``; ``progress`` is called with the number of scenarios done
-    (first with those found from an earlier run).
-    """
+    """Simulate and score every scenario of ``batch`` not yet in ``out_dir``; return all rows. Arguments as
+    ``run_closed_loop``; ``progress(n)`` gets the scenarios done (first those of an earlier run)."""
     cfg = (config or ClosedLoopConfig()).for_planner(spec_name(planner_spec))
     settings = hybrid_settings(cfg, scripted_nbr) if cfg.mode is EvaluationMode.HYBRID else None
     store = ClosedLoopStore.for_run(out_dir, spec_name(planner_spec), cfg.mode.value, cfg.replan_s, batch, settings)

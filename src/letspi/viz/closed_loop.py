@@ -1,19 +1,6 @@
-"""The closed-loop panel: the same scenario open loop and closed loop, one above the other.
-
-Each row shows the road, every neighbour's path over the 5 s horizon (the recorded future in open
-loop; the replayed or SUMO-driven one in closed loop), the ego's path, and every plan the ego made
-(open loop: the single plan; closed loop: one per replan, each starting where the ego was when it
-was made, so the receding horizon is visible). A collision is marked where it happens, with both
-boxes. Drawn from arrays only (nothing is re-planned); the y axis is stretched (not to scale).
-
-Artists carry gids: ``ego_path:<row>``, ``plan:<row>:<r>``, ``replan:<row>``, ``nbr_path:<row>:<j>``,
-``collision:<row>``, ``road_edge:<k>`` / ``lane_line:<k>``.
-
-Example, from a ``letspi.simulation.ClosedLoopChunk`` row ``i`` and an open-loop plan::
-
-    closed = LoopOutcome("closed-loop-log", chunk.ego_xy_m[i], chunk.nbr_xy_m[i], chunk.nbr_valid[i],
-                         chunk.plan_xy_m[i], chunk.replan_step, collision_step=..., collision_nbr=...)
-"""
+"""The closed-loop panel: the same scenario open loop and closed loop, one above the other (from arrays only; closed
+loop with every replan's plan; y axis stretched). Artist gids: ``ego_path:<row>``, ``plan:<row>:<r>``,
+``replan:<row>``, ``nbr_path:<row>:<j>``, ``collision:<row>``, ``road_edge:<k>`` / ``lane_line:<k>``."""
 
 from __future__ import annotations
 
@@ -30,16 +17,10 @@ from letspi.viz import style
 
 @dataclass(frozen=True)
 class LoopOutcome:
-    """One row of the panel (ego frame of the scenario, F future frames, N neighbours, R plans).
-
-    Attributes:
-        label: row title (``open loop``, ``closed-loop-log`` ...).
-        ego_xy_m: (F, 2) the ego's path (the plan itself in open loop).
-        nbr_xy_m: (N, F, 2) neighbour paths, NaN where absent; nbr_valid: (N, F).
-        plans_xy_m: (R, F, 2) the plans; replan_step: (R,) frames after t = 0 at which each was made.
-        collision_step, collision_nbr: first collision (future frame, neighbour slot), -1 if none.
-        notes: short metric lines printed in the row (e.g. {"CR": "yes", "min TTC": "1.2 s"}).
-    """
+    """One row of the panel (ego frame; F future frames, N neighbours, R plans): ``label``; ``ego_xy_m`` (F, 2) (the
+    plan itself in open loop); ``nbr_xy_m`` (N, F, 2), NaN where absent, and ``nbr_valid`` (N, F); ``plans_xy_m`` (R,
+    F, 2) made at ``replan_step`` (R,) frames after t = 0; ``collision_step``, ``collision_nbr`` (-1: none);
+    ``notes``, short metric lines ({"CR": "yes", "min TTC": "1.2 s"})."""
 
     label: str
     ego_xy_m: np.ndarray
@@ -114,11 +95,8 @@ def plot_closed_loop_panel(
     nbr_width_m: np.ndarray,
     title: str = "",
 ) -> Figure:
-    """Two rows (open loop above, closed loop below) with shared axes; returns the figure.
-
-    marking_y_m, marking_is_edge: (M,) the road; ego_length_m, ego_width_m: the ego's size [m];
-    nbr_length_m, nbr_width_m: (N,) neighbour sizes [m] (for the collision boxes).
-    """
+    """Two rows (open loop above, closed loop below) with shared axes; returns the figure. marking_y_m,
+    marking_is_edge: (M,); ego_length_m, ego_width_m [m]; nbr_length_m, nbr_width_m: (N,) [m]."""
     sizes = np.stack([np.asarray(nbr_length_m, float), np.asarray(nbr_width_m, float)], axis=-1)
     with style.letspi_style():
         fig = Figure(figsize=(11.0, 6.0))

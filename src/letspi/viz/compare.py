@@ -1,20 +1,6 @@
-"""Two results directories side by side, paired on the windows both hold: ``letspi compare``.
-
-``compare_dirs`` / ``write_comparison`` pair each planner of B with a planner of A on the scenario
-digests both directories hold:
-
-* by default the same label (e.g. open loop in A, closed loop in B: how the mode changes each planner);
-* with ``reference``: every planner of B against that planner of A (e.g. your planner in B against
-  ``sf`` in A); then the evaluation modes must agree, so that only the planner differs.
-
-Directories under different metrics configurations are refused in one line. Per pair and metric:
-both values over the shared windows with their 95 % intervals, the paired difference B − A with
-its vehicle-bootstrap interval, and for rates the windows only A / only B / both have the event
-with the exact McNemar p (``letspi.metrics.uncertainty``; the "paired" entry of ``compare.json``
-has every metric, A being the reference). Outputs: ``compare.md``, ``compare.json`` and
-``compare.html`` with, per pair, the scenarios whose collision outcome differs drawn as panels
-(A above, B below; ``letspi.viz.outcomes``).
-"""
+"""Two results directories side by side, paired on the windows both hold (``letspi compare``; docs/evaluation.md):
+``compare.md``, ``compare.json`` and ``compare.html`` with the scenarios whose collision outcome differs drawn as
+panels (A above, B below)."""
 
 from __future__ import annotations
 
@@ -72,10 +58,8 @@ def scenarios_file_of(directory: Path) -> Path | None:
 
 @dataclass
 class Comparison:
-    """Planners of B paired with planners of A on their shared windows (module doc). Keyed by B's
-    label: ``reference_of`` (A's label), both aggregates and intervals over the shared windows,
-    ``paired`` records (A = reference), and the digests whose collision outcome differs
-    (``only_a``: collides in A only)."""
+    """Planners of B paired with planners of A on their shared windows, keyed by B's label: ``reference_of``,
+    aggregates and intervals, ``paired`` records (A = reference), digests whose collision outcome differs."""
 
     a: Path
     b: Path
@@ -163,7 +147,7 @@ def _shared_aggregate(frame: pd.DataFrame) -> dict[str, Any]:
 
 
 def compare_dirs(a: Path | str, b: Path | str, reference: str | None = None) -> Comparison:
-    """Pair the planners of B with those of A on the windows both hold (module doc); ``reference``:
+    """Pair the planners of B with those of A on the windows both hold; ``reference``:
     a planner label of A that every planner of B is compared with (default: the same labels)."""
     a, b = Path(a), Path(b)
     ia, ib = _identity(a), _identity(b)

@@ -1,9 +1,4 @@
-"""What the pictures draw, computed from a scenario and its plans (no Matplotlib here).
-
-* ``PlanTrack``: one planner's plan for one scenario (rows of a ``PlanBatch``).
-* ``neighbour_groups``: each neighbour slot's lane relation to the ego at t = 0 (colour group).
-* ``preceding_gap``: bumper-to-bumper gap to the vehicle ahead in the ego's lane, per frame.
-"""
+"""What the pictures draw, computed from a scenario and its plans (no Matplotlib here)."""
 
 from __future__ import annotations
 
@@ -24,14 +19,8 @@ OTHER_LANE = "other lane"
 
 @dataclass(frozen=True)
 class PlanTrack:
-    """One planner's plan for one scenario, ego frame.
-
-    Attributes:
-        name: planner name (legend label, gid suffix).
-        xy_m: (F, 2) planned ego centre at t = 1..F frames after t = 0 [m].
-        vxy_mps: (F, 2) planned velocity [m/s].
-        goal_xy_m: (2,) the goal the plan aimed at (possibly adjusted), NaN when none [m].
-    """
+    """One planner's plan for one scenario, ego frame: ``name`` (legend label, gid suffix), ``xy_m`` (F, 2) [m] at
+    frames 1..F after t = 0, ``vxy_mps`` (F, 2) [m/s], ``goal_xy_m`` (2,) [m] (possibly adjusted; NaN: none)."""
 
     name: str
     xy_m: np.ndarray
@@ -55,11 +44,8 @@ def plan_track(name: str, plan: PlanBatch, row: int = 0) -> PlanTrack:
 
 
 def plan_tracks(plans: Mapping[str, PlanBatch] | None, index: int, batch_size: int) -> list[PlanTrack]:
-    """Plans for scenario ``index`` of a batch of ``batch_size``.
-
-    Each ``PlanBatch`` holds either that scenario alone (B = 1) or the whole batch (B =
-    ``batch_size``, row ``index`` is used); anything else is a ``ValueError``.
-    """
+    """Plans for scenario ``index`` of a batch of ``batch_size``: each ``PlanBatch`` holds that scenario
+    alone (B = 1) or the whole batch (row ``index`` is used); anything else is a ``ValueError``."""
     out: list[PlanTrack] = []
     for name, plan in (plans or {}).items():
         b = plan.xy_m.shape[0]
@@ -83,9 +69,8 @@ def _lane_index(scenario: ScenarioBatch, y_m: np.ndarray) -> np.ndarray:
 
 
 def neighbour_groups(scenario: ScenarioBatch) -> list[str | None]:
-    """Per neighbour slot: ``SAME_LANE``, ``ADJACENT_LANE``, ``OTHER_LANE`` (relative to the ego's
-    lane at t = 0, using the neighbour's lane at t = 0 or, if not visible then, its first visible
-    frame), or None for empty slots."""
+    """Per neighbour slot: ``SAME_LANE``, ``ADJACENT_LANE``, ``OTHER_LANE`` relative to the ego's lane at t = 0 (the
+    neighbour's lane then, or at its first visible frame), or None for empty slots."""
     ego_lane = int(_lane_index(scenario, np.array([scenario.ego_xy_m[0][T0_INDEX, 1]]))[0])
     groups: list[str | None] = []
     for j in range(len(scenario.nbr_id[0])):
@@ -107,17 +92,9 @@ def neighbour_groups(scenario: ScenarioBatch) -> list[str | None]:
 
 
 def preceding_gap(scenario: ScenarioBatch, ego_xy_m: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gap from the ego to the vehicle ahead in its lane at each given frame.
-
-    Args:
-        scenario: the scenario (neighbours' recorded positions are used, also in the future).
-        ego_xy_m: (K, 2) ego centre positions at ``frames``.
-        frames: (K,) scenario frame indices (0..N_TOTAL-1) of those positions.
-    Returns:
-        gap_m (K,): bumper-to-bumper distance along x, ``dx - (L_ego + L_nbr) / 2`` (negative =
-        overlapping in x), NaN where no visible neighbour is ahead in the ego's lane.
-        leader_slot (K,): the neighbour slot of that vehicle, -1 where none.
-    """
+    """Gap from the ego (``ego_xy_m`` (K, 2) at scenario ``frames`` (K,)) to the vehicle ahead in its lane, from the
+    neighbours' recorded positions. Returns ``gap_m`` (K,), ``dx - (L_ego + L_nbr) / 2`` (negative: overlapping; NaN:
+    no leader), and ``leader_slot`` (K,), -1 where none."""
     ego = np.asarray(ego_xy_m, dtype=np.float64)
     frames = np.asarray(frames, dtype=np.int64)
     nbr = np.asarray(scenario.nbr_xy_m[0], dtype=np.float64)[:, frames]  # (N, K, 2)

@@ -1,12 +1,6 @@
-"""The report's "Decisions" section: what the deciding planners chose, why, and the chosen plan beside sf's.
-
-For every planner with the decision step's outputs (``decision`` and the others of
-``letspi.planners.decision``): the share of each decision and of the windows the model was consulted
-on, and up to ``n`` scenarios where it did not keep the defaults (first those where the reference
-planner, ``sf``, collided and it did not, then the riskiest), each with its reason, the adverse
-futures the first proposal failed, the refinement rounds, whether the shield acted, and one diagram
-of its stored plan beside the reference's stored plan (both exactly as the evaluation scored them).
-"""
+"""The report's "Decisions" section: per deciding planner its decision shares, the share consulted, and up to ``n``
+scenarios where it left the defaults (first where ``sf`` collided and it did not), each with its reason and checks
+and its stored plan beside sf's."""
 
 from __future__ import annotations
 

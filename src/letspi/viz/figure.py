@@ -1,11 +1,5 @@
-"""``plot_scenario``: the paper's Figs 4-5 for one scenario.
-
-Layout (top to bottom): the trajectory diagram across the full width (equal aspect); the
-time-space diagram and the gap to the preceding vehicle side by side; then, for LLM planners, one
-row per reflection iteration with the safety analysis report (left) and the LLM response (right).
-One legend for all roles sits at the bottom. Figures are plain ``matplotlib.figure.Figure``
-objects (no pyplot state); PNGs are written with Agg.
-"""
+"""``plot_scenario``: the paper's Figs 4-5 for one scenario. Top to bottom: the trajectory diagram; the
+time-space diagram beside the gap to the preceding vehicle; one text row per reflection iteration; one legend."""
 
 from __future__ import annotations
 
@@ -69,24 +63,16 @@ def plot_scenario(
     title: str | None = None,
     width_in: float = DEFAULT_WIDTH_IN,
 ) -> Figure:
-    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations).
+    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations); returns the figure.
 
     Args:
-        batch: scenarios (ego frame).
-        index: which scenario of ``batch``.
-        plans: planner name -> ``PlanBatch`` holding that scenario alone (B = 1) or the whole
-            ``batch`` (row ``index`` is drawn). Drawn in the given order with ``style.PLAN_COLOURS``.
-        iterations: reflection iterations of an LLM planner; adds one text row per iteration.
+        plans: planner name -> ``PlanBatch`` of that scenario alone (B = 1) or of the whole ``batch``; drawn
+            in order with ``style.PLAN_COLOURS``.
+        iterations: reflection iterations of an LLM planner (one text row each).
         out_png: if given, the figure is saved there (PNG, parent directories created).
-        goal_xy_m: the unadjusted goal (2,); default: ``KinematicGoalPredictor``'s goal. A plan whose
-            ``goals_xy_m`` differs from it is drawn with an adjusted goal.
-        title: figure title; default names the scenario and its recording.
-        width_in: figure width [in]; heights follow from the road's aspect and the text.
-    Returns:
-        The figure. Artists carry gids (see ``letspi.viz.trajectory`` / ``time_space`` /
-        ``llm_panel``); axes are labelled ``trajectory``, ``time_space``, ``gap``,
-        ``safety_report:<k>``, ``response:<k>`` (``Axes.get_label()``).
-    """
+        goal_xy_m: the unadjusted goal (2,); default: ``KinematicGoalPredictor``'s goal.
+        title: default names the scenario and its recording; width_in: figure width [in].
+    Axes are labelled ``trajectory``, ``time_space``, ``gap``, ``safety_report:<k>``, ``response:<k>``."""
     if not 0 <= index < len(batch):
         raise IndexError(f"scenario index {index} outside 0..{len(batch) - 1}")
     scenario = batch.take([index])

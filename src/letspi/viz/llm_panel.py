@@ -1,11 +1,5 @@
-"""Text panels of the reflection loop: the safety analysis report and the LLM's response per iteration.
-
-The reflection module produces one ``IterationRecord`` per iteration (the plan it checked, the
-report it wrote, what the LLM answered). ``draw_iteration`` renders one record as two framed text
-panels side by side, as in the paper's Figs 4-5: left the safety analysis report (with the checked
-plan's metrics), right the LLM response (rationale, goal adjustment factors, parameters).
-Text is wrapped to the panel width and shown verbatim (no mathtext: ``$`` is literal).
-"""
+"""Text panels of the reflection loop (the paper's Figs 4-5): per ``IterationRecord`` the safety analysis
+report (left) and the LLM's response (right), wrapped and verbatim (no mathtext: ``$`` is literal)."""
 
 from __future__ import annotations
 
@@ -43,17 +37,9 @@ METRIC_LABELS: dict[str, tuple[str, str]] = {
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """One reflection iteration, as the panels show it.
-
-    Attributes:
-        iteration: 0 for the first plan, 1.. for refinements.
-        safety_report: the safety analysis report handed to the LLM (plain text, may hold newlines).
-        rationale: the LLM's explanation of its decision.
-        params: social force parameters the LLM chose (name -> value).
-        lon_factor: longitudinal goal adjustment factor in [0, 1] (NaN = none).
-        lane_factor: lane adjustment factor in [-1, 1] (NaN = none).
-        metrics: metrics of the plan checked in this iteration (name -> value, units in the name).
-    """
+    """One reflection iteration, as the panels show it: ``iteration`` (0: the first plan), ``safety_report`` (the
+    report handed to the LLM), the LLM's ``rationale`` and ``params`` (name -> value), ``lon_factor`` in [0, 1] and
+    ``lane_factor`` in [-1, 1] (NaN: none), and the checked plan's ``metrics`` (units in the names)."""
 
     iteration: int
     safety_report: str
@@ -214,10 +200,8 @@ def _text_panel(ax: Axes, title: str, text: str, edge: str, gid: str) -> Text:
 
 def draw_iteration(ax_report: Axes, ax_response: Axes, record: IterationRecord, width_chars: int,
                    n_iterations: int | None = None) -> tuple[Text, Text]:
-    """Draw one iteration's safety report (left axes) and LLM response (right axes).
-
-    Text artists have gids ``safety_report:<iteration>`` and ``rationale:<iteration>``.
-    """
+    """Draw one iteration's safety report (left axes) and LLM response (right axes); text gids
+    ``safety_report:<iteration>`` and ``rationale:<iteration>``."""
     left, right = panel_texts(record, width_chars)
     of = f" of {n_iterations - 1}" if n_iterations and n_iterations > 1 else ""
     label = "initial plan" if record.iteration == 0 else f"refinement {record.iteration}{of}"

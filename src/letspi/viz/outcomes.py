@@ -1,12 +1,5 @@
-"""Panel rows (``letspi.viz.closed_loop.LoopOutcome``) from stored results.
-
-* ``stored_outcome``: one stored row (open-loop or closed-loop results directory) as a panel row:
-  the ego path that was scored, every plan, the neighbours the metrics saw (recorded future in open
-  loop; replayed or SUMO-driven in closed loop).
-* ``first_plan_outcome``: for a closed-loop row without open-loop results, the plan made at t = 0
-  against the recorded neighbours, scored on the spot (it is the open-loop plan: the engine's
-  first plan equals it, bit for bit).
-"""
+"""Panel rows (``LoopOutcome``) from stored results: ``stored_outcome`` (what was scored) and ``first_plan_outcome``
+(a closed-loop row's plan made at t = 0, i.e. the open-loop plan, scored on the spot)."""
 
 from __future__ import annotations
 
@@ -98,8 +91,7 @@ def closed_loop_report_figure(scenario: ScenarioBatch, rec: Mapping[str, Any], n
 
 def simulate_panel(scenario: ScenarioBatch, built: BuiltPlanner, closed: ClosedLoopConfig,
                    config: MetricsConfig | None = None, scripted_nbr: np.ndarray | None = None) -> Figure:
-    """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel: the
-    planner's open-loop plan against the log above, the closed-loop run below (``letspi plot --mode``).
+    """Simulate one scenario (a 1-batch) closed loop in this process and draw the panel (``letspi plot --mode``);
     ``scripted_nbr`` (1, N): neighbours that keep their log in ``closed-loop-hybrid``."""
     seen = scenario if built.reads_future else scenario.history()
     plan = built.planner.plan(seen)

@@ -1,38 +1,10 @@
-"""``write_report``: a self-contained HTML report of an evaluation directory.
+"""``write_report``: a self-contained HTML report of an evaluation directory (images inline as base64 PNG).
 
-Reads the layout written by ``letspi.evaluation.harness`` (``metrics.json``, ``per_scenario/``,
-``run.json``) and, when present, ablation results. The page embeds every image as a base64 PNG
-(no external files, scripts or fonts) and has these sections (absent inputs skip theirs):
-
-1. Metrics table: one row per planner of ``metrics.json`` (paper columns plus n and min gap), each
-   rate and mean with its 95 % interval ("intervals"), then the paired comparison of every planner
-   with the reference ("paired"; ``letspi.metrics.uncertainty``).
-2. Distributions: per planner, box plots of the per-scenario minimum TTC (capped at
-   ``MetricsConfig.ttc_cap_s``; no closing leader counts as the cap), minimum box gap and minimum
-   PET (finite values only), with the mean marked.
-3. Worst scenarios per planner: the ``n_worst`` scenarios ranked by collision first, then lowest
-   minimum TTC, then smallest gap; each drawn with ``plot_scenario`` from the plan the evaluation
-   stored (never re-planned: the picture shows exactly what was scored). The scene comes from the
-   scenarios file named in ``run.json``; a scenario whose content digest no longer matches is listed
-   with a note instead of a wrong picture. Closed-loop results (``letspi evaluate --mode
-   closed-loop-*``) are drawn as the closed-loop panel instead (``letspi.viz.outcomes``): the plan
-   made at t = 0 against the recorded neighbours above, the simulated run with every replan below.
-4. Decisions of the deciding planners (``letspi.viz.decisions``): their decision shares and a few
-   scenarios where they did not keep the defaults, each with its reason and its plan beside sf's.
-5. Ablations, from ``DIR/ablations/``:
-
-   ``memory_size.json``::
-
-       {"total": 10000,                       # optional: memory size as % of it on the axis
-        "points": [{"memory_size": 0, "metrics": {"ttc_s": 3.71, "cr_pct": 9.7, ...}}, ...]}
-
-   ``llm_combinations.json``::
-
-       {"combinations": [{"name": "LetsPi_M", "fast": "model-a", "physics": "model-b",
-                          "metrics": {"ttc_s": 5.9, "cr_pct": 2.8, ...}}, ...]}
-
-   ``metrics`` use the keys of ``metrics.json`` (``letspi.metrics.aggregate``); the paper columns
-   found are plotted. A file that cannot be read yields a warning in its section, not an error.
+Sections, each skipped without its input: metrics, distributions, the worst scenarios drawn from their stored plans
+(never re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
+"points": [{"memory_size": .., "metrics": {..}}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name",
+"fast", "physics", "metrics": {..}}, ..]}`` (``metrics.json`` keys); a file that cannot be read yields a warning in
+its section.
 """
 
 from __future__ import annotations
@@ -398,15 +370,8 @@ def write_report(
     with_diagrams: bool = True,
     config: MetricsConfig | None = None,
 ) -> Path:
-    """Write the HTML report of ``eval_dir`` and return its path.
-
-    Args:
-        eval_dir: an evaluation directory (``letspi.evaluation.harness`` layout).
-        out_html: output file; default ``eval_dir/report.html``.
-        n_worst: worst scenarios shown per planner.
-        with_diagrams: draw the worst scenarios with their stored plans (False: list them only; faster).
-        config: metrics configuration (for the TTC cap of the distributions).
-    """
+    """Write the HTML report of ``eval_dir`` (default ``eval_dir/report.html``) and return its path. ``n_worst``:
+    worst scenarios per planner; ``with_diagrams`` False lists them only; ``config`` gives the TTC cap."""
     eval_dir = Path(eval_dir)
     out = Path(out_html) if out_html is not None else eval_dir / "report.html"
     config = config or MetricsConfig()

@@ -1,23 +1,6 @@
-"""Shared look of every letspi picture: fonts, the Okabe–Ito colour-blind-safe palette, role colours.
-
-Each drawn role has one colour (and line style) everywhere, so a reader who learnt the trajectory
-diagram can read the time-space diagram and the report without a second legend:
-
-=================  =========================  =====================================
-role               colour                     line
-=================  =========================  =====================================
-ego past           black                      solid
-ego ground truth   black                      dashed
-plan (planner k)   ``PLAN_COLOURS[k]``        solid, dots every second
-same-lane nbr      orange                     past solid, future dashed
-adjacent-lane nbr  sky blue                   past solid, future dashed
-other nbr          grey                       past solid, future dashed
-goal (predicted)   vermillion star
-adjusted goal      diamond in the plan colour (arrow from the goal)
-=================  =========================  =====================================
-
-Artists carry a ``gid`` (see ``gid_*`` helpers) so tests and callers can find them in a figure.
-"""
+"""Shared look of every picture: fonts, the Okabe–Ito colour-blind-safe palette, one colour per role: ego black
+(truth dashed), planner k ``PLAN_COLOURS[k]``, neighbours orange (same lane), sky blue (adjacent) or grey (future
+dashed), goal a vermillion star, adjusted goal a diamond. Artists carry a ``gid`` (``gid_*``)."""
 
 from __future__ import annotations
 

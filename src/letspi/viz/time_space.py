@@ -1,13 +1,6 @@
-"""The time-space diagram: longitudinal position over time, and the gap to the preceding vehicle.
-
-Top panel: x(t) of the ego (past, ground truth, each plan) and of the neighbours (past solid,
-recorded future dashed, coloured by lane relation at t = 0). Bottom panel: bumper-to-bumper gap
-to the vehicle ahead in the ego's lane (``letspi.viz.data.preceding_gap``) for the ground truth and
-each plan, against the neighbours' recorded futures; its minimum is given in the legend. The
-line breaks where the preceding vehicle changes (a cut-in or a lane change).
-gids: ``ts:ego_past``, ``ts:ego_truth``, ``ts:plan:<name>``, ``ts:nbr:<id>``, ``gap:truth``,
-``gap:plan:<name>``.
-"""
+"""The time-space diagram: x(t) of the ego, its plans and the neighbours, and the gap to the preceding vehicle (the
+line breaks where the leader changes). gids: ``ts:ego_past``, ``ts:ego_truth``, ``ts:plan:<name>``, ``ts:nbr:<id>``,
+``gap:truth``, ``gap:plan:<name>``."""
 
 from __future__ import annotations
 

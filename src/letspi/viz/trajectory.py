@@ -1,11 +1,6 @@
-"""The trajectory diagram: road, ego past / plans / ground truth, neighbours, goal and adjusted goals.
-
-Drawn in the ego frame (x forward, y left, origin = ego centre at t = 0) with equal aspect, so
-distances and lane widths are true to scale. Every artist has a ``gid`` (``letspi.viz.style``):
-``ego_past``, ``ego_truth``, ``plan:<name>``, ``nbr_past:<id>``, ``nbr_future:<id>``,
-``nbr_box:<id>``, ``ego_box``, ``lane_line:<k>`` / ``road_edge:<k>``, ``goal``,
-``adjusted_goal:<name>``.
-"""
+"""The trajectory diagram, ego frame, true to scale. gids: ``ego_past``, ``ego_truth``, ``plan:<name>``,
+``nbr_past:<id>``, ``nbr_future:<id>``, ``nbr_box:<id>``, ``ego_box``, ``lane_line:<k>`` / ``road_edge:<k>``,
+``goal``, ``adjusted_goal:<name>``."""
 
 from __future__ import annotations
 
@@ -100,19 +95,9 @@ def draw_trajectory(
     colours: Sequence[str] | None = None,
     title: str | None = "Trajectory diagram",
 ) -> dict[str, Line2D]:
-    """Draw the trajectory diagram of ``scenario`` into ``ax``.
-
-    Args:
-        ax: target axes (its aspect is set to equal).
-        scenario: the scenario (ego frame).
-        tracks: plans to draw, in legend order.
-        goal_xy_m: (2,) the predicted (unadjusted) goal; plan goals differing from it by more than
-            ``ADJUSTED_GOAL_TOL_M`` are drawn as adjusted goals with an arrow from it.
-        colours: one colour per track (default ``style.PLAN_COLOURS`` in order).
-        title: axes title (None for none).
-    Returns:
-        The plan and ego lines by gid (``plan:<name>``, ``ego_past``, ``ego_truth``).
-    """
+    """Draw the trajectory diagram of ``scenario`` into ``ax`` (aspect set to equal); ``tracks`` in legend order,
+    ``colours`` one per track (default ``style.PLAN_COLOURS``). ``goal_xy_m`` (2,): the predicted goal; plan goals
+    further than ``ADJUSTED_GOAL_TOL_M`` from it are drawn as adjusted goals. Returns the plan and ego lines by gid."""
     colours = list(colours) if colours is not None else [style.plan_colour(k) for k in range(len(tracks))]
     xlo, xhi = x_range_m(scenario, tracks, goal_xy_m)
     ylo, yhi = y_range_m(scenario, tracks)
