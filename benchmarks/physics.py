@@ -130,7 +130,7 @@ def bench_frenet(n_scenarios: int = 1000, seed: int = 0, repeats: int = 3) -> di
         "cpu_ms_per_scenario": 1e3 * min(cpu) / n_scenarios,
         "wall_ms_per_scenario": 1e3 * min(wall) / n_scenarios,
         "found_safe_pct": 100.0 * float(np.mean(plan.info["found_safe"])),
-        "candidates_per_scenario": float(np.mean(planner.lattice(batch.take([0])).pair_ok.sum())),
+        "candidates_per_scenario": float(np.mean(planner.lattice(batch.take([0])).pairs.ok.sum())),
     }
 
 

@@ -17,7 +17,7 @@ from highd_samples import sample_recording
 from scenario_support import noisy_batch
 from typer.testing import CliRunner
 
-import letspi.evaluation.harness as harness
+import letspi.evaluation.results as results
 import letspi.scenario.store as store
 from benchmarks.llm_server import Fault, LlmTestServer
 from letspi.cli.app import app
@@ -273,7 +273,7 @@ def test_disk_full_without_root(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     def full(*args: object, **kwargs: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(harness.pq, "write_table", full)
+    monkeypatch.setattr(results.pq, "write_table", full)
     path = _scenario_file(tmp_path)
     out = tmp_path / "ev"
     result = runner.invoke(app, ["evaluate", "--scenarios", str(path), "--planner", "sf", "--out", str(out)])

@@ -115,19 +115,19 @@ def test_never_chooses_a_colliding_candidate_when_a_safe_one_exists():
     rows = np.arange(len(batch))
     safe_exists = n_valid > 0
     assert 0 < safe_exists.sum() < len(batch)  # both cases occur in this sample
-    assert (lattice.violation[rows, i, j][safe_exists] == 0).all()
-    assert (lattice.contact[rows, i, j][safe_exists] == 0).all()
+    assert (lattice.pairs.violation[rows, i, j][safe_exists] == 0).all()
+    assert (lattice.pairs.contact[rows, i, j][safe_exists] == 0).all()
     # the independent check (letspi.safety, the same prediction) agrees: no contact, on the road
     check = check_plans(batch, plan.xy_m, plan.vxy_mps, predict_neighbours(batch, NeighbourPredictionMode.IDM))
     assert not check.collision[safe_exists].any() and not check.off_road[safe_exists].any()
     # without a safe candidate: the least unsafe one among those that exist (latest first contact, a lane
     # change into an occupied lane counting earlier); the penalty applies to lane changes only
     unsafe = ~safe_exists
-    best = np.where(lattice.pair_ok, lattice.unsafe_rank, np.inf).reshape(len(batch), -1).min(axis=1)
-    assert np.array_equal(lattice.unsafe_rank[rows, i, j][unsafe], best[unsafe])
-    assert not lattice.occupied[:, :, lattice.lat_lane == 0].any() and lattice.occupied.any()
-    penalised = lattice.unsafe_rank - lattice.contact
-    assert (penalised[lattice.occupied] > 0).all() and (penalised[~lattice.occupied] == 0).all()
+    best = np.where(lattice.pairs.ok, lattice.pairs.unsafe_rank, np.inf).reshape(len(batch), -1).min(axis=1)
+    assert np.array_equal(lattice.pairs.unsafe_rank[rows, i, j][unsafe], best[unsafe])
+    assert not lattice.pairs.occupied[:, :, lattice.lat.lane == 0].any() and lattice.pairs.occupied.any()
+    penalised = lattice.pairs.unsafe_rank - lattice.pairs.contact
+    assert (penalised[lattice.pairs.occupied] > 0).all() and (penalised[~lattice.pairs.occupied] == 0).all()
 
 
 def test_a_cheaper_colliding_candidate_loses_to_a_safe_one():
@@ -139,7 +139,7 @@ def test_a_cheaper_colliding_candidate_loses_to_a_safe_one():
     w = planner.settings.weights
     cost = lattice.cost(w)[0]
     cheapest = np.unravel_index(np.argmin(cost), cost.shape)
-    assert lattice.contact[0][cheapest] > 0
+    assert lattice.pairs.contact[0][cheapest] > 0
     plan = planner.plan(batch.history())
     assert plan.info["found_safe"][0]
     gap = _gap_to(plan.xy_m, batch, 0)
@@ -210,11 +210,11 @@ def test_behind_a_leader_braking_hard_from_t0_it_brakes_and_keeps_a_gap():
     assert plan.vxy_mps[0, -1, 0] < 0.5
     # a braking candidate's jerk term is its step at t = 0 as a ramp over brake_onset_s: (a0 + d)² / onset
     lattice = planner.lattice(batch.history())
-    brake = lattice.lon_mode == LON_BRAKE
+    brake = lattice.lon.mode == LON_BRAKE
     decels = np.array(planner.settings.sampling.brake_decels_mps2)
-    assert np.allclose(lattice.lon_jerk[0, brake], decels**2 / planner.settings.sampling.brake_onset_s)
+    assert np.allclose(lattice.lon.jerk[0, brake], decels**2 / planner.settings.sampling.brake_onset_s)
     # braking at d from 14 m/s stops after 14 / d s (the candidate's horizon) and 14² / (2 d) m
-    assert np.allclose(lattice.lon_horizon_s[0, brake], np.minimum(14.0 / decels, 5.0))
+    assert np.allclose(lattice.lon.horizon_s[0, brake], np.minimum(14.0 / decels, 5.0))
     x_end = lattice.plans(np.flatnonzero(brake)[[2]], np.array([0]))[0][0, -1, 0]
     assert x_end == pytest.approx(14.0**2 / (2 * decels[2]), abs=1e-6)
     # without the cautious prediction and the following terms (the planner before them) it runs out of gap
@@ -230,16 +230,17 @@ def test_a_candidate_unsafe_under_the_cautious_prediction_is_not_picked_when_a_s
     cautious = planner.lattice(batch)
     trusting = FrenetPlanner(settings=planner.settings.model_copy(
         update={"safety": FrenetSafety(cautious_check=False)})).lattice(batch)
-    only_cautious = (cautious.violation > 0) & (trusting.violation == 0) & cautious.pair_ok & cautious.feasible
+    only_cautious = ((cautious.pairs.violation > 0) & (trusting.pairs.violation == 0) & cautious.pairs.ok
+                     & cautious.pairs.feasible)
     assert only_cautious.any()  # pairs that only the cautious prediction marks as unsafe
     # the IDM check alone would take one of them (the cheapest pair clear of the IDM prediction)
     w = planner.settings.weights
     i_old, j_old, _, n_old = trusting.choose(w)
     assert n_old[0] > 0 and only_cautious[0, i_old[0], j_old[0]]
     i, j, _, n_valid = cautious.choose(w)
-    assert n_valid[0] > 0 and cautious.violation[0, i[0], j[0]] == 0 and not only_cautious[0, i[0], j[0]]
+    assert n_valid[0] > 0 and cautious.pairs.violation[0, i[0], j[0]] == 0 and not only_cautious[0, i[0], j[0]]
     # the cautious check only adds unsafe pairs (never clears one the IDM check marks)
-    assert not ((trusting.violation > 0) & (cautious.violation == 0)).any()
+    assert not ((trusting.pairs.violation > 0) & (cautious.pairs.violation == 0)).any()
 
 
 @pytest.mark.parametrize(("gap_m", "headway_levels", "rss_levels"), [(24.0, 1, 2), (16.0, 2, 2), (40.0, 0, 0)])
@@ -252,13 +253,13 @@ def test_following_terms_count_the_graded_deficit_of_the_gap(gap_m, headway_leve
                                    n_lanes=1, ego_lane_index=0).history()
     settings = FrenetSettings(following=FrenetFollowing())
     lattice = FrenetPlanner(settings=settings).lattice(batch)
-    held = ((lattice.lon_mode == LON_SPEED) & (np.abs(lattice.lon_target_speed_mps[0] - 20.0) < 1e-9)
-            & (lattice.lon_jerk[0] < 1e-12))
-    centre = (lattice.lat_lane == 0) & (lattice.lat_offset_m == 0.0)
+    held = ((lattice.lon.mode == LON_SPEED) & (np.abs(lattice.lon.target_speed_mps[0] - 20.0) < 1e-9)
+            & (lattice.lon.jerk[0] < 1e-12))
+    centre = (lattice.lat.lane == 0) & (lattice.lat.offset_m == 0.0)
     assert held.any() and centre.any()
     pairs = np.ix_(held, centre)
-    assert np.allclose(lattice.headway_deficit_s[0][pairs], headway_levels * 5.0 / 3)
-    assert np.allclose(lattice.rss_deficit_s[0][pairs], rss_levels * 5.0 / 3)
+    assert np.allclose(lattice.pairs.headway_deficit_s[0][pairs], headway_levels * 5.0 / 3)
+    assert np.allclose(lattice.pairs.rss_deficit_s[0][pairs], rss_levels * 5.0 / 3)
     # a candidate that drops back has a smaller deficit
-    slower = lattice.lon_mean_speed_mps[0] < 17.0
-    assert (lattice.rss_deficit_s[0][np.ix_(slower, centre)] <= rss_levels * 5.0 / 3).all()
+    slower = lattice.lon.mean_speed_mps[0] < 17.0
+    assert (lattice.pairs.rss_deficit_s[0][np.ix_(slower, centre)] <= rss_levels * 5.0 / 3).all()

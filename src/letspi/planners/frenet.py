@@ -13,14 +13,14 @@ loop over scenarios or candidates. Design and calibration: notes/frenet.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from letspi.arrays import Batched
 from letspi.constants import DT_S, HORIZON_S, N_FUTURE, T0_INDEX
 from letspi.keyed import Config
 from letspi.metrics.kinematics import off_road
@@ -239,38 +239,62 @@ def evaluate_held(c: np.ndarray, horizon_s: np.ndarray, t_s: np.ndarray) -> tupl
 # ------------------------------------------------------------------------------------------------
 
 
+def _take_rows(record: Any, rows: np.ndarray | slice) -> Any:
+    """``record`` with the scenario rows of its per-scenario fields (``SHARED`` fields are per candidate)."""
+    return replace(record, **{f.name: getattr(record, f.name)[rows] for f in fields(record)
+                              if f.name not in record.SHARED})
+
+
+def _concat_rows(parts: Sequence[Any]) -> Any:
+    """The records of ``parts`` one after another on the scenario axis (``SHARED`` fields from the first)."""
+    first = parts[0]
+    return replace(first, **{f.name: np.concatenate([getattr(p, f.name) for p in parts], axis=0)
+                             for f in fields(first) if f.name not in first.SHARED})
+
+
 @dataclass(frozen=True)
-class Lattice(Batched):
-    """Weight-independent part of the planner for B scenarios: candidates, their checks and cost terms.
+class Longitudinal:
+    """Longitudinal candidates, (B, I) unless said: ``coef`` (B, I, 6), ``horizon_s`` (braking: until the stop),
+    ``mode`` (I,) (0 speed, 1 follow, 2 brake), ``lane`` (I,) (the lane change it pairs with, or ``ANY_LANE``),
+    ``target_speed_mps``, ``exists``, ``feasible``, ``jerk`` and ``mean_speed_mps`` (cost terms)."""
 
-    Longitudinal (B, I) unless said: ``lon_coef`` (B, I, 6), ``lon_horizon_s`` (braking: until the stop),
-    ``lon_mode`` (I,) (0 speed, 1 follow, 2 brake), ``lon_lane`` (I,) (the lane change it pairs with, or
-    ``ANY_LANE``), target speed, exists, feasible, jerk, mean speed. Lateral (B, J) unless said: ``lat_coef``
-    (B, J, 6), ``lat_horizon_s``, ``lat_lane``, ``lat_offset_m`` (J,), target y, exists, feasible, jerk, lanes
-    from the goal's lane. Pairs (B, I, J): ``pair_ok``, ``feasible``, ``contact`` / ``violation`` scores
-    (0 = none, ``_pair_checks``), ``occupied``, ``unsafe_rank`` (the fallback's first key), following
-    deficits [s]. Per scenario (B,): ``v_des_mps``; ``goals_xy_m`` (B, 2).
-    """
+    SHARED: ClassVar[tuple[str, ...]] = ("mode", "lane")
+    coef: np.ndarray
+    horizon_s: np.ndarray
+    mode: np.ndarray
+    lane: np.ndarray
+    target_speed_mps: np.ndarray
+    exists: np.ndarray
+    feasible: np.ndarray
+    jerk: np.ndarray
+    mean_speed_mps: np.ndarray
 
-    lon_coef: np.ndarray
-    lon_horizon_s: np.ndarray
-    lon_mode: np.ndarray
-    lon_lane: np.ndarray
-    lon_target_speed_mps: np.ndarray
-    lon_exists: np.ndarray
-    lon_feasible: np.ndarray
-    lon_jerk: np.ndarray
-    lon_mean_speed_mps: np.ndarray
-    lat_coef: np.ndarray
-    lat_horizon_s: np.ndarray
-    lat_lane: np.ndarray
-    lat_offset_m: np.ndarray
-    lat_target_y_m: np.ndarray
-    lat_exists: np.ndarray
-    lat_feasible: np.ndarray
-    lat_jerk: np.ndarray
-    lat_lanes_from_goal: np.ndarray
-    pair_ok: np.ndarray
+
+@dataclass(frozen=True)
+class Lateral:
+    """Lateral candidates, (B, J) unless said: ``coef`` (B, J, 6), ``horizon_s``, ``lane`` and ``offset_m``
+    (J,), ``target_y_m``, ``exists``, ``feasible``, ``jerk`` and ``lanes_from_goal`` (cost terms)."""
+
+    SHARED: ClassVar[tuple[str, ...]] = ("horizon_s", "lane", "offset_m")
+    coef: np.ndarray
+    horizon_s: np.ndarray
+    lane: np.ndarray
+    offset_m: np.ndarray
+    target_y_m: np.ndarray
+    exists: np.ndarray
+    feasible: np.ndarray
+    jerk: np.ndarray
+    lanes_from_goal: np.ndarray
+
+
+@dataclass(frozen=True)
+class Pairs:
+    """Every (longitudinal, lateral) pair, (B, I, J): ``ok`` (both exist, lanes match), ``feasible``,
+    ``contact`` / ``violation`` scores (0 = none, ``_pair_checks``), ``occupied``, ``unsafe_rank`` (the
+    fallback's first key), following deficits [s]."""
+
+    SHARED: ClassVar[tuple[str, ...]] = ()
+    ok: np.ndarray
     feasible: np.ndarray
     contact: np.ndarray
     violation: np.ndarray
@@ -278,38 +302,52 @@ class Lattice(Batched):
     unsafe_rank: np.ndarray
     headway_deficit_s: np.ndarray
     rss_deficit_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Weight-independent part of the planner for B scenarios: candidates, their checks and cost terms;
+    ``v_des_mps`` (B,), ``goals_xy_m`` (B, 2)."""
+
+    lon: Longitudinal
+    lat: Lateral
+    pairs: Pairs
     v_des_mps: np.ndarray
     goals_xy_m: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.v_des_mps.shape[0])
 
     @property
     def valid(self) -> np.ndarray:
         """(B, I, J) bool: existing, feasible and clear of every predicted neighbour with margins."""
-        out: np.ndarray = self.pair_ok & self.feasible & (self.violation == 0)
+        out: np.ndarray = self.pairs.ok & self.pairs.feasible & (self.pairs.violation == 0)
         return out
 
     def cost(self, w: FrenetWeights) -> np.ndarray:
         """(B, I, J) cost of every pair (``FrenetWeights`` terms); inf for pairs that do not exist."""
-        lon = (w.k_jerk_lon * self.lon_jerk + w.k_time * self.lon_horizon_s
-               + w.k_speed * (self.lon_mean_speed_mps - self.v_des_mps[:, None]) ** 2)
-        lat = (w.k_jerk_lat * self.lat_jerk + w.k_time * self.lat_horizon_s[None, :]
-               + w.k_offset * self.lat_offset_m[None, :] ** 2 + w.k_goal_lane * self.lat_lanes_from_goal)
-        total = (lon[:, :, None] + lat[:, None, :] + w.k_headway * self.headway_deficit_s
-                 + w.k_rss * self.rss_deficit_s)
-        return np.where(self.pair_ok, total, np.inf)
+        lo, la, pr = self.lon, self.lat, self.pairs
+        lon = (w.k_jerk_lon * lo.jerk + w.k_time * lo.horizon_s
+               + w.k_speed * (lo.mean_speed_mps - self.v_des_mps[:, None]) ** 2)
+        lat = (w.k_jerk_lat * la.jerk + w.k_time * la.horizon_s[None, :]
+               + w.k_offset * la.offset_m[None, :] ** 2 + w.k_goal_lane * la.lanes_from_goal)
+        total = (lon[:, :, None] + lat[:, None, :] + w.k_headway * pr.headway_deficit_s
+                 + w.k_rss * pr.rss_deficit_s)
+        return np.where(pr.ok, total, np.inf)
 
     def choose(self, w: FrenetWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Chosen (i, j) per scenario, (B,) each, with its cost and the number of valid pairs: the cheapest
         valid pair, else the least unsafe (latest first contact, then feasible, fewest violations, cost)."""
-        b, _, n_j = self.pair_ok.shape
+        pr = self.pairs
+        b, _, n_j = pr.ok.shape
         cost = self.cost(w).reshape(b, -1)
         valid = self.valid.reshape(b, -1)
         n_valid = valid.sum(axis=1)
         best_valid = np.argmin(np.where(valid, cost, np.inf), axis=1)
         # least unsafe: latest first contact (a lane change into an occupied lane counts earlier), then the
         # fewest contacts, then feasible, then the fewest margin violations, then cost
-        ok = self.pair_ok.reshape(b, -1)
-        pick = ok.copy()
-        for key in (self.unsafe_rank.reshape(b, -1), ~self.feasible.reshape(b, -1), self.violation.reshape(b, -1)):
+        pick = pr.ok.reshape(b, -1).copy()
+        for key in (pr.unsafe_rank.reshape(b, -1), ~pr.feasible.reshape(b, -1), pr.violation.reshape(b, -1)):
             k = np.where(pick, key.astype(np.float64), np.inf)
             pick &= k <= k.min(axis=1, keepdims=True)
         best_unsafe = np.argmin(np.where(pick, cost, np.inf), axis=1)
@@ -321,15 +359,21 @@ class Lattice(Batched):
         """Positions and velocities (B, F, 2) of pair (i[b], j[b]) of every scenario, t = dt .. F dt."""
         rows = np.arange(len(self))
         t_s = np.arange(1, N_FUTURE + 1) * DT_S
-        x, vx, _ = evaluate_held(self.lon_coef[rows, i], self.lon_horizon_s[rows, i], t_s)
-        y, vy, _ = evaluate_held(self.lat_coef[rows, j], self.lat_horizon_s[j], t_s)
+        x, vx, _ = evaluate_held(self.lon.coef[rows, i], self.lon.horizon_s[rows, i], t_s)
+        y, vy, _ = evaluate_held(self.lat.coef[rows, j], self.lat.horizon_s[j], t_s)
         return np.stack([x, y], axis=-1), np.stack([vx, vy], axis=-1)
 
-    def take(self, index: np.ndarray) -> Lattice:
+    def take(self, index: np.ndarray | slice) -> Lattice:
         """The lattice of scenarios ``index`` (candidate-axis arrays are shared)."""
-        shared = {"lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
-        return Lattice(**{name: (value if name in shared else value[index])
-                          for name, value in self.__dict__.items()})
+        return Lattice(_take_rows(self.lon, index), _take_rows(self.lat, index), _take_rows(self.pairs, index),
+                       self.v_des_mps[index], self.goals_xy_m[index])
+
+    @staticmethod
+    def concat(parts: Sequence[Lattice]) -> Lattice:
+        """The lattices of ``parts`` one after another on the scenario axis."""
+        return Lattice(_concat_rows([p.lon for p in parts]), _concat_rows([p.lat for p in parts]),
+                       _concat_rows([p.pairs for p in parts]), np.concatenate([p.v_des_mps for p in parts]),
+                       np.concatenate([p.goals_xy_m for p in parts]))
 
 
 def _lon_grid(s: FrenetSampling) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -397,16 +441,8 @@ def build_lattice(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: n
                                pred.take(slice(k, k + chunk_size)),
                                goals_xy_m[k:k + chunk_size], settings, chunk_size)
                  for k in range(0, len(batch), chunk_size)]
-        return _concat(parts)
+        return Lattice.concat(parts)
     return _build_chunk(batch, pred, np.asarray(goals_xy_m, dtype=np.float64), settings)
-
-
-def _concat(parts: list[Lattice]) -> Lattice:
-    shared = {"lon_mode", "lon_lane", "lat_horizon_s", "lat_lane", "lat_offset_m"}
-    first = parts[0]
-    return Lattice(**{name: (getattr(first, name) if name in shared
-                             else np.concatenate([getattr(p, name) for p in parts], axis=0))
-                      for name in first.__dict__})
 
 
 @dataclass(frozen=True)
@@ -445,8 +481,8 @@ def _start(batch: ScenarioBatch, goals_xy_m: np.ndarray, lim: FrenetLimits) -> _
 
 
 def _lateral(batch: ScenarioBatch, st: _Start, s: FrenetSampling, lim: FrenetLimits, t_s: np.ndarray,
-             ) -> dict[str, np.ndarray]:
-    """Lateral candidates (B, J): coefficients, trajectories, checks and cost terms."""
+             ) -> tuple[Lateral, _LateralPaths]:
+    """Lateral candidates (B, J) and what the pair checks need of their trajectories."""
     b = len(batch)
     lat_t, lat_lane, lat_off = _lat_grid(s)
     target_idx = st.cur[:, None] + lat_lane[None, :]
@@ -467,16 +503,16 @@ def _lateral(batch: ScenarioBatch, st: _Start, s: FrenetSampling, lim: FrenetLim
                            np.repeat(st.marks, len(lat_t), axis=0),
                            np.repeat(batch.marking_is_edge, len(lat_t), axis=0)).reshape(b, -1)
     peak_ay = np.abs(ay).max(axis=2)
-    return {"t": lat_t, "lane": lat_lane, "off": lat_off, "y1": y1, "exists": exists, "coef": coef, "y": y,
-            "peak_ay": peak_ay, "peak_vy": np.abs(vy).max(axis=2),
-            "feasible": exists & ~leaves_road & (peak_ay <= lim.max_lat_accel_mps2),
-            "jerk": jerk_integral(coef, lat_t[None, :]),
-            "from_goal": np.abs(target_idx - st.goal_lane[:, None]).astype(np.float64), "target": target_idx}
+    lateral = Lateral(coef=coef, horizon_s=lat_t, lane=lat_lane, offset_m=lat_off, target_y_m=y1, exists=exists,
+                      feasible=exists & ~leaves_road & (peak_ay <= lim.max_lat_accel_mps2),
+                      jerk=jerk_integral(coef, lat_t[None, :]),
+                      lanes_from_goal=np.abs(target_idx - st.goal_lane[:, None]).astype(np.float64))
+    return lateral, _LateralPaths(y=y, peak_ay=peak_ay, peak_vy=np.abs(vy).max(axis=2), target_lane=target_idx)
 
 
 def _longitudinal(batch: ScenarioBatch, pred: NeighbourPrediction, st: _Start, s: FrenetSampling,
-                  lim: FrenetLimits, t_s: np.ndarray) -> dict[str, np.ndarray]:
-    """Longitudinal candidates (B, I): coefficients, trajectories, checks and cost terms."""
+                  lim: FrenetLimits, t_s: np.ndarray) -> tuple[Longitudinal, _LongitudinalPaths]:
+    """Longitudinal candidates (B, I) and what the pair checks need of their trajectories."""
     b = len(batch)
     lon_t, lon_mode, lon_lane, lon_par = _lon_grid(s)
     value, kind = lon_par[:, 0], lon_par[:, 1]
@@ -517,10 +553,31 @@ def _longitudinal(batch: ScenarioBatch, pred: NeighbourPrediction, st: _Start, s
     feasible = (exists & (ax.max(axis=2) <= lim.max_accel_mps2 + 1e-9)
                 & (ax.min(axis=2) >= -lim.max_decel_mps2 - 1e-9) & (vx.min(axis=2) >= lim.min_speed_mps))
     target = np.where(follow[None, :], lead_v, np.where(brake[None, :], vx[:, :, -1], v_speed))
-    return {"t": horizon, "mode": lon_mode, "lane": lon_lane, "coef": coef, "x": x, "vx": vx,
-            "target_speed": target, "exists": exists, "feasible": feasible,
-            "jerk": jerk_integral(coef, horizon) + onset_jerk, "mean_speed": (x[:, :, -1] - st.x0[:, None]) / HORIZON_S,
-            "v_min": vx.min(axis=2), "peak_ax": np.abs(ax).max(axis=2)}
+    longitudinal = Longitudinal(coef=coef, horizon_s=horizon, mode=lon_mode, lane=lon_lane, target_speed_mps=target,
+                                exists=exists, feasible=feasible, jerk=jerk_integral(coef, horizon) + onset_jerk,
+                                mean_speed_mps=(x[:, :, -1] - st.x0[:, None]) / HORIZON_S)
+    return longitudinal, _LongitudinalPaths(x=x, vx=vx, v_min=vx.min(axis=2), peak_ax=np.abs(ax).max(axis=2))
+
+
+@dataclass(frozen=True)
+class _LateralPaths:
+    """What the pair checks read of the lateral candidates: ``y`` (B, J, F), peaks (B, J), target lanes (B, J)."""
+
+    y: np.ndarray
+    peak_ay: np.ndarray
+    peak_vy: np.ndarray
+    target_lane: np.ndarray
+
+
+@dataclass(frozen=True)
+class _LongitudinalPaths:
+    """What the pair checks read of the longitudinal candidates: ``x``, ``vx`` (B, I, F), ``v_min``, ``peak_ax``
+    (B, I)."""
+
+    x: np.ndarray
+    vx: np.ndarray
+    v_min: np.ndarray
+    peak_ax: np.ndarray
 
 
 def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np.ndarray,
@@ -528,26 +585,21 @@ def _build_chunk(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: np
     s, lim = settings.sampling, settings.limits
     t_s = np.arange(1, N_FUTURE + 1) * DT_S  # (F,)
     st = _start(batch, goals_xy_m, lim)
-    lat = _lateral(batch, st, s, lim, t_s)
-    lon = _longitudinal(batch, pred, st, s, lim, t_s)
+    lat, lat_paths = _lateral(batch, st, s, lim, t_s)
+    lon, lon_paths = _longitudinal(batch, pred, st, s, lim, t_s)
     # pairs: which exist, the curvature bound |κ| <= (|ay| |vx| + |vy| |ax|) / vx³ with separable maxima
-    pairs_lane = (lon["lane"][:, None] == ANY_LANE) | (lon["lane"][:, None] == lat["lane"][None, :])  # (I, J)
-    pair_ok = pairs_lane[None] & lon["exists"][:, :, None] & lat["exists"][:, None, :]
-    v_min = np.maximum(lon["v_min"], CURVATURE_SPEED_FLOOR_MPS)[:, :, None]
-    kappa = lat["peak_ay"][:, None, :] / v_min**2 + lat["peak_vy"][:, None, :] * lon["peak_ax"][:, :, None] / v_min**3
-    feasible = lon["feasible"][:, :, None] & lat["feasible"][:, None, :] & (kappa <= lim.max_curvature_1pm)
-    checks = _pair_checks(batch, pred, lon["x"], lon["vx"], lat["y"], lat["target"], lat["lane"] != 0, settings)
-    return Lattice(
-        lon_coef=lon["coef"], lon_horizon_s=lon["t"], lon_mode=lon["mode"], lon_lane=lon["lane"],
-        lon_target_speed_mps=lon["target_speed"], lon_exists=lon["exists"], lon_feasible=lon["feasible"],
-        lon_jerk=lon["jerk"], lon_mean_speed_mps=lon["mean_speed"], lat_coef=lat["coef"], lat_horizon_s=lat["t"],
-        lat_lane=lat["lane"], lat_offset_m=lat["off"], lat_target_y_m=lat["y1"], lat_exists=lat["exists"],
-        lat_feasible=lat["feasible"], lat_jerk=lat["jerk"], lat_lanes_from_goal=lat["from_goal"], pair_ok=pair_ok,
-        feasible=feasible, contact=checks.contact, violation=checks.violation, occupied=checks.occupied,
-        unsafe_rank=checks.unsafe_rank, headway_deficit_s=checks.headway_deficit_s,
-        rss_deficit_s=checks.rss_deficit_s, v_des_mps=st.v_des,
-        goals_xy_m=np.asarray(goals_xy_m, dtype=np.float64),
-    )
+    pairs_lane = (lon.lane[:, None] == ANY_LANE) | (lon.lane[:, None] == lat.lane[None, :])  # (I, J)
+    pair_ok = pairs_lane[None] & lon.exists[:, :, None] & lat.exists[:, None, :]
+    v_min = np.maximum(lon_paths.v_min, CURVATURE_SPEED_FLOOR_MPS)[:, :, None]
+    kappa = (lat_paths.peak_ay[:, None, :] / v_min**2
+             + lat_paths.peak_vy[:, None, :] * lon_paths.peak_ax[:, :, None] / v_min**3)
+    feasible = lon.feasible[:, :, None] & lat.feasible[:, None, :] & (kappa <= lim.max_curvature_1pm)
+    checks = _pair_checks(batch, pred, lon_paths.x, lon_paths.vx, lat_paths.y, lat_paths.target_lane, lat.lane != 0,
+                          settings)
+    pairs = Pairs(ok=pair_ok, feasible=feasible, contact=checks.contact, violation=checks.violation,
+                  occupied=checks.occupied, unsafe_rank=checks.unsafe_rank,
+                  headway_deficit_s=checks.headway_deficit_s, rss_deficit_s=checks.rss_deficit_s)
+    return Lattice(lon, lat, pairs, st.v_des, np.asarray(goals_xy_m, dtype=np.float64))
 
 
 @dataclass(frozen=True)
@@ -736,24 +788,23 @@ class FrenetPlanner:
         return build_lattice(batch, predict_neighbours(batch, self.neighbour_mode), goals, self.settings)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
-        lat = self.lattice(batch)
-        return plan_from_lattice(lat, self.settings.weights)
+        return plan_from_lattice(self.lattice(batch), self.settings.weights)
 
 
-def plan_from_lattice(lat: Lattice, weights: FrenetWeights) -> PlanBatch:
+def plan_from_lattice(lattice: Lattice, weights: FrenetWeights) -> PlanBatch:
     """Choose with ``weights`` and return the plans with their ``info``."""
-    i, j, cost, n_valid = lat.choose(weights)
-    xy, vxy = lat.plans(i, j)
-    rows = np.arange(len(lat))
+    i, j, cost, n_valid = lattice.choose(weights)
+    xy, vxy = lattice.plans(i, j)
+    rows = np.arange(len(lattice))
     info = {
-        "target_lane": lat.lat_lane[j].astype(np.int64),
-        "lateral_offset_m": lat.lat_offset_m[j],
-        "lateral_horizon_s": lat.lat_horizon_s[j],
-        "lon_mode": lat.lon_mode[i].astype(np.int64),
-        "target_speed_mps": lat.lon_target_speed_mps[rows, i],
-        "lon_horizon_s": lat.lon_horizon_s[rows, i],
+        "target_lane": lattice.lat.lane[j].astype(np.int64),
+        "lateral_offset_m": lattice.lat.offset_m[j],
+        "lateral_horizon_s": lattice.lat.horizon_s[j],
+        "lon_mode": lattice.lon.mode[i].astype(np.int64),
+        "target_speed_mps": lattice.lon.target_speed_mps[rows, i],
+        "lon_horizon_s": lattice.lon.horizon_s[rows, i],
         "cost": cost,
         "n_safe": n_valid.astype(np.int64),
         "found_safe": n_valid > 0,
     }
-    return PlanBatch(xy_m=xy, vxy_mps=vxy, goals_xy_m=lat.goals_xy_m.copy(), info=info)
+    return PlanBatch(xy_m=xy, vxy_mps=vxy, goals_xy_m=lattice.goals_xy_m.copy(), info=info)
