@@ -165,7 +165,8 @@ class Suite:
 _CRITICAL_SIZING = ("closed loop, 2,000 windows: planners disagree on 0.7-1.7 % of them, a 1-point CR difference "
                     "is detected by exact McNemar (alpha 0.05) with power 0.77-0.99; open loop, 3,000 windows: "
                     "frenet vs sf disagree on 2.8-4.3 % (design effect 1.3-1.5), power 0.61-0.75, 4,600 would "
-                    "reach 0.8 (docs/benchmark.md). Issue 28 needs >= 2,000 critical-focus windows in both modes")
+                    "reach 0.8 (docs/benchmark.md); the decision step's evaluation needs >= 2,000 critical windows in "
+                    "both modes")
 
 
 def _critical(name: str, description: str, preset: str, layout: str, seed: int, scripted: str,
