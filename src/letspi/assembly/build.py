@@ -14,6 +14,7 @@ from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.config import LlmConfig
 from letspi.llm.schema import fallback_reply_from_params
 from letspi.llm.spec import make_backend
+from letspi.llm.types import LoadingBackend
 from letspi.method.config import MemoryPhaseConfig
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
@@ -70,9 +71,8 @@ class Builder:
         t0 = time.perf_counter()
         options = {"lora_path": llm.adapter_path} if llm.adapter_path is not None else {}
         backend = make_backend(llm.spec, **options)
-        load = getattr(backend, "load", None)
-        if callable(load):
-            load()
+        if isinstance(backend, LoadingBackend):
+            backend.load()
         advisor = ParamAdvisor(
             backend, cache=self._response_cache(llm),
             retry=RetryPolicy(max_attempts=llm.max_attempts, timeout_s=llm.timeout_s),

@@ -16,7 +16,7 @@ from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStat
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
 from letspi.metrics.compute import ScenarioMetrics
-from letspi.planners.base import PlanBatch, Planner, PlanningContext, Proposals, ProposingPlanner
+from letspi.planners.base import ModelPlanner, PlanBatch, Planner, PlanningContext, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch
 
 PART_SCENARIOS = 64
@@ -32,12 +32,11 @@ WritePart = Callable[[ScenarioMetrics, np.ndarray, PlanBatch, np.ndarray], objec
 
 def runs_per_scenario(planner: Planner) -> TypeGuard[ProposingPlanner]:
     """Whether the harness runs ``planner`` through this module (proposals per scenario, concurrently)."""
-    return (isinstance(planner, ProposingPlanner) and bool(getattr(planner, "proposes_per_scenario", False))
-            and bool(getattr(planner, "concurrent_safe", False)))
+    return isinstance(planner, ModelPlanner) and planner.proposes_per_scenario and planner.concurrent_safe
 
 
 def planner_advisor(planner: Planner) -> ParamAdvisor | None:
-    advisor = getattr(planner, "advisor", None)
+    advisor = planner.advisor if isinstance(planner, ModelPlanner) else None
     return advisor if isinstance(advisor, ParamAdvisor) else None
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from letspi.llm.types import DecodingSettings, Message, ResponseCacheError
+from letspi.llm.types import DecodingSettings, KeyedBackend, Message, ResponseCacheError
 
 #: Bump when the key recipe or the stored columns change meaning.
 CACHE_FORMAT_VERSION: Final = 1
@@ -48,7 +48,7 @@ def default_cache_dir() -> Path:
 def backend_identity(backend: Any) -> str:
     """What a reply depends on besides the request: the backend's ``cache_identity`` (the embedded backend:
     weights, adapter, runtime) when it has one, else its spec."""
-    return str(getattr(backend, "cache_identity", None) or backend.spec)
+    return str((backend.cache_identity if isinstance(backend, KeyedBackend) else None) or backend.spec)
 
 
 def cache_key(

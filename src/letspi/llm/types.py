@@ -77,6 +77,22 @@ class LLMBackend(Protocol):
         ...
 
 
+@runtime_checkable
+class KeyedBackend(Protocol):
+    """A backend whose replies depend on more than its spec (local weights, adapter, runtime, plug-in version):
+    ``cache_identity`` names it all (the response cache keys on it)."""
+
+    @property
+    def cache_identity(self) -> str: ...
+
+
+@runtime_checkable
+class LoadingBackend(Protocol):
+    """A backend that loads weights in this process: ``load()`` does it now, so that callers time loading apart."""
+
+    def load(self) -> None: ...
+
+
 class LLMError(Exception):
     """Base class of every error raised by ``letspi.llm``."""
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -144,6 +144,17 @@ class ProposingPlanner(Planner, Protocol):
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals: ...
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch: ...
+
+
+@runtime_checkable
+class ModelPlanner(ProposingPlanner, Protocol):
+    """A proposing planner that asks a model: ``advisor`` is the client it asks (its backend names the default
+    number of calls in flight); ``concurrent_safe``: its ``propose`` may run in several threads at once."""
+
+    concurrent_safe: bool
+
+    @property
+    def advisor(self) -> Any: ...
 
 
 def plan_by_proposals(planner: ProposingPlanner, batch: ScenarioBatch) -> PlanBatch:

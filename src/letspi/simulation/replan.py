@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -182,6 +182,13 @@ class Replanner(Protocol):
     def frames(self) -> Sequence[int]: ...
 
     def plans(self, frame: int, states: SimulatedStates) -> Replan | None: ...
+
+
+@runtime_checkable
+class Closing(Protocol):
+    """A replanner with work in flight (model calls) to drop when its group is done."""
+
+    def close(self) -> None: ...
 
 
 def replan_frames_of(replan_every: int) -> list[int]:

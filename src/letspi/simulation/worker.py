@@ -9,13 +9,13 @@ import numpy as np
 
 from letspi.llm.client import ParamAdvisor
 from letspi.llm.spec import default_concurrency
-from letspi.planners.base import Planner
+from letspi.planners.base import ModelPlanner, Planner
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.dual_rate import DualRateReplanner
 from letspi.simulation.engine import simulate_group
 from letspi.simulation.network import layout_keys
-from letspi.simulation.replan import FuturePolicy, PeriodicReplanner, Replanner
+from letspi.simulation.replan import Closing, FuturePolicy, PeriodicReplanner, Replanner
 from letspi.simulation.replay import simulate_replay_group
 from letspi.simulation.result import ClosedLoopChunk
 from letspi.simulation.schedule import DualRatePlanner
@@ -55,7 +55,7 @@ def plan_chunks(
 def llm_concurrency(planner: Planner) -> int:
     """LLM calls a dual-rate planner keeps in flight at once: its backend's default
     (``letspi.llm.spec.default_concurrency``: 1 for the embedded model), 1 without an LLM."""
-    advisor = getattr(planner, "advisor", None)
+    advisor = planner.advisor if isinstance(planner, ModelPlanner) else None
     return default_concurrency(advisor.backend.spec) if isinstance(advisor, ParamAdvisor) else 1
 
 
@@ -94,9 +94,8 @@ def simulate_chunk(
             else:
                 part = simulate_replay_group(planner, group, config, future=future, replanner=replanner)
         finally:
-            close = getattr(replanner, "close", None)
-            if close is not None:
-                close()  # LLM calls still outstanding are dropped
+            if isinstance(replanner, Closing):
+                replanner.close()  # LLM calls still outstanding are dropped
         parts.append(part)
         rows_all.append(rows)
     out = parts[0] if len(parts) == 1 else ClosedLoopChunk.concat(parts)
