@@ -17,10 +17,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from benchmarks.sf_reference import rollout_social_force_reference  # noqa: E402
 from letspi.constants import MAX_NEIGHBOURS  # noqa: E402
 from letspi.physics.neighbours import predict_constant_velocity  # noqa: E402
 from letspi.physics.params import DEFAULT_PARAMS, PARAM_NAMES, PARAM_RANGES, SocialForceParams  # noqa: E402
-from letspi.physics.reference import rollout_social_force_reference  # noqa: E402
 from letspi.physics.social_force import SocialForceScene, rollout_social_force_scene  # noqa: E402
 from letspi.planners.frenet import FrenetPlanner, load_frenet_weights  # noqa: E402
 from letspi.scenario.build import VehicleSpec, straight_road_scenario  # noqa: E402

@@ -1,6 +1,6 @@
 """Degenerate scenes through every planner and every metric: crashes and NaN counts (must be 0).
 
-``bench_robustness`` builds ``n`` scenes of ``letspi.scenario.degenerate`` (random, no neighbours,
+``bench_robustness`` builds ``n`` scenes of ``benchmarks/degenerate.py`` (random, no neighbours,
 8 neighbours overlapping the ego at t = 0, zero speed, a 1-lane road, NaN gaps in neighbour
 tracks), plans them with every planner kind of the table that needs no LLM (``PLAIN_PLANNERS``; a
 kind whose setting has no default, such as ``mlp`` without ``--mlp-weights``, is reported as
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from benchmarks.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from letspi.assembly.build import Builder
 from letspi.assembly.planner_table import BUILT_IN
 from letspi.assembly.planners import BuiltPlanner, build_planners
@@ -37,7 +38,6 @@ from letspi.metrics.aggregate import aggregate_metrics
 from letspi.metrics.compute import compute_metrics
 from letspi.planners.llm import MEMORY
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
-from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from letspi.scenario.types import ScenarioBatch
 
 PLAIN_PLANNERS = tuple(kind.name for kind in BUILT_IN.kinds if not kind.uses_llm)

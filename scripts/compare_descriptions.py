@@ -4,7 +4,7 @@ For a refactoring of the code that describes scenes: every text a prompt takes f
 (``to_text`` full and brief, ``summary_line``, ``targeted_guidance``, the compact scene) must stay byte
 for byte the same. The old module is loaded from ``git show REV:src/letspi/llm/describe.py``; both
 describe the same scenes with the same random goals: 3,000 degenerate scenes
-(``letspi.scenario.degenerate``) and, if given, every scenario of a scenario file.
+(``benchmarks/degenerate.py``) and, if given, every scenario of a scenario file.
 
     python scripts/compare_descriptions.py main [SCENARIOS.arrow]
 
@@ -22,9 +22,11 @@ from types import ModuleType
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's benchmarks/
+
+from benchmarks.degenerate import degenerate_scenarios
 from letspi.llm import describe as new
 from letspi.llm.compact import compact_scene_text
-from letspi.scenario.degenerate import degenerate_scenarios
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
 

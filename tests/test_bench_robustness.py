@@ -9,9 +9,9 @@ import pytest
 from typer.testing import CliRunner
 
 import benchmarks.robustness as robustness
+from benchmarks.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 from benchmarks.speed import app as speed_app
 from letspi.constants import MAX_NEIGHBOURS, T0_INDEX
-from letspi.scenario.degenerate import DEGENERATE_KINDS, degenerate_scenarios, scene_kind
 
 
 def test_degenerate_scenes_are_what_they_claim() -> None:

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from benchmarks.physics import random_params, synthetic_batch
+from benchmarks.sf_reference import rollout_social_force_reference
 from letspi.constants import DT_S, N_FUTURE
 from letspi.physics.neighbours import predict_constant_velocity
 from letspi.physics.params import (
@@ -16,7 +17,6 @@ from letspi.physics.params import (
     PARAM_RANGES,
     SocialForceParams,
 )
-from letspi.physics.reference import rollout_social_force_reference
 from letspi.physics.social_force import (
     AX_MAX_MPS2,
     AX_MIN_MPS2,

@@ -176,16 +176,6 @@ def choice_labels(eu: np.ndarray, risk: np.ndarray, consulted: np.ndarray, o: Op
     return out
 
 
-def keep_and_change_rates(choice: Sequence[int] | np.ndarray, o: OptionOutcomes) -> dict[str, float]:
-    """Diversity of a chooser's picks (B,): kept where the defaults were collision-free, changed where they
-    collided, and each preset's share."""
-    c = np.asarray(choice)
-    bad = o.collision[:, 0]
-    return {"keep_where_safe": float((c[~bad] == 0).mean()) if (~bad).any() else float("nan"),
-            "change_where_unsafe": float((c[bad] != 0).mean()) if bad.any() else float("nan"),
-            **{f"share_{k}": float((c == k).mean()) for k in np.unique(c)}}
-
-
 CHOICE_FORMAT = "letspi-choice-labels/1"
 CHOICE_COLUMNS: tuple[str, ...] = ("scenario_index", "scenario_digest", "kind", "option", "rejected", "weight",
                                    "risk", "lines_json", "defaults_collide")

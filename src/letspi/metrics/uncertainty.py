@@ -63,11 +63,6 @@ def rate_statistic(key: str, flags: np.ndarray | pd.Series) -> Statistic:
     return Statistic(key, "rate", v)
 
 
-def mean_statistic(key: str, values: np.ndarray | pd.Series) -> Statistic:
-    """A mean key from (n,) values (non-finite ones are left out of the mean)."""
-    return Statistic(key, "mean", np.asarray(values, dtype=np.float64))
-
-
 def metric_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None) -> dict[str, Statistic]:
     """The rate and mean keys of ``aggregate_metrics`` with their per-scenario values, for the columns
     present in ``frame`` (``inference_s``: the frame's column; pass NaN for rows not to be timed)."""
