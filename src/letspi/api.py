@@ -41,7 +41,6 @@ from letspi.scenario.store import count_scenarios
 from letspi.scenario.store import load_scenarios as _load
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig
-from letspi.viz.report import write_report
 
 __all__ = ["ClosedLoopConfig", "PlanBatch", "Results", "ScenarioBatch", "evaluate", "load_scenarios", "open_results",
            "plan", "planners"]
@@ -201,4 +200,6 @@ class Results:
 
     def report(self, out: str | Path | None = None, *, n_worst: int = 3, with_diagrams: bool = True) -> Path:
         """Write the self-contained HTML report (default ``DIR/report.html``) and return its path."""
+        from letspi.viz.report import write_report  # plotting loads here, not with letspi.api
+
         return write_report(self.directory, out, n_worst=n_worst, with_diagrams=with_diagrams)

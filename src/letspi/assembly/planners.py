@@ -14,7 +14,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from letspi.assembly.build import Builder
-from letspi.assembly.planner_table import BUILT_IN, PlannerTable, is_import_path, load_kind, planner_table
+from letspi.assembly.checked import build_planner_of, resolve_config
+from letspi.assembly.planner_table import BUILT_IN, PlannerTable, is_import_path, load_kind, loaded_from, planner_table
 from letspi.assembly.resolve import Resolver
 from letspi.planners.base import Planner
 from letspi.planners.config import PlannerConfig
@@ -22,13 +23,14 @@ from letspi.planners.llm import LLM_CACHE
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 
 
-@dataclass
+@dataclass(repr=False)
 class BuiltPlanner:
     """A planner with the configuration it was built from.
 
     name: the label of its results (short; ``config`` holds everything). load_s: model loading at
     build time [s] (0 for planners without a model), reported apart from inference time. table: the
     table its kind is an entry of (its capabilities); None: the built-in kinds (a picklable reference).
+    Its repr is one short line (the planner's own may hold weight arrays).
     """
 
     name: str
@@ -40,6 +42,15 @@ class BuiltPlanner:
     @property
     def key(self) -> str:
         return self.config.key()
+
+    @property
+    def kind_arg(self) -> str:
+        """The ``--planner`` kind that builds it again in a new process: its kind's name, or the import
+        path it was loaded from (``pkg.mod:NAME``)."""
+        return loaded_from(self.config.kind) or self.config.kind
+
+    def __repr__(self) -> str:
+        return f"BuiltPlanner(name={self.name!r}, kind={self.config.kind!r}, key={self.key!r}, load_s={self.load_s:g})"
 
     @property
     def reads_future(self) -> bool:
@@ -68,8 +79,7 @@ def resolve_planner(kind: str, options: PlannerOptions | None = None, *, env: Ma
     table = table or planner_table()
     options = options or DEFAULT_OPTIONS
     table.check(options)
-    config: PlannerConfig = table.kind(kind).resolve(Resolver(options, env))
-    return config
+    return resolve_config(table.kind(kind), Resolver(options, env))
 
 
 def build_planner(config: PlannerConfig, name: str | None = None, *, builder: Builder | None = None,
@@ -78,7 +88,7 @@ def build_planner(config: PlannerConfig, name: str | None = None, *, builder: Bu
     kind); ``builder`` shares models between planners."""
     table = table or planner_table()
     label = name or config.kind
-    planner, load_s = table.kind_of(config).build(builder or Builder(), config, label)
+    planner, load_s = build_planner_of(table.kind_of(config), builder or Builder(), config, label)
     return BuiltPlanner(label, config, planner, load_s, None if table is BUILT_IN else table)
 
 
@@ -108,5 +118,5 @@ def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Bui
     dup = sorted({x for x in seen if seen.count(x) > 1})
     if dup:
         raise ValueError(f"planner label(s) {', '.join(dup)} given twice; use LABEL=KIND for variants")
-    return [build_planner(table.kind(kind).resolve(resolver), label, builder=builder, table=table)
+    return [build_planner(resolve_config(table.kind(kind), resolver, label), label, builder=builder, table=table)
             for label, kind in labels]

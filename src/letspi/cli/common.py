@@ -2,15 +2,15 @@
 
 Every anticipated failure ends in one or two lines on stderr that name the file, field or address
 and say what to do, with a non-zero exit code; ``--debug`` (or ``LETSPI_DEBUG=1``) shows the
-traceback instead. Exit codes: 2 bad input or setup (file, field, model, server, results key),
-1 an unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted
+traceback instead. Exit codes: 2 bad input or setup (file, field, model, server, results key, an
+error in a planner of one's own: ``PlannerError`` names it with its file and line), 1 an
+unexpected internal error (a bug: please report it with the ``--debug`` output), 130 interrupted
 (Ctrl-C; 143 after SIGTERM): one line saying how much is stored (``letspi.execution.interrupt``).
 """
 
 from __future__ import annotations
 
 import errno
-import os
 import sqlite3
 import sys
 import traceback
@@ -36,6 +36,8 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from letspi.assembly.checked import PlannerError
+from letspi.cli.startup import DEBUG_ENV, debug_enabled
 from letspi.execution import interrupt
 from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError, provenance_command
@@ -43,7 +45,6 @@ from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
 
 console = Console(stderr=True)
-DEBUG_ENV = "LETSPI_DEBUG"
 
 
 def command_line() -> str:
@@ -52,13 +53,9 @@ def command_line() -> str:
     return provenance_command("letspi", sys.argv[1:])
 
 
-def debug_enabled() -> bool:
-    return os.environ.get(DEBUG_ENV, "") not in ("", "0")
-
-
-ConcurrencyOpt = Annotated[int | None, typer.Option(
-    help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "
-         "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
+CONCURRENCY_HELP = ("Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 "
+                    "for ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")
+ConcurrencyOpt = Annotated[int | None, typer.Option(help=CONCURRENCY_HELP)]
 
 
 def _duration(seconds: float) -> str:
@@ -155,6 +152,8 @@ _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR,
 def _classify(exc: Exception) -> typer.Exit:
     if isinstance(exc, OutputLockedError):  # one line naming the holder; nothing to add
         return _fail(str(exc), None, 2)
+    if isinstance(exc, PlannerError):  # the planner's own code: named, with its file and line
+        return _fail(str(exc), exc.hint or None, 2)
     if isinstance(exc, BackendUnavailableError):
         return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
                      "(or fix the address) and rerun the same command to resume.", 2)

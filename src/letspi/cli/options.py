@@ -3,9 +3,11 @@
 ``@planner_options()`` gives a command one flag per ``PlannerOption`` its planners read (all kinds of
 the table by default; ``kinds=`` or ``declared=`` narrow it, ``exclude=`` leaves out options the
 command sets itself) and calls it with ``options: PlannerOptions`` built from them: the one place
-the CLI turns flags into options. The flags appear under "Planner options" in ``--help``; their
-names, types, defaults, units and help are the declarations' (``letspi.planners.options``), so a
-new planner setting needs no edit here.
+the CLI turns flags into options. The flags appear in ``--help`` under their declared panel
+(Planners, Decision step, LLM); their names, types, defaults, units and help are the declarations'
+(``letspi.planners.options``), so a new planner setting needs no edit here. A command that takes
+kinds from the whole table also takes ``--planner-path DIR`` (kinds by import path are searched
+there; ``letspi.cli.startup`` has loaded them, with their options, before the flags were read).
 """
 
 from __future__ import annotations
@@ -13,15 +15,19 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable, Collection, Sequence
+from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
 
-from letspi.assembly.planner_table import planner_table
-from letspi.planners.options import PlannerOption, PlannerOptions
+from letspi.assembly.planner_table import add_planner_paths, planner_table
+from letspi.planners.options import PLANNERS_PANEL, PlannerOption, PlannerOptions
 
 F = TypeVar("F", bound=Callable[..., Any])
-PANEL = "Planner options"
+PLANNER_PATH = "planner_path"
+PlannerPathOpt = Annotated[list[Path] | None, typer.Option(
+    "--planner-path", metavar="DIR", rich_help_panel=PLANNERS_PANEL,
+    help="Directory to import --planner package.module:NAME from (repeatable; the current directory is searched too).")]
 
 
 def _flag_decls(option: PlannerOption[Any]) -> tuple[str, ...]:
@@ -32,7 +38,7 @@ def _flag_decls(option: PlannerOption[Any]) -> tuple[str, ...]:
 
 def option_parameter(option: PlannerOption[Any]) -> inspect.Parameter:
     """The typer parameter of one planner option (keyword-only; its default is the declared one)."""
-    info = typer.Option(*_flag_decls(option), help=option.describe(), rich_help_panel=PANEL, show_default=True)
+    info = typer.Option(*_flag_decls(option), help=option.describe(), rich_help_panel=option.panel, show_default=True)
     return inspect.Parameter(option.name, inspect.Parameter.KEYWORD_ONLY, default=option.default,
                              annotation=Annotated[option.type, info])
 
@@ -63,10 +69,13 @@ def planner_options(*, kinds: Sequence[str] | None = None, declared: Sequence[Pl
         @functools.wraps(command)
         def run(*args: Any, **kwargs: Any) -> Any:
             values = {o.name: kwargs.pop(o.name) for o in flags if o.name in kwargs}
+            add_planner_paths(kwargs.pop(PLANNER_PATH, None) or ())
             return command(*args, options=PlannerOptions(**values), **kwargs)
 
+        path_flag = [] if declared is not None or kinds is not None else [inspect.Parameter(
+            PLANNER_PATH, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=PlannerPathOpt)]
         run.__signature__ = signature.replace(  # type: ignore[attr-defined]
-            parameters=[*own, *(option_parameter(o) for o in flags)])
+            parameters=[*own, *path_flag, *(option_parameter(o) for o in flags)])
         run.__annotations__ = {}  # the signature above is what typer reads
         return run  # type: ignore[return-value]
 

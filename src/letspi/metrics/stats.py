@@ -4,10 +4,11 @@ Every rate and mean letspi reports carries a 95 % interval, and every comparison
 the same windows is paired. The functions here are the statistics; ``letspi.metrics.uncertainty``
 applies them to the metrics of ``letspi.metrics.registry`` with the same definition as each point value.
 
-* Rates: ``wilson_interval`` (scipy's ``binomtest(k, n).proportion_ci(method="wilson")``) for
-  independent trials; ``vehicle_wilson_interval`` for windows grouped by ego vehicle: Wilson with the
-  effective sample size n / ``design_effect`` (Korn & Graubard 1998). Windows of one vehicle overlap
-  and share its traffic: on 300 critical windows of 144 vehicles the design effect of CR is 2-4.
+* Rates: ``wilson_interval`` (the Wilson score interval without continuity correction, in closed
+  form: what scipy's ``binomtest(k, n).proportion_ci(method="wilson")`` gives) for independent trials;
+  ``vehicle_wilson_interval`` for windows grouped by ego vehicle: Wilson with the effective sample
+  size n / ``design_effect`` (Korn & Graubard 1998). Windows of one vehicle overlap and share its
+  traffic: on 300 critical windows of 144 vehicles the design effect of CR is 2-4.
 * Means: ``bootstrap_mean_interval``, a percentile bootstrap that resamples whole **groups** (the ego
   vehicle of a window, ``letspi.scenario.split.vehicle_keys``), never single windows: windows of one
   vehicle overlap (stride 20 frames of 200) and share its traffic, so they are not independent.
@@ -29,10 +30,10 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Any, Final
 
 import numpy as np
-from scipy.stats import binomtest, norm
 
 LEVEL: Final = 0.95
 N_RESAMPLES: Final = 2000
@@ -67,17 +68,16 @@ def wilson_interval(k: int, n: int, level: float = LEVEL) -> Interval:
         raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
     if n == 0:
         return NAN_INTERVAL
-    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
-    return rounded(float(ci.low)), rounded(float(ci.high))
+    return wilson_ends(k / n, n, level)
 
 
 def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
     """Wilson score interval of a proportion ``p_hat`` observed in ``n`` (possibly effective, non-integer)
-    trials: the closed form that ``wilson_interval`` gets from scipy for integer counts."""
+    trials, in closed form."""
     _check_level(level)
     if n <= 0:
         return NAN_INTERVAL
-    z = float(norm.ppf(0.5 + level / 2))
+    z = NormalDist().inv_cdf(0.5 + level / 2)
     shrink = 1.0 + z * z / n
     centre = (p_hat + z * z / (2 * n)) / shrink
     half = z / shrink * math.sqrt(max(p_hat * (1.0 - p_hat), 0.0) / n + z * z / (4 * n * n))
@@ -125,9 +125,19 @@ def mcnemar_exact(n_only_a: int, n_only_b: int) -> float:
     b, c = int(n_only_a), int(n_only_b)
     if b < 0 or c < 0:
         raise ValueError(f"discordant counts must be >= 0, got {b}, {c}")
-    if b + c == 0:
+    if b == c:  # includes no discordant pairs
         return 1.0
-    return float(binomtest(b, b + c, 0.5).pvalue)
+    return min(1.0, 2.0 * binomial_half_cdf(min(b, c), b + c))
+
+
+def binomial_half_cdf(m: int, n: int) -> float:
+    """P(X <= m) for X ~ Binomial(n, 1/2), exactly: the sum of C(n, i) over i <= m in integers, divided
+    by 2^n once (correctly rounded)."""
+    term = total = 1
+    for i in range(m):
+        term = term * (n - i) // (i + 1)
+        total += term
+    return total / 2**n
 
 
 # ------------------------------------------------------------------------------------------------

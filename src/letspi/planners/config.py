@@ -41,7 +41,7 @@ from letspi.method.decide import Decider, OptionTable, RiskGate, load_presets, l
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
-from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.options import DECISION_PANEL, PlannerOption, file_option
 from letspi.safety.adverse import AdverseSettings
 
 KEY_CHARS = 16
@@ -320,20 +320,22 @@ SOCIAL_FORCE_OPTIONS: tuple[PlannerOption[Any], ...] = (*PREDICTION_OPTIONS, SF_
 DECIDE = PlannerOption[bool | None](
     "decide", bool | None, None,
     "LetsPi's decision step: presets checked against the prediction and the adverse futures, a risk gate "
-    "(default: on for the choice prompt style and sf-check)")
-PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets")
+    "(default: on for the choice prompt style and sf-check)", panel=DECISION_PANEL)
+PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets",
+                      panel=DECISION_PANEL)
 ADVERSE = PlannerOption("adverse", bool, True, "Decision step: check plans against the adverse futures too "
-                        "(off: against the prediction only)")
+                        "(off: against the prediction only)", panel=DECISION_PANEL)
 GATE = PlannerOption("gate", bool, True, "Decision step: the risk gate of letspi-fast and sf-check (off: the model "
-                     "is asked on every scenario)")
+                     "is asked on every scenario)", panel=DECISION_PANEL)
 GATE_THRESHOLD = PlannerOption[float | None](
     "gate_threshold", float | None, None,
     "Decision step: the risk score above which the gate asks the model (default: the risk model's recommended "
-    "threshold)")
+    "threshold)", panel=DECISION_PANEL)
 RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk model (default: the shipped one)",
-                         flag="--risk-model")
+                         flag="--risk-model", panel=DECISION_PANEL)
 VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a model's choice that fails more checks "
-                       "than another preset is replaced by the rule's choice (off: the model's answer stands)")
+                       "than another preset is replaced by the rule's choice (off: the model's answer stands)",
+                       panel=DECISION_PANEL)
 DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY)
 
 

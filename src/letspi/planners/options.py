@@ -23,6 +23,11 @@ from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
 
+#: the ``--help`` headings planner options are listed under (``PlannerOption.panel``)
+PLANNERS_PANEL = "Planners"
+DECISION_PANEL = "Decision step"
+LLM_PANEL = "LLM"
+
 
 @dataclass(frozen=True)
 class PlannerOption(Generic[T]):
@@ -38,6 +43,8 @@ class PlannerOption(Generic[T]):
         unit: the unit of a number (``s``, ``m``), shown with the help; empty for none.
         flag: the CLI flag when it is not ``--`` + the name with dashes (a bool gets ``--no-`` too).
         choices: the allowed values of a text option (shown in the help; checked where resolved).
+        panel: the heading the flag is listed under in ``--help`` (``PLANNERS_PANEL``, ``DECISION_PANEL``,
+            ``LLM_PANEL``).
     """
 
     name: str
@@ -47,6 +54,7 @@ class PlannerOption(Generic[T]):
     unit: str = ""
     flag: str = ""
     choices: tuple[str, ...] = ()
+    panel: str = PLANNERS_PANEL
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
@@ -65,10 +73,10 @@ class PlannerOption(Generic[T]):
         return f"{text} [{self.unit}]" if self.unit else text
 
 
-def file_option(name: str, help: str, *, flag: str = "") -> PlannerOption[Path | None]:
+def file_option(name: str, help: str, *, flag: str = "", panel: str = PLANNERS_PANEL) -> PlannerOption[Path | None]:
     """A file or directory setting: a path, or None for its documented default (a shipped file, an
     environment variable)."""
-    return PlannerOption[Path | None](name, Path | None, None, help, flag=flag)
+    return PlannerOption[Path | None](name, Path | None, None, help, flag=flag, panel=panel)
 
 
 class PlannerOptions:
