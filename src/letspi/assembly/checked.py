@@ -48,15 +48,17 @@ def is_built_in(kind: PlannerKind[Any]) -> bool:
 def code_roots(kind: PlannerKind[Any]) -> tuple[str, ...]:
     """The files and directories of a kind's code: the top-level package (or module file) of its
     ``resolve``, ``build`` and configuration class."""
-    roots: set[str] = set()
-    for obj in (kind.resolve, kind.build, kind.config_class):
-        module = sys.modules.get(getattr(obj, "__module__", None) or "")
-        top = sys.modules.get(module.__name__.partition(".")[0]) if module is not None else None
-        file = getattr(top, "__file__", None)
-        if file:
-            path = Path(file).resolve()
-            roots.add(str(path.parent) if path.name == "__init__.py" else str(path))
-    return tuple(sorted(roots))
+    return tuple(sorted({root for obj in (kind.resolve, kind.build, kind.config_class) for root in module_root(obj)}))
+
+
+def module_root(obj: Any) -> tuple[str, ...]:
+    """The top-level package directory (or module file) ``obj`` is defined in; () for letspi's own."""
+    name = (getattr(obj, "__module__", None) or "").partition(".")[0]
+    file = getattr(sys.modules.get(name), "__file__", None)
+    if not file or name == "letspi":
+        return ()
+    path = Path(file).resolve()
+    return (str(path.parent) if path.name == "__init__.py" else str(path),)
 
 
 def _shown(path: str) -> str:
@@ -88,12 +90,13 @@ def defined_at(obj: Any) -> str:
 
 
 class _Caller:
-    """How the errors of one kind's planner (labelled ``label``) are named."""
+    """How the errors of one kind's planner (labelled ``label``) are named (``origin``: where the kind
+    comes from, default ``kind_origin``)."""
 
-    def __init__(self, kind: PlannerKind[Any], label: str) -> None:
+    def __init__(self, kind: PlannerKind[Any], label: str, origin: str | None = None) -> None:
         self.kind, self.label = kind, label
         self.roots = code_roots(kind)
-        self.who = f"planner {label!r} ({kind_origin(kind.name)})"
+        self.who = f"planner {label!r} ({origin or kind_origin(kind.name)})"
 
     def raised(self, what: str, exc: Exception) -> Exception:
         """The error to raise for ``exc`` raised while calling the plug-in's ``what``: letspi's own errors
@@ -101,7 +104,7 @@ class _Caller:
         if isinstance(exc, OSError | PlannerError) or type(exc).__module__.startswith("letspi."):
             return exc
         at = raised_at(exc, self.roots)
-        where = f" at {at}" if at else ""
+        where = f" ({at})" if at else ""
         return PlannerError(f"{self.who}: {what} raised {type(exc).__name__}: {exc}{where}",
                             "This is an error in the planner's own code, not in letspi: fix it there "
                             "(--debug shows the traceback).")
@@ -132,13 +135,13 @@ def resolve_config(kind: PlannerKind[Any], resolver: Resolver, label: str | None
     return config
 
 
-def build_planner_of(kind: PlannerKind[Any], builder: Builder, config: PlannerConfig,
-                     label: str) -> tuple[Planner, float]:
+def build_planner_of(kind: PlannerKind[Any], builder: Builder, config: PlannerConfig, label: str, *,
+                     origin: str | None = None) -> tuple[Planner, float]:
     """``kind.build(builder, config, label)``; for a kind from outside letspi, checked and its planner
-    wrapped in a ``CheckedPlanner`` (module docstring)."""
+    wrapped in a ``CheckedPlanner`` (module docstring; ``origin`` as for ``_Caller``)."""
     if is_built_in(kind):
         return kind.build(builder, config, label)
-    caller = _Caller(kind, label)
+    caller = _Caller(kind, label, origin)
     try:
         result = kind.build(builder, config, label)
     except Exception as exc:
@@ -149,6 +152,7 @@ def build_planner_of(kind: PlannerKind[Any], builder: Builder, config: PlannerCo
                            "Return the planner and the seconds its model took to load, e.g. "
                            "`return MyPlanner(name=label), 0.0`.")
     planner, load_s = result
+    caller.roots = (*caller.roots, *module_root(type(planner)))
     check_planner(caller, planner, at)
     if not isinstance(load_s, numbers.Real) or isinstance(load_s, bool) or not load_s >= 0:
         raise caller.wrong(f"build ({at}) returned load_s={load_s!r}, not seconds >= 0",
@@ -167,8 +171,10 @@ def check_planner(caller: _Caller, planner: object, at: str) -> None:
     try:
         inspect.signature(plan).bind(None)
     except TypeError:
-        raise caller.wrong(f"{cls}.plan{inspect.signature(plan)} ({defined_at(plan)}) cannot be called as "
-                           "plan(batch)", "Define it as `def plan(self, batch: ScenarioBatch) -> PlanBatch`.") from None
+        unbound = getattr(type(planner), "plan", plan)
+        params = inspect.signature(unbound).replace(return_annotation=inspect.Signature.empty)
+        raise caller.wrong(f"{cls}.plan{params} ({defined_at(plan)}) cannot be called as plan(batch)",
+                           "Define it as `def plan(self, batch: ScenarioBatch) -> PlanBatch`.") from None
     except ValueError:  # no signature to read (a builtin): the call will tell
         pass
     size = getattr(planner, "batch_size", None)

@@ -37,6 +37,7 @@ from __future__ import annotations
 import functools
 import importlib
 import os
+import pkgutil
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -508,6 +509,12 @@ def _import_module(module_name: str, where: str) -> object:
         if not module_name.startswith(missing):  # the module exists; something it imports does not
             raise PlannerKindError(f"{where}: importing {module_name} failed: {exc} (a module it imports; "
                                    "install it)") from None
+        parent = sys.modules.get(missing.rpartition(".")[0])
+        if parent is not None:  # the package was found, its module was not
+            names = [f"{parent.__name__}.{m.name}" for m in pkgutil.iter_modules(getattr(parent, "__path__", []))]
+            close = get_close_matches(missing, names, n=1)
+            guess = f"; did you mean {close[0]}?" if close else f" (it has: {', '.join(names) or 'no modules'})"
+            raise PlannerKindError(f"{where}: package {parent.__name__} has no module {missing}{guess}") from None
         cwd = os.getcwd()
         if cwd not in sys.path and "" not in sys.path and _in_working_directory(module_name):
             sys.path.insert(0, cwd)

@@ -10,15 +10,31 @@ planner object.
 
 from __future__ import annotations
 
+import hashlib
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field
 
 from letspi.assembly.build import Builder
 from letspi.assembly.checked import build_planner_of, resolve_config
-from letspi.assembly.planner_table import BUILT_IN, PlannerTable, is_import_path, load_kind, loaded_from, planner_table
+from letspi.assembly.planner_table import (
+    BUILT_IN,
+    FutureUse,
+    PlannerKind,
+    PlannerTable,
+    is_import_path,
+    load_kind,
+    loaded_from,
+    planner_table,
+)
 from letspi.assembly.resolve import Resolver
 from letspi.planners.base import Planner
-from letspi.planners.config import PlannerConfig
+from letspi.planners.config import Config, PlannerConfig
 from letspi.planners.llm import LLM_CACHE
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 
@@ -120,3 +136,67 @@ def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Bui
         raise ValueError(f"planner label(s) {', '.join(dup)} given twice; use LABEL=KIND for variants")
     return [build_planner(resolve_config(table.kind(kind), resolver, label), label, builder=builder, table=table)
             for label, kind in labels]
+
+
+# planner objects given as they are (letspi.api) ------------------------------------------------------
+#: attributes of a planner object that label or batch it but do not change its plans
+_NOT_SETTINGS = frozenset({"name", "batch_size", "reads_future", "version"})
+
+
+class ObjectConfig(Config):
+    """The configuration of a planner object given as it is (``letspi.api.evaluate([MyPlanner()], ...)``):
+    its class, its ``version`` attribute if it has one, and its settings (its public attributes: numbers
+    and text as they are, arrays by content digest, anything else by its type only). A ``PlannerKind``
+    keys its results fully; an object is keyed by what can be read from it."""
+
+    kind: Literal["object"] = "object"
+    planner_class: str
+    version: str | None = None
+    settings: dict[str, Any] = Field(default_factory=dict)
+
+
+def _setting(value: Any) -> Any:
+    """A planner object's attribute as it enters its key (``ObjectConfig``)."""
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else repr(value)
+    if isinstance(value, Enum):
+        return _setting(value.value)
+    if isinstance(value, np.ndarray):
+        digest = hashlib.sha256(np.ascontiguousarray(value).tobytes()).hexdigest()[:16]
+        return f"array {value.dtype}{list(value.shape)} sha256:{digest}"
+    if isinstance(value, np.generic):
+        return _setting(value.item())
+    return f"<{type(value).__name__}>"
+
+
+def object_config(planner: object) -> ObjectConfig:
+    """What identifies the results of a planner object (``ObjectConfig``)."""
+    cls = type(planner)
+    attributes = vars(planner) if hasattr(planner, "__dict__") else {}
+    settings = {k: _setting(v) for k, v in sorted(attributes.items())
+                if not k.startswith("_") and k not in _NOT_SETTINGS}
+    version = getattr(planner, "version", None)
+    return ObjectConfig(planner_class=f"{cls.__module__}.{cls.__qualname__}",
+                        version=None if version is None else str(version), settings=settings)
+
+
+def built_from_object(planner: object, name: str | None = None) -> BuiltPlanner:
+    """A planner object (``plan(batch)``, ``name``, ``batch_size``) as the harness runs it: keyed by
+    ``object_config``, checked as a kind from outside letspi is (``letspi.assembly.checked``), reading the
+    recorded future when its ``reads_future`` says so. It runs in this process (not in worker processes:
+    those build planners from their kind)."""
+    label = name or getattr(planner, "name", None) or type(planner).__name__
+    reads = bool(getattr(planner, "reads_future", False))
+
+    def refuse(r: Resolver) -> ObjectConfig:
+        raise ValueError("a planner object is given as it is; it has no options to resolve")
+
+    kind = PlannerKind[ObjectConfig]("object", "a planner object given as it is", ObjectConfig, refuse,
+                                     lambda b, c, label: (planner, 0.0),  # type: ignore[misc]
+                                     future=FutureUse.ALWAYS if reads else FutureUse.NEVER)
+    config = object_config(planner)
+    checked, load_s = build_planner_of(kind, Builder(cache=None), config, label,
+                                       origin=f"a {type(planner).__name__} object")
+    return BuiltPlanner(label, config, checked, load_s, BUILT_IN.with_kinds(kind))

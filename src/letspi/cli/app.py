@@ -62,6 +62,11 @@ def load_command(name: str) -> click.Command:
     """The click command ``name`` of ``COMMANDS`` (its module is imported here), with grouped option help."""
     entry = COMMANDS[name]
     target: Any = getattr(importlib.import_module(f"letspi.cli.{entry.module}"), entry.attribute)
+    callbacks = [info.callback for info in target.registered_commands] if isinstance(target, typer.Typer) else [target]
+    for callback in callbacks:  # planner flags from the table as it is now (kinds loaded by import path join it)
+        refresh = getattr(callback, "refresh_planner_flags", None)
+        if refresh is not None:
+            refresh()
     if isinstance(target, typer.Typer):
         command = typer.main.get_command(target)
     else:  # one command: a Typer holding only it is that command

@@ -31,6 +31,8 @@ from letspi.evaluation.closed_loop import (
 from letspi.evaluation.harness import (
     ProgressCallback,
     ProgressFactory,
+    done_digests,
+    planner_dir_name,
     read_summary,
     stored_rows,
     summary_markdown,
@@ -39,6 +41,7 @@ from letspi.evaluation.harness import evaluate as run_evaluation
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue
 from letspi.planners.options import LLM_PANEL, PLANNERS_PANEL, PlannerOptions
+from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode, HandoverConfig
@@ -172,6 +175,20 @@ def scripted_neighbours_of(mode: EvaluationMode, events: str | None, scenarios: 
     return scripted_for(batch, events_directory(scenarios), required=False)
 
 
+def reused_windows(out: Path, labels: list[str], batch: ScenarioBatch) -> dict[str, int]:
+    """Windows of ``batch`` each planner label already has stored in ``out`` (what a rerun reuses)."""
+    if not (out / "per_scenario").is_dir():
+        return {}
+    digests = {str(d) for d in scenario_digests(batch)}
+    return {label: len(digests & done_digests(out / "per_scenario" / planner_dir_name(label))) for label in labels}
+
+
+def reuse_line(reused: dict[str, int], n_windows: int) -> str | None:
+    """``resumed: sf 180 of 200 windows already stored, ...`` (None when nothing was reused)."""
+    parts = [f"{label} {n} of {n_windows}" for label, n in reused.items() if n]
+    return f"resumed: {', '.join(parts)} windows already stored (not planned again)" if parts else None
+
+
 def progress_factory(bar: Progress) -> ProgressFactory:
     def factory(name: str, total: int) -> ProgressCallback:
         return run_progress(bar, bar.add_task(name, total=total))
@@ -229,7 +246,11 @@ def evaluate(
         if scripted is not None:
             console.print(scripted.describe())
         planners = build_planners(planner, options)
+        reused = reused_windows(out, labels, batch)
         _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency, reference)
+    resumed = reuse_line(reused, len(batch))
+    if resumed:
+        console.print(resumed, highlight=False)
     if closed is not None:
         typer.echo(closed_loop_line(closed, planners) + "\n")
     typer.echo(summary_markdown(read_summary(out), [p.name for p in planners]))

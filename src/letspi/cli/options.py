@@ -47,36 +47,44 @@ def planner_options(*, kinds: Sequence[str] | None = None, declared: Sequence[Pl
                     exclude: Collection[str] = ()) -> Callable[[F], F]:
     """Decorate a command that has an ``options: PlannerOptions`` parameter (module docstring).
 
-    kinds: the planner kinds whose options become flags (default: every kind of the table);
-    declared: exactly these options instead; exclude: option names the command sets itself.
+    kinds: the planner kinds whose options become flags (default: every kind of the table, as it is when
+    the command is built: ``refresh_planner_flags``); declared: exactly these options instead; exclude:
+    option names the command sets itself.
     """
-    chosen = tuple(declared) if declared is not None else planner_table().options(kinds)
-    unknown = set(exclude) - {o.name for o in chosen}
-    if unknown:
-        raise ValueError(f"exclude names no planner option: {', '.join(sorted(unknown))}")
-    flags = tuple(o for o in chosen if o.name not in exclude)
+
+    def flags_now() -> tuple[PlannerOption[Any], ...]:
+        chosen = tuple(declared) if declared is not None else planner_table().options(kinds)
+        unknown = set(exclude) - {o.name for o in chosen}
+        if unknown:
+            raise ValueError(f"exclude names no planner option: {', '.join(sorted(unknown))}")
+        return tuple(o for o in chosen if o.name not in exclude)
 
     def decorate(command: F) -> F:
         signature = inspect.signature(command, eval_str=True)
         if "options" not in signature.parameters:
             raise TypeError(f"{command.__name__} needs an `options: PlannerOptions` parameter")
         own = [p for name, p in signature.parameters.items() if name != "options"]
-        clash = {p.name for p in own} & {o.name for o in flags}
-        if clash:
-            raise ValueError(f"{command.__name__}: parameter(s) {', '.join(sorted(clash))} are planner options; "
-                             "exclude them or rename the parameter")
+        path_flag = [] if declared is not None or kinds is not None else [inspect.Parameter(
+            PLANNER_PATH, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=PlannerPathOpt)]
 
         @functools.wraps(command)
         def run(*args: Any, **kwargs: Any) -> Any:
-            values = {o.name: kwargs.pop(o.name) for o in flags if o.name in kwargs}
+            values = {o.name: kwargs.pop(o.name) for o in flags_now() if o.name in kwargs}
             add_planner_paths(kwargs.pop(PLANNER_PATH, None) or ())
             return command(*args, options=PlannerOptions(**values), **kwargs)
 
-        path_flag = [] if declared is not None or kinds is not None else [inspect.Parameter(
-            PLANNER_PATH, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=PlannerPathOpt)]
-        run.__signature__ = signature.replace(  # type: ignore[attr-defined]
-            parameters=[*own, *path_flag, *(option_parameter(o) for o in flags)])
+        def refresh() -> None:
+            flags = flags_now()
+            clash = {p.name for p in own} & {o.name for o in flags}
+            if clash:
+                raise ValueError(f"{command.__name__}: parameter(s) {', '.join(sorted(clash))} are planner options; "
+                                 "exclude them or rename the parameter")
+            run.__signature__ = signature.replace(  # type: ignore[attr-defined]
+                parameters=[*own, *path_flag, *(option_parameter(o) for o in flags)])
+
+        refresh()
         run.__annotations__ = {}  # the signature above is what typer reads
+        run.refresh_planner_flags = refresh  # type: ignore[attr-defined]
         return run  # type: ignore[return-value]
 
     return decorate

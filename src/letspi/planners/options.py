@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from difflib import get_close_matches
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -65,6 +66,12 @@ class PlannerOption(Generic[T]):
         """The flag on the command line (``--sf-params``)."""
         return self.flag or "--" + self.name.replace("_", "-")
 
+    @property
+    def keyword(self) -> str:
+        """The flag as a Python keyword (``--sf-params`` -> ``sf_params``): what ``letspi.api`` takes besides
+        the name."""
+        return self.cli_flag.removeprefix("--").replace("-", "_")
+
     def describe(self) -> str:
         """The help with its choices and unit."""
         text = self.help
@@ -92,6 +99,27 @@ class PlannerOptions:
     def __init__(self, **values: Any) -> None:
         object.__setattr__(self, "_values", dict(values))
 
+    @classmethod
+    def from_keywords(cls, declared: Iterable[PlannerOption[Any]], **keywords: Any) -> PlannerOptions:
+        """Options given by the flags' words (``neighbours=``, ``sf_params=``, ``cache=``) or by their names
+        (``neighbour_mode=``): ``ValueError`` for a word no option in ``declared`` has (naming the closest)
+        or for one option given twice."""
+        options = tuple(declared)
+        by_word = {o.name: o for o in options} | {o.keyword: o for o in options}
+        values: dict[str, Any] = {}
+        given: dict[str, str] = {}
+        for word, value in keywords.items():
+            option = by_word.get(word)
+            if option is None:
+                close = get_close_matches(word, list(by_word), n=3)
+                guess = f"; did you mean {' or '.join(close)}?" if close else ""
+                raise ValueError(f"unknown planner option {word}={value!r}{guess} (the planner flags' words, "
+                                 "e.g. neighbours= for --neighbours; `letspi planners --json` lists them)")
+            if option.name in values:
+                raise ValueError(f"{given[option.name]}= and {word}= are one option ({option.cli_flag}); give it once")
+            values[option.name], given[option.name] = value, word
+        return cls(**values)
+
     def get(self, option: PlannerOption[T]) -> T:
         value: T = self._values.get(option.name, option.default)
         return value
@@ -104,7 +132,10 @@ class PlannerOptions:
         names = {option.name for option in declared}
         unknown = sorted(set(self._values) - names)
         if unknown:
-            raise ValueError(f"unknown planner option(s) {', '.join(unknown)}; available: {', '.join(sorted(names))}")
+            close = [m for u in unknown for m in get_close_matches(u, names, n=1)]
+            guess = f"; did you mean {' or '.join(close)}?" if close else ""
+            raise ValueError(f"unknown planner option(s) {', '.join(unknown)}{guess} (available: "
+                             f"{', '.join(sorted(names))})")
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("PlannerOptions is immutable; use replace()")
