@@ -83,7 +83,7 @@ def test_frenet_weights_and_the_prompt_style_reach_the_configuration(tmp_path: P
     assert compact.phase.llm.prompt_style == "compact"  # type: ignore[attr-defined]
     result = runner.invoke(app, ["plan", "--scenarios", str(_scenarios(tmp_path)), "--index", "0", "--planner",
                                  "llm", "--llm", "scripted:default", "--prompt-style", "chatty", "--no-cache"])
-    assert result.exit_code == 2 and "unknown prompt style 'chatty'; available: paper, compact" in result.output
+    assert result.exit_code == 2 and "unknown prompt style 'chatty' (available: paper, compact" in result.output
 
 
 def test_a_switch_without_a_default_is_three_valued(tmp_path: Path) -> None:

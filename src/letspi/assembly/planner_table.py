@@ -81,6 +81,7 @@ from letspi.planners.options import PlannerOption, PlannerOptions, unique_option
 from letspi.planners.sf import SfConfig, SocialForcePlanner
 from letspi.planners.sf_check import DecisionPlanner, SfCheckConfig
 from letspi.planners.sf_opt import SfOptConfig, SocialForceSearchPlanner
+from letspi.suggest import did_you_mean
 
 C = TypeVar("C", bound=Config)
 
@@ -226,9 +227,7 @@ class PlannerTable:
 def unknown_planner(name: str, names: Sequence[str]) -> str:
     """The error for a ``--planner`` kind that is not in the table: the closest names, every name, and
     how a kind of one's own is named."""
-    close = get_close_matches(name, names, n=3, cutoff=0.6)
-    guess = f"; did you mean {' or '.join(close)}?" if close else ""
-    return (f"unknown planner {name!r}{guess} (available: {', '.join(names)}; a kind of your own: "
+    return (f"unknown planner {name!r}{did_you_mean(name, names)} (available: {', '.join(names)}; a kind of your own: "
             f"--planner package.module:NAME, see {PLUGIN_DOC})")
 
 

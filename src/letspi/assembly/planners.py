@@ -108,9 +108,10 @@ def build_planner(config: PlannerConfig, name: str | None = None, *, builder: Bu
     return BuiltPlanner(label, config, planner, load_s, None if table is BUILT_IN else table)
 
 
-def planner_kinds(args: Sequence[str]) -> list[tuple[str, str]]:
+def planner_kinds(args: Sequence[str], table: PlannerTable | None = None) -> list[tuple[str, str]]:
     """(label, kind) of ``--planner`` arguments: ``KIND``, ``LABEL=KIND``, or a kind by import path
-    (``mypkg.mod:NAME``, ``LABEL=mypkg.mod:NAME``; loaded here, and labelled by its name unless given)."""
+    (``mypkg.mod:NAME``, ``LABEL=mypkg.mod:NAME``; loaded here, and labelled by its name unless given);
+    ``ValueError`` for a kind the table does not have."""
     out = []
     for arg in args:
         label, kind = parse_planner_arg(arg)
@@ -118,6 +119,9 @@ def planner_kinds(args: Sequence[str]) -> list[tuple[str, str]]:
             name = load_kind(kind).name
             label, kind = (name if label == kind else label), name
         out.append((label, kind))
+    table = table or planner_table()  # after the loads above: kinds by import path are in it
+    for _, kind in out:  # an unknown name is refused before any data is read
+        table.kind(kind)
     return out
 
 
@@ -125,7 +129,7 @@ def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Bui
                    env: Mapping[str, str] | None = None, table: PlannerTable | None = None) -> list[BuiltPlanner]:
     """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (a kind by name or by import path,
     ``planner_kinds``; models are loaded once)."""
-    labels = planner_kinds(args)
+    labels = planner_kinds(args, table)
     table = table or planner_table()
     table.check(options)
     resolver = Resolver(options, env)

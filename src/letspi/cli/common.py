@@ -43,6 +43,7 @@ from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError, provenance_command
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
+from letspi.simulation.config import EvaluationMode
 
 console = Console(stderr=True)
 
@@ -56,6 +57,14 @@ def command_line() -> str:
 CONCURRENCY_HELP = ("Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 "
                     "for ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")
 ConcurrencyOpt = Annotated[int | None, typer.Option(help=CONCURRENCY_HELP)]
+
+
+def evaluation_mode(text: str | EvaluationMode) -> EvaluationMode:
+    """``--mode``: an ``EvaluationMode`` by its value (a mistyped one names the closest)."""
+    try:
+        return EvaluationMode(text)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
 
 
 def _duration(seconds: float) -> str:

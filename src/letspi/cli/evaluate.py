@@ -15,6 +15,7 @@ from letspi.cli.common import (
     CONCURRENCY_HELP,
     command_line,
     console,
+    evaluation_mode,
     print_run,
     progress_bar,
     run_progress,
@@ -59,6 +60,7 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
 
 
 ModeOpt = Annotated[EvaluationMode, typer.Option(
+    parser=evaluation_mode, metavar="MODE",
     help="open-loop (the paper's protocol: one plan at t = 0, neighbours replay the log), closed-loop-log (the "
          "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log), "
          "closed-loop-reactive (every neighbour is driven by SUMO's IDM from t = 0 and reacts to the ego; the "

@@ -24,6 +24,7 @@ from letspi.llm.backends.ollama import OllamaBackend
 from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.backends.scripted import ScriptedBackend, default_reply_text
 from letspi.llm.types import LLMBackend, UnknownBackendError
+from letspi.suggest import unknown
 
 VALID_FORMS: Final = (
     "llamacpp:gemma3-270m",
@@ -61,7 +62,7 @@ def parse_spec(spec: str) -> BackendSpec:
     kind, _, rest = spec.strip().partition(":")
     kind = kind.lower()
     if kind not in _FACTORIES:
-        raise _bad(spec, f"unknown backend {kind!r} (known: {', '.join(_FACTORIES)})")
+        raise _bad(spec, unknown("backend", kind, _FACTORIES))
     rest = rest.strip()
     if not rest:
         raise _bad(spec, "missing model name")
