@@ -54,9 +54,12 @@ def code_roots(kind: PlannerKind[Any]) -> tuple[str, ...]:
 def module_root(obj: Any) -> tuple[str, ...]:
     """The top-level package directory (or module file) ``obj`` is defined in; () for letspi's own."""
     name = (getattr(obj, "__module__", None) or "").partition(".")[0]
-    file = getattr(sys.modules.get(name), "__file__", None)
-    if not file or name == "letspi":
+    top = sys.modules.get(name)
+    if top is None or name == "letspi":
         return ()
+    file = getattr(top, "__file__", None)
+    if not file:  # a namespace package (a folder without __init__.py)
+        return tuple(str(Path(p).resolve()) for p in getattr(top, "__path__", []))
     path = Path(file).resolve()
     return (str(path.parent) if path.name == "__init__.py" else str(path),)
 
