@@ -78,8 +78,11 @@ def raised_at(exc: BaseException, roots: Sequence[str]) -> str | None:
     frames = traceback.extract_tb(exc.__traceback__)
     ours = [f for f in frames if any(str(Path(f.filename).resolve()).startswith(r) for r in roots)]
     outside = [f for f in frames if not str(Path(f.filename).resolve()).startswith(LETSPI_DIR)]
-    frame = (ours or outside or [None])[-1]
-    return None if frame is None else f"{_shown(frame.filename)}:{frame.lineno} in {frame.name}"
+    chosen = ours or outside
+    if not chosen:
+        return None
+    frame = chosen[-1]
+    return f"{_shown(frame.filename)}:{frame.lineno} in {frame.name}"
 
 
 def defined_at(obj: Any) -> str:

@@ -186,7 +186,7 @@ def object_config(planner: object) -> ObjectConfig:
                         version=None if version is None else str(version), settings=settings)
 
 
-def built_from_object(planner: object, name: str | None = None) -> BuiltPlanner:
+def built_from_object(planner: Any, name: str | None = None) -> BuiltPlanner:
     """A planner object (``plan(batch)``, ``name``, ``batch_size``) as the harness runs it: keyed by
     ``object_config``, checked as a kind from outside letspi is (``letspi.assembly.checked``), reading the
     recorded future when its ``reads_future`` says so. It runs in this process (not in worker processes:
@@ -197,8 +197,10 @@ def built_from_object(planner: object, name: str | None = None) -> BuiltPlanner:
     def refuse(r: Resolver) -> ObjectConfig:
         raise ValueError("a planner object is given as it is; it has no options to resolve")
 
-    kind = PlannerKind[ObjectConfig]("object", "a planner object given as it is", ObjectConfig, refuse,
-                                     lambda b, c, label: (planner, 0.0),  # type: ignore[misc]
+    def build(b: Builder, c: ObjectConfig, label: str) -> tuple[Planner, float]:
+        return planner, 0.0
+
+    kind = PlannerKind[ObjectConfig]("object", "a planner object given as it is", ObjectConfig, refuse, build,
                                      future=FutureUse.ALWAYS if reads else FutureUse.NEVER)
     config = object_config(planner)
     checked, load_s = build_planner_of(kind, Builder(cache=None), config, label,

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
 
-import click
 import typer
 from typer.core import TyperGroup
 
@@ -58,7 +57,8 @@ COMMANDS: dict[str, CommandEntry] = {
 }
 
 
-def load_command(name: str) -> click.Command:
+# click objects are typed Any here: typer builds them from its own copy of click (typer._click)
+def load_command(name: str) -> Any:
     """The click command ``name`` of ``COMMANDS`` (its module is imported here), with grouped option help."""
     entry = COMMANDS[name]
     target: Any = getattr(importlib.import_module(f"letspi.cli.{entry.module}"), entry.attribute)
@@ -77,20 +77,20 @@ def load_command(name: str) -> click.Command:
     return with_panels(command)
 
 
-class LazyCommands(MutableMapping[str, click.Command]):
+class LazyCommands(MutableMapping[str, Any]):
     """The top-level commands by name: all of ``COMMANDS`` are listed, each is imported when looked up."""
 
-    def __init__(self, loaded: Mapping[str, click.Command]) -> None:
+    def __init__(self, loaded: Mapping[str, Any]) -> None:
         self._loaded = dict(loaded)
 
-    def __getitem__(self, name: str) -> click.Command:
+    def __getitem__(self, name: str) -> Any:
         if name not in self._loaded:
             if name not in COMMANDS:
                 raise KeyError(name)
             self._loaded[name] = load_command(name)
         return self._loaded[name]
 
-    def __setitem__(self, name: str, command: click.Command) -> None:
+    def __setitem__(self, name: str, command: Any) -> None:
         self._loaded[name] = command
 
     def __delitem__(self, name: str) -> None:
@@ -112,15 +112,14 @@ class LazyGroup(TyperGroup):
         super().__init__(**attrs)
         self.commands = LazyCommands(self.commands)
 
-    def list_commands(self, ctx: click.Context) -> list[str]:
+    def list_commands(self, ctx: Any) -> list[str]:
         return list(self.commands)
 
-    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def format_commands(self, ctx: Any, formatter: Any) -> None:
         with formatter.section("Commands"):
             formatter.write_dl([(name, entry.summary) for name, entry in COMMANDS.items()])
 
-    def resolve_command(self, ctx: click.Context, args: list[str]) -> tuple[str | None, click.Command | None,
-                                                                             list[str]]:
+    def resolve_command(self, ctx: Any, args: list[str]) -> tuple[str | None, Any, list[str]]:
         if args and args[0] in COMMANDS:
             preload_planner_kinds(args[1:])
         return super().resolve_command(ctx, args)

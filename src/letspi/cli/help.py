@@ -7,7 +7,8 @@ options of no panel (``--help``) last under "Options".
 
 from __future__ import annotations
 
-import click
+from typing import Any
+
 from typer.core import TyperCommand
 
 #: the panels a command's options are shown in, in this order (others follow in first-seen order)
@@ -19,7 +20,7 @@ OTHER = "Options"
 class PanelledCommand(TyperCommand):
     """A typer command whose plain ``--help`` lists its options by panel (module docstring)."""
 
-    def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def format_options(self, ctx: Any, formatter: Any) -> None:  # typer's own click types
         arguments: list[tuple[str, str]] = []
         panels: dict[str, list[tuple[str, str]]] = {}
         for param in self.get_params(ctx):
@@ -40,7 +41,7 @@ class PanelledCommand(TyperCommand):
                 formatter.write_dl(panels[panel])
 
 
-def with_panels(command: click.Command) -> click.Command:
+def with_panels(command: Any) -> Any:
     """``command`` and every sub-command of it with panelled help (typer builds plain ``TyperCommand``s)."""
     if type(command) is TyperCommand:
         command.__class__ = PanelledCommand  # adds one method, no state
