@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from letspi.cli.app import COMMANDS, app, load_command
+from letspi.cli.help import first_sentence
 
 ROOT = Path(__file__).resolve().parents[1]
 #: what no start-up may load before a command needs it
@@ -68,8 +69,9 @@ def test_every_command_loads_and_the_help_lists_each_once() -> None:
     assert listed == list(COMMANDS)
     for name, entry in COMMANDS.items():
         command = load_command(name)
-        assert command.name == name
+        assert command.name == name and hasattr(command, "commands") == (entry.attribute == "app")
         assert entry.summary in result.output and not entry.summary.endswith(".")
+    assert "commonroad" in load_command("export").commands  # a group of one sub-command stays a group
 
 
 def test_a_mistyped_command_gets_a_suggestion() -> None:
@@ -92,3 +94,14 @@ def test_evaluate_help_groups_its_options_in_panels(path: tuple[str, ...], panel
     assert "package.module:NAME" in planners and "letspi.planners" in planners  # how to name a kind of one's own
     assert "--llm " in result.output.split("LLM:")[1].split("Closed loop:")[0]
     assert "--replan-s" in result.output.split("Closed loop:")[1].split("Output:")[0]
+
+
+def test_sub_command_summaries_are_whole_sentences() -> None:
+    assert first_sentence("Compare two evaluations on the windows both hold (e.g. open vs closed loop). More.") == (
+        "Compare two evaluations on the windows both hold (e.g. open vs closed loop)")
+    runner = CliRunner()
+    for name, entry in COMMANDS.items():
+        if entry.attribute != "app":
+            continue
+        text = runner.invoke(app, [name, "--help"], terminal_width=100).output.split("Commands:")[1]
+        assert "..." not in text and "(e.g\n" not in text and not text.rstrip().endswith("(e.g"), (name, text)

@@ -68,7 +68,7 @@ def load_command(name: str) -> Any:
         if refresh is not None:
             refresh()
     if isinstance(target, typer.Typer):
-        command = typer.main.get_command(target)
+        command = typer.main.get_group(target)  # a group even with one sub-command (letspi export commonroad)
     else:  # one command: a Typer holding only it is that command
         holder = typer.Typer(add_completion=False, pretty_exceptions_enable=False, rich_markup_mode=None)
         holder.command(name, cls=PanelledCommand)(target)
