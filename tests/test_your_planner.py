@@ -215,7 +215,8 @@ def test_the_api_takes_names_specs_built_planners_and_planner_objects(user_folde
     assert record["identity"]["planner_class"] == "mypl.cvgap.CvGapPlanner"
     assert record["identity"]["settings"] == {"time_gap_s": 2.0}
     # an object's settings are in its key: another time gap under the same label is refused
-    with pytest.raises(ValueError, match="settings.time_gap_s: 2.0 -> 3.0"):
+    with pytest.raises(ValueError, match="settings.time_gap_s: 2.0 -> 3.0.*name it 'mine-[0-9a-f]{6}': "
+                                         "CvGapPlanner\\(..., name='mine-[0-9a-f]{6}'\\)"):
         lp.evaluate([CvGapPlanner(time_gap_s=3.0, name="mine")], batch, "runs/api")
     plans = lp.plan(CvGapPlanner(), batch.take(np.arange(3)))
     assert plans.xy_m.shape == (3, 125, 2) and lp.plan("cv", batch.take(np.arange(3))).xy_m.shape == (3, 125, 2)

@@ -65,6 +65,13 @@ class BuiltPlanner:
         path it was loaded from (``pkg.mod:NAME``)."""
         return loaded_from(self.config.kind) or self.config.kind
 
+    def relabel(self, label: str) -> str:
+        """How to give this configuration the label ``label``: ``--planner LABEL=KIND`` (a planner object:
+        its name)."""
+        if isinstance(self.config, ObjectConfig):
+            return f"name it {label!r}: {self.config.planner_class.rpartition('.')[2]}(..., name={label!r})"
+        return f"--planner {label}={self.kind_arg}"
+
     def __repr__(self) -> str:
         return f"BuiltPlanner(name={self.name!r}, kind={self.config.kind!r}, key={self.key!r}, load_s={self.load_s:g})"
 

@@ -208,7 +208,7 @@ def check_planner_config(planner_dir: Path, built: BuiltPlanner, evaluation: dic
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
                 f"(key {old.get('key')} vs {record['key']}: {'; '.join(changes) or 'older letspi format'}); "
-                f"use another --out, or give this configuration its own label (--planner {label}={built.kind_arg})")
+                f"use another --out, or give this configuration its own label ({built.relabel(label)})")
         return False
     return True
 
