@@ -157,7 +157,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
     cases = [
         (["--replan-s", "2"], "--replan-s apply to the closed-loop modes only"),
         (["--workers", "2"], "--workers apply to the closed-loop modes only"),
-        (["--mode", "closed-loop"], "'closed-loop' is not one of 'open-loop', 'closed-loop-log'"),
+        (["--mode", "closed-loop"], "unknown evaluation mode 'closed-loop'; did you mean closed-loop-log"),
         (["--mode", LOG, "--replan-s", "sf=2"], "no planner labelled 'sf'"),
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
