@@ -169,6 +169,12 @@ def test_run_suite_twice_gives_the_same_leaderboard_bytes_and_reuses_the_data(
     assert not third.data.reused and third.timing["generation_s"] == 0.0  # new windows, the same traffic
     assert set(first.planner_s["closed-loop-log-1s"]) == {"sf", "cv"}  # each planner's wall time per mode
     assert all(s > 0 for s in first.planner_s["closed-loop-log-1s"].values())
+    # a quick try: the first 5 windows of each mode, a leaderboard that says so
+    quick = run_suite(suite, ["sf"], tmp_path / "quick", workers=0, reports=False, log=lambda _m: None, limit=5)
+    assert quick.data.reused and quick.board["limit"] == 5
+    assert {m["n_windows"] for m in quick.board["modes"].values()} == {5}
+    assert "A quick try (--limit 5)" in (tmp_path / "quick" / "leaderboard.md").read_text()
+    assert "limit" not in board  # the full run's leaderboard
 
 
 @pytest.mark.sumo

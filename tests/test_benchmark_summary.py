@@ -89,5 +89,6 @@ def test_run_refuses_an_unknown_mode_before_any_work(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["benchmark", "run", "stress-closed-loop", "--mode", "closed-loop",
                                       "--out", str(tmp_path / "out")])
     assert result.exit_code == 2
-    assert "has no mode closed-loop (its modes: open-loop, closed-loop-log-0.2s)" in " ".join(result.output.split())
+    assert ("has no mode closed-loop; did you mean closed-loop-log-0.2s or open-loop? (its modes: open-loop, "
+            "closed-loop-log-0.2s)") in " ".join(result.output.split())
     assert not (tmp_path / "out").exists()

@@ -158,7 +158,7 @@ def test_closed_loop_options_are_checked_with_one_clear_line(tmp_path: Path, tra
     cases = [
         (["--replan-s", "2"], "--replan-s apply to the closed-loop modes only"),
         (["--workers", "2"], "--workers apply to the closed-loop modes only"),
-        (["--mode", "closed-loop"], "'closed-loop' is not one of 'open-loop', 'closed-loop-log'"),
+        (["--mode", "closed-loop"], "unknown evaluation mode 'closed-loop'; did you mean closed-loop-log"),
         (["--mode", LOG, "--replan-s", "sf=2"], "no planner labelled 'sf'"),
         (["--mode", LOG, "--replan-s", "0"], "replan_s must be between one frame"),
         (["--mode", LOG, "--replan-s", "fast"], "--replan-s takes S or LABEL=S"),
@@ -282,14 +282,14 @@ def test_compare_report_and_plot_show_open_and_closed_loop_side_by_side(tmp_path
     assert result.exit_code == 0, result.output
     assert "A = " in result.output and "(open-loop)" in result.output and "(closed-loop-reactive)" in result.output
     # both collide in open loop only: 2 discordant windows, Δ −100 points, McNemar p = 2 / 2² = 0.5
-    assert "| brake | CR % | 2 | 100.00 (34.24–100.00) | 0.00 (0.00–65.76) | -100.00" in result.output
+    assert "| brake | ↓ CR % | 2 | 100.00 (34.24–100.00) | 0.00 (0.00–65.76) | -100.00" in result.output
     assert "| 2 | 0 | 0 | 0.500 |" in result.output
     data = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert len(data["collides_only_a"]["brake"]) == 2 and data["collides_only_b"]["brake"] == []
     cr = data["paired"]["planners"]["brake"]["cr_pct"]
     assert (cr["n_only_reference"], cr["n_only_planner"], cr["p_mcnemar"], cr["diff"]) == (2, 0, 0.5, -100.0)
     page = (tmp_path / "cmp" / "compare.html").read_text()
-    assert page.count("<img src='data:image/png;base64,") == 2 and "collides in A only" in page
+    assert page.count("<img src='data:image/png;base64,") == 2 and "collides with brake (A) only" in page
     # the report of a closed-loop directory draws the panel for its worst scenarios
     code = runner.invoke(app, ["report", str(tmp_path / "reactive")]).exit_code
     assert code == 0

@@ -163,7 +163,13 @@ def test_compare_pairs_a_planner_of_b_with_a_reference_of_a_over_shared_windows(
         12, int((hit & ~ref_hit).sum()), int((ref_hit & ~hit).sum()))
     assert cmp.metrics_a["brake"]["n"] == 12 and cmp.metrics_a["brake"]["cr_pct"] == pytest.approx(100 * ref_hit.mean())
     text = cmp.markdown()
-    assert "every planner of B against sf of A" in text and "| brake vs sf | CR % | 12 |" in text
+    assert "every planner of B against sf of A" in text and "| brake vs sf | ↓ CR % | 12 |" in text
+    # what is compared, what is left out, and which differences are significant for whom
+    assert "- brake (B) vs sf (A): 12 shared windows (left out: 4 only in A); another planner kind" in text
+    sr = next(line for line in text.splitlines() if line.startswith("| brake vs sf | ↑ SR % |"))
+    assert "**-100.00 (-100.00 to -100.00)**" in sr and sr.endswith("| < 0.001 | worse |")  # 12 discordant of 12
+    cr = next(line for line in text.splitlines() if line.startswith("| brake vs sf | ↓ CR % |"))
+    assert "**" not in cr and cr.endswith("| 0.125 |  |")  # 4 discordant windows: p = 2 / 2^4, not significant
     result = runner.invoke(app, ["compare", str(tmp_path / "baselines"), str(tmp_path / "mine"), "--reference", "x"])
     assert result.exit_code == 2 and "--reference 'x' is not a planner of" in result.output
 

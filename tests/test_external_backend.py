@@ -164,7 +164,7 @@ def test_a_kind_may_not_take_a_built_in_prefix_and_the_built_in_stays(plugins: P
     assert "backend prefix 'ollama' exists already" in problems["ollama"]
     assert "letspi-test-backends 0.3" in problems["ollama"]
     assert type(make_backend("ollama:m")).__name__ == "OllamaBackend"
-    with pytest.raises(UnknownBackendError, match=r"unknown backend 'hf' \(known: llamacpp, ollama, openai, "
+    with pytest.raises(UnknownBackendError, match=r"unknown backend 'hf' \(available: llamacpp, ollama, openai, "
                                                   r"scripted, bare, boom, local, odd\)") as err:
         parse_spec("hf:gpt2")
     assert "local:/path/to/weights" in str(err.value)  # the installed forms are listed too

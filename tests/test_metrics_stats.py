@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.stats import binomtest
 
 from letspi.metrics.stats import (
     bootstrap_mean_interval,
@@ -50,8 +51,9 @@ def test_wilson_hand_computed_and_edges() -> None:
 
 
 def test_wilson_closed_form_and_design_effect_by_hand() -> None:
-    for k, n in ((0, 20), (3, 20), (11, 300), (299, 300)):
-        assert wilson_ends(k / n, n) == pytest.approx(wilson_interval(k, n), abs=2e-6)
+    for k, n in ((0, 20), (3, 20), (11, 300), (299, 300), (1, 1), (517, 1000)):  # the closed form is scipy's Wilson
+        ci = binomtest(k, n).proportion_ci(method="wilson")
+        assert wilson_interval(k, n) == pytest.approx((ci.low, ci.high), rel=5e-6, abs=1e-12), (k, n)  # 6 digits
     groups = np.array(["a", "a", "b", "b"])
     # both windows of a fail, none of b: p = 1/2, sum_g (y_g - p m_g)² = 2, G/(G-1) * 2/16 over 1/16 = 4
     assert design_effect([1, 1, 0, 0], groups) == pytest.approx(4.0)
@@ -88,6 +90,8 @@ def test_mcnemar_exact_equals_the_hand_computed_binomial_p() -> None:
     # 0 vs 6: 2 / 64; no discordant pair: no evidence either way
     assert mcnemar_exact(0, 6) == pytest.approx(2 / 64, abs=1e-12)
     assert mcnemar_exact(0, 0) == 1.0
+    for b, c in ((0, 1), (3, 17), (40, 61), (250, 251), (900, 1100)):  # scipy's two-sided binomial test
+        assert mcnemar_exact(b, c) == pytest.approx(binomtest(b, b + c, 0.5).pvalue, rel=1e-9, abs=1e-300), (b, c)
     assert mcnemar_exact(5, 5) == 1.0
 
 

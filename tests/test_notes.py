@@ -28,7 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "letspi"
 TEXT_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "notes").glob("*.md"))]
 #: Files the docs name as examples of what a reader would add (recipes), not as existing code.
-EXAMPLE_FILES = frozenset({"src/letspi/planners/brake.py", "src/letspi/llm/backends/mybackend.py"})
+EXAMPLE_FILES = frozenset({"src/letspi/planners/brake.py", "src/letspi/llm/backends/mybackend.py",
+                           "my_planners/cv_gap.py"})  # the reader's own planner (docs/your-planner.md)
 PY_PATH = re.compile(r"(?<![\w/.-])((?:[\w.*-]+/)*[\w-]+\.py)\b")
 DOTTED = re.compile(r"(?<![\w.])letspi(?:\.[A-Za-z_]\w*)+")
 OUTSIDE = re.compile(r"(?<![\w.~-])/(?:work|tmp|root|home)/[\w.-]*")

@@ -86,7 +86,7 @@ def test_frenet_weights_and_the_prompt_style_reach_the_configuration(tmp_path: P
     assert compact.phase.llm.prompt_style == "compact"  # type: ignore[attr-defined]
     result = runner.invoke(app, ["plan", "--scenarios", str(_scenarios(tmp_path)), "--index", "0", "--planner",
                                  "llm", "--llm", "scripted:default", "--prompt-style", "chatty", "--no-cache"])
-    assert result.exit_code == 2 and "unknown prompt style 'chatty'; available: paper, compact" in result.output
+    assert result.exit_code == 2 and "unknown prompt style 'chatty' (available: paper, compact" in result.output
 
 
 def test_a_switch_without_a_default_is_three_valued(tmp_path: Path) -> None:
@@ -101,10 +101,23 @@ def test_a_switch_without_a_default_is_three_valued(tmp_path: Path) -> None:
 
 
 def test_a_misspelt_option_is_an_error_naming_it() -> None:
-    with pytest.raises(ValueError, match=r"unknown planner option\(s\) goal; available: .*goals"):
+    with pytest.raises(ValueError, match=r"unknown planner option\(s\) goal; did you mean goals\? \(available: "):
         build_planners(["sf"], PlannerOptions(goal="kinematic"))
     with pytest.raises(ValueError, match="unknown planner option"):
         resolve_planner("cv", PlannerOptions(neighbours="idm"))
+
+
+def test_options_are_given_by_the_flags_words_or_their_names() -> None:
+    declared = BUILT_IN.options()
+    by_flag = PlannerOptions.from_keywords(declared, neighbours="constant_velocity", sf_params="p.json", cache=False,
+                                           request_timeout=5.0, presets="x.json", risk_model="r.json")
+    assert by_flag == PlannerOptions(neighbour_mode="constant_velocity", sf_params_file="p.json", llm_cache=False,
+                                     llm_timeout_s=5.0, presets_file="x.json", risk_model_file="r.json")
+    assert PlannerOptions.from_keywords(declared, neighbour_mode="idm") == PlannerOptions(neighbour_mode="idm")
+    with pytest.raises(ValueError, match="neighbours= and neighbour_mode= are one option \\(--neighbours\\)"):
+        PlannerOptions.from_keywords(declared, neighbours="idm", neighbour_mode="idm")
+    with pytest.raises(ValueError, match="unknown planner option neighbors='idm'; did you mean neighbours"):
+        PlannerOptions.from_keywords(declared, neighbors="idm")
 
 
 def test_options_are_values_with_declared_defaults() -> None:

@@ -11,7 +11,7 @@ import pytest
 
 from letspi.assembly.build import Builder
 from letspi.assembly.planner_table import BUILT_IN, FutureUse, PlannerKind, PlannerOutputError
-from letspi.assembly.planners import build_planner, build_planners
+from letspi.assembly.planners import build_planner, build_planners, built_from_object
 from letspi.assembly.resolve import Resolver
 from letspi.evaluation.harness import evaluate
 from letspi.evaluation.summary import known_outputs, outputs_reference_markdown, timing_summary
@@ -131,3 +131,16 @@ def test_the_reference_lists_every_declared_output() -> None:
     text = outputs_reference_markdown()
     for o in (*BUILT_IN.outputs(), *CLOSED_LOOP_OUTPUTS):
         assert f"| `{column(o)}` |" in text
+
+
+def test_a_planner_object_declares_its_outputs_or_leaves_them_unchecked(tmp_path: Path) -> None:
+    bare = _Reporter("leader")
+    results = evaluate([built_from_object(bare)], _scenes(), tmp_path / "bare")
+    assert "leader_pct" not in results["reporter"]  # stored, not aggregated: nothing declares it
+    declaring = _Reporter("leader")
+    declaring.outputs = (output("leader", "bool", "bool", "a leader", Agg("leader_pct", "pct")),)  # type: ignore[attr-defined]
+    assert evaluate([built_from_object(declaring)], _scenes(), tmp_path / "declared")["reporter"]["leader_pct"] == 100.0
+    wrong = _Reporter("surprise")
+    wrong.outputs = declaring.outputs  # type: ignore[attr-defined]
+    with pytest.raises(PlannerOutputError, match="does not declare: surprise"):
+        evaluate([built_from_object(wrong)], _scenes(), tmp_path / "wrong")

@@ -90,8 +90,13 @@ def test_every_kind_has_one_entry_and_the_kinds_derive_from_it() -> None:
     for kind in BUILT_IN.kinds:
         # the configuration class can stand for this kind (its `kind` literal admits the name)
         assert kind.config_class.model_fields["kind"].annotation.__args__.count(kind.name) == 1, kind.name
-    with pytest.raises(ValueError, match=r"unknown planner 'sf-cv'; available: human, cv, .*, letspi-fs$"):
+    with pytest.raises(ValueError, match=r"unknown planner 'sf-cv'; did you mean sf-check\? \(available: human, cv, "
+                                         r".*, letspi-fs; a kind of your own: --planner package.module:NAME"):
         resolve_planner("sf-cv", PlannerOptions(), table=BUILT_IN)  # installed kinds (CI's example) follow
+    with pytest.raises(ValueError, match=r"unknown planner 'sff'; did you mean sf\? "):
+        resolve_planner("sff", PlannerOptions(), table=BUILT_IN)
+    with pytest.raises(ValueError, match=r"unknown planner 'zzz' \(available"):  # nothing close: no guess
+        resolve_planner("zzz", PlannerOptions(), table=BUILT_IN)
 
 
 def test_records_parse_back_into_their_configuration_class(pinned_options: PlannerOptions) -> None:

@@ -67,6 +67,7 @@ def test_report_rows_links_images(eval_dir, tmp_path):
     # distributions + one worst-scenario diagram per planner
     assert len(_images(page)) == 1 + len(planners)
     assert 'id="worst-human"' in page and 'id="worst-cv"' in page
+    assert "draws the plan the evaluation stored" in page and "re-planned" not in page  # what the pictures are
     assert 'id="ablations"' not in page  # no ablation files: section absent, no error
 
 

@@ -3,9 +3,19 @@ keyed, resumable harness as the CLI (docs/your-planner.md)::
 
     import letspi.api as lp
     batch = lp.load_scenarios("data/scenarios.arrow", limit=300)
-    planners = lp.planners("sf", "frenet", goals="kinematic")   # KIND or LABEL=KIND, planner options
+    planners = lp.planners("sf", "frenet", goals="kinematic")   # KIND, LABEL=KIND or pkg.mod:NAME; planner options
     results = lp.evaluate(planners, batch, "runs/mine")         # rerun: resumes, adds planners
-    results.summary(), results.per_scenario("frenet"), results.paired_summary()   # DataFrames
+    lp.evaluate(["sf", MyPlanner()], batch, "runs/other")       # names and planner objects are taken too
+    print(results.table())                # metrics.md: values with 95 % intervals, paired with sf
+    results.summary()                     # DataFrame, one row per planner: value, low, high per metric
+    results.per_scenario("frenet")        # DataFrame, one row per window: metrics, timing, plan info
+    results.paired_summary()              # DataFrame, one row per planner and metric: Δ, interval, p
+
+    plan = lp.plan(planners[0], batch.take(range(5)))           # a PlanBatch: (B, F, 2) positions ...
+
+``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``). Everything here is a
+thin layer over ``letspi.evaluation`` (layout, keys, resume, timing) and
+``letspi.metrics.uncertainty`` (intervals, paired comparisons); see docs/evaluation.md.
 """
 
 from __future__ import annotations
@@ -13,12 +23,13 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 import pandas as pd
 
-from letspi.assembly.planners import BuiltPlanner, build_planners
+from letspi.assembly.planner_table import add_planner_paths, planner_table
+from letspi.assembly.planners import BuiltPlanner, build_planners, built_from_object, planner_kinds
 from letspi.evaluation.closed_loop import evaluate_closed_loop
 from letspi.evaluation.harness import EvaluationSettings
 from letspi.evaluation.harness import evaluate as run_evaluation
@@ -32,10 +43,15 @@ from letspi.scenario.store import count_scenarios
 from letspi.scenario.store import load_scenarios as _load
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig
-from letspi.viz.report import write_report
 
-__all__ = ["ClosedLoopConfig", "PlanBatch", "Results", "ScenarioBatch", "evaluate", "load_scenarios", "open_results",
-           "plan", "planners"]
+__all__ = ["ClosedLoopConfig", "PlanBatch", "PlannerLike", "Results", "ScenarioBatch", "evaluate", "load_scenarios",
+           "open_results", "plan", "planners"]
+
+#: what ``evaluate`` and ``plan`` take as a planner: a spec (``"sf"``, ``"LABEL=KIND"``, ``"pkg.mod:NAME"``), a
+#: planner of ``planners(...)``, or a planner object (``plan(batch)``, ``name``, ``batch_size``) given as it is
+PlannerLike: TypeAlias = BuiltPlanner | Planner | str
+#: directories to import ``pkg.mod:NAME`` kinds from (``--planner-path``)
+PathsLike: TypeAlias = str | Path | Sequence[str | Path] | None
 
 #: the metrics of ``Results.summary`` by default: the paper's table (``letspi.metrics.aggregate.TABLE_COLUMNS``)
 SUMMARY_KEYS: tuple[str, ...] = tuple(key for _, key in TABLE_COLUMNS)
@@ -54,28 +70,88 @@ def load_scenarios(path: str | Path, *, limit: int | None = None,
     return _load(Path(path), None if rows is None else np.asarray(rows, dtype=np.int64))
 
 
-def planners(*specs: str, **options: Any) -> list[BuiltPlanner]:
-    """Build planners from ``KIND`` or ``LABEL=KIND`` specs with planner options by name (``goals="kinematic"``,
-    ``sf_params_file=...``: the CLI's planner flags; ``letspi planners --json`` lists them). Models load here."""
+def planners(*specs: str, planner_path: PathsLike = None, **options: Any) -> list[BuiltPlanner]:
+    """Build planners from ``KIND``, ``LABEL=KIND`` or ``package.module:NAME`` specs (``letspi planners`` lists
+    the kinds; a module is imported from the working directory, ``planner_path`` or the Python path) with
+    planner options by the words of their flags (``neighbours="idm"`` for ``--neighbours``,
+    ``sf_params=...``, ``goals="kinematic"``; the option names, ``neighbour_mode=``, work too;
+    ``letspi planners --json`` lists them). Models load once, here."""
     if not specs:
         raise ValueError("name at least one planner, e.g. planners('sf')")
-    return build_planners(list(specs), PlannerOptions(**options))
+    add_planner_paths(_paths(planner_path))
+    bad = [s for s in specs if not isinstance(s, str)]
+    if bad:
+        raise TypeError(f"planners() takes specs ('sf', 'LABEL=KIND', 'pkg.mod:NAME'), got {type(bad[0]).__name__}; "
+                        "evaluate() and plan() take planner objects as they are")
+    planner_kinds(list(specs))  # kinds named by import path join the table, with their options
+    return build_planners(list(specs), PlannerOptions.from_keywords(planner_table().options(), **options))
 
 
-def plan(planner: BuiltPlanner | Planner, batch: ScenarioBatch) -> PlanBatch:
-    """The plans of one planner for ``batch`` given the harness's view (the history only, unless its kind reads the
-    recorded future); untimed and unscored."""
-    if isinstance(planner, BuiltPlanner):
-        return planner.planner.plan(batch if planner.reads_future else batch.history())
-    return planner.plan(batch.history())
+def _paths(paths: PathsLike) -> list[str | Path]:
+    if paths is None:
+        return []
+    return [paths] if isinstance(paths, str | Path) else list(paths)
 
 
-def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | Path, out: str | Path, *,
-             limit: int | None = None, reference: str | None = None,
-             metrics_config: MetricsConfig | None = None, closed_loop: ClosedLoopConfig | None = None) -> Results:
-    """Evaluate ``planners`` on ``scenarios`` (a batch, or a scenario file and ``limit``) into ``out`` as ``letspi
-    evaluate`` does (a repeated call resumes, keeps earlier planners). ``reference``: default ``sf``. Open loop
-    unless ``closed_loop`` is given (hybrid without scripted neighbours). Returns the directory's ``Results``."""
+def as_built(items: PlannerLike | Iterable[PlannerLike], **options: Any) -> list[BuiltPlanner]:
+    """Planners as the harness runs them, from what a user passes (``PlannerLike``, one or several, in
+    order): specs are built together by ``planners`` with ``options``; built planners are kept; planner
+    objects are keyed by what can be read from them (``letspi.assembly.planners.built_from_object``)."""
+    listed: list[Any] = [items] if isinstance(items, str | BuiltPlanner) or _is_planner(items) else list(
+        items)  # type: ignore[arg-type]
+    specs = [item for item in listed if isinstance(item, str)]
+    if options and not specs:
+        raise ValueError(f"planner options ({', '.join(options)}) apply to planners given by name; pass them to "
+                         "lp.planners(...) or give the planners as names")
+    from_specs = iter(planners(*specs, **options) if specs else [])
+    out = []
+    for item in listed:
+        if isinstance(item, str):
+            out.append(next(from_specs))
+        elif isinstance(item, BuiltPlanner):
+            out.append(item)
+        elif _is_planner(item):
+            out.append(built_from_object(item))
+        else:
+            raise TypeError(f"a planner is a name ('sf', 'LABEL=KIND', 'pkg.mod:NAME'), a planner of lp.planners(...) "
+                            f"or an object with plan(batch), a name and a batch_size; got {type(item).__name__}")
+    labels = [b.name for b in out]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ValueError(f"planner label(s) {', '.join(dup)} given twice; give variants their own label "
+                         "('LABEL=KIND', or the object's name)")
+    return out
+
+
+def _is_planner(obj: object) -> bool:
+    return not isinstance(obj, str | BuiltPlanner | type) and callable(getattr(obj, "plan", None))
+
+
+def plan(planner: PlannerLike, batch: ScenarioBatch) -> PlanBatch:
+    """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
+    unless its kind reads the recorded future (an oracle; a planner object whose ``reads_future`` is true).
+    Untimed and unscored: ``evaluate`` for that."""
+    (built,) = as_built(planner)
+    return built.planner.plan(batch if built.reads_future else batch.history())
+
+
+def evaluate(planners: PlannerLike | Iterable[PlannerLike], scenarios: ScenarioBatch | str | Path, out: str | Path,
+             *, limit: int | None = None, reference: str | None = None, metrics_config: MetricsConfig | None = None,
+             closed_loop: ClosedLoopConfig | None = None, **options: Any) -> Results:
+    """Evaluate ``planners`` (``PlannerLike``: names such as ``"sf"`` or ``"mypkg.mod:KIND"``, built with
+    the planner ``options`` as ``planners`` does; planners of ``planners(...)``; planner objects) on
+    ``scenarios`` (a batch, or a scenario file with an optional ``limit``) into
+    the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and plans stored,
+    keyed by dataset, metrics configuration and planner configuration; an interrupted or repeated call
+    resumes; planners of earlier calls are kept. ``reference``: the planner the others are compared with
+    (default ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g.
+    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (the log replay; the other modes run
+    SUMO; ``closed-loop-hybrid`` here
+    without scripted neighbours). Returns the directory's ``Results``."""
+    built = as_built(planners, **options)
+    if closed_loop is not None and closed_loop.workers and any(b.config.kind == "object" for b in built):
+        raise ValueError("planner objects run in this process: closed loop with workers=0, or give the planner a "
+                         "PlannerKind (docs/your-planner.md) so that worker processes can build it")
     if isinstance(scenarios, ScenarioBatch):
         if limit is not None:
             raise ValueError("limit applies to a scenario file; pass batch.take(...) instead")
@@ -83,10 +159,10 @@ def evaluate(planners: Iterable[BuiltPlanner], scenarios: ScenarioBatch | str | 
     else:
         batch, source = load_scenarios(scenarios, limit=limit), str(scenarios)
     if closed_loop is not None:
-        evaluate_closed_loop(list(planners), batch, Path(out), closed_loop, scenarios_file=source,
+        evaluate_closed_loop(built, batch, Path(out), closed_loop, scenarios_file=source,
                              config=metrics_config, reference=reference)
     else:
-        run_evaluation(list(planners), batch, Path(out), EvaluationSettings(
+        run_evaluation(built, batch, Path(out), EvaluationSettings(
             scenarios_file=source, metrics=metrics_config or MetricsConfig(), reference=reference))
     return open_results(out)
 
@@ -104,6 +180,9 @@ class Results:
 
     directory: Path
     raw: dict[str, Any]
+
+    def __repr__(self) -> str:
+        return f"Results({str(self.directory)!r}, planners={self.planners}, reference={self.reference!r})"
 
     @property
     def planners(self) -> list[str]:
@@ -181,4 +260,6 @@ class Results:
 
     def report(self, out: str | Path | None = None, *, n_worst: int = 3, with_diagrams: bool = True) -> Path:
         """Write the self-contained HTML report (default ``DIR/report.html``) and return its path."""
+        from letspi.viz.report import write_report  # plotting loads here, not with letspi.api
+
         return write_report(self.directory, out, n_worst=n_worst, with_diagrams=with_diagrams)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from letspi.finetune.options import OptionOutcomes
-from letspi.learned.logistic import fit_logistic, roc_auc
+from letspi.learned.logistic_fit import fit_logistic, roc_auc
 from letspi.method.decide import DEFAULT_NAME, OptionTable, rule_choice
 from letspi.metrics.stats import paired_rate, wilson_interval
 from letspi.scenario.risk_features import RISK_FEATURE_NAMES

@@ -17,8 +17,12 @@ from __future__ import annotations
 
 import functools
 import importlib
+import os
+import pkgutil
+import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from difflib import get_close_matches
 from enum import Enum
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -63,6 +67,7 @@ from letspi.planners.outputs import undeclared
 from letspi.planners.sf import SfConfig, SocialForcePlanner
 from letspi.planners.sf_check import DecisionPlanner, SfCheckConfig
 from letspi.planners.sf_opt import SfOptConfig, SocialForceSearchPlanner
+from letspi.suggest import did_you_mean
 
 C = TypeVar("C", bound=Config)
 
@@ -109,7 +114,9 @@ class PlannerKind(Generic[C]):
     inputs: Callable[[C], PredictionInputs] | None = None
     dual_rate: bool = False
     demo: frozenset[DemoTable] = frozenset()
-    outputs: tuple[Metric, ...] = ()
+    #: the per-scenario values its plans report (``letspi.planners.outputs``); None: undeclared (a planner object
+    #: given as it is: its info is stored, nothing aggregated)
+    outputs: tuple[Metric, ...] | None = ()
 
     def __post_init__(self) -> None:
         if (self.future is FutureUse.ORACLE_INPUTS) != (self.inputs is not None):
@@ -118,6 +125,8 @@ class PlannerKind(Generic[C]):
 
     def check_outputs(self, info: Mapping[str, object]) -> None:
         """Refuse per-scenario info the kind does not declare (its ``outputs``)."""
+        if self.outputs is None:
+            return
         extra = undeclared(info, self.outputs)
         if extra:
             raise PlannerOutputError(
@@ -159,7 +168,7 @@ class PlannerTable:
 
     def outputs(self) -> tuple[Metric, ...]:
         """Every kind's declared per-scenario outputs, each name once (the first declaration)."""
-        return tuple({o.name: o for kind in reversed(self.kinds) for o in kind.outputs}.values())
+        return tuple({o.name: o for kind in reversed(self.kinds) for o in kind.outputs or ()}.values())
 
     def with_kinds(self, *kinds: PlannerKind[Any]) -> PlannerTable:
         return PlannerTable((*self.kinds, *kinds))
@@ -169,7 +178,7 @@ class PlannerTable:
         try:
             return self._by_name[name]
         except KeyError:
-            raise ValueError(f"unknown planner {name!r}; available: {', '.join(self.names)}") from None
+            raise ValueError(unknown_planner(name, self.names)) from None
 
     def kind_of(self, config: PlannerConfig) -> PlannerKind[Any]:
         """The entry a configuration belongs to (``TypeError`` when its class is not the entry's)."""
@@ -210,9 +219,18 @@ class PlannerTable:
         return config
 
     def planner_help(self) -> str:
-        """The CLI's ``--planner`` help: every kind."""
+        """The CLI's ``--planner`` help: every kind, and how to name one of your own."""
         return (f"Planner KIND ({', '.join(self.names)}; `letspi planners` describes them) or LABEL=KIND for a "
-                "second configuration of one kind; repeat for several.")
+                "second configuration of one kind; repeat for several. A kind of your own: package.module:NAME "
+                "(a PlannerKind, imported from the current directory, --planner-path or the Python path) or an "
+                f"installed package's kind (entry-point group {ENTRY_POINT_GROUP!r}); see {PLUGIN_DOC}.")
+
+
+def unknown_planner(name: str, names: Sequence[str]) -> str:
+    """The error for a ``--planner`` kind that is not in the table: the closest names, every name, and
+    how a kind of one's own is named."""
+    return (f"unknown planner {name!r}{did_you_mean(name, names)} (available: {', '.join(names)}; a kind of your own: "
+            f"--planner package.module:NAME, see {PLUGIN_DOC})")
 
 
 # resolution: options -> configuration --------------------------------------------------------------
@@ -394,12 +412,21 @@ def _checked(obj: object, where: str, table: PlannerTable) -> PlannerKind[Any]:
     if not isinstance(obj, PlannerKind):
         what = "a class" if isinstance(obj, type) else f"a {type(obj).__name__}"
         raise PlannerKindError(f"{where} is {what}, not a letspi PlannerKind: wrap the planner in one ({PLUGIN_DOC})")
+    if obj.name in table.names:
+        raise PlannerKindError(f"{where}: planner kind {obj.name!r} exists already")
+    if not (isinstance(obj.config_class, type) and issubclass(obj.config_class, Config)):
+        raise PlannerKindError(f"{where}: its configuration {obj.config_class!r} is not a letspi.plugin.Config "
+                               "subclass (a frozen pydantic model whose fields key its results)")
+    declared = obj.config_class.model_fields.get("kind")
+    config_kind = declared.default if declared is not None else None
+    if config_kind != obj.name:
+        raise PlannerKindError(f"{where}: the PlannerKind is named {obj.name!r} but its configuration "
+                               f"{obj.config_class.__name__} has kind {config_kind!r}; give both one name "
+                               f"(kind: Literal[{obj.name!r}] = {obj.name!r})")
     version = obj.config_class.model_fields.get("version")
     if version is None:
         raise PlannerKindError(f"{where}: its configuration {obj.config_class.__name__} has no 'version' field; "
                                "declare what makes its results differ (a version string enters the result key)")
-    if obj.name in table.names:
-        raise PlannerKindError(f"{where}: planner kind {obj.name!r} exists already")
     prefix = obj.name.replace("-", "_") + "_"
     shared = {o.name: o for o in BUILT_IN.options()}
     foreign = [o.name for o in obj.options if shared.get(o.name) != o and not o.name.startswith(prefix)]
@@ -463,22 +490,78 @@ def is_import_path(kind: str) -> bool:
     return ":" in kind
 
 
+def add_planner_paths(paths: Iterable[str | Path]) -> None:
+    """Put the directories ``paths`` first on the Python path, to import kinds by import path from
+    (``--planner-path DIR``)."""
+    for path in reversed([Path(p) for p in paths]):
+        if not path.is_dir():
+            raise PlannerKindError(f"--planner-path {path}: no such directory")
+        directory = str(path.resolve())
+        if directory not in sys.path:
+            sys.path.insert(0, directory)
+
+
+def _in_working_directory(module_name: str) -> bool:
+    """Whether the working directory holds ``module_name``'s top-level package or module file."""
+    top = Path(module_name.partition(".")[0])
+    return (top.with_suffix(".py")).is_file() or (top.is_dir() and any(top.iterdir()))
+
+
+def _import_module(module_name: str, where: str) -> object:
+    """``module_name`` imported as ``python -m`` would: the working directory is searched too (first,
+    when the module is not found elsewhere). ``PlannerKindError`` naming both fixes when it is not found,
+    or the file and line where importing it failed."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        missing = exc.name or ""
+        if not module_name.startswith(missing):  # the module exists; something it imports does not
+            raise PlannerKindError(f"{where}: importing {module_name} failed: {exc} (a module it imports; "
+                                   "install it)") from None
+        parent = sys.modules.get(missing.rpartition(".")[0])
+        if parent is not None:  # the package was found, its module was not
+            names = [f"{parent.__name__}.{m.name}" for m in pkgutil.iter_modules(getattr(parent, "__path__", []))]
+            close = get_close_matches(missing, names, n=1)
+            guess = f"; did you mean {close[0]}?" if close else f" (it has: {', '.join(names) or 'no modules'})"
+            raise PlannerKindError(f"{where}: package {parent.__name__} has no module {missing}{guess}") from None
+        cwd = os.getcwd()
+        if cwd not in sys.path and "" not in sys.path and _in_working_directory(module_name):
+            sys.path.insert(0, cwd)
+            importlib.invalidate_caches()
+            return _import_module(module_name, where)
+        raise PlannerKindError(
+            f"{where}: cannot import {module_name} ({exc}): run letspi in the directory that holds "
+            f"{missing.partition('.')[0]}, or add that directory with --planner-path DIR (Python: "
+            "planners(..., planner_path=DIR)), or install its package") from None
+    except Exception as exc:  # the user's module fails while it is imported: say where
+        line = ""
+        tb = exc.__traceback__
+        while tb is not None:
+            line = f" at {tb.tb_frame.f_code.co_filename}:{tb.tb_lineno}"
+            tb = tb.tb_next
+        if isinstance(exc, SyntaxError) and exc.filename:
+            line = f" at {exc.filename}:{exc.lineno}"
+        raise PlannerKindError(f"{where}: importing {module_name} raised {type(exc).__name__}: {exc}{line}") from exc
+
+
 def load_kind(target: str) -> PlannerKind[Any]:
     """The ``PlannerKind`` at ``target`` (``package.module:NAME``), checked (``PlannerKindError`` saying why
-    not); it joins ``planner_table()`` for the rest of the process."""
+    not); it joins ``planner_table()`` for the rest of the process. The module is searched on the Python
+    path and in the working directory (``_import_module``)."""
     if target in _BY_PATH:
         return _BY_PATH[target]
     module_name, _, attribute = target.partition(":")
     where = f"--planner {target}"
     if not module_name or not attribute:
         raise PlannerKindError(f"{where}: an import path is package.module:NAME")
-    try:
-        obj: object = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise PlannerKindError(f"{where}: cannot import {module_name} ({exc}); is its package installed?") from None
+    obj = _import_module(module_name, where)
     for part in attribute.split("."):
         if not hasattr(obj, part):
-            raise PlannerKindError(f"{where}: {module_name} has no {attribute!r}")
+            kinds = [n for n, v in vars(obj).items() if isinstance(v, PlannerKind)] if hasattr(obj, "__dict__") else []
+            close = get_close_matches(part, kinds, n=1)
+            guess = f"; did you mean {module_name}:{close[0]}?" if close else (
+                f" (its PlannerKinds: {', '.join(kinds)})" if kinds else "")
+            raise PlannerKindError(f"{where}: {module_name} has no {attribute!r}{guess}")
         obj = getattr(obj, part)
     table = planner_table()
     same = next((k for k in table.kinds if k is obj), None)  # an installed kind named by its path

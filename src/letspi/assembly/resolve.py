@@ -52,6 +52,7 @@ from letspi.planners.llm import (
 from letspi.planners.mlp import MLP_WEIGHTS, MLP_WEIGHTS_ENV
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.planners.sf_params import load_sf_params
+from letspi.suggest import unknown
 
 
 def sha256_files(paths: list[Path]) -> str:
@@ -103,7 +104,7 @@ def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str
     """The goal source ``source`` (``learned``: ``weights``, else ``$LETSPI_GOAL_WEIGHTS``, else the shipped ones,
     fingerprinted; without usable shipped weights ``kinematic``, saying why)."""
     if source not in GOAL_SOURCES:
-        raise ValueError(f"unknown goal source {source!r}; available: {', '.join(GOAL_SOURCES)}")
+        raise ValueError(unknown("goal source", source, GOAL_SOURCES))
     if source != "learned":
         return GoalsConfig(source=source)  # type: ignore[arg-type]
     env = os.environ if env is None else env
@@ -140,8 +141,8 @@ class Resolver:
         try:
             return NeighbourPredictionMode(mode)
         except ValueError:
-            valid = ", ".join(m.value for m in NeighbourPredictionMode)
-            raise ValueError(f"unknown neighbour prediction {mode!r}; available: {valid}") from None
+            modes = [m.value for m in NeighbourPredictionMode]
+            raise ValueError(unknown("neighbour prediction", mode, modes)) from None
 
     @functools.cached_property
     def goals(self) -> GoalsConfig:
@@ -194,7 +195,7 @@ class Resolver:
             trained = adapter_prompt_style(Path(adapter_path)) if adapter_path is not None else None
             style = (trained or "compact") if parsed.kind == "llamacpp" and is_fine_tuned(parsed.model) else "paper"
         if style not in PROMPT_STYLES:
-            raise ValueError(f"unknown prompt style {style!r}; available: {', '.join(PROMPT_STYLES)}")
+            raise ValueError(unknown("prompt style", style, PROMPT_STYLES))
         return LlmConfig(spec=str(parsed), backend=installed_origin(parsed.kind), model_sha256=model_sha,
                          model_path=model_path, adapter_sha256=adapter_sha, adapter_path=adapter_path, runtime=runtime,
                          prompt_style=style,  # type: ignore[arg-type]

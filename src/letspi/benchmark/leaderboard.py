@@ -94,10 +94,13 @@ def mode_board(eval_dir: Path, planners: Sequence[str], groups_of: Mapping[str, 
 
 
 def leaderboard(suite: Suite, boards: Mapping[str, dict[str, Any]], dataset_digest: str,
-                file_digests: Mapping[int, str] | None = None) -> dict[str, Any]:
-    """The whole leaderboard: the suite, the data it ran on, and one board per mode (slug -> board)."""
+                file_digests: Mapping[int, str] | None = None, limit: int | None = None) -> dict[str, Any]:
+    """The whole leaderboard: the suite, the data it ran on, and one board per mode (slug -> board);
+    ``limit``: a quick try on the first N windows of each mode (recorded: not the suite's result)."""
     out: dict[str, Any] = {"format": FORMAT, "suite": suite.suite_id, "definition": suite.definition(),
                            "scripted": suite.scripted, "dataset_digest": dataset_digest, "modes": dict(boards)}
+    if limit is not None:
+        out["limit"] = limit
     if file_digests:
         out["highd_files_seen"] = {f"{k:02d}": v for k, v in sorted(file_digests.items())}
     return out
@@ -148,8 +151,17 @@ def table_rows(board: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def limited_note(board: Mapping[str, Any]) -> str | None:
+    """The warning a quick try's leaderboard carries (None for a full run)."""
+    limit = board.get("limit")
+    return None if limit is None else (f"A quick try (--limit {limit}): the first {limit} windows of each mode, "
+                                       "not the suite's result; run without --limit for the leaderboard.")
+
+
 def to_markdown(board: Mapping[str, Any]) -> str:
-    lines = [f"# Leaderboard: {board['suite']}", "", board["definition"]["name"] + ": " + board["scripted"] + ".",
+    note = limited_note(board)
+    lines = [f"# Leaderboard: {board['suite']}", "", *([f"**{note}**", ""] if note else []),
+             board["definition"]["name"] + ": " + board["scripted"] + ".",
              f"Dataset digest `{board['dataset_digest']}`.", ""]
     for slug, mode in board["modes"].items():
         header, rows = table_rows(mode)
@@ -170,6 +182,9 @@ def to_html(board: Mapping[str, Any], reports: Mapping[str, str]) -> str:
              "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:first-child{text-align:left}</style>",
              f"</head><body><h1>Leaderboard: {html.escape(board['suite'])}</h1>",
              f"<p>{html.escape(board['scripted'])}. Dataset digest <code>{board['dataset_digest']}</code>.</p>"]
+    note = limited_note(board)
+    if note:
+        parts.append(f"<p><strong>{html.escape(note)}</strong></p>")
     for slug, mode in board["modes"].items():
         header, rows = table_rows(mode)
         link = f" (<a href='{html.escape(reports[slug])}'>report</a>)" if slug in reports else ""

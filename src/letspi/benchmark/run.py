@@ -1,5 +1,6 @@
 """Run a suite: its data (cached), every planner in each mode (a ``letspi evaluate`` directory per mode, resumed),
-``leaderboard.{json,md,html}`` and ``timing.json``."""
+``leaderboard.{json,md,html}`` and ``timing.json``. A quick try (``limit``: the first N windows of each mode)
+writes a leaderboard that says so, and the CLI puts it in a directory of its own, never the suite's."""
 
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import load_scenarios
 from letspi.simulation.config import ClosedLoopConfig
 from letspi.simulation.schedule import DualRateConfig
+from letspi.suggest import did_you_mean
 from letspi.viz.report import write_report
 
 
@@ -79,7 +81,8 @@ def selected_modes(suite: Suite, slugs: Sequence[str] | None) -> tuple[Mode, ...
     known = [m.slug for m in suite.modes]
     unknown = [s for s in slugs if s not in known]
     if unknown:
-        raise ValueError(f"{suite.name} has no mode {', '.join(unknown)} (its modes: {', '.join(known)})")
+        raise ValueError(f"{suite.name} has no mode {', '.join(unknown)}{did_you_mean(unknown[0], known)} (its modes: "
+                         f"{', '.join(known)})")
     return tuple(m for m in suite.modes if m.slug in slugs)
 
 
@@ -92,9 +95,13 @@ def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
 def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: PlannerOptions | None = None,
               highd_dir: Path | None = None, allow_other_files: bool = False, workers: int = 2,
               reports: bool = True, progress_factory: ProgressFactory | None = None,
-              log: Callable[[str], None] = print, modes: Sequence[str] | None = None) -> SuiteRun:
+              log: Callable[[str], None] = print, modes: Sequence[str] | None = None,
+              limit: int | None = None) -> SuiteRun:
     """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode (or in the modes
-    whose slugs ``modes`` names: the leaderboard then holds those), write the leaderboard."""
+    whose slugs ``modes`` names: the leaderboard then holds those), write the leaderboard. ``limit``: only
+    the first N windows of each mode (a quick try; the leaderboard records it)."""
+    if limit is not None and limit < 1:
+        raise ValueError(f"--limit must be at least 1, got {limit}")
     out = Path(out)
     run_modes = selected_modes(suite, modes)
     labels = [label for label, _ in planner_kinds(planner_args)]
@@ -117,6 +124,8 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             batch = full.take(np.sort(pick))
         else:
             batch = full
+        if limit is not None:
+            batch = batch.take(np.arange(min(limit, len(batch))))
         clock = _PlannerClock(progress_factory)
         if mode.mode == "open-loop":
             evaluate_open_loop(planners, batch, eval_dir, EvaluationSettings(
@@ -136,13 +145,13 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             write_report(eval_dir, with_diagrams=False, config=suite.metrics)
             report_links[mode.slug] = f"{mode.slug}/report.html"
             timing[f"{mode.slug}_report_s"] = time.perf_counter() - t0
-    board = leaderboard(suite, boards, dataset_digest(digests), data.file_digests)
+    board = leaderboard(suite, boards, dataset_digest(digests), data.file_digests, limit=limit)
     atomic_write_text(out / "leaderboard.json", to_json(board))
     atomic_write_text(out / "leaderboard.md", to_markdown(board))
     atomic_write_text(out / "leaderboard.html", to_html(board, report_links))
     timing["total_s"] = time.perf_counter() - started
     record = {"suite": suite.suite_id, "planners": labels, "data_reused": data.reused, "workers": workers,
-              "load_average_end": list(np.round(os.getloadavg(), 2)), **{k: round(v, 2) for k, v in timing.items()},
-              "planner_s": planner_s}
+              "limit": limit, "load_average_end": list(np.round(os.getloadavg(), 2)),
+              **{k: round(v, 2) for k, v in timing.items()}, "planner_s": planner_s}
     atomic_write_text(out / "timing.json", json.dumps(record, indent=2) + "\n")
     return SuiteRun(out=out, board=board, data=data, timing=timing, planner_s=planner_s)

@@ -14,6 +14,7 @@ from typing import Any, Final
 from letspi.constants import DEFAULT_STRIDE_FRAMES
 from letspi.metrics.config import MetricsConfig
 from letspi.scenario.provenance import SUITE_SEEDS
+from letspi.suggest import unknown
 from letspi.trafficgen.config import LAYOUTS, TrafficConfig, traffic_preset, with_overrides
 
 #: evaluation modes a suite may use (the harness' names)
@@ -231,7 +232,7 @@ def get_suite(name: str) -> Suite:
     bare = name.split("@", 1)[0]
     suite = SUITES.get(bare)
     if suite is None:
-        raise ValueError(f"unknown benchmark suite {name!r}; available: {', '.join(SUITES)}")
+        raise ValueError(unknown("benchmark suite", name, SUITES))
     if "@" in name and name != suite.suite_id:
         raise ValueError(f"{name} is not this letspi's {bare}: its definition is {suite.suite_id} "
                          "(another version or digest; results of the two are not comparable)")

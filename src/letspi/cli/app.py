@@ -1,25 +1,140 @@
-"""The ``letspi`` command line. Sub-commands live in sibling modules."""
+"""The ``letspi`` command line. Sub-commands live in sibling modules, imported when a command is run.
+
+``COMMANDS`` names every command, the module and attribute that define it and its one-line summary:
+``letspi --help`` prints the summaries without importing a command module (most of them load NumPy,
+Arrow, SciPy or plotting), and ``letspi CMD ...`` imports only CMD's module. Before a command's
+options are parsed, planner kinds it names by import path (``--planner pkg.mod:NAME``) are loaded, so
+that their options are flags of the command as an installed kind's are (``letspi.cli.startup``).
+"""
 
 from __future__ import annotations
 
+import importlib
 import os
-from typing import Annotated
+from collections.abc import Iterator, Mapping, MutableMapping
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperGroup
 
-from letspi.cli import analyze, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
-from letspi.cli.common import DEBUG_ENV
-from letspi.evaluation.results import letspi_version
+from letspi.cli.help import PanelledCommand, with_panels
+from letspi.cli.startup import DEBUG_ENV, preload_planner_kinds
 from letspi.execution import interrupt
 
 
-def _typer(help_text: str) -> typer.Typer:
-    # plain help (no rich markup): "[train]" in "pip install 'letspi[train]'" stays text
-    return typer.Typer(help=help_text, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
-                       rich_markup_mode=None)
+@dataclass(frozen=True)
+class CommandEntry:
+    """Where a command is defined (``module``: a ``letspi.cli`` module; ``attribute``: its function or its
+    ``typer.Typer`` of sub-commands) and its summary for ``letspi --help`` (one sentence, no period)."""
+
+    module: str
+    attribute: str
+    summary: str
 
 
-app = _typer("Safe highway trajectory planning with physics-informed LLMs (LetsPi).")
+#: every command of ``letspi``, in the order of ``letspi --help``
+COMMANDS: dict[str, CommandEntry] = {
+    "demo": CommandEntry("demo", "demo", "The main job on generated traffic and the embedded model"),
+    "evaluate": CommandEntry("evaluate", "evaluate", "Evaluate planners on scenarios (open or closed loop)"),
+    "planners": CommandEntry("planners", "planners", "List the planner kinds --planner accepts, with their flags"),
+    "collect": CommandEntry("phases", "collect", "LetsPi's memory collection: prompt, reflection, stored experiences"),
+    "plan": CommandEntry("phases", "plan", "Plan one scenario and show parameters, goal, trajectory and metrics"),
+    "ablate": CommandEntry("phases", "ablate", "Run one of the paper's ablations and print its table"),
+    "prompt": CommandEntry("phases", "prompt", "Print the rendered prompt for one scenario (calls no model)"),
+    "plot": CommandEntry("viz", "plot", "Draw one scenario: trajectories, time-space diagram, reflections"),
+    "report": CommandEntry("viz", "report", "Write a self-contained HTML report of a results directory"),
+    "compare": CommandEntry("viz", "compare", "Compare two results directories on the windows both hold"),
+    "data": CommandEntry("data", "app", "HighD data: generate with SUMO, extract scenarios, inspect"),
+    "analyze": CommandEntry("analyze", "app", "Analyse what the data allows a planner to gain"),
+    "benchmark": CommandEntry("benchmark", "app", "Versioned benchmark suites: list, show, run, summary, power"),
+    "fit": CommandEntry("fit", "app", "Fit baseline parameters offline"),
+    "export": CommandEntry("export", "app", "Export scenarios and plans to other tools' formats"),
+    "train": CommandEntry("train", "app", "Train the learned models (pip install 'letspi[train]')"),
+    "llm": CommandEntry("llm", "app", "LLM backends: check a spec, list embedded models, benchmark"),
+}
+
+
+# click objects are typed Any here: typer builds them from its own copy of click (typer._click)
+def load_command(name: str) -> Any:
+    """The click command ``name`` of ``COMMANDS`` (its module is imported here), with grouped option help."""
+    entry = COMMANDS[name]
+    target: Any = getattr(importlib.import_module(f"letspi.cli.{entry.module}"), entry.attribute)
+    callbacks = [info.callback for info in target.registered_commands] if isinstance(target, typer.Typer) else [target]
+    for callback in callbacks:  # planner flags from the table as it is now (kinds loaded by import path join it)
+        refresh = getattr(callback, "refresh_planner_flags", None)
+        if refresh is not None:
+            refresh()
+    command: Any
+    if isinstance(target, typer.Typer):
+        command = typer.main.get_group(target)  # a group even with one sub-command (letspi export commonroad)
+    else:  # one command: a Typer holding only it is that command
+        holder = typer.Typer(add_completion=False, pretty_exceptions_enable=False, rich_markup_mode=None)
+        holder.command(name, cls=PanelledCommand)(target)
+        command = typer.main.get_command(holder)
+    command.name = name
+    return with_panels(command)
+
+
+class LazyCommands(MutableMapping[str, Any]):
+    """The top-level commands by name: all of ``COMMANDS`` are listed, each is imported when looked up."""
+
+    def __init__(self, loaded: Mapping[str, Any]) -> None:
+        self._loaded = dict(loaded)
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._loaded:
+            if name not in COMMANDS:
+                raise KeyError(name)
+            self._loaded[name] = load_command(name)
+        return self._loaded[name]
+
+    def __setitem__(self, name: str, command: Any) -> None:
+        self._loaded[name] = command
+
+    def __delitem__(self, name: str) -> None:
+        del self._loaded[name]
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._loaded
+        yield from (name for name in COMMANDS if name not in self._loaded)
+
+    def __len__(self) -> int:
+        return len(self._loaded.keys() | COMMANDS.keys())
+
+
+class LazyGroup(TyperGroup):
+    """The top-level group: a command's module is imported when it runs (or its help is asked), never for
+    ``letspi --help``; kinds named by import path are loaded before the command's options are parsed."""
+
+    def __init__(self, **attrs: Any) -> None:
+        super().__init__(**attrs)
+        self.commands = LazyCommands(self.commands)
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return list(self.commands)
+
+    def format_commands(self, ctx: Any, formatter: Any) -> None:
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, entry.summary) for name, entry in COMMANDS.items()])
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> tuple[str | None, Any, list[str]]:
+        if args and args[0] in COMMANDS:
+            preload_planner_kinds(args[1:])
+        return super().resolve_command(ctx, args)
+
+
+app = typer.Typer(cls=LazyGroup, help="Safe highway trajectory planning with physics-informed LLMs (LetsPi).",
+                  no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False, rich_markup_mode=None)
+
+
+def letspi_version() -> str:
+    """The installed distribution's version ("unknown" in a source tree that is not installed)."""
+    try:
+        return version("letspi")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
 
 
 def _version(value: bool) -> None:
@@ -38,25 +153,6 @@ def main_options(
     """Safe highway trajectory planning with physics-informed LLMs (LetsPi)."""
     if debug:
         os.environ[DEBUG_ENV] = "1"
-
-
-app.add_typer(data.app, name="data")
-app.add_typer(analyze.app, name="analyze")
-app.add_typer(benchmark.app, name="benchmark")
-app.add_typer(fit.app, name="fit")
-app.add_typer(export.app, name="export")
-app.add_typer(train.app, name="train")
-app.add_typer(llm.app, name="llm")
-app.command("demo")(demo.demo)
-app.command("evaluate")(evaluate.evaluate)
-app.command("planners")(planners.planners)
-app.command("collect")(phases.collect)
-app.command("plan")(phases.plan)
-app.command("ablate")(phases.ablate)
-app.command("prompt")(phases.prompt)
-app.command("plot")(viz.plot)
-app.command("report")(viz.report)
-app.command("compare")(viz.compare)
 
 
 def main() -> None:

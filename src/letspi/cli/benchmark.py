@@ -89,18 +89,21 @@ def run(
     mode: Annotated[list[str] | None, typer.Option(
         "--mode", help="Only this mode of the suite (its slug, e.g. open-loop or closed-loop-log-0.2s; "
                        "repeatable; default: all): the leaderboard then holds these modes.")] = None,
+    limit: Annotated[int | None, typer.Option(
+        min=1, help="A quick try: only the first N windows of each mode, in a directory of its own (default: "
+                    "benchmark/SUITE-ID-first-N); its leaderboard says it is not the suite's result.")] = None,
 ) -> None:
     """Run a suite and write its leaderboard. Generates the suite's data (cached), evaluates the planners
     in its modes and writes leaderboard.json / .md / .html with 95 % intervals and paired deltas against sf."""
     with user_errors(resumes=True):  # the data is cached, each mode's evaluation resumes
         s = get_suite(suite)
         planners = planner or default_planners()
-        target = out or Path("benchmark") / s.suite_id
+        target = out or Path("benchmark") / (s.suite_id if limit is None else f"{s.suite_id}-first-{limit}")
         with writer_lock(target, command_line()), progress_bar() as bar:
             result = run_suite(s, planners, target, options=options, highd_dir=highd,
                                allow_other_files=allow_other_files, workers=workers, reports=reports,
                                progress_factory=progress_factory(bar), log=bar.console.print,
-                               modes=mode)
+                               modes=mode, limit=limit)
     typer.echo(to_markdown(result.board))
     t = result.timing
     for slug, seconds in result.planner_s.items():

@@ -1,6 +1,6 @@
 """Shared CLI helpers: progress bars and the one error path of every command (``user_errors``): one or two lines
-naming the file, field or address (``--debug``: the traceback); exit 2 bad input or setup, 1 a bug, 130 interrupted
-(143 after SIGTERM)."""
+naming the file, field or address (``--debug``: the traceback); exit 2 bad input or setup (an error in a planner
+of one's own: ``PlannerError`` names it with its file and line), 1 a bug, 130 interrupted (143 after SIGTERM)."""
 
 from __future__ import annotations
 
@@ -32,14 +32,16 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from letspi.assembly.checked import PlannerError
+from letspi.cli.startup import DEBUG_ENV, debug_enabled
 from letspi.execution import interrupt
 from letspi.execution.ordered import RunStats, RunStatus
 from letspi.fsutil import OutputLockedError, provenance_command
 from letspi.highd.errors import HighDFormatError
 from letspi.llm.types import BackendUnavailableError, LLMConfigError, LLMError, ModelNotFoundError
+from letspi.simulation.config import EvaluationMode
 
 console = Console(stderr=True)
-DEBUG_ENV = "LETSPI_DEBUG"
 
 
 def command_line() -> str:
@@ -48,13 +50,17 @@ def command_line() -> str:
     return provenance_command("letspi", sys.argv[1:])
 
 
-def debug_enabled() -> bool:
-    return os.environ.get(DEBUG_ENV, "") not in ("", "0")
+CONCURRENCY_HELP = ("Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 "
+                    "for ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")
+ConcurrencyOpt = Annotated[int | None, typer.Option(help=CONCURRENCY_HELP)]
 
 
-ConcurrencyOpt = Annotated[int | None, typer.Option(
-    help="Scenarios in flight at once for LLM planners and memory collection (default: 1 for llamacpp:, 8 for "
-         "ollama:/openai:; match the server's parallel slots). Never changes results, only their speed.")]
+def evaluation_mode(text: str | EvaluationMode) -> EvaluationMode:
+    """``--mode``: an ``EvaluationMode`` by its value (a mistyped one names the closest)."""
+    try:
+        return EvaluationMode(text)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
 
 
 def _duration(seconds: float) -> str:
@@ -219,6 +225,8 @@ _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR,
 def _classify(exc: Exception) -> typer.Exit:
     if isinstance(exc, OutputLockedError):  # one line naming the holder; nothing to add
         return _fail(str(exc), None, 2)
+    if isinstance(exc, PlannerError):  # the planner's own code: named, with its file and line
+        return _fail(str(exc), exc.hint or None, 2)
     if isinstance(exc, BackendUnavailableError):
         return _fail(str(exc), "The run stopped instead of falling back on every scenario; start the server "
                      "(or fix the address) and rerun the same command to resume.", 2)

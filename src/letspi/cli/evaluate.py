@@ -12,10 +12,11 @@ from rich.progress import Progress
 from letspi.assembly.planner_table import planner_table
 from letspi.assembly.planners import BuiltPlanner, build_planners, planner_kinds
 from letspi.cli.common import (
-    ConcurrencyOpt,
+    CONCURRENCY_HELP,
     LineProgress,
     command_line,
     console,
+    evaluation_mode,
     print_run,
     progress_bar,
     run_progress,
@@ -31,17 +32,20 @@ from letspi.evaluation.closed_loop import (
 )
 from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
-from letspi.evaluation.results import ProgressCallback, read_summary, stored_rows
+from letspi.evaluation.results import ProgressCallback, done_digests, planner_dir_name, read_summary, stored_rows
 from letspi.evaluation.summary import summary_markdown
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue
-from letspi.planners.options import PlannerOptions
+from letspi.planners.options import LLM_PANEL, PLANNERS_PANEL, PlannerOptions
+from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode, HandoverConfig
 from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
 
-PlannerOpt = Annotated[list[str], typer.Option(help=planner_table().planner_help())]
+DATA, PLANNERS, LLM, CLOSED_LOOP, OUTPUT = "Data", PLANNERS_PANEL, LLM_PANEL, "Closed loop", "Output"
+PlannerOpt = Annotated[list[str], typer.Option(help=planner_table().planner_help(), metavar="KIND",
+                                               rich_help_panel=PLANNERS)]
 
 
 def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
@@ -51,57 +55,66 @@ def load_limited(scenarios: Path, limit: int | None) -> ScenarioBatch:
 
 
 ModeOpt = Annotated[EvaluationMode, typer.Option(
+    parser=evaluation_mode, metavar="MODE",
     help="open-loop (the paper's protocol: one plan at t = 0, neighbours replay the log), closed-loop-log (the "
          "ego follows its plan in SUMO and replans every --replan-s; neighbours replay the log), "
          "closed-loop-reactive (every neighbour is driven by SUMO's IDM from t = 0 and reacts to the ego; the "
          "recorded hard brakes and cut-ins are lost) or closed-loop-hybrid (neighbours replay the log while "
          "ahead of the ego and are handed to SUMO's IDM, capped at their recorded speed, once behind it in a lane "
-         "its box covers; actors of scripted events, see --events, replay the log throughout).")]
+         "its box covers; actors of scripted events, see --events, replay the log throughout).",
+    rich_help_panel=CLOSED_LOOP)]
 EventsOpt = Annotated[str | None, typer.Option(
     "--events", help="closed-loop-hybrid: HighD directory with the NN_events.csv of the scenarios' recordings "
                      "(their actors keep the log), or 'none'. Default: the directory the scenario file was cut "
-                     "from (its provenance), if it still exists.")]
+                     "from (its provenance), if it still exists.", rich_help_panel=CLOSED_LOOP)]
 ReplanOpt = Annotated[list[str] | None, typer.Option(
     "--replan-s", help="Closed loop: replanning period [s] of every planner (S, default 1.0; 5 plans once) or of "
                        "one planner (LABEL=S); repeatable. LLM planners replan their physics at this period and ask "
-                       "their model every --llm-period-s.")]
+                       "their model every --llm-period-s.", rich_help_panel=CLOSED_LOOP)]
 WorkersOpt = Annotated[int, typer.Option(
-    help="Closed loop: worker processes (one SUMO each; 0 = this process). With --ray: Ray actors.")]
+    help="Closed loop: worker processes (one SUMO each; 0 = this process). With --ray: Ray actors.",
+    rich_help_panel=CLOSED_LOOP)]
 RayOpt = Annotated[bool, typer.Option(
     "--ray", help="Closed loop: run the --workers on Ray actors (pip install 'letspi[ray]'); a local Ray instance "
-                  "unless --ray-address is given.")]
+                  "unless --ray-address is given.", rich_help_panel=CLOSED_LOOP)]
 RayAddressOpt = Annotated[str | None, typer.Option(
-    help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.")]
+    help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.",
+    rich_help_panel=CLOSED_LOOP)]
 ChunkSizeOpt = Annotated[int | None, typer.Option(
     help="Closed loop: scenarios simulated together (in one SUMO network or replay) and written per part (not in "
          "any key: results agree to float rounding; smaller chunks lose less when a run is killed). Default: 32 "
-         "with SUMO, 256 for the replay.")]
+         "with SUMO, 256 for the replay.", rich_help_panel=CLOSED_LOOP)]
 SumoGuiOpt = Annotated[bool, typer.Option(
-    "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).")]
+    "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).",
+    rich_help_panel=CLOSED_LOOP)]
 SimulatorOpt = Annotated[str, typer.Option(
     "--simulator", help="Closed loop: auto (replay in closed-loop-log, else SUMO), replay (closed-loop-log in "
                         "NumPy: the neighbours only replay their log; the same trajectories and metrics as SUMO, "
-                        "without SUMO's own collision flag, several times faster) or sumo.")]
+                        "without SUMO's own collision flag, several times faster) or sumo.",
+    rich_help_panel=CLOSED_LOOP)]
 LlmPeriodOpt = Annotated[float | None, typer.Option(
     "--llm-period-s", help="Closed loop, LLM planners (dual rate): ask the model at t = 0 and then every this many "
                            f"seconds (default {DEFAULT_LLM_PERIOD_S:g}: two calls per 5 s scenario; 5: at t = 0 only); "
                            "meanwhile the physics and the shield replan every --replan-s with the answer in force. "
-                           "In the LLM planners' keys.")]
+                           "In the LLM planners' keys.", rich_help_panel=CLOSED_LOOP)]
 LlmLatencyOpt = Annotated[float | None, typer.Option(
     "--llm-latency-s", help="Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after "
                             "its call: reproducible, in the key. Default: the measured latency (the model runs beside "
-                            "the simulation, which waits for the wall clock while an answer is out).")]
+                            "the simulation, which waits for the wall clock while an answer is out).",
+    rich_help_panel=CLOSED_LOOP)]
 HandoverLanesOpt = Annotated[int | None, typer.Option(
     help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
-         "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
+         "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).",
+    rich_help_panel=CLOSED_LOOP)]
 
 
 ReferenceOpt = Annotated[str | None, typer.Option(
     help="Planner label every other planner of the directory is compared with, on the same windows (metrics.json "
          "\"paired\", metrics.md): differences with 95 % intervals, windows only one of them fails, exact McNemar "
-         "p. Default: sf when the directory has it, else the first --planner.")]
+         "p. Default: sf when the directory has it, else the first --planner.", rich_help_panel=OUTPUT)]
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
-                                                "configuration or planner configuration is refused).")]
+                                                "configuration or planner configuration is refused).",
+    rich_help_panel=OUTPUT)]
 def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, labels: list[str], workers: int,
                          ray: str | None, sumo_gui: bool, chunk_size: int | None = ClosedLoopConfig.chunk_size,
                          concurrency: int | None = None,
@@ -159,6 +172,20 @@ def scripted_neighbours_of(mode: EvaluationMode, events: str | None, scenarios: 
     return scripted_for(batch, events_directory(scenarios), required=False)
 
 
+def reused_windows(out: Path, labels: list[str], batch: ScenarioBatch) -> dict[str, int]:
+    """Windows of ``batch`` each planner label already has stored in ``out`` (what a rerun reuses)."""
+    if not (out / "per_scenario").is_dir():
+        return {}
+    digests = {str(d) for d in scenario_digests(batch)}
+    return {label: len(digests & done_digests(out / "per_scenario" / planner_dir_name(label))) for label in labels}
+
+
+def reuse_line(reused: dict[str, int], n_windows: int) -> str | None:
+    """``resumed: sf 180 of 200 windows already stored, ...`` (None when nothing was reused)."""
+    parts = [f"{label} {n} of {n_windows}" for label, n in reused.items() if n]
+    return f"resumed: {', '.join(parts)} windows already stored (not planned again)" if parts else None
+
+
 def progress_factory(bar: Progress | LineProgress) -> ProgressFactory:
     def factory(name: str, total: int) -> ProgressCallback:
         return run_progress(bar, bar.add_task(name, total=total))
@@ -182,12 +209,13 @@ def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path,
 
 @planner_options()
 def evaluate(
-    scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).")],
+    scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).",
+    rich_help_panel=DATA)],
     planner: PlannerOpt,
     out: OutDirOpt,
     options: PlannerOptions,
-    limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.")] = None,
-    concurrency: ConcurrencyOpt = None,
+    limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.", rich_help_panel=DATA)] = None,
+    concurrency: Annotated[int | None, typer.Option(help=CONCURRENCY_HELP, rich_help_panel=LLM)] = None,
     mode: ModeOpt = EvaluationMode.OPEN_LOOP,
     replan_s: ReplanOpt = None,
     workers: WorkersOpt = ClosedLoopConfig.workers,
@@ -215,7 +243,11 @@ def evaluate(
         if scripted is not None:
             console.print(scripted.describe())
         planners = build_planners(planner, options)
+        reused = reused_windows(out, labels, batch)
         _run_planners(planners, batch, out, closed, scenarios, scripted, concurrency, reference)
+    resumed = reuse_line(reused, len(batch))
+    if resumed:
+        console.print(resumed, highlight=False)
     if closed is not None:
         typer.echo(closed_loop_line(closed, planners) + "\n")
     typer.echo(summary_markdown(read_summary(out), [p.name for p in planners]))

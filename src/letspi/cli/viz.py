@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from letspi.assembly.planners import build_planners
-from letspi.cli.common import console, user_errors
+from letspi.cli.common import console, evaluation_mode, user_errors
 from letspi.cli.options import planner_options
 from letspi.evaluation.closed_loop import events_directory, scripted_for
 from letspi.evaluation.results import planner_dir_name
@@ -34,6 +34,7 @@ def plot(
     iterations: Annotated[Path | None, typer.Option(
         help="JSON list of reflection iterations (IterationRecord fields) to show as text panels.")] = None,
     mode: Annotated[EvaluationMode, typer.Option(
+        parser=evaluation_mode, metavar="MODE",
         help="open-loop (default: the diagrams above) or closed-loop-log / -reactive / -hybrid (actors of "
              "scripted events from the scenario file's source directory, if it exists): simulate the "
              "scenario in SUMO and draw the closed-loop panel (open-loop plan above, every replan and the "

@@ -22,6 +22,7 @@ from letspi.metrics.aggregate import AggValue
 from letspi.planners.llm import LLM_CACHE, MEMORY, MEMORY_KEY, MEMORY_SEED
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.types import ScenarioBatch
+from letspi.suggest import unknown
 
 ABLATION_KINDS: tuple[str, ...] = ("reflection", "goal-adjustment", "few-shot", "memory-size", "llm-combinations")
 MEMORY_FRACTIONS: tuple[float, ...] = (0.0, 0.01, 0.1, 0.5, 0.8)
@@ -45,7 +46,7 @@ def run_ablation(
     """Run one ablation preset; returns ``{row name: aggregated metrics}``. ``concurrency``: scenarios in
     flight for the LLM planners and the collection (None: each backend's default)."""
     if kind not in ABLATION_KINDS:
-        raise ValueError(f"unknown ablation {kind!r}; available: {', '.join(ABLATION_KINDS)}")
+        raise ValueError(unknown("ablation", kind, ABLATION_KINDS))
     builder = builder or Builder(cache="default" if options.get(LLM_CACHE) else None)
     abl_root = Path(out_dir) / "ablations"
     target = abl_root / kind

@@ -141,10 +141,13 @@ def check_planner_config(planner_dir: Path, built: BuiltPlanner, evaluation: dic
         old = json.loads(marker.read_text())
         if old.get("key") != record["key"]:
             changes = diff(old.get("identity") or {}, record["identity"])
+            version = record["identity"].get("version")  # a label for the new one: by its version, else its key
+            bumped = version is not None and (old.get("identity") or {}).get("version") != version
+            label = f"{built.name}-" + (f"v{version}" if bumped else str(record["key"])[:6])
             raise EvaluationDirError(
                 f"{planner_dir} holds results of {built.name!r} with another configuration "
                 f"(key {old.get('key')} vs {record['key']}: {'; '.join(changes) or 'older letspi format'}); "
-                f"use another --out, or give this configuration its own label (--planner LABEL={built.config.kind})")
+                f"use another --out, or give this configuration its own label ({built.relabel(label)})")
         return False
     return True
 

@@ -217,7 +217,7 @@ def outputs_reference_markdown() -> str:
     """Markdown reference of the planners' declared outputs (built-in kinds) and the closed loop's columns."""
     kinds_of: dict[str, list[str]] = {}
     for kind in BUILT_IN.kinds:
-        for o in kind.outputs:
+        for o in kind.outputs or ():
             kinds_of.setdefault(o.name, []).append(kind.name)
     lines = ["Planner outputs (``PlannerKind.outputs``, ``letspi.planners.outputs``): what each planner reports per "
              "scenario beside its plan, stored as `info_<name>` (a (B, K) output as `info_<name>_0` ...), with the "

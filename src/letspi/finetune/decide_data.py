@@ -19,7 +19,7 @@ import pandas as pd
 
 from letspi.finetune.gate_train import fit_trees
 from letspi.finetune.options import OptionOutcomes
-from letspi.learned.logistic import roc_auc
+from letspi.learned.logistic_fit import roc_auc
 from letspi.learned.trees import TreeEnsemble
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.method.decide import DEFAULT_NAME, GATE_FEATURE_NAMES, OptionTable, defaults_vector

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-import matplotlib.image as plt_image
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
+from PIL import Image
 
 from letspi.fsutil import atomic_write
 from letspi.highd.errors import HighDFormatError
@@ -482,4 +482,5 @@ def write_highway_image(directory: Path, recording_id: int, upper_markings_y_m: 
         for y_m in markings:
             image[min(height_px - 1, int(y_m / HIGHWAY_IMAGE_M_PER_PX))] = (1.0, 1.0, 1.0)
     path = Path(directory) / highway_image_file(recording_id)
-    return atomic_write(path, lambda tmp: plt_image.imsave(tmp, image, format="png"))
+    pixels = Image.fromarray(np.round(image * 255).astype(np.uint8))  # (H, W, 3) uint8: RGB
+    return atomic_write(path, lambda tmp: pixels.save(tmp, format="png"))

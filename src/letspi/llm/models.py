@@ -26,6 +26,7 @@ from typing import Final
 
 from letspi.llm.cache import default_cache_dir
 from letspi.llm.types import MissingDependencyError, ModelNotFoundError
+from letspi.suggest import unknown
 
 
 @dataclass(frozen=True)
@@ -265,6 +266,4 @@ def locate_model(name_or_path: str) -> Path:
         if not path.is_file():
             raise ModelNotFoundError(f"GGUF model file not found: {path}")
         return path
-    raise ModelNotFoundError(
-        f"unknown embedded model {name_or_path!r}; known: {', '.join(EMBEDDED_MODELS)} (or give a path to a .gguf file)"
-    )
+    raise ModelNotFoundError(unknown("embedded model", name_or_path, EMBEDDED_MODELS) + " or a path to a .gguf file")

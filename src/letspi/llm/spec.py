@@ -21,6 +21,7 @@ from letspi.llm.backends.openai_compat import OpenAICompatBackend
 from letspi.llm.backends.scripted import ScriptedBackend, default_reply_text
 from letspi.llm.models import locate_model
 from letspi.llm.types import LLMBackend, LLMError, UnknownBackendError
+from letspi.suggest import unknown
 
 #: the entry-point group through which installed packages add backend kinds
 ENTRY_POINT_GROUP: Final = "letspi.llm_backends"
@@ -203,7 +204,7 @@ def backend_kind(prefix: str, spec: str | None = None) -> BackendKind:
         return installed.kinds[prefix]
     if prefix in installed.problems:
         raise BackendKindError(installed.problems[prefix])
-    raise _bad(spec or f"{prefix}:", f"unknown backend {prefix!r} (known: {', '.join(_loaded())})")
+    raise _bad(spec or f"{prefix}:", unknown("backend", prefix, _loaded()))
 
 
 def parse_spec(spec: str) -> BackendSpec:

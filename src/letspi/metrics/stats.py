@@ -1,11 +1,12 @@
 """Uncertainty of evaluation figures: Wilson intervals, exact McNemar tests, vehicle (cluster) bootstrap.
 
 Windows of one ego vehicle overlap and share its traffic, so they are not independent: rates get Wilson
-intervals at the effective sample size n / ``design_effect`` (Korn & Graubard 1998), means a percentile bootstrap
-over whole groups (``letspi.scenario.split.vehicle_keys``), non-finite values left out of the mean but their
-groups still resampled. Paired comparisons on the same windows: ``paired_rate`` (exact McNemar) and
-``paired_mean``. Resamples come from ``numpy.random.default_rng(seed)`` over the sorted groups and interval ends
-are rounded to ``SIGNIFICANT_DIGITS``, so results are byte-identical across runs and BLAS builds.
+intervals (closed form, as scipy's ``binomtest(...).proportion_ci(method="wilson")``) at the effective sample
+size n / ``design_effect`` (Korn & Graubard 1998), means a percentile bootstrap over whole groups
+(``letspi.scenario.split.vehicle_keys``), non-finite values left out of the mean but their groups still
+resampled. Paired comparisons on the same windows: ``paired_rate`` (exact McNemar) and ``paired_mean``.
+Resamples come from ``numpy.random.default_rng(seed)`` over the sorted groups and interval ends are rounded to
+``SIGNIFICANT_DIGITS``, so results are byte-identical across runs and BLAS builds.
 """
 
 from __future__ import annotations
@@ -13,10 +14,10 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Any, Final
 
 import numpy as np
-from scipy.stats import binomtest, norm
 
 LEVEL: Final = 0.95
 N_RESAMPLES: Final = 2000
@@ -51,17 +52,16 @@ def wilson_interval(k: int, n: int, level: float = LEVEL) -> Interval:
         raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
     if n == 0:
         return NAN_INTERVAL
-    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
-    return rounded(float(ci.low)), rounded(float(ci.high))
+    return wilson_ends(k / n, n, level)
 
 
 def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
     """Wilson score interval of a proportion ``p_hat`` observed in ``n`` (possibly effective, non-integer)
-    trials: the closed form that ``wilson_interval`` gets from scipy for integer counts."""
+    trials, in closed form."""
     _check_level(level)
     if n <= 0:
         return NAN_INTERVAL
-    z = float(norm.ppf(0.5 + level / 2))
+    z = NormalDist().inv_cdf(0.5 + level / 2)
     shrink = 1.0 + z * z / n
     centre = (p_hat + z * z / (2 * n)) / shrink
     half = z / shrink * math.sqrt(max(p_hat * (1.0 - p_hat), 0.0) / n + z * z / (4 * n * n))
@@ -105,9 +105,19 @@ def mcnemar_exact(n_only_a: int, n_only_b: int) -> float:
     b, c = int(n_only_a), int(n_only_b)
     if b < 0 or c < 0:
         raise ValueError(f"discordant counts must be >= 0, got {b}, {c}")
-    if b + c == 0:
+    if b == c:  # includes no discordant pairs
         return 1.0
-    return float(binomtest(b, b + c, 0.5).pvalue)
+    return min(1.0, 2.0 * binomial_half_cdf(min(b, c), b + c))
+
+
+def binomial_half_cdf(m: int, n: int) -> float:
+    """P(X <= m) for X ~ Binomial(n, 1/2), exactly: the sum of C(n, i) over i <= m in integers, divided
+    by 2^n once (correctly rounded)."""
+    term = total = 1
+    for i in range(m):
+        term = term * (n - i) // (i + 1)
+        total += term
+    return total / 2**n
 
 
 # ------------------------------------------------------------------------------------------------

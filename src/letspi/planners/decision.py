@@ -11,7 +11,7 @@ import numpy as np
 
 from letspi.metrics.registry import Agg, Metric
 from letspi.planners.base import PlanningContext
-from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.options import DECISION_PANEL, PlannerOption, file_option
 from letspi.planners.outputs import output
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.types import ScenarioBatch
@@ -35,20 +35,22 @@ DECISION_COLUMNS: tuple[str, ...] = tuple(o.name for o in DECISION_OUTPUTS)
 DECIDE = PlannerOption[bool | None](
     "decide", bool | None, None,
     "LetsPi's decision step: presets checked against the prediction and the adverse futures, a risk gate "
-    "(default: on for the choice prompt style and sf-check)")
-PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets")
+    "(default: on for the choice prompt style and sf-check)", panel=DECISION_PANEL)
+PRESETS = file_option("presets_file", "Presets of the decision step (default: the shipped ones)", flag="--presets",
+                      panel=DECISION_PANEL)
 ADVERSE = PlannerOption("adverse", bool, True, "Decision step: check plans against the adverse futures too "
-                        "(off: against the prediction only)")
+                        "(off: against the prediction only)", panel=DECISION_PANEL)
 GATE = PlannerOption("gate", bool, True, "Decision step: the risk gate of letspi-fast and sf-check (off: the model "
-                     "is asked on every scenario)")
+                     "is asked on every scenario)", panel=DECISION_PANEL)
 GATE_THRESHOLD = PlannerOption[float | None](
     "gate_threshold", float | None, None,
     "Decision step: the risk score above which the gate asks the model (default: the risk model's recommended "
-    "threshold)")
+    "threshold)", panel=DECISION_PANEL)
 RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk model (default: the shipped one)",
-                         flag="--risk-model")
+                         flag="--risk-model", panel=DECISION_PANEL)
 VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a model's choice that fails more checks "
-                       "than another preset is replaced by the rule's choice (off: the model's answer stands)")
+                       "than another preset is replaced by the rule's choice (off: the model's answer stands)",
+                       panel=DECISION_PANEL)
 DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY)
 
 

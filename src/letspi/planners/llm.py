@@ -53,7 +53,7 @@ from letspi.planners.decision import (
     adverse_failed_names,
     decision_info,
 )
-from letspi.planners.options import PlannerOption, file_option
+from letspi.planners.options import LLM_PANEL, PlannerOption, file_option
 from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS, output
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
@@ -65,39 +65,42 @@ DEFAULT_FAST_LLM = "llamacpp:smollm2-135m-letspi"
 # Options of the LLM planners and of memory collection ------------------------------------------------
 LLM = PlannerOption(
     "llm", str, DEFAULT_LLM, "Model of llm / letspi-memory and of memory collection (spec, e.g. "
-    "llamacpp:smollm2-135m, ollama:llama3.1:8b, openai:MODEL@http://host:port/v1)")
-FAST_LLM = PlannerOption("fast_llm", str, DEFAULT_FAST_LLM, "Model of letspi-fast / letspi-fs (a spec as for --llm)")
+    "llamacpp:smollm2-135m, ollama:llama3.1:8b, openai:MODEL@http://host:port/v1)", panel=LLM_PANEL)
+FAST_LLM = PlannerOption("fast_llm", str, DEFAULT_FAST_LLM, "Model of letspi-fast / letspi-fs (a spec as for --llm)",
+                         panel=LLM_PANEL)
 PROMPT_STYLE = PlannerOption[str | None](
     "prompt_style", str | None, None,
     "Prompt style of the LLM planners and memory collection (paper: the physics-informed prompt with few-shot "
     "memories; compact: eight numbers from a short prompt; choice: one of the decision step's checked presets); "
     "default: the style a fine-tuned embedded model was trained on (its manifest; the shipped one: choice), "
-    "else paper", choices=PROMPT_STYLES)
+    "else paper", choices=PROMPT_STYLES, panel=LLM_PANEL)
 LLM_CACHE = PlannerOption("llm_cache", bool, True, "Persistent LLM response cache (cached rows are excluded from "
-                          "the inference time)", flag="--cache")
+                          "the inference time)", flag="--cache", panel=LLM_PANEL)
 LLM_TIMEOUT = PlannerOption(
     "llm_timeout_s", float, RetryPolicy.timeout_s,
     "Time one LLM request may take (5 s to connect); a timeout is retried with backoff. Requests queued behind a "
-    "server's busy slots count against it", unit="s", flag="--request-timeout")
+    "server's busy slots count against it", unit="s", flag="--request-timeout", panel=LLM_PANEL)
 MAX_REFINEMENTS = PlannerOption("max_iterations", int, MAX_ITERATIONS,
-                                "Reflection refinements of letspi-memory and of memory collection (0: none)")
+                                "Reflection refinements of letspi-memory and of memory collection (0: none)",
+                                panel=LLM_PANEL)
 GOAL_ADJUSTMENT = PlannerOption("goal_adjustment", bool, True, "Let the LLM adjust goals (off: the 'w/o GA' "
-                                "ablation)")
-MEMORY = file_option("memory", "Memory bank (from `letspi collect`) of letspi-fast / letspi-fs")
+                                "ablation)", panel=LLM_PANEL)
+MEMORY = file_option("memory", "Memory bank (from `letspi collect`) of letspi-fast / letspi-fs", panel=LLM_PANEL)
 MEMORY_KEY = PlannerOption[str | None]("memory_key", str | None, None, "Only memories collected under this "
-                                       "configuration key (default: all in the bank)")
-TOP_K_OPTION = PlannerOption("top_k", int, TOP_K, "Memories retrieved per scenario by letspi-fast")
+                                       "configuration key (default: all in the bank)", panel=LLM_PANEL)
+TOP_K_OPTION = PlannerOption("top_k", int, TOP_K, "Memories retrieved per scenario by letspi-fast", panel=LLM_PANEL)
 ALLOW_SAME_VEHICLE = PlannerOption("allow_same_vehicle", bool, False, "Let retrieval return memories of the "
-                                   "query's own vehicle or overlapping windows (a leak)")
+                                   "query's own vehicle or overlapping windows (a leak)", panel=LLM_PANEL)
 MEMORY_FRACTION = PlannerOption[float | None](
     "memory_fraction", float | None, None,
-    "Memory-size ablation: retrieve from a reproducible subset of this fraction of the memories (default: all)")
-MEMORY_SEED = PlannerOption("memory_seed", int, 0, "Seed of the --memory-fraction subset")
+    "Memory-size ablation: retrieve from a reproducible subset of this fraction of the memories (default: all)",
+    panel=LLM_PANEL)
+MEMORY_SEED = PlannerOption("memory_seed", int, 0, "Seed of the --memory-fraction subset", panel=LLM_PANEL)
 SHIELD = PlannerOption(
     "shield", bool, True,
     "Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
     "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters; "
-    "--no-shield: the paper-faithful ablation")
+    "--no-shield: the paper-faithful ablation", panel=LLM_PANEL)
 #: what memory collection reads (``Resolver.memory_phase``)
 MEMORY_PHASE_OPTIONS: tuple[PlannerOption[Any], ...] = (
     LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MAX_REFINEMENTS, GOAL_ADJUSTMENT, DECIDE, PRESETS, ADVERSE, RISK_MODEL,

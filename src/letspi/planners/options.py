@@ -9,17 +9,24 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from difflib import get_close_matches
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
+
+#: the ``--help`` headings planner options are listed under (``PlannerOption.panel``)
+PLANNERS_PANEL = "Planners"
+DECISION_PANEL = "Decision step"
+LLM_PANEL = "LLM"
 
 
 @dataclass(frozen=True)
 class PlannerOption(Generic[T]):
     """One user setting of one or more planner kinds: ``name`` in ``PlannerOptions``, ``type`` as the CLI parses
     it, ``default`` (None: a fallback chosen where it is resolved), one-sentence ``help``, ``unit`` of a number,
-    ``flag`` when not ``--name-with-dashes`` (a bool gets ``--no-`` too), allowed ``choices`` of a text option."""
+    ``flag`` when not ``--name-with-dashes`` (a bool gets ``--no-`` too), allowed ``choices`` of a text option,
+    ``panel``: the ``--help`` heading it is listed under (``PLANNERS_PANEL``, ``DECISION_PANEL``, ``LLM_PANEL``)."""
 
     name: str
     type: Any
@@ -28,6 +35,7 @@ class PlannerOption(Generic[T]):
     unit: str = ""
     flag: str = ""
     choices: tuple[str, ...] = ()
+    panel: str = PLANNERS_PANEL
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
@@ -38,6 +46,12 @@ class PlannerOption(Generic[T]):
         """The flag on the command line (``--sf-params``)."""
         return self.flag or "--" + self.name.replace("_", "-")
 
+    @property
+    def keyword(self) -> str:
+        """The flag as a Python keyword (``--sf-params`` -> ``sf_params``): what ``letspi.api`` takes besides
+        the name."""
+        return self.cli_flag.removeprefix("--").replace("-", "_")
+
     def describe(self) -> str:
         """The help with its choices and unit."""
         text = self.help
@@ -46,9 +60,10 @@ class PlannerOption(Generic[T]):
         return f"{text} [{self.unit}]" if self.unit else text
 
 
-def file_option(name: str, help: str, *, flag: str = "") -> PlannerOption[Path | None]:
-    """A file or directory setting: a path, or None for its default (a shipped file, an environment variable)."""
-    return PlannerOption[Path | None](name, Path | None, None, help, flag=flag)
+def file_option(name: str, help: str, *, flag: str = "", panel: str = PLANNERS_PANEL) -> PlannerOption[Path | None]:
+    """A file or directory setting: a path, or None for its documented default (a shipped file, an
+    environment variable)."""
+    return PlannerOption[Path | None](name, Path | None, None, help, flag=flag, panel=panel)
 
 
 class PlannerOptions:
@@ -59,6 +74,27 @@ class PlannerOptions:
 
     def __init__(self, **values: Any) -> None:
         object.__setattr__(self, "_values", dict(values))
+
+    @classmethod
+    def from_keywords(cls, declared: Iterable[PlannerOption[Any]], **keywords: Any) -> PlannerOptions:
+        """Options given by the flags' words (``neighbours=``, ``sf_params=``, ``cache=``) or by their names
+        (``neighbour_mode=``): ``ValueError`` for a word no option in ``declared`` has (naming the closest)
+        or for one option given twice."""
+        options = tuple(declared)
+        by_word = {o.name: o for o in options} | {o.keyword: o for o in options}
+        values: dict[str, Any] = {}
+        given: dict[str, str] = {}
+        for word, value in keywords.items():
+            option = by_word.get(word)
+            if option is None:
+                close = get_close_matches(word, list(by_word), n=3)
+                guess = f"; did you mean {' or '.join(close)}?" if close else ""
+                raise ValueError(f"unknown planner option {word}={value!r}{guess} (the planner flags' words, "
+                                 "e.g. neighbours= for --neighbours; `letspi planners --json` lists them)")
+            if option.name in values:
+                raise ValueError(f"{given[option.name]}= and {word}= are one option ({option.cli_flag}); give it once")
+            values[option.name], given[option.name] = value, word
+        return cls(**values)
 
     def get(self, option: PlannerOption[T]) -> T:
         value: T = self._values.get(option.name, option.default)
@@ -72,7 +108,10 @@ class PlannerOptions:
         names = {option.name for option in declared}
         unknown = sorted(set(self._values) - names)
         if unknown:
-            raise ValueError(f"unknown planner option(s) {', '.join(unknown)}; available: {', '.join(sorted(names))}")
+            close = [m for u in unknown for m in get_close_matches(u, names, n=1)]
+            guess = f"; did you mean {' or '.join(close)}?" if close else ""
+            raise ValueError(f"unknown planner option(s) {', '.join(unknown)}{guess} (available: "
+                             f"{', '.join(sorted(names))})")
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("PlannerOptions is immutable; use replace()")

@@ -13,6 +13,7 @@ from typing import Final, Literal
 
 from letspi.constants import DT_S, N_FUTURE
 from letspi.simulation.schedule import DualRateConfig
+from letspi.suggest import unknown
 
 
 class EvaluationMode(StrEnum):
@@ -26,6 +27,10 @@ class EvaluationMode(StrEnum):
     @property
     def closed_loop(self) -> bool:
         return self is not EvaluationMode.OPEN_LOOP
+
+    @classmethod
+    def _missing_(cls, value: object) -> EvaluationMode:
+        raise ValueError(unknown("evaluation mode", value, [m.value for m in cls]))
 
     @property
     def has_drivers(self) -> bool:
@@ -141,7 +146,7 @@ class ClosedLoopConfig:
         except ValueError:
             mode = None
         if mode is None or not mode.closed_loop:
-            raise ValueError(f"unknown closed-loop mode {self.mode!r}; available: {', '.join(CLOSED_LOOP_MODES)}")
+            raise ValueError(unknown("closed-loop mode", self.mode, CLOSED_LOOP_MODES))
         object.__setattr__(self, "mode", mode)
         validate_replan_s(self.replan_s)
         for label, period in self.planner_replan_s.items():

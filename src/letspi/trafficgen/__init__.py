@@ -1,5 +1,3 @@
-"""HighD-format recordings of a two-direction highway simulated with SUMO; entry point ``generate_highd``."""
-
-from letspi.trafficgen.generate import default_flow_veh_per_h, generate_highd, simulate_recordings
-
-__all__ = ["default_flow_veh_per_h", "generate_highd", "simulate_recordings"]
+"""HighD-format recordings of a two-direction highway simulated with SUMO; entry point
+``letspi.trafficgen.generate.generate_highd``. Nothing is imported here: a module that needs only the SUMO
+binaries (``letspi.trafficgen.binaries``) does not load the generator."""

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Literal
 
+from letspi.suggest import unknown
+
 Layout = Literal["straight", "on_ramp", "lane_drop"]
 LAYOUTS: tuple[str, ...] = typing.get_args(Layout)
 PRESET_NAMES: tuple[str, ...] = ("calm", "highd", "stress", "realistic")
@@ -223,7 +225,7 @@ def traffic_preset(name: str) -> TrafficConfig:
     try:
         return _PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown criticality preset {name!r}; choose one of {', '.join(PRESET_NAMES)}") from None
+        raise ValueError(unknown("criticality preset", name, PRESET_NAMES)) from None
 
 
 def _parse_value(text: str, current: object, key: str) -> object:
@@ -265,7 +267,7 @@ def _replace_path(obj: object, path: list[str], text: str, key: str) -> typing.A
     assert dataclasses.is_dataclass(obj) and not isinstance(obj, type)
     names = [f.name for f in dataclasses.fields(obj)]
     if path[0] not in names:
-        raise ValueError(f"unknown traffic setting {key!r}; valid: {', '.join(setting_keys())}")
+        raise ValueError(unknown("traffic setting", key, setting_keys()))
     current = getattr(obj, path[0])
     if len(path) == 1:
         if dataclasses.is_dataclass(current):
