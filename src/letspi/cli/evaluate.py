@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -22,12 +22,11 @@ from letspi.cli.common import (
     run_progress,
     user_errors,
 )
-from letspi.cli.options import planner_options
+from letspi.cli.options import planner_options, setting_options
 from letspi.evaluation.closed_loop import (
     ScriptedNeighbours,
     evaluate_closed_loop,
     events_directory,
-    parse_replan_options,
     scripted_for,
 )
 from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
@@ -40,8 +39,8 @@ from letspi.planners.options import LLM_PANEL, PLANNERS_PANEL, PlannerOptions
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi.simulation.config import ClosedLoopConfig, EvaluationMode, HandoverConfig
-from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
+from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
+from letspi.simulation.settings import CLOSED_LOOP_OPTIONS, closed_loop_config
 
 DATA, PLANNERS, LLM, CLOSED_LOOP, OUTPUT = "Data", PLANNERS_PANEL, LLM_PANEL, "Closed loop", "Output"
 PlannerOpt = Annotated[list[str], typer.Option(help=planner_table().planner_help(), metavar="KIND",
@@ -67,45 +66,6 @@ EventsOpt = Annotated[str | None, typer.Option(
     "--events", help="closed-loop-hybrid: HighD directory with the NN_events.csv of the scenarios' recordings "
                      "(their actors keep the log), or 'none'. Default: the directory the scenario file was cut "
                      "from (its provenance), if it still exists.", rich_help_panel=CLOSED_LOOP)]
-ReplanOpt = Annotated[list[str] | None, typer.Option(
-    "--replan-s", help="Closed loop: replanning period [s] of every planner (S, default 1.0; 5 plans once) or of "
-                       "one planner (LABEL=S); repeatable. LLM planners replan their physics at this period and ask "
-                       "their model every --llm-period-s.", rich_help_panel=CLOSED_LOOP)]
-WorkersOpt = Annotated[int, typer.Option(
-    help="Closed loop: worker processes (one SUMO each; 0 = this process). With --ray: Ray actors.",
-    rich_help_panel=CLOSED_LOOP)]
-RayOpt = Annotated[bool, typer.Option(
-    "--ray", help="Closed loop: run the --workers on Ray actors (pip install 'letspi[ray]'); a local Ray instance "
-                  "unless --ray-address is given.", rich_help_panel=CLOSED_LOOP)]
-RayAddressOpt = Annotated[str | None, typer.Option(
-    help="Closed loop: join this Ray cluster (e.g. auto, ray://host:10001); implies --ray.",
-    rich_help_panel=CLOSED_LOOP)]
-ChunkSizeOpt = Annotated[int | None, typer.Option(
-    help="Closed loop: scenarios simulated together (in one SUMO network or replay) and written per part (not in "
-         "any key: results agree to float rounding; smaller chunks lose less when a run is killed). Default: 32 "
-         "with SUMO, 256 for the replay.", rich_help_panel=CLOSED_LOOP)]
-SumoGuiOpt = Annotated[bool, typer.Option(
-    "--sumo-gui", help="Closed loop: watch the simulation in sumo-gui over TraCI (needs SUMO's sumo-gui; slow).",
-    rich_help_panel=CLOSED_LOOP)]
-SimulatorOpt = Annotated[str, typer.Option(
-    "--simulator", help="Closed loop: auto (replay in closed-loop-log, else SUMO), replay (closed-loop-log in "
-                        "NumPy: the neighbours only replay their log; the same trajectories and metrics as SUMO, "
-                        "without SUMO's own collision flag, several times faster) or sumo.",
-    rich_help_panel=CLOSED_LOOP)]
-LlmPeriodOpt = Annotated[float | None, typer.Option(
-    "--llm-period-s", help="Closed loop, LLM planners (dual rate): ask the model at t = 0 and then every this many "
-                           f"seconds (default {DEFAULT_LLM_PERIOD_S:g}: two calls per 5 s scenario; 5: at t = 0 only); "
-                           "meanwhile the physics and the shield replan every --replan-s with the answer in force. "
-                           "In the LLM planners' keys.", rich_help_panel=CLOSED_LOOP)]
-LlmLatencyOpt = Annotated[float | None, typer.Option(
-    "--llm-latency-s", help="Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after "
-                            "its call: reproducible, in the key. Default: the measured latency (the model runs beside "
-                            "the simulation, which waits for the wall clock while an answer is out).",
-    rich_help_panel=CLOSED_LOOP)]
-HandoverLanesOpt = Annotated[int | None, typer.Option(
-    help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
-         "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).",
-    rich_help_panel=CLOSED_LOOP)]
 
 
 ReferenceOpt = Annotated[str | None, typer.Option(
@@ -115,36 +75,6 @@ ReferenceOpt = Annotated[str | None, typer.Option(
 OutDirOpt = Annotated[Path, typer.Option(help="Output directory (rerunning resumes; another dataset, metrics "
                                                 "configuration or planner configuration is refused).",
     rich_help_panel=OUTPUT)]
-def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, labels: list[str], workers: int,
-                         ray: str | None, sumo_gui: bool, chunk_size: int | None = ClosedLoopConfig.chunk_size,
-                         concurrency: int | None = None,
-                         handover_lanes: int | None = None, llm_period_s: float | None = None,
-                         llm_latency_s: float | None = None, simulator: str = "auto") -> ClosedLoopConfig | None:
-    """The closed-loop settings of the options (None in open loop, where they are refused); the
-    ``ClosedLoopConfig`` checks its values. ``ray``: None (no Ray), ``local`` or a cluster address."""
-    if not mode.closed_loop:
-        given = [name for name, on in (("--replan-s", bool(replan_s)), ("--workers", workers != 0),
-                                       ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
-                                       ("--llm-period-s", llm_period_s is not None),
-                                       ("--llm-latency-s", llm_latency_s is not None),
-                                       ("--simulator", simulator != "auto")) if on]
-        if given:
-            raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
-                             "closed-loop-reactive or closed-loop-hybrid)")
-        return None
-    if concurrency is not None:
-        raise ValueError("--concurrency applies to open loop; in closed loop scenarios run in parallel with --workers "
-                         "(one planner per worker: for LLM planners, about one per model-server slot)")
-    default, own = parse_replan_options(replan_s, labels)
-    if handover_lanes is not None and mode is not EvaluationMode.HYBRID:
-        raise ValueError(f"--handover-lanes applies to --mode closed-loop-hybrid only, not {mode}")
-    handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
-    dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s)
-    return ClosedLoopConfig(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
-                            sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate,
-                            simulator=simulator)  # type: ignore[arg-type]
-
-
 def closed_loop_line(closed: ClosedLoopConfig, planners: list[BuiltPlanner]) -> str:
     """The mode, each planner's replanning period and, with LLM planners, when they ask their model."""
     simulator = "SUMO" if closed.uses_sumo else "log replay"
@@ -208,35 +138,25 @@ def _run_planners(planners: list[BuiltPlanner], batch: ScenarioBatch, out: Path,
 
 
 @planner_options()
+@setting_options(CLOSED_LOOP_OPTIONS, "closed_loop")
 def evaluate(
     scenarios: Annotated[Path, typer.Option(help="Scenario file (from `letspi data scenarios`).",
     rich_help_panel=DATA)],
     planner: PlannerOpt,
     out: OutDirOpt,
     options: PlannerOptions,
+    closed_loop: dict[str, Any],
     limit: Annotated[int | None, typer.Option(help="Only the first N scenarios.", rich_help_panel=DATA)] = None,
     concurrency: Annotated[int | None, typer.Option(help=CONCURRENCY_HELP, rich_help_panel=LLM)] = None,
     mode: ModeOpt = EvaluationMode.OPEN_LOOP,
-    replan_s: ReplanOpt = None,
-    workers: WorkersOpt = ClosedLoopConfig.workers,
-    ray: RayOpt = False,
-    ray_address: RayAddressOpt = None,
-    sumo_gui: SumoGuiOpt = ClosedLoopConfig.sumo_gui,
-    simulator: SimulatorOpt = ClosedLoopConfig.simulator,
-    chunk_size: ChunkSizeOpt = ClosedLoopConfig.chunk_size,
     events: EventsOpt = None,
-    handover_lanes: HandoverLanesOpt = None,
-    llm_period_s: LlmPeriodOpt = None,
-    llm_latency_s: LlmLatencyOpt = None,
     reference: ReferenceOpt = None,
 ) -> None:
     """Evaluate planners on scenarios. Writes DIR/metrics.json, DIR/metrics.md and per-scenario Parquet
     parts with the plans (open loop, or closed loop with --mode)."""
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         labels = [label for label, _ in planner_kinds(planner)]
-        closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),
-                                      sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s,
-                                      simulator)
+        closed = closed_loop_config(mode, closed_loop, labels, concurrency)
         batch = load_limited(scenarios, limit)
         tally.track(len(labels) * len(batch), lambda: min(stored_rows(out, labels), len(labels) * len(batch)))
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)

@@ -81,3 +81,30 @@ def planner_options(*, kinds: Sequence[str] | None = None, declared: Sequence[Pl
         return run  # type: ignore[return-value]
 
     return decorate
+
+
+def setting_options(declared: Sequence[PlannerOption[Any]], param: str) -> Callable[[F], F]:
+    """Decorate a command that has a ``param: dict[str, Any]`` parameter: one flag per declared setting (name,
+    type, default, unit, help and panel from the declaration, e.g. ``letspi.simulation.settings``); the command
+    gets the values by setting name."""
+
+    def decorate(command: F) -> F:
+        signature = inspect.signature(command, eval_str=True)
+        if param not in signature.parameters:
+            raise TypeError(f"{command.__name__} needs a `{param}: dict[str, Any]` parameter")
+        own = [p for name, p in signature.parameters.items() if name != param]
+        clash = {p.name for p in own} & {o.name for o in declared}
+        if clash:
+            raise ValueError(f"{command.__name__}: parameter(s) {', '.join(sorted(clash))} are declared settings")
+
+        @functools.wraps(command)
+        def run(*args: Any, **kwargs: Any) -> Any:
+            values = {o.name: kwargs.pop(o.name) for o in declared if o.name in kwargs}
+            return command(*args, **{param: values}, **kwargs)
+
+        run.__signature__ = signature.replace(  # type: ignore[attr-defined]
+            parameters=[*own, *(option_parameter(o) for o in declared)])
+        run.__annotations__ = {}
+        return run  # type: ignore[return-value]
+
+    return decorate

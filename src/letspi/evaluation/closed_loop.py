@@ -34,7 +34,7 @@ from letspi.scenario.split import vehicle_keys
 from letspi.scenario.store import read_scenario_meta
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
-from letspi.simulation.config import DEFAULT_REPLAN_S, EvaluationMode
+from letspi.simulation.config import EvaluationMode
 from letspi.simulation.handover import hybrid_settings
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import CLOSED_LOOP_OUTPUTS, LLM_CALLS_TOTAL, chunk_frame
@@ -74,27 +74,6 @@ def planner_evaluation(config: ClosedLoopConfig, label: str, dual_rate: bool = F
     if dual_rate:
         out["dual_rate"] = config.dual_rate.identity()
     return out
-
-
-def parse_replan_options(values: list[str] | None, labels: list[str]) -> tuple[float, dict[str, float]]:
-    """``--replan-s`` values: ``S`` (every planner) and ``LABEL=S`` (one planner); returns
-    (default period, {label: period}). Unknown labels and unparsable values are errors."""
-    default = DEFAULT_REPLAN_S
-    own: dict[str, float] = {}
-    for text in values or []:
-        label, sep, value = text.rpartition("=")
-        try:
-            period = float(value)
-        except ValueError:
-            raise ClosedLoopSetupError(f"--replan-s takes S or LABEL=S (seconds), got {text!r}") from None
-        if not sep:
-            default = period
-        elif label not in labels:
-            raise ClosedLoopSetupError(f"--replan-s {text}: no planner labelled {label!r} "
-                                       f"(planners: {', '.join(labels)})")
-        else:
-            own[label] = period
-    return default, own
 
 
 @dataclass(frozen=True)
