@@ -15,7 +15,7 @@ import re
 from collections import Counter
 from pathlib import Path
 
-ISSUE_RE = re.compile(r"\b[Ii]ssues? #?\d+|(?<![\w&])#\d{1,3}\b")
+ISSUE_RE = re.compile(r"\b[Ii]ssues? #?\d+")
 
 
 def _docstring_nodes(tree: ast.Module) -> list[ast.Constant]:

@@ -13,9 +13,7 @@ keyed, resumable harness as the CLI (docs/your-planner.md)::
 
     plan = lp.plan(planners[0], batch.take(range(5)))           # a PlanBatch: (B, F, 2) positions ...
 
-``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``). Everything here is a
-thin layer over ``letspi.evaluation`` (layout, keys, resume, timing) and
-``letspi.metrics.uncertainty`` (intervals, paired comparisons); see docs/evaluation.md.
+``open_results(DIR)`` reads any results directory (``letspi evaluate --out DIR``); docs/evaluation.md.
 """
 
 from __future__ import annotations
