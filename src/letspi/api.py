@@ -7,9 +7,7 @@ keyed, resumable harness as the CLI (docs/your-planner.md)::
     results = lp.evaluate(planners, batch, "runs/mine")         # rerun: resumes, adds planners
     lp.evaluate(["sf", MyPlanner()], batch, "runs/other")       # names and planner objects are taken too
     print(results.table())                # metrics.md: values with 95 % intervals, paired with sf
-    results.summary()                     # DataFrame, one row per planner: value, low, high per metric
-    results.per_scenario("frenet")        # DataFrame, one row per window: metrics, timing, plan info
-    results.paired_summary()              # DataFrame, one row per planner and metric: Δ, interval, p
+    results.summary(), results.per_scenario("frenet"), results.paired_summary()   # DataFrames
 
     plan = lp.plan(planners[0], batch.take(range(5)))           # a PlanBatch: (B, F, 2) positions ...
 
