@@ -67,6 +67,7 @@ def load_command(name: str) -> Any:
         refresh = getattr(callback, "refresh_planner_flags", None)
         if refresh is not None:
             refresh()
+    command: Any
     if isinstance(target, typer.Typer):
         command = typer.main.get_group(target)  # a group even with one sub-command (letspi export commonroad)
     else:  # one command: a Typer holding only it is that command
