@@ -108,18 +108,23 @@ def _first(flags: np.ndarray) -> int:
 
 
 def metric_inputs(ep: EpisodeInputs, end: int) -> MetricInputs:
-    """The ego (B = 1) and the other vehicles as neighbours over frames 0..``end`` in the ego frame (y left)."""
+    """The ego (B = 1) and the other vehicles as neighbours over frames 0..``end`` in the ego frame (y left); an
+    ego alone gets one empty slot (never valid), so every metric has its neighbour axis."""
     flip = np.array([1.0, -1.0])
     others = np.flatnonzero(np.arange(len(ep.length_m)) != ep.ego)
     xy = ep.xy_m[:, : end + 1] * flip
     vxy = ep.vxy_mps[:, : end + 1] * flip
+    valid = np.ones((1, len(others), end + 1), dtype=bool)
+    nbr_xy, nbr_v = xy[others][None], vxy[others][None]
+    length, width = ep.length_m[others][None].astype(np.float64), ep.width_m[others][None].astype(np.float64)
+    if not len(others):
+        valid = np.zeros((1, 1, end + 1), dtype=bool)
+        nbr_xy = nbr_v = np.full((1, 1, end + 1, 2), np.nan)
+        length = width = np.zeros((1, 1))
     return MetricInputs(
         ego_xy_m=xy[ep.ego][None], ego_vxy_mps=vxy[ep.ego][None],
         ego_length_m=ep.length_m[[ep.ego]].astype(np.float64), ego_width_m=ep.width_m[[ep.ego]].astype(np.float64),
-        nbr_xy_m=xy[others][None], nbr_vxy_mps=vxy[others][None],
-        nbr_valid=np.ones((1, len(others), end + 1), dtype=bool),
-        nbr_length_m=ep.length_m[others][None].astype(np.float64),
-        nbr_width_m=ep.width_m[others][None].astype(np.float64),
+        nbr_xy_m=nbr_xy, nbr_vxy_mps=nbr_v, nbr_valid=valid, nbr_length_m=length, nbr_width_m=width,
     )
 
 
