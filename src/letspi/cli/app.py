@@ -7,7 +7,22 @@ from typing import Annotated
 
 import typer
 
-from letspi.cli import analyze, bench, benchmark, data, demo, evaluate, export, fit, llm, phases, planners, train, viz
+from letspi.cli import (
+    analyze,
+    bench,
+    benchmark,
+    data,
+    demo,
+    evaluate,
+    export,
+    fit,
+    highway_env,
+    llm,
+    phases,
+    planners,
+    train,
+    viz,
+)
 from letspi.cli.common import DEBUG_ENV
 from letspi.evaluation.harness import letspi_version
 from letspi.execution import interrupt
@@ -46,6 +61,7 @@ app.add_typer(bench.app, name="bench")
 app.add_typer(benchmark.app, name="benchmark")
 app.add_typer(fit.app, name="fit")
 app.add_typer(export.app, name="export")
+app.add_typer(highway_env.app, name="highway-env")
 app.add_typer(train.app, name="train")
 app.add_typer(llm.app, name="llm")
 app.command("demo")(demo.demo)

@@ -16,14 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from letspi.assembly.planners import BuiltPlanner
+from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
 from letspi.evaluation.harness import planner_record
 from letspi.evaluation.highway_env.episode import EpisodePlanner, EpisodeResult, run_episode
-from letspi.evaluation.highway_env.settings import RUN_MODE, EnvSettings, NativeEgo
+from letspi.evaluation.highway_env.settings import NATIVE_EGOS, RUN_MODE, EnvSettings, NativeEgo
 from letspi.evaluation.highway_env.store import EpisodeWriter, open_run, summarise
 from letspi.execution.interrupt import WorkerPool
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import Planner
+from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.simulation.spec import PlannerSpec, build_planner
 
 Driver = BuiltPlanner | NativeEgo
@@ -137,3 +138,12 @@ def run_episodes(drivers: Sequence[Driver], settings: EnvSettings, seeds: Sequen
             if tick is not None:
                 tick(1)
     return summarise(out, seeds, reference, config)
+
+
+def build_drivers(planner_args: Sequence[str], options: PlannerOptions | None = None) -> list[Driver]:
+    """``KIND`` / ``LABEL=KIND`` arguments as drivers, in order: highway-env's egos (``NATIVE_EGOS``) as
+    ``NativeEgo``, every other kind built by ``letspi.assembly`` (one builder: models loaded once)."""
+    parsed = [parse_planner_arg(a) for a in planner_args]
+    planners = [a for a, (_, kind) in zip(planner_args, parsed, strict=True) if kind not in NATIVE_EGOS]
+    built = iter(build_planners(planners, options or DEFAULT_OPTIONS) if planners else [])
+    return [NativeEgo.of(label, kind) if kind in NATIVE_EGOS else next(built) for label, kind in parsed]

@@ -22,8 +22,9 @@ from typing import Final
 INSTALL_HINT: Final = 'pip install "letspi[highway]"'
 
 
-class HighwayEnvMissingError(ImportError):
-    """highway-env (or gymnasium) is not installed; the message names the extra to install."""
+class HighwayEnvMissingError(ValueError):
+    """highway-env (or gymnasium) is not installed; the message names the extra to install (a setup error: the
+    command line prints it in one line)."""
 
 
 def require() -> None:
