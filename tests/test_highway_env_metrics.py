@@ -3,10 +3,12 @@ lane changes, hard brakes, jerk; and the registry the tables derive from."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from letspi.metrics.episode import EPISODE_COLUMNS, EPISODE_METRICS, EpisodeInputs, episode_metrics
+from letspi.metrics.episode import EPISODE_COLUMNS, EPISODE_METRICS, EpisodeInputs, episode_metrics, reference_markdown
 
 HZ = 15.0
 DT = 1.0 / HZ
@@ -91,3 +93,10 @@ def test_the_registry_declares_every_value_once_with_its_unit() -> None:
     assert len(keys) == len(set(keys))
     for m in EPISODE_METRICS:
         assert m.dtype == "bool" or m.name.endswith(("_s", "_m", "_mps", "_mps3", "_n")), m.name
+
+
+def test_the_docs_reference_is_generated_from_the_registry() -> None:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "highway-env.md").read_text(encoding="utf-8")
+    block = text.split("<!-- generated below: letspi.metrics.episode.reference_markdown() -->\n\n")[1]
+    assert block.split("\n<!-- generated above -->")[0] == reference_markdown(), (
+        "docs/highway-env.md's metric reference is stale: paste letspi.metrics.episode.reference_markdown()")

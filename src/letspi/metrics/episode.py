@@ -201,7 +201,7 @@ def reference_markdown() -> str:
               "| `n` | count | | number of episodes aggregated | |"]
     for m in EPISODE_METRICS:
         for a in m.aggregates:
-            how = HOW_DOC[a.how].format(t=a.threshold)
+            how = HOW_DOC[a.how].format(t=a.threshold).replace("scenarios", "episodes")
             doc = f"{how}; {a.doc}" if a.doc else how
             interval = "Wilson" if a.how in RATE_HOWS else "bootstrap over episodes" if a.how in MEAN_HOWS else ""
             lines.append(f"| `{a.key}` | {a.unit(m.unit)} | `{m.name}` | {doc} | {interval} |")
