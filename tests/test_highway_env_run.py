@@ -16,7 +16,7 @@ pytest.importorskip("highway_env", reason='the highway extra is not installed (p
 
 from letspi.assembly.planners import build_planners
 from letspi.benchmark import highway_env as he_suites
-from letspi.benchmark.suites import DILU_SEEDS, HIGHWAY_ENV_SUITES, get_any_suite
+from letspi.benchmark.suites import DILU_SEEDS, HIGHWAY_ENV_SUITES, HighwayEnvSuite, get_any_suite
 from letspi.cli.app import app
 from letspi.evaluation.highway_env.run import build_drivers, run_episodes
 from letspi.evaluation.highway_env.settings import EnvSettings
@@ -129,3 +129,15 @@ def test_command_line_runs_reports_and_exports_an_episode(tmp_path: Path) -> Non
     assert result.exit_code == 2 and "unknown highway-env environment 'parking-v0'" in result.output
     result = runner.invoke(app, ["benchmark", "show", "highway-env-dilu"])
     assert result.exit_code == 0 and "5838, 2421, 7294" in result.output and "highway-env 1.12.1" in result.output
+
+
+def test_a_suite_run_writes_its_table_report_and_timing(tmp_path: Path) -> None:
+    tiny = HighwayEnvSuite(name="tiny", version=1, description="", env_id="highway-v0",
+                           config=(("lanes_count", 2), ("vehicles_count", 8)), seeds=(1, 2), published="",
+                           sizing="", duration_s=2.0)
+    record = he_suites.run_highway_env_suite(tiny, ["sf", "he-idm"], tmp_path, workers=0, log=lambda _m: None)
+    assert record["paired"]["reference"] == "sf" and record["planners"]["he-idm"]["n"] == 2
+    assert json.loads((tmp_path / "suite.json").read_text())["id"] == tiny.suite_id
+    timing = json.loads((tmp_path / "timing.json").read_text())
+    assert set(timing["label_s"]) == {"sf", "he-idm"} and timing["workers"] == 0
+    assert (tmp_path / "report.html").stat().st_size > 10_000 and "| sf | 2 |" in (tmp_path / "metrics.md").read_text()

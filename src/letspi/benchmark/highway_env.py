@@ -58,9 +58,13 @@ def run_highway_env_suite(suite: HighwayEnvSuite, planner_args: Sequence[str], o
     clock: dict[str, float] = {}
     current: list[tuple[str, float]] = []
 
-    def timed(name: str, total: int) -> Callable[[int], None]:
+    def stop() -> None:
         if current:
-            clock[current[0][0]] = round(time.perf_counter() - current.pop()[1], 2)
+            label, t0 = current.pop()
+            clock[label] = round(time.perf_counter() - t0, 2)
+
+    def timed(name: str, total: int) -> Callable[[int], None]:
+        stop()
         current.append((name, time.perf_counter()))
         return progress(name, total) if progress is not None else (lambda _k: None)
 
@@ -68,8 +72,7 @@ def run_highway_env_suite(suite: HighwayEnvSuite, planner_args: Sequence[str], o
     atomic_write_text(out / "suite.json", json.dumps({"id": suite.suite_id, **suite.definition()}, indent=2) + "\n")
     record = run_episodes(drivers, suite_settings(suite), suite.seeds, out, workers=workers, config=suite.metrics,
                           reference=reference, progress=timed)
-    if current:
-        clock[current[0][0]] = round(time.perf_counter() - current.pop()[1], 2)
+    stop()
     if reports:
         log(f"report: {write_episode_report(out)}")
     timing = {"suite": suite.suite_id, "planners": labels, "workers": workers, "label_s": clock,
