@@ -141,3 +141,10 @@ def test_a_suite_run_writes_its_table_report_and_timing(tmp_path: Path) -> None:
     timing = json.loads((tmp_path / "timing.json").read_text())
     assert set(timing["label_s"]) == {"sf", "he-idm"} and timing["workers"] == 0
     assert (tmp_path / "report.html").stat().st_size > 10_000 and "| sf | 2 |" in (tmp_path / "metrics.md").read_text()
+
+
+def test_the_example_external_planner_drives_by_import_path(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "examples" / "letspi-gap-keeper" / "src"))
+    record = run_episodes(build_drivers(["letspi_gap_keeper:KIND"]), SMALL, [1], tmp_path, workers=0)
+    config = json.loads((tmp_path / "episodes" / "gap-keeper" / "config.json").read_text())
+    assert record["planners"]["gap-keeper"]["n"] == 1 and config["kind"] == "gap-keeper"
