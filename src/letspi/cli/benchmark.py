@@ -112,7 +112,9 @@ def run(
 ) -> None:
     """Generate the suite's data (cached), evaluate the planners in its modes, write the leaderboard
     (leaderboard.json / .md / .html, with 95 % intervals and paired deltas against sf)."""
-    if get_any_suite(suite).name in HIGHWAY_ENV_SUITES:
+    with user_errors():
+        found = get_any_suite(suite)
+    if found.name in HIGHWAY_ENV_SUITES:
         _run_highway_env(suite, options, planner, out, workers, reports)
         return
     with user_errors(resumes=True):  # the data is cached, each mode's evaluation resumes
