@@ -18,9 +18,10 @@ from pathlib import Path
 import letspi
 
 HEAVY_OPTIONAL = ("torch", "transformers", "peft", "gguf", "llama_cpp", "libsumo", "traci", "sumolib", "ray",
-                  "commonroad", "commonroad_dc", "sklearn")
-#: letspi packages whose modules import a heavy optional dependency (torch, commonroad) at module level
-HEAVY_PACKAGES = ("letspi.learned.train", "letspi.finetune", "letspi.interop.commonroad")
+                  "commonroad", "commonroad_dc", "sklearn", "highway_env", "gymnasium")
+#: letspi packages whose modules import a heavy optional dependency (torch, commonroad, highway-env) at module level
+HEAVY_PACKAGES = ("letspi.learned.train", "letspi.finetune", "letspi.interop.commonroad",
+                  "letspi.interop.highway_env.sim")
 SRC = Path(letspi.__file__).parent
 #: the entry points, whose functions may import letspi modules (module docstring)
 ENTRY_POINTS = (SRC / "cli", SRC / "api.py")

@@ -142,7 +142,7 @@ from pathlib import Path
 import letspi_gap_keeper
 from letspi.benchmark.leaderboard import leaderboard, mode_board, to_markdown
 from letspi.benchmark.suites import SUITES
-from letspi.evaluation.harness import load_planner_results
+from letspi.evaluation.results import load_planner_results
 out = Path(sys.argv[1])
 frame = load_planner_results(out, "sf")
 board = mode_board(out, ["sf", "gap-keeper"], dict(zip(frame.scenario_digest, frame.vehicle_key)), "sf")

@@ -53,6 +53,7 @@ COMMANDS: dict[str, CommandEntry] = {
     "export": CommandEntry("export", "app", "Export scenarios and plans to other tools' formats"),
     "train": CommandEntry("train", "app", "Train the learned models (pip install 'letspi[train]')"),
     "llm": CommandEntry("llm", "app", "LLM backends: check a spec, list embedded models, benchmark"),
+    "highway-env": CommandEntry("highway_env", "app", "Run planners in highway-env episodes and export them as HighD"),
 }
 
 

@@ -18,6 +18,7 @@ from letspi.scenario.store import load_scenarios
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.viz.compare import write_comparison
 from letspi.viz.figure import plot_scenario
+from letspi.viz.highway_env import is_highway_env_dir, write_episode_report
 from letspi.viz.llm_panel import load_iterations, panel_record
 from letspi.viz.outcomes import simulate_panel
 from letspi.viz.report import write_report
@@ -76,10 +77,14 @@ def report(
     worst: Annotated[int, typer.Option(help="Worst scenarios shown per planner.")] = 3,
     diagrams: Annotated[bool, typer.Option(help="Draw the worst scenarios with their stored plans.")] = True,
 ) -> None:
-    """Write a self-contained HTML report of an evaluation. Metrics table, distributions, worst scenarios
-    with diagrams of the stored plans, and ablation plots when DIR/ablations/ has them."""
+    """Write a self-contained HTML report of an evaluation directory (metrics table, distributions, worst
+    scenarios with diagrams of the stored plans, ablation plots when DIR/ablations/ has them), or of a highway-env
+    directory (its table and one episode of each planner drawn with the plans it followed)."""
     with user_errors():
-        path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
+        if is_highway_env_dir(directory):
+            path = write_episode_report(directory, out)
+        else:
+            path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
     typer.echo(str(path))
 
 

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The highway-env table of docs/highway-env.md: every command, in order (each resumes where it stopped).
+# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3
+# Outputs under runs/highway-env/ (not in git). Run it through the heavy lock on a shared machine.
+set -euo pipefail
+R=runs/highway-env
+PLANNERS=(--planner sf --planner he-idm --planner frenet --planner sf-check --planner letspi-fast --planner he-lane-keeper)
+LLM=(--memory "$R/bank.sqlite" --no-cache)
+for stage in "$@"; do
+  case "$stage" in
+    bank)  # letspi-fast's memories: collected on letspi's own SUMO traffic (seed 22), never on highway-env
+      letspi data generate --out "$R/train_highd" --minutes 10 --seed 22
+      letspi data scenarios --highd "$R/train_highd" --out "$R/train.arrow" --max 300 --seed 22
+      letspi collect --scenarios "$R/train.arrow" --memory "$R/bank.sqlite" --limit 200 ;;
+    dilu)
+      letspi benchmark run highway-env-dilu "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dilu" ;;
+    speedup)  # the same 20 episodes of sf in one and in two worker processes
+      for w in 1 2; do
+        /usr/bin/time -f "workers $w: %e s wall" letspi highway-env run --planner sf --workers $w \
+          --out "$R/speedup-$w" --n-seeds 20 --set lanes_count=4 --set vehicles_density=2 --set vehicles_count=50 \
+          --set ego_spacing=4 --set duration=30 --set simulation_frequency=15
+      done ;;
+    merge)
+      letspi benchmark run highway-env-merge "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/merge" ;;
+    dense25)
+      letspi benchmark run highway-env-dilu-5lane-2.5 "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dense25" ;;
+    dense3)
+      letspi benchmark run highway-env-dilu-5lane-3 "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
+    *) echo "unknown stage $stage" >&2; exit 2 ;;
+  esac
+done
