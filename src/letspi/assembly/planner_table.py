@@ -49,6 +49,7 @@ from letspi.assembly.build import Builder
 from letspi.assembly.resolve import Resolver
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
+from letspi.method.choosers import MODEL_CHOOSER, SHUFFLED_CHOOSER, load_teacher, uses_model
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners import frenet, gnp, idm, mlp, sf, sf_check, sf_opt
@@ -60,13 +61,16 @@ from letspi.planners.gnp import GnpConfig, GnpPlanner
 from letspi.planners.human import HumanConfig, HumanPlanner
 from letspi.planners.idm import IdmConfig, IdmPlanner
 from letspi.planners.llm import (
+    CHOOSER,
     FAST_LLM,
     FAST_OPTIONS,
     LLM,
     MEMORY_PLANNER_OPTIONS,
     SHIELD,
     SINGLE_SHOT_OPTIONS,
+    TEACHER,
     TOP_K_OPTION,
+    ChooserConfig,
     FastPlannerConfig,
     LetsPiFastPlanner,
     LetsPiMemoryPlanner,
@@ -250,14 +254,32 @@ def _resolve_memory(kind: str) -> Callable[[Resolver], MemoryPlannerConfig]:
     return resolve
 
 
+def _resolve_chooser(r: Resolver) -> ChooserConfig | None:
+    """``--chooser`` (None: the model); the teacher's file fingerprinted."""
+    name = r.options.get(CHOOSER)
+    if name == MODEL_CHOOSER:
+        return None
+    if name != "teacher":
+        return ChooserConfig(name=name)
+    path = r.options.get(TEACHER)
+    _, sha = load_teacher(path)
+    return ChooserConfig(name=name, teacher_sha256=sha, teacher_path="shipped" if path is None else str(path))
+
+
 def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
     def resolve(r: Resolver) -> FastPlannerConfig:
         o = r.options
-        llm = r.llm(o.get(FAST_LLM))
+        chooser = _resolve_chooser(r) if kind == "letspi-fast" else None
+        if chooser is not None and not uses_model(chooser.name):  # no model: the choice style's decision step
+            llm, decision = None, r.decision("choice", verify=True)
+        else:
+            llm = r.llm(o.get(FAST_LLM))
+            decision = r.decision(llm.prompt_style, verify=True)
+            if chooser is not None and llm.prompt_style != "choice":
+                raise ValueError("--chooser shuffled asks the model the choice prompt: use --prompt-style choice")
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD),
-                                 decision=r.decision(llm.prompt_style, verify=True))
+                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=decision, chooser=chooser)
     return resolve
 
 
@@ -298,7 +320,9 @@ def _build_memory(b: Builder, c: MemoryPlannerConfig, label: str) -> tuple[Plann
 def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, float]:
     phase, load_s = b.fast_phase(c)
     shield = c.sf_params.params() if c.shield else None
-    return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label), load_s
+    shuffle = c.chooser is not None and c.chooser.name == SHUFFLED_CHOOSER
+    return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label,
+                             shuffle=shuffle), load_s
 
 
 def _resolve_sf_check(r: Resolver) -> SfCheckConfig:

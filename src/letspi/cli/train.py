@@ -298,6 +298,12 @@ def train_decide(
     refine_weight: Annotated[float, typer.Option(help="Weight (repetitions) of the refinement examples.")] = 2.0,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted sf parameters (default: the shipped fit).")] = None,
     goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
+    keep_presets: Annotated[Path | None, typer.Option(
+        "--presets", help="Keep these presets (e.g. the shipped src/letspi/data/presets.json) instead of selecting "
+                          "them: labels and teacher for them.")] = None,
+    keep_gate: Annotated[Path | None, typer.Option(
+        "--risk-model", help="Keep this risk gate (its scores and recommended threshold) instead of fitting one.")
+    ] = None,
 ) -> None:
     """LetsPi's decision step from training traffic: presets, the risk gate and decision-focused labels
     (hindsight: the recorded future decides which preset was best; never evaluation seeds)."""
@@ -317,10 +323,13 @@ def train_decide(
             summary = build_decision_data(scenarios, out, goal_predictor, params, goals=goals, n_presets=presets,
                                           consult_share=consult_share, keep_share=keep_share,
                                           refine_weight=refine_weight, command=command_line(),
-                                          progress=lambda k: bar.advance(task, k))
+                                          progress=lambda k: bar.advance(task, k), presets_file=keep_presets,
+                                          risk_model_file=keep_gate)
     console.print(f"presets -> {out / 'presets.json'}: {', '.join(summary['presets'])}")
     gate = summary["gate"]
     console.print(f"risk gate -> {out / 'risk_model.json'}: threshold {gate['threshold']:.3f} consults "
                   f"{100 * gate['consult_share']:.1f} % of the training windows, {100 * gate['cv_recall']:.1f} % "
                   f"of those where the defaults collide (cross-validated AUC {gate['cv_auc']:.3f})")
     console.print(f"labels -> {out / 'labels'}: {summary['n_examples']} rows; option shares {summary['label_shares']}")
+    console.print(f"teacher -> {out / 'teacher.json'} (the labels' expected-utility policy: letspi-fast --chooser "
+                  "teacher --teacher FILE)")
