@@ -1,4 +1,4 @@
-"""Choosers that isolate the model: constants, rules, the teacher, the shuffled-scene control (letspi-fast --chooser)."""
+"""Choosers that isolate the model: constants, rules, the teacher, the shuffled-scene control (--chooser)."""
 
 from __future__ import annotations
 
@@ -125,7 +125,7 @@ def test_the_shuffled_control_asks_the_model_the_prompt_of_another_consulted_win
     consulted = [i for i in range(3) if own[i].consulted]
     assert len(consulted) >= 2
     plans = planner.plan(batch)
-    asked = [m for m in backend.calls]
+    asked = list(backend.calls)
     donors = [consulted[(j + 1) % len(consulted)] for j in range(len(consulted))]
     assert asked == [own[d].choice_messages() for d in donors]
     for j, i in enumerate(consulted):
@@ -177,7 +177,6 @@ def test_the_teacher_s_numpy_trees_equal_scikit_learn_on_its_training_inputs(tmp
 
 
 def test_a_teacher_file_of_another_shape_is_refused_naming_it(tmp_path: Path) -> None:
-    x, o = _teacher_data()
     data = Teacher(NAMES, ADVERSE, {"at_fault": 8.0, "contact": 2.0, "progress_per_m": 0.01},
                    {t: tuple(ConstantScore(0.1) for _ in NAMES) for t in ("at_fault", "collision", "success")}
                    ).to_json()

@@ -34,8 +34,8 @@ from letspi.finetune.gate_train import fit_trees
 from letspi.finetune.options import OptionOutcomes
 from letspi.learned.logistic import roc_auc
 from letspi.learned.trees import TreeEnsemble
-from letspi.method.choosers import TEACHER_TARGETS, ConstantScore, OutcomeModel, Teacher, teacher_feature_names
 from letspi.llm.schema import NUMERIC_FIELDS
+from letspi.method.choosers import TEACHER_TARGETS, ConstantScore, OutcomeModel, Teacher, teacher_feature_names
 from letspi.method.decide import DEFAULT_NAME, GATE_FEATURE_NAMES, OptionTable, defaults_vector
 from letspi.physics.params import SocialForceParams
 
