@@ -251,6 +251,9 @@ def train_llm(
              "fp32 or bf16.")] = "auto",
     checkpoint_every_s: Annotated[float, typer.Option(
         help="Seconds of training between resumable checkpoints.")] = 300.0,
+    balance: Annotated[float, typer.Option(
+        help="Rebalance the training split towards rare replies: each example repeated (n of the commonest reply "
+             "/ n of its reply) ** BALANCE times, at most 8 (0: the labels' shares; 1: even).")] = 0.0,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
     export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
@@ -263,7 +266,7 @@ def train_llm(
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
                               layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
-                              checkpoint_every_s=checkpoint_every_s)
+                              checkpoint_every_s=checkpoint_every_s, balance=balance)
         examples, info = _llm_examples(data, scenarios, max_scenarios)
         with progress_bar() as bar:
             task = bar.add_task("fine-tuning", total=None)
@@ -283,6 +286,54 @@ def train_llm(
                   f"{manifest['data']['n_val']} val examples; val loss {t['val_loss_before']:.3f} -> "
                   f"{t['val_loss_after']:.3f}; torch vs llama.cpp greedy agree on "
                   f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")
+
+
+@app.command("dpo")
+def train_dpo_cmd(
+    data: Annotated[list[Path], typer.Option("--data", help="Choice labels directories of `letspi train decide` "
+                                             "(with the hindsight column), in the order `train llm` had them.")],
+    init: Annotated[Path, typer.Option(help="The supervised adapter's directory (`letspi train llm --out`).")],
+    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
+                                      "resumes from its checkpoint when the same command is run again.")],
+    beta: Annotated[float, typer.Option(help="DPO temperature (how far from the supervised adapter).")] = 0.1,
+    lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, linear decay to 10 %).")] = 5e-5,
+    epochs: Annotated[float, typer.Option(help="Passes over the training pairs.")] = 1.0,
+    batch_size: Annotated[int, typer.Option(help="Pairs per optimiser step.")] = 4,
+    margin: Annotated[float, typer.Option(help="A pair needs its presets' hindsight utilities this far apart.")] = 1.0,
+    max_pairs: Annotated[int | None, typer.Option(help="At most this many training pairs (a seeded sample).")] = None,
+    seed: SeedOpt = 0,
+    threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
+    checkpoint_every_s: Annotated[float, typer.Option(
+        help="Seconds of training between resumable checkpoints.")] = 300.0,
+) -> None:
+    """One preference step after `letspi train llm`: DPO on pairs of presets ranked by their hindsight outcome
+    (the best preset of a window against each one whose outcome is worse), from the supervised adapter."""
+    _require_torch()
+    from letspi.finetune.preference import DpoConfig, preference_pairs, train_dpo
+    from letspi.learned.train.loop import checkpoint_step
+
+    with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
+        cfg = DpoConfig(beta=beta, lr=lr, epochs=epochs, batch_size=batch_size, margin=margin, seed=seed,
+                        threads=threads, checkpoint_every_s=checkpoint_every_s, max_pairs=max_pairs)
+        examples, info = _llm_examples(data, None, None)
+        pairs = preference_pairs(examples, data, margin=margin)
+        if not pairs:
+            raise ValueError(f"{', '.join(map(str, data))}: no window has presets whose hindsight differs by {margin}")
+        with progress_bar() as bar:
+            task = bar.add_task("preference step", total=None)
+
+            def progress(step: int, total: int, loss: float) -> None:
+                bar.update(task, completed=step, total=total, description=f"DPO (loss {loss:.3f})")
+                if tally.total is None:
+                    tally.track(total, lambda: checkpoint_step(out))
+
+            manifest = train_dpo(pairs, cfg, packaged_smollm2_path(), init, out, data_info=info, progress=progress,
+                                 command=command_line())
+    t = manifest["training"]
+    console.print(f"adapter -> {out / 'adapter.gguf'} ({t['steps']} steps, {t['train_s']:.0f} s); "
+                  f"{manifest['data']['n_pairs_train']} train / {manifest['data']['n_pairs_val']} val pairs; held-out "
+                  f"pairs ranked right {100 * t['val_pair_accuracy_before']:.1f} % -> "
+                  f"{100 * t['val_pair_accuracy_after']:.1f} %")
 
 
 @app.command("decide")

@@ -25,7 +25,7 @@ import itertools
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pandas as pd
@@ -247,14 +247,23 @@ def option_lines_of(o: OptionOutcomes, presets: OptionTable, adverse_names: Sequ
     return out
 
 
+#: an optional column of the choice labels: per preset, the window's hindsight outcome
+#: ``[at_fault, contact, success, progress_m]`` (JSON), for preference pairs (``letspi.finetune.preference``)
+HINDSIGHT_COLUMN: Final = "hindsight_json"
+
+
 def label_frame(labels: Sequence[ChoiceLabel], o: OptionOutcomes, presets: OptionTable,
                 adverse_names: Sequence[str], digests: Sequence[str]) -> pd.DataFrame:
-    """The labels as rows (``CHOICE_COLUMNS``) of one scenario file (``digests`` of its windows)."""
+    """The labels as rows (``CHOICE_COLUMNS`` and ``HINDSIGHT_COLUMN``) of one scenario file (``digests`` of
+    its windows)."""
     rows = [{"risk": float(lab.risk),
         "scenario_index": lab.row, "scenario_digest": str(digests[lab.row]),
         "kind": "refine" if lab.rejected >= 0 else "propose", "option": presets.names[lab.label],
         "rejected": presets.names[lab.rejected] if lab.rejected >= 0 else "", "weight": float(lab.weight),
         "lines_json": json.dumps(option_lines_of(o, presets, adverse_names, lab.row)),
         "defaults_collide": bool(o.collision[lab.row, 0]),
+        HINDSIGHT_COLUMN: json.dumps([[bool(o.at_fault[lab.row, k]), bool(o.collision[lab.row, k]),
+                                       bool(o.success[lab.row, k]), float(o.progress_m[lab.row, k])]
+                                      for k in range(len(presets))]),
     } for lab in labels]
-    return pd.DataFrame(rows, columns=list(CHOICE_COLUMNS))
+    return pd.DataFrame(rows, columns=[*CHOICE_COLUMNS, HINDSIGHT_COLUMN])
