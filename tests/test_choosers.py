@@ -22,15 +22,17 @@ from letspi.method.choosers import (
     load_teacher,
     teacher_feature_names,
 )
-from letspi.method.decide import GATE_FEATURE_NAMES, OptionChecks
+from letspi.method.decide import GATE_FEATURE_NAMES, OptionChecks, load_presets
 from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import KinematicGoalPredictor
+from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.planners.config import DecisionConfig
 from letspi.planners.llm import LetsPiFastPlanner
 from letspi.planners.options import PlannerOptions
 from letspi.planners.sf_params import load_sf_params
+from letspi.safety.adverse import AdverseSettings
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
@@ -185,3 +187,19 @@ def test_a_teacher_file_of_another_shape_is_refused_naming_it(tmp_path: Path) ->
     path.write_text(json.dumps(data))
     with pytest.raises(ValueError, match=r"bad\.json: .*feature names"):
         load_teacher(path)
+
+
+def test_the_shipped_teacher_reads_the_shipped_presets_and_futures_and_decides_on_a_scene() -> None:
+    teacher, sha = load_teacher()
+    assert teacher.presets == load_presets()[0].names and len(sha) == 64
+    assert teacher.adverse_names == tuple(str(a) for a in AdverseSettings().futures)
+    params, _ = load_sf_params(None)
+    decider = DecisionConfig.resolve(None, True, None, None, verify=True).decider(params, ReflectionThresholds())
+    batch = _scenes()
+    context = KinematicGoalPredictor().predict_goals(batch).top
+    checks = decider.check(batch, context, predict_neighbours(batch, NeighbourPredictionMode.IDM))
+    risk = decider.risk_scores(batch, checks)
+    x = teacher.inputs(batch, checks, risk)
+    assert x.shape == (len(batch), len(teacher.feature_names))
+    eu = teacher.expected_utility(x)
+    assert np.isfinite(eu).all() and teacher.choose_x(x).tolist() == np.argmax(eu, axis=1).tolist()
