@@ -117,7 +117,7 @@ def test_the_shuffled_control_asks_the_model_the_prompt_of_another_consulted_win
     params, _ = load_sf_params(None)
     decider = DecisionConfig.resolve(None, True, None, None, verify=True).decider(params, ReflectionThresholds())
     backend = ScriptedBackend(default=json.dumps({"option": "slow"}))
-    phase = FastPhase(ParamAdvisor(backend), KinematicGoalPredictor(), float(params.r_col_m), None,
+    phase = FastPhase(ParamAdvisor(backend, cache=None), KinematicGoalPredictor(), float(params.r_col_m), None,
                       prompt_style="choice", decider=decider)
     batch = _scenes().take([0, 1, 4])
     planner = LetsPiFastPlanner(phase, shuffle=True)

@@ -54,7 +54,7 @@ from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners import frenet, gnp, idm, mlp, sf, sf_check, sf_opt
 from letspi.planners.base import Planner
-from letspi.planners.config import GOALS, Config, GoalsConfig, PlannerConfig
+from letspi.planners.config import GOALS, Config, DecisionConfig, GoalsConfig, PlannerConfig
 from letspi.planners.cv import ConstantVelocityPlanner, CvConfig
 from letspi.planners.frenet import FRENET_WEIGHTS, FrenetConfig, FrenetPlanner, FrenetSettings, load_frenet_weights
 from letspi.planners.gnp import GnpConfig, GnpPlanner
@@ -67,6 +67,7 @@ from letspi.planners.llm import (
     LLM,
     MEMORY_PLANNER_OPTIONS,
     SHIELD,
+    SHIELD_DEFAULTS,
     SINGLE_SHOT_OPTIONS,
     TEACHER,
     TOP_K_OPTION,
@@ -266,6 +267,14 @@ def _resolve_chooser(r: Resolver) -> ChooserConfig | None:
     return ChooserConfig(name=name, teacher_sha256=sha, teacher_path="shipped" if path is None else str(path))
 
 
+def _shield_defaults(r: Resolver, decision: DecisionConfig | None) -> bool | None:
+    """``--shield-defaults``: None (the shield checks every plan, the key of before the setting) where it is
+    given, where there is no shield or no decision step; False (the defaults are left as they are) else."""
+    if decision is None or not r.options.get(SHIELD) or r.options.get(SHIELD_DEFAULTS):
+        return None
+    return False
+
+
 def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
     def resolve(r: Resolver) -> FastPlannerConfig:
         o = r.options
@@ -279,7 +288,8 @@ def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
                 raise ValueError("--chooser shuffled asks the model the choice prompt: use --prompt-style choice")
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=decision, chooser=chooser)
+                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=decision, chooser=chooser,
+                                 shield_defaults=_shield_defaults(r, decision) if kind == "letspi-fast" else None)
     return resolve
 
 
@@ -322,7 +332,7 @@ def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, 
     shield = c.sf_params.params() if c.shield else None
     shuffle = c.chooser is not None and c.chooser.name == SHUFFLED_CHOOSER
     return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label,
-                             shuffle=shuffle), load_s
+                             shuffle=shuffle, shield_defaults=c.shield_defaults is None), load_s
 
 
 def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
@@ -330,14 +340,15 @@ def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
     if decision is None:
         raise ValueError("sf-check is the decision step without a model: drop --no-decide")
     return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
-                         shield=r.options.get(SHIELD))
+                         shield=r.options.get(SHIELD), shield_defaults=_shield_defaults(r, decision))
 
 
 def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, float]:
     params = c.sf_params.params()
     return DecisionPlanner(params=params, decider=c.decision.decider(params, ReflectionThresholds()),
                            goal_predictor=b.goal_predictor(c.goals), neighbour_mode=c.neighbours,
-                           shield_params=params if c.shield else None, name=label), 0.0
+                           shield_params=params if c.shield else None, name=label,
+                           shield_defaults=c.shield_defaults is None), 0.0
 
 
 def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig

@@ -10,7 +10,7 @@ shield as the LLM planners. Batched over scenarios; no model call.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -28,12 +28,13 @@ from letspi.planners.llm import (
     PROPOSED_VXY,
     PROPOSED_XY,
     SHIELD,
+    SHIELD_DEFAULTS,
     simulate_and_shield,
 )
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
-OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD)
+OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD, SHIELD_DEFAULTS)
 
 
 class SfCheckConfig(SocialForcePlannerFields):
@@ -42,6 +43,10 @@ class SfCheckConfig(SocialForcePlannerFields):
     kind: Literal["sf-check"] = "sf-check"
     decision: DecisionConfig
     shield: bool = True
+    #: False: the shield leaves the plans kept as the defaults alone (they are sf's); None: it checks every plan
+    shield_defaults: bool | None = None
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"shield_defaults"})
 
 
 @dataclass
@@ -53,6 +58,7 @@ class DecisionPlanner(PredictingPlanner):
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
     batch_size: int = 256
+    shield_defaults: bool = True
 
     def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, GatedChecks]:
         """(B,) the preset index of each scenario and the checks it came from (every preset's only where
@@ -85,4 +91,4 @@ class DecisionPlanner(PredictingPlanner):
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
-                                   with_memories=False, decider=self.decider)
+                                   with_memories=False, decider=self.decider, shield_defaults=self.shield_defaults)
