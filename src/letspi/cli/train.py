@@ -251,9 +251,8 @@ def train_llm(
              "fp32 or bf16.")] = "auto",
     checkpoint_every_s: Annotated[float, typer.Option(
         help="Seconds of training between resumable checkpoints.")] = 300.0,
-    balance: Annotated[float, typer.Option(
-        help="Rebalance the training split towards rare replies: each example repeated (n of the commonest reply "
-             "/ n of its reply) ** BALANCE times, at most 8 (0: the labels' shares; 1: even).")] = 0.0,
+    balance: Annotated[float, typer.Option(help="Repeat each training example (n of the commonest reply / n of its "
+                                           "reply) ** BALANCE times, at most 8 (0: as labelled).")] = 0.0,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M (LoRA on the packaged GGUF) on physics-verified labels and
     export a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and

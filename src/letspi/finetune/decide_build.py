@@ -55,6 +55,38 @@ def _given_presets(pool: OptionTable, given: OptionTable, params: SocialForcePar
     return chosen
 
 
+def _write_presets(out: Path, pool: OptionTable, everything: OptionOutcomes, n_presets: int,
+                   params: SocialForceParams, presets_file: Path | None,
+                   provenance: dict[str, Any]) -> tuple[list[int], OptionTable]:
+    """The presets (selected from the pool, or ``presets_file``'s) as pool indices and as a table, written to
+    ``out/presets.json``."""
+    if presets_file is None:
+        chosen = sorted(select_presets(everything, n_presets))  # in the pool's order: the defaults, then by caution
+    else:
+        chosen = _given_presets(pool, load_presets(presets_file)[0], params)
+    presets = OptionTable(tuple(pool.names[k] for k in chosen), pool.values[chosen])
+    if presets_file is None:
+        atomic_write_text(out / "presets.json", json.dumps({"format": PRESETS_FORMAT, **presets.to_json(),
+                                                            "provenance": provenance}, indent=1) + "\n")
+    else:
+        atomic_write_text(out / "presets.json", Path(presets_file).read_text())
+    return chosen, presets
+
+
+def _write_gate(out: Path, features: np.ndarray, everything: OptionOutcomes, fold: np.ndarray, consult_share: float,
+                risk_model_file: Path | None, provenance: dict[str, Any]) -> tuple[TreeEnsemble, np.ndarray]:
+    """The gate (fitted, or ``risk_model_file``'s) and its (B,) scores of the windows, written to
+    ``out/risk_model.json``: cross-validated scores of a fitted gate, the given gate's own otherwise."""
+    if risk_model_file is None:
+        gate, risk = fit_gate(features, everything, fold, consult_share=consult_share, provenance=provenance)
+        atomic_write_text(out / "risk_model.json", json.dumps(gate.to_json()) + "\n")
+    else:
+        gate = TreeEnsemble.load(risk_model_file)
+        risk = gate.score(features)
+        atomic_write_text(out / "risk_model.json", Path(risk_model_file).read_text())
+    return gate, risk
+
+
 def build_decision_data(scenario_files: Sequence[Path], out: Path, goal_predictor: GoalPredictor,
                         params: SocialForceParams, *, goals: str, n_presets: int, consult_share: float,
                         keep_share: float, refine_weight: float, weights: Weights | None = None, command: str = "",
@@ -77,36 +109,20 @@ def build_decision_data(scenario_files: Sequence[Path], out: Path, goal_predicto
         outcomes.append(run.run(progress=progress))
         batches.append(batch)
     everything = OptionOutcomes.concat(outcomes)
-    if presets_file is None:
-        chosen = sorted(select_presets(everything, n_presets))  # in the pool's order: the defaults, then by caution
-    else:
-        chosen = _given_presets(pool, load_presets(presets_file)[0], params)
-    presets = OptionTable(tuple(pool.names[k] for k in chosen), pool.values[chosen])
     sources = [{"file": provenance_path(p), "digest": dataset_digest(scenario_digests(b)), "windows": len(b)}
                for p, b in zip(scenario_files, batches, strict=True)]
     provenance = {"command": command, "sources": sources, "pool": list(pool.names), "goals": goals,
                   "sf_params": params.as_dict(), "adverse": adverse.model_dump(mode="json"),
                   "selection": "greedy cover of the windows where the defaults collide by options that pass every "
                                "plan-time check there and avoid the contact in hindsight"}
-    if presets_file is None:
-        atomic_write_text(out / "presets.json", json.dumps({"format": PRESETS_FORMAT, **presets.to_json(),
-                                                            "provenance": provenance}, indent=1) + "\n")
-    else:
-        atomic_write_text(out / "presets.json", Path(presets_file).read_text())
+    chosen, presets = _write_presets(out, pool, everything, n_presets, params, presets_file, provenance)
     names = tuple(str(a) for a in adverse.futures)
     features = np.concatenate([gate_features(b.history(), o.predicted_safe[:, 0], o.adverse_failed[:, 0], names)
                                for b, o in zip(batches, outcomes, strict=True)])
     groups = np.concatenate([np.char.add(f"{k}/", vehicle_keys(b).astype(str)) for k, b in enumerate(batches)])
     fold = grouped_fold(groups, 5)
-    if risk_model_file is None:
-        gate, risk = fit_gate(features, everything, fold, consult_share=consult_share,
-                              provenance={"command": command, "sources": sources,
-                                          "consult_share_requested": consult_share})
-        atomic_write_text(out / "risk_model.json", json.dumps(gate.to_json()) + "\n")
-    else:
-        gate = TreeEnsemble.load(risk_model_file)
-        risk = gate.score(features)
-        atomic_write_text(out / "risk_model.json", Path(risk_model_file).read_text())
+    gate, risk = _write_gate(out, features, everything, fold, consult_share, risk_model_file,
+                             {"command": command, "sources": sources, "consult_share_requested": consult_share})
     preset_outcomes = everything.take_options(chosen)
     checks = np.concatenate([preset_outcomes.predicted_safe, preset_outcomes.adverse_failed.reshape(len(fold), -1),
                              preset_outcomes.progress_m - preset_outcomes.progress_m[:, :1]], axis=1).astype(np.float64)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -42,7 +43,7 @@ from letspi.finetune.train import (
     load_base,
 )
 from letspi.fsutil import atomic_write_text, provenance_path
-from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps
+from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
 from letspi.llm.choice import choice_reply_text
 
 
@@ -201,19 +202,24 @@ def train_dpo(pairs: Sequence[PreferencePair], config: DpoConfig, base_gguf: Pat
         "preference": {**asdict(config), "init": init_manifest["adapter"]["sha256"],
                        "init_manifest_training": init_manifest.get("training", {}).get("command")},
         "data": {**(data_info or {}), "n_pairs_train": len(train), "n_pairs_val": len(val)},
-        "training": {"steps": history.steps, "train_s": history.train_s,
-                     "s_per_step": history.train_s / max(history.steps, 1),
-                     "first_loss": history.losses[0] if history.losses else None,
-                     "final_loss_mean10": float(np.mean(history.losses[-10:])) if history.losses else None,
-                     "val_pair_accuracy_before": val_before, "val_pair_accuracy_after": _pair_accuracy(after),
-                     "resumed_from_step": history.resumed_from, "elapsed_s_this_process": time.perf_counter() - t0,
-                     "command": command},
+        "training": {**_history_record(history), "val_pair_accuracy_before": val_before,
+                     "val_pair_accuracy_after": _pair_accuracy(after),
+                     "elapsed_s_this_process": time.perf_counter() - t0, "command": command},
         "export_check": check, "versions": _versions(),
     }
     atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
     (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
     assert (out_dir / ADAPTER_FILE).is_file()
     return manifest
+
+
+def _history_record(history: StepHistory) -> dict[str, Any]:
+    """The manifest's steps, time and losses of a run."""
+    losses = history.losses
+    return {"steps": history.steps, "train_s": history.train_s, "s_per_step": history.train_s / max(history.steps, 1),
+            "first_loss": losses[0] if losses else None,
+            "final_loss_mean10": float(np.mean(losses[-10:])) if losses else None,
+            "resumed_from_step": history.resumed_from, "loadavg_end": list(os.getloadavg())}
 
 
 def _split_pairs(pairs: Sequence[PreferencePair], config: DpoConfig) -> tuple[list[PreferencePair],
