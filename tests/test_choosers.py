@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from letspi.assembly.build import Builder
@@ -203,3 +205,35 @@ def test_the_shipped_teacher_reads_the_shipped_presets_and_futures_and_decides_o
     assert x.shape == (len(batch), len(teacher.feature_names))
     eu = teacher.expected_utility(x)
     assert np.isfinite(eu).all() and teacher.choose_x(x).tolist() == np.argmax(eu, axis=1).tolist()
+
+
+@pytest.mark.slow
+def test_train_decide_keeps_given_presets_and_gate_and_writes_their_teacher(tmp_path: Path) -> None:
+    pytest.importorskip("sklearn")
+    from importlib import resources
+
+    from letspi.finetune.decide_build import build_decision_data
+    from letspi.finetune.decide_data import HINDSIGHT_COLUMN
+    from letspi.scenario.store import save_scenarios
+
+    rng = np.random.default_rng(3)
+    scenes = concat_batches([straight_road_scenario(
+        ego_speed_mps=float(rng.uniform(20.0, 33.0)), scenario_id=f"c{i:02d}",
+        neighbours=[VehicleSpec(x0_m=float(rng.uniform(-40.0, 40.0)), speed_mps=float(rng.uniform(12.0, 33.0)),
+                                lane_offset=int(rng.integers(-1, 2))) for _ in range(4)]) for i in range(30)])
+    scenes = dataclasses.replace(scenes, ego_id=np.arange(30, dtype=scenes.ego_id.dtype))  # 30 vehicles: 5 folds
+    path = save_scenarios(scenes, tmp_path / "train.arrow")
+    data = Path(str(resources.files("letspi.data")))
+    params, _ = load_sf_params(None)
+    summary = build_decision_data([path], tmp_path / "td", KinematicGoalPredictor(), params, goals="kinematic",
+                                  n_presets=6, consult_share=0.2, keep_share=1.0, refine_weight=2.0,
+                                  presets_file=data / "presets.json", risk_model_file=data / "risk_model.json")
+    for name in ("presets.json", "risk_model.json"):  # kept as given, byte for byte
+        assert (tmp_path / "td" / name).read_text() == (data / name).read_text()
+    assert summary["presets"] == list(load_presets()[0].names)
+    teacher, _ = load_teacher(tmp_path / "td" / "teacher.json")
+    assert teacher.presets == load_presets()[0].names and teacher.provenance["windows"] == 30
+    labels = pd.read_parquet(tmp_path / "td" / "labels" / "train" / "labels.parquet")
+    assert len(labels) >= 30  # keep_share 1: every window is an example
+    outcomes = [json.loads(h) for h in labels[HINDSIGHT_COLUMN]]
+    assert all(len(o) == 6 and len(o[0]) == 4 for o in outcomes)
