@@ -67,7 +67,7 @@ from letspi.planners.llm import (
     LLM,
     MEMORY_PLANNER_OPTIONS,
     SHIELD,
-    SHIELD_DEFAULTS,
+    SHIELD_PRESETS,
     SINGLE_SHOT_OPTIONS,
     TEACHER,
     TOP_K_OPTION,
@@ -267,10 +267,10 @@ def _resolve_chooser(r: Resolver) -> ChooserConfig | None:
     return ChooserConfig(name=name, teacher_sha256=sha, teacher_path="shipped" if path is None else str(path))
 
 
-def _shield_defaults(r: Resolver, decision: DecisionConfig | None) -> bool | None:
-    """``--shield-defaults``: None (the shield checks every plan, the key of before the setting) where it is
-    given, where there is no shield or no decision step; False (the defaults are left as they are) else."""
-    if decision is None or not r.options.get(SHIELD) or r.options.get(SHIELD_DEFAULTS):
+def _shield_presets(r: Resolver, decision: DecisionConfig | None) -> bool | None:
+    """``--shield-presets``: None (the shield checks every plan, the key of before the setting) where it is
+    given, where there is no shield or no decision step; False (the step's presets are left as they are) else."""
+    if decision is None or not r.options.get(SHIELD) or r.options.get(SHIELD_PRESETS):
         return None
     return False
 
@@ -289,7 +289,7 @@ def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
                                  top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=decision, chooser=chooser,
-                                 shield_defaults=_shield_defaults(r, decision) if kind == "letspi-fast" else None)
+                                 shield_presets=_shield_presets(r, decision) if kind == "letspi-fast" else None)
     return resolve
 
 
@@ -332,7 +332,7 @@ def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, 
     shield = c.sf_params.params() if c.shield else None
     shuffle = c.chooser is not None and c.chooser.name == SHUFFLED_CHOOSER
     return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label,
-                             shuffle=shuffle, shield_defaults=c.shield_defaults is None), load_s
+                             shuffle=shuffle, shield_presets=c.shield_presets is None), load_s
 
 
 def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
@@ -340,7 +340,7 @@ def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
     if decision is None:
         raise ValueError("sf-check is the decision step without a model: drop --no-decide")
     return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
-                         shield=r.options.get(SHIELD), shield_defaults=_shield_defaults(r, decision))
+                         shield=r.options.get(SHIELD), shield_presets=_shield_presets(r, decision))
 
 
 def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, float]:
@@ -348,7 +348,7 @@ def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, 
     return DecisionPlanner(params=params, decider=c.decision.decider(params, ReflectionThresholds()),
                            goal_predictor=b.goal_predictor(c.goals), neighbour_mode=c.neighbours,
                            shield_params=params if c.shield else None, name=label,
-                           shield_defaults=c.shield_defaults is None), 0.0
+                           shield_presets=c.shield_presets is None), 0.0
 
 
 def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig

@@ -28,7 +28,9 @@ then ``sf-opt``'s candidate grid around them, cheapest first) are simulated and 
 first safe alternative in that order, else the least unsafe plan of all (possibly the original).
 Info columns: ``shielded`` (the plan was replaced), ``shield_checked`` (the shield ran),
 ``shield_safe`` (the returned plan passes the checks), ``shield_source`` (0 = the LLM's plan, 1..k =
-retrieved memory k, -1 = the fitted ``sf`` parameters, -2 = a grid candidate).
+retrieved memory k, -1 = the fitted ``sf`` parameters, -2 = a grid candidate). With the decision step
+the shield leaves alone the presets the step planned (it checked them against the prediction and the
+adverse futures already); ``--shield-presets`` shields them too.
 """
 
 from __future__ import annotations
@@ -123,10 +125,11 @@ SHIELD = PlannerOption(
     "Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
     "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters; "
     "--no-shield: the paper-faithful ablation")
-SHIELD_DEFAULTS = PlannerOption(
-    "shield_defaults", bool, False,
-    "Decision step of letspi-fast and sf-check: the shield may replace a plan the decision step kept as the "
-    "defaults too (off: where the defaults are kept the planner plans exactly as sf)")
+SHIELD_PRESETS = PlannerOption(
+    "shield_presets", bool, False,
+    "Decision step of letspi-fast and sf-check: the shield may replace the preset the decision step planned too "
+    "(off: the decision step's checks against the prediction and the adverse futures stand in for it, and where "
+    "the defaults are kept the planner plans exactly as sf)")
 #: what memory collection reads (``Resolver.memory_phase``)
 MEMORY_PHASE_OPTIONS: tuple[PlannerOption[Any], ...] = (
     LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MAX_REFINEMENTS, GOAL_ADJUSTMENT, DECIDE, PRESETS, ADVERSE, RISK_MODEL,
@@ -145,7 +148,7 @@ TEACHER = file_option("teacher_file", "Trees of --chooser teacher (from `letspi 
                       "ones)", flag="--teacher")
 FAST_OPTIONS: tuple[PlannerOption[Any], ...] = (
     FAST_LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MEMORY, MEMORY_KEY, TOP_K_OPTION, ALLOW_SAME_VEHICLE,
-    MEMORY_FRACTION, MEMORY_SEED, SHIELD, SHIELD_DEFAULTS, CHOOSER, TEACHER, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
+    MEMORY_FRACTION, MEMORY_SEED, SHIELD, SHIELD_PRESETS, CHOOSER, TEACHER, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
 
 
 def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float]) -> dict[str, np.ndarray]:
@@ -421,7 +424,7 @@ class LetsPiFastPlanner:
     concurrent_safe: bool = True
     proposes_per_scenario: bool = True
     shuffle: bool = False
-    shield_defaults: bool = True  # False: the shield leaves alone the plans the decision step kept as the defaults
+    shield_presets: bool = True  # False: the shield leaves alone the presets the decision step planned
 
     def __post_init__(self) -> None:
         if self.shuffle:
@@ -494,7 +497,7 @@ class LetsPiFastPlanner:
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
                                    with_memories=True, decider=self.phase.decider,
-                                   shield_defaults=self.shield_defaults)
+                                   shield_presets=self.shield_presets)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
@@ -503,15 +506,16 @@ class LetsPiFastPlanner:
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                         shield_params: SocialForceParams | None, thresholds: ReflectionThresholds, *,
                         with_memories: bool, decider: Decider | None = None,
-                        shield_defaults: bool = True) -> PlanBatch:
+                        shield_presets: bool = True) -> PlanBatch:
     """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield
     each plan with the alternatives: the retrieved memories' (``with_memories``) and the fitted ones.
 
     With a ``decider`` the plans are also checked against the adverse futures (info ``adverse_failed``,
     unless the proposals carry it) and a plan the shield replaces is replaced first by the presets that
-    pass every check, the most progress first (``shield_source`` ``PRESET_SOURCE``). ``shield_defaults``
-    False: a plan whose decision (info ``decision``) is the defaults is left as it is (it is ``sf``'s plan:
-    the shield's replacements there cost contacts and success)."""
+    pass every check, the most progress first (``shield_source`` ``PRESET_SOURCE``). ``shield_presets``
+    False: a plan of one of the decision step's presets (info ``decision``) is left as it is: the step checked it
+    against the prediction and the adverse futures already, and the shield's replacements of such plans cost
+    contacts and success (where the defaults are kept, the plan is then ``sf``'s)."""
     if PROPOSED_XY in proposals.extra:  # rolled out by the planner already
         sim = SimulatedPlan(*(np.asarray(proposals.extra[k]) for k in (PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS)))
     else:
@@ -525,8 +529,9 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
     reports = safety_report(batch, sim.xy_m, sim.vxy_mps, context.neighbours, thresholds)
     fallback = _sf_alternatives(shield_params)
     memories = proposals.extra.get(MEMORY_ALTERNATIVES) if with_memories else None
-    kept = (np.asarray(info.get("decision", np.full(len(batch), "")), dtype=object) == DEFAULT_NAME
-            if decider is not None and not shield_defaults else np.zeros(len(batch), dtype=bool))
+    kept = (np.isin(np.asarray(info.get("decision", np.full(len(batch), "")), dtype=object),
+                    list(decider.presets.names))
+            if decider is not None and not shield_presets else np.zeros(len(batch), dtype=bool))
     failing = [i for i, r in enumerate(reports) if not r.safe and not kept[i]]
     presets = _preset_alternatives(batch, context, decider, failing, proposals.extra) \
         if decider is not None and failing else {}
@@ -662,11 +667,11 @@ class FastPlannerConfig(Config):
     shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
     decision: DecisionConfig | None = None  # presets, adverse futures, risk gate (None: as before the decision step)
     chooser: ChooserConfig | None = None
-    #: with the decision step and the shield: False, the shield leaves the plans kept as the defaults alone;
+    #: with the decision step and the shield: False, the shield leaves the presets the step planned alone;
     #: None, it checks every plan (as before this setting existed)
-    shield_defaults: bool | None = None
+    shield_presets: bool | None = None
 
-    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision", "chooser", "shield_defaults"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision", "chooser", "shield_presets"})
 
     @model_validator(mode="after")
     def _chooser_and_model(self) -> FastPlannerConfig:

@@ -28,13 +28,13 @@ from letspi.planners.llm import (
     PROPOSED_VXY,
     PROPOSED_XY,
     SHIELD,
-    SHIELD_DEFAULTS,
+    SHIELD_PRESETS,
     simulate_and_shield,
 )
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
-OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD, SHIELD_DEFAULTS)
+OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD, SHIELD_PRESETS)
 
 
 class SfCheckConfig(SocialForcePlannerFields):
@@ -43,10 +43,10 @@ class SfCheckConfig(SocialForcePlannerFields):
     kind: Literal["sf-check"] = "sf-check"
     decision: DecisionConfig
     shield: bool = True
-    #: False: the shield leaves the plans kept as the defaults alone (they are sf's); None: it checks every plan
-    shield_defaults: bool | None = None
+    #: False: the shield leaves the planned presets alone (the defaults are then sf's); None: it checks every plan
+    shield_presets: bool | None = None
 
-    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"shield_defaults"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"shield_presets"})
 
 
 @dataclass
@@ -58,7 +58,7 @@ class DecisionPlanner(PredictingPlanner):
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
     batch_size: int = 256
-    shield_defaults: bool = True
+    shield_presets: bool = True
 
     def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, GatedChecks]:
         """(B,) the preset index of each scenario and the checks it came from (every preset's only where
@@ -91,4 +91,4 @@ class DecisionPlanner(PredictingPlanner):
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
-                                   with_memories=False, decider=self.decider, shield_defaults=self.shield_defaults)
+                                   with_memories=False, decider=self.decider, shield_presets=self.shield_presets)
