@@ -6,7 +6,8 @@ The labels directories are those `letspi train decide` wrote (`OUT/labels/NAME`)
 trained on, given in the same order; the validation examples are the ones `letspi train llm` held out (by
 ego vehicle, 10 %, seed 0). Each distinct prompt is asked once through the default model spec
 (`llamacpp:smollm2-135m-letspi`; set LETSPI_LLM_ADAPTER to try another adapter), uncached. Prints the
-confusion (kind, label -> answer), the accuracy and the median latency per call as JSON.
+accuracy overall and per label (all examples, and first proposals only), the answers' shares in first
+proposals, the confusion (kind, label -> answer) and the median latency per call as JSON.
 """
 
 from __future__ import annotations
@@ -47,7 +48,31 @@ def main(dirs: list[Path]) -> dict[str, object]:
     n = sum(confusion.values())
     return {"n": n, "accuracy": sum(v for k, v in confusion.items() if k[1] == k[2]) / max(n, 1),
             "median_latency_s": sorted(latencies)[len(latencies) // 2] if latencies else None,
+            "per_label": per_label(confusion), "per_label_propose": per_label(confusion, "propose"),
+            "answers_propose": answer_shares(confusion, "propose"),
             "confusion": {f"{kind} {label} -> {answer}": v for (kind, label, answer), v in sorted(confusion.items())}}
+
+
+def per_label(confusion: collections.Counter[tuple[str, str, str]], kind: str | None = None) -> dict[str, object]:
+    """Per label (of the examples of ``kind``, all without): how many, how many answered right, the share."""
+    out: dict[str, object] = {}
+    for label in sorted({k[1] for k in confusion}):
+        rows = {k: v for k, v in confusion.items() if k[1] == label and (kind is None or k[0] == kind)}
+        n = sum(rows.values())
+        if n:
+            right = sum(v for k, v in rows.items() if k[2] == label)
+            out[label] = {"n": n, "right": right, "accuracy": right / n}
+    return out
+
+
+def answer_shares(confusion: collections.Counter[tuple[str, str, str]], kind: str) -> dict[str, float]:
+    """How often each answer was given to the examples of ``kind``."""
+    rows = {k: v for k, v in confusion.items() if k[0] == kind}
+    n = max(sum(rows.values()), 1)
+    shares: dict[str, float] = {}
+    for (_, _, answer), v in rows.items():
+        shares[answer] = shares.get(answer, 0.0) + v / n
+    return dict(sorted(shares.items()))
 
 
 if __name__ == "__main__":

@@ -81,3 +81,36 @@ def test_the_shield_reuses_sf_check_s_preset_checks_and_plans_the_same() -> None
     assert reused.info["shield_source"].tolist() == checked_again.info["shield_source"].tolist()
     assert (reused.info["shield_source"] != "").any()  # the case must be one where the shield acts
     np.testing.assert_array_equal(reused.xy_m, checked_again.xy_m)
+
+
+def test_where_the_decision_step_keeps_the_defaults_the_planner_plans_exactly_as_sf() -> None:
+    """The shield's replacements of the decision step's presets (sf-opt's grid, a memory, another preset) cost
+    contacts and success on the held-out suites (notes/model_earns.md): by default it leaves them alone, so a
+    window the step keeps is sf's, and a chosen preset is that preset's plan; ``--shield-presets`` restores the
+    shield there."""
+    batch = concat_batches([
+        straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(gap, 29.0 - drop)], scenario_id=f"s{i}")
+        for i, (gap, drop) in enumerate([(22.0, 0.0), (10.0, 8.0), (14.0, 12.0), (40.0, 2.0)])
+    ]).history()
+    never = OPTS.replace(gate_threshold=1.01)  # the gate keeps the defaults everywhere
+    sf = build_planner(resolve_planner("sf", OPTS), "sf", builder=Builder(cache=None)).planner.plan(batch)
+    kept = build_planner(resolve_planner("sf-check", never), "sf-check",
+                         builder=Builder(cache=None)).planner.plan(batch)
+    assert list(kept.info["decision"]) == ["default"] * 4 and not kept.info["shielded"].any()
+    np.testing.assert_array_equal(kept.xy_m, sf.xy_m)
+    shielding = resolve_planner("sf-check", never.replace(shield_presets=True))
+    assert shielding.key() != resolve_planner("sf-check", never).key()
+    shielded = build_planner(shielding, "sf-check", builder=Builder(cache=None)).planner.plan(batch)
+    assert shielded.info["shielded"].any()  # the case is one where the shield would act on the defaults
+    rows = shielded.info["shielded"] > 0
+    assert np.abs(shielded.xy_m[rows] - sf.xy_m[rows]).max() > 0.1
+    np.testing.assert_array_equal(shielded.xy_m[~rows], sf.xy_m[~rows])
+    # every preset the rule picks is planned as it is: the plan of the preset's own parameters
+    ruled = build_planner(resolve_planner("sf-check", OPTS.replace(gate=False)), "sf-check",
+                          builder=Builder(cache=None)).planner
+    plans = ruled.plan(batch)
+    assert not plans.info["shielded"].any() and (plans.info["decision"] != "default").any()
+    context = ruled.context(batch)  # type: ignore[attr-defined]
+    checks = ruled.decider.check(batch, context.goals_xy_m, context.neighbours)  # type: ignore[attr-defined]
+    chosen = [checks.names.index(d) for d in plans.info["decision"]]
+    np.testing.assert_array_equal(plans.xy_m, checks.xy_m[np.arange(len(batch)), chosen])

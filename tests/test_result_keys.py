@@ -10,7 +10,9 @@ stamps the time into the file), the decision step's shipped data (issue 28 refit
 risk model: their values, and the threshold recommended with the model) and the embedded model's weights
 (the shipped adapter is retrained, and the base runs from an F16 copy: their SHA-256) are replaced by
 constants in the identity before it is hashed. Behaviour that changes on purpose moves keys here:
-issue 28's verification of the fast phase's choice (``verify``) moved letspi-fast's and letspi-fs's.
+issue 28's verification of the fast phase's choice (``verify``) moved letspi-fast's and letspi-fs's; issue
+36's shield that leaves the decision step's presets alone (``shield_presets``) moved sf-check's and the deciding
+letspi-fast's (``--shield-presets`` gives their keys of before).
 """
 
 from __future__ import annotations
@@ -88,25 +90,25 @@ DEFAULT_KEYS = {
     "sf-opt": "f63396bbbbc3c5ec", "gnp": "df7b5695c2549f70", "frenet": "51ebfe8893f68f60",
     "mlp": "30fb7572d9e66bf6", "llm": "0035c0d451122504", "letspi-memory": "e09321132070e1d0",
     "letspi-fast": "e6fe29ec90f36ac0", "letspi-fs": "a66c3746e9059b93",
-    "sf-check": "4467408d9bff8417",  # issue 28's kind, pinned on main at 9cb44e3, presets and risk model replaced
+    "sf-check": "3cad719e7654662f",  # issue 28's kind, pinned on main at 9cb44e3, presets and risk model replaced
 }
 #: one option changed at a time (``@name``: a file of the fixture): the kinds whose key it moves (the other
 #: kinds keep their default key); ``refused`` where resolution refuses the option
 VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "neighbours": ({"neighbour_mode": "constant_velocity"}, {"idm": "7ebf8bb605573595", "sf": "9d8c0b64e7c852b6",
-        "sf-check": "df7d7614b5e12017", "sf-opt": "a93543ee377f5fdd", "gnp": "80541cd6172574bb",
+        "sf-check": "de76ab9e8ebc95bb", "sf-opt": "a93543ee377f5fdd", "gnp": "80541cd6172574bb",
         "frenet": "2cb73f85d2d8c293", "mlp": "3800ea4877565340", "llm": "3e9c860384ea6192",
         "letspi-memory": "239485c4d350f9f0", "letspi-fast": "2070d80d08eaacf6", "letspi-fs": "f6fef997bd3eac4e"}),
     "kinematic goals": ({"goals": "kinematic"}, {"sf": "5c341163810f3bb0", "sf-opt": "8bad0e27c282074e",
-        "gnp": "refused", "sf-check": "6398c8379ab9ff7c", "frenet": "842a6dbf3138d608", "mlp": "a31e4e9832425486",
+        "gnp": "refused", "sf-check": "d386cc68748eb459", "frenet": "842a6dbf3138d608", "mlp": "a31e4e9832425486",
         "llm": "69c98101af310ebe", "letspi-memory": "913690e54903e33a", "letspi-fast": "c764a90d7a0e8aa1",
         "letspi-fs": "9bb09b47748ebbb7"}),
     "oracle goals": ({"goals": "oracle"}, {"sf": "4ac840df89cec3af", "sf-opt": "37d980c247977be5", "gnp": "refused",
-        "sf-check": "dbe6d6f8489e496f", "frenet": "439d00fefb00f383", "mlp": "e9c670d41bb5436d",
+        "sf-check": "9b77b2c941edc1bb", "frenet": "439d00fefb00f383", "mlp": "e9c670d41bb5436d",
         "llm": "af510e4d3f3e5248", "letspi-memory": "167e5b418e9be2f8", "letspi-fast": "301b79c85fd6e0e0",
         "letspi-fs": "95edead385379532"}),
     "sf parameter file": ({"sf_params_file": "@sf"}, {"sf": "49ea889f0a86441c", "sf-opt": "59140a2db3b5cd12",
-        "sf-check": "675bca0166c9ebfd", "mlp": "9ef1ad2c6504591c", "llm": "48cec17611cf1242",
+        "sf-check": "02f2e5b2e42da962", "mlp": "9ef1ad2c6504591c", "llm": "48cec17611cf1242",
         "letspi-memory": "fbcdf12c32ca6083", "letspi-fast": "5dacdb41a6d20cbf", "letspi-fs": "025a394a9b1fa0a7"}),
     "frenet weights file": ({"frenet_weights_file": "@frenet"}, {"frenet": "60ea6946bb5bdc07"}),
     "top-k": ({"top_k": 5}, {"letspi-fast": "06a24917eef61dad", "letspi-fs": "a372138f1d530609"}),
@@ -123,11 +125,11 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "no shield": ({"shield": False}, {"llm": "b2f1bf72dde95a66", "letspi-memory": "72e49b6cdb022509",
         "letspi-fast": "77793932b6d563cf", "letspi-fs": "a4e42b056b4494b7", "sf-check": "c3630e9eac3c951b"}),
     # the decision step (issue 28; pinned on main at 9cb44e3, presets and risk model replaced)
-    "no gate": ({"gate": False}, {"sf-check": "d63b4ca94c696aff"}),
-    "gate threshold": ({"gate_threshold": 0.5}, {"sf-check": "d1efc37625dc0cbd"}),
-    "no adverse": ({"adverse": False}, {"sf-check": "1e129cca5fb21ec6"}),
+    "no gate": ({"gate": False}, {"sf-check": "d2a7c8a2684495ad"}),
+    "gate threshold": ({"gate_threshold": 0.5}, {"sf-check": "212382e42cb57d63"}),
+    "no adverse": ({"adverse": False}, {"sf-check": "c418f62775922276"}),
     "decide": ({"decide": True}, {"llm": "94aa85039b987d52", "letspi-memory": "db8a47332a863b08",
-        "letspi-fast": "a8bb2b1d77222f48", "letspi-fs": "eb2b62e796104e6f"}),
+        "letspi-fast": "358ca1b24309a5a1", "letspi-fs": "eb2b62e796104e6f"}),
     "compact prompt": ({"prompt_style": "compact"}, {"llm": "465c6c7af86c0d4e", "letspi-memory": "94f7ab4838a8f269",
         "letspi-fast": "4fe8ce85cf6eaea5", "letspi-fs": "67f02206d47f224b"}),
     "cosmetic only": ({"llm_cache": False, "llm_timeout_s": 12.0}, {}),
@@ -135,7 +137,7 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
 #: the LLM kinds on the embedded default model (its weights, adapter and llama.cpp runtime fingerprinted);
 #: moved on purpose by issue 28's shipped adapter (prompt style choice) and the fast phase's verification;
 #: recomputed with the weights' digests replaced (``DATA_FIELDS``)
-EMBEDDED_KEYS = {"llm": "72995e49342617ce", "letspi-memory": "28b4e739ba99a9a9", "letspi-fast": "41f04d6d3d2faaed",
+EMBEDDED_KEYS = {"llm": "72995e49342617ce", "letspi-memory": "28b4e739ba99a9a9", "letspi-fast": "a76f30d4471a335e",
                  "letspi-fs": "e98ee5aed5036e1e"}
 COLLECTION_KEYS = {"scripted": "216bc7d8c4de867c", "embedded": "9a40f3e2d34c4be2"}
 
@@ -170,8 +172,9 @@ def test_each_option_moves_exactly_the_keys_it_moved_before(files: dict[str, Pat
 def test_the_embedded_model_and_the_collection_keep_their_keys(files: dict[str, Path]) -> None:
     embedded = PlannerOptions(memory=files["memory"])
     assert {kind: _key(embedded, kind) for kind in EMBEDDED_KEYS} == EMBEDDED_KEYS
-    # --no-verify: the model's choice stands, under the key the fast phase had before verification
-    unverified = PlannerOptions(memory=files["memory"], verify=False)
+    # --no-verify --shield-presets: the model's choice stands and the shield checks every plan, under the key
+    # the fast phase had before verification
+    unverified = PlannerOptions(memory=files["memory"], verify=False, shield_presets=True)
     assert {kind: _key(unverified, kind) for kind in ("letspi-fast", "letspi-fs")} == {
         "letspi-fast": "f99ff4f76cde4b0d", "letspi-fs": "6fb882405039e018"}  # = main before verification
     assert {"scripted": pinned_key(Resolver(_options(files), env={}).memory_phase().identity()),

@@ -97,7 +97,8 @@ class Builder:
     def fast_phase(self, config: FastPlannerConfig) -> tuple[FastPhase, float]:
         """The fast-inference phase of ``letspi-fast`` (retrieval) or ``letspi-fs`` (three static examples)
         over the memory snapshot ``config`` pins, and model load time."""
-        advisor, load_s = self.advisor_with_load_time(config.llm, config.sf_params)
+        advisor, load_s = (self.advisor_with_load_time(config.llm, config.sf_params) if config.llm is not None
+                           else (None, 0.0))
         ref = config.memory
         bank = MemoryBank.open(ref.path, readonly=True)
         ids, sha = bank.snapshot(ref.collection_key)
@@ -116,8 +117,11 @@ class Builder:
                                   allow_same_vehicle=ref.allow_same_vehicle)
             decider = (config.decision.decider(config.sf_params.params(), ReflectionThresholds())
                        if config.decision is not None else None)
-            return FastPhase(advisor, goals, r_col, retriever, prompt_style=config.llm.prompt_style,
-                             decider=decider), load_s
+            chooser = config.chooser.chooser() if config.chooser is not None else None
+            return FastPhase(advisor, goals, r_col, retriever,
+                             prompt_style=config.llm.prompt_style if config.llm is not None else "choice",
+                             decider=decider, chooser=chooser), load_s
+        assert config.llm is not None  # letspi-fs always has its model
         # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
         static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
         return FastPhase(advisor, goals, r_col, None, static_examples=static,

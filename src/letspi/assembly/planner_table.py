@@ -35,6 +35,8 @@ from letspi.assembly.resolve import Resolver
 from letspi.keyed import Config
 from letspi.learned.gnp_model import GnpModel
 from letspi.learned.param_mlp import ParamMlp
+from letspi.method.choosers import MODEL_CHOOSER, SHUFFLED_CHOOSER, load_teacher, uses_model
+from letspi.method.config import DecisionConfig
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.metrics.registry import Metric
 from letspi.physics.neighbours import NeighbourPredictionMode
@@ -47,6 +49,7 @@ from letspi.planners.gnp import GnpConfig, GnpPlanner
 from letspi.planners.human import HumanConfig, HumanPlanner
 from letspi.planners.idm import IdmConfig, IdmPlanner
 from letspi.planners.llm import (
+    CHOOSER,
     FAST_LLM,
     FAST_OPTIONS,
     FAST_PLANNER_OUTPUTS,
@@ -54,8 +57,11 @@ from letspi.planners.llm import (
     MEMORY_PLANNER_OPTIONS,
     MEMORY_PLANNER_OUTPUTS,
     SHIELD,
+    SHIELD_PRESETS,
     SINGLE_SHOT_OPTIONS,
+    TEACHER,
     TOP_K_OPTION,
+    ChooserConfig,
     FastPlannerConfig,
     LetsPiFastPlanner,
     LetsPiMemoryPlanner,
@@ -266,14 +272,41 @@ def _resolve_memory(kind: str) -> Callable[[Resolver], MemoryPlannerConfig]:
     return resolve
 
 
+def _resolve_chooser(r: Resolver) -> ChooserConfig | None:
+    """``--chooser`` (None: the model); the teacher's file fingerprinted."""
+    name = r.options.get(CHOOSER)
+    if name == MODEL_CHOOSER:
+        return None
+    if name != "teacher":
+        return ChooserConfig(name=name)
+    path = r.options.get(TEACHER)
+    _, sha = load_teacher(path)
+    return ChooserConfig(name=name, teacher_sha256=sha, teacher_path="shipped" if path is None else str(path))
+
+
+def _shield_presets(r: Resolver, decision: DecisionConfig | None) -> bool | None:
+    """``--shield-presets``: None (the shield checks every plan, the key of before the setting) where it is
+    given, where there is no shield or no decision step; False (the step's presets are left as they are) else."""
+    if decision is None or not r.options.get(SHIELD) or r.options.get(SHIELD_PRESETS):
+        return None
+    return False
+
+
 def _resolve_fast(kind: str) -> Callable[[Resolver], FastPlannerConfig]:
     def resolve(r: Resolver) -> FastPlannerConfig:
         o = r.options
-        llm = r.llm(o.get(FAST_LLM))
+        chooser = _resolve_chooser(r) if kind == "letspi-fast" else None
+        if chooser is not None and not uses_model(chooser.name):  # no model: the choice style's decision step
+            llm, decision = None, r.decision("choice", verify=True)
+        else:
+            llm = r.llm(o.get(FAST_LLM))
+            decision = r.decision(llm.prompt_style, verify=True)
+            if chooser is not None and llm.prompt_style != "choice":
+                raise ValueError("--chooser shuffled asks the model the choice prompt: use --prompt-style choice")
         return FastPlannerConfig(kind=kind, llm=llm, goals=r.goals,  # type: ignore[arg-type]
                                  neighbours=r.neighbours, sf_params=r.sf_params, memory=r.memory_ref(),
-                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD),
-                                 decision=r.decision(llm.prompt_style, verify=True))
+                                 top_k=o.get(TOP_K_OPTION), shield=o.get(SHIELD), decision=decision, chooser=chooser,
+                                 shield_presets=_shield_presets(r, decision) if kind == "letspi-fast" else None)
     return resolve
 
 
@@ -314,7 +347,9 @@ def _build_memory(b: Builder, c: MemoryPlannerConfig, label: str) -> tuple[Plann
 def _build_fast(b: Builder, c: FastPlannerConfig, label: str) -> tuple[Planner, float]:
     phase, load_s = b.fast_phase(c)
     shield = c.sf_params.params() if c.shield else None
-    return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label), load_s
+    shuffle = c.chooser is not None and c.chooser.name == SHUFFLED_CHOOSER
+    return LetsPiFastPlanner(phase, neighbour_mode=c.neighbours, shield_params=shield, name=label,
+                             shuffle=shuffle, shield_presets=c.shield_presets is None), load_s
 
 
 def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
@@ -322,14 +357,15 @@ def _resolve_sf_check(r: Resolver) -> SfCheckConfig:
     if decision is None:
         raise ValueError("sf-check is the decision step without a model: drop --no-decide")
     return SfCheckConfig(neighbours=r.neighbours, goals=r.goals, sf_params=r.sf_params, decision=decision,
-                         shield=r.options.get(SHIELD))
+                         shield=r.options.get(SHIELD), shield_presets=_shield_presets(r, decision))
 
 
 def _build_sf_check(b: Builder, c: SfCheckConfig, label: str) -> tuple[Planner, float]:
     params = c.sf_params.params()
     return DecisionPlanner(params=params, decider=c.decision.decider(params, ReflectionThresholds()),
                            goal_predictor=b.goal_predictor(c.goals), neighbour_mode=c.neighbours,
-                           shield_params=params if c.shield else None, name=label), 0.0
+                           shield_params=params if c.shield else None, name=label,
+                           shield_presets=c.shield_presets is None), 0.0
 
 
 def _goals_and_neighbours(c: SfConfig | SfOptConfig | GnpConfig | FrenetConfig | MlpConfig | FastPlannerConfig

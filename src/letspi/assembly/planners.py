@@ -26,9 +26,10 @@ from letspi.assembly.planner_table import (
     planner_table,
 )
 from letspi.assembly.resolve import Resolver
+from letspi.keyed import Config
 from letspi.metrics.registry import Metric
 from letspi.planners.base import Planner
-from letspi.planners.config import Config, PlannerConfig
+from letspi.planners.config import PlannerConfig
 from letspi.planners.llm import LLM_CACHE
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 

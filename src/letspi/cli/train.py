@@ -251,6 +251,8 @@ def train_llm(
              "fp32 or bf16.")] = "auto",
     checkpoint_every_s: Annotated[float, typer.Option(
         help="Seconds of training between resumable checkpoints.")] = 300.0,
+    balance: Annotated[float, typer.Option(help="Repeat each training example (n of the commonest reply / n of its "
+                                           "reply) ** BALANCE times, at most 8 (0: as labelled).")] = 0.0,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M with LoRA. Trains on physics-verified labels (LoRA on the packaged
     GGUF) and exports a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
@@ -263,7 +265,7 @@ def train_llm(
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
                               max_steps=max_steps, threads=threads, val_fraction=val_fraction,
                               layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
-                              checkpoint_every_s=checkpoint_every_s)
+                              checkpoint_every_s=checkpoint_every_s, balance=balance)
         examples, info = _llm_examples(data, scenarios, max_scenarios)
         with progress_bar() as bar:
             task = bar.add_task("fine-tuning", total=None)
@@ -285,6 +287,54 @@ def train_llm(
                   f"{check.get('agree', 0)}/{check.get('n', 0)} prompts")
 
 
+@app.command("dpo")
+def train_dpo_cmd(
+    data: Annotated[list[Path], typer.Option("--data", help="Choice labels directories of `letspi train decide` "
+                                             "(with the hindsight column), in the order `train llm` had them.")],
+    init: Annotated[Path, typer.Option(help="The supervised adapter's directory (`letspi train llm --out`).")],
+    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
+                                      "resumes from its checkpoint when the same command is run again.")],
+    beta: Annotated[float, typer.Option(help="DPO temperature (how far from the supervised adapter).")] = 0.1,
+    lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, linear decay to 10 %).")] = 5e-5,
+    epochs: Annotated[float, typer.Option(help="Passes over the training pairs.")] = 1.0,
+    batch_size: Annotated[int, typer.Option(help="Pairs per optimiser step.")] = 4,
+    margin: Annotated[float, typer.Option(help="A pair needs its presets' hindsight utilities this far apart.")] = 1.0,
+    max_pairs: Annotated[int | None, typer.Option(help="At most this many training pairs (a seeded sample).")] = None,
+    seed: SeedOpt = 0,
+    threads: Annotated[int, typer.Option(help="torch CPU threads.")] = 2,
+    checkpoint_every_s: Annotated[float, typer.Option(
+        help="Seconds of training between resumable checkpoints.")] = 300.0,
+) -> None:
+    """One preference step after `letspi train llm`: DPO on pairs of presets ranked by their hindsight outcome
+    (the best preset of a window against each one whose outcome is worse), from the supervised adapter."""
+    _require_torch()
+    from letspi.finetune.preference import DpoConfig, preference_pairs, train_dpo
+    from letspi.learned.train.loop import checkpoint_step
+
+    with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
+        cfg = DpoConfig(beta=beta, lr=lr, epochs=epochs, batch_size=batch_size, margin=margin, seed=seed,
+                        threads=threads, checkpoint_every_s=checkpoint_every_s, max_pairs=max_pairs)
+        examples, info = _llm_examples(data, None, None)
+        pairs = preference_pairs(examples, data, margin=margin)
+        if not pairs:
+            raise ValueError(f"{', '.join(map(str, data))}: no window has presets whose hindsight differs by {margin}")
+        with progress_bar() as bar:
+            task = bar.add_task("preference step", total=None)
+
+            def progress(step: int, total: int, loss: float) -> None:
+                bar.update(task, completed=step, total=total, description=f"DPO (loss {loss:.3f})")
+                if tally.total is None:
+                    tally.track(total, lambda: checkpoint_step(out))
+
+            manifest = train_dpo(pairs, cfg, packaged_smollm2_path(), init, out, data_info=info, progress=progress,
+                                 command=command_line())
+    t = manifest["training"]
+    console.print(f"adapter -> {out / 'adapter.gguf'} ({t['steps']} steps, {t['train_s']:.0f} s); "
+                  f"{manifest['data']['n_pairs_train']} train / {manifest['data']['n_pairs_val']} val pairs; held-out "
+                  f"pairs ranked right {100 * t['val_pair_accuracy_before']:.1f} % -> "
+                  f"{100 * t['val_pair_accuracy_after']:.1f} %")
+
+
 @app.command("decide")
 def train_decide(
     scenarios: ScenariosOpt,
@@ -298,6 +348,12 @@ def train_decide(
     refine_weight: Annotated[float, typer.Option(help="Weight (repetitions) of the refinement examples.")] = 2.0,
     sf_params: Annotated[Path | None, typer.Option(help="Fitted sf parameters (default: the shipped fit).")] = None,
     goals: Annotated[str, typer.Option(help="Goal source of the plans: learned or kinematic.")] = "learned",
+    keep_presets: Annotated[Path | None, typer.Option(
+        "--presets", help="Keep these presets (e.g. the shipped src/letspi/data/presets.json) instead of selecting "
+                          "them: labels and teacher for them.")] = None,
+    keep_gate: Annotated[Path | None, typer.Option(
+        "--risk-model", help="Keep this risk gate (its scores and recommended threshold) instead of fitting one.")
+    ] = None,
 ) -> None:
     """Train LetsPi's decision step on training traffic. Presets, the risk gate and decision-focused labels
     (hindsight: the recorded future decides which preset was best; never evaluation seeds)."""
@@ -317,10 +373,13 @@ def train_decide(
             summary = build_decision_data(scenarios, out, goal_predictor, params, goals=goals, n_presets=presets,
                                           consult_share=consult_share, keep_share=keep_share,
                                           refine_weight=refine_weight, command=command_line(),
-                                          progress=lambda k: bar.advance(task, k))
+                                          progress=lambda k: bar.advance(task, k), presets_file=keep_presets,
+                                          risk_model_file=keep_gate)
     console.print(f"presets -> {out / 'presets.json'}: {', '.join(summary['presets'])}")
     gate = summary["gate"]
     console.print(f"risk gate -> {out / 'risk_model.json'}: threshold {gate['threshold']:.3f} consults "
                   f"{100 * gate['consult_share']:.1f} % of the training windows, {100 * gate['cv_recall']:.1f} % "
                   f"of those where the defaults collide (cross-validated AUC {gate['cv_auc']:.3f})")
     console.print(f"labels -> {out / 'labels'}: {summary['n_examples']} rows; option shares {summary['label_shares']}")
+    console.print(f"teacher -> {out / 'teacher.json'} (the labels' expected-utility policy: letspi-fast --chooser "
+                  "teacher --teacher FILE)")

@@ -12,7 +12,7 @@ import itertools
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pandas as pd
@@ -22,6 +22,7 @@ from letspi.finetune.options import OptionOutcomes
 from letspi.learned.logistic_fit import roc_auc
 from letspi.learned.trees import TreeEnsemble
 from letspi.llm.schema import NUMERIC_FIELDS
+from letspi.method.choosers import TEACHER_TARGETS, ConstantScore, OutcomeModel, Teacher, teacher_feature_names
 from letspi.method.decide import DEFAULT_NAME, GATE_FEATURE_NAMES, OptionTable, defaults_vector
 from letspi.physics.params import SocialForceParams
 
@@ -130,20 +131,44 @@ class Weights:
     progress_per_m: float = 0.01
 
 
+#: the outcome trees' settings (``fit_trees``), of the labels' cross-validated estimates and of the teacher
+OUTCOME_TREES: dict[str, Any] = {"max_iter": 80, "learning_rate": 0.08, "min_samples_leaf": 30}
+
+
+def _outcome_model(x: np.ndarray, y: np.ndarray, feature_names: tuple[str, ...]) -> OutcomeModel:
+    """One outcome's model: trees, or the constant rate where ``y`` never varies."""
+    if y.all() or not y.any():
+        return ConstantScore(float(y.mean()))
+    return fit_trees(x, y, feature_names=feature_names, **OUTCOME_TREES)
+
+
 def outcome_probabilities(x: np.ndarray, o: OptionOutcomes, fold: np.ndarray) -> dict[str, np.ndarray]:
-    """Out-of-fold (B, K) probabilities of each option's at-fault contact, contact and success from ``x`` (B, D)."""
-    out = {name: np.zeros(o.collision.shape) for name in ("at_fault", "collision", "success")}
-    for name, target in (("at_fault", o.at_fault), ("collision", o.collision), ("success", o.success)):
+    """Cross-validated (B, K) probabilities of each option's at-fault contact, contact and success from the
+    plan-time inputs ``x`` (B, D): every window's by the trees fitted on the other folds."""
+    out = {name: np.zeros(o.collision.shape) for name in TEACHER_TARGETS}
+    names = tuple(f"x{i}" for i in range(x.shape[1]))
+    for name in TEACHER_TARGETS:
+        target = getattr(o, name)
         for k in range(target.shape[1]):
             for f in np.unique(fold):
                 train, test = fold != f, fold == f
-                if target[train, k].all() or not target[train, k].any():
-                    out[name][test, k] = float(target[train, k].mean())
-                    continue
-                model = fit_trees(x[train], target[train, k], feature_names=tuple(f"x{i}" for i in range(x.shape[1])),
-                                  max_iter=80, learning_rate=0.08, min_samples_leaf=30)
-                out[name][test, k] = model.score(x[test])
+                out[name][test, k] = _outcome_model(x[train], target[train, k], names).score(x[test])
     return out
+
+
+def fit_teacher(x: np.ndarray, o: OptionOutcomes, presets: Sequence[str], adverse_names: Sequence[str],
+                weights: Weights, provenance: dict[str, Any] | None = None) -> Teacher:
+    """The labels' expected-utility policy as a planner can run it: the outcome trees of
+    ``outcome_probabilities`` fitted on all windows (``x`` (B, D): ``teacher_features``; ``o``: the presets'
+    outcomes, (B, K))."""
+    names = teacher_feature_names(presets, adverse_names)
+    if x.shape[1] != len(names):
+        raise ValueError(f"the teacher's inputs have {len(names)} columns, got {x.shape[1]}")
+    models = {name: tuple(_outcome_model(x, getattr(o, name)[:, k], names) for k in range(len(presets)))
+              for name in TEACHER_TARGETS}
+    return Teacher(tuple(presets), tuple(adverse_names), {"at_fault": weights.at_fault, "contact": weights.contact,
+                                                          "progress_per_m": weights.progress_per_m},
+                   models, {**(provenance or {}), "trees": OUTCOME_TREES})
 
 
 def expected_utility(p: dict[str, np.ndarray], o: OptionOutcomes, w: Weights) -> np.ndarray:
@@ -191,14 +216,23 @@ def option_lines_of(o: OptionOutcomes, presets: OptionTable, adverse_names: Sequ
     return out
 
 
+#: an optional column of the choice labels: per preset, the window's hindsight outcome
+#: ``[at_fault, contact, success, progress_m]`` (JSON), for preference pairs (``letspi.finetune.preference``)
+HINDSIGHT_COLUMN: Final = "hindsight_json"
+
+
 def label_frame(labels: Sequence[ChoiceLabel], o: OptionOutcomes, presets: OptionTable,
                 adverse_names: Sequence[str], digests: Sequence[str]) -> pd.DataFrame:
-    """The labels as rows (``CHOICE_COLUMNS``) of one scenario file (``digests`` of its windows)."""
+    """The labels as rows (``CHOICE_COLUMNS`` and ``HINDSIGHT_COLUMN``) of one scenario file (``digests`` of
+    its windows)."""
     rows = [{"risk": float(lab.risk),
         "scenario_index": lab.row, "scenario_digest": str(digests[lab.row]),
         "kind": "refine" if lab.rejected >= 0 else "propose", "option": presets.names[lab.label],
         "rejected": presets.names[lab.rejected] if lab.rejected >= 0 else "", "weight": float(lab.weight),
         "lines_json": json.dumps(option_lines_of(o, presets, adverse_names, lab.row)),
         "defaults_collide": bool(o.collision[lab.row, 0]),
+        HINDSIGHT_COLUMN: json.dumps([[bool(o.at_fault[lab.row, k]), bool(o.collision[lab.row, k]),
+                                       bool(o.success[lab.row, k]), float(o.progress_m[lab.row, k])]
+                                      for k in range(len(presets))]),
     } for lab in labels]
-    return pd.DataFrame(rows, columns=list(CHOICE_COLUMNS))
+    return pd.DataFrame(rows, columns=[*CHOICE_COLUMNS, HINDSIGHT_COLUMN])

@@ -63,6 +63,7 @@ class LoraTrainConfig:
     layers: int | None = None  # adapt only the last N transformer layers (None: all)
     precision: Literal["auto", "fp32", "bf16"] = "auto"  # bf16 autocast of the forward pass (``choose_precision``)
     checkpoint_every_s: float = 300.0  # resumable checkpoint period (training seconds)
+    balance: float = 0.0  # repeat training examples towards rare replies (``rebalance``; 0: as labelled)
 
     def __post_init__(self) -> None:
         if self.rank < 1 or self.batch_size < 1 or self.lr <= 0 or self.epochs <= 0:
@@ -75,6 +76,24 @@ class LoraTrainConfig:
             raise ValueError(f"--precision must be auto, fp32 or bf16, got {self.precision!r}")
         if self.checkpoint_every_s <= 0:
             raise ValueError("--checkpoint-every-s must be positive")
+        if not 0.0 <= self.balance <= 1.0:
+            raise ValueError("--balance must be in [0, 1]")
+
+
+def rebalance(examples: Sequence[ChatExample], power: float, cap: int = 8) -> list[ChatExample]:
+    """Each example repeated ``round((n_top / n_reply) ** power)`` times (at least once, at most ``cap``), where
+    ``n_reply`` counts the examples with its reply and ``n_top`` those of the commonest reply: ``power`` 1
+    evens the replies out, 0 keeps the labels' shares. In order (each example's copies together)."""
+    if power <= 0 or not examples:
+        return list(examples)
+    counts: dict[str, int] = {}
+    for e in examples:
+        counts[e.reply] = counts.get(e.reply, 0) + 1
+    top = max(counts.values())
+    out: list[ChatExample] = []
+    for e in examples:
+        out += [e] * min(cap, max(1, round((top / counts[e.reply]) ** power)))
+    return out
 
 
 def load_base(gguf_path: Path) -> tuple[Any, Any]:
@@ -327,6 +346,7 @@ def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[li
     train, val = split_examples(examples, config.val_fraction, config.seed)
     if not train:
         raise ValueError("no training examples (all in the validation split?)")
+    train = rebalance(train, config.balance)  # the validation split keeps the labels' shares
     rng = np.random.default_rng(config.seed)
     val_eval = [val[i] for i in np.sort(rng.permutation(len(val))[: config.max_val])] if val else []
     return train, val, val_eval

@@ -22,10 +22,11 @@ from letspi.execution.ordered import BlockCache, RunnerConfig, RunStats, RunStat
 from letspi.llm.choice import OptionLine, choice_check_text, render_choice_prompt
 from letspi.llm.client import Advice, ParamAdvisor
 from letspi.llm.compact import PromptStyle, compact_report_text, render_compact_prompt
-from letspi.llm.describe import describe_scenario
+from letspi.llm.describe import ScenarioDescription, describe_scenario
 from letspi.llm.prompts import MemoryExample, render_fast_prompt, render_physics_prompt
 from letspi.llm.schema import LLM_PARAM_RANGES, PlannerReply, Variant
 from letspi.llm.types import Message
+from letspi.method.choosers import Chooser
 from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, OptionChecks, OptionTable
 from letspi.method.matching import TOP_K, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures
@@ -349,11 +350,30 @@ class Retriever:
         return list(zip(exps, [float(s) for s in sims[0]], strict=True))
 
 
+@dataclass(frozen=True)
+class Assessment:
+    """What the decision step knows of one scenario before anyone chooses: the scene as the prompt
+    describes it, every preset's checks (a batch of one), the risk score and whether the gate consults."""
+
+    scenario: ScenarioBatch
+    description: ScenarioDescription
+    checks: OptionChecks
+    risk_score: float
+    consulted: bool
+
+    def choice_messages(self) -> list[Message]:
+        """The choice prompt of this scenario."""
+        return render_choice_prompt(self.description, option_lines(self.checks, 0), risk=self.risk_score)
+
+
 @dataclass
 class FastPhase:
-    """Fast inference: retrieval + fast prompt + one call of the (smaller) fast model."""
+    """Fast inference: retrieval + fast prompt + one call of the (smaller) fast model.
 
-    advisor: ParamAdvisor
+    ``chooser`` (with a ``decider``): where the gate fires, it picks the preset instead of the model
+    (``letspi.method.choosers``; no model call, ``advisor`` may be None)."""
+
+    advisor: ParamAdvisor | None
     goal_predictor: GoalPredictor
     r_col_m: float
     retriever: Retriever | None
@@ -361,57 +381,99 @@ class FastPhase:
     variant: Variant = "fast"
     prompt_style: PromptStyle = "paper"
     decider: Decider | None = None  # presets, their checks and the risk gate (None: always the model, no presets)
+    chooser: Chooser | None = None
+
+    def __post_init__(self) -> None:
+        if self.chooser is not None and self.decider is None:
+            raise ValueError("a chooser picks among the decision step's presets: it needs the decision step")
+        if self.advisor is None and self.chooser is None:
+            raise ValueError("the fast phase needs a model (advisor) or a chooser")
 
     def propose(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray) -> tuple[Proposal, list[tuple[str, float]]]:
         """One LLM call for a batch of one: the proposal and the retrieved memories (scenario id, similarity)."""
         proposal, retrieved = self.propose_retrieved(scenario, base_goal_xy_m)
         return proposal, [(e.scenario_id, s) for e, s in retrieved]
 
-    def propose_retrieved(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
-                          prediction: NeighbourPrediction | None = None,
-                          ) -> tuple[Proposal, list[tuple[Experience, float]]]:
-        """``propose`` returning the retrieved experiences. With a ``decider`` the presets are checked (against
-        ``prediction``, default IDM) and below the gate the defaults are kept without a call; ``Proposal.meta``
-        records ``decision``, ``consulted``, ``risk_score``."""
-        retrieved = self.retriever.retrieve(scenario) if self.retriever is not None else []
+    def assess(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
+               prediction: NeighbourPrediction | None = None) -> Assessment:
+        """Scenario (a batch of one) checked and scored by the decision step (``prediction``: its predicted
+        neighbours, default IDM)."""
         if self.decider is None:
-            return self._ask(scenario, base_goal_xy_m, retrieved), retrieved
+            raise ValueError("assess needs the decision step")
         pred = prediction if prediction is not None else predict_neighbours(scenario, NeighbourPredictionMode.IDM)
         checks = self.decider.check(scenario, np.asarray(base_goal_xy_m, dtype=np.float64).reshape(1, 2), pred)
         risk = self.decider.risk_scores(scenario, checks)
-        risk_score = float(risk[0])
-        if not self.decider.consulted(risk)[0]:
-            reply = preset_replies(self.decider.presets)[DEFAULT_NAME]
-            kept = Proposal(params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
-                            lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
-                            rationale=f"risk {risk_score:.3f} below the gate's threshold: the defaults, no model call")
+        return Assessment(scenario, describe_scenario(scenario, base_goal_xy_m), checks, float(risk[0]),
+                          bool(self.decider.consulted(risk)[0]))
+
+    def propose_retrieved(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
+                          prediction: NeighbourPrediction | None = None, *, prompt_of: Assessment | None = None,
+                          ) -> tuple[Proposal, list[tuple[Experience, float]]]:
+        """``propose`` returning the retrieved experiences (the shield falls back to them). With a ``decider`` the
+        presets are checked (against ``prediction``, default IDM) and below the gate the defaults are kept without a
+        call; where it fires the ``chooser`` picks a preset, else the choice style asks the model (the prompt of
+        ``prompt_of``'s scenario when given: the shuffled-scene control). ``Proposal.meta`` records ``decision``,
+        ``consulted``, ``risk_score``."""
+        retrieved = self.retrieve(scenario)
+        if self.decider is None:
+            return self._ask(scenario, base_goal_xy_m, retrieved), retrieved
+        return self.decide(self.assess(scenario, base_goal_xy_m, prediction), base_goal_xy_m, retrieved,
+                           prompt_of=prompt_of), retrieved
+
+    def retrieve(self, scenario: ScenarioBatch) -> list[tuple[Experience, float]]:
+        """The memories retrieved for a scenario (none without a retriever)."""
+        return self.retriever.retrieve(scenario) if self.retriever is not None else []
+
+    def preset_proposal(self, option: str, rationale: str) -> Proposal:
+        """A preset of the decision step as a proposal that made no model call."""
+        if self.decider is None:
+            raise ValueError("presets belong to the decision step")
+        reply = preset_replies(self.decider.presets)[option]
+        return Proposal(params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m), lon_factor=reply.lon_factor,
+                        lane_factor=reply.lane_factor, rationale=rationale)
+
+    def decide(self, a: Assessment, base_goal_xy_m: np.ndarray, retrieved: Sequence[tuple[Experience, float]] = (),
+               *, prompt_of: Assessment | None = None) -> Proposal:
+        """The decision for an assessed scenario (``propose_retrieved``)."""
+        decider = self.decider
+        assert decider is not None
+        checks, risk_score = a.checks, a.risk_score
+        if not a.consulted:
+            kept = self.preset_proposal(
+                DEFAULT_NAME, f"risk {risk_score:.3f} below the gate's threshold: the defaults, no model call")
             return _with_decision(kept, DEFAULT_NAME, False, risk_score,
-                                  decision_reason(self.decider, checks, DEFAULT_NAME, False, risk_score)), retrieved
-        if self.prompt_style == "choice":
-            messages = render_choice_prompt(describe_scenario(scenario, base_goal_xy_m), option_lines(checks, 0),
-                                            risk=risk_score)
-            replies = preset_replies(self.decider.presets)
-            advice = self.advisor.choose(messages, replies)
+                                  decision_reason(decider, checks, DEFAULT_NAME, False, risk_score))
+        if self.chooser is not None:
+            option = checks.names[int(self.chooser.choose(a.scenario, checks, np.array([risk_score]))[0])]
+            proposal = self.preset_proposal(option, f"the chooser picked {option}")
+        elif self.prompt_style == "choice":
+            assert self.advisor is not None
+            messages = (prompt_of if prompt_of is not None else a).choice_messages()
+            advice = self.advisor.choose(messages, preset_replies(decider.presets))
             proposal = proposal_from_advice(advice, messages, self.r_col_m)
             option = advice.choice or CUSTOM
-            reason = decision_reason(self.decider, checks, option, True, risk_score)
-            final = self.decider.verified(checks, option) if self.decider.verify else option
-            if final != option:  # the physics overrules the model: another preset fails fewer checks
-                reply = replies[final]
-                proposal = replace(proposal, params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
-                                   lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
-                                   rationale=f"the model chose {option}; {final} fails fewer checks")
-                k = checks.names.index(final)
-                failed = checks.failed_names(0, k)
-                reason += (f"; verified: {final} fails fewer checks "
-                           f"({'fails ' + ', '.join(failed) if failed else 'passes every check'})")
-            return _with_decision(proposal, final, True, risk_score, reason), retrieved
-        return _with_decision(self._ask(scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score,
-                              decision_reason(self.decider, checks, CUSTOM, True, risk_score)), retrieved
+        else:
+            return _with_decision(self._ask(a.scenario, base_goal_xy_m, retrieved), CUSTOM, True, risk_score,
+                                  decision_reason(decider, checks, CUSTOM, True, risk_score))
+        reason = decision_reason(decider, checks, option, True, risk_score)
+        if prompt_of is not None:
+            reason += f"; answered the prompt of {prompt_of.scenario.scenario_id[0]}"
+        final = decider.verified(checks, option) if decider.verify else option
+        if final != option:  # the physics overrules the choice: another preset fails fewer checks
+            reply = preset_replies(decider.presets)[final]
+            proposal = replace(proposal, params=SocialForceParams(**reply.params(), r_col_m=self.r_col_m),
+                               lon_factor=reply.lon_factor, lane_factor=reply.lane_factor,
+                               rationale=f"the {'model' if self.chooser is None else 'chooser'} chose {option}; "
+                                         f"{final} fails fewer checks")
+            failed = checks.failed_names(0, checks.names.index(final))
+            reason += (f"; verified: {final} fails fewer checks "
+                       f"({'fails ' + ', '.join(failed) if failed else 'passes every check'})")
+        return _with_decision(proposal, final, True, risk_score, reason)
 
     def _ask(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
              retrieved: Sequence[tuple[Experience, float]]) -> Proposal:
         """One call for the model's own eight numbers (paper or compact prompt)."""
+        assert self.advisor is not None
         desc = describe_scenario(scenario, base_goal_xy_m)
         if self.prompt_style == "compact":  # the fine-tuned model: no few-shot examples in its prompt
             messages = render_compact_prompt(desc)

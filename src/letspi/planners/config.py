@@ -1,6 +1,6 @@
-"""The kind-neutral part of planner configurations: the key machinery (``letspi.keyed``), the physics
-building blocks (``letspi.physics.config``), the prediction options every predicting planner reads, and
-the ``PlannerConfig`` protocol. Each planner's own configuration sits beside the planner in its module;
+"""The kind-neutral part of planner configurations: the physics building blocks (``letspi.physics.config``,
+re-exported), the prediction options every predicting planner reads, and the ``PlannerConfig`` protocol (the key
+machinery is ``letspi.keyed``). Each planner's own configuration sits beside the planner in its module;
 ``letspi.assembly.planner_table`` lists every kind with how it is resolved and built.
 """
 
@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from letspi.keyed import Config, diff, key_of
+from letspi.keyed import Config
 from letspi.physics.config import GoalsConfig, GoalSource, SfParamsConfig, WeightsConfig
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.planners.options import PlannerOption, file_option
 
-__all__ = ["Config", "GoalSource", "GoalsConfig", "SfParamsConfig", "WeightsConfig", "diff", "key_of"]
+__all__ = ["GoalSource", "GoalsConfig", "SfParamsConfig", "WeightsConfig"]
 
 GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"

@@ -5,7 +5,8 @@
 keeps many scenarios in flight; ``simulate`` rolls out and shields every proposal at once. The safety shield
 (beyond the paper; ``--no-shield`` is the ablation) replaces a plan failing the reflection checks against the
 prediction by the first safe alternative (presets, retrieved memories, the fitted ``sf`` parameters,
-``sf-opt``'s grid), else the least unsafe plan of all. Info columns: the ``*_OUTPUTS`` declarations.
+``sf-opt``'s grid), else the least unsafe plan of all; it leaves the decision step's presets alone (checked
+already) unless ``--shield-presets``. Info columns: the ``*_OUTPUTS`` declarations.
 """
 
 from __future__ import annotations
@@ -13,15 +14,17 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator, model_validator
 
 from letspi.keyed import Config
 from letspi.llm.client import ParamAdvisor, RetryPolicy
 from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.config import LlmConfig
+from letspi.method.choosers import CHOOSER_NAMES, MODEL_CHOOSER, Chooser, load_teacher, make_chooser, uses_model
 from letspi.method.config import DecisionConfig, MemoryPhaseConfig, MemoryRef
 from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, preference_order
 from letspi.method.matching import TOP_K
@@ -53,7 +56,7 @@ from letspi.planners.decision import (
     adverse_failed_names,
     decision_info,
 )
-from letspi.planners.options import LLM_PANEL, PlannerOption, file_option
+from letspi.planners.options import DECISION_PANEL, LLM_PANEL, PlannerOption, file_option
 from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS, output
 from letspi.planners.sf_opt import SearchSpace
 from letspi.scenario.identity import scenario_digests
@@ -101,6 +104,11 @@ SHIELD = PlannerOption(
     "Safety shield of the LLM planners (beyond the paper): a plan failing the reflection checks against the "
     "predicted neighbours is replaced by the safest of the retrieved memories' and the fitted sf parameters; "
     "--no-shield: the paper-faithful ablation", panel=LLM_PANEL)
+SHIELD_PRESETS = PlannerOption(
+    "shield_presets", bool, False,
+    "Decision step of letspi-fast and sf-check: the shield may replace the preset the decision step planned too "
+    "(off: the decision step's checks against the prediction and the adverse futures stand in for it, and where "
+    "the defaults are kept the planner plans exactly as sf)", panel=DECISION_PANEL)
 #: what memory collection reads (``Resolver.memory_phase``)
 MEMORY_PHASE_OPTIONS: tuple[PlannerOption[Any], ...] = (
     LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MAX_REFINEMENTS, GOAL_ADJUSTMENT, DECIDE, PRESETS, ADVERSE, RISK_MODEL,
@@ -109,9 +117,17 @@ MEMORY_PHASE_OPTIONS: tuple[PlannerOption[Any], ...] = (
 SINGLE_SHOT_OPTIONS: tuple[PlannerOption[Any], ...] = (
     *(o for o in MEMORY_PHASE_OPTIONS if o is not MAX_REFINEMENTS), SHIELD)
 MEMORY_PLANNER_OPTIONS: tuple[PlannerOption[Any], ...] = (*MEMORY_PHASE_OPTIONS, SHIELD)
+CHOOSER = PlannerOption(
+    "chooser", str, MODEL_CHOOSER,
+    "What picks the preset where letspi-fast's risk gate fires, under the same presets, checks, gate, verification "
+    "and shield: model (the LLM), shuffled (the LLM answering another window's prompt), or without an LLM: rule "
+    "(sf-check's), constant-default, constant-ease, cautious (the rule, ties broken towards slowing down), teacher "
+    "(the expected-utility policy that made the model's labels)", choices=CHOOSER_NAMES, panel=DECISION_PANEL)
+TEACHER = file_option("teacher_file", "Trees of --chooser teacher (from `letspi train decide`; default: the shipped "
+                      "ones)", flag="--teacher", panel=DECISION_PANEL)
 FAST_OPTIONS: tuple[PlannerOption[Any], ...] = (
     FAST_LLM, PROMPT_STYLE, LLM_CACHE, LLM_TIMEOUT, MEMORY, MEMORY_KEY, TOP_K_OPTION, ALLOW_SAME_VEHICLE,
-    MEMORY_FRACTION, MEMORY_SEED, SHIELD, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
+    MEMORY_FRACTION, MEMORY_SEED, SHIELD, SHIELD_PRESETS, CHOOSER, TEACHER, *DECISION_OPTIONS, *SOCIAL_FORCE_OPTIONS)
 
 
 LLM_CACHED = output("llm_cached", "bool", "bool", "every model call of the scenario was served by the response "
@@ -404,7 +420,13 @@ class LetsPiMemoryPlanner:
 
 @dataclass
 class LetsPiFastPlanner:
-    """The fast-inference phase: retrieved memories as few-shot examples, one call, no reflection."""
+    """The fast-inference phase: retrieved memories as few-shot examples, one call, no reflection.
+
+    ``shuffle`` (the shuffled-scene control, ``--chooser shuffled``): where the gate fires the model answers
+    the choice prompt of another window of the same batch (the next consulted one, cyclically; the next
+    window when it is the only one consulted) and its answer is verified and planned on this window. The
+    harness then hands it batches (``proposes_per_scenario`` False), so a window's donor depends on its batch.
+    """
 
     phase: FastPhase
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
@@ -416,37 +438,70 @@ class LetsPiFastPlanner:
     last_proposal: Proposal | None = None
     concurrent_safe: bool = True
     proposes_per_scenario: bool = True
+    shuffle: bool = False
+    shield_presets: bool = True  # False: the shield leaves alone the presets the decision step planned
+
+    def __post_init__(self) -> None:
+        if self.shuffle:
+            if self.phase.decider is None or self.phase.chooser is not None:
+                raise ValueError("the shuffled-scene control needs the decision step and the model as chooser")
+            self.proposes_per_scenario = False
 
     @property
-    def advisor(self) -> ParamAdvisor:
+    def advisor(self) -> ParamAdvisor | None:
         return self.phase.advisor
 
     def context(self, batch: ScenarioBatch) -> PlanningContext:
         return predicted_context(batch, self.phase.goal_predictor, self.neighbour_mode)
 
     def propose(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
-        k = self.phase.retriever.k if self.phase.retriever is not None else 0
+        if self.shuffle:
+            return self._propose_shuffled(batch, context)
         rows: list[_Row] = []
         for i in range(len(batch)):
             own = context.take([i])
             proposal, retrieved = self.phase.propose_retrieved(_one(batch, i), context.goals_xy_m[i], own.neighbours)
-            proposal = proposal.normalised()
-            self.last_retrieved = tuple((e.scenario_id, s) for e, s in retrieved)
-            self.last_proposal = proposal
-            extra = {"n_retrieved": float(len(retrieved)),
-                     "top_similarity": float(retrieved[0][1]) if retrieved else float("nan"), **_UNSHIELDED}
-            info = _info(proposal, [proposal], extra)
-            if self.phase.decider is not None:
-                m = proposal.meta
-                info.update(decision_info([str(m.get("decision", CUSTOM))], np.array([bool(m.get("consulted", True))]),
-                                          np.array([float(m.get("risk_score", np.nan))]), np.zeros(1),
-                                          [str(m.get("reason", ""))]))
-            rows.append((proposal, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}))
+            rows.append(self._row(proposal, retrieved))
         return _proposals(rows)
+
+    def _propose_shuffled(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
+        """``propose`` of the shuffled-scene control (class docstring)."""
+        b = len(batch)
+        assessed = [self.phase.assess(_one(batch, i), context.goals_xy_m[i], context.take([i]).neighbours)
+                    for i in range(b)]
+        consulted = [i for i in range(b) if assessed[i].consulted]
+        rows: list[_Row] = []
+        for i in range(b):
+            donor = None
+            if assessed[i].consulted and b > 1:
+                donor = (consulted[(consulted.index(i) + 1) % len(consulted)] if len(consulted) > 1
+                         else (i + 1) % b)
+            retrieved = self.phase.retrieve(_one(batch, i))
+            proposal = self.phase.decide(assessed[i], context.goals_xy_m[i], retrieved,
+                                         prompt_of=assessed[donor] if donor is not None else None)
+            rows.append(self._row(proposal, retrieved))
+        return _proposals(rows)
+
+    def _row(self, proposal: Proposal, retrieved: Sequence[tuple[Experience, float]]) -> _Row:
+        """One scenario's proposal, info and extra."""
+        k = self.phase.retriever.k if self.phase.retriever is not None else 0
+        proposal = proposal.normalised()
+        self.last_retrieved = tuple((e.scenario_id, s) for e, s in retrieved)
+        self.last_proposal = proposal
+        extra = {"n_retrieved": float(len(retrieved)),
+                 "top_similarity": float(retrieved[0][1]) if retrieved else float("nan"), **_UNSHIELDED}
+        info = _info(proposal, [proposal], extra)
+        if self.phase.decider is not None:
+            m = proposal.meta
+            info.update(decision_info([str(m.get("decision", CUSTOM))], np.array([bool(m.get("consulted", True))]),
+                                      np.array([float(m.get("risk_score", np.nan))]), np.zeros(1),
+                                      [str(m.get("reason", ""))]))
+        return proposal, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives(retrieved, k)}
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals:
         """What is in force before any LLM answer (closed loop, dual rate): the fitted parameters."""
-        p = fitted_proposal(self.phase.advisor, self.phase.r_col_m)
+        p = (fitted_proposal(self.phase.advisor, self.phase.r_col_m) if self.phase.advisor is not None
+             else self.phase.preset_proposal(DEFAULT_NAME, "no answer in force: the fitted parameters"))
         k = self.phase.retriever.k if self.phase.retriever is not None else 0
         extra = {"n_retrieved": 0.0, "top_similarity": float("nan"), **_UNSHIELDED}
         info = _info(p, [], extra)
@@ -456,7 +511,8 @@ class LetsPiFastPlanner:
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
-                                   with_memories=True, decider=self.phase.decider)
+                                   with_memories=True, decider=self.phase.decider,
+                                   shield_presets=self.shield_presets)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
@@ -464,9 +520,11 @@ class LetsPiFastPlanner:
 
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                         shield_params: SocialForceParams | None, thresholds: ReflectionThresholds, *,
-                        with_memories: bool, decider: Decider | None = None) -> PlanBatch:
+                        with_memories: bool, decider: Decider | None = None,
+                        shield_presets: bool = True) -> PlanBatch:
     """The LLM planners' simulate step: roll out every proposal, then (``shield_params`` given) shield it. With
-    a ``decider``: info ``adverse_failed``, and the presets passing every check are the first alternatives."""
+    a ``decider``: info ``adverse_failed``, and the presets passing every check are the first alternatives;
+    ``shield_presets`` False leaves a plan of one of the step's presets (info ``decision``) as it is."""
     if PROPOSED_XY in proposals.extra:  # rolled out by the planner already
         sim = SimulatedPlan(*(np.asarray(proposals.extra[k]) for k in (PROPOSED_XY, PROPOSED_VXY, PROPOSED_GOALS)))
     else:
@@ -480,11 +538,15 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
     reports = safety_report(batch, sim.xy_m, sim.vxy_mps, context.neighbours, thresholds)
     fallback = _sf_alternatives(shield_params)
     memories = proposals.extra.get(MEMORY_ALTERNATIVES) if with_memories else None
-    failing = [i for i, r in enumerate(reports) if not r.safe]
+    kept = (np.isin(np.asarray(info.get("decision", np.full(len(batch), "")), dtype=object),
+                    list(decider.presets.names))
+            if decider is not None and not shield_presets else np.zeros(len(batch), dtype=bool))
+    failing = [i for i, r in enumerate(reports) if not r.safe and not kept[i]]
     presets = _preset_alternatives(batch, context, decider, failing, proposals.extra) \
         if decider is not None and failing else {}
-    alternatives = [[*presets.get(i, []), *(memory_alternatives(memories[i]) if memories is not None else []),
-                     *fallback] for i in range(len(batch))]
+    alternatives = [[] if kept[i] else [*presets.get(i, []),
+                                        *(memory_alternatives(memories[i]) if memories is not None else []),
+                                        *fallback] for i in range(len(batch))]
     shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds,
                           reports=reports)
     info.update(shield.info())
@@ -560,11 +622,47 @@ class MemoryPlannerConfig(Config):
     shield: bool = True
 
 
+class ChooserConfig(Config):
+    """What picks the preset where the gate fires, when it is not the model itself (``--chooser``): a chooser
+    of ``letspi.method.choosers`` (``teacher_sha256``: the teacher's file) or ``shuffled`` (the model on
+    another window's prompt)."""
+
+    cosmetic: ClassVar[frozenset[str]] = frozenset({"teacher_path"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"teacher_sha256"})
+
+    name: str
+    teacher_sha256: str | None = None
+    teacher_path: str = "shipped"
+
+    @field_validator("name")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        if name not in CHOOSER_NAMES or name == MODEL_CHOOSER:
+            raise ValueError(f"unknown chooser {name!r} (the model is no ChooserConfig); choosers: "
+                             f"{', '.join(CHOOSER_NAMES)}")
+        return name
+
+    def chooser(self) -> Chooser | None:
+        """The chooser that needs no model (None for ``shuffled``: the model chooses)."""
+        if uses_model(self.name):
+            return None
+        teacher = None
+        if self.name == "teacher":
+            teacher, sha = load_teacher(None if self.teacher_path == "shipped" else Path(self.teacher_path))
+            if sha != self.teacher_sha256:
+                raise ValueError(f"the teacher {self.teacher_path} changed since the configuration was made "
+                                 f"({str(self.teacher_sha256)[:12]} -> {sha[:12]})")
+        return make_chooser(self.name, teacher)
+
+
 class FastPlannerConfig(Config):
-    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples)."""
+    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples).
+
+    ``chooser`` (None: the model): what picks the preset where the gate fires; with a chooser that needs no
+    model, ``llm`` is None (nothing is loaded and the model is not part of the key)."""
 
     kind: Literal["letspi-fast", "letspi-fs"] = "letspi-fast"
-    llm: LlmConfig
+    llm: LlmConfig | None
     goals: GoalsConfig
     neighbours: NeighbourPredictionMode = NeighbourPredictionMode.IDM
     sf_params: SfParamsConfig
@@ -572,5 +670,18 @@ class FastPlannerConfig(Config):
     top_k: int = Field(default=TOP_K, ge=0)
     shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
     decision: DecisionConfig | None = None  # presets, adverse futures, risk gate (None: as before the decision step)
+    chooser: ChooserConfig | None = None
+    #: with the decision step and the shield: False, the shield leaves the presets the step planned alone;
+    #: None, it checks every plan (as before this setting existed)
+    shield_presets: bool | None = None
 
-    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision", "chooser", "shield_presets"})
+
+    @model_validator(mode="after")
+    def _chooser_and_model(self) -> FastPlannerConfig:
+        no_model = self.chooser is not None and not uses_model(self.chooser.name)
+        if no_model != (self.llm is None):
+            raise ValueError("a fast planner has a model (llm) exactly when its chooser uses one")
+        if self.chooser is not None and (self.decision is None or self.kind != "letspi-fast"):
+            raise ValueError("--chooser applies to letspi-fast's decision step (the choice prompt style)")
+        return self

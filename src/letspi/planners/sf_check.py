@@ -7,7 +7,7 @@ consults (everywhere without a gate): how much of LetsPi's gain the physics give
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -28,12 +28,13 @@ from letspi.planners.llm import (
     PROPOSED_XY,
     SHIELD,
     SHIELD_OUTPUTS,
+    SHIELD_PRESETS,
     simulate_and_shield,
 )
 from letspi.planners.options import PlannerOption
 from letspi.scenario.types import ScenarioBatch
 
-OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD)
+OPTIONS: tuple[PlannerOption[Any], ...] = (*SOCIAL_FORCE_OPTIONS, *DECISION_OPTIONS, SHIELD, SHIELD_PRESETS)
 OUTPUTS: tuple[Metric, ...] = (*DECISION_OUTPUTS, *SHIELD_OUTPUTS)
 
 
@@ -43,6 +44,10 @@ class SfCheckConfig(SocialForcePlannerFields):
     kind: Literal["sf-check"] = "sf-check"
     decision: DecisionConfig
     shield: bool = True
+    #: False: the shield leaves the planned presets alone (the defaults are then sf's); None: it checks every plan
+    shield_presets: bool | None = None
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"shield_presets"})
 
 
 @dataclass
@@ -54,6 +59,7 @@ class DecisionPlanner(PredictingPlanner):
     shield_params: SocialForceParams | None = None
     name: str = "sf-check"
     batch_size: int = 256
+    shield_presets: bool = True
 
     def choose(self, batch: ScenarioBatch, context: PlanningContext) -> tuple[np.ndarray, GatedChecks]:
         """(B,) each scenario's preset index and the checks it came from (``Decider.gated_checks``)."""
@@ -85,4 +91,4 @@ class DecisionPlanner(PredictingPlanner):
 
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.decider.thresholds,
-                                   with_memories=False, decider=self.decider)
+                                   with_memories=False, decider=self.decider, shield_presets=self.shield_presets)

@@ -20,9 +20,9 @@ import pandas as pd
 from letspi.evaluation.results import load_planner_results, planner_dir_name, stored_vehicles
 from letspi.evaluation.summary import live_inference_s, paired_record, planner_statistics, timing_summary
 from letspi.fsutil import atomic_write_text
+from letspi.keyed import diff
 from letspi.metrics.aggregate import aggregate_metrics, format_with_interval, paired_rows
 from letspi.metrics.uncertainty import GROUP_COLUMN, align, intervals
-from letspi.planners.config import diff
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.viz.outcomes import panel, stored_outcome

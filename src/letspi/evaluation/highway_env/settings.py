@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any, Final
 
-from letspi.planners.config import key_of
+from letspi.keyed import key_of
 from letspi.simulation.schedule import DualRateConfig
 
 #: highway-env's own vehicles as egos: label -> ego kind (``letspi.interop.highway_env.sim.EGO_KINDS``)

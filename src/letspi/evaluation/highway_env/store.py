@@ -37,12 +37,12 @@ from letspi.evaluation.highway_env.settings import RUN_MODE, EnvSettings, instal
 from letspi.evaluation.results import letspi_version, planner_dir_name
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
 from letspi.interop.highway_env.scene import EpisodeTracks, RoadLayout
+from letspi.keyed import diff, key_of
 from letspi.metrics.aggregate import AggValue, finite_mean, format_with_interval, paired_rows, scenario_values
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.episode import EPISODE_METRICS, settings_record
 from letspi.metrics.registry import MEAN_HOWS, RATE_HOWS
 from letspi.metrics.uncertainty import Statistic, StatKind, intervals_of, paired_of, statistics_record
-from letspi.planners.config import diff, key_of
 
 RUN_FORMAT: Final = 1
 EPISODES: Final = "episodes"
