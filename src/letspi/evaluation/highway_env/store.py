@@ -43,6 +43,7 @@ from letspi.metrics.config import MetricsConfig
 from letspi.metrics.episode import EPISODE_METRICS, settings_record
 from letspi.metrics.registry import MEAN_HOWS, RATE_HOWS
 from letspi.metrics.uncertainty import Statistic, StatKind, intervals_of, paired_of, statistics_record
+from letspi.planners.outputs import column
 
 RUN_FORMAT: Final = 1
 EPISODES: Final = "episodes"
@@ -128,7 +129,7 @@ def _write_npz(path: Path, result: EpisodeResult) -> None:
               "length_m": tr.length_m, "width_m": tr.width_m, "ego": np.array(tr.ego), "ego_on_road": tr.ego_on_road,
               "markings_y_m": result.road.markings_y_m, "speed_limit_mps": np.array(result.road.speed_limit_mps),
               "plan_t_s": result.plan_t_s, "plans_xy_m": result.plans_xy_m,
-              **{f"info_{k}": v for k, v in result.plan_info.items()}}
+              **{column(k): v for k, v in result.plan_info.items()}}
     buffer = io.BytesIO()
     savez: Any = np.savez_compressed  # its stubs read the arrays' names as its own keywords
     savez(buffer, **arrays)
