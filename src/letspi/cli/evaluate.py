@@ -94,6 +94,11 @@ LlmLatencyOpt = Annotated[float | None, typer.Option(
     "--llm-latency-s", help="Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after "
                             "its call: reproducible, in the key. Default: the measured latency (the model runs beside "
                             "the simulation, which waits for the wall clock while an answer is out).")]
+LlmReleaseOpt = Annotated[bool, typer.Option(
+    "--release/--no-release", help="Closed loop, LLM planners with the decision step (dual rate): at each replan a "
+                                   "preset held since an earlier call gives way to the defaults while the scene no "
+                                   "longer calls for it (the gate would not consult, or the defaults pass every "
+                                   "check). In the LLM planners' keys.")]
 HandoverLanesOpt = Annotated[int | None, typer.Option(
     help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
          "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
@@ -109,7 +114,8 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
                          ray: str | None, sumo_gui: bool, chunk_size: int | None = ClosedLoopConfig.chunk_size,
                          concurrency: int | None = None,
                          handover_lanes: int | None = None, llm_period_s: float | None = None,
-                         llm_latency_s: float | None = None, simulator: str = "auto") -> ClosedLoopConfig | None:
+                         llm_latency_s: float | None = None, simulator: str = "auto",
+                         llm_release: bool = True) -> ClosedLoopConfig | None:
     """The closed-loop settings of the options (None in open loop, where they are refused); the
     ``ClosedLoopConfig`` checks its values. ``ray``: None (no Ray), ``local`` or a cluster address."""
     if not mode.closed_loop:
@@ -117,6 +123,7 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
                                        ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
                                        ("--llm-period-s", llm_period_s is not None),
                                        ("--llm-latency-s", llm_latency_s is not None),
+                                       ("--no-release", not llm_release),
                                        ("--simulator", simulator != "auto")) if on]
         if given:
             raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
@@ -129,7 +136,8 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
     if handover_lanes is not None and mode is not EvaluationMode.HYBRID:
         raise ValueError(f"--handover-lanes applies to --mode closed-loop-hybrid only, not {mode}")
     handover = HandoverConfig() if handover_lanes is None else HandoverConfig(lanes=handover_lanes)
-    dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s)
+    dual_rate = DualRateConfig(DEFAULT_LLM_PERIOD_S if llm_period_s is None else llm_period_s, llm_latency_s,
+                               release=llm_release)
     return ClosedLoopConfig(mode=mode, replan_s=default, planner_replan_s=own, workers=workers, ray_address=ray,
                             sumo_gui=sumo_gui, chunk_size=chunk_size, handover=handover, dual_rate=dual_rate,
                             simulator=simulator)  # type: ignore[arg-type]
@@ -203,6 +211,7 @@ def evaluate(
     handover_lanes: HandoverLanesOpt = None,
     llm_period_s: LlmPeriodOpt = None,
     llm_latency_s: LlmLatencyOpt = None,
+    release: LlmReleaseOpt = True,
     reference: ReferenceOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans
@@ -211,7 +220,7 @@ def evaluate(
         labels = [label for label, _ in planner_kinds(planner)]
         closed = closed_loop_settings(mode, replan_s, labels, workers, ray_address or ("local" if ray else None),
                                       sumo_gui, chunk_size, concurrency, handover_lanes, llm_period_s, llm_latency_s,
-                                      simulator)
+                                      simulator, release)
         batch = load_limited(scenarios, limit)
         tally.track(len(labels) * len(batch), lambda: min(stored_rows(out, labels), len(labels) * len(batch)))
         scripted = scripted_neighbours_of(mode, events, scenarios, batch)

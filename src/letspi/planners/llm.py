@@ -438,12 +438,49 @@ class LetsPiFastPlanner:
             info.update(_default_decision())
         return _proposals([(p, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})] * len(batch))
 
+    def release_held(self, view: ScenarioBatch, context: PlanningContext,
+                     proposals: Proposals) -> tuple[Proposals, np.ndarray]:
+        """Closed loop, dual rate: every preset held since an earlier call (not the defaults, not a model's own
+        numbers) gives way to the defaults where the scene ``view`` observed now no longer calls for it: the
+        gate would not consult, or the defaults pass every check (``Decider.gated_checks``). Returns the
+        proposals and (B,) bool which were released."""
+        decider = self.phase.decider
+        released = np.zeros(len(proposals), dtype=bool)
+        if decider is None or "decision" not in proposals.info:
+            return proposals, released
+        held = np.flatnonzero([str(d) not in (DEFAULT_NAME, CUSTOM) for d in proposals.info["decision"]])
+        if not held.size:
+            return proposals, released
+        checks = decider.gated_checks(view.take(held), context.goals_xy_m[held], context.take(held).neighbours)
+        released[held[~checks.consulted | checks.checks.passes_all()[:, 0]]] = True
+        return (with_rows(proposals, released, self.default_proposals(view.take(np.flatnonzero(released))))
+                if released.any() else proposals), released
+
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
                                    with_memories=True, decider=self.phase.decider)
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
+
+
+def with_rows(proposals: Proposals, rows: np.ndarray, replacement: Proposals) -> Proposals:
+    """``proposals`` with the rows where ``rows`` (B,) bool is True taken from ``replacement`` (one row each, in
+    order): parameters, goal factors and every ``info`` key both have; ``extra`` stays."""
+    idx = np.flatnonzero(rows)
+    matrix = proposals.params.as_matrix().copy()
+    matrix[idx] = replacement.params.as_matrix()
+    lon, lane = np.array(proposals.lon_factor, dtype=np.float64), np.array(proposals.lane_factor, dtype=np.float64)
+    lon[idx], lane[idx] = replacement.lon_factor, replacement.lane_factor
+    info = {}
+    for key, values in proposals.info.items():
+        values = np.array(values)
+        if key in replacement.info:
+            values = values.astype(np.result_type(values, np.asarray(replacement.info[key])))
+            values[idx] = replacement.info[key]
+        info[key] = values
+    return Proposals(params=SocialForceParams.from_matrix(matrix), lon_factor=lon, lane_factor=lane, info=info,
+                     extra=dict(proposals.extra))
 
 
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,

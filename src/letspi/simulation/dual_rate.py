@@ -8,10 +8,14 @@ frames (e.g. 0.2 s) it builds the planner's view from the simulated history, der
 (``planner.simulate``: rollout and, when on, the safety shield) then plans every scenario of the
 group with those proposals, in one batched call.
 
+With ``release`` (``DualRateConfig``) and a ``ReleasingPlanner``, the held presets the scene observed now
+no longer calls for give way to the defaults before the physics plans (``released_n``).
+
 Recorded per scenario and replan (``Replan.info``): the planner's own info of the plan, overridden
 by the schedule's (``llm_calls`` etc. count the calls *made* at this replan, not the proposal in
-force), ``llm_in_force``, ``params_age_s``, ``llm_answer_latency_s`` and ``planner_cpu_ms`` (CPU time
-of this thread in context and physics per scenario; the LLM calls are not in it).
+force), ``llm_in_force``, ``params_age_s``, ``llm_answer_latency_s``, ``released_n`` (1: a held preset
+gave way to the defaults at this replan) and ``planner_cpu_ms`` (CPU time of this thread in context,
+release and physics per scenario; the LLM calls are not in it).
 """
 
 from __future__ import annotations
@@ -22,10 +26,18 @@ from collections.abc import Callable
 import numpy as np
 
 from letspi.constants import T0_INDEX
+from letspi.metrics.registry import Metric
 from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner
-from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule
+from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule, ReleasingPlanner
+
+RELEASED = "released_n"
+#: per-scenario columns the dual-rate replanner adds (each replan's value; the harness stores the first
+#: replan's and the mean over replans)
+OUTPUTS: tuple[Metric, ...] = (
+    Metric(RELEASED, "n", "float64", "1 when a held preset gave way to the defaults at the replan (release); "
+           "its mean over the replans is the share of the scenario's replans that released one", None),)
 
 
 class DualRateReplanner(PeriodicReplanner):
@@ -53,6 +65,9 @@ class DualRateReplanner(PeriodicReplanner):
         if frame == self._frames[-1]:
             self.schedule.finish(schedule_info)
         cpu1 = time.thread_time()
+        if self.schedule.config.release and isinstance(self.planner, ReleasingPlanner):
+            proposals, released = self.planner.release_held(view, context, proposals)
+            schedule_info[RELEASED] = np.asarray(released, dtype=np.float64)
         plan = self.planner.simulate(view, context, proposals)
         cpu_physics = cpu_context + time.thread_time() - cpu1
         schedule_info["planner_cpu_ms"] = np.full(k, 1e3 * cpu_physics / max(k, 1))

@@ -14,7 +14,10 @@ LLM (``letspi-fast``, ``llm``, ``letspi-memory``):
 * until the first answer is in force, the planner's fitted parameters are (``default_proposals``);
 * the physics replans every ``replan_s`` with the parameters in force, against the neighbours
   observed at that instant (``simulate``: goal prediction, rollout and, when on, the safety shield
-  at every replan).
+  at every replan);
+* ``release`` (a planner with the decision step, ``ReleasingPlanner``): at each replan a preset held
+  since an earlier call gives way to the defaults while the physics no longer calls for it on the scene
+  observed now (the risk gate would not consult, or the defaults pass every check).
 
 ``DualRateSchedule`` keeps the parameters in force per scenario and says, per replan, which LLM calls
 were made and how old the parameters in force are; ``letspi.simulation`` drives it.
@@ -49,10 +52,13 @@ class DualRateConfig:
         llm_period_s: LLM calls at t = 0 and every this many seconds (>= the horizon: t = 0 only).
         llm_latency_s: None = the measured latency (asynchronous, real-time pacing; not
             reproducible); a number >= 0 = this fixed latency (reproducible; in the key).
+        release: a held preset gives way to the defaults at a replan where the physics no longer calls
+            for it (``ReleasingPlanner``; in the key when on).
     """
 
     llm_period_s: float = DEFAULT_LLM_PERIOD_S
     llm_latency_s: float | None = None
+    release: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.llm_period_s) and self.llm_period_s > 0):
@@ -78,7 +84,10 @@ class DualRateConfig:
     def identity(self) -> dict[str, Any]:
         """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``."""
         latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
-        return {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
+        out: dict[str, Any] = {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
+        if self.release:  # absent when off: the keys of the results made before release existed
+            out["release"] = True
+        return out
 
 
 @runtime_checkable
@@ -87,6 +96,17 @@ class DualRatePlanner(ProposingPlanner, Protocol):
     closed loop runs dual-rate is their kind's ``dual_rate`` in the planner table."""
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
+
+
+@runtime_checkable
+class ReleasingPlanner(Protocol):
+    """A dual-rate planner whose held answers the physics can release (module docstring, ``release``)."""
+
+    def release_held(self, view: ScenarioBatch, context: PlanningContext,
+                     proposals: Proposals) -> tuple[Proposals, np.ndarray]:
+        """The proposals in force at this replan with every held preset the scene observed now no longer calls
+        for replaced by the defaults, and (B,) bool which were."""
+        ...
 
 
 @dataclass
