@@ -498,6 +498,9 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
         sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
                                 context.goals_xy_m, context.neighbours)
     info = dict(proposals.info)
+    if decider is not None:  # the goal factors in force (the closed loop records them per replan)
+        info.setdefault("lon_factor", np.asarray(proposals.lon_factor, dtype=np.float64))
+        info.setdefault("lane_factor", np.asarray(proposals.lane_factor, dtype=np.float64))
     if decider is not None and "adverse_failed" not in info:
         info["adverse_failed"] = adverse_failed_names(batch, context, sim.xy_m, sim.vxy_mps, decider.adverse)
     if shield_params is None:
