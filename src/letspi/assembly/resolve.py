@@ -38,6 +38,7 @@ from letspi.planners.config import (
     GOAL_WEIGHTS,
     GOAL_WEIGHTS_ENV,
     GOALS,
+    KEEP_LANE,
     NEIGHBOURS,
     PRESETS,
     RISK_MODEL,
@@ -223,7 +224,8 @@ class Resolver:
             given = o.get(GATE_THRESHOLD)
             threshold = given if given is not None else recommended_threshold(risk_model)
         return DecisionConfig.resolve(o.get(PRESETS), o.get(ADVERSE), threshold, risk_model,
-                                      verify=verify and prompt_style == "choice" and o.get(VERIFY))
+                                      verify=verify and prompt_style == "choice" and o.get(VERIFY),
+                                      keep_lane=o.get(KEEP_LANE))
 
     def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
                      goal_adjustment: bool | None = None) -> MemoryPhaseConfig:

@@ -548,7 +548,7 @@ def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider
     out: dict[int, list[Alternative]] = {}
     for j, i in enumerate(rows):
         out[i] = []
-        for k in preference_order(passes[j], progress[j]):
+        for k in preference_order(passes[j], progress[j], decider.lane_changes):
             v = table.values[k]
             params = SocialForceParams(**dict(zip(PARAM_NAMES[:6], (float(x) for x in v[:6]), strict=True)),
                                        r_col_m=decider.r_col_m)
