@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planner, resolve_planner
@@ -62,6 +63,8 @@ def test_a_held_preset_is_released_only_where_the_scene_no_longer_calls_for_it(t
 
     quiet = _planner(tmp_path, gate_threshold=1.01)  # the gate never fires: every held preset gives way
     assert quiet.release_held(batch, context, held)[1].tolist() == [True, True]
+    # against the prediction alone the leader's defaults are safe too (only leader-brakes fails)
+    assert planner.release_held(batch, context, held, "prediction")[1].tolist() == [True, True]
     # the defaults and a model's own numbers are never touched
     defaults = quiet.default_proposals(batch)
     custom = replace(defaults, info={**defaults.info, "decision": np.array(["custom", "custom"], dtype=object)})
@@ -83,6 +86,8 @@ def test_with_rows_replaces_exactly_the_given_rows():
 
 
 def test_release_joins_the_dual_rate_identity_only_when_on():
-    on, off = DualRateConfig(2.5, 1.5), DualRateConfig(2.5, 1.5, release=False)
-    assert on.identity() == {"llm_period_s": 2.5, "llm_latency_s": 1.5, "release": True}
+    on, off = DualRateConfig(2.5, 1.5), DualRateConfig(2.5, 1.5, release="off")
+    assert on.identity() == {"llm_period_s": 2.5, "llm_latency_s": 1.5, "release": "checks"}
     assert off.identity() == {"llm_period_s": 2.5, "llm_latency_s": 1.5}  # the key of results made before release
+    with pytest.raises(ValueError, match="--release must be one of"):
+        DualRateConfig(release="sometimes")

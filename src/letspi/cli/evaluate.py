@@ -94,11 +94,11 @@ LlmLatencyOpt = Annotated[float | None, typer.Option(
     "--llm-latency-s", help="Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after "
                             "its call: reproducible, in the key. Default: the measured latency (the model runs beside "
                             "the simulation, which waits for the wall clock while an answer is out).")]
-LlmReleaseOpt = Annotated[bool, typer.Option(
-    "--release/--no-release", help="Closed loop, LLM planners with the decision step (dual rate): at each replan a "
-                                   "preset held since an earlier call gives way to the defaults while the scene no "
-                                   "longer calls for it (the gate would not consult, or the defaults pass every "
-                                   "check). In the LLM planners' keys.")]
+LlmReleaseOpt = Annotated[str, typer.Option(
+    "--release", help="Closed loop, LLM planners with the decision step (dual rate): when a preset held since an "
+                      "earlier call gives way to the defaults at a replan: checks (the gate would not consult, or "
+                      "the defaults pass every check), prediction (the defaults pass the checks against the "
+                      "prediction) or off (held until the next answer). In the LLM planners' keys.")]
 HandoverLanesOpt = Annotated[int | None, typer.Option(
     help="closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box "
          "covers or at most this many lanes beside those (default 0; 1 = the adjacent lanes too).")]
@@ -115,7 +115,7 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
                          concurrency: int | None = None,
                          handover_lanes: int | None = None, llm_period_s: float | None = None,
                          llm_latency_s: float | None = None, simulator: str = "auto",
-                         llm_release: bool = True) -> ClosedLoopConfig | None:
+                         llm_release: str = "checks") -> ClosedLoopConfig | None:
     """The closed-loop settings of the options (None in open loop, where they are refused); the
     ``ClosedLoopConfig`` checks its values. ``ray``: None (no Ray), ``local`` or a cluster address."""
     if not mode.closed_loop:
@@ -123,7 +123,7 @@ def closed_loop_settings(mode: EvaluationMode, replan_s: list[str] | None, label
                                        ("--ray", ray is not None), ("--sumo-gui", sumo_gui),
                                        ("--llm-period-s", llm_period_s is not None),
                                        ("--llm-latency-s", llm_latency_s is not None),
-                                       ("--no-release", not llm_release),
+                                       ("--release", llm_release != "checks"),
                                        ("--simulator", simulator != "auto")) if on]
         if given:
             raise ValueError(f"{', '.join(given)} apply to the closed-loop modes only (--mode closed-loop-log, "
@@ -211,7 +211,7 @@ def evaluate(
     handover_lanes: HandoverLanesOpt = None,
     llm_period_s: LlmPeriodOpt = None,
     llm_latency_s: LlmLatencyOpt = None,
-    release: LlmReleaseOpt = True,
+    release: LlmReleaseOpt = "checks",
     reference: ReferenceOpt = None,
 ) -> None:
     """Evaluate planners: DIR/metrics.json, DIR/metrics.md and per-scenario Parquet parts with the plans

@@ -438,12 +438,13 @@ class LetsPiFastPlanner:
             info.update(_default_decision())
         return _proposals([(p, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})] * len(batch))
 
-    def release_held(self, view: ScenarioBatch, context: PlanningContext,
-                     proposals: Proposals) -> tuple[Proposals, np.ndarray]:
+    def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
+                     mode: str = "checks") -> tuple[Proposals, np.ndarray]:
         """Closed loop, dual rate: every preset held since an earlier call (not the defaults, not a model's own
-        numbers) gives way to the defaults where the scene ``view`` observed now no longer calls for it: the
-        gate would not consult, or the defaults pass every check (``Decider.gated_checks``). Returns the
-        proposals and (B,) bool which were released."""
+        numbers) gives way to the defaults where the scene ``view`` observed now no longer calls for it
+        (``Decider.gated_checks``): ``checks``: the gate would not consult, or the defaults pass every check;
+        ``prediction``: the defaults pass the checks against the prediction. Returns the proposals and (B,)
+        bool which were released."""
         decider = self.phase.decider
         released = np.zeros(len(proposals), dtype=bool)
         if decider is None or "decision" not in proposals.info:
@@ -452,7 +453,9 @@ class LetsPiFastPlanner:
         if not held.size:
             return proposals, released
         checks = decider.gated_checks(view.take(held), context.goals_xy_m[held], context.take(held).neighbours)
-        released[held[~checks.consulted | checks.checks.passes_all()[:, 0]]] = True
+        free = checks.checks.predicted_safe[:, 0] if mode == "prediction" else (
+            ~checks.consulted | checks.checks.passes_all()[:, 0])
+        released[held[free]] = True
         return (with_rows(proposals, released, self.default_proposals(view.take(np.flatnonzero(released))))
                 if released.any() else proposals), released
 

@@ -65,8 +65,9 @@ class DualRateReplanner(PeriodicReplanner):
         if frame == self._frames[-1]:
             self.schedule.finish(schedule_info)
         cpu1 = time.thread_time()
-        if self.schedule.config.release and isinstance(self.planner, ReleasingPlanner):
-            proposals, released = self.planner.release_held(view, context, proposals)
+        release = self.schedule.config.release
+        if release != "off" and isinstance(self.planner, ReleasingPlanner):
+            proposals, released = self.planner.release_held(view, context, proposals, release)
             schedule_info[RELEASED] = np.asarray(released, dtype=np.float64)
         plan = self.planner.simulate(view, context, proposals)
         cpu_physics = cpu_context + time.thread_time() - cpu1

@@ -17,7 +17,9 @@ LLM (``letspi-fast``, ``llm``, ``letspi-memory``):
   at every replan);
 * ``release`` (a planner with the decision step, ``ReleasingPlanner``): at each replan a preset held
   since an earlier call gives way to the defaults while the physics no longer calls for it on the scene
-  observed now (the risk gate would not consult, or the defaults pass every check).
+  observed now: ``checks``: the risk gate would not consult, or the defaults pass every check (the
+  prediction and the adverse futures); ``prediction``: the defaults pass the checks against the
+  prediction; ``off``: held until the next answer.
 
 ``DualRateSchedule`` keeps the parameters in force per scenario and says, per replan, which LLM calls
 were made and how old the parameters in force are; ``letspi.simulation`` drives it.
@@ -39,6 +41,8 @@ from letspi.planners.base import PlanningContext, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch
 
 DEFAULT_LLM_PERIOD_S: Final = 2.5
+#: when a held preset gives way to the defaults (module docstring)
+RELEASE_MODES: Final = ("checks", "prediction", "off")
 #: ``info`` keys that describe the LLM calls *made* at a replan (0 / NaN at replans without a call)
 CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_original_latency_s",
                          "prompt_tokens", "completion_tokens")
@@ -52,19 +56,21 @@ class DualRateConfig:
         llm_period_s: LLM calls at t = 0 and every this many seconds (>= the horizon: t = 0 only).
         llm_latency_s: None = the measured latency (asynchronous, real-time pacing; not
             reproducible); a number >= 0 = this fixed latency (reproducible; in the key).
-        release: a held preset gives way to the defaults at a replan where the physics no longer calls
-            for it (``ReleasingPlanner``; in the key when on).
+        release: when a held preset gives way to the defaults (``RELEASE_MODES``, module docstring;
+            ``ReleasingPlanner``; in the key unless ``off``).
     """
 
     llm_period_s: float = DEFAULT_LLM_PERIOD_S
     llm_latency_s: float | None = None
-    release: bool = True
+    release: str = "checks"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.llm_period_s) and self.llm_period_s > 0):
             raise ValueError(f"--llm-period-s must be a positive number of seconds, got {self.llm_period_s}")
         if self.llm_latency_s is not None and not (math.isfinite(self.llm_latency_s) and self.llm_latency_s >= 0):
             raise ValueError(f"--llm-latency-s must be >= 0 seconds, got {self.llm_latency_s}")
+        if self.release not in RELEASE_MODES:
+            raise ValueError(f"--release must be one of {', '.join(RELEASE_MODES)}, got {self.release!r}")
 
     @property
     def measured(self) -> bool:
@@ -85,8 +91,8 @@ class DualRateConfig:
         """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``."""
         latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
         out: dict[str, Any] = {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
-        if self.release:  # absent when off: the keys of the results made before release existed
-            out["release"] = True
+        if self.release != "off":  # absent when off: the keys of the results made before release existed
+            out["release"] = self.release
         return out
 
 
@@ -102,10 +108,10 @@ class DualRatePlanner(ProposingPlanner, Protocol):
 class ReleasingPlanner(Protocol):
     """A dual-rate planner whose held answers the physics can release (module docstring, ``release``)."""
 
-    def release_held(self, view: ScenarioBatch, context: PlanningContext,
-                     proposals: Proposals) -> tuple[Proposals, np.ndarray]:
+    def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
+                     mode: str) -> tuple[Proposals, np.ndarray]:
         """The proposals in force at this replan with every held preset the scene observed now no longer calls
-        for replaced by the defaults, and (B,) bool which were."""
+        for (``mode``: ``checks`` or ``prediction``) replaced by the defaults, and (B,) bool which were."""
         ...
 
 
