@@ -48,7 +48,7 @@ from letspi.evaluation.ablations import (
     memory_size_row,
     run_ablation,
 )
-from letspi.evaluation.harness import ProgressFactory, evaluate, read_summary
+from letspi.evaluation.harness import ProgressFactory, evaluate, load_planner_results, read_summary
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.llm import FAST_LLM, LLM, LLM_CACHE, MEMORY, PROMPT_STYLE
@@ -72,10 +72,9 @@ REFERENCE: Final = "sf"
 #: the paper's columns: (letspi's metrics.json key, label)
 COLUMNS: Final = (("ttc_s", "TTC s"), ("cr_pct", "CR %"), ("pet_s", "PET s"), ("min_dist_m", "minD m"),
                   ("lt_pct", "LT %"), ("sr_pct", "SR %"))
-#: letspi's columns: the paper's, CR at fault beside CR, and the inference time
+#: letspi's columns: the paper's and CR at fault beside CR (then the model's share and time, ``_llm_figures``)
 LETSPI_COLUMNS: Final = (("ttc_s", "TTC s"), ("cr_pct", "CR %"), ("cr_at_fault_pct", "CR at fault %"),
-                         ("pet_s", "PET s"), ("min_dist_m", "minD m"), ("lt_pct", "LT %"), ("sr_pct", "SR %"),
-                         ("inference_s", "s per scenario"))
+                         ("pet_s", "PET s"), ("min_dist_m", "minD m"), ("lt_pct", "LT %"), ("sr_pct", "SR %"))
 #: the paired tests shown (rates: windows only the row / only the reference has the event, McNemar p)
 PAIRED: Final = (("cr_at_fault_pct", "CR at fault"), ("sr_pct", "SR"))
 
@@ -300,15 +299,29 @@ def _write_timing(out: Path, timing: Mapping[str, float], tables: Sequence[str])
 
 
 # the report ------------------------------------------------------------------------------------------
-def _row(summary: Mapping[str, Any], name: str) -> dict[str, Any] | None:
-    """One row of a results directory: each shown metric with its interval, and the paired tests against the
-    directory's reference (None when the row has no results)."""
+def _llm_figures(directory: Path, name: str) -> dict[str, float | None]:
+    """The model's share and cost in one row's results: ``consulted_pct`` (windows it was asked on) and
+    ``call_s`` (median seconds of one call over the windows that made calls, as each call cost when it was
+    first made: the response cache does not hide it)."""
+    frame = load_planner_results(directory, name)
+    if frame.empty or "info_llm_calls" not in frame:
+        return {"consulted_pct": None, "call_s": None}
+    calls = frame["info_llm_calls"].to_numpy(np.float64)
+    asked = calls > 0
+    per_call = frame["info_llm_original_latency_s"].to_numpy(np.float64)[asked] / calls[asked]
+    return {"consulted_pct": float(100.0 * asked.mean()),
+            "call_s": float(np.median(per_call)) if per_call.size else None}
+
+
+def _row(summary: Mapping[str, Any], name: str, directory: Path) -> dict[str, Any] | None:
+    """One row of a results directory: each shown metric with its interval, the model's share and cost, and
+    the paired tests against the directory's reference (None when the row has no results)."""
     values = summary.get("planners", {}).get(name)
     if values is None:
         return None
     intervals = summary.get("intervals", {}).get(name, {})
     metrics = {k: {"value": values.get(k), "ci95": intervals.get(k)} for k, _ in LETSPI_COLUMNS}
-    row: dict[str, Any] = {"n": values.get("n"), "metrics": metrics}
+    row: dict[str, Any] = {"n": values.get("n"), "metrics": metrics, "llm": _llm_figures(directory, name)}
     paired = summary.get("paired", {})
     entry = paired.get("planners", {}).get(name)
     if entry is not None:
@@ -316,33 +329,43 @@ def _row(summary: Mapping[str, Any], name: str) -> dict[str, Any] | None:
     return row
 
 
-def _summary(path: Path) -> dict[str, Any]:
-    return read_summary(path) if (path / "metrics.json").exists() else {}
+class _Results:
+    """One results directory's ``metrics.json`` (empty when absent) and its rows (``_row``)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.summary = read_summary(directory) if (directory / "metrics.json").exists() else {}
+
+    def row(self, name: str) -> dict[str, Any] | None:
+        return _row(self.summary, name, self.directory)
+
+    def n(self) -> int | None:
+        planners = self.summary.get("planners", {})
+        return next((int(p["n"]) for p in planners.values()), None) if planners else None
 
 
 def paper_tables(out: Path, settings: PaperSettings, options: PlannerOptions) -> dict[str, Any]:
     """The four tables from the results directories under ``out`` (rows without results are left out)."""
-    iii, phase = _summary(out / "table-iii"), _summary(out / "table-iii-memory-phase")
+    iii, phase = _Results(out / "table-iii"), _Results(out / "table-iii-memory-phase")
     abl = out / "ablations"
-    comp, size, combos = (_summary(abl / k) for k in ("components", "memory-size", "llm-combinations"))
+    comp, size, combos = (_Results(abl / k) for k in ("components", "memory-size", "llm-combinations"))
     paper_rows = {"sf": "SF", "idm": "IDM", "gnp": "GNP", FAST_ROW: "LetsPi_D"}
-    t3 = [{"row": n, "paper": PAPER_III.get(paper_rows.get(n, "")), "letspi": _row(iii, n)}
+    t3 = [{"row": n, "paper": PAPER_III.get(paper_rows.get(n, "")), "letspi": iii.row(n)}
           for n in (*BASELINES, FAST_ROW)]
-    t3_phase = [{"row": n, "paper": PAPER_III["LetsPi_M"] if n == MEMORY_ROW else None, "letspi": _row(phase, n)}
+    t3_phase = [{"row": n, "paper": PAPER_III["LetsPi_M"] if n == MEMORY_ROW else None, "letspi": phase.row(n)}
                 for n in (REFERENCE, FAST_ROW, MEMORY_ROW)]
-    t4 = [{"row": n, "paper": PAPER_IV[n], "letspi": _row(comp, n)}
+    t4 = [{"row": n, "paper": PAPER_IV[n], "letspi": comp.row(n)}
           for n in (*(name for name, _ in COMPONENT_ROWS[1:]), FS_ROW, COMPONENT_ROWS[0][0])]
     paper_v = list(PAPER_V.values())
     t5 = [{"row": memory_size_row(f), "paper": paper_v[i] if i < len(paper_v) else None,
-           "letspi": _row(size, memory_size_row(f))} for i, f in enumerate(PAPER_FRACTIONS)]
-    t6 = [{"row": combination_row(m, f), "memory": m, "fast": f, "letspi": _row(combos, combination_row(m, f))}
+           "letspi": size.row(memory_size_row(f))} for i, f in enumerate(PAPER_FRACTIONS)]
+    t6 = [{"row": combination_row(m, f), "memory": m, "fast": f, "letspi": combos.row(combination_row(m, f))}
           for m, f in combinations(settings, options)]
     collections_file = abl / "collections.json"
     collections = json.loads(collections_file.read_text()) if collections_file.exists() else {}
     return {"settings": asdict(settings), "III": t3, "III_memory_phase": t3_phase, "IV": t4, "V": t5,
             "VI": t6, "VI_paper": [list(r) for r in PAPER_VI], "collections": collections,
-            "n_windows": {"III": iii.get("planners", {}).get(REFERENCE, {}).get("n"),
-                          "III_memory_phase": phase.get("planners", {}).get(REFERENCE, {}).get("n")}}
+            "n_windows": {"III": iii.n(), "III_memory_phase": phase.n()}}
 
 
 def _num(value: Any, digits: int = 2) -> str:
@@ -371,7 +394,7 @@ def _paper_cell(values: Sequence[float] | None) -> str:
 
 def _table(rows: Sequence[Mapping[str, Any]], reference: str, paper: bool = True) -> list[str]:
     header = ["row"] + (["paper: TTC / CR / PET / minD / LT / SR"] if paper else [])
-    header += [label for _, label in LETSPI_COLUMNS]
+    header += [label for _, label in LETSPI_COLUMNS] + ["model asked %", "s per call"]
     header += [f"{label} vs {reference}: Δ pts: only row / only {reference}, p" for _, label in PAIRED]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:
@@ -381,6 +404,8 @@ def _table(rows: Sequence[Mapping[str, Any]], reference: str, paper: bool = True
             cells += ["not run"] + [""] * (len(header) - len(cells) - 1)
         else:
             cells += [_cell(got["metrics"].get(k)) for k, _ in LETSPI_COLUMNS]
+            llm = got.get("llm", {})
+            cells += [_num(llm.get("consulted_pct"), 1), _num(llm.get("call_s"))]
             paired = got.get("paired")
             cells += [_paired_cell(paired.get(k) if paired else None) if paired else "reference" for k, _ in PAIRED]
         lines.append("| " + " | ".join(cells) + " |")
@@ -398,8 +423,11 @@ def paper_markdown(report: Mapping[str, Any]) -> str:
              f"{s['prompt_style']}; seed {s['seed']}. Open loop.", "",
              "Paper columns: TTC / CR / PET / minD / LT / SR. letspi: TTC is the mean of min(TTC, 10 s); CR all "
              "contacts (box overlap); CR at fault only those the ego caused; PET over finite values; minD centre to "
-             "centre; 95 % intervals in brackets (windows grouped by ego vehicle). Paired: the difference in "
-             "points, the windows only the row / only the reference has the event, exact McNemar p.", "",
+             "centre; 95 % intervals in brackets (windows grouped by ego vehicle). Model asked: the windows the "
+             "model was called on; s per call: the median time of one call as it was first made (the paper's "
+             "inference time per scenario, Table III: SF, IDM, GNP 0.1 s, LetsPi_M 6.18 s, LetsPi_D 3.12 s). "
+             "Paired: the difference in points, the windows only the row / only the reference has the event, "
+             "exact McNemar p.", "",
              "## Table III: comparison", ""]
     lines += _table(report["III"], REFERENCE)
     lines += ["", f"The memory phase on {n.get('III_memory_phase') or '–'} of the evaluated windows:", ""]
