@@ -200,7 +200,8 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
 
     built = build_planners(["sf", "letspi-fast", "slow=sf"], _options(files, llm_cache=False))
     keys = {}
-    for dual in (DualRateConfig(2.5, 0.4), DualRateConfig()):
+    # release "off" keeps the keys of the results made before held presets could be released
+    for dual in (DualRateConfig(2.5, 0.4, release="off"), DualRateConfig(release="off")):
         settings = ClosedLoopConfig(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},  # type: ignore[arg-type]
                                     dual_rate=dual)
         for b in built:
@@ -213,6 +214,10 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
         "sf None": "26c338c8fd692ffe", "letspi-fast None": "f7cec8bf78597b72", "slow None": "638c09678f690f04",
         "sf open": DEFAULT_KEYS["sf"], "letspi-fast open": DEFAULT_KEYS["letspi-fast"], "slow open": DEFAULT_KEYS["sf"],
     }
+    released = {b.name: pinned_key(planner_record(b, planner_evaluation(
+        ClosedLoopConfig(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},  # type: ignore[arg-type]
+                         dual_rate=DualRateConfig(2.5, 0.4)), b.name, b.dual_rate))["identity"]) for b in built}
+    assert released == {"sf": "26c338c8fd692ffe", "letspi-fast": "8f390302220d79d7", "slow": "638c09678f690f04"}
 
     batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
                                    scenario_id="a")

@@ -112,17 +112,18 @@ class Builder:
                                        config_key=ref.collection_key).ids
         goals = self.goal_predictor(config.goals)
         r_col = float(config.sf_params.values["r_col_m"])
+        decider = (config.decision.decider(config.sf_params.params(), ReflectionThresholds())
+                   if config.decision is not None else None)
         if config.kind == "letspi-fast":
             retriever = Retriever(bank, k=config.top_k, config_key=ref.collection_key, allowed_ids=ids,
                                   allow_same_vehicle=ref.allow_same_vehicle)
-            decider = (config.decision.decider(config.sf_params.params(), ReflectionThresholds())
-                       if config.decision is not None else None)
             chooser = config.chooser.chooser() if config.chooser is not None else None
             return FastPhase(advisor, goals, r_col, retriever,
                              prompt_style=config.llm.prompt_style if config.llm is not None else "choice",
                              decider=decider, chooser=chooser), load_s
         assert config.llm is not None  # letspi-fs always has its model
-        # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval
+        # letspi-fs: three static examples (the first three memories of the snapshot), no retrieval; the decision
+        # step as letspi-fast's (the choice prompt carries no examples: FS then differs by the shield's memories)
         static = [memory_example(e) for e in bank.get(np.sort(ids)[:3])]
         return FastPhase(advisor, goals, r_col, None, static_examples=static,
-                         prompt_style=config.llm.prompt_style), load_s
+                         prompt_style=config.llm.prompt_style, decider=decider), load_s

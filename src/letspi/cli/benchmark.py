@@ -1,5 +1,5 @@
 """``letspi benchmark``: versioned suites (``list``, ``show``, ``run``); one table over several runs (``summary``);
-windows a paired test needs (``power``)."""
+windows a paired test needs (``power``); the paper's Tables III-VI on the suites (``paper``)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import typer
 from letspi.assembly.planner_table import planner_table
 from letspi.benchmark.highway_env import default_highway_env_planners, run_highway_env_suite
 from letspi.benchmark.leaderboard import to_markdown
+from letspi.benchmark.paper import DEFAULT_SUITES, FAST_MODELS, MEMORY_MODELS, TABLES, PaperSettings, run_paper
 from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
 from letspi.benchmark.run import default_planners, run_suite
 from letspi.benchmark.suites import HIGHWAY_ENV_SUITES, SUITES, GeneratedTraffic, get_any_suite, get_suite
@@ -210,3 +211,46 @@ def power(
         at_n = f"{mcnemar_power(round(n / max(deff, 1.0)), *alternative(psi, d), alpha):.2f}" if n else "–"
         typer.echo(f"| {label} | {100 * psi:.2f} | {need if need is not None else '> 200,000'} | {deff:.2f} "
                    f"| {scaled} | {at_n} |")
+
+
+@app.command("paper")
+@planner_options(exclude=("prompt_style",))
+def paper(
+    options: PlannerOptions,
+    suite: Annotated[list[str] | None, typer.Option(
+        "--suite", help=f"Suite to draw windows from (repeatable; default: {', '.join(DEFAULT_SUITES)}).")] = None,
+    windows: Annotated[int, typer.Option(help="Evaluated windows per suite.")] = PaperSettings.eval_windows,
+    memory_windows: Annotated[int, typer.Option(
+        help="Windows per suite (of other vehicles) each memory collection runs on.")] = PaperSettings.memory_windows,
+    memory_phase_windows: Annotated[int, typer.Option(
+        help="Evaluated windows per suite letspi-memory (Table III's memory phase) plans too.")
+    ] = PaperSettings.memory_phase_windows,
+    memory_share: Annotated[float, typer.Option(
+        help="Share of each suite's ego vehicles held for memory collection.")] = PaperSettings.memory_share,
+    seed: Annotated[int, typer.Option(help="Seed of the vehicle split and the window draws.")] = PaperSettings.seed,
+    memory_model: Annotated[list[str] | None, typer.Option(
+        "--memory-model", help=f"Table VI memory model (repeatable; default: {', '.join(MEMORY_MODELS)}).")] = None,
+    fast_model: Annotated[list[str] | None, typer.Option(
+        "--fast-model", help=f"Table VI fast model (repeatable; default: {', '.join(FAST_MODELS)}).")] = None,
+    prompt_style: Annotated[str, typer.Option(
+        help="Prompt style of every LLM row (choice: the shipped decision step; paper: the paper's prompts "
+             "with the memories as few-shot examples).")] = PaperSettings.prompt_style,
+    table: Annotated[list[str] | None, typer.Option(
+        "--table", help=f"Only this table (repeatable; {', '.join(TABLES)}; default: all).")] = None,
+    out: Annotated[Path, typer.Option(help="Results directory.")] = Path("benchmark/paper"),
+    workers: Annotated[int, typer.Option(min=1, help="Processes for the planners without a model.")] = 2,
+) -> None:
+    """The paper's Tables III-VI on the pinned suites (docs/reproduction.md): baselines, memory and fast
+    phase; w/o Ref, w/o GA, FS; memory size; memory x fast model. Resumable: rerun the same command.
+    Writes OUT/paper.md and OUT/paper.json (the paper's numbers beside letspi's, intervals, paired tests)."""
+    with user_errors(resumes=True):
+        settings = PaperSettings(
+            suites=tuple(suite or DEFAULT_SUITES), eval_windows=windows, memory_windows=memory_windows,
+            memory_phase_windows=memory_phase_windows, memory_share=memory_share, seed=seed,
+            memory_models=tuple(memory_model or MEMORY_MODELS), fast_models=tuple(fast_model or FAST_MODELS),
+            prompt_style=prompt_style)
+        with writer_lock(out, command_line()), progress_bar() as bar:
+            result = run_paper(settings, out, options.replace(prompt_style=prompt_style), tables=table or TABLES,
+                               workers=workers, progress_factory=progress_factory(bar), log=bar.console.print)
+    typer.echo((out / "paper.md").read_text())
+    console.print(f"total {result.timing['total_s']:.1f} s; results in {out}/ (paper.md, paper.json, timing.json)")

@@ -226,17 +226,32 @@ def check_options(
     )
 
 
-def preference_order(passes_all: np.ndarray, progress_m: np.ndarray) -> list[int]:
-    """One scenario's options passing every check (``passes_all`` (K,)), most ``progress_m`` (K,) first."""
+def preference_order(passes_all: np.ndarray, progress_m: np.ndarray,
+                     changes_lane: np.ndarray | None = None) -> list[int]:
+    """One scenario's options that pass every check (``passes_all`` (K,)), most progress (``progress_m``
+    (K,)) first: the order the shield tries presets in. ``changes_lane`` (K,) bool: those options come after
+    every one that keeps the lane (None: no such preference)."""
     ok = np.flatnonzero(passes_all)
-    return [int(k) for k in ok[np.argsort(-np.nan_to_num(progress_m[ok], nan=-1e3), kind="stable")]]
+    key = -np.nan_to_num(progress_m[ok], nan=-1e3)
+    if changes_lane is not None:
+        key = key + LANE_CHANGE_PENALTY * np.asarray(changes_lane, dtype=bool)[ok]
+    return [int(k) for k in ok[np.argsort(key, kind="stable")]]
 
 
-def rule_choice(predicted_safe: np.ndarray, adverse_failed: np.ndarray, progress_m: np.ndarray) -> np.ndarray:
+#: ranks an option that changes lane behind every option failing as few checks that keeps it (progress is
+#: at most a few hundred metres; one failed check weighs 1e4)
+LANE_CHANGE_PENALTY: Final = 1e3
+
+
+def rule_choice(predicted_safe: np.ndarray, adverse_failed: np.ndarray, progress_m: np.ndarray,
+                changes_lane: np.ndarray | None = None) -> np.ndarray:
     """(B,) the choice without a model: option 0 (the defaults) when it passes every check; else the option
-    failing the fewest checks, then keeping the most predicted progress. Inputs (B, K) / (B, K, A)."""
+    failing the fewest checks, then (``changes_lane`` (K,) bool given) keeping the lane, then keeping the most
+    predicted progress. Inputs (B, K) / (B, K, A)."""
     failed = np.asarray(adverse_failed).sum(axis=2) + ~np.asarray(predicted_safe, dtype=bool)
     key = -failed * 1e4 + np.nan_to_num(np.asarray(progress_m, dtype=np.float64), nan=-1e3)
+    if changes_lane is not None:
+        key = key - LANE_CHANGE_PENALTY * np.asarray(changes_lane, dtype=bool)[None, :]
     best = np.argmax(key, axis=1)
     out: np.ndarray = np.where(failed[:, 0] == 0, 0, best)
     return out
@@ -332,11 +347,12 @@ class GatedChecks:
     complete: np.ndarray
     risk: np.ndarray
     consulted: np.ndarray
+    changes_lane: np.ndarray | None = None  # (K,) the rule's lane preference (``Decider.lane_changes``)
 
     def rule(self) -> np.ndarray:
         """(B,) the rule's choice where the gate consults (the defaults elsewhere)."""
         return np.where(self.consulted, rule_choice(self.checks.predicted_safe, self.checks.adverse_failed,
-                                                    self.checks.progress_m), 0)
+                                                    self.checks.progress_m, self.changes_lane), 0)
 
 
 def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
@@ -359,7 +375,8 @@ def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
 @dataclass(frozen=True)
 class Decider:
     """The decision step as the phases use it. ``adverse`` None: the prediction only (an ablation); ``gate``
-    None or without threshold: consult everywhere; ``verify``: the fast phase applies ``verified``."""
+    None or without threshold: consult everywhere; ``verify``: the fast phase applies ``verified``; ``keep_lane``:
+    the rule and the shield take a lane-changing preset only where every lane keeper fails more checks."""
 
     presets: OptionTable
     r_col_m: float
@@ -367,10 +384,20 @@ class Decider:
     adverse: AdverseSettings | None
     gate: RiskGate | None
     verify: bool = False
+    keep_lane: bool = False
 
     @property
     def adverse_settings(self) -> AdverseSettings:
         return self.adverse if self.adverse is not None else AdverseSettings(futures=())
+
+    @property
+    def lane_changes(self) -> np.ndarray | None:
+        """(K,) bool: the presets whose goal moves to another lane (lane factor not neutral), which the rule
+        and the shield rank behind the lane keepers (``keep_lane``); None without that preference."""
+        if not self.keep_lane:
+            return None
+        out: np.ndarray = np.abs(self.presets.values[:, 7] - NEUTRAL_LANE_FACTOR) > 1e-9
+        return out
 
     def check(self, history: ScenarioBatch, base_goals_xy_m: np.ndarray,
               prediction: NeighbourPrediction) -> OptionChecks:
@@ -391,7 +418,8 @@ class Decider:
                           prediction.take(rows)) if rows.size else None
         complete = np.zeros(len(history), dtype=bool)
         complete[rows] = True
-        return GatedChecks(_merge_rows(defaults, self.presets.names, rows, full), complete, risk, consulted)
+        return GatedChecks(_merge_rows(defaults, self.presets.names, rows, full), complete, risk, consulted,
+                           self.lane_changes)
 
     def risk_scores(self, history: ScenarioBatch, checks: OptionChecks) -> np.ndarray:
         """(B,) the gate's scores; NaN without a gate."""
@@ -408,18 +436,23 @@ class Decider:
 
     def rule(self, checks: OptionChecks) -> np.ndarray:
         """(B,) the no-model choice (``rule_choice``) as preset indices."""
-        return rule_choice(checks.predicted_safe, checks.adverse_failed, checks.progress_m)
+        return rule_choice(checks.predicted_safe, checks.adverse_failed, checks.progress_m, self.lane_changes)
 
     def verified(self, checks: OptionChecks, option: str) -> str:
         """Scenario 0's option after verification: the model's ``option`` unless a preset fails fewer checks,
-        then the rule's choice (the model keeps the say among equally checked options)."""
+        then the rule's choice (the model keeps the say among equally checked options; with ``keep_lane`` not for a
+        lane change where a preset keeping the lane fails no more checks)."""
         if option not in checks.names:
             return option
         failed = checks.failed_checks()[0]
-        if failed[checks.names.index(option)] <= failed.min():
+        k = checks.names.index(option)
+        lanes = self.lane_changes
+        if lanes is not None and lanes[k] and (failed[~lanes] <= failed[k]).any():
+            return checks.names[int(self.rule(checks)[0])]  # a lane keeper is as safe: no lane change
+        if failed[k] <= failed.min():
             return option
         return checks.names[int(self.rule(checks)[0])]
 
     def preference(self, checks: OptionChecks, i: int) -> list[int]:
         """Scenario ``i``'s presets that pass every check, the rule's order (most progress first)."""
-        return preference_order(checks.passes_all()[i], checks.progress_m[i])
+        return preference_order(checks.passes_all()[i], checks.progress_m[i], self.lane_changes)

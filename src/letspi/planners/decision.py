@@ -51,7 +51,11 @@ RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk mode
 VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a model's choice that fails more checks "
                        "than another preset is replaced by the rule's choice (off: the model's answer stands)",
                        panel=DECISION_PANEL)
-DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY)
+KEEP_LANE = PlannerOption("keep_lane", bool, False, "Decision step: the rule, the verification and the shield take "
+                          "a preset that changes lane only where every preset keeping the lane fails more checks",
+                          panel=DECISION_PANEL)
+DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY,
+                                                    KEEP_LANE)
 
 
 def decision_info(option: Sequence[str], consulted: np.ndarray, risk_score: np.ndarray,

@@ -509,6 +509,27 @@ class LetsPiFastPlanner:
             info.update(_default_decision())
         return _proposals([(p, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})] * len(batch))
 
+    def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
+                     mode: str = "checks") -> tuple[Proposals, np.ndarray]:
+        """Closed loop, dual rate: every preset held since an earlier call (not the defaults, not a model's own
+        numbers) gives way to the defaults where the scene ``view`` observed now no longer calls for it
+        (``Decider.gated_checks``): ``checks``: the gate would not consult, or the defaults pass every check;
+        ``prediction``: the defaults pass the checks against the prediction. Returns the proposals and (B,)
+        bool which were released."""
+        decider = self.phase.decider
+        released = np.zeros(len(proposals), dtype=bool)
+        if decider is None or "decision" not in proposals.info:
+            return proposals, released
+        held = np.flatnonzero([str(d) not in (DEFAULT_NAME, CUSTOM) for d in proposals.info["decision"]])
+        if not held.size:
+            return proposals, released
+        checks = decider.gated_checks(view.take(held), context.goals_xy_m[held], context.take(held).neighbours)
+        free = checks.checks.predicted_safe[:, 0] if mode == "prediction" else (
+            ~checks.consulted | checks.checks.passes_all()[:, 0])
+        released[held[free]] = True
+        return (with_rows(proposals, released, self.default_proposals(view.take(np.flatnonzero(released))))
+                if released.any() else proposals), released
+
     def simulate(self, batch: ScenarioBatch, context: PlanningContext, proposals: Proposals) -> PlanBatch:
         return simulate_and_shield(batch, context, proposals, self.shield_params, self.thresholds,
                                    with_memories=True, decider=self.phase.decider,
@@ -516,6 +537,25 @@ class LetsPiFastPlanner:
 
     def plan(self, batch: ScenarioBatch) -> PlanBatch:
         return plan_by_proposals(self, batch)
+
+
+def with_rows(proposals: Proposals, rows: np.ndarray, replacement: Proposals) -> Proposals:
+    """``proposals`` with the rows where ``rows`` (B,) bool is True taken from ``replacement`` (one row each, in
+    order): parameters, goal factors and every ``info`` key both have; ``extra`` stays."""
+    idx = np.flatnonzero(rows)
+    matrix = proposals.params.as_matrix().copy()
+    matrix[idx] = replacement.params.as_matrix()
+    lon, lane = np.array(proposals.lon_factor, dtype=np.float64), np.array(proposals.lane_factor, dtype=np.float64)
+    lon[idx], lane[idx] = replacement.lon_factor, replacement.lane_factor
+    info = {}
+    for key, values in proposals.info.items():
+        values = np.array(values)
+        if key in replacement.info:
+            values = values.astype(np.result_type(values, np.asarray(replacement.info[key])))
+            values[idx] = replacement.info[key]
+        info[key] = values
+    return Proposals(params=SocialForceParams.from_matrix(matrix), lon_factor=lon, lane_factor=lane, info=info,
+                     extra=dict(proposals.extra))
 
 
 def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposals: Proposals,
@@ -531,6 +571,9 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
         sim = simulate_proposal(batch, proposals.params, proposals.lon_factor, proposals.lane_factor,
                                 context.goals_xy_m, context.neighbours)
     info = dict(proposals.info)
+    if decider is not None:  # the goal factors in force (the closed loop records them per replan)
+        info.setdefault("lon_factor", np.asarray(proposals.lon_factor, dtype=np.float64))
+        info.setdefault("lane_factor", np.asarray(proposals.lane_factor, dtype=np.float64))
     if decider is not None and "adverse_failed" not in info:
         info["adverse_failed"] = adverse_failed_names(batch, context, sim.xy_m, sim.vxy_mps, decider.adverse)
     if shield_params is None:
@@ -581,7 +624,7 @@ def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider
     out: dict[int, list[Alternative]] = {}
     for j, i in enumerate(rows):
         out[i] = []
-        for k in preference_order(passes[j], progress[j]):
+        for k in preference_order(passes[j], progress[j], decider.lane_changes):
             v = table.values[k]
             params = SocialForceParams(**dict(zip(PARAM_NAMES[:6], (float(x) for x in v[:6]), strict=True)),
                                        r_col_m=decider.r_col_m)

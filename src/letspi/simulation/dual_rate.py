@@ -1,5 +1,6 @@
 """Dual-rate LetsPi in the closed loop: the engine's replanning step for LLM planners (the schedule makes the LLM
-calls due; the physics plans the group every ``replan_every`` frames in one batched call)."""
+calls due; the physics plans the group every ``replan_every`` frames in one batched call). With ``release`` and a
+``ReleasingPlanner``, held presets the scene no longer calls for give way to the defaults first (``released_n``)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,18 @@ from collections.abc import Callable
 import numpy as np
 
 from letspi.constants import T0_INDEX
+from letspi.metrics.registry import Metric
 from letspi.planners.base import PlanBatch
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.replan import FuturePolicy, PeriodicReplanner
-from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule
+from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule, ReleasingPlanner
+
+RELEASED = "released_n"
+#: per-scenario columns the dual-rate replanner adds (each replan's value; the harness stores the first
+#: replan's and the mean over replans)
+OUTPUTS: tuple[Metric, ...] = (
+    Metric(RELEASED, "n", "float64", "1 when a held preset gave way to the defaults at the replan (release); "
+           "its mean over the replans is the share of the scenario's replans that released one", None),)
 
 
 class DualRateReplanner(PeriodicReplanner):
@@ -37,6 +46,10 @@ class DualRateReplanner(PeriodicReplanner):
         if frame == self._frames[-1]:
             self.schedule.finish(schedule_info)
         cpu1 = time.thread_time()
+        release = self.schedule.config.release
+        if release != "off" and isinstance(self.planner, ReleasingPlanner):
+            proposals, released = self.planner.release_held(view, context, proposals, release)
+            schedule_info[RELEASED] = np.asarray(released, dtype=np.float64)
         plan = self.planner.simulate(view, context, proposals)
         cpu_physics = cpu_context + time.thread_time() - cpu1
         schedule_info["planner_cpu_ms"] = np.full(k, 1e3 * cpu_physics / max(k, 1))

@@ -1,6 +1,9 @@
 """Dual-rate LetsPi: the LLM sets the strategy slowly, the physics replans fast (docs/evaluation.md). An answer takes
 effect after a fixed latency (reproducible) or its measured one (a background call, the simulation paced to real
-time); until then ``default_proposals`` hold."""
+time); until then ``default_proposals`` hold. ``release`` (a ``ReleasingPlanner``): at each replan a preset held
+since an earlier call gives way to the defaults where the scene observed now no longer calls for it (``checks``:
+the gate would not consult or the defaults pass every check; ``prediction``: the defaults pass the prediction's
+checks; ``off``: held until the next answer)."""
 
 from __future__ import annotations
 
@@ -18,6 +21,8 @@ from letspi.planners.base import PlanningContext, Proposals, ProposingPlanner
 from letspi.scenario.types import ScenarioBatch
 
 DEFAULT_LLM_PERIOD_S: Final = 2.5
+#: when a held preset gives way to the defaults (module docstring)
+RELEASE_MODES: Final = ("checks", "prediction", "off")
 #: ``info`` keys that describe the LLM calls *made* at a replan (0 / NaN at replans without a call)
 CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_original_latency_s",
                          "prompt_tokens", "completion_tokens")
@@ -26,16 +31,20 @@ CALL_INFO_KEYS: Final = ("llm_calls", "llm_cached_calls", "llm_latency_s", "llm_
 @dataclass(frozen=True)
 class DualRateConfig:
     """How often the LLM is asked: ``llm_period_s`` (t = 0 and every period; >= the horizon: t = 0 only), and when
-    its answers take effect: ``llm_latency_s`` (None: measured, not reproducible; else fixed, in the key)."""
+    its answers take effect: ``llm_latency_s`` (None: measured, not reproducible; else fixed, in the key);
+    ``release``: when a held preset gives way to the defaults (``RELEASE_MODES``; in the key unless ``off``)."""
 
     llm_period_s: float = DEFAULT_LLM_PERIOD_S
     llm_latency_s: float | None = None
+    release: str = "checks"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.llm_period_s) and self.llm_period_s > 0):
             raise ValueError(f"--llm-period-s must be a positive number of seconds, got {self.llm_period_s}")
         if self.llm_latency_s is not None and not (math.isfinite(self.llm_latency_s) and self.llm_latency_s >= 0):
             raise ValueError(f"--llm-latency-s must be >= 0 seconds, got {self.llm_latency_s}")
+        if self.release not in RELEASE_MODES:
+            raise ValueError(f"--release must be one of {', '.join(RELEASE_MODES)}, got {self.release!r}")
 
     @property
     def measured(self) -> bool:
@@ -55,7 +64,10 @@ class DualRateConfig:
     def identity(self) -> dict[str, Any]:
         """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``."""
         latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
-        return {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
+        out: dict[str, Any] = {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
+        if self.release != "off":  # absent when off: the keys of the results made before release existed
+            out["release"] = self.release
+        return out
 
 
 @runtime_checkable
@@ -64,6 +76,17 @@ class DualRatePlanner(ProposingPlanner, Protocol):
     closed loop runs dual-rate is their kind's ``dual_rate`` in the planner table."""
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
+
+
+@runtime_checkable
+class ReleasingPlanner(Protocol):
+    """A dual-rate planner whose held answers the physics can release (module docstring, ``release``)."""
+
+    def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
+                     mode: str) -> tuple[Proposals, np.ndarray]:
+        """The proposals in force at this replan with every held preset the scene observed now no longer calls
+        for (``mode``: ``checks`` or ``prediction``) replaced by the defaults, and (B,) bool which were."""
+        ...
 
 
 @dataclass

@@ -9,7 +9,7 @@ from typing import Any, Final
 
 from letspi.planners.options import PlannerOption
 from letspi.simulation.config import DEFAULT_REPLAN_S, ClosedLoopConfig, EvaluationMode, HandoverConfig
-from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, DualRateConfig
+from letspi.simulation.schedule import DEFAULT_LLM_PERIOD_S, RELEASE_MODES, DualRateConfig
 
 PANEL: Final = "Closed loop"
 
@@ -45,13 +45,19 @@ LLM_LATENCY_S = PlannerOption[float | None](
     "Closed loop, LLM planners: an answer takes effect this many seconds (simulated) after its call: "
     "reproducible, in the key. Default: the measured latency (the simulation waits for the wall clock while an "
     "answer is out)", unit="s", panel=PANEL)
+RELEASE = PlannerOption("release", str, "checks", "Closed loop, LLM planners with the decision step (dual rate): "
+                        "when a preset held since an earlier call gives way to the defaults at a replan: checks (the "
+                        "gate would not consult, or the defaults pass every check), prediction (the defaults pass "
+                        "the checks against the prediction) or off (held until the next answer). In the LLM "
+                        "planners' keys", choices=RELEASE_MODES, panel=PANEL)
 HANDOVER_LANES = PlannerOption[int | None](
     "handover_lanes", int | None, None,
     "closed-loop-hybrid: a neighbour behind the ego is handed to SUMO when its lane is one the ego's box covers "
     "or at most this many lanes beside those (default 0; 1 = the adjacent lanes too)", panel=PANEL)
 #: every closed-loop setting of ``letspi evaluate``
 CLOSED_LOOP_OPTIONS: Final[tuple[PlannerOption[Any], ...]] = (
-    REPLAN_S, WORKERS, RAY, RAY_ADDRESS, SUMO_GUI, SIMULATOR, CHUNK_SIZE, HANDOVER_LANES, LLM_PERIOD_S, LLM_LATENCY_S)
+    REPLAN_S, WORKERS, RAY, RAY_ADDRESS, SUMO_GUI, SIMULATOR, CHUNK_SIZE, HANDOVER_LANES, LLM_PERIOD_S, LLM_LATENCY_S,
+    RELEASE)
 
 
 def parse_replan_options(values: Sequence[str] | None, labels: Sequence[str]) -> tuple[float, dict[str, float]]:
@@ -98,5 +104,6 @@ def closed_loop_config(mode: EvaluationMode, values: Mapping[str, Any], labels: 
         mode=mode, replan_s=default, planner_replan_s=own, workers=v["workers"],
         ray_address=v["ray_address"] or ("local" if v["ray"] else None), sumo_gui=v["sumo_gui"],
         chunk_size=v["chunk_size"], handover=HandoverConfig() if lanes is None else HandoverConfig(lanes=lanes),
-        dual_rate=DualRateConfig(DEFAULT_LLM_PERIOD_S if period is None else period, v["llm_latency_s"]),
+        dual_rate=DualRateConfig(DEFAULT_LLM_PERIOD_S if period is None else period, v["llm_latency_s"],
+                                 release=v["release"]),
         simulator=v["simulator"])
