@@ -12,7 +12,7 @@ import numpy as np
 from letspi.metrics.registry import Agg, Metric
 from letspi.planners.base import PlanningContext
 from letspi.planners.options import DECISION_PANEL, PlannerOption, file_option
-from letspi.planners.outputs import output
+from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, output
 from letspi.safety.adverse import AdverseSettings, adverse_futures, check_futures
 from letspi.scenario.types import ScenarioBatch
 
@@ -26,8 +26,9 @@ ADVERSE_FAILED = output("adverse_failed", "futures", "str", "adverse futures the
 REFINEMENTS = output("refinements", "n", "float64", "reflection rounds after the first proposal")
 REASON = output("reason", "text", "str", "why, in one line: the risk against the gate, what the defaults fail, what "
                 "was chosen and its checks")
-#: what every deciding planner records (``decision_info``)
-DECISION_OUTPUTS: tuple[Metric, ...] = (DECISION, CONSULTED, RISK_SCORE, ADVERSE_FAILED, REFINEMENTS, REASON)
+#: what every deciding planner records (``decision_info``, and the goal factors in force)
+DECISION_OUTPUTS: tuple[Metric, ...] = (DECISION, CONSULTED, RISK_SCORE, ADVERSE_FAILED, REFINEMENTS, REASON,
+                                        LON_FACTOR, LANE_FACTOR)
 DECISION_COLUMNS: tuple[str, ...] = tuple(o.name for o in DECISION_OUTPUTS)
 
 # Options of the decision step (``letspi.method.config.DecisionConfig``): letspi-fast, letspi-memory, llm,
