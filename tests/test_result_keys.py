@@ -205,7 +205,7 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
         settings = ClosedLoopConfig(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},  # type: ignore[arg-type]
                                     dual_rate=dual)
         for b in built:
-            evaluation = planner_evaluation(settings, b.name, b.dual_rate)
+            evaluation = planner_evaluation(settings, b)
             keys[f"{b.name} {dual.llm_latency_s}"] = pinned_key(planner_record(b, evaluation)["identity"])
     for b in built:
         keys[f"{b.name} open"] = pinned_key(planner_record(b)["identity"])
@@ -216,8 +216,14 @@ def test_the_closed_loop_identity_keeps_its_keys(files: dict[str, Path]) -> None
     }
     released = {b.name: pinned_key(planner_record(b, planner_evaluation(
         ClosedLoopConfig(HYBRID, replan_s=0.5, planner_replan_s={"letspi-fast": 0.2, "slow": 2.0},  # type: ignore[arg-type]
-                         dual_rate=DualRateConfig(2.5, 0.4)), b.name, b.dual_rate))["identity"]) for b in built}
-    assert released == {"sf": "26c338c8fd692ffe", "letspi-fast": "8f390302220d79d7", "slow": "638c09678f690f04"}
+                         dual_rate=DualRateConfig(2.5, 0.4)), b))["identity"]) for b in built}
+    # scripted letspi-fast here has no decision step, so the release mode, which changes nothing, is not in its key
+    assert released == {"sf": "26c338c8fd692ffe", "letspi-fast": "8035a17c65731a16", "slow": "638c09678f690f04"}
+    deciding = build_planners(["letspi-fast"], _options(files, llm_cache=False, prompt_style="choice"))[0]
+    assert deciding.planner.holds_presets
+    by_release = {mode: planner_evaluation(ClosedLoopConfig(HYBRID, dual_rate=DualRateConfig(2.5, 0.4, release=mode)),  # type: ignore[arg-type]
+                                           deciding)["dual_rate"].get("release") for mode in ("off", "checks")}
+    assert by_release == {"off": None, "checks": "checks"}
 
     batch = straight_road_scenario(ego_speed_mps=30.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=20.0)],
                                    scenario_id="a")

@@ -1,27 +1,13 @@
 """The paper's Tables III-VI on the pinned suites, one resumable run (``letspi benchmark paper``).
 
-Data: from each suite's cached windows (``letspi.benchmark.data``) the ego vehicles are split, seeded, into
-a memory share, on whose windows the memory phase collects, and the rest, whose windows are evaluated
-(retrieval never sees the evaluated vehicles). ``eval_windows``, ``memory_windows`` and
-``memory_phase_windows`` per suite are drawn from them (seeded) and pooled over the suites into one
-evaluation set, so intervals and paired tests run over all of them (windows grouped by ego vehicle).
-
-Every table is an ordinary evaluation directory (``letspi.evaluation.harness``) or an ablation preset
-(``letspi.evaluation.ablations``): resumable, keyed by the planners' configurations and the data digest.
-
-Layout of ``OUT``::
-
-    settings.json                   what the run pins (suite ids, sizes, seed, models); a rerun with other
-                                    settings is refused
-    data/eval.arrow, memory.arrow, memory-phase.arrow      the pooled windows
-    memory.sqlite                   the memory bank (``--memory``): one collection per configuration
-    table-iii/                      sf, idm, gnp, frenet, sf-check, LetsPi_F on the evaluation windows
-    table-iii-memory-phase/         sf, LetsPi_F, LetsPi_M on the memory-phase windows
-    ablations/components/           Table IV (Base, w/o Ref, w/o GA, FS)
-    ablations/memory-size/          Table V (0-80 % of Base's memories, and all of them)
-    ablations/llm-combinations/     Table VI (memory model x fast model)
-    paper.md, paper.json            the tables: the paper's numbers beside letspi's, intervals, paired tests
-    timing.json                     wall seconds of each stage and the load average
+Data: each suite's cached windows are split by ego vehicle (seeded) into a memory share, on whose windows
+the memory phase collects, and the rest, from which the evaluated windows are drawn and pooled over the
+suites (retrieval never sees an evaluated vehicle; intervals group windows by ego vehicle). Every table is
+an ordinary evaluation directory (``letspi.evaluation.harness``) or an ablation preset
+(``letspi.evaluation.ablations``), so resumable and keyed by the planners' configurations and the data
+digest. ``OUT`` holds ``settings.json`` (a rerun with other settings is refused), ``data/``,
+``memory.sqlite``, ``table-iii*/``, ``ablations/*/``, ``paper.md``/``paper.json`` and ``timing.json``:
+docs/reproduction.md describes each.
 """
 
 from __future__ import annotations
@@ -52,8 +38,9 @@ from letspi.evaluation.harness import EvaluationSettings, ProgressFactory, evalu
 from letspi.evaluation.results import load_planner_results, read_summary
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.config import MetricsConfig
-from letspi.planners.llm import FAST_LLM, LLM, LLM_CACHE, MEMORY, PROMPT_STYLE
+from letspi.planners.llm import FAST_LLM, LLM, LLM_CACHE, LLM_CALLS, LLM_ORIGINAL_LATENCY, MEMORY, PROMPT_STYLE
 from letspi.planners.options import PlannerOptions
+from letspi.planners.outputs import column
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.store import load_scenarios, save_scenarios
@@ -306,11 +293,12 @@ def _llm_figures(directory: Path, name: str) -> dict[str, float | None]:
     ``call_s`` (median seconds of one call over the windows that made calls, as each call cost when it was
     first made: the response cache does not hide it)."""
     frame = load_planner_results(directory, name)
-    if frame.empty or "info_llm_calls" not in frame:
+    calls_column, latency_column = column(LLM_CALLS), column(LLM_ORIGINAL_LATENCY)
+    if frame.empty or calls_column not in frame:
         return {"consulted_pct": None, "call_s": None}
-    calls = frame["info_llm_calls"].to_numpy(np.float64)
+    calls = frame[calls_column].to_numpy(np.float64)
     asked = calls > 0
-    per_call = frame["info_llm_original_latency_s"].to_numpy(np.float64)[asked] / calls[asked]
+    per_call = frame[latency_column].to_numpy(np.float64)[asked] / calls[asked]
     return {"consulted_pct": float(100.0 * asked.mean()),
             "call_s": float(np.median(per_call)) if per_call.size else None}
 

@@ -36,6 +36,7 @@ from letspi.scenario.types import ScenarioBatch
 from letspi.simulation import ClosedLoopChunk, ClosedLoopConfig, PlannerSpec, chunk_metrics, run_closed_loop
 from letspi.simulation.config import EvaluationMode
 from letspi.simulation.handover import hybrid_settings
+from letspi.simulation.schedule import ReleasingPlanner
 from letspi.simulation.spec import PlannerSpecLike
 from letspi.simulation.store import CLOSED_LOOP_OUTPUTS, LLM_CALLS_TOTAL, chunk_frame
 from letspi.trafficgen.binaries import sumo_home
@@ -67,12 +68,13 @@ def mode_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None = No
     return out
 
 
-def planner_evaluation(config: ClosedLoopConfig, label: str, dual_rate: bool = False) -> dict[str, Any]:
-    """What joins the key of the planner labelled ``label``: the mode and its replanning period; for a dual-rate
-    planner also its LLM period and fixed latency (or ``measured``)."""
-    out: dict[str, Any] = {"mode": config.mode.value, "replan_s": round(config.replan_s_of(label), 6)}
-    if dual_rate:
-        out["dual_rate"] = config.dual_rate.identity()
+def planner_evaluation(config: ClosedLoopConfig, built: BuiltPlanner) -> dict[str, Any]:
+    """What joins a planner's key: the mode and its replanning period; for a dual-rate planner also its LLM
+    period and fixed latency (or ``measured``), and for one that holds presets the release mode."""
+    out: dict[str, Any] = {"mode": config.mode.value, "replan_s": round(config.replan_s_of(built.name), 6)}
+    if built.dual_rate:
+        releasing = isinstance(built.planner, ReleasingPlanner) and built.planner.holds_presets
+        out["dual_rate"] = config.dual_rate.identity(releasing)
     return out
 
 
@@ -245,7 +247,7 @@ class ClosedLoopRunner:
                  config: MetricsConfig, progress: ProgressCallback | None,
                  before_write: Callable[[], None] | None = None) -> tuple[pd.DataFrame, RunStats | None]:
         settings = self.settings
-        writer = PartWriter(out_dir, built, planner_evaluation(settings, built.name, built.dual_rate), before_write)
+        writer = PartWriter(out_dir, built, planner_evaluation(settings, built), before_write)
         todo = writer.todo(digests, progress)
         if len(todo):
             vehicles = vehicle_keys(batch)

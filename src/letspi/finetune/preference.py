@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,8 +43,10 @@ from letspi.finetune.train import (
     load_base,
 )
 from letspi.fsutil import atomic_write_text, provenance_path
-from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
 from letspi.llm.choice import choice_reply_text
+
+if TYPE_CHECKING:  # torch is the train extra's; the module imports without it
+    from letspi.learned.train.loop import StepHistory
 
 
 @dataclass(frozen=True)
@@ -151,6 +153,8 @@ def train_dpo(pairs: Sequence[PreferencePair], config: DpoConfig, base_gguf: Pat
     preferred reply the model rates above the rejected one, before and after."""
     import torch
     from peft import PeftModel, get_peft_model_state_dict, set_peft_model_state_dict
+
+    from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
 
     t0 = time.perf_counter()
     out_dir = Path(out_dir)

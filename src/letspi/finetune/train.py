@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import numpy as np
 
@@ -28,8 +28,10 @@ from letspi.assembly.resolve import file_sha256
 from letspi.finetune.data import ChatExample, split_examples
 from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text, provenance_path
-from letspi.learned.train.loop import CHECKPOINT_FILE, StepHistory, run_steps
 from letspi.llm.backends.llamacpp_open import open_llama
+
+if TYPE_CHECKING:  # torch is the train extra's; the module imports without it
+    from letspi.learned.train.loop import StepHistory
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"
@@ -280,6 +282,8 @@ def train_lora(
     ``verify``: validation (else training) prompts compared by ``verify_export``."""
     import torch
     from peft import get_peft_model_state_dict, set_peft_model_state_dict
+
+    from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
 
     t_start = time.perf_counter()  # steps: split and fingerprint, encode, LoRA model, run_steps, export
     out_dir = Path(out_dir)

@@ -1,18 +1,11 @@
 """Choosers without a language model: what picks a preset where the risk gate fires, in place of the model.
 
-They isolate the model's part of LetsPi's decision step: each runs under the same presets, checks, gate,
-verification and shield as ``letspi-fast`` (``letspi.method.phases.FastPhase.chooser``), so a difference in
-outcome is the difference of the choice alone. Every chooser maps (B,) scenarios with their presets'
-checks (``OptionChecks``, (B, K)) and risk scores (B,) to (B,) preset indices:
-
-* ``ConstantChooser``: always one preset (``constant-default`` is ``sf-check`` without its rule,
-  ``constant-ease`` a bias towards slowing down that reads nothing);
-* ``RuleChooser``: ``sf-check``'s rule (the defaults when they pass every check, else the fewest failed
-  checks, then the most progress);
-* ``CautiousChooser``: the rule, but where the defaults fail a check and no preset fails fewer, the
-  tied preset keeping the most progress other than the defaults (a cautious tie-break);
-* ``TeacherChooser``: the expected-utility policy that made the model's training labels
-  (``letspi train decide``), its outcome trees shipped as ``teacher.json`` (``Teacher``).
+Each runs under the same presets, checks, gate, verification and shield as ``letspi-fast``
+(``FastPhase.chooser``), so a difference in outcome is the choice alone. A chooser maps (B,) scenarios with
+their presets' checks (``OptionChecks``, (B, K)) and risk scores (B,) to (B,) preset indices:
+``ConstantChooser`` (one preset always), ``RuleChooser`` (``sf-check``'s rule), ``CautiousChooser`` (the
+rule with a cautious tie-break) and ``TeacherChooser`` (the expected-utility policy that labelled the
+model's training data, ``teacher.json``). docs/decisions.md compares them.
 """
 
 from __future__ import annotations

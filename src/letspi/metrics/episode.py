@@ -1,29 +1,11 @@
 """Per-episode metrics of a closed-loop episode in a reactive simulator (highway-env): one registry, one computation.
 
-An episode is one ego driving among V - 1 other vehicles, its states at T simulation frames (``t_s``), until the
-first collision, leaving the road, or the episode's end. ``EPISODE_METRICS`` declares every per-episode value
-once (name with its unit, dtype, meaning) and the keys it aggregates into (``Agg``, as ``letspi.metrics.registry``
-does for scenarios); the results' columns, ``metrics.json``'s keys, their intervals and paired tests and the
-documentation derive from it. ``episode_metrics`` computes them.
-
-Definitions (frames up to the end of the episode as driven; the boxes of ``letspi.metrics.inputs``, ego frame x
-along the road, y to the left):
-
-* ``success``: neither a collision nor the road left before the episode ended (its duration, or the
-  environment's own goal such as passing merge-v0's ramp); ``survival_s``: seconds from the start to the first
-  collision or the road left, the episode's length without either (DiLu's "success steps" in seconds);
-* ``at_fault``: the ego caused its first collision, by ``letspi.metrics.fault``'s rules on the whole episode
-  (side: the ego did at least half of the lateral closing within the reaction time; front: it ran into a
-  vehicle ahead; rear: only when it braked harder than allowed); the other party is the vehicle that
-  crashed in the same frame nearest to the ego;
-* ``mean_speed_mps`` and ``distance_m`` (progress along the road): a planner cannot win by slowing down;
-* ``lane_changes_n``: changes of the lane of the ego's centre between frames (a change and back counts 2);
-* ``min_ttc_s``: minimum 1-D TTC with the preceding vehicle (``letspi.metrics.ttc``), +inf never closing;
-* ``hard_brakes_n``: times the ego's longitudinal deceleration rose above ``HARD_BRAKE_MPS2``;
-  ``peak_jerk_mps3``: largest longitudinal jerk of the ego (finite differences of its velocity along the road),
-  in magnitude, before any collision (highway-env's bicycle model turns the velocity with the steering at once,
-  so a lateral jerk would measure the model, not the driving);
-* ``planner_latency_s`` / ``planner_latency_max_s``: mean and largest wall time of a replan (NaN without plans).
+An episode is one ego among V - 1 other vehicles, states at T simulation frames (``t_s``), until the first
+collision, leaving the road, or its end. ``EPISODE_METRICS`` declares every value once (name with unit, dtype,
+meaning, how it aggregates), as ``letspi.metrics.registry`` does for scenarios; results' columns,
+``metrics.json``, intervals, paired tests and docs derive from it; ``episode_metrics`` computes them. The
+definitions (success, at fault, TTC, hard brakes, jerk, latency) are the declarations' meanings, rendered in
+docs/metrics-reference.md; why they are defined so: notes/rationale-runtime-evaluation.md, "episode metrics".
 """
 
 from __future__ import annotations

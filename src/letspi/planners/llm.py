@@ -120,7 +120,7 @@ MEMORY_PLANNER_OPTIONS: tuple[PlannerOption[Any], ...] = (*MEMORY_PHASE_OPTIONS,
 CHOOSER = PlannerOption(
     "chooser", str, MODEL_CHOOSER,
     "What picks the preset where letspi-fast's risk gate fires, under the same presets, checks, gate, verification "
-    "and shield: model (the LLM), shuffled (the LLM answering another window's prompt), or without an LLM: rule "
+    "and shield: model (the LLM), shuffled (the LLM answering another window's prompt), or, with no model, rule "
     "(sf-check's), constant-default, constant-ease, cautious (the rule, ties broken towards slowing down), teacher "
     "(the expected-utility policy that made the model's labels)", choices=CHOOSER_NAMES, panel=DECISION_PANEL)
 TEACHER = file_option("teacher_file", "Trees of --chooser teacher (from `letspi train decide`; default: the shipped "
@@ -508,6 +508,10 @@ class LetsPiFastPlanner:
         if self.phase.decider is not None:
             info.update(_default_decision())
         return _proposals([(p, info, {MEMORY_ALTERNATIVES: pack_memory_alternatives([], k)})] * len(batch))
+
+    @property
+    def holds_presets(self) -> bool:
+        return self.phase.decider is not None
 
     def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                      mode: str = "checks") -> tuple[Proposals, np.ndarray]:

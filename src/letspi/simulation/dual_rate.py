@@ -47,7 +47,7 @@ class DualRateReplanner(PeriodicReplanner):
             self.schedule.finish(schedule_info)
         cpu1 = time.thread_time()
         release = self.schedule.config.release
-        if release != "off" and isinstance(self.planner, ReleasingPlanner):
+        if release != "off" and isinstance(self.planner, ReleasingPlanner) and self.planner.holds_presets:
             proposals, released = self.planner.release_held(view, context, proposals, release)
             schedule_info[RELEASED] = np.asarray(released, dtype=np.float64)
         plan = self.planner.simulate(view, context, proposals)

@@ -61,11 +61,12 @@ class DualRateConfig:
         """Fixed latency in frames, rounded up (an answer never takes effect early)."""
         return math.ceil((self.llm_latency_s or 0.0) / DT_S - 1e-9)
 
-    def identity(self) -> dict[str, Any]:
-        """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``."""
+    def identity(self, releasing: bool = True) -> dict[str, Any]:
+        """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``; the
+        release mode only for a planner that holds presets (``releasing``), the one it changes."""
         latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
         out: dict[str, Any] = {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
-        if self.release != "off":  # absent when off: the keys of the results made before release existed
+        if releasing and self.release != "off":  # absent when off: the keys made before release existed
             out["release"] = self.release
         return out
 
@@ -81,6 +82,11 @@ class DualRatePlanner(ProposingPlanner, Protocol):
 @runtime_checkable
 class ReleasingPlanner(Protocol):
     """A dual-rate planner whose held answers the physics can release (module docstring, ``release``)."""
+
+    @property
+    def holds_presets(self) -> bool:
+        """Whether its answers can be held presets (a decision step); release changes nothing otherwise."""
+        ...
 
     def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                      mode: str) -> tuple[Proposals, np.ndarray]:

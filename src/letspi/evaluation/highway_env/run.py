@@ -40,7 +40,7 @@ def evaluation_of(settings: EnvSettings, dual_rate: bool) -> dict[str, Any]:
     """What joins a planner's key: the mode and replanning period; for an LLM planner its dual-rate timing."""
     out: dict[str, Any] = {"mode": RUN_MODE, "replan_s": round(settings.replan_s, 6)}
     if dual_rate:
-        out["dual_rate"] = settings.dual_rate.identity()
+        out["dual_rate"] = settings.dual_rate.identity(releasing=False)  # episodes do not release presets
     return out
 
 

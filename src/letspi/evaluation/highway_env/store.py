@@ -2,21 +2,15 @@
 
 Layout::
 
-    DIR/run.json                          what the results are keyed by: the environment, its configuration,
-                                          the episode's length and replanning period, highway-env's and
-                                          gymnasium's versions, the metrics configuration and definitions
-    DIR/episodes/<label>/config.json      the planner's (or highway-env ego's) configuration and key, with how it
-                                          was run (replanning period; dual-rate timing of LLM planners)
-    DIR/episodes/<label>/seed-<S>.npz     every vehicle's recorded states, the road, every plan (compressed)
-    DIR/episodes/<label>/seed-<S>.parquet one row: the seed, ``EPISODE_METRICS``, timing; written last, so an
-                                          episode counts as stored once this file exists
-    DIR/metrics.json, metrics.md          per label the aggregated keys with 95 % intervals; paired with the
-                                          reference (the same seeds): exact McNemar p and the difference's interval
+    DIR/run.json                           the key: environment, configuration, episode length, replanning
+                                           period, highway-env's and gymnasium's versions, metrics configuration
+    DIR/episodes/<label>/config.json       the planner's configuration and key, and how it was run
+    DIR/episodes/<label>/seed-<S>.npz      every vehicle's states, the road, every plan (compressed)
+    DIR/episodes/<label>/seed-<S>.parquet  one row (the seed, ``EPISODE_METRICS``, timing); written last
+    DIR/metrics.json, metrics.md           per label the aggregates with 95 % intervals, paired with the reference
 
-A directory holds one keyed run (another environment, configuration, version or metrics configuration is refused,
-naming what differs) and one configuration per label. Every file is written atomically; a rerun skips the seeds
-stored and runs the rest. Episodes are independent (one seed each), so a rate's interval is Wilson's and a mean's a
-bootstrap over episodes (``letspi.metrics.uncertainty`` with one group per episode).
+One keyed run per directory (another key is refused, naming what differs); atomic writes; a rerun skips the
+stored seeds. Intervals: Wilson for rates, a bootstrap over episodes for means (notes/rationale-runtime-evaluation.md).
 """
 
 from __future__ import annotations

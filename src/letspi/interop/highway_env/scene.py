@@ -1,21 +1,11 @@
 """An episode's road and recorded states, as letspi scenarios and as a HighD recording (NumPy only).
 
-Coordinates. highway-env's world: x along the road (the direction of travel), y to the *right* of travel
-(lane 0 is the leftmost; its image y points down), box centres, metres. That is HighD's image frame of
-driving direction 2 (the lower carriageway, travelling +x), up to a shift of y, so:
-
-* a **scenario** (``scenario_view``) is built as ``letspi.scenario.extract`` builds one from a direction-2
-  recording: ego frame ``x = cx - cx0``, ``y = -(cy - cy0)`` about the ego's centre at the planning instant,
-  velocities ``(vx, -vy)``; the ≤ ``MAX_NEIGHBOURS`` other vehicles within ``NEIGHBOUR_RADIUS_M`` then, the
-  nearest first (distances at 1 mm, ties: lower id); 3 s of history at 25 Hz (``N_HISTORY`` frames) linearly
-  interpolated from the simulation frames, back-filled at constant velocity before the episode's first
-  frame (a warm-up would change the scene);
-* a **HighD recording** (``episode_recording``) puts the road on the lower carriageway below an empty upper
-  one of the same lanes (``RoadLayout``: HighD's lane ids, ``1 +`` the markings above a centre), resampled
-  to 25 Hz, box corners (``x - length / 2``, ``y - width / 2``), every vehicle a car of drivingDirection 2.
-
-Only straight roads along x are represented (highway-env's ``highway-v0`` and the main carriageway of
-``merge-v0``): HighD's markings are horizontal lines.
+highway-env's world (x along the road, y to the right of travel, lane 0 leftmost, box centres, metres) is
+HighD's image frame of driving direction 2 up to a shift of y. ``scenario_view`` builds an ego-centric
+scenario as ``letspi.scenario.extract`` does from a direction-2 recording (history interpolated to 25 Hz,
+back-filled at constant velocity before the first frame); ``episode_recording`` writes the road as HighD's
+lower carriageway (``RoadLayout``). Only straight roads along x (``highway-v0``, ``merge-v0``'s main
+carriageway). Details: notes/rationale-runtime-evaluation.md, "highway-env frames".
 """
 
 from __future__ import annotations

@@ -1,28 +1,11 @@
 """highway-env's side of the bridge: environments, the egos, the recorder (imports highway-env at module level).
 
-* ``make_env(env_id, config)``: the environment, headless (``render_mode=None``); an id letspi does not drive or
-  a configuration key the environment does not know is refused in one line naming the fix.
-* ``road_layout(env)``: the straight carriageway the ego starts on (``scene.RoadLayout``).
-* **Egos**, swapped in after ``reset`` at the ego's state without drawing a random number (``install_ego``), so a
-  seed gives the same scene whichever ego drives:
-
-  - ``TrackingEgo``: follows letspi's plan at every simulation frame. Longitudinal: the plan's acceleration
-    plus feedback on its speed and position; lateral: highway-env's cascade (lateral position -> lateral
-    speed -> heading -> heading rate -> steering of the bicycle model, its gains ``KP_LATERAL`` and
-    ``KP_HEADING``), with the plan's lateral speed fed forward and the plan's lateral position as reference.
-    Acceleration is clipped to [-``DECEL_MAX_MPS2``, ``ACC_MAX_MPS2``], steering to highway-env's
-    ``MAX_STEERING_ANGLE`` and to ``LAT_ACC_MAX_MPS2`` of lateral acceleration. It keeps ``target_speed``
-    (the plan's speed ``PREVIEW_S`` ahead) and ``target_lane_index`` (the lane of the plan's position then)
-    current: the other vehicles' IDM and MOBIL read them (a stale target speed reads as an ego that wants to
-    stop; a stale target lane hides its lane change from MOBIL's abort rule);
-  - ``"idm"``: highway-env's own ``IDMVehicle`` (IDM and MOBIL), its desired speed the road's limit;
-  - ``"lane-keeper"``: highway-env's ``ControlledVehicle`` with no action: it keeps its lane and its initial
-    speed (no car following).
-
-* ``Recorder``: every vehicle's state at every simulation frame (``scene.EpisodeTracks``).
-* ``advance(env, recorder, frames)``: one policy period of highway-env's own loop (``AbstractEnv._simulate``:
-  ``road.act``, ``road.step`` per frame) without an observation or reward, timed (highway-env's share apart
-  from the ego's control and the recording).
+``make_env`` (headless; unknown ids or configuration keys refused in one line), ``road_layout``, the egos
+swapped in after ``reset`` without drawing a random number (``install_ego``: a seed gives the same scene
+whichever ego drives) -- ``TrackingEgo`` (follows letspi's plan at every simulation frame), ``"idm"``
+(highway-env's IDM and MOBIL), ``"lane-keeper"`` -- the ``Recorder`` of every vehicle's state, and
+``advance`` (one policy period of highway-env's own loop, timed). The tracking controller's laws and
+limits: notes/rationale-runtime-evaluation.md, "highway-env egos".
 """
 
 from __future__ import annotations
