@@ -209,12 +209,7 @@ def run_paper(settings: PaperSettings, out: Path, options: PlannerOptions, *, ta
     timing["data_s"] = time.perf_counter() - started
     options = options.replace(memory=options.get(MEMORY) or out / "memory.sqlite",
                               prompt_style=options.get(PROMPT_STYLE) or settings.prompt_style)
-    _check_settings(out, {**asdict(settings), "suite_ids": list(data.suite_ids),
-                          "llm": options.get(LLM), "fast_llm": options.get(FAST_LLM),
-                          "prompt_style": options.get(PROMPT_STYLE),
-                          "datasets": {k: dataset_digest(scenario_digests(b)) for k, b in
-                                       (("eval", data.eval), ("memory", data.memory),
-                                        ("memory-phase", data.memory_phase))}})
+    _check_settings(out, _pinned(settings, data, options))
     builder = Builder(cache="default" if options.get(LLM_CACHE) else None)
     common: dict[str, Any] = {"progress_factory": progress_factory, "builder": builder, "config": data.config,
                               "collect_batch": data.memory, "scenarios_file": str(data.files["eval"])}
@@ -254,12 +249,25 @@ def run_paper(settings: PaperSettings, out: Path, options: PlannerOptions, *, ta
         combos = combinations(settings, options)
         stage("table_vi", lambda: run_ablation("llm-combinations", data.eval, out, base, combinations=combos,
                                                reference=combination_row(*combos[0]), **common))
-    report = paper_tables(out, settings, options)
-    atomic_write_text(out / "paper.json", json.dumps(report, indent=2, sort_keys=True, default=float) + "\n")
-    atomic_write_text(out / "paper.md", paper_markdown(report))
+    report = _write_report(out, settings, options)
     timing["total_s"] = round(time.perf_counter() - started, 2)
     _write_timing(out, timing, tables)
     return PaperRun(out, report, timing)
+
+
+def _pinned(settings: PaperSettings, data: PaperData, options: PlannerOptions) -> dict[str, Any]:
+    """What ``settings.json`` pins: the settings, the suites' ids, the models, the prompt style, the data."""
+    batches = (("eval", data.eval), ("memory", data.memory), ("memory-phase", data.memory_phase))
+    return {**asdict(settings), "suite_ids": list(data.suite_ids), "llm": options.get(LLM),
+            "fast_llm": options.get(FAST_LLM), "prompt_style": options.get(PROMPT_STYLE),
+            "datasets": {k: dataset_digest(scenario_digests(b)) for k, b in batches}}
+
+
+def _write_report(out: Path, settings: PaperSettings, options: PlannerOptions) -> dict[str, Any]:
+    report = paper_tables(out, settings, options)
+    atomic_write_text(out / "paper.json", json.dumps(report, indent=2, sort_keys=True, default=float) + "\n")
+    atomic_write_text(out / "paper.md", paper_markdown(report))
+    return report
 
 
 def combinations(settings: PaperSettings, options: PlannerOptions) -> list[tuple[str, str]]:
