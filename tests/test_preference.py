@@ -65,7 +65,8 @@ def test_rebalancing_repeats_the_examples_of_rare_replies() -> None:
 
 def _choice_labels(tmp_path: Path) -> Path:
     """A choice labels directory (``letspi train decide``'s format, with hindsight) of three straight-road
-    windows where ``brake`` is best in hindsight and ``default`` collides."""
+    windows where ``brake`` is best in hindsight (the only success; equal progress, so it leads every other
+    preset by the margin of 1) and ``default`` collides."""
     batch = concat_batches([
         straight_road_scenario(ego_speed_mps=33.0, neighbours=[VehicleSpec(x0_m=30.0 + 5 * i, speed_mps=20.0)],
                                scenario_id=f"w{i}") for i in range(3)])
@@ -78,7 +79,7 @@ def _choice_labels(tmp_path: Path) -> Path:
     success = np.zeros((b, k), bool)
     success[:, presets.index("brake")] = True
     o = OptionOutcomes(collision=collide, at_fault=collide.copy(), success=success, min_ttc_s=np.full((b, k), 9.0),
-                       progress_m=np.tile(120.0 - 5 * np.arange(k), (b, 1)), predicted_safe=np.ones((b, k), bool),
+                       progress_m=np.full((b, k), 110.0), predicted_safe=np.ones((b, k), bool),
                        adverse_failed=np.zeros((b, k, 3), bool), adverse_applies=np.zeros((b, 3), bool))
     labels = [ChoiceLabel(i, presets.index("ease"), 1.0, 0.3) for i in range(b)]
     frame = label_frame(labels, o, presets, ("leader-brakes", "cut-in", "follower-keeps"), digests)
