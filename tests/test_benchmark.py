@@ -175,6 +175,10 @@ def test_run_suite_twice_gives_the_same_leaderboard_bytes_and_reuses_the_data(
     assert {m["n_windows"] for m in quick.board["modes"].values()} == {5}
     assert "A quick try (--limit 5)" in (tmp_path / "quick" / "leaderboard.md").read_text()
     assert "limit" not in board  # the full run's leaderboard
+    said: list[str] = []  # a rerun into the same directory says what it reused
+    run_suite(suite, ["sf", "cv"], tmp_path / "a", workers=0, reports=False, log=said.append)
+    assert "open-loop: resumed: sf 30 of 30, cv 30 of 30 windows already stored (not planned again)" in said
+    assert any(m.startswith("closed-loop-log-1s: resumed: sf 12 of 12") for m in said)
 
 
 @pytest.mark.sumo

@@ -22,7 +22,7 @@ from letspi.benchmark.suites import REFERENCE_PLANNER, Mode, Suite
 from letspi.evaluation.closed_loop import evaluate_closed_loop
 from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
 from letspi.evaluation.harness import evaluate as evaluate_open_loop
-from letspi.evaluation.results import ProgressCallback
+from letspi.evaluation.results import ProgressCallback, reuse_line, reused_windows
 from letspi.fsutil import atomic_write_text
 from letspi.planners.mlp import MlpConfig
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
@@ -126,6 +126,9 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
             batch = full
         if limit is not None:
             batch = batch.take(np.arange(min(limit, len(batch))))
+        resumed = reuse_line(reused_windows(eval_dir, labels, batch), len(batch))
+        if resumed:
+            log(f"{mode.slug}: {resumed}")
         clock = _PlannerClock(progress_factory)
         if mode.mode == "open-loop":
             evaluate_open_loop(planners, batch, eval_dir, EvaluationSettings(

@@ -31,12 +31,11 @@ from letspi.evaluation.closed_loop import (
 )
 from letspi.evaluation.harness import EvaluationSettings, ProgressFactory
 from letspi.evaluation.harness import evaluate as run_evaluation
-from letspi.evaluation.results import ProgressCallback, done_digests, planner_dir_name, read_summary, stored_rows
+from letspi.evaluation.results import ProgressCallback, read_summary, reuse_line, reused_windows, stored_rows
 from letspi.evaluation.summary import summary_markdown
 from letspi.fsutil import writer_lock
 from letspi.metrics.aggregate import AggValue
 from letspi.planners.options import LLM_PANEL, PLANNERS_PANEL, PlannerOptions
-from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import count_scenarios, load_scenarios
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
@@ -100,20 +99,6 @@ def scripted_neighbours_of(mode: EvaluationMode, events: str | None, scenarios: 
     if events is not None:
         return scripted_for(batch, Path(events))
     return scripted_for(batch, events_directory(scenarios), required=False)
-
-
-def reused_windows(out: Path, labels: list[str], batch: ScenarioBatch) -> dict[str, int]:
-    """Windows of ``batch`` each planner label already has stored in ``out`` (what a rerun reuses)."""
-    if not (out / "per_scenario").is_dir():
-        return {}
-    digests = {str(d) for d in scenario_digests(batch)}
-    return {label: len(digests & done_digests(out / "per_scenario" / planner_dir_name(label))) for label in labels}
-
-
-def reuse_line(reused: dict[str, int], n_windows: int) -> str | None:
-    """``resumed: sf 180 of 200 windows already stored, ...`` (None when nothing was reused)."""
-    parts = [f"{label} {n} of {n_windows}" for label, n in reused.items() if n]
-    return f"resumed: {', '.join(parts)} windows already stored (not planned again)" if parts else None
 
 
 def progress_factory(bar: Progress | LineProgress) -> ProgressFactory:

@@ -34,7 +34,7 @@ from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporar
 from letspi.keyed import diff, key_of
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.uncertainty import GROUP_COLUMN
-from letspi.scenario.identity import dataset_digest
+from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.config import EvaluationMode
 
@@ -295,3 +295,17 @@ def read_summary(out_dir: Path) -> dict[str, Any]:
         raise FileNotFoundError(f"{path}: no metrics.json; is {out_dir} an evaluation directory?")
     data: dict[str, Any] = json.loads(path.read_text())
     return data
+
+
+def reused_windows(out: Path, labels: list[str], batch: ScenarioBatch) -> dict[str, int]:
+    """Windows of ``batch`` each planner label already has stored in ``out`` (what a rerun reuses)."""
+    if not (out / "per_scenario").is_dir():
+        return {}
+    digests = {str(d) for d in scenario_digests(batch)}
+    return {label: len(digests & done_digests(out / "per_scenario" / planner_dir_name(label))) for label in labels}
+
+
+def reuse_line(reused: dict[str, int], n_windows: int) -> str | None:
+    """``resumed: sf 180 of 200 windows already stored, ...`` (None when nothing was reused)."""
+    parts = [f"{label} {n} of {n_windows}" for label, n in reused.items() if n]
+    return f"resumed: {', '.join(parts)} windows already stored (not planned again)" if parts else None
