@@ -21,6 +21,7 @@ from letspi.cli.app import app
 from letspi.evaluation.highway_env.run import build_drivers, run_episodes
 from letspi.evaluation.highway_env.settings import EnvSettings
 from letspi.evaluation.highway_env.store import HighwayEnvDirError, load_episodes
+from letspi.method.memory import MemoryBank
 from letspi.metrics.episode import EPISODE_COLUMNS
 from letspi.planners.options import PlannerOptions
 
@@ -148,3 +149,24 @@ def test_the_example_external_planner_drives_by_import_path(tmp_path: Path, monk
     record = run_episodes(build_drivers(["letspi_gap_keeper:KIND"]), SMALL, [1], tmp_path, workers=0)
     config = json.loads((tmp_path / "episodes" / "gap-keeper" / "config.json").read_text())
     assert record["planners"]["gap-keeper"]["n"] == 1 and config["kind"] == "gap-keeper"
+
+
+@pytest.mark.parametrize("suite", sorted(HIGHWAY_ENV_SUITES))
+def test_every_built_in_planner_and_the_example_package_drive_every_suite(tmp_path: Path, suite: str,
+                                                                          monkeypatch) -> None:
+    """One 1-s episode of each suite's environment and configuration per planner (the LLM planners on a scripted
+    reply: control flow only). ``human`` replays a recorded future, which an episode does not have; ``mlp``
+    ships no weights."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "examples" / "letspi-gap-keeper" / "src"))
+    s = HIGHWAY_ENV_SUITES[suite]
+    settings = EnvSettings(s.env_id, s.config, duration_s=1.0)
+    kinds = ["cv", "idm", "sf", "sf-opt", "sf-check", "gnp", "frenet", "llm", "letspi-memory", "letspi-fast",
+             "letspi-fs", "letspi_gap_keeper:KIND"]
+    with MemoryBank.open(tmp_path / "bank.sqlite"):
+        pass  # an empty bank: the fast planners retrieve nothing
+    options = PlannerOptions(llm="scripted:default", fast_llm="scripted:default", llm_cache=False,
+                             memory=tmp_path / "bank.sqlite")
+    drivers = [*build_planners(kinds, options), *build_drivers(["he-idm", "he-lane-keeper"])]
+    record = run_episodes(drivers, settings, [s.seeds[0]], tmp_path / "run", workers=0)
+    assert sorted(record["planners"]) == sorted(d.name for d in drivers)
+    assert all(row["n"] == 1 for row in record["planners"].values())
