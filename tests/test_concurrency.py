@@ -183,8 +183,10 @@ def test_a_dead_server_stops_the_run_after_a_bounded_number_of_failures_and_the_
         assert srv.base_url in message and "\n" not in message
         statuses = [status for _, _, status in srv.completed[n0:]]
         after_last_success = statuses[len(statuses) - statuses[::-1].index(200):]
-        # once the server only fails: the budget, plus at most one request per worker in flight
-        assert 8 <= len(after_last_success) <= 8 + 4 and set(after_last_success) == {500}
+        # once the server only fails: the budget, plus at most one request per worker in flight; the server's
+        # completion order may put up to one success per other worker after failures the client saw later
+        assert 8 - 3 <= len(after_last_success) <= 8 + 4 and set(after_last_success) == {500}
+        assert statuses.count(500) >= 8
         with MemoryBank.open(bank, readonly=True) as b:
             stored = b.count(validated_only=False)
         assert 1 <= stored <= 10
