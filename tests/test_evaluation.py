@@ -160,7 +160,7 @@ def test_timing_excludes_cached_rows() -> None:
 _KILL_SCRIPT = textwrap.dedent("""
     import sys, time
     from pathlib import Path
-    from letspi.evaluation.harness import evaluate
+    from letspi.evaluation.harness import EvaluationSettings, evaluate
     from letspi.planners.sf import SocialForcePlanner
     from letspi.assembly.planners import build_planners
     from letspi.planners.options import PlannerOptions
@@ -176,7 +176,8 @@ _KILL_SCRIPT = textwrap.dedent("""
 
     built = build_planners(["sf"], PlannerOptions(goals="kinematic"))[0]
     built.planner = Slow(built.planner)
-    evaluate([built], load_scenarios(Path(sys.argv[1])), Path(sys.argv[2]), scenarios_file=sys.argv[1])
+    evaluate([built], load_scenarios(Path(sys.argv[1])), Path(sys.argv[2]),
+             EvaluationSettings(scenarios_file=sys.argv[1]))
 """)
 
 
