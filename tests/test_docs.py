@@ -358,3 +358,15 @@ def test_checker_accepts_negated_flags_and_option_values_that_look_like_commands
 if __name__ == "__main__":  # regenerate docs/metrics-reference.md
     METRICS_REFERENCE.write_text(metrics_reference_text(), encoding="utf-8")
     print(f"wrote {METRICS_REFERENCE}")
+
+
+def test_no_unfilled_placeholder_is_left_in_a_table_or_a_figure() -> None:
+    """A draft's stand-in for a number yet to be measured (a cell ``| DENSE3_FAST |``, a line ending ``: SPEEDUP``)
+    must not ship: every cell is a measured figure or says it was not measured."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "notes").glob("*.md"))]
+    cell = re.compile(r"\|\s*[A-Z][A-Z0-9]{2,}(?:_[A-Z0-9]{3,})+\s*(?=\|)")
+    line_end = re.compile(r": (?:SPEEDUP|DENSE|TODO|TBD|XXX|FILL)\w*$")
+    found = [f"{p.relative_to(ROOT)}:{n}: {line.strip()[:80]}" for p in pages
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+             if cell.search(line) or line_end.search(line.rstrip())]
+    assert not found, "\n".join(found)
