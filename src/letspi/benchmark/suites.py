@@ -310,6 +310,16 @@ _HE_SIZING = ("{n} episodes: a success rate near 70 % is known to about ±9 poin
               "McNemar (alpha 0.05) with power {p15} ({p20}) (letspi benchmark power --discordance-pct 30 "
               "--difference-pts 15)")
 
+def _dilu_five_lanes(density: float, first_seed: int, published: str) -> HighwayEnvSuite:
+    """One of DiLu's generalisation settings: highway-v0 with 5 lanes at ``density``, 50 episodes."""
+    return HighwayEnvSuite(
+        name=f"highway-env-dilu-5lane-{density:g}", version=1,
+        description=f"DiLu's generalisation: highway-v0 with 5 lanes at density {density:g} (else as "
+                    "highway-env-dilu); DiLu's 10 seeds and 40 more",
+        env_id="highway-v0", config=(("lanes_count", 5), ("vehicles_density", density), *_DILU_CONFIG),
+        seeds=_seeds(50, first_seed), published=published, sizing=_HE_SIZING.format(n=50, p15="0.41", p20="0.70"))
+
+
 #: the table of highway-env suites (one entry per suite)
 HIGHWAY_ENV_SUITES: Final[Mapping[str, HighwayEnvSuite]] = MappingProxyType({s.name: s for s in (
     HighwayEnvSuite(
@@ -320,22 +330,8 @@ HIGHWAY_ENV_SUITES: Final[Mapping[str, HighwayEnvSuite]] = MappingProxyType({s.n
         seeds=_seeds(100, 20001),
         published="DiLu (40 memories) 70 % success, GRAD (an RL baseline) 69 % (as DiLu, ICLR 2024, reports them)",
         sizing=_HE_SIZING.format(n=100, p15="0.75", p20="0.96")),
-    HighwayEnvSuite(
-        name="highway-env-dilu-5lane-2.5", version=1,
-        description="DiLu's generalisation: highway-v0 with 5 lanes at density 2.5 (else as highway-env-dilu); "
-                    "DiLu's 10 seeds and 40 more",
-        env_id="highway-v0", config=(("lanes_count", 5), ("vehicles_density", 2.5), *_DILU_CONFIG),
-        seeds=_seeds(50, 20101),
-        published="DiLu 65 % success, GRAD 47 %",
-        sizing=_HE_SIZING.format(n=50, p15="0.41", p20="0.70")),
-    HighwayEnvSuite(
-        name="highway-env-dilu-5lane-3", version=1,
-        description="DiLu's generalisation: highway-v0 with 5 lanes at density 3 (else as highway-env-dilu); "
-                    "DiLu's 10 seeds and 40 more",
-        env_id="highway-v0", config=(("lanes_count", 5), ("vehicles_density", 3), *_DILU_CONFIG),
-        seeds=_seeds(50, 20201),
-        published="DiLu 35 % success, GRAD 10 %",
-        sizing=_HE_SIZING.format(n=50, p15="0.41", p20="0.70")),
+    _dilu_five_lanes(2.5, 20101, "DiLu 65 % success, GRAD 47 %"),
+    _dilu_five_lanes(3, 20201, "DiLu 35 % success, GRAD 10 %"),
     HighwayEnvSuite(
         name="highway-env-merge", version=1,
         description="merge-v0 (highway-env's defaults: 2 lanes and an on-ramp, 4 other vehicles), 15 Hz "

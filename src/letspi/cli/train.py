@@ -224,12 +224,16 @@ def _llm_examples(data: list[Path], scenarios: Path | None,
     return list(examples), provenance_record(info)  # the manifest names no directory of this machine
 
 
+#: the output of `train llm` and `train dpo`
+AdapterOutOpt = Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
+                                             "resumes from its checkpoint when the same command is run again.")]
+
+
 @app.command("llm")
 def train_llm(
     data: Annotated[list[Path], typer.Option("--data", help="Labels directory from `letspi train llm-data` "
                                              "(repeat for several; split by ego vehicle).")],
-    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
-                                      "resumes from its checkpoint when the same command is run again.")],
+    out: AdapterOutOpt,
     epochs: Annotated[float, typer.Option(help="Passes over the training examples (fractions allowed).")] = 1.0,
     lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, warm-up then linear decay).")] = 3e-4,
     rank: Annotated[int, typer.Option(help="LoRA rank.")] = 8,
@@ -292,8 +296,7 @@ def train_dpo_cmd(
     data: Annotated[list[Path], typer.Option("--data", help="Choice labels directories of `letspi train decide` "
                                              "(with the hindsight column), in the order `train llm` had them.")],
     init: Annotated[Path, typer.Option(help="The supervised adapter's directory (`letspi train llm --out`).")],
-    out: Annotated[Path, typer.Option(help="Output directory (adapter.gguf, manifest.json, peft/); a killed run "
-                                      "resumes from its checkpoint when the same command is run again.")],
+    out: AdapterOutOpt,
     beta: Annotated[float, typer.Option(help="DPO temperature (how far from the supervised adapter).")] = 0.1,
     lr: Annotated[float, typer.Option(help="Peak learning rate (AdamW, linear decay to 10 %).")] = 5e-5,
     epochs: Annotated[float, typer.Option(help="Passes over the training pairs.")] = 1.0,
