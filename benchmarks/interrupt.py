@@ -2,9 +2,9 @@
 the rerun completes it without duplicates (``letspi.execution.interrupt``).
 
 Each mode runs the real ``letspi`` command in a child process of its own session (as a shell runs a
-foreground job), sends SIGINT to its process group ``after_s`` seconds after the start (as a
-terminal's Ctrl-C does: worker processes get it too), and measures the seconds from the signal to
-the exit. Reported per mode: those seconds, the exit code, the stop line and its counts, the child
+foreground job), sends SIGINT to its process group (as a terminal's Ctrl-C does: worker processes get it too)
+``after_s`` seconds after the start, once it has stored a first unit of work, and measures the seconds from the
+signal to the exit. Reported per mode: those seconds, the exit code, the stop line and its counts, the child
 processes seen while it ran and those still running after the exit (must be none), and, for the
 commands that resume, the rerun: exit code, rows stored and whether any scenario is stored twice.
 
@@ -171,6 +171,17 @@ class _Mode:
     total: int | None  # units a complete run stores (None: it keeps nothing partial)
     stored: Callable[[], dict[str, Any]] | None = None
 
+    def begun(self) -> bool:
+        """The command stores its work: it has loaded its input and is in its loop (a signal before that
+        tests start-up, whose length depends on the machine, not the stop). Always true for a mode that
+        keeps nothing partial."""
+        if self.stored is None:
+            return True
+        try:
+            return self.stored()["rows"] > 0
+        except Exception:  # a file being created or renamed: look again
+            return False
+
 
 def _modes(names: Sequence[str], scenario_file: Path, n: int, n_llm: int, n_labels: int, work: Path,
            server: LlmTestServer) -> dict[str, _Mode]:
@@ -210,9 +221,19 @@ def _modes(names: Sequence[str], scenario_file: Path, n: int, n_llm: int, n_labe
     return {name: table[name]() for name in names}
 
 
-def _after(seconds: float) -> Callable[[], bool]:
+def _after(seconds: float, begun: Callable[[], bool]) -> Callable[[], bool]:
+    """Ready ``seconds`` after now once ``begun()`` (asked at most every 0.25 s: it reads the disk)."""
     start = time.monotonic()
-    return lambda: time.monotonic() - start >= seconds
+    asked = [0.0]
+
+    def ready() -> bool:
+        now = time.monotonic()
+        if now - start < seconds or now - asked[0] < 0.25:
+            return False
+        asked[0] = now
+        return begun()
+
+    return ready
 
 
 def _load() -> float:
@@ -223,7 +244,8 @@ def bench_interrupt(batch: ScenarioBatch, *, n: int = 3000, n_llm: int = 40, n_l
                     modes: Sequence[str] = MODES, after_s: float = 10.0, resume: bool = True,
                     llm_latency_s: float = 2.0, log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Each of ``modes`` on the first ``n`` scenarios of ``batch`` (``n_llm`` for ``collect``,
-    ``n_labels`` for ``train-llm-data``), SIGINT ``after_s`` s after its start (module docstring);
+    ``n_labels`` for ``train-llm-data``), SIGINT ``after_s`` s after its start and once it has stored
+    something (module docstring);
     ``resume``: rerun the resumable ones to completion and count what they stored. A command that
     ends before the signal is reported as such."""
     say = log or (lambda _m: None)
@@ -242,7 +264,7 @@ def bench_interrupt(batch: ScenarioBatch, *, n: int = 3000, n_llm: int = 40, n_l
         for name, mode in _modes(modes, scenario_file, n, n_llm, n_labels, work, server).items():
             say(f"{name}: letspi {' '.join(mode.command[3:])}")
             try:
-                stopped = run_and_stop(mode.command, _after(after_s), work / f"{name}.err")
+                stopped = run_and_stop(mode.command, _after(after_s, mode.begun), work / f"{name}.err")
             except EndedBeforeSignal:
                 say(f"  ended before the signal ({after_s:g} s): give it more work")
                 result["modes"][name] = {"ended_before_signal": True}
