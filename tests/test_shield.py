@@ -19,7 +19,8 @@ from letspi.metrics.compute import compute_metrics
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbours
 from letspi.physics.params import SocialForceParams
-from letspi.planners.llm import GRID_SOURCE, SF_SOURCE, LetsPiFastPlanner, LetsPiMemoryPlanner
+from letspi.planners.base import PlanBatch
+from letspi.planners.llm import GRID_SOURCE, IDM_SOURCE, SF_SOURCE, LetsPiFastPlanner, LetsPiMemoryPlanner
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import ScenarioBatch
@@ -115,3 +116,28 @@ def test_the_shield_is_part_of_the_planner_key_and_the_builder_honours_it() -> N
     built_on = build_planner(resolve_planner("llm", opts), builder=Builder(cache=None)).planner
     built_off = build_planner(resolve_planner("llm", opts.replace(shield=False)), builder=Builder(cache=None)).planner
     assert built_on.shield_params is not None and built_off.shield_params is None  # type: ignore[attr-defined]
+
+
+def test_the_idm_fallback_stops_behind_a_stopped_queue_that_every_sf_alternative_runs_into() -> None:
+    """A queue stopped 40 m ahead of an ego at 15 m/s (highway-env's densest suite ends so): every preset and sf
+    alternative brakes too late, so the shield keeps the plan; ``--idm-fallback`` takes the IDM plan, which stops
+    behind the queue. Off by default, and then out of the planner's key."""
+    batch = straight_road_scenario(ego_speed_mps=15.0, neighbours=[VehicleSpec(x0_m=40.0, speed_mps=0.0)],
+                                   scenario_id="queue")
+    options = PlannerOptions(goals="kinematic", gate=False)
+
+    def plan(fallback: bool) -> PlanBatch:
+        spec = resolve_planner("sf-check", options.replace(idm_fallback=fallback))
+        return build_planner(spec, "sf-check", builder=Builder(cache=None)).planner.plan(batch.history())
+
+    without, with_idm = plan(False), plan(True)
+    assert without.info["shield_safe"][0] == 0.0 and without.info["shield_source"][0] != IDM_SOURCE
+    assert compute_metrics(batch, without.xy_m, without.vxy_mps).collision[0]
+    assert with_idm.info["shielded"][0] == 1.0 and with_idm.info["shield_source"][0] == IDM_SOURCE
+    assert not compute_metrics(batch, with_idm.xy_m, with_idm.vxy_mps).collision[0]
+    assert with_idm.xy_m[0, -1, 0] < 40.0 - 5.0  # the ego's centre stops a car length behind the queue's
+    assert np.all(np.diff(with_idm.xy_m[0, :, 0]) >= -1e-9)  # it brakes, never reverses
+
+    default = resolve_planner("sf-check", options)
+    assert resolve_planner("sf-check", options.replace(idm_fallback=False)).key() == default.key()
+    assert resolve_planner("sf-check", options.replace(idm_fallback=True)).key() != default.key()

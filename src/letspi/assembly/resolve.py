@@ -34,7 +34,17 @@ from letspi.planners.config import (
     SfParamsConfig,
     WeightsConfig,
 )
-from letspi.planners.decision import ADVERSE, DECIDE, GATE, GATE_THRESHOLD, KEEP_LANE, PRESETS, RISK_MODEL, VERIFY
+from letspi.planners.decision import (
+    ADVERSE,
+    DECIDE,
+    GATE,
+    GATE_THRESHOLD,
+    IDM_FALLBACK,
+    KEEP_LANE,
+    PRESETS,
+    RISK_MODEL,
+    VERIFY,
+)
 from letspi.planners.gnp import GNP_WEIGHTS, GNP_WEIGHTS_ENV
 from letspi.planners.llm import (
     ALLOW_SAME_VEHICLE,
@@ -224,7 +234,7 @@ class Resolver:
             threshold = given if given is not None else recommended_threshold(risk_model)
         return DecisionConfig.resolve(o.get(PRESETS), o.get(ADVERSE), threshold, risk_model,
                                       verify=verify and prompt_style == "choice" and o.get(VERIFY),
-                                      keep_lane=o.get(KEEP_LANE))
+                                      keep_lane=o.get(KEEP_LANE), idm_fallback=o.get(IDM_FALLBACK))
 
     def memory_phase(self, *, spec: str | None = None, max_iterations: int | None = None,
                      goal_adjustment: bool | None = None) -> MemoryPhaseConfig:

@@ -41,7 +41,7 @@ class DecisionConfig(Config):
     (``Decider.verified``; None: the model's answer stands, and the field stays out of the key)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"presets_source", "risk_model_path"})
-    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"verify", "keep_lane"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"verify", "keep_lane", "idm_fallback"})
 
     preset_names: tuple[str, ...]
     preset_values: tuple[tuple[float, ...], ...]
@@ -52,13 +52,15 @@ class DecisionConfig(Config):
     gate_threshold: float | None = None
     verify: bool | None = None
     keep_lane: bool | None = None  # a preset changing lane only where the lane keepers fail more checks
+    idm_fallback: bool | None = None  # the shield's last alternative: an IDM plan behind the in-lane leader
 
     def table(self) -> OptionTable:
         return OptionTable(self.preset_names, np.asarray(self.preset_values, dtype=np.float64))
 
     @classmethod
     def resolve(cls, presets_file: Path | None, adverse: bool, gate_threshold: float | None,
-                risk_model_file: Path | None, verify: bool = False, keep_lane: bool = False) -> DecisionConfig:
+                risk_model_file: Path | None, verify: bool = False, keep_lane: bool = False,
+                idm_fallback: bool = False) -> DecisionConfig:
         """From files (default: the shipped presets and risk model) and switches."""
         table, _ = load_presets(presets_file)
         _, sha = load_risk_model(risk_model_file)
@@ -67,7 +69,7 @@ class DecisionConfig(Config):
                    adverse=AdverseSettings() if adverse else None, risk_model_sha256=sha,
                    risk_model_path="shipped" if risk_model_file is None else str(risk_model_file),
                    gate_threshold=gate_threshold, verify=True if verify else None,
-                   keep_lane=True if keep_lane else None)
+                   keep_lane=True if keep_lane else None, idm_fallback=True if idm_fallback else None)
 
     def decider(self, params: SocialForceParams, thresholds: ReflectionThresholds) -> Decider:
         """The decision step for planners whose defaults are ``params``."""
@@ -77,7 +79,8 @@ class DecisionConfig(Config):
             raise ValueError(f"the risk model {self.risk_model_path} changed since the configuration was made "
                              f"({self.risk_model_sha256[:12]} -> {sha[:12]})")
         return Decider(with_defaults(self.table(), params), float(params.r_col_m), thresholds, self.adverse,
-                       RiskGate(model, self.gate_threshold), verify=bool(self.verify), keep_lane=bool(self.keep_lane))
+                       RiskGate(model, self.gate_threshold), verify=bool(self.verify), keep_lane=bool(self.keep_lane),
+                       idm_fallback=bool(self.idm_fallback))
 
 
 class MemoryPhaseConfig(Config):

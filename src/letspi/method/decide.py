@@ -376,7 +376,8 @@ def _merge_rows(partial: OptionChecks, names: tuple[str, ...], rows: np.ndarray,
 class Decider:
     """The decision step as the phases use it. ``adverse`` None: the prediction only (an ablation); ``gate``
     None or without threshold: consult everywhere; ``verify``: the fast phase applies ``verified``; ``keep_lane``:
-    the rule and the shield take a lane-changing preset only where every lane keeper fails more checks."""
+    the rule and the shield take a lane-changing preset only where every lane keeper fails more checks;
+    ``idm_fallback``: where no alternative passes the shield's checks, it tries an IDM plan too."""
 
     presets: OptionTable
     r_col_m: float
@@ -385,6 +386,7 @@ class Decider:
     gate: RiskGate | None
     verify: bool = False
     keep_lane: bool = False
+    idm_fallback: bool = False
 
     @property
     def adverse_settings(self) -> AdverseSettings:

@@ -55,8 +55,11 @@ VERIFY = PlannerOption("verify", bool, True, "Decision step of letspi-fast: a mo
 KEEP_LANE = PlannerOption("keep_lane", bool, False, "Decision step: the rule, the verification and the shield take "
                           "a preset that changes lane only where every preset keeping the lane fails more checks",
                           panel=DECISION_PANEL)
+IDM_FALLBACK = PlannerOption("idm_fallback", bool, False, "Decision step: where no preset, memory or sf alternative "
+                             "passes the shield's checks, the shield tries an IDM plan too (behind the in-lane leader, "
+                             "keeping the lane) and takes it if it fails less", panel=DECISION_PANEL)
 DECISION_OPTIONS: tuple[PlannerOption[Any], ...] = (DECIDE, PRESETS, ADVERSE, GATE, GATE_THRESHOLD, RISK_MODEL, VERIFY,
-                                                    KEEP_LANE)
+                                                    KEEP_LANE, IDM_FALLBACK)
 
 
 def decision_info(option: Sequence[str], consulted: np.ndarray, risk_score: np.ndarray,

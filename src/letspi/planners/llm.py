@@ -42,6 +42,7 @@ from letspi.method.reflection import (
 from letspi.method.thresholds import MAX_ITERATIONS, ReflectionThresholds
 from letspi.metrics.registry import Agg, Metric
 from letspi.physics.goals import NEUTRAL_LANE_FACTOR, NEUTRAL_LON_FACTOR
+from letspi.physics.idm import rollout_idm_ego
 from letspi.physics.neighbours import NeighbourPredictionMode
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.planners.base import PlanBatch, PlanningContext, Proposals, plan_by_proposals, predicted_context
@@ -56,6 +57,7 @@ from letspi.planners.decision import (
     adverse_failed_names,
     decision_info,
 )
+from letspi.planners.idm import settle_laterally
 from letspi.planners.options import DECISION_PANEL, LLM_PANEL, PlannerOption, file_option
 from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS, output
 from letspi.planners.sf_opt import SearchSpace
@@ -192,6 +194,7 @@ def _info(final: Proposal, proposals: Sequence[Proposal], extra: dict[str, float
 SF_SOURCE = -1  # shield_source of the fitted sf parameters
 GRID_SOURCE = -2  # shield_source of a candidate of sf-opt's grid
 PRESET_SOURCE = -3  # shield_source of a preset of the decision step (``letspi.method.decide``)
+IDM_SOURCE = -4  # shield_source of the IDM plan (``--idm-fallback``)
 Alternative = tuple[int, SocialForceParams, float, float]  # (shield_source, params, lon_factor, lane_factor)
 #: ``Proposals.extra`` key of letspi-fast: (B, K, 9) the retrieved memories' parameters (``PARAM_NAMES``
 #: order), lon_factor and lane_factor, best first; NaN rows where fewer than K were retrieved
@@ -209,7 +212,7 @@ SHIELD_OUTPUTS: tuple[Metric, ...] = (
     output("shield_checked", "bool", "float64", "1 when the shield checked the plan"),
     output("shield_safe", "bool", "float64", "1 when the returned plan passes the checks (NaN: not checked)"),
     output("shield_source", "code", "float64", "where the returned plan came from: its own (0), a memory (k >= 1), "
-           "the fitted sf parameters (-1), sf-opt's grid (-2) or a preset (-3)"),
+           "the fitted sf parameters (-1), sf-opt's grid (-2), a preset (-3) or the IDM fallback (-4)"),
 )
 #: what the memory-phase planners (``llm``, ``letspi-memory``) and the fast ones (``letspi-fast``, ``letspi-fs``)
 #: report; the decision outputs only with the decision step
@@ -289,6 +292,32 @@ def shield_plans(
         j, xy[i], vxy[i], goals[i] = best[0], best[1], best[2], best[3]
         shielded[i], safe[i], source[i] = True, best[4].safe, alternatives[i][j][0]
     return ShieldedPlans(xy, vxy, goals, shielded, safe, source)
+
+
+def idm_fallback(batch: ScenarioBatch, context: PlanningContext, shield: ShieldedPlans,
+                 thresholds: ReflectionThresholds) -> ShieldedPlans:
+    """Where the plan still fails the shield's checks (a kept preset's too), the ``idm`` planner's plan among the
+    same predicted neighbours replaces it if it fails less: every sf alternative can brake too late for a
+    stopped queue ahead (docs/highway-env.md), IDM brakes by the gap and the closing speed."""
+    rows = np.flatnonzero(~shield.safe)
+    if rows.size == 0:
+        return shield
+    sub, sub_context = batch.take(rows), context.take(rows)
+    roll = rollout_idm_ego(sub, sub_context.neighbours)
+    idm_xy, idm_vxy = np.array(roll.xy_m, dtype=np.float64), np.array(roll.vxy_mps, dtype=np.float64)
+    idm_xy[..., 1], idm_vxy[..., 1] = settle_laterally(sub)
+    current = safety_report(sub, shield.xy_m[rows], shield.vxy_mps[rows], sub_context.neighbours, thresholds)
+    idm = safety_report(sub, idm_xy, idm_vxy, sub_context.neighbours, thresholds)
+    better = np.array([i.safe or i.severity() < c.severity() for i, c in zip(idm, current, strict=True)], dtype=bool)
+    if not better.any():
+        return shield
+    xy, vxy = shield.xy_m.copy(), shield.vxy_mps.copy()
+    shielded, safe, source = shield.shielded.copy(), shield.safe.copy(), shield.source.copy()
+    take = rows[better]
+    xy[take], vxy[take] = idm_xy[better], idm_vxy[better]
+    shielded[take], source[take] = True, IDM_SOURCE
+    safe[take] = [r.safe for r, b in zip(idm, better, strict=True) if b]
+    return ShieldedPlans(xy, vxy, shield.goals_xy_m, shielded, safe, source)
 
 
 def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None) -> list[Alternative]:
@@ -596,6 +625,8 @@ def simulate_and_shield(batch: ScenarioBatch, context: PlanningContext, proposal
                                         *fallback] for i in range(len(batch))]
     shield = shield_plans(batch, sim.xy_m, sim.vxy_mps, sim.goals_xy_m, alternatives, context, thresholds,
                           reports=reports)
+    if decider is not None and decider.idm_fallback:
+        shield = idm_fallback(batch, context, shield, thresholds)
     info.update(shield.info())
     return PlanBatch(xy_m=shield.xy_m, vxy_mps=shield.vxy_mps, goals_xy_m=shield.goals_xy_m, info=info)
 
