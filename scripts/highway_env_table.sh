@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The highway-env table of docs/highway-env.md: every command, in order (each resumes where it stopped).
-# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3
+# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3 idm-fallback
 # Outputs under runs/highway-env/ (not in git). Run it through the heavy lock on a shared machine.
 set -euo pipefail
 R=runs/highway-env
@@ -26,6 +26,11 @@ for stage in "$@"; do
       letspi benchmark run highway-env-dilu-5lane-2.5 "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dense25" ;;
     dense3)
       letspi benchmark run highway-env-dilu-5lane-3 "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
+    idm-fallback)  # sf-check and letspi-fast with the shield's IDM fallback, beside the rows above
+      for suite in highway-env-dilu-5lane-3:dense3 highway-env-dilu:dilu highway-env-dilu-5lane-2.5:dense25; do
+        letspi benchmark run "${suite%%:*}" --planner check-idm=sf-check --planner fast-idm=letspi-fast --idm-fallback \
+          "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
+      done ;;
     *) echo "unknown stage $stage" >&2; exit 2 ;;
   esac
 done
