@@ -11,6 +11,7 @@ limits: notes/rationale-runtime-evaluation.md, "highway-env egos".
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final, Literal
@@ -61,7 +62,9 @@ def check_config(env_id: str, config: Mapping[str, Any]) -> dict[str, Any]:
 
 def make_env(env_id: str, config: Mapping[str, Any]) -> AbstractEnv:
     """The environment (unwrapped), headless, with ``config`` over its defaults (checked: ``check_config``)."""
-    env = gymnasium.make(env_id, config=check_config(env_id, config), render_mode=None, disable_env_checker=True)
+    with warnings.catch_warnings():  # merge-v0 is pinned on purpose (docs/highway-env.md): no warning per episode
+        warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
+        env = gymnasium.make(env_id, config=check_config(env_id, config), render_mode=None, disable_env_checker=True)
     unwrapped = env.unwrapped
     assert isinstance(unwrapped, AbstractEnv)
     return unwrapped
