@@ -142,6 +142,10 @@ def test_a_suite_run_writes_its_table_report_and_timing(tmp_path: Path) -> None:
     timing = json.loads((tmp_path / "timing.json").read_text())
     assert set(timing["label_s"]) == {"sf", "he-idm"} and timing["workers"] == 0
     assert (tmp_path / "report.html").stat().st_size > 10_000 and "| sf | 2 |" in (tmp_path / "metrics.md").read_text()
+    # a later command adds a planner: the table still pairs it with the stored sf
+    later = he_suites.run_highway_env_suite(tiny, ["lane-keeper=he-lane-keeper"], tmp_path, workers=0,
+                                            reports=False, log=lambda _m: None)
+    assert later["paired"]["reference"] == "sf" and {"he-idm", "lane-keeper"} <= set(later["paired"]["planners"])
 
 
 def test_the_example_external_planner_drives_by_import_path(tmp_path: Path, monkeypatch) -> None:

@@ -68,10 +68,9 @@ def run_highway_env_suite(suite: HighwayEnvSuite, planner_args: Sequence[str], o
         current.append((name, time.perf_counter()))
         return progress(name, total) if progress is not None else (lambda _k: None)
 
-    reference = REFERENCE_PLANNER if REFERENCE_PLANNER in labels else None
     atomic_write_text(out / "suite.json", json.dumps({"id": suite.suite_id, **suite.definition()}, indent=2) + "\n")
     record = run_episodes(drivers, suite_settings(suite), suite.seeds, out, workers=workers, config=suite.metrics,
-                          reference=reference, progress=timed)
+                          reference=REFERENCE_PLANNER, progress=timed)  # paired with sf when it is stored
     stop()
     if reports:
         log(f"report: {write_episode_report(out)}")
