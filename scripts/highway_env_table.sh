@@ -27,7 +27,8 @@ for stage in "$@"; do
     dense3)
       letspi benchmark run highway-env-dilu-5lane-3 "${PLANNERS[@]}" "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
     idm-fallback)  # sf-check and letspi-fast with the shield's IDM fallback, beside the rows above
-      for suite in highway-env-dilu-5lane-3:dense3 highway-env-dilu:dilu highway-env-dilu-5lane-2.5:dense25; do
+      for suite in highway-env-dilu-5lane-3:dense3 highway-env-dilu:dilu highway-env-dilu-5lane-2.5:dense25 \
+          highway-env-merge:merge; do
         letspi benchmark run "${suite%%:*}" --planner check-idm=sf-check --planner fast-idm=letspi-fast --idm-fallback \
           "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
       done ;;
