@@ -343,3 +343,34 @@ def test_the_interrupt_benchmark_reports_each_mode(tmp_path: Path) -> None:
         assert row["stop_line"].startswith(f"interrupted: {row['stored_on_disk']} of {row['rerun']['expected_rows']} ")
         assert row["rerun"]["exit_code"] == 0 and row["rerun"]["duplicates"] == 0
         assert row["rerun"]["rows"] == row["rerun"]["expected_rows"]
+
+
+_LEAK_PROGRAM = r"""
+import os, sys, multiprocessing, multiprocessing.resource_tracker
+from letspi.execution import interrupt
+
+if __name__ == "__main__":
+    def leak():  # a semaphore a stopped worker pool leaves registered, then an exit without cleanup
+        multiprocessing.resource_tracker.ensure_running()
+        held = multiprocessing.get_context("spawn").Semaphore(1)  # noqa: F841  (collected, it would unregister)
+        os._exit(0)
+    if sys.argv[1] == "handled":
+        with interrupt.handling():
+            leak()
+    leak()
+"""
+
+
+def test_inside_handling_the_resource_tracker_adds_no_line_after_the_stop_line(tmp_path: Path) -> None:
+    """multiprocessing's resource tracker warns at exit of semaphores that workers ended by a stop still held (it
+    removes them all the same). Inside ``handling()`` it starts with that warning off; outside, as Python has it."""
+    script = tmp_path / "leak.py"
+    script.write_text(_LEAK_PROGRAM)
+
+    def stderr_of(mode: str) -> str:
+        done = subprocess.run([sys.executable, str(script), mode], env=_child_env(), capture_output=True, text=True,
+                              timeout=60)
+        return done.stderr  # the tracker writes before it exits, and it holds the pipe until then
+
+    assert "leaked semaphore" in stderr_of("plain")
+    assert stderr_of("handled") == ""

@@ -29,6 +29,9 @@ STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
 #: seconds a child process gets to exit after SIGTERM before it is killed
 CHILD_GRACE_S: Final = 1.0
 RESUME_HINT: Final = "rerun the same command to resume"
+#: ``-W`` option for multiprocessing's resource tracker: after a stop ends the workers it may warn of the
+#: semaphores they held (it removes them all the same), a second line after the one stop line
+QUIET_TRACKER: Final = "ignore:resource_tracker:UserWarning"
 
 
 @dataclass
@@ -344,6 +347,8 @@ def handling() -> Iterator[None]:
     ``KeyboardInterrupt`` and leaving the block then ``finish``es; the second ends the process at once."""
     previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     _state.active, _state.signum, _state.count, _state.reported = True, None, 0, False
+    if QUIET_TRACKER not in sys.warnoptions:  # passed on to the tracker when it starts (with the first worker)
+        sys.warnoptions.append(QUIET_TRACKER)
     for s in STOP_SIGNALS:
         signal.signal(s, _on_signal)  # also over an inherited SIG_IGN (module docstring)
     try:
