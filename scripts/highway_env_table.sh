@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The highway-env table of docs/highway-env.md: every command, in order (each resumes where it stopped).
-# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3 idm-fallback
+# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3 idm-fallback mobil
 # Outputs under runs/highway-env/ (not in git). Run it through the heavy lock on a shared machine.
 set -euo pipefail
 R=runs/highway-env
@@ -32,6 +32,16 @@ for stage in "$@"; do
         letspi benchmark run "${suite%%:*}" --planner check-idm=sf-check --planner fast-idm=letspi-fast --idm-fallback \
           "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
       done ;;
+    mobil)  # IDM + MOBIL goals (--goals mobil), alone and with the shield's IDM fallback
+      for suite in highway-env-dilu-5lane-3:dense3 highway-env-dilu:dilu highway-env-dilu-5lane-2.5:dense25 \
+          highway-env-merge:merge; do
+        letspi benchmark run "${suite%%:*}" --planner sf-mobil=sf --planner fast-mobil=letspi-fast --goals mobil \
+          "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
+        letspi benchmark run "${suite%%:*}" --planner fast-mobil-idm=letspi-fast --goals mobil --idm-fallback \
+          "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
+      done
+      letspi benchmark run highway-env-dilu-5lane-3 --planner check-mobil-idm=sf-check --goals mobil --idm-fallback \
+        "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
     *) echo "unknown stage $stage" >&2; exit 2 ;;
   esac
 done

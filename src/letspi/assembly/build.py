@@ -20,6 +20,7 @@ from letspi.method.memory import MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase, Retriever, memory_example
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.physics.goals import GoalPredictor, KinematicGoalPredictor, OracleGoalPredictor
+from letspi.physics.mobil import MobilGoalPredictor
 from letspi.planners.config import GoalsConfig, SfParamsConfig
 from letspi.planners.llm import FastPlannerConfig
 
@@ -47,6 +48,8 @@ class Builder:
                 self._goals[key] = LearnedGoalPredictor.from_dir(goals.weights_dir)
             elif goals.source == "oracle":
                 self._goals[key] = OracleGoalPredictor()
+            elif goals.source == "mobil":
+                self._goals[key] = MobilGoalPredictor()
             else:
                 self._goals[key] = KinematicGoalPredictor()
         return self._goals[key]

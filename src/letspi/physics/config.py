@@ -34,7 +34,7 @@ class SfParamsConfig(Config):
         return SocialForceParams(**self.values)
 
 
-GoalSource = Literal["learned", "kinematic", "oracle"]
+GoalSource = Literal["learned", "kinematic", "oracle", "mobil"]
 
 
 class GoalsConfig(Config):

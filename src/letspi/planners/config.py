@@ -15,7 +15,7 @@ from letspi.planners.options import PlannerOption, file_option
 
 __all__ = ["GoalSource", "GoalsConfig", "SfParamsConfig", "WeightsConfig"]
 
-GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle")
+GOAL_SOURCES: tuple[str, ...] = ("learned", "kinematic", "oracle", "mobil")
 GOAL_WEIGHTS_ENV = "LETSPI_GOAL_WEIGHTS"
 
 # Options of the planners that predict goals and neighbours (every kind but human and cv) -----------
@@ -25,8 +25,8 @@ NEIGHBOURS = PlannerOption(
     flag="--neighbours", choices=tuple(m.value for m in NeighbourPredictionMode))
 GOALS = PlannerOption(
     "goals", str, "learned",
-    "Goal source: learned (the goal predictor's weights, see --goal-weights), kinematic, or oracle (the true "
-    "endpoint: leaks the future)", choices=GOAL_SOURCES)
+    "Goal source: learned (the goal predictor's weights, see --goal-weights), kinematic, mobil (where an IDM "
+    "driver with MOBIL lane changes would be), or oracle (the true endpoint: leaks the future)", choices=GOAL_SOURCES)
 GOAL_WEIGHTS = file_option(
     "goal_weights",
     f"Weights of the learned goal predictor (from `letspi train goals`; default: ${GOAL_WEIGHTS_ENV}, else the "
