@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The highway-env table of docs/highway-env.md: every command, in order (each resumes where it stopped).
-# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3 idm-fallback mobil
+# Usage: scripts/highway_env_table.sh STAGE...   stages: bank dilu speedup merge dense25 dense3 idm-fallback mobil kcline
 # Outputs under runs/highway-env/ (not in git). Run it through the heavy lock on a shared machine.
 set -euo pipefail
 R=runs/highway-env
@@ -42,6 +42,17 @@ for stage in "$@"; do
       done
       letspi benchmark run highway-env-dilu-5lane-3 --planner check-mobil-idm=sf-check --goals mobil --idm-fallback \
         "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
+    kcline)  # a probe: sf with mobil goals and the shipped fit's lane-line well k_cline lowered by hand
+      for kc in 0.1 0.25; do
+        python -c "import json, sys; from importlib.resources import files
+d = json.loads(files('letspi').joinpath('data/sf_params.json').read_text())
+d['params']['k_cline'] = float(sys.argv[1]); d['provenance'] = {'note': 'shipped fit, k_cline set by hand'}
+json.dump(d, open(sys.argv[2], 'w'), indent=1)" "$kc" "$R/sf_params_kc$kc.json"
+        letspi benchmark run highway-env-dilu --planner "sf-mobil-kc$kc=sf" --goals mobil \
+          --sf-params "$R/sf_params_kc$kc.json" --workers 2 --out "$R/dilu"
+      done
+      letspi benchmark run highway-env-dilu-5lane-3 --planner sf-mobil-kc0.1=sf --goals mobil \
+        --sf-params "$R/sf_params_kc0.1.json" --workers 2 --out "$R/dense3" ;;
     *) echo "unknown stage $stage" >&2; exit 2 ;;
   esac
 done
