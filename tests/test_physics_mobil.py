@@ -84,7 +84,8 @@ def test_sf_with_mobil_goals_plans_from_the_history_alone_and_has_its_own_key() 
     from letspi.planners.options import PlannerOptions
 
     batch = straight_road_scenario(ego_speed_mps=25.0, neighbours=[VehicleSpec(30.0, 15.0)])
-    np.testing.assert_array_equal(MOBIL.predict_goals(batch).goals_xy_m, MOBIL.predict_goals(batch.history()).goals_xy_m)
+    history_only = MOBIL.predict_goals(batch.history()).goals_xy_m
+    np.testing.assert_array_equal(MOBIL.predict_goals(batch).goals_xy_m, history_only)
     mobil, kinematic = (build_planners(["sf"], PlannerOptions(goals=g))[0] for g in ("mobil", "kinematic"))
     assert not mobil.reads_future and mobil.config.key() != kinematic.config.key()
     plan = mobil.planner.plan(batch.history())
