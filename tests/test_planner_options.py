@@ -18,6 +18,7 @@ from letspi.cli.app import app
 from letspi.cli.options import planner_options
 from letspi.keyed import Config
 from letspi.llm.compact import PROMPT_STYLES
+from letspi.planners.config import GOAL_SOURCES
 from letspi.planners.cv import ConstantVelocityPlanner
 from letspi.planners.frenet import FrenetWeights, save_frenet_weights
 from letspi.planners.options import PlannerOption, PlannerOptions, unique_options
@@ -59,7 +60,7 @@ def test_the_commands_of_one_part_offer_exactly_its_settings() -> None:
 def test_each_flag_carries_its_declared_default_unit_and_choices() -> None:
     text = " ".join(_help("evaluate").split())
     assert "[s] [default: 120.0]" in text  # --request-timeout: unit and default from LLM_TIMEOUT
-    assert f"({', '.join(PROMPT_STYLES)})" in text and "(learned, kinematic, oracle)" in text
+    assert f"({', '.join(PROMPT_STYLES)})" in text and f"({', '.join(GOAL_SOURCES)})" in text and "mobil" in text
     assert "--shield / --no-shield" in text and "--cache / --no-cache" in text
 
 
