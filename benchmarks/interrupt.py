@@ -37,10 +37,10 @@ from benchmarks.llm_concurrency import _child_env
 from benchmarks.llm_server import LlmTestServer
 from letspi.evaluation.results import load_planner_results, planner_dir_name
 from letspi.execution.interrupt import alive, descendants
-from letspi.finetune.labels import PARTS_DIR
 from letspi.method.memory import MemoryBank
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch
+from letspi_train.finetune.labels import PARTS_DIR
 
 STOP_LINE = re.compile(r"^interrupted: (\d+) of (\d+) stored; rerun the same command to resume$")
 MODES = ("open-loop", "closed-loop", "closed-loop-workers", "closed-loop-ray", "collect", "train-llm-data",

@@ -21,9 +21,9 @@ from typing import Any
 
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import goals_config
-from letspi.finetune.data import build_examples_many, split_examples
 from letspi.llm.client import ParamAdvisor
 from letspi.method.decide import load_presets
+from letspi_train.finetune.data import build_examples_many, split_examples
 
 
 def main(dirs: list[Path]) -> dict[str, object]:

@@ -22,7 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.finetune.decide_data import (
+from letspi.analysis.options import OptionOutcomes, load_option_run
+from letspi.method.decide import gate_features, rule_choice
+from letspi.safety.adverse import AdverseSettings
+from letspi.scenario.split import vehicle_keys
+from letspi.scenario.store import load_scenarios
+from letspi_train.finetune.decide_data import (
     Weights,
     expected_utility,
     fit_gate,
@@ -30,11 +35,6 @@ from letspi.finetune.decide_data import (
     outcome_probabilities,
     select_presets,
 )
-from letspi.finetune.options import OptionOutcomes, load_option_run
-from letspi.method.decide import gate_features, rule_choice
-from letspi.safety.adverse import AdverseSettings
-from letspi.scenario.split import vehicle_keys
-from letspi.scenario.store import load_scenarios
 
 
 def _row(label: str, o: OptionOutcomes, choice: np.ndarray, names: tuple[str, ...]) -> str:

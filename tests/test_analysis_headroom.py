@@ -13,7 +13,7 @@ from letspi.analysis.headroom import (
     oracle,
     rule_over,
 )
-from letspi.finetune.options import OptionOutcomes
+from letspi.analysis.options import OptionOutcomes
 from letspi.method.decide import OptionTable, rule_choice
 
 

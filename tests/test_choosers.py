@@ -10,10 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from letspi.analysis.options import OptionOutcomes
 from letspi.assembly.build import Builder
 from letspi.assembly.planners import build_planner, resolve_planner
-from letspi.finetune.decide_data import OUTCOME_TREES, Weights, fit_teacher
-from letspi.finetune.options import OptionOutcomes
 from letspi.llm.backends.scripted import ScriptedBackend
 from letspi.llm.client import ParamAdvisor
 from letspi.method.choosers import (
@@ -37,6 +36,7 @@ from letspi.planners.sf_params import load_sf_params
 from letspi.safety.adverse import AdverseSettings
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
+from letspi_train.finetune.decide_data import OUTCOME_TREES, Weights, fit_teacher
 
 NAMES = ("default", "ease", "slow", "brake")
 ADVERSE = ("leader-brakes", "cut-in")
@@ -212,9 +212,9 @@ def test_train_decide_keeps_given_presets_and_gate_and_writes_their_teacher(tmp_
     pytest.importorskip("sklearn")
     from importlib import resources
 
-    from letspi.finetune.decide_build import build_decision_data
-    from letspi.finetune.decide_data import HINDSIGHT_COLUMN
     from letspi.scenario.store import save_scenarios
+    from letspi_train.finetune.decide_build import build_decision_data
+    from letspi_train.finetune.decide_data import HINDSIGHT_COLUMN
 
     rng = np.random.default_rng(3)
     scenes = concat_batches([straight_road_scenario(

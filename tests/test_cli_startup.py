@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import os
 import subprocess
@@ -12,6 +13,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+import letspi.cli.app as app_module
 from letspi.cli.app import COMMANDS, app, load_command
 from letspi.cli.help import first_sentence
 
@@ -105,3 +107,32 @@ def test_sub_command_summaries_are_whole_sentences() -> None:
             continue
         text = runner.invoke(app, [name, "--help"], terminal_width=100).output.split("Commands:")[1]
         assert "..." not in text and "(e.g\n" not in text and not text.rstrip().endswith("(e.g"), (name, text)
+
+
+def test_a_companion_command_that_is_not_installed_names_its_distribution(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delitem(COMMANDS, "train", raising=False)
+    result = CliRunner().invoke(app, ["train", "goals"])
+    assert result.exit_code == 2
+    assert "letspi-train" in result.output and "pip install -e packages/letspi-train" in result.output
+
+
+def test_a_distribution_adds_commands_through_the_entry_point_group(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "my_commands.py").write_text(
+        "import typer\nfrom letspi.cli.entry import CommandEntry\n"
+        "app = typer.Typer()\n"
+        "@app.command()\ndef hello(name: str = 'you') -> None:\n    print(f'hello {name}')\n"
+        "@app.command()\ndef bye() -> None:\n    print('bye')\n"
+        "COMMANDS = {'greet': CommandEntry('my_commands', 'app', 'Greet someone')}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    ep = importlib.metadata.EntryPoint("my-commands", "my_commands:COMMANDS", app_module.COMMANDS_GROUP)
+    monkeypatch.setattr(app_module, "entry_points", lambda group: [ep] if group == app_module.COMMANDS_GROUP else [])
+    monkeypatch.setattr(app_module, "COMMANDS", dict(COMMANDS))
+    app_module._add_plugin_commands()
+    listing = CliRunner().invoke(app, ["--help"], terminal_width=200).output
+    assert "greet" in listing and "Greet someone" in listing
+    result = CliRunner().invoke(app, ["greet", "hello", "--name", "Ada"])
+    assert result.exit_code == 0 and result.output.strip() == "hello Ada"
+    # a second distribution may not take a command's name
+    with pytest.raises(RuntimeError, match="redefines the command 'greet'"):
+        app_module._add_plugin_commands()

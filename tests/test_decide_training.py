@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from letspi.finetune.decide_data import (
+from letspi.analysis.options import OptionOutcomes
+from letspi.learned.trees import TreeEnsemble
+from letspi.method.decide import DEFAULT_NAME, OptionTable
+from letspi.physics.params import SocialForceParams
+from letspi_train.finetune.decide_data import (
     ChoiceLabel,
     choice_labels,
     label_frame,
     pool_option_table,
     select_presets,
 )
-from letspi.finetune.options import OptionOutcomes
-from letspi.learned.trees import TreeEnsemble
-from letspi.method.decide import DEFAULT_NAME, OptionTable
-from letspi.physics.params import SocialForceParams
 
 
 def _outcomes(collision, predicted_safe=None, adverse=None, success=None):  # type: ignore[no-untyped-def]
@@ -34,7 +34,7 @@ def _outcomes(collision, predicted_safe=None, adverse=None, success=None):  # ty
 
 def test_exported_trees_score_as_scikit_learn_and_round_trip(tmp_path: Path) -> None:
     pytest.importorskip("sklearn")
-    from letspi.finetune.gate_train import fit_trees
+    from letspi_train.finetune.gate_train import fit_trees
 
     rng = np.random.default_rng(1)
     x = rng.normal(size=(800, 3))

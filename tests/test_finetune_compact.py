@@ -9,12 +9,6 @@ import numpy as np
 import pytest
 
 from letspi.assembly.resolve import Resolver
-from letspi.finetune.export import (
-    AdapterExportError,
-    adapter_tensors,
-    gguf_lora_name,
-    permute_rotary_rows,
-)
 from letspi.llm.backends.llamacpp_open import open_vocab
 from letspi.llm.compact import (
     compact_reply_text,
@@ -30,6 +24,12 @@ from letspi.llm.schema import DEFAULT_REPLY, NUMERIC_FIELDS, WIRE_KEYS
 from letspi.llm.types import ModelNotFoundError
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
+from letspi_train.finetune.export import (
+    AdapterExportError,
+    adapter_tensors,
+    gguf_lora_name,
+    permute_rotary_rows,
+)
 
 LABEL = {"tau_s": 1.234, "k_np": 31.26, "k_nf": 9.04, "k_nl": 0.5, "k_boundary": 1.0, "k_cline": 0.33,
          "lon_factor": 0.6, "lane_factor": -0.0}
@@ -128,7 +128,7 @@ def test_peft_names_map_to_llama_cpp_adapter_names() -> None:
 
 
 def test_rotary_permutation_is_what_transformers_undoes_and_only_touches_q_k_lora_b() -> None:
-    from letspi.finetune.export import _tensor_order  # ordering by layer, then name
+    from letspi_train.finetune.export import _tensor_order  # ordering by layer, then name
 
     rng = np.random.default_rng(0)
     n_head, n_kv, head_dim, hidden, rank = 3, 1, 4, 12, 2
@@ -168,7 +168,7 @@ def test_rotary_permutation_is_what_transformers_undoes_and_only_touches_q_k_lor
 
 def test_adapter_gguf_round_trip(tmp_path: Path) -> None:
     pytest.importorskip("gguf")
-    from letspi.finetune.export import read_adapter_gguf, write_adapter_gguf
+    from letspi_train.finetune.export import read_adapter_gguf, write_adapter_gguf
 
     rng = np.random.default_rng(1)
     tensors = {"blk.0.attn_v.weight.lora_a": rng.normal(size=(2, 6)).astype(np.float32),

@@ -11,16 +11,6 @@ import pytest
 from typer.testing import CliRunner
 
 from letspi.cli.app import app
-from letspi.finetune.labels import (
-    LABEL_COLUMNS,
-    PROPOSAL_COLUMNS,
-    LabelRun,
-    LabelSearch,
-    defaults_vector,
-    label_rows,
-    load_labels,
-    params_of,
-)
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
 from letspi.method.reflection import simulate_proposal
 from letspi.physics.goals import KinematicGoalPredictor
@@ -30,6 +20,16 @@ from letspi.safety.plan_check import check_recorded
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi_train.finetune.labels import (
+    LABEL_COLUMNS,
+    PROPOSAL_COLUMNS,
+    LabelRun,
+    LabelSearch,
+    defaults_vector,
+    label_rows,
+    load_labels,
+    params_of,
+)
 
 WEAK = SocialForceParams(k_np=2.0, k_nf=3.0, tau_s=1.0, r_col_m=5.0)  # drives into a slower leader
 SMALL = LabelSearch(n_random=16, n_rounds=1, n_local=8, chunk=4)

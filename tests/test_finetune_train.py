@@ -12,8 +12,6 @@ import pytest
 from typer.testing import CliRunner
 
 from letspi.cli.app import app
-from letspi.finetune.data import LABELS_FORMAT, build_examples, split_examples
-from letspi.finetune.export import read_adapter_gguf
 from letspi.llm.compact import compact_reply_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
 from letspi.llm.schema import NUMERIC_FIELDS
@@ -22,6 +20,8 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi_train.finetune.data import LABELS_FORMAT, build_examples, split_examples
+from letspi_train.finetune.export import read_adapter_gguf
 
 #: a label far from what the base model answers, so a few steps visibly move the model towards it
 TARGET = {"tau_s": 0.5, "k_np": 55.0, "k_nf": 1.0, "k_nl": 4.5, "k_boundary": 4.0, "k_cline": 2.5,
@@ -112,9 +112,9 @@ def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_to
     # the adapter moves llama.cpp towards the label it was trained on: the label reply of a training
     # example is more likely with the adapter than without (a greedy, schema-constrained answer is too
     # coarse a probe after six steps: on one CI machine it stayed the same)
-    from letspi.finetune.train import prompt_text
     from letspi.llm.backends.llamacpp_open import open_llama
     from letspi.llm.models import packaged_smollm2_path
+    from letspi_train.finetune.train import prompt_text
 
     goal = KinematicGoalPredictor().predict_goals(batch.take([0])).top[0]
     msgs = render_compact_prompt(describe_scenario(batch.take([0]), goal))

@@ -34,7 +34,7 @@ SHIPPED = (shipped_weights_dir("goal") / "weights.npz").is_file()
 
 def _torch_models(seed: int = 0):  # type: ignore[no-untyped-def]
     torch = pytest.importorskip("torch")
-    from letspi.learned.train.modules import GnpNet, GoalNet
+    from letspi_train.learned.modules import GnpNet, GoalNet
 
     torch.manual_seed(seed)
     goal = GoalNet(SMALL, n_goals=4).double()
@@ -47,7 +47,7 @@ def _torch_models(seed: int = 0):  # type: ignore[no-untyped-def]
 
 def test_numpy_goal_inference_equals_torch_forward() -> None:
     torch, goal, _ = _torch_models()
-    from letspi.learned.train.modules import FeatureTensors, export_state
+    from letspi_train.learned.modules import FeatureTensors, export_state
 
     batch = random_batch(np.random.default_rng(5), 16)
     feats = scene_features(batch)
@@ -61,7 +61,7 @@ def test_numpy_goal_inference_equals_torch_forward() -> None:
 
 def test_numpy_gnp_inference_equals_torch_forward() -> None:
     torch, _, gnp = _torch_models()
-    from letspi.learned.train.modules import FeatureTensors, export_state
+    from letspi_train.learned.modules import FeatureTensors, export_state
 
     batch = random_batch(np.random.default_rng(6), 16)
     feats = scene_features(batch)
@@ -77,7 +77,7 @@ def test_numpy_gnp_inference_equals_torch_forward() -> None:
 
 def _saved_goal_model(tmp_path: Path) -> Path:
     _, goal, _ = _torch_models(1)
-    from letspi.learned.train.modules import export_state
+    from letspi_train.learned.modules import export_state
 
     return save_weights(tmp_path / "goal", export_state(goal),
                         {"model": "goal", "config": {"encoder": SMALL.as_dict(), "n_goals": 4, "horizon_s": 5.0}})
@@ -160,7 +160,7 @@ def _gnp_planner(tmp_path: Path) -> GnpPlanner:
     if (shipped_weights_dir("gnp") / "weights.npz").is_file():
         return GnpPlanner(model=GnpModel.from_dir(shipped_weights_dir("gnp")), goal_predictor=_shipped_goals())
     _, _, gnp = _torch_models(2)
-    from letspi.learned.train.modules import export_state
+    from letspi_train.learned.modules import export_state
 
     d = save_weights(tmp_path / "gnp", export_state(gnp), {"model": "gnp", "config": {
         "encoder": SMALL.as_dict(), "base_params": SocialForceParams().as_dict(), "neighbour_mode": "idm"}})

@@ -13,7 +13,7 @@ from letspi.physics.params import PARAM_NAMES, PARAM_RANGES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force
 
 torch = pytest.importorskip("torch")
-from letspi.learned.train.torch_sf import TorchScene, rollout_torch  # noqa: E402
+from letspi_train.learned.torch_sf import TorchScene, rollout_torch  # noqa: E402
 
 
 def random_params(rng: np.random.Generator, n: int) -> SocialForceParams:

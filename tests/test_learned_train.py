@@ -13,8 +13,8 @@ from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.params import SocialForceParams
 
 pytest.importorskip("torch")
-from letspi.learned.train.gnp_train import GnpTrainConfig, train_gnp_model
-from letspi.learned.train.goal_train import GoalTrainConfig, train_goal_model
+from letspi_train.learned.gnp_train import GnpTrainConfig, train_gnp_model
+from letspi_train.learned.goal_train import GoalTrainConfig, train_goal_model
 
 TINY = EncoderConfig(d_model=16, n_heads=2, n_layers=1, d_ff=32)
 
@@ -60,7 +60,7 @@ def test_train_steps_clips_each_update_and_reports_every_step() -> None:
     """With SGD at lr 1, a clipped step moves the parameters by exactly the clip norm, whatever the loss scale."""
     import torch
 
-    from letspi.learned.train.loop import BestState, shuffled_batches, train_steps
+    from letspi_train.learned.loop import BestState, shuffled_batches, train_steps
 
     model = torch.nn.Linear(3, 1, bias=False)
     with torch.no_grad():

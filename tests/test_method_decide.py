@@ -1,5 +1,5 @@
 """The decision step's option checks (``letspi.method.decide``) and the cached option outcomes
-(``letspi.finetune.options``) on synthetic scenes."""
+(``letspi.analysis.options``) on synthetic scenes."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from letspi.finetune.options import OptionRun, load_option_run, random_option_table, score_options
+from letspi.analysis.options import OptionRun, load_option_run, random_option_table, score_options
 from letspi.learned.logistic import LogisticModel
 from letspi.llm.backends.scripted import ScriptedBackend
 from letspi.llm.client import ParamAdvisor

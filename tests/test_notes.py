@@ -26,18 +26,20 @@ from letspi.llm.spec import ENTRY_POINT_GROUP as LLM_BACKENDS_GROUP
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "letspi"
+#: the package root of each top-level name a text may cite (letspi and its companion distributions)
+PACKAGES = {"letspi": PACKAGE, "letspi_train": ROOT / "packages" / "letspi-train" / "src" / "letspi_train"}
 TEXT_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "notes").glob("*.md"))]
 #: Files the docs name as examples of what a reader would add (recipes), not as existing code.
 EXAMPLE_FILES = frozenset({"src/letspi/planners/brake.py", "src/letspi/llm/backends/mybackend.py",
                            "my_planners/cv_gap.py"})  # the reader's own planner (docs/your-planner.md)
 PY_PATH = re.compile(r"(?<![\w/.-])((?:[\w.*-]+/)*[\w-]+\.py)\b")
-DOTTED = re.compile(r"(?<![\w.])letspi(?:\.[A-Za-z_]\w*)+")
+DOTTED = re.compile(r"(?<![\w.])letspi(?:_train)?(?:\.[A-Za-z_]\w*)+")
 OUTSIDE = re.compile(r"(?<![\w.~-])/(?:work|tmp|root|home)/[\w.-]*")
 
 
 def _repository_files() -> list[str]:
     out = [p.name for p in ROOT.glob("*.py")]
-    for folder in ("src", "tests", "scripts", "benchmarks", "notes", "docs", ".ci", "examples"):
+    for folder in ("src", "packages", "tests", "scripts", "benchmarks", "notes", "docs", ".ci", "examples"):
         out += [str(p.relative_to(ROOT)) for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts]
     return out
 
@@ -56,13 +58,23 @@ def missing_dotted(text: str) -> list[str]:
         if name == LLM_BACKENDS_GROUP:  # an entry-point group, not a module
             continue
         parts = name.split(".")
+        root = PACKAGES[parts[0]]
         k = len(parts)
-        while k > 1 and not ((PACKAGE.joinpath(*parts[1:k]).with_suffix(".py")).is_file()
-                             or (PACKAGE.joinpath(*parts[1:k]) / "__init__.py").is_file()):
+        while k > 1 and not ((root.joinpath(*parts[1:k]).with_suffix(".py")).is_file()
+                             or (root.joinpath(*parts[1:k]) / "__init__.py").is_file()):
             k -= 1
         if k == len(parts):
             continue
-        if k == 1 or not hasattr(importlib.import_module(".".join(parts[:k])), parts[k]):
+        if k == 1:
+            bad.append(name)
+            continue
+        try:
+            module = importlib.import_module(".".join(parts[:k]))
+        except ModuleNotFoundError:  # a companion (or its torch) not installed here: its file exists
+            if parts[0] == "letspi":
+                raise
+            continue
+        if not hasattr(module, parts[k]):
             bad.append(name)
     return bad
 

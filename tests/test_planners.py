@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from letspi.assembly.planners import build_planners
-from letspi.fitting.sf import fit_sf_params
 from letspi.metrics.compute import compute_metrics
 from letspi.physics.params import SocialForceParams
 from letspi.planners.options import PlannerOptions
@@ -16,6 +15,7 @@ from letspi.planners.sf_params import load_sf_params, save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.types import concat_batches
+from letspi_train.fitting.sf import fit_sf_params
 
 BASELINE_PLANNERS = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
 

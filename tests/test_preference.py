@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from letspi.analysis.options import OptionOutcomes
 from letspi.cli.app import app
-from letspi.finetune.data import ChatExample
-from letspi.finetune.decide_data import CHOICE_FORMAT, ChoiceLabel, label_frame
-from letspi.finetune.options import OptionOutcomes
-from letspi.finetune.preference import dpo_loss, hindsight_utility, ranked_pairs
-from letspi.finetune.train import rebalance
 from letspi.method.decide import load_presets
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import concat_batches
+from letspi_train.finetune.data import ChatExample
+from letspi_train.finetune.decide_data import CHOICE_FORMAT, ChoiceLabel, label_frame
+from letspi_train.finetune.preference import dpo_loss, hindsight_utility, ranked_pairs
+from letspi_train.finetune.train import rebalance
 
 W = {"at_fault": 8.0, "contact": 2.0, "progress_per_m": 0.01}
 NAMES = ("default", "ease", "slow", "brake")

@@ -1,4 +1,4 @@
-"""Resumable step training (letspi.learned.train.loop.run_steps): a run killed after a checkpoint and
+"""Resumable step training (letspi_train.learned.loop.run_steps): a run killed after a checkpoint and
 started again ends with exactly the weights and losses of an unbroken run; another run's checkpoint
 is refused."""
 
@@ -10,7 +10,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from letspi.learned.train.loop import (  # noqa: E402
+from letspi_train.learned.loop import (  # noqa: E402
     CHECKPOINT_FILE,
     CheckpointMismatchError,
     checkpoint_step,

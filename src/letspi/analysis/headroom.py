@@ -1,6 +1,6 @@
 """How much could any choice of the LLM's eight numbers gain on a set of windows? (``letspi analyze headroom``)
 
-Each row is a chooser picking one option (``letspi.finetune.options``) per window, all scored on the same windows
+Each row is a chooser picking one option (``letspi.analysis.options``) per window, all scored on the same windows
 against the recorded future: ``defaults`` (``sf``); ``best constant`` (the fewest at-fault collisions over the file;
 ties: successes, progress); the hindsight oracles over all options and over the presets (the bound of any chooser);
 the no-model ``rule`` (the defaults unless their plan fails a check, else the preset passing most); a ``history
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from letspi.finetune.options import OptionOutcomes
+from letspi.analysis.options import OptionOutcomes
 from letspi.learned.logistic_fit import fit_logistic, roc_auc
 from letspi.method.decide import DEFAULT_NAME, OptionTable, rule_choice
 from letspi.metrics.stats import paired_rate, wilson_interval

@@ -11,10 +11,10 @@ import typer
 
 from letspi.analysis.decisions import decisions_markdown, paired_rows, planner_report
 from letspi.analysis.headroom import headroom
+from letspi.analysis.options import OptionOutcomes, OptionRun, random_option_table
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import goals_config
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.finetune.options import OptionOutcomes, OptionRun, random_option_table
 from letspi.fsutil import atomic_write_text
 from letspi.method.decide import OptionTable, gate_features, load_presets, load_risk_model, with_defaults
 from letspi.planners.sf_params import load_sf_params

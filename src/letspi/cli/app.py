@@ -1,10 +1,10 @@
 """The ``letspi`` command line. Sub-commands live in sibling modules, imported when a command is run.
 
 ``COMMANDS`` names every command, the module and attribute that define it and its one-line summary:
-``letspi --help`` prints the summaries without importing a command module (most of them load NumPy,
-Arrow, SciPy or plotting), and ``letspi CMD ...`` imports only CMD's module. Before a command's
-options are parsed, planner kinds it names by import path (``--planner pkg.mod:NAME``) are loaded, so
-that their options are flags of the command as an installed kind's are (``letspi.cli.startup``).
+``letspi --help`` prints the summaries without importing a command module, and ``letspi CMD ...`` imports
+only CMD's module. Other distributions add commands through the ``letspi.commands`` entry-point group
+(``letspi-train`` adds ``train`` and ``fit``). Planner kinds named by import path are loaded before a
+command's options are parsed (``letspi.cli.startup``).
 """
 
 from __future__ import annotations
@@ -12,56 +12,66 @@ from __future__ import annotations
 import importlib
 import os
 from collections.abc import Iterator, Mapping, MutableMapping
-from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
+from importlib.metadata import PackageNotFoundError, entry_points, version
 from typing import Annotated, Any
 
 import typer
+from typer._click.exceptions import UsageError
 from typer.core import TyperGroup
 
+from letspi.cli.entry import CommandEntry
 from letspi.cli.help import PanelledCommand, with_panels
 from letspi.cli.startup import DEBUG_ENV, preload_planner_kinds
 from letspi.execution import interrupt
 
-
-@dataclass(frozen=True)
-class CommandEntry:
-    """Where a command is defined (``module``: a ``letspi.cli`` module; ``attribute``: its function or its
-    ``typer.Typer`` of sub-commands) and its summary for ``letspi --help`` (one sentence, no period)."""
-
-    module: str
-    attribute: str
-    summary: str
-
-
 #: every command of ``letspi``, in the order of ``letspi --help``
 COMMANDS: dict[str, CommandEntry] = {
-    "demo": CommandEntry("demo", "demo", "The main job on generated traffic and the embedded model"),
-    "evaluate": CommandEntry("evaluate", "evaluate", "Evaluate planners on scenarios (open or closed loop)"),
-    "planners": CommandEntry("planners", "planners", "List the planner kinds --planner accepts, with their flags"),
-    "collect": CommandEntry("phases", "collect", "LetsPi's memory collection: prompt, reflection, stored experiences"),
-    "plan": CommandEntry("phases", "plan", "Plan one scenario and show parameters, goal, trajectory and metrics"),
-    "ablate": CommandEntry("phases", "ablate", "Run one of the paper's ablations and print its table"),
-    "prompt": CommandEntry("phases", "prompt", "Print the rendered prompt for one scenario (calls no model)"),
-    "plot": CommandEntry("viz", "plot", "Draw one scenario: trajectories, time-space diagram, reflections"),
-    "report": CommandEntry("viz", "report", "Write a self-contained HTML report of a results directory"),
-    "compare": CommandEntry("viz", "compare", "Compare two results directories on the windows both hold"),
-    "data": CommandEntry("data", "app", "HighD data: generate with SUMO, extract scenarios, inspect"),
-    "analyze": CommandEntry("analyze", "app", "Analyse what the data allows a planner to gain"),
-    "benchmark": CommandEntry("benchmark", "app", "Versioned benchmark suites: list, show, run, summary, power"),
-    "fit": CommandEntry("fit", "app", "Fit baseline parameters offline"),
-    "export": CommandEntry("export", "app", "Export scenarios and plans to other tools' formats"),
-    "train": CommandEntry("train", "app", "Train the learned models (pip install 'letspi[train]')"),
-    "llm": CommandEntry("llm", "app", "LLM backends: check a spec, list embedded models, benchmark"),
-    "highway-env": CommandEntry("highway_env", "app", "Run planners in highway-env episodes and export them as HighD"),
+    "demo": CommandEntry("letspi.cli.demo", "demo", "The main job on generated traffic and the embedded model"),
+    "evaluate": CommandEntry("letspi.cli.evaluate", "evaluate", "Evaluate planners on scenarios (open or closed loop)"),
+    "planners": CommandEntry("letspi.cli.planners", "planners",
+                             "List the planner kinds --planner accepts, with their flags"),
+    "collect": CommandEntry("letspi.cli.phases", "collect",
+                            "LetsPi's memory collection: prompt, reflection, stored experiences"),
+    "plan": CommandEntry("letspi.cli.phases", "plan",
+                         "Plan one scenario and show parameters, goal, trajectory and metrics"),
+    "ablate": CommandEntry("letspi.cli.phases", "ablate", "Run one of the paper's ablations and print its table"),
+    "prompt": CommandEntry("letspi.cli.phases", "prompt",
+                           "Print the rendered prompt for one scenario (calls no model)"),
+    "plot": CommandEntry("letspi.cli.viz", "plot", "Draw one scenario: trajectories, time-space diagram, reflections"),
+    "report": CommandEntry("letspi.cli.viz", "report", "Write a self-contained HTML report of a results directory"),
+    "compare": CommandEntry("letspi.cli.viz", "compare", "Compare two results directories on the windows both hold"),
+    "data": CommandEntry("letspi.cli.data", "app", "HighD data: generate with SUMO, extract scenarios, inspect"),
+    "analyze": CommandEntry("letspi.cli.analyze", "app", "Analyse what the data allows a planner to gain"),
+    "benchmark": CommandEntry("letspi.cli.benchmark", "app",
+                              "Versioned benchmark suites: list, show, run, summary, power"),
+    "export": CommandEntry("letspi.cli.export", "app", "Export scenarios and plans to other tools' formats"),
+    "llm": CommandEntry("letspi.cli.llm", "app", "LLM backends: check a spec, list embedded models, benchmark"),
+    "highway-env": CommandEntry("letspi.cli.highway_env", "app",
+                                "Run planners in highway-env episodes and export them as HighD"),
 }
+#: the entry-point group through which other distributions add commands: each entry point names a
+#: ``dict[str, CommandEntry]`` (e.g. ``letspi_train.commands:COMMANDS``)
+COMMANDS_GROUP = "letspi.commands"
+#: commands of letspi's companion distributions (packages/ in the repository), named when they are missing
+COMPANIONS = {"train": "letspi-train", "fit": "letspi-train"}
+
+
+def _add_plugin_commands() -> None:
+    for ep in sorted(entry_points(group=COMMANDS_GROUP), key=lambda e: e.name):
+        for name, entry in ep.load().items():
+            if name in COMMANDS:
+                raise RuntimeError(f"entry point {ep.value} ({COMMANDS_GROUP}) redefines the command {name!r}")
+            COMMANDS[name] = entry
+
+
+_add_plugin_commands()
 
 
 # click objects are typed Any here: typer builds them from its own copy of click (typer._click)
 def load_command(name: str) -> Any:
     """The click command ``name`` of ``COMMANDS`` (its module is imported here), with grouped option help."""
     entry = COMMANDS[name]
-    target: Any = getattr(importlib.import_module(f"letspi.cli.{entry.module}"), entry.attribute)
+    target: Any = getattr(importlib.import_module(entry.module), entry.attribute)
     callbacks = [info.callback for info in target.registered_commands] if isinstance(target, typer.Typer) else [target]
     for callback in callbacks:  # planner flags from the table as it is now (kinds loaded by import path join it)
         refresh = getattr(callback, "refresh_planner_flags", None)
@@ -123,6 +133,10 @@ class LazyGroup(TyperGroup):
     def resolve_command(self, ctx: Any, args: list[str]) -> tuple[str | None, Any, list[str]]:
         if args and args[0] in COMMANDS:
             preload_planner_kinds(args[1:])
+        elif args and args[0] in COMPANIONS:
+            package = COMPANIONS[args[0]]
+            raise UsageError(f"letspi {args[0]} comes with the companion distribution {package}: "
+                         f"pip install -e packages/{package} (from the repository root)", ctx)
         return super().resolve_command(ctx, args)
 
 

@@ -1,6 +1,6 @@
 """Learned components with NumPy inference: the multi-goal predictor, GNP and the risk gate's models.
 
-Training lives in ``letspi.learned.train`` and needs torch (``letspi[train]``).
+Training lives in the companion distribution letspi-train (``letspi_train.learned``; needs torch).
 """
 
 from letspi.learned.features import SceneFeatures, scene_features

@@ -1,6 +1,6 @@
 """``mlp``: a regressor from the six scenario-matching features to the LLM's eight answers (an ablation).
 
-NumPy inference of the network ``letspi.finetune.mlp_train`` trains on the LLM's labels::
+NumPy inference of the network ``letspi_train.finetune.mlp_train`` trains on the LLM's labels::
 
     z = (features - feat_mean) / feat_std                        (B, 6)
     h = relu(W2 relu(W1 z + b1) + b2)                            (B, H)

@@ -1,5 +1,5 @@
 """Weight files of the learned models: a directory of ``weights.npz`` (float32 arrays by the torch ``state_dict``
-names of ``letspi.learned.train.modules``) and ``manifest.json`` (kind, format version, config, data,
+names of ``letspi_train.learned.modules``) and ``manifest.json`` (kind, format version, config, data,
 validation metrics, training command).
 """
 

@@ -3,7 +3,7 @@
 For the fine-tuned embedded model, which learned from labels instead of examples: a short prompt (prefill
 is most of the latency) and the ``"fast"`` wire format with few decimals. Two forms, both
 ``[system, user]``: propose (the scene), and refine (adds the rejected answer and its safety-check facts).
-Training (``letspi.finetune.data``) and planning render both here, so the model sees what it was trained on.
+Training (``letspi_train.finetune.data``) and planning render both here, so the model sees what it was trained on.
 """
 
 from __future__ import annotations

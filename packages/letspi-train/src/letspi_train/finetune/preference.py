@@ -9,7 +9,7 @@ of the highest hindsight utility (the labels' weights: ``-at_fault af - contact 
 ``train_dpo`` starts from a supervised adapter (its ``peft/`` directory) and minimises the DPO loss
 (Rafailov et al. 2023) ``-log sigmoid(beta ((log pi(c) - log ref(c)) - (log pi(r) - log ref(r))))`` over
 the reply tokens, the reference being that adapter frozen (its log-probabilities computed once). Resumable
-(``letspi.learned.train.loop.run_steps``) and exported as ``train_lora`` exports (``adapter.gguf``,
+(``letspi_train.learned.loop.run_steps``) and exported as ``train_lora`` exports (``adapter.gguf``,
 ``peft/``, ``manifest.json``). Torch only (the train extra).
 """
 
@@ -27,9 +27,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from letspi.finetune.data import ChatExample, read_choice_labels, split_examples
-from letspi.finetune.decide_data import HINDSIGHT_COLUMN
-from letspi.finetune.train import (
+from letspi.fsutil import atomic_write_text, provenance_path
+from letspi.llm.choice import choice_reply_text
+from letspi_train.finetune.data import ChatExample, read_choice_labels, split_examples
+from letspi_train.finetune.decide_data import HINDSIGHT_COLUMN
+from letspi_train.finetune.train import (
     ADAPTER_FILE,
     IGNORE_INDEX,
     MANIFEST_FILE,
@@ -42,11 +44,9 @@ from letspi.finetune.train import (
     encode_example,
     load_base,
 )
-from letspi.fsutil import atomic_write_text, provenance_path
-from letspi.llm.choice import choice_reply_text
 
 if TYPE_CHECKING:  # torch is the train extra's; the module imports without it
-    from letspi.learned.train.loop import StepHistory
+    from letspi_train.learned.loop import StepHistory
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def ranked_pairs(names: Sequence[str], hindsight: np.ndarray, weights: dict[str,
 
 def preference_pairs(examples: Sequence[ChatExample], label_dirs: Sequence[Path], *,
                      margin: float = 1.0) -> list[PreferencePair]:
-    """The pairs of the propose examples of ``examples`` (``letspi.finetune.data.build_examples_many`` over
+    """The pairs of the propose examples of ``examples`` (``letspi_train.finetune.data.build_examples_many`` over
     ``label_dirs``, which must carry the hindsight column), each prompt once."""
     hindsight: dict[str, np.ndarray] = {}
     names: list[str] = []
@@ -154,7 +154,7 @@ def train_dpo(pairs: Sequence[PreferencePair], config: DpoConfig, base_gguf: Pat
     import torch
     from peft import PeftModel, get_peft_model_state_dict, set_peft_model_state_dict
 
-    from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
+    from letspi_train.learned.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
 
     t0 = time.perf_counter()
     out_dir = Path(out_dir)

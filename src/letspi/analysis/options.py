@@ -21,8 +21,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from letspi.arrays import Rows
-from letspi.finetune.labels import LabelSearch, random_candidates
 from letspi.fsutil import atomic_write, atomic_write_text, resume_directory
+from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
 from letspi.method.decide import DEFAULT_NAME, OptionTable, check_options, defaults_vector, plan_options
 from letspi.method.thresholds import ReflectionThresholds
 from letspi.metrics.compute import compute_outcomes
@@ -38,11 +38,30 @@ OUTCOMES_FILE = "outcomes.npz"
 MANIFEST_FILE = "manifest.json"
 
 
+_LOW = np.array([FIELD_RANGES[f][0] for f in NUMERIC_FIELDS])
+_HIGH = np.array([FIELD_RANGES[f][1] for f in NUMERIC_FIELDS])
+_LANE = NUMERIC_FIELDS.index("lane_factor")
+
+
+def random_candidates(rng: np.random.Generator, n: int, defaults: np.ndarray, *, sigma: float = 0.2,
+                      lane_snap_p: float = 0.7) -> np.ndarray:
+    """(n, 8): the defaults first, then half uniform over the fields' ranges, half normal around the defaults
+    (``sigma`` of each range); a share ``lane_snap_p`` of the lane factors is rounded to -1, 0 or +1."""
+    span = _HIGH - _LOW
+    n_uniform = (n - 1) // 2
+    uniform = _LOW + rng.random((n_uniform, len(_LOW))) * span
+    near = defaults + rng.normal(0.0, sigma, (n - 1 - n_uniform, len(_LOW))) * span
+    out = np.clip(np.concatenate([defaults[None], uniform, near]), _LOW, _HIGH)
+    snap = rng.random(n) < lane_snap_p
+    out[1:, _LANE] = np.where(snap[1:], np.round(out[1:, _LANE]), out[1:, _LANE])
+    return out
+
+
 def random_option_table(params: SocialForceParams, n: int, seed: int) -> OptionTable:
     """The fitted defaults (neutral goal) and ``n - 1`` random answers (the label search's first round)."""
     if n < 1:
         raise ValueError("an option table needs at least the defaults (n >= 1)")
-    values = random_candidates(np.random.default_rng(seed), n, defaults_vector(params), LabelSearch())
+    values = random_candidates(np.random.default_rng(seed), n, defaults_vector(params))
     return OptionTable((DEFAULT_NAME, *(f"r{k:03d}" for k in range(1, n))), values)
 
 

@@ -19,8 +19,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from letspi.finetune.decide_data import CHOICE_COLUMNS, CHOICE_FORMAT
-from letspi.finetune.labels import FORMAT, LABELS_FILE, MANIFEST_FILE, load_labels
 from letspi.llm.choice import OptionLine, choice_check_text, choice_reply_text, render_choice_prompt
 from letspi.llm.compact import compact_reply_text, compact_report_text, render_compact_prompt
 from letspi.llm.describe import describe_scenario
@@ -31,6 +29,8 @@ from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_key, vehicle_keys
 from letspi.scenario.store import load_scenarios
 from letspi.scenario.types import ScenarioBatch
+from letspi_train.finetune.decide_data import CHOICE_COLUMNS, CHOICE_FORMAT
+from letspi_train.finetune.labels import FORMAT, LABELS_FILE, MANIFEST_FILE, load_labels
 
 LABELS_FORMAT = FORMAT
 KINDS = ("propose", "refine")

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict
 
+from letspi.analysis.options import random_candidates
 from letspi.constants import DT_S
 from letspi.fsutil import atomic_write, atomic_write_text, resume_directory
 from letspi.llm.schema import FIELD_RANGES, NUMERIC_FIELDS
@@ -156,17 +157,6 @@ def _score(big: ScenarioBatch, xy: np.ndarray, vxy: np.ndarray, goals: np.ndarra
     )
 
 
-def random_candidates(rng: np.random.Generator, n: int, defaults: np.ndarray, search: LabelSearch) -> np.ndarray:
-    """(n, 8): the defaults first, then half uniform over the ranges, half around the defaults."""
-    n_uniform = (n - 1) // 2
-    uniform = _LOW + rng.random((n_uniform, len(_LOW))) * _SPAN
-    near = defaults + rng.normal(0.0, search.random_sigma, (n - 1 - n_uniform, len(_LOW))) * _SPAN
-    out = np.clip(np.concatenate([defaults[None], uniform, near]), _LOW, _HIGH)
-    snap = rng.random(n) < search.lane_snap_p
-    out[1:, _LANE] = np.where(snap[1:], np.round(out[1:, _LANE]), out[1:, _LANE])
-    return out
-
-
 def _local(rng: np.random.Generator, centres: np.ndarray, n: int, sigma: float) -> np.ndarray:
     """(n, 8) perturbations around ``centres`` (M, 8), cycling through them."""
     pick = centres[np.arange(n) % len(centres)]
@@ -197,7 +187,8 @@ def search_chunk(
     defaults = defaults_vector(params)
     r_col = float(params.r_col_m)
     rngs = [np.random.default_rng([seed, int(i)]) for i in indices]
-    cands = np.stack([random_candidates(r, search.n_random, defaults, search) for r in rngs])
+    cands = np.stack([random_candidates(r, search.n_random, defaults, sigma=search.random_sigma,
+                                        lane_snap_p=search.lane_snap_p) for r in rngs])
     res = evaluate_candidates(batch, cands, goals, pred, defaults, r_col, search)
     for rnd in range(search.n_rounds):
         best = np.take_along_axis(cands, _order(res)[:, :search.top_m, None], axis=1)

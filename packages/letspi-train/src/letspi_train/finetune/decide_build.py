@@ -1,4 +1,4 @@
-"""``letspi train decide``: runs ``letspi.finetune.decide_data``'s steps over scenario files and writes the
+"""``letspi train decide``: runs ``letspi_train.finetune.decide_data``'s steps over scenario files and writes the
 presets, risk gate and choice labels with their provenance."""
 
 from __future__ import annotations
@@ -11,7 +11,18 @@ from typing import Any
 
 import numpy as np
 
-from letspi.finetune.decide_data import (
+from letspi.analysis.options import OptionOutcomes, OptionRun
+from letspi.fsutil import atomic_write_text, provenance_path
+from letspi.learned.trees import TreeEnsemble
+from letspi.method.choosers import TEACHER_FILE
+from letspi.method.decide import PRESETS_FORMAT, OptionTable, defaults_vector, gate_features, load_presets
+from letspi.physics.goals import GoalPredictor
+from letspi.physics.params import SocialForceParams
+from letspi.safety.adverse import AdverseSettings
+from letspi.scenario.identity import dataset_digest, scenario_digests
+from letspi.scenario.split import vehicle_keys
+from letspi.scenario.store import load_scenarios
+from letspi_train.finetune.decide_data import (
     CHOICE_FORMAT,
     Weights,
     choice_labels,
@@ -24,18 +35,7 @@ from letspi.finetune.decide_data import (
     pool_option_table,
     select_presets,
 )
-from letspi.finetune.labels import LABELS_FILE, MANIFEST_FILE, _write_parquet
-from letspi.finetune.options import OptionOutcomes, OptionRun
-from letspi.fsutil import atomic_write_text, provenance_path
-from letspi.learned.trees import TreeEnsemble
-from letspi.method.choosers import TEACHER_FILE
-from letspi.method.decide import PRESETS_FORMAT, OptionTable, defaults_vector, gate_features, load_presets
-from letspi.physics.goals import GoalPredictor
-from letspi.physics.params import SocialForceParams
-from letspi.safety.adverse import AdverseSettings
-from letspi.scenario.identity import dataset_digest, scenario_digests
-from letspi.scenario.split import vehicle_keys
-from letspi.scenario.store import load_scenarios
+from letspi_train.finetune.labels import LABELS_FILE, MANIFEST_FILE, _write_parquet
 
 
 def _given_presets(pool: OptionTable, given: OptionTable, params: SocialForceParams) -> list[int]:

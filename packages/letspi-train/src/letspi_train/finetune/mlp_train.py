@@ -1,7 +1,7 @@
 """Training of the ``mlp`` regressor (``letspi.learned.param_mlp``) on the safe ``propose`` labels (torch).
 
 Inputs: the matching features of each row's scenario (the file's digest must match the manifest); split
-80 / 20 by ego vehicle; loss: MSE of outputs normalised by the field ranges (``letspi.learned.train.loop.fit``).
+80 / 20 by ego vehicle; loss: MSE of outputs normalised by the field ranges (``letspi_train.learned.loop.fit``).
 Validation reports the per-field RMSE beside that of always answering the fitted defaults, so a regressor
 that learnt nothing shows.
 """
@@ -17,13 +17,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from letspi.finetune.labels import load_labels
 from letspi.learned.param_mlp import MODEL_NAME, OUTPUT_FIELDS, OUTPUT_RANGES
-from letspi.learned.train.loop import fit
 from letspi.scenario.features import FEATURE_NAMES, scenario_features
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.split import split_by_key, vehicle_keys
 from letspi.scenario.store import load_scenarios
+from letspi_train.finetune.labels import load_labels
+from letspi_train.learned.loop import fit
 
 
 @dataclass(frozen=True)

@@ -25,13 +25,13 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 import numpy as np
 
 from letspi.assembly.resolve import file_sha256
-from letspi.finetune.data import ChatExample, split_examples
-from letspi.finetune.export import adapter_tensors, write_adapter_gguf
 from letspi.fsutil import atomic_write_text, provenance_path
 from letspi.llm.backends.llamacpp_open import open_llama
+from letspi_train.finetune.data import ChatExample, split_examples
+from letspi_train.finetune.export import adapter_tensors, write_adapter_gguf
 
 if TYPE_CHECKING:  # torch is the train extra's; the module imports without it
-    from letspi.learned.train.loop import StepHistory
+    from letspi_train.learned.loop import StepHistory
 
 ADAPTER_FILE: Final = "adapter.gguf"
 MANIFEST_FILE: Final = "manifest.json"
@@ -283,7 +283,7 @@ def train_lora(
     import torch
     from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
-    from letspi.learned.train.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
+    from letspi_train.learned.loop import CHECKPOINT_FILE, run_steps  # torch: the train extra
 
     t_start = time.perf_counter()  # steps: split and fingerprint, encode, LoRA model, run_steps, export
     out_dir = Path(out_dir)

@@ -11,13 +11,13 @@ import typer
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import goals_config
 from letspi.cli.common import console, progress_bar, user_errors
-from letspi.fitting.frenet import DEFAULT_GRID, fit_frenet_weights
-from letspi.fitting.sf import fit_sf_params
 from letspi.planners.frenet import FrenetSettings, save_frenet_weights
 from letspi.planners.sf_params import save_sf_params
 from letspi.scenario.provenance import refuse_suite_traffic
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 from letspi.scenario.types import ScenarioBatch, concat_batches
+from letspi_train.fitting.frenet import DEFAULT_GRID, fit_frenet_weights
+from letspi_train.fitting.sf import fit_sf_params
 
 app = typer.Typer(help="Fit baseline parameters offline.",
                   no_args_is_help=True, rich_markup_mode=None)

@@ -17,14 +17,14 @@ from typing import Any, Final
 import numpy as np
 import pandas as pd
 
-from letspi.finetune.gate_train import fit_trees
-from letspi.finetune.options import OptionOutcomes
+from letspi.analysis.options import OptionOutcomes
 from letspi.learned.logistic_fit import roc_auc
 from letspi.learned.trees import TreeEnsemble
 from letspi.llm.schema import NUMERIC_FIELDS
 from letspi.method.choosers import TEACHER_TARGETS, ConstantScore, OutcomeModel, Teacher, teacher_feature_names
 from letspi.method.decide import DEFAULT_NAME, GATE_FEATURE_NAMES, OptionTable, defaults_vector
 from letspi.physics.params import SocialForceParams
+from letspi_train.finetune.gate_train import fit_trees
 
 #: the hindsight utility's weights (as ``letspi.analysis.headroom``: at-fault contact, contact, success, progress)
 _W = (4.0, 2.0, 1.0, 1e-3)
@@ -217,7 +217,7 @@ def option_lines_of(o: OptionOutcomes, presets: OptionTable, adverse_names: Sequ
 
 
 #: an optional column of the choice labels: per preset, the window's hindsight outcome
-#: ``[at_fault, contact, success, progress_m]`` (JSON), for preference pairs (``letspi.finetune.preference``)
+#: ``[at_fault, contact, success, progress_m]`` (JSON), for preference pairs (``letspi_train.finetune.preference``)
 HINDSIGHT_COLUMN: Final = "hindsight_json"
 
 

@@ -21,10 +21,6 @@ from letspi.constants import T0_INDEX
 from letspi.learned.features import scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted
 from letspi.learned.hyperparams import GnpTrainConfig
-from letspi.learned.train.data import split
-from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
-from letspi.learned.train.modules import FeatureTensors, GnpNet, export_state
-from letspi.learned.train.torch_sf import TorchScene, rollout_torch
 from letspi.metrics.collision import boxes_overlap
 from letspi.metrics.inputs import MetricInputs
 from letspi.metrics.kinematics import ade_fde
@@ -33,6 +29,10 @@ from letspi.physics.neighbours import NeighbourPredictionMode, predict_neighbour
 from letspi.physics.params import PARAM_NAMES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene
 from letspi.scenario.types import ScenarioBatch
+from letspi_train.learned.data import split
+from letspi_train.learned.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
+from letspi_train.learned.modules import FeatureTensors, GnpNet, export_state
+from letspi_train.learned.torch_sf import TorchScene, rollout_torch
 
 
 class _Data:

@@ -21,7 +21,7 @@ from letspi.planners.sf_params import load_sf_params
 from letspi.scenario.provenance import refuse_suite_traffic
 from letspi.scenario.store import load_scenarios, read_scenario_meta
 
-app = typer.Typer(help="Train the learned models (requires the optional extra: pip install 'letspi[train]').",
+app = typer.Typer(help="Train the learned models and the LLM's adapter (letspi-train; needs torch==2.13.0).",
                   no_args_is_help=True, rich_markup_mode=None)
 
 ScenariosOpt = Annotated[list[Path], typer.Option("--scenarios", help="Scenario file(s) to train on "
@@ -63,8 +63,8 @@ def train_goals(
 ) -> None:
     """Train the transformer multi-goal predictor. Winner-takes-all over K goals at the 5 s horizon."""
     _require_torch()
-    from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.goal_train import train_goal_model
+    from letspi_train.learned.data import load_training_scenarios
+    from letspi_train.learned.goal_train import train_goal_model
 
     with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
@@ -100,8 +100,8 @@ def train_gnp(
     """Train the GNP baseline end to end. Tau per scene and a repulsion weight per neighbour, through the
     differentiable social force rollout (predicted goals and predicted neighbours)."""
     _require_torch()
-    from letspi.learned.train.data import load_training_scenarios
-    from letspi.learned.train.gnp_train import train_gnp_model
+    from letspi_train.learned.data import load_training_scenarios
+    from letspi_train.learned.gnp_train import train_gnp_model
 
     with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
@@ -142,7 +142,7 @@ def train_llm_data(
 ) -> None:
     """Make physics-verified labels for the LLM. Per scenario, search the six social-force parameters and
     the two goal factors, scored against the RECORDED future (hindsight; training only)."""
-    from letspi.finetune.labels import PARTS_DIR, LabelRun, LabelSearch
+    from letspi_train.finetune.labels import PARTS_DIR, LabelRun, LabelSearch
 
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         if goals not in ("learned", "kinematic"):
@@ -153,7 +153,7 @@ def train_llm_data(
         if max_scenarios is not None:
             batch = batch.take(slice(0, max_scenarios))
         n = len(batch)
-        # part-<start>.parquet holds scenarios start .. start + chunk - 1 (letspi.finetune.labels)
+        # part-<start>.parquet holds scenarios start .. start + chunk - 1 (letspi_train.finetune.labels)
         tally.track(n, lambda: sum(min(search.chunk, n - int(p.stem.split("-")[1]))
                                    for p in (out / PARTS_DIR).glob("part-*.parquet")))
         params, _ = load_sf_params(sf_params)
@@ -182,7 +182,7 @@ def train_mlp_cmd(
     """Train the `mlp` regressor ablation. It predicts the eight LLM answers from the matching features, on
     the physics-verified labels the LLM is fine-tuned on (weights.npz + manifest.json; NumPy inference)."""
     _require_torch()
-    from letspi.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
+    from letspi_train.finetune.mlp_train import MlpTrainConfig, load_training_rows, train_mlp
 
     with user_errors(), writer_lock(out, command_line()):
         if epochs < 1:
@@ -208,8 +208,8 @@ def train_mlp_cmd(
 
 def _llm_examples(data: list[Path], scenarios: Path | None,
                   max_scenarios: int | None) -> tuple[list[Any], dict[str, Any]]:
-    """The chat examples of one or several label directories (``letspi.finetune.data``)."""
-    from letspi.finetune.data import build_examples, build_examples_many
+    """The chat examples of one or several label directories (``letspi_train.finetune.data``)."""
+    from letspi_train.finetune.data import build_examples, build_examples_many
 
     goal_predictor = Builder(cache=None).goal_predictor(goals_config("learned"))
     if scenarios is not None and len(data) > 1:
@@ -262,8 +262,8 @@ def train_llm(
     GGUF) and exports a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
     LETSPI_LLM_ADAPTER=OUT/adapter.gguf."""
     _require_torch()
-    from letspi.finetune.train import LoraTrainConfig, train_lora
-    from letspi.learned.train.loop import checkpoint_step
+    from letspi_train.finetune.train import LoraTrainConfig, train_lora
+    from letspi_train.learned.loop import checkpoint_step
 
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         cfg = LoraTrainConfig(epochs=epochs, lr=lr, rank=rank, alpha=alpha, batch_size=batch_size, seed=seed,
@@ -311,8 +311,8 @@ def train_dpo_cmd(
     """One preference step after `letspi train llm`: DPO on pairs of presets ranked by their hindsight outcome
     (the best preset of a window against each one whose outcome is worse), from the supervised adapter."""
     _require_torch()
-    from letspi.finetune.preference import DpoConfig, preference_pairs, train_dpo
-    from letspi.learned.train.loop import checkpoint_step
+    from letspi_train.finetune.preference import DpoConfig, preference_pairs, train_dpo
+    from letspi_train.learned.loop import checkpoint_step
 
     with user_errors(resumes=True) as tally, writer_lock(out, command_line()):
         cfg = DpoConfig(beta=beta, lr=lr, epochs=epochs, batch_size=batch_size, margin=margin, seed=seed,
@@ -360,7 +360,7 @@ def train_decide(
 ) -> None:
     """Train LetsPi's decision step on training traffic. Presets, the risk gate and decision-focused labels
     (hindsight: the recorded future decides which preset was best; never evaluation seeds)."""
-    from letspi.finetune.decide_build import build_decision_data
+    from letspi_train.finetune.decide_build import build_decision_data
 
     with user_errors(), writer_lock(out, command_line()):
         if goals not in ("learned", "kinematic"):

@@ -21,11 +21,11 @@ from letspi.learned.features import scene_features
 from letspi.learned.goal_metrics import goal_metrics, goal_truth
 from letspi.learned.goal_model import LearnedGoalPredictor
 from letspi.learned.hyperparams import GoalTrainConfig
-from letspi.learned.train.data import split
-from letspi.learned.train.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
-from letspi.learned.train.modules import FeatureTensors, GoalNet, export_state
 from letspi.physics.goals import KinematicGoalPredictor
 from letspi.scenario.types import ScenarioBatch
+from letspi_train.learned.data import split
+from letspi_train.learned.loop import TrainResult, data_manifest, fit, merge_manifest, training_manifest
+from letspi_train.learned.modules import FeatureTensors, GoalNet, export_state
 
 
 def wta_loss(goals: torch.Tensor, logits: torch.Tensor, truth: torch.Tensor,

@@ -1,0 +1,1 @@
+"""letspi-train: training and fitting of letspi's shipped weights (``letspi train``, ``letspi fit``)."""

@@ -1,0 +1,1 @@
+"""The commands letspi-train adds to ``letspi`` (through ``letspi_train.commands``)."""

@@ -1,0 +1,1 @@
+"""Training of the learned models: the torch side of ``letspi.learned``."""

@@ -1,1 +1,0 @@
-"""letspi.finetune: training data and models for the LLM planners (physics-verified labels, regressor)."""
