@@ -1,6 +1,4 @@
-"""The LetsPi method (paper §III-C to §III-E), independent of any LLM backend: reflection thresholds and loop,
-the memory bank, scenario matching, the decision step and the two phases.
-"""
+"""The LetsPi method (paper §III-C to §III-E), independent of any LLM backend."""
 
 from letspi.method.matching import PAPER_WEIGHTS, similarities, top_k
 from letspi.method.memory import Experience, MemoryBank, MemoryFeatures, MemorySubset

@@ -1,11 +1,7 @@
 """Choosers without a language model: what picks a preset where the risk gate fires, in place of the model.
 
-Each runs under the same presets, checks, gate, verification and shield as ``letspi-fast``
-(``FastPhase.chooser``), so a difference in outcome is the choice alone. A chooser maps (B,) scenarios with
-their presets' checks (``OptionChecks``, (B, K)) and risk scores (B,) to (B,) preset indices:
-``ConstantChooser`` (one preset always), ``RuleChooser`` (``sf-check``'s rule), ``CautiousChooser`` (the
-rule with a cautious tie-break) and ``TeacherChooser`` (the expected-utility policy that labelled the
-model's training data, ``teacher.json``). docs/decisions.md compares them.
+Each runs under the same presets, checks, gate, verification and shield as ``letspi-fast`` (``FastPhase.chooser``),
+so a difference in outcome is the choice alone. docs/decisions.md compares them.
 """
 
 from __future__ import annotations
@@ -36,7 +32,7 @@ class Chooser(Protocol):
     """Picks a preset per scenario from what the planner knows at t = 0 (no model call)."""
 
     def choose(self, history: ScenarioBatch, checks: OptionChecks, risk: np.ndarray) -> np.ndarray:
-        """(B,) preset indices into ``checks.names`` for the B scenarios ``history``."""
+        """(B,) preset indices into ``checks.names`` from the presets' checks (B, K) and risk scores (B,)."""
         ...
 
 
@@ -120,10 +116,9 @@ def teacher_features(gate_x: np.ndarray, risk: np.ndarray, predicted_safe: np.nd
 
 @dataclass(frozen=True)
 class Teacher:
-    """The expected-utility policy of the choice labels: per preset, the probability of an at-fault
-    contact, of any contact and of success (``models[target][k]``, NumPy trees), and the choice of the
-    highest ``-at_fault P(at fault) - contact P(contact) + P(success) + progress_per_m (progress - the
-    defaults' progress)``, the defaults on a tie."""
+    """The expected-utility policy of the choice labels: per preset, P(at-fault contact), P(contact) and
+    P(success) (``models[target][k]``), choosing the highest ``-at_fault P(at fault) - contact P(contact) +
+    P(success) + progress_per_m (progress - the defaults' progress)``, the defaults on a tie."""
 
     presets: tuple[str, ...]
     adverse_names: tuple[str, ...]

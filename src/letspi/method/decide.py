@@ -1,10 +1,9 @@
 """The decision step of LetsPi: named options, checked against what could happen, and a risk gate.
 
-An option is one answer of the eight numbers the LLM chooses; an ``OptionTable`` names C of them, the
-fitted defaults first (the shipped presets: ``load_presets``). ``check_options`` plans every option on every
-scenario as the planners do and checks each plan against the prediction and the adverse futures
-(``letspi.safety.adverse``), vectorised over scenarios x options x futures. ``rule_choice`` chooses without
-a model; the ``RiskGate`` decides whether the model is consulted at all.
+An option is one answer of the eight numbers the LLM chooses; an ``OptionTable`` names C of them, the fitted
+defaults first. ``check_options`` plans every option on every scenario and checks each plan against the
+prediction and the adverse futures (``letspi.safety.adverse``); ``rule_choice`` chooses without a model; the
+``RiskGate`` decides whether the model is consulted at all.
 """
 
 from __future__ import annotations
@@ -323,18 +322,7 @@ def load_risk_model(path: Path | None = None) -> tuple[ScoreModel, str]:
     return model, hashlib.sha256(text.encode()).hexdigest()
 
 
-@dataclass(frozen=True)
-class Decision:
-    """One scenario's decision: ``option`` (a preset's name, or ``CUSTOM``), whether the model was
-    ``consulted``, the gate's ``risk_score`` (NaN without a gate), every preset's ``checks`` (a batch of one)."""
-
-    option: str
-    consulted: bool
-    risk_score: float
-    checks: OptionChecks
-
-
-#: ``Decision.option`` of a model's own eight numbers (not a preset)
+#: the decision of a model's own eight numbers (not a preset)
 CUSTOM: Final = "custom"
 
 
@@ -394,8 +382,7 @@ class Decider:
 
     @property
     def lane_changes(self) -> np.ndarray | None:
-        """(K,) bool: the presets whose goal moves to another lane (lane factor not neutral), which the rule
-        and the shield rank behind the lane keepers (``keep_lane``); None without that preference."""
+        """(K,) bool: presets moving the goal to another lane, ranked behind lane keepers (None: no ``keep_lane``)."""
         if not self.keep_lane:
             return None
         out: np.ndarray = np.abs(self.presets.values[:, 7] - NEUTRAL_LANE_FACTOR) > 1e-9
@@ -454,7 +441,3 @@ class Decider:
         if failed[k] <= failed.min():
             return option
         return checks.names[int(self.rule(checks)[0])]
-
-    def preference(self, checks: OptionChecks, i: int) -> list[int]:
-        """Scenario ``i``'s presets that pass every check, the rule's order (most progress first)."""
-        return preference_order(checks.passes_all()[i], checks.progress_m[i], self.lane_changes)

@@ -12,14 +12,10 @@ from typing import Final
 
 import numpy as np
 
-from letspi.scenario.features import FEATURE_NAMES
-
 #: memories retrieved per scenario by the fast phase (``letspi-fast``)
 TOP_K = 3
 
-PAPER_WEIGHTS: Final = (1.0, 2.0, 3.0, 2.5, 1.5, 1.0)
-"""Weights in ``FEATURE_NAMES`` order (paper §III-E)."""
-WEIGHTS_BY_NAME: Final = dict(zip(FEATURE_NAMES, PAPER_WEIGHTS, strict=True))
+PAPER_WEIGHTS: Final = (1.0, 2.0, 3.0, 2.5, 1.5, 1.0)  # in ``FEATURE_NAMES`` order (paper §III-E)
 EPS: Final = 1e-5
 _CHUNK_ELEMENTS: Final = 1 << 16  # (Q-chunk x M) temporaries of ~0.5 MB stay in cache
 

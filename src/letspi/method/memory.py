@@ -1,12 +1,9 @@
 """The memory bank: validated driving experiences on SQLite (paper §III-E, "Scenario-based Memory").
 
-* One row per (scenario content digest, collection configuration key), so configurations and datasets
-  share a file without mixing. A fallback result is stored flagged, never retrieved, not ``has``, and
-  replaced when a resumed run retries it; a real row is never overwritten.
-* WAL journal with ``synchronous=FULL``: readers and the writer never block each other, and a committed
-  experience survives a kill and a power loss. Features and parameters are REAL columns read as one NumPy
-  matrix; non-finite metric floats are stored as ``"inf"``/``"-inf"``/``"nan"`` (JSON has no infinity).
-* ``sample_fraction``: nested, insertion-order-free subsets for the memory-size ablation.
+One row per (scenario content digest, collection configuration key). A fallback result is stored flagged, never
+retrieved, not ``has``, and replaced when a resumed run retries it; a real row is never overwritten. WAL journal
+with ``synchronous=FULL`` (a committed experience survives a kill and a power loss); non-finite metric floats
+are stored as ``"inf"``/``"-inf"``/``"nan"`` (JSON has no infinity).
 """
 
 from __future__ import annotations
@@ -30,7 +27,6 @@ from letspi.scenario.features import FEATURE_NAMES, scenario_features
 from letspi.scenario.types import ScenarioBatch
 
 SCHEMA_VERSION: Final = 2
-"""2: scenario digest, fallback flag, vehicle identity, datasets table (1 is refused: re-collect)."""
 Synchronous = Literal["FULL", "NORMAL"]
 
 _FEATURE_COLS: Final = tuple(FEATURE_NAMES)
@@ -82,9 +78,7 @@ CREATE TABLE IF NOT EXISTS datasets (
 """
 
 
-# --------------------------------------------------------------------------------------------
-# JSON with non-finite floats
-# --------------------------------------------------------------------------------------------
+# JSON with non-finite floats ----------------------------------------------------------------
 
 
 def _json_safe(value: Any) -> Any:
@@ -127,9 +121,7 @@ def _decode_iterations(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-# --------------------------------------------------------------------------------------------
-# Data
-# --------------------------------------------------------------------------------------------
+# Data ---------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -267,9 +259,7 @@ def _sample_rank(seed: int, scenario_digest: str, config_key: str) -> bytes:
     return hashlib.blake2b(f"{seed}\x1f{scenario_digest}\x1f{config_key}".encode(), digest_size=8).digest()
 
 
-# --------------------------------------------------------------------------------------------
-# The bank
-# --------------------------------------------------------------------------------------------
+# The bank -----------------------------------------------------------------------------------
 
 
 def _where(validated_only: bool, config_key: str | None) -> tuple[str, tuple[Any, ...]]:
@@ -452,8 +442,7 @@ class MemoryBank:
             for row in self._conn.execute(
                 f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE id IN ({marks})", chunk
             ):
-                exp = _from_row(row)
-                found[int(row[0])] = exp
+                found[int(row[0])] = _from_row(row)
         missing = [i for i in wanted if i not in found]
         if missing:
             raise KeyError(f"no experiences with ids {missing[:10]}")

@@ -1,11 +1,8 @@
 """LetsPi's two phases on top of the LLM engine (paper §III-E, Figure 1).
 
-* Memory collection (``collect``): physics-informed prompt -> proposal -> simulate -> reflection rounds ->
-  store the experience (retrieval uses validated ones only).
-* Fast inference (``FastPhase``): top-k similar validated memories -> the fast prompt with them as few-shot
-  examples -> one call -> simulate.
-The LLM chooses the paper's six parameters; ``r_col_m`` stays at the fitted ``sf`` value. The ``compact``
-and ``choice`` prompt styles replace both prompts (retrieval still runs and is recorded).
+Memory collection (``collect``): physics-informed prompt -> proposal -> simulate -> reflection rounds -> store
+the experience. Fast inference (``FastPhase``): top-k similar validated memories as few-shot examples -> one
+call -> simulate. The LLM chooses the paper's six parameters; ``r_col_m`` stays at the fitted ``sf`` value.
 """
 
 from __future__ import annotations
@@ -237,12 +234,10 @@ def collect(
     *,
     runner: RunnerConfig | None = None,
 ) -> CollectStats:
-    """The memory collection phase over ``batch``, resumable (scenarios with a real result are skipped).
-
-    ``runner.concurrency`` scenarios run at once; experiences are committed in scenario order, so the bank
-    (ids included) does not depend on the concurrency, and a resumed run gives an uninterrupted one's bank.
-    A scenario whose requests failed in transport is not stored (``ScenariosFailedError`` at the end); an
-    unreachable server or too many failures stop the run (``BackendUnavailableError``, ``RunStoppedError``)."""
+    """The memory collection phase over ``batch``, resumable (scenarios with a real result are skipped), committed
+    in scenario order whatever ``runner.concurrency``. A scenario whose requests failed in transport is not stored
+    (``ScenariosFailedError`` at the end); an unreachable server or too many failures stop the run
+    (``BackendUnavailableError``, ``RunStoppedError``)."""
     t0 = time.perf_counter()
     key = phase.config_key
     digests = scenario_digests(batch)
@@ -261,10 +256,6 @@ def collect(
         return one, phase.run(one, goals[k], pred.take(slice(k, k + 1)))
 
     def write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
-        _write(i, done_)
-        contexts.discard_below(i + 1)
-
-    def _write(i: int, done_: tuple[ScenarioBatch, ReflectionResult]) -> None:
         one, result = done_
         exp = phase.experience(one, result, str(digests[i]))
         counts["stored"] += int(bank.add(exp))
@@ -275,6 +266,7 @@ def collect(
         for it in result.iterations:
             counts["calls"] += int(it.proposal.meta.get("attempts", 0))
             counts["cached"] += int(it.proposal.meta.get("cached_attempts", 0))
+        contexts.discard_below(i + 1)
 
     run = run_ordered(todo, work, write, config=runner, advisor=phase.advisor,
                       is_fallback=lambda d: bool(d[1].final.proposal.fallback), progress=progress)
@@ -313,12 +305,9 @@ def memory_example(exp: Experience) -> MemoryExample:
 
 @dataclass
 class Retriever:
-    """Top-k validated memories by the (fixed) §III-E similarity; thread-safe (bank reads under a lock).
-
-    ``config_key``: only this collection configuration's (None: any); ``allowed_ids``: only these row ids (a
-    snapshot or an ablation's subset). ``allow_same_vehicle`` False leaves out the query's own vehicle and
-    windows overlapping it in the same recording (their history is the query's future: a leak).
-    """
+    """Top-k validated memories by the (fixed) §III-E similarity; thread-safe. ``config_key``: only this collection
+    configuration's (None: any); ``allowed_ids``: only these row ids. ``allow_same_vehicle`` False leaves out the
+    query's own vehicle and windows overlapping it in the same recording (their history is the query's future)."""
 
     bank: MemoryBank
     k: int = TOP_K
@@ -368,10 +357,8 @@ class Assessment:
 
 @dataclass
 class FastPhase:
-    """Fast inference: retrieval + fast prompt + one call of the (smaller) fast model.
-
-    ``chooser`` (with a ``decider``): where the gate fires, it picks the preset instead of the model
-    (``letspi.method.choosers``; no model call, ``advisor`` may be None)."""
+    """Fast inference: retrieval + fast prompt + one call of the fast model. ``chooser`` (with a ``decider``): where
+    the gate fires, it picks the preset instead of the model (``advisor`` may then be None)."""
 
     advisor: ParamAdvisor | None
     goal_predictor: GoalPredictor
@@ -409,11 +396,9 @@ class FastPhase:
     def propose_retrieved(self, scenario: ScenarioBatch, base_goal_xy_m: np.ndarray,
                           prediction: NeighbourPrediction | None = None, *, prompt_of: Assessment | None = None,
                           ) -> tuple[Proposal, list[tuple[Experience, float]]]:
-        """``propose`` returning the retrieved experiences (the shield falls back to them). With a ``decider`` the
-        presets are checked (against ``prediction``, default IDM) and below the gate the defaults are kept without a
-        call; where it fires the ``chooser`` picks a preset, else the choice style asks the model (the prompt of
-        ``prompt_of``'s scenario when given: the shuffled-scene control). ``Proposal.meta`` records ``decision``,
-        ``consulted``, ``risk_score``."""
+        """``propose`` returning the retrieved experiences. With a ``decider``, below the gate the defaults are kept
+        without a call; where it fires the ``chooser`` or the model picks a preset (``decide``; ``prompt_of``: the
+        shuffled-scene control). ``Proposal.meta`` records ``decision``, ``consulted``, ``risk_score``."""
         retrieved = self.retrieve(scenario)
         if self.decider is None:
             return self._ask(scenario, base_goal_xy_m, retrieved), retrieved

@@ -1,9 +1,5 @@
-"""The prompt text the method layer writes, rendered for fixed inputs: part of the prompt fingerprint.
-
-Safety reports (full and compact; one violation of every kind in ``METRIC_ORDER``, a new kind without a
-sample raises) and few-shot examples of stored experiences reach it as
-``prompt_fingerprint(prompt_text_samples())``.
-"""
+"""The prompt text the method layer writes (safety reports, memory examples), rendered for fixed inputs: part of
+the prompt fingerprint (``prompt_fingerprint(prompt_text_samples())``)."""
 
 from __future__ import annotations
 
@@ -56,7 +52,8 @@ def _experience(lane_change: float, metrics_after: Mapping[str, object]) -> Expe
 
 
 def prompt_text_samples() -> dict[str, str]:
-    """Every sample text by name: safety reports (paper and compact form) and memory examples."""
+    """Every sample text by name: safety reports (paper and compact form) and memory examples; ``RuntimeError``
+    for a violation kind of ``METRIC_ORDER`` without a sample."""
     missing = [m for m in METRIC_ORDER if m not in _VIOLATIONS]
     if missing:
         raise RuntimeError(f"violation kind(s) {', '.join(missing)} have no prompt sample: add them to "

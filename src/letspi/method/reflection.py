@@ -69,9 +69,7 @@ MetricName = str
 METRIC_ORDER: Final[tuple[MetricName, ...]] = tuple(CHECK_KINDS)
 
 
-# --------------------------------------------------------------------------------------------
-# Proposals and simulation
-# --------------------------------------------------------------------------------------------
+# Proposals and simulation -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -149,20 +147,16 @@ def simulate_proposal(
     return SimulatedPlan(roll.xy_m, roll.vxy_mps, goals)
 
 
-# --------------------------------------------------------------------------------------------
-# Safety report
-# --------------------------------------------------------------------------------------------
+# Safety report ------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class Violation:
-    """One violated threshold of one scenario, at its worst (contact, off-road: first) instant.
-
-    value / threshold in ``unit`` (contact: box gap 0 vs min_dist_m; off_road: excursion beyond the edge [m]
-    vs 0). step: future step (time_s = (step + 1) dt). nbr_slot -1, vehicle_id 0, nbr_lane_id 0 without a
-    neighbour; ego_lane_id 0 = off the road. relative: the neighbour's side (contact: one step before the
-    overlap). dx_m, dy_m: neighbour minus ego centre [m] (NaN without a neighbour).
-    """
+    """One violated threshold of one scenario, at its worst (contact, off-road: first) instant. value / threshold
+    in ``unit`` (contact: box gap 0 vs min_dist_m; off_road: excursion beyond the edge [m] vs 0). step: future
+    step (time_s = (step + 1) dt). nbr_slot -1, vehicle_id 0, nbr_lane_id 0 without a neighbour; ego_lane_id 0 =
+    off the road. relative: the neighbour's side (contact: one step before the overlap). dx_m, dy_m: neighbour
+    minus ego centre [m] (NaN without a neighbour)."""
 
     metric: MetricName
     value: float
@@ -180,7 +174,7 @@ class Violation:
 
     @property
     def category(self) -> Category:
-        """front / rear / side (left or right) / road: what the suggestion targets."""
+        """front / rear / side (left or right) / road / dynamics: what the suggestion targets."""
         if self.metric == "off_road":
             return "road"
         if self.metric == "harsh_braking":
@@ -410,9 +404,7 @@ def _before_contact(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: n
     """The plan checks on the steps before each scenario's first contact (without contact: the given ones)."""
     if not contact.any():
         return check, inp
-    # After the first contact the plan means nothing (a weak repulsion lets the ego drive *through* its
-    # leader, which then shows up as a "rear" conflict): TTC and gap violations are located on the steps
-    # before the first contact, by the same check_plans on a prediction masked after that step.
+    # after a contact the plan means nothing: check_plans again on a prediction masked from that step on
     n_steps = inp.n_steps
     before = np.arange(n_steps)[None, :] < np.where(contact, c_step, n_steps)[:, None]  # (B, F)
     masked = NeighbourPrediction(neighbour_prediction.xy_m, neighbour_prediction.vxy_mps,
@@ -528,9 +520,7 @@ def _metrics_row(check: SafetyCheck, i: int, pet_s: np.ndarray | None, *, safe: 
     return row
 
 
-# --------------------------------------------------------------------------------------------
-# The loop
-# --------------------------------------------------------------------------------------------
+# The loop -----------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -690,13 +680,11 @@ def reflect(
     unsafe_choice: Literal["best", "last"] = "best",
     adverse: AdverseSettings | None = None,
 ) -> ReflectionResult:
-    """Propose, simulate, check; re-propose with the safety report until safe (paper Figure 3).
-
-    ``scenario``: a batch of one; ``base_goal_xy_m`` (2,) and ``neighbour_prediction`` (1, N, F, ...) default
-    as the planners'. ``goal_adjustment=False`` (the "w/o GA" ablation) keeps the first goal factors.
-    Proposals are clamped (``normalised``) before simulation and recorded so. ``adverse``: plans failing an
-    adverse future are refined too.
-    """
+    """Propose, simulate, check; re-propose with the safety report until safe (paper Figure 3). ``scenario``: a
+    batch of one; ``base_goal_xy_m`` (2,) and ``neighbour_prediction`` (1, N, F, ...) default as the planners'.
+    ``goal_adjustment=False`` (the "w/o GA" ablation) keeps the first goal factors. Proposals are clamped
+    (``normalised``) before simulation and recorded so. ``adverse``: plans failing an adverse future are refined
+    too; ``ValueError`` for more than one scenario."""
     if len(scenario) != 1:
         raise ValueError(f"reflect works on one scenario (a batch of one), got {len(scenario)}")
     th = thresholds or ReflectionThresholds()

@@ -1,8 +1,7 @@
 """Safety thresholds of the reflection module (paper §III-E: TTC < 1.5 s or distance < 2.0 m is unsafe).
 
 The paper's "distance" is read as the in-path bumper-to-bumper gap (as ``SafetyCheck.safe`` and ``sf-opt``
-read it): an ordinary adjacent-lane pass leaves ~1.9 m between boxes, so 2 m on the raw box gap would
-flag every one. Contact (box overlap) always violates, whatever the direction.
+read it); contact (box overlap) always violates, whatever the direction.
 """
 
 from __future__ import annotations
@@ -30,9 +29,7 @@ class ReflectionThresholds(BaseModel):
     pet_s: float | None = Field(default=_METRICS.reflection_pet_s, gt=0)
     pet_cell_m: float = Field(default=_METRICS.pet_cell_m, gt=0)
     check_off_road: bool = True
-    # not in the paper: a plan braking harder than this is not "validated" either; 8 m/s^2 is the
-    # feasibility bound of the success metric (MetricsConfig.max_abs_acc_lon_mps2), so a validated
-    # experience is also a feasible one; None disables the check
+    # not in the paper: the success metric's feasibility bound, so a validated experience is feasible; None: off
     max_decel_mps2: float | None = Field(default=_METRICS.max_abs_acc_lon_mps2, gt=0)
     max_iterations: int = Field(default=MAX_ITERATIONS, ge=0)
 
