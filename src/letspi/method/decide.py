@@ -194,15 +194,9 @@ def plan_options(history: ScenarioBatch, values: np.ndarray, base_goals_xy_m: np
     return plan.xy_m, plan.vxy_mps, plan.goals_xy_m
 
 
-def check_options(
-    history: ScenarioBatch,
-    base_goals_xy_m: np.ndarray,
-    prediction: NeighbourPrediction,
-    table: OptionTable,
-    r_col_m: float,
-    thresholds: ReflectionThresholds | None = None,
-    adverse: AdverseSettings | None = None,
-) -> OptionChecks:
+def check_options(history: ScenarioBatch, base_goals_xy_m: np.ndarray, prediction: NeighbourPrediction,
+                  table: OptionTable, r_col_m: float, thresholds: ReflectionThresholds | None = None,
+                  adverse: AdverseSettings | None = None) -> OptionChecks:
     """Plan and check every option of ``table`` on the B scenarios ``history`` (goals (B, 2) before
     adjustment, predicted neighbours (B, N, F, ...))."""
     th = thresholds or ReflectionThresholds()
@@ -211,8 +205,7 @@ def check_options(
     xy, vxy, goals = plan_options(history, table.values, base_goals_xy_m, prediction, r_col_m)
     rep = np.repeat(np.arange(b), k)
     futures = adverse_futures(history, prediction, settings)
-    chk = check_futures(history.take(rep), xy, vxy, prediction.take(rep),
-                        futures.take(rep))
+    chk = check_futures(history.take(rep), xy, vxy, prediction.take(rep), futures.take(rep))
     ok = chk.predicted_safe(th.ttc_s, th.min_dist_m)
     if th.max_decel_mps2 is not None:
         ok &= peak_braking_mps2(history.ego_vxy_mps[rep, -1, 0], vxy) <= th.max_decel_mps2 + 1e-9

@@ -77,13 +77,8 @@ def paper_literal_similarities(
     return result
 
 
-def top_k(
-    query: np.ndarray,
-    memory: np.ndarray,
-    k: int,
-    weights: np.ndarray | tuple[float, ...] = PAPER_WEIGHTS,
-    eps: float = EPS,
-) -> tuple[np.ndarray, np.ndarray]:
+def top_k(query: np.ndarray, memory: np.ndarray, k: int, weights: np.ndarray | tuple[float, ...] = PAPER_WEIGHTS,
+          eps: float = EPS) -> tuple[np.ndarray, np.ndarray]:
     """The k' = min(k, M) most similar memories per query: indices (Q, k') int64 and Sim (Q, k'), by descending
     similarity, ties to the lower memory index (deterministic)."""
     if k < 0:

@@ -169,9 +169,8 @@ class Experience:
         return len(self.iterations)
 
     @classmethod
-    def from_reflection(
-        cls, result: ReflectionResult, scenario: ScenarioBatch, *, scenario_digest: str, config_key: str, model: str
-    ) -> Experience:
+    def from_reflection(cls, result: ReflectionResult, scenario: ScenarioBatch, *, scenario_digest: str,
+                        config_key: str, model: str) -> Experience:
         """The experience of a reflection run on ``scenario`` (a batch of one): the final iteration's
         proposal, every iteration recorded; a final fallback proposal is flagged and not validated."""
         final = result.final.proposal
@@ -288,9 +287,8 @@ class MemoryBank:
         self._cache: dict[tuple[bool, str | None], tuple[tuple[int, int], MemoryFeatures]] = {}
 
     @classmethod
-    def open(
-        cls, path: str | Path, *, readonly: bool = False, synchronous: Synchronous = "FULL", timeout_s: float = 60.0
-    ) -> MemoryBank:
+    def open(cls, path: str | Path, *, readonly: bool = False, synchronous: Synchronous = "FULL",
+             timeout_s: float = 60.0) -> MemoryBank:
         """Open (creating if needed, unless ``readonly``) the bank at ``path``."""
         p = Path(path)
         if readonly:
@@ -377,11 +375,8 @@ class MemoryBank:
     # reading ---------------------------------------------------------------------------------
     def has(self, scenario_digest: str, config_key: str) -> bool:
         """Whether a real (non-fallback) result for this scenario content and configuration exists."""
-        row = self._conn.execute(
-            "SELECT 1 FROM experiences WHERE scenario_digest = ? AND config_key = ? AND fallback = 0",
-            (scenario_digest, config_key),
-        ).fetchone()
-        return row is not None
+        sql = "SELECT 1 FROM experiences WHERE scenario_digest = ? AND config_key = ? AND fallback = 0"
+        return self._conn.execute(sql, (scenario_digest, config_key)).fetchone() is not None
 
     def done_digests(self, config_key: str) -> set[str]:
         """Digests of every scenario with a real (non-fallback) result under ``config_key``."""
@@ -439,37 +434,32 @@ class MemoryBank:
         for start in range(0, len(wanted), 500):  # stay below SQLite's bound-parameter limit
             chunk = sorted(set(wanted[start:start + 500]))
             marks = ", ".join("?" for _ in chunk)
-            for row in self._conn.execute(
-                f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE id IN ({marks})", chunk
-            ):
+            sql = f"SELECT {', '.join(_SELECT_COLS)} FROM experiences WHERE id IN ({marks})"
+            for row in self._conn.execute(sql, chunk):
                 found[int(row[0])] = _from_row(row)
         missing = [i for i in wanted if i not in found]
         if missing:
             raise KeyError(f"no experiences with ids {missing[:10]}")
         return [found[i] for i in wanted]
 
-    def iter_experiences(
-        self, validated_only: bool = False, config_key: str | None = None, batch_size: int = 256
-    ) -> Iterator[Experience]:
+    def iter_experiences(self, validated_only: bool = False, config_key: str | None = None,
+                         batch_size: int = 256) -> Iterator[Experience]:
         """All experiences in id order, ``batch_size`` rows at a time (keyset pagination: a concurrent writer
         never makes it skip or repeat rows)."""
         where, args = _where(validated_only, config_key)
         last = 0
         cond = f"{where} AND id > ?" if where else " WHERE id > ?"
+        sql = f"SELECT {', '.join(_SELECT_COLS)} FROM experiences{cond} ORDER BY id LIMIT ?"
         while True:
-            rows = self._conn.execute(
-                f"SELECT {', '.join(_SELECT_COLS)} FROM experiences{cond} ORDER BY id LIMIT ?",
-                (*args, last, batch_size),
-            ).fetchall()
+            rows = self._conn.execute(sql, (*args, last, batch_size)).fetchall()
             if not rows:
                 return
             for row in rows:
                 yield _from_row(row)
             last = int(rows[-1][0])
 
-    def sample_fraction(
-        self, fraction: float, seed: int = 0, validated_only: bool = True, config_key: str | None = None
-    ) -> MemorySubset:
+    def sample_fraction(self, fraction: float, seed: int = 0, validated_only: bool = True,
+                        config_key: str | None = None) -> MemorySubset:
         """The first round(fraction x count) rows ordered by a hash of (seed, digest, configuration): subsets of
         one seed are nested (10 % inside 50 %) and independent of insertion order."""
         if not 0.0 <= fraction <= 1.0:

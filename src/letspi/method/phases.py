@@ -55,18 +55,10 @@ def messages_text(messages: Sequence[Message]) -> str:
 
 def proposal_from_advice(advice: Advice, messages: Sequence[Message], r_col_m: float) -> Proposal:
     reply = advice.reply
-    params = SocialForceParams(**reply.params(), r_col_m=r_col_m)
-    return Proposal(
-        params=params,
-        lon_factor=reply.lon_factor,
-        lane_factor=reply.lane_factor,
-        rationale=reply.rationale,
-        prompt=messages_text(messages),
-        reply=advice.response.text if advice.response is not None else None,
-        clamped_fields=tuple(advice.clamped),
-        fallback=advice.fallback,
-        meta=advice.summary(),
-    )
+    return Proposal(params=SocialForceParams(**reply.params(), r_col_m=r_col_m), lon_factor=reply.lon_factor,
+                    lane_factor=reply.lane_factor, rationale=reply.rationale, prompt=messages_text(messages),
+                    reply=advice.response.text if advice.response is not None else None,
+                    clamped_fields=tuple(advice.clamped), fallback=advice.fallback, meta=advice.summary())
 
 
 def compact_report(report: SafetyReport) -> str:
@@ -159,12 +151,8 @@ class LlmProposer:
         if not refine or ctx.previous is None or ctx.report is None:
             messages = render_physics_prompt(desc, memories=self.memories)
         else:
-            messages = render_physics_prompt(
-                desc,
-                memories=self.memories,
-                safety_report=ctx.report.to_text(ctx.previous) + adverse,
-                previous_reply=ctx.previous.reply or "",
-            )
+            messages = render_physics_prompt(desc, memories=self.memories, previous_reply=ctx.previous.reply or "",
+                                             safety_report=ctx.report.to_text(ctx.previous) + adverse)
         return proposal_from_advice(self.advisor.advise(messages, variant="physics"), messages, self.r_col_m)
 
 
@@ -226,14 +214,8 @@ class CollectStats:
     run: RunStats | None = None
 
 
-def collect(
-    phase: MemoryPhase,
-    batch: ScenarioBatch,
-    bank: MemoryBank,
-    progress: Callable[[RunStatus], None] | None = None,
-    *,
-    runner: RunnerConfig | None = None,
-) -> CollectStats:
+def collect(phase: MemoryPhase, batch: ScenarioBatch, bank: MemoryBank,
+            progress: Callable[[RunStatus], None] | None = None, *, runner: RunnerConfig | None = None) -> CollectStats:
     """The memory collection phase over ``batch``, resumable (scenarios with a real result are skipped), committed
     in scenario order whatever ``runner.concurrency``. A scenario whose requests failed in transport is not stored
     (``ScenariosFailedError`` at the end); an unreachable server or too many failures stop the run
@@ -351,7 +333,6 @@ class Assessment:
     consulted: bool
 
     def choice_messages(self) -> list[Message]:
-        """The choice prompt of this scenario."""
         return render_choice_prompt(self.description, option_lines(self.checks, 0), risk=self.risk_score)
 
 

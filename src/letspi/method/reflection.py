@@ -124,25 +124,15 @@ class SimulatedPlan(NamedTuple):
     goals_xy_m: np.ndarray
 
 
-def simulate_proposal(
-    batch: ScenarioBatch,
-    params: SocialForceParams,
-    lon_factor: np.ndarray,
-    lane_factor: np.ndarray,
-    base_goals_xy_m: np.ndarray,
-    neighbour_prediction: NeighbourPrediction,
-) -> SimulatedPlan:
+def simulate_proposal(batch: ScenarioBatch, params: SocialForceParams, lon_factor: np.ndarray, lane_factor: np.ndarray,
+                      base_goals_xy_m: np.ndarray, neighbour_prediction: NeighbourPrediction) -> SimulatedPlan:
     """Adjust the goals (paper factors) and roll the social force model out against predicted neighbours.
     params (B,) (clamped here), lon_factor, lane_factor (B,), base_goals_xy_m (B, 2) [m, ego frame],
     neighbour_prediction (B, N, F, ...) -> plans (B, F, 2) and adjusted goals (B, 2)."""
     b = len(batch)
-    goals = adjust_goals(
-        np.asarray(base_goals_xy_m, dtype=np.float64).reshape(b, 2),
-        batch.ego_xy0_m.astype(np.float64),
-        np.asarray(lon_factor, dtype=np.float64),
-        np.asarray(lane_factor, dtype=np.float64),
-        batch.marking_y_m,
-    )
+    goals = adjust_goals(np.asarray(base_goals_xy_m, dtype=np.float64).reshape(b, 2),
+                         batch.ego_xy0_m.astype(np.float64), np.asarray(lon_factor, dtype=np.float64),
+                         np.asarray(lane_factor, dtype=np.float64), batch.marking_y_m)
     roll = rollout_social_force(batch, params.clamped(), goals, neighbour_prediction)
     return SimulatedPlan(roll.xy_m, roll.vxy_mps, goals)
 
@@ -346,13 +336,9 @@ def _first_event(event: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return flag, step, np.where(flag, at.argmax(axis=1), -1)
 
 
-def safety_report(
-    batch: ScenarioBatch,
-    plan_xy_m: np.ndarray,
-    plan_vxy_mps: np.ndarray,
-    neighbour_prediction: NeighbourPrediction,
-    thresholds: ReflectionThresholds | None = None,
-) -> list[SafetyReport]:
+def safety_report(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray,
+                  neighbour_prediction: NeighbourPrediction, thresholds: ReflectionThresholds | None = None,
+                  ) -> list[SafetyReport]:
     """Safety reports of B plans (B, F, 2) against predicted neighbours (B, N, F, ...), computed batched.
     Metrics cover the whole horizon; with contact, TTC / gap / PET violations are located before it.
     ``safe`` equals ``check_plans(...).safe(ttc_s, min_dist_m)`` when PET is off and off-road is checked."""
@@ -669,17 +655,10 @@ def _with_goal_factors_of(proposal: Proposal, first: Proposal) -> Proposal:
     return replace(proposal, lon_factor=first.lon_factor, lane_factor=first.lane_factor, meta=meta)
 
 
-def reflect(
-    scenario: ScenarioBatch,
-    propose: Proposer,
-    thresholds: ReflectionThresholds | None = None,
-    *,
-    base_goal_xy_m: np.ndarray | None = None,
-    neighbour_prediction: NeighbourPrediction | None = None,
-    goal_adjustment: bool = True,
-    unsafe_choice: Literal["best", "last"] = "best",
-    adverse: AdverseSettings | None = None,
-) -> ReflectionResult:
+def reflect(scenario: ScenarioBatch, propose: Proposer, thresholds: ReflectionThresholds | None = None, *,
+            base_goal_xy_m: np.ndarray | None = None, neighbour_prediction: NeighbourPrediction | None = None,
+            goal_adjustment: bool = True, unsafe_choice: Literal["best", "last"] = "best",
+            adverse: AdverseSettings | None = None) -> ReflectionResult:
     """Propose, simulate, check; re-propose with the safety report until safe (paper Figure 3). ``scenario``: a
     batch of one; ``base_goal_xy_m`` (2,) and ``neighbour_prediction`` (1, N, F, ...) default as the planners'.
     ``goal_adjustment=False`` (the "w/o GA" ablation) keeps the first goal factors. Proposals are clamped
@@ -694,39 +673,31 @@ def reflect(
     history: list[IterationRecord] = []
     for iteration in range(th.max_iterations + 1):
         last = history[-1] if history else None
-        ctx = ReflectionContext(
-            scenario=scenario, iteration=iteration, base_goal_xy_m=base_goal.copy(),
-            previous=last.proposal if last else None, report=last.report if last else None,
-            history=tuple(history), thresholds=th, adverse=last.adverse if last else None,
-        )
+        ctx = ReflectionContext(scenario=scenario, iteration=iteration, base_goal_xy_m=base_goal.copy(),
+                                previous=last.proposal if last else None, report=last.report if last else None,
+                                history=tuple(history), thresholds=th, adverse=last.adverse if last else None)
         t0 = time.perf_counter()
         proposal = propose(ctx).normalised()
         t1 = time.perf_counter()
         if not goal_adjustment and history:
             proposal = _with_goal_factors_of(proposal, history[0].proposal)
-        plan = simulate_proposal(
-            scenario, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
-            np.array([proposal.lane_factor]), base_goal[None], pred,
-        )
+        plan = simulate_proposal(scenario, SocialForceParams.stack([proposal.params]), np.array([proposal.lon_factor]),
+                                 np.array([proposal.lane_factor]), base_goal[None], pred)
         report = safety_report(scenario, plan.xy_m, plan.vxy_mps, pred, th)[0]
         outcome = None
         if futures is not None and adverse is not None:
             outcome = adverse_outcomes(check_futures(scenario, plan.xy_m, plan.vxy_mps, pred, futures), adverse)[0]
         t2 = time.perf_counter()
         history.append(IterationRecord(
-            iteration=iteration, proposal=proposal,
+            iteration=iteration, proposal=proposal, report=report, propose_s=t1 - t0, simulate_s=t2 - t1,
             goal_xy_m=(float(plan.goals_xy_m[0, 0]), float(plan.goals_xy_m[0, 1])),
-            report=report, propose_s=t1 - t0, simulate_s=t2 - t1,
-            plan_xy_m=plan.xy_m[0], plan_vxy_mps=plan.vxy_mps[0], adverse=outcome,
-        ))
+            plan_xy_m=plan.xy_m[0], plan_vxy_mps=plan.vxy_mps[0], adverse=outcome))
         if history[-1].safe:
             break
 
-    return ReflectionResult(
-        scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history),
-        final_index=_final_index(history, unsafe_choice),
-        validated=any(rec.predicted_safe for rec in history),
-    )
+    return ReflectionResult(scenario_id=str(scenario.scenario_id[0]), iterations=tuple(history),
+                            final_index=_final_index(history, unsafe_choice),
+                            validated=any(rec.predicted_safe for rec in history))
 
 
 def _final_index(history: list[IterationRecord], unsafe_choice: Literal["best", "last"]) -> int:
