@@ -1,10 +1,8 @@
 """The planner interface: scenarios in, planned ego futures out.
 
-A planner gets a history-only view (``ScenarioBatch.history()``: arrays end at ``T0_INDEX``) unless its
-planner-table entry reads the future (``BuiltPlanner.reads_future``: the human replay and the oracle modes).
-The harness times ``plan``. The social force family are also ``ProposingPlanner``s: a *propose* step that
-decides (an LLM call per scenario for the LLM planners) and a batched *simulate* step that runs the physics,
-so the harness can pool proposals and the closed loop can replan with them.
+A planner gets a history-only view (``ScenarioBatch.history()``) unless its planner-table entry reads the future
+(``BuiltPlanner.reads_future``). The social force family are also ``ProposingPlanner``s: a *propose* step that
+decides and a batched *simulate* step that runs the physics, so the harness can pool proposals.
 """
 
 from __future__ import annotations
@@ -47,8 +45,7 @@ class PlanBatch:
 
 @runtime_checkable
 class Planner(Protocol):
-    """Anything with a ``name`` and a batched ``plan``; ``batch_size``: how many scenarios a caller should pass
-    per call."""
+    """Anything with a ``name``, a batched ``plan`` and the ``batch_size`` a caller should pass per call."""
 
     name: str
     batch_size: int
@@ -56,9 +53,7 @@ class Planner(Protocol):
     def plan(self, batch: ScenarioBatch) -> PlanBatch: ...
 
 
-# ------------------------------------------------------------------------------------------------
-# Propose, then simulate
-# ------------------------------------------------------------------------------------------------
+# Propose, then simulate -------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -132,10 +127,9 @@ class Proposals:
 
 @runtime_checkable
 class ProposingPlanner(Planner, Protocol):
-    """A planner split into its decision and its physics: ``plan(batch)`` is ``simulate(batch, c, propose(batch,
-    c))`` with ``c = context(batch)``. ``proposes_per_scenario``: ``propose`` calls a model once per scenario
-    (the harness runs it on batches of one, many in flight). ``simulate`` is batched, and a scenario's plan
-    does not depend on which others share its batch."""
+    """``plan(batch)`` is ``simulate(batch, c, propose(batch, c))`` with ``c = context(batch)``.
+    ``proposes_per_scenario``: ``propose`` calls a model once per scenario (the harness passes batches of one).
+    ``simulate`` is batched; a scenario's plan does not depend on which others share its batch."""
 
     proposes_per_scenario: bool
 

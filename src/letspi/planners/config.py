@@ -1,8 +1,5 @@
 """The kind-neutral part of planner configurations: the physics building blocks (``letspi.physics.config``,
-re-exported), the prediction options every predicting planner reads, and the ``PlannerConfig`` protocol (the key
-machinery is ``letspi.keyed``). Each planner's own configuration sits beside the planner in its module;
-``letspi.assembly.planner_table`` lists every kind with how it is resolved and built.
-"""
+re-exported), the prediction options and the ``PlannerConfig`` protocol; each kind's own sits in its module."""
 
 from __future__ import annotations
 

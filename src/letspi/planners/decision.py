@@ -1,6 +1,4 @@
-"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record per scenario
-(``DECISION_OUTPUTS``).
-"""
+"""What the deciding planners (``letspi-fast``, ``letspi-memory``, ``sf-check``) record, and their options."""
 
 from __future__ import annotations
 
@@ -31,8 +29,7 @@ DECISION_OUTPUTS: tuple[Metric, ...] = (DECISION, CONSULTED, RISK_SCORE, ADVERSE
                                         LON_FACTOR, LANE_FACTOR)
 DECISION_COLUMNS: tuple[str, ...] = tuple(o.name for o in DECISION_OUTPUTS)
 
-# Options of the decision step (``letspi.method.config.DecisionConfig``): letspi-fast, letspi-memory, llm,
-# letspi-fs, sf-check
+# Options of the decision step (``letspi.method.config.DecisionConfig``) ------------------------------------
 DECIDE = PlannerOption[bool | None](
     "decide", bool | None, None,
     "LetsPi's decision step: presets checked against the prediction and the adverse futures, a risk gate "

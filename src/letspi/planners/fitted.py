@@ -1,6 +1,5 @@
 """Fitted files: values a planner uses and the data they came from, in one JSON file
-(``{"<field>": {name: value}, "provenance": {...}, "objective": {...}}``). The package ships one fit per kind
-in ``letspi/data``; ``letspi fit`` makes others, written atomically with provenance free of machine paths.
+(``{"<field>": {name: value}, "provenance": {...}, "objective": {...}}``); one per kind ships in ``letspi/data``.
 """
 
 from __future__ import annotations

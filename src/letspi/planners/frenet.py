@@ -1,14 +1,11 @@
 """``frenet``: a Werling-style lattice planner (Werling, Ziegler, Kammel, Thrun, ICRA 2010), batched.
 
-The road is straight in the ego frame, so the Frenet coordinates are s = x and d = y. Every scenario gets the
-same lattice (``FrenetSampling``): quintic lateral candidates to lane centres (plus offsets); quartic
-longitudinal candidates to target speeds, quintic ones to a point behind the predicted leader of the target
-lane, and constant braking; each holds its end state up to the 5 s horizon. A pair (i, j) is valid when
-feasible (``FrenetLimits``) and clear of the predicted neighbours with margins (``FrenetSafety``), against the
-IDM prediction and the cautious one (``_cautious_prediction``). The cheapest valid pair wins (Werling's cost
-terms plus soft following terms, ``Lattice.cost``); without one, the least unsafe (``Lattice.choose``).
-Pairs are checked as ANDs of per-candidate bit strings (``_pair_checks``): no (B, I, J, F) array, no Python
-loop over scenarios or candidates. Design and calibration: notes/frenet.md.
+The road is straight in the ego frame (s = x, d = y). Every scenario gets the same lattice (``FrenetSampling``):
+quintic lateral candidates to lane centres (plus offsets); quartic longitudinal candidates to target speeds,
+quintic ones behind the predicted leader of the target lane, and constant braking; each holds its end state to
+the 5 s horizon. A pair (i, j) is valid when feasible (``FrenetLimits``) and clear, with margins
+(``FrenetSafety``), of the IDM and the cautious prediction. The cheapest valid pair wins (``Lattice.cost``),
+else the least unsafe (``Lattice.choose``). Design and calibration: notes/frenet.md.
 """
 
 from __future__ import annotations
@@ -59,16 +56,13 @@ OUTPUTS: tuple[Metric, ...] = (
 
 
 class _Frozen(BaseModel):
-    """The frenet settings' models: immutable, and an unknown field is an error."""
-
     model_config = ConfigDict(frozen=True, extra="forbid")
 
 
 class FrenetWeights(_Frozen):
-    """Cost weights (defaults: ``letspi fit frenet``'s starting values; the planner uses the shipped fit).
-    Per unit of: k_jerk_lon, k_jerk_lat ∫ jerk² dt [m²/s⁵]; k_time horizon [s]; k_offset end offset² from the
-    target lane's centre [m²]; k_goal_lane lanes from the goal's lane; k_speed (mean speed - v_des)² [(m/s)²];
-    k_headway, k_rss following deficit [s]. Only ratios matter."""
+    """Cost weights (defaults: the fit's starting values), only ratios matter. Per unit of: k_jerk_lon, k_jerk_lat
+    ∫ jerk² dt [m²/s⁵]; k_time horizon [s]; k_offset end offset² from the target lane's centre [m²]; k_goal_lane
+    lanes from the goal's lane; k_speed (mean speed - v_des)² [(m/s)²]; k_headway, k_rss following deficit [s]."""
 
     k_jerk_lon: float = Field(default=0.1, ge=0)
     k_jerk_lat: float = Field(default=0.1, ge=0)
@@ -84,8 +78,7 @@ WEIGHT_NAMES: tuple[str, ...] = tuple(FrenetWeights.model_fields)
 
 
 class FrenetSampling(_Frozen):
-    """The lattice, the same for every scenario: horizons, lanes and offsets of the lateral candidates; speed
-    offsets, following headways and braking decelerations of the longitudinal ones."""
+    """The lattice, the same for every scenario."""
 
     horizons_s: tuple[float, ...] = (3.0, 4.0, 5.0)
     lane_changes: tuple[int, ...] = (0, 1, -1)  # lanes relative to the current one, +1 = left (+y)
@@ -108,9 +101,8 @@ class FrenetLimits(_Frozen):
     max_lat_accel_mps2: float = Field(default=3.5, gt=0)
     max_curvature_1pm: float = Field(default=0.2, gt=0)
     min_speed_mps: float = -0.1  # below: the candidate drives backwards
-    #: candidates start from the t = 0 acceleration but brake at most this hard (braking may be released at
-    #: once; the braking candidates brake harder when needed). 3 m/s²: the metric's comfort bound, beyond
-    #: which braking without need makes a rear-end contact the ego's fault
+    #: candidates start from the t = 0 acceleration, braking at most this hard (3 m/s²: the metric's comfort
+    #: bound, beyond which needless braking makes a rear-end contact the ego's fault)
     max_start_decel_mps2: float = Field(default=3.0, gt=0)
 
 
@@ -122,17 +114,16 @@ class FrenetSafety(_Frozen):
     rear_gap_m: float = Field(default=0.5, ge=0)
     ttc_s: float = Field(default=1.5, ge=0)
     lat_margin_m: float = Field(default=0.3, ge=0)
-    #: check against the cautious prediction too (``_cautious_prediction``)
-    cautious_check: bool = True
+    cautious_check: bool = True  # check against the cautious prediction too (``_cautious_prediction``)
 
 
 class FrenetFollowing(_Frozen):
-    """The soft following terms (against the cautious prediction), the cautious prediction's settings and the
-    fallback's occupied-lane penalty. Desired distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS
-    distance (Shalev-Shwartz et al. 2017) ``standstill_gap_m + max(0, v_ego × rss_reaction_s + v_ego² /
-    (2 rss_ego_decel_mps2) - v_lead² / (2 rss_leader_decel_mps2))``; deficits graded in ``levels`` steps.
-    Without a valid candidate, a lane change with a margin violation in its target lane counts as if its first
-    contact came ``occupied_lane_change_penalty_s`` earlier."""
+    """Soft following terms (against the cautious prediction), that prediction's settings and the fallback's
+    occupied-lane penalty. Desired distance ``standstill_gap_m + desired_headway_s × v_ego``; RSS distance
+    (Shalev-Shwartz et al. 2017) ``standstill_gap_m + max(0, v_ego × rss_reaction_s + v_ego² / (2
+    rss_ego_decel_mps2) - v_lead² / (2 rss_leader_decel_mps2))``; deficits graded in ``levels`` steps. Without
+    a valid pair, a lane change violating margins in its target lane counts ``occupied_lane_change_penalty_s``
+    earlier."""
 
     desired_headway_s: float = Field(default=1.5, ge=0)
     standstill_gap_m: float = Field(default=2.0, ge=0)
@@ -159,8 +150,7 @@ class FrenetSettings(_Frozen):
 
 
 class FrenetConfig(Config):
-    """``frenet``: the lattice planner; ``frenet`` holds its weights (the fitted values; ``weights_source``
-    names their file), sample sets, limits and safety margins."""
+    """``frenet``: the lattice planner's settings (``weights_source``: the weights' file)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"weights_source"})
 
@@ -185,9 +175,7 @@ def save_frenet_weights(path: Path, weights: FrenetWeights, provenance: dict[str
     return FRENET_WEIGHTS_FILE.save(path, weights.model_dump(), provenance, objective)
 
 
-# ------------------------------------------------------------------------------------------------
-# Polynomials
-# ------------------------------------------------------------------------------------------------
+# Polynomials ------------------------------------------------------------------------------------
 
 
 def quintic_coefficients(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, v1: np.ndarray,
@@ -234,9 +222,7 @@ def evaluate_held(c: np.ndarray, horizon_s: np.ndarray, t_s: np.ndarray) -> tupl
     return p, v, a
 
 
-# ------------------------------------------------------------------------------------------------
-# The lattice
-# ------------------------------------------------------------------------------------------------
+# The lattice ------------------------------------------------------------------------------------
 
 
 def _take_rows(record: Any, rows: np.ndarray | slice) -> Any:
@@ -336,16 +322,15 @@ class Lattice:
         return np.where(pr.ok, total, np.inf)
 
     def choose(self, w: FrenetWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Chosen (i, j) per scenario, (B,) each, with its cost and the number of valid pairs: the cheapest
-        valid pair, else the least unsafe (latest first contact, then feasible, fewest violations, cost)."""
+        """Chosen (i, j) per scenario, (B,) each, with its cost and the number of valid pairs: the cheapest valid
+        pair, else the least unsafe: latest first contact (a lane change into an occupied lane counts earlier),
+        fewest contacts, then feasible, fewest margin violations, cost."""
         pr = self.pairs
         b, _, n_j = pr.ok.shape
         cost = self.cost(w).reshape(b, -1)
         valid = self.valid.reshape(b, -1)
         n_valid = valid.sum(axis=1)
         best_valid = np.argmin(np.where(valid, cost, np.inf), axis=1)
-        # least unsafe: latest first contact (a lane change into an occupied lane counts earlier), then the
-        # fewest contacts, then feasible, then the fewest margin violations, then cost
         pick = pr.ok.reshape(b, -1).copy()
         for key in (pr.unsafe_rank.reshape(b, -1), ~pr.feasible.reshape(b, -1), pr.violation.reshape(b, -1)):
             k = np.where(pick, key.astype(np.float64), np.inf)
@@ -437,11 +422,9 @@ def build_lattice(batch: ScenarioBatch, pred: NeighbourPrediction, goals_xy_m: n
                   settings: FrenetSettings, chunk_size: int = 32) -> Lattice:
     """The weight-independent lattice of ``batch`` (history suffices) against predicted neighbours ``pred``."""
     if len(batch) > chunk_size:
-        parts = [build_lattice(batch.take(slice(k, k + chunk_size)),
-                               pred.take(slice(k, k + chunk_size)),
-                               goals_xy_m[k:k + chunk_size], settings, chunk_size)
-                 for k in range(0, len(batch), chunk_size)]
-        return Lattice.concat(parts)
+        parts = (slice(k, k + chunk_size) for k in range(0, len(batch), chunk_size))
+        return Lattice.concat([build_lattice(batch.take(s), pred.take(s), goals_xy_m[s], settings, chunk_size)
+                               for s in parts])
     return _build_chunk(batch, pred, np.asarray(goals_xy_m, dtype=np.float64), settings)
 
 
@@ -571,8 +554,7 @@ class _LateralPaths:
 
 @dataclass(frozen=True)
 class _LongitudinalPaths:
-    """What the pair checks read of the longitudinal candidates: ``x``, ``vx`` (B, I, F), ``v_min``, ``peak_ax``
-    (B, I)."""
+    """What the pair checks read of the longitudinal candidates: ``x``, ``vx`` (B, I, F); peaks (B, I)."""
 
     x: np.ndarray
     vx: np.ndarray
@@ -630,7 +612,6 @@ def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: F
     decel = np.where(accel < -fol.leader_braking_min_mps2, -accel, 0.0)[..., None]  # (B, N, 1)
     v0 = np.maximum(np.nan_to_num(v_now), 0.0)[..., None]
     t_s = np.arange(1, N_FUTURE + 1) * DT_S
-    # braking lasts until the stop or leader_braking_max_s, then the speed is held
     t_brake = np.minimum(t_s, np.minimum(v0 / np.maximum(decel, 1e-9), fol.leader_braking_max_s))  # (B, N, F)
     v_ext = v0 - decel * t_brake
     x_ext = (np.nan_to_num(batch.nbr_xy_m[:, :, T0_INDEX, 0].astype(np.float64))[..., None]
@@ -646,12 +627,9 @@ def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: F
 def _pair_checks(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray, vx: np.ndarray, y: np.ndarray,
                  target_lane: np.ndarray, lane_change: np.ndarray, settings: FrenetSettings) -> _PairChecks:
     """Safety check and following terms of every pair; x, vx (B, I, F), y (B, J, F), target_lane (B, J),
-    lane_change (J,). A pair overlaps neighbour n at frame f iff i overlaps it longitudinally and j laterally,
-    so per-candidate flags are packed into 64-bit words ((frame, neighbour) order) and a pair is one AND (no
-    BLAS: its threads stall on a busy machine). Score = (W - first word with an overlap) x 1e6 + overlapping
-    (neighbour, frame) pairs: earlier is worse, then longer. Following deficit: ≈ ∫ Σ_n max(0, 1 - gap /
-    distance) dt [s], graded in K levels on every ``frame_stride``-th frame. float32 (sub-mm at 100s of m).
-    """
+    lane_change (J,). Pair (i, j) overlaps neighbour n at frame f iff i does longitudinally and j laterally: one
+    AND of 64-bit words of per-candidate flags. Score = (W - first word with an overlap) x 1e6 + overlapping
+    (neighbour, frame) pairs. Following deficit ≈ ∫ Σ_n max(0, 1 - gap / distance) dt [s], in ``levels`` steps."""
     safety, fol = settings.safety, settings.following
     f32 = np.float32
     valid = (pred.valid & np.isfinite(pred.xy_m).all(axis=-1)).transpose(0, 2, 1)[:, None]  # (B, 1, F, N)
@@ -728,8 +706,7 @@ def _pair_checks(batch: ScenarioBatch, pred: NeighbourPrediction, x: np.ndarray,
 
 
 def _bits(flags: np.ndarray) -> np.ndarray:
-    """(B, K, F, N) bool -> (B, K, W) uint64 bit strings (frame-major, zero padded; 64 / N frames per word).
-    Packed along the flattened (F N) axis: 40x faster than packing each frame's N flags."""
+    """(B, K, F, N) bool -> (B, K, W) uint64 bit strings (frame-major, zero padded; 64 / N frames per word)."""
     b, k = flags.shape[:2]
     packed = np.packbits(flags.reshape(b, k, -1), axis=-1)  # (B, K, ceil(F N / 8)) bytes
     pad = (-packed.shape[2]) % 8
@@ -762,9 +739,7 @@ def _and_score(lon_bits: np.ndarray, lat_bits: np.ndarray) -> np.ndarray:
     return out
 
 
-# ------------------------------------------------------------------------------------------------
-# The planner
-# ------------------------------------------------------------------------------------------------
+# The planner ------------------------------------------------------------------------------------
 
 
 def shipped_settings() -> FrenetSettings:
@@ -774,8 +749,7 @@ def shipped_settings() -> FrenetSettings:
 
 @dataclass
 class FrenetPlanner:
-    """Planner ``frenet`` (shipped weights by default). ``info``: the chosen pair's ``target_lane`` (-1 right,
-    0 keep, +1 left), offset, ``lon_mode``, target speed, horizons, cost, ``n_safe`` and ``found_safe``."""
+    """Planner ``frenet`` (shipped weights by default); ``info``: ``OUTPUTS`` of the chosen pair."""
 
     settings: FrenetSettings = field(default_factory=shipped_settings)
     goal_predictor: GoalPredictor = field(default_factory=KinematicGoalPredictor)

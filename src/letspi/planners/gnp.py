@@ -1,8 +1,5 @@
-"""``gnp``: the Goal-based Neural Physics baseline as a planner (model in ``letspi.learned.gnp_model``).
-
-It rolls out against predicted neighbours: GNP's public code moves neighbours along their recorded future,
-which leaks it, so the oracle mode is refused.
-"""
+"""``gnp``: the Goal-based Neural Physics baseline (model in ``letspi.learned.gnp_model``), rolled out against
+predicted neighbours (GNP's public code moves them along their recorded future: a leak, refused here)."""
 
 from __future__ import annotations
 
@@ -44,8 +41,7 @@ class GnpConfig(Config):
 
 @dataclass
 class GnpPlanner(PredictingPlanner):
-    """Planner ``gnp``: learned tau and neighbour weights, learned goals, predicted neighbours; ``info``: the
-    parameters used and ``nbr_weight`` (B, N)."""
+    """Planner ``gnp``; ``info``: the parameters used and ``nbr_weight`` (B, N); ``ValueError`` for the oracle."""
 
     model: GnpModel
     name: str = "gnp"

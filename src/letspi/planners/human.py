@@ -1,6 +1,4 @@
-"""``human``: ground-truth replay, the reference row of every table (reads the recorded future, as no planner
-may; zero collisions on collision-free data is the harness's sanity check).
-"""
+"""``human``: ground-truth replay (reads the recorded future, as no planner may), every table's reference row."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
-"""``idm``: the paper's longitudinal baseline: the ego follows its in-lane leader with IDM.
-
-Laterally the ego settles, critically damped, into the lane it is heading for (that of
-``y0 + vy0 · LATERAL_LOOKAHEAD_S``): freezing y would stop a lane change within one step (≈ 30 m/s²).
+"""``idm``: the paper's longitudinal baseline: the ego follows its in-lane leader with IDM. Laterally it settles,
+critically damped, into the lane of ``y0 + vy0 · LATERAL_LOOKAHEAD_S`` (frozen y would stop a lane change at once).
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
 """LLM planners: ``llm`` (single shot), ``letspi-memory`` (memory collection with reflection), ``letspi-fast``
 (retrieved memories) and ``letspi-fs`` (three static examples instead of retrieval).
 
-``propose`` makes one scenario's LLM calls (``proposes_per_scenario``) and is thread-safe, so the harness
-keeps many scenarios in flight; ``simulate`` rolls out and shields every proposal at once. The safety shield
-(beyond the paper; ``--no-shield`` is the ablation) replaces a plan failing the reflection checks against the
-prediction by the first safe alternative (presets, retrieved memories, the fitted ``sf`` parameters,
-``sf-opt``'s grid), else the least unsafe plan of all; it leaves the decision step's presets alone (checked
-already) unless ``--shield-presets``. Info columns: the ``*_OUTPUTS`` declarations.
+``propose`` makes one scenario's LLM calls and is thread-safe; ``simulate`` rolls out and shields every proposal
+at once. The safety shield (beyond the paper; ``--no-shield``: the ablation) replaces a plan failing the
+reflection checks against the prediction by the first safe alternative (presets, retrieved memories, the fitted
+``sf`` parameters, ``sf-opt``'s grid), else the least unsafe; it leaves the decision step's presets alone unless
+``--shield-presets``.
 """
 
 from __future__ import annotations
@@ -26,7 +25,7 @@ from letspi.llm.compact import PROMPT_STYLES
 from letspi.llm.config import LlmConfig
 from letspi.method.choosers import CHOOSER_NAMES, MODEL_CHOOSER, Chooser, load_teacher, make_chooser, uses_model
 from letspi.method.config import DecisionConfig, MemoryPhaseConfig, MemoryRef
-from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, preference_order
+from letspi.method.decide import CUSTOM, DEFAULT_NAME, Decider, params_of, preference_order
 from letspi.method.matching import TOP_K
 from letspi.method.memory import Experience, MemoryBank
 from letspi.method.phases import FastPhase, MemoryPhase
@@ -60,7 +59,7 @@ from letspi.planners.decision import (
 from letspi.planners.idm import settle_laterally
 from letspi.planners.options import DECISION_PANEL, LLM_PANEL, PlannerOption, file_option
 from letspi.planners.outputs import LANE_FACTOR, LON_FACTOR, PARAM_OUTPUTS, output
-from letspi.planners.sf_opt import SearchSpace
+from letspi.planners.sf_opt import SearchSpace, search_order
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.types import ScenarioBatch
 
@@ -238,23 +237,14 @@ class ShieldedPlans:
                 "shield_safe": self.safe.astype(np.float64), "shield_source": self.source.astype(np.float64)}
 
 
-def shield_plans(
-    batch: ScenarioBatch,
-    plans_xy_m: np.ndarray,
-    plans_vxy_mps: np.ndarray,
-    goals_xy_m: np.ndarray,
-    alternatives: Sequence[Sequence[Alternative]],
-    context: PlanningContext,
-    thresholds: ReflectionThresholds,
-    *,
-    first_stage: int = SHIELD_FIRST_STAGE,
-    reports: Sequence[SafetyReport] | None = None,
-) -> ShieldedPlans:
+def shield_plans(batch: ScenarioBatch, plans_xy_m: np.ndarray, plans_vxy_mps: np.ndarray, goals_xy_m: np.ndarray,
+                 alternatives: Sequence[Sequence[Alternative]], context: PlanningContext,
+                 thresholds: ReflectionThresholds, *, first_stage: int = SHIELD_FIRST_STAGE,
+                 reports: Sequence[SafetyReport] | None = None) -> ShieldedPlans:
     """Check B plans (B, F, 2) against the predicted neighbours; replace each failing one by the first safe of
     its ``alternatives[i]`` (source, params, lon_factor, lane_factor), else the least unsafe if less unsafe than
-    the plan. Batched in two stages (the first ``first_stage`` alternatives, then the rest where none was safe)
-    with the outcome of checking all. Factors apply to ``context.goals_xy_m``; ``goals_xy_m`` (B, 2): the plans'.
-    """
+    the plan (checked in two stages: the first ``first_stage``, then the rest where none was safe). Factors
+    apply to ``context.goals_xy_m``; ``goals_xy_m`` (B, 2): the plans'."""
     b = len(batch)
     if reports is None:  # the plans' own reports (the caller may have them already)
         reports = safety_report(batch, plans_xy_m, plans_vxy_mps, context.neighbours, thresholds)
@@ -297,8 +287,7 @@ def shield_plans(
 def idm_fallback(batch: ScenarioBatch, context: PlanningContext, shield: ShieldedPlans,
                  thresholds: ReflectionThresholds) -> ShieldedPlans:
     """Where the plan still fails the shield's checks (a kept preset's too), the ``idm`` planner's plan among the
-    same predicted neighbours replaces it if it fails less: every sf alternative can brake too late for a
-    stopped queue ahead (docs/highway-env.md), IDM brakes by the gap and the closing speed."""
+    same predicted neighbours replaces it if it fails less (IDM brakes by gap and closing speed in time)."""
     rows = np.flatnonzero(~shield.safe)
     if rows.size == 0:
         return shield
@@ -323,11 +312,8 @@ def idm_fallback(batch: ScenarioBatch, context: PlanningContext, shield: Shielde
 def sf_alternatives(params: SocialForceParams, space: SearchSpace | None = None) -> list[Alternative]:
     """The fitted parameters with the neutral goal, then ``sf-opt``'s grid around them, cheapest first."""
     space = space or SearchSpace()
-    grid = space.grid()
-    cost = (np.abs(grid[:, 1] - NEUTRAL_LON_FACTOR) + space.lane_change_cost * np.abs(grid[:, 2])
-            + space.k_scale_cost * (grid[:, 0] - 1.0))
     out: list[Alternative] = [(SF_SOURCE, params, NEUTRAL_LON_FACTOR, NEUTRAL_LANE_FACTOR)]
-    for k_scale, lon, lane in grid[np.argsort(cost, kind="stable")]:
+    for k_scale, lon, lane in space.grid()[search_order(space)]:
         if k_scale == 1.0 and lon == NEUTRAL_LON_FACTOR and lane == NEUTRAL_LANE_FACTOR:
             continue  # the fitted parameters themselves, already first
         scaled = replace(params, k_np=params.k_np * k_scale, k_nf=params.k_nf * k_scale, k_nl=params.k_nl * k_scale)
@@ -349,8 +335,7 @@ def memory_alternatives(row: np.ndarray) -> list[Alternative]:
     for j, values in enumerate(np.asarray(row, dtype=np.float64).reshape(-1, _ALTERNATIVE_COLUMNS)):
         if np.isnan(values).all():
             continue
-        params = SocialForceParams(**dict(zip(PARAM_NAMES, (float(v) for v in values[: len(PARAM_NAMES)]),
-                                              strict=True)))
+        params = SocialForceParams.from_mapping(dict(zip(PARAM_NAMES, values[: len(PARAM_NAMES)], strict=True)))
         out.append((j + 1, params, float(values[-2]), float(values[-1])))
     return out
 
@@ -449,13 +434,10 @@ class LetsPiMemoryPlanner:
 
 @dataclass
 class LetsPiFastPlanner:
-    """The fast-inference phase: retrieved memories as few-shot examples, one call, no reflection.
-
-    ``shuffle`` (the shuffled-scene control, ``--chooser shuffled``): where the gate fires the model answers
-    the choice prompt of another window of the same batch (the next consulted one, cyclically; the next
-    window when it is the only one consulted) and its answer is verified and planned on this window. The
-    harness then hands it batches (``proposes_per_scenario`` False), so a window's donor depends on its batch.
-    """
+    """The fast-inference phase: retrieved memories as few-shot examples, one call, no reflection. ``shuffle``
+    (``--chooser shuffled``): where the gate fires the model answers the choice prompt of another window of the
+    batch (the next consulted one, cyclically; else the next window), verified and planned on this window;
+    the planner then proposes per batch, so a window's donor depends on its batch."""
 
     phase: FastPhase
     neighbour_mode: NeighbourPredictionMode = NeighbourPredictionMode.IDM
@@ -494,7 +476,6 @@ class LetsPiFastPlanner:
         return _proposals(rows)
 
     def _propose_shuffled(self, batch: ScenarioBatch, context: PlanningContext) -> Proposals:
-        """``propose`` of the shuffled-scene control (class docstring)."""
         b = len(batch)
         assessed = [self.phase.assess(_one(batch, i), context.goals_xy_m[i], context.take([i]).neighbours)
                     for i in range(b)]
@@ -512,7 +493,6 @@ class LetsPiFastPlanner:
         return _proposals(rows)
 
     def _row(self, proposal: Proposal, retrieved: Sequence[tuple[Experience, float]]) -> _Row:
-        """One scenario's proposal, info and extra."""
         k = self.phase.retriever.k if self.phase.retriever is not None else 0
         proposal = proposal.normalised()
         self.last_retrieved = tuple((e.scenario_id, s) for e, s in retrieved)
@@ -544,11 +524,9 @@ class LetsPiFastPlanner:
 
     def release_held(self, view: ScenarioBatch, context: PlanningContext, proposals: Proposals,
                      mode: str = "checks") -> tuple[Proposals, np.ndarray]:
-        """Closed loop, dual rate: every preset held since an earlier call (not the defaults, not a model's own
-        numbers) gives way to the defaults where the scene ``view`` observed now no longer calls for it
-        (``Decider.gated_checks``): ``checks``: the gate would not consult, or the defaults pass every check;
-        ``prediction``: the defaults pass the checks against the prediction. Returns the proposals and (B,)
-        bool which were released."""
+        """Closed loop, dual rate: a held preset (not the defaults, not a model's own numbers) gives way to the
+        defaults where the scene ``view`` no longer calls for it: ``checks``: the gate would not consult or the
+        defaults pass every check; ``prediction``: the defaults pass the prediction. -> (proposals, (B,) released)."""
         decider = self.phase.decider
         released = np.zeros(len(proposals), dtype=bool)
         if decider is None or "decision" not in proposals.info:
@@ -661,9 +639,7 @@ def _preset_alternatives(batch: ScenarioBatch, context: PlanningContext, decider
         out[i] = []
         for k in preference_order(passes[j], progress[j], decider.lane_changes):
             v = table.values[k]
-            params = SocialForceParams(**dict(zip(PARAM_NAMES[:6], (float(x) for x in v[:6]), strict=True)),
-                                       r_col_m=decider.r_col_m)
-            out[i].append((PRESET_SOURCE, params, float(v[6]), float(v[7])))
+            out[i].append((PRESET_SOURCE, params_of(v, decider.r_col_m).row(0), float(v[6]), float(v[7])))
     return out
 
 
@@ -692,8 +668,7 @@ def _sf_alternatives(params: SocialForceParams) -> tuple[Alternative, ...]:
 
 
 class MemoryPlannerConfig(Config):
-    """``llm`` (single shot: ``max_iterations`` 0) or ``letspi-memory``. ``shield`` is not part of the phase:
-    stored experiences are the same with and without it."""
+    """``llm`` (single shot: ``max_iterations`` 0) or ``letspi-memory``; ``shield`` is not part of the phase."""
 
     kind: Literal["llm", "letspi-memory"] = "letspi-memory"
     phase: MemoryPhaseConfig
@@ -701,9 +676,8 @@ class MemoryPlannerConfig(Config):
 
 
 class ChooserConfig(Config):
-    """What picks the preset where the gate fires, when it is not the model itself (``--chooser``): a chooser
-    of ``letspi.method.choosers`` (``teacher_sha256``: the teacher's file) or ``shuffled`` (the model on
-    another window's prompt)."""
+    """``--chooser`` other than the model: one of ``letspi.method.choosers`` (``teacher_sha256``: the teacher's
+    file) or ``shuffled`` (the model on another window's prompt)."""
 
     cosmetic: ClassVar[frozenset[str]] = frozenset({"teacher_path"})
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"teacher_sha256"})
@@ -734,10 +708,8 @@ class ChooserConfig(Config):
 
 
 class FastPlannerConfig(Config):
-    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples).
-
-    ``chooser`` (None: the model): what picks the preset where the gate fires; with a chooser that needs no
-    model, ``llm`` is None (nothing is loaded and the model is not part of the key)."""
+    """``letspi-fast`` (top-k retrieved memories) or ``letspi-fs`` (three static examples); ``chooser`` (None: the
+    model) picks the preset where the gate fires; with one that needs no model, ``llm`` is None."""
 
     kind: Literal["letspi-fast", "letspi-fs"] = "letspi-fast"
     llm: LlmConfig | None
@@ -747,11 +719,9 @@ class FastPlannerConfig(Config):
     memory: MemoryRef
     top_k: int = Field(default=TOP_K, ge=0)
     shield: bool = True  # the safety shield (retrieved memories' parameters, then the fitted sf)
-    decision: DecisionConfig | None = None  # presets, adverse futures, risk gate (None: as before the decision step)
+    decision: DecisionConfig | None = None  # presets, adverse futures, risk gate (None: no decision step)
     chooser: ChooserConfig | None = None
-    #: with the decision step and the shield: False, the shield leaves the presets the step planned alone;
-    #: None, it checks every plan (as before this setting existed)
-    shield_presets: bool | None = None
+    shield_presets: bool | None = None  # False: the shield leaves the step's presets alone; None: checks every plan
 
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"decision", "chooser", "shield_presets"})
 

@@ -1,8 +1,5 @@
-"""``mlp``: the regressor ablation of the LLM planners (model in ``letspi.learned.param_mlp``).
-
-It predicts the eight values an LLM answers from the matching features, then plans as ``letspi-fast`` does
-with an LLM's answer (``simulate_proposal``), vectorised, no LLM.
-"""
+"""``mlp``: the regressor ablation of the LLM planners: the eight values an LLM answers, predicted from the
+matching features (``letspi.learned.param_mlp``), planned as ``letspi-fast`` plans an answer."""
 
 from __future__ import annotations
 
@@ -31,16 +28,14 @@ OUTPUTS: tuple[Metric, ...] = (*PARAM_OUTPUTS, LON_FACTOR, LANE_FACTOR)
 
 
 class MlpConfig(SocialForcePlannerFields):
-    """``mlp``: the eight LLM answers regressed from the matching features (``sf_params`` gives r_col_m)."""
-
     kind: Literal["mlp"] = "mlp"
     mlp: WeightsConfig
 
 
 @dataclass
 class ParamMlpPlanner(PredictingPlanner):
-    """Planner ``mlp``: regressed parameters and goal factors, predicted goals and neighbours; ``r_col_m``: the
-    fitted ``sf`` value (the LLM does not choose it either); ``info``: the eight predicted values."""
+    """Planner ``mlp``; ``r_col_m``: the fitted ``sf`` value (the LLM does not choose it either); ``info``: the
+    eight predicted values."""
 
     model: ParamMlp
     r_col_m: float

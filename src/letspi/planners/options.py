@@ -1,8 +1,7 @@
 """Planner options: the user settings a planner kind reads, declared beside the planner as plain data.
 
-Each planner module declares its kind's options and its planner-table entry lists them; the CLI flags,
-``letspi planners`` and ``PlannerOptions`` all derive from those declarations. An option changes answers
-only through the configuration it resolves into, which is what keys results.
+The CLI flags, ``letspi planners`` and ``PlannerOptions`` derive from them; an option changes answers only
+through the configuration it resolves into, which is what keys results.
 """
 
 from __future__ import annotations
@@ -48,8 +47,7 @@ class PlannerOption(Generic[T]):
 
     @property
     def keyword(self) -> str:
-        """The flag as a Python keyword (``--sf-params`` -> ``sf_params``): what ``letspi.api`` takes besides
-        the name."""
+        """The flag as a Python keyword (``--sf-params`` -> ``sf_params``), which ``letspi.api`` takes too."""
         return self.cli_flag.removeprefix("--").replace("-", "_")
 
     def describe(self) -> str:
@@ -61,8 +59,7 @@ class PlannerOption(Generic[T]):
 
 
 def file_option(name: str, help: str, *, flag: str = "", panel: str = PLANNERS_PANEL) -> PlannerOption[Path | None]:
-    """A file or directory setting: a path, or None for its documented default (a shipped file, an
-    environment variable)."""
+    """A file or directory setting: a path, or None for its documented default (shipped file, environment)."""
     return PlannerOption[Path | None](name, Path | None, None, help, flag=flag, panel=panel)
 
 

@@ -1,9 +1,7 @@
-"""What planners report per scenario beside their plans (``PlanBatch.info``), each value declared once.
-
-An output is a ``letspi.metrics.registry.Metric`` (name with its unit, dtype, meaning, and the
-``metrics.json`` keys it aggregates into) declared in the module that produces it and listed by its
-kinds' ``PlannerKind.outputs``. Results store output ``x`` in the column ``info_x`` (``column``); an
-(B, K <= 8) output in ``info_x_0`` ... ``info_x_{K-1}``; closed loop adds ``info_x_mean_over_replans``.
+"""What planners report per scenario beside their plans (``PlanBatch.info``): each a ``Metric`` declared once in
+the module that produces it and listed by its kinds' ``PlannerKind.outputs``. Results store output ``x`` in
+``info_x`` (``column``); an (B, K <= 8) one in ``info_x_0`` ... ``info_x_{K-1}``; closed loop adds
+``info_x_mean_over_replans``.
 """
 
 from __future__ import annotations

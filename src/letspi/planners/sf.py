@@ -1,5 +1,4 @@
-"""``sf``: the social force model with fixed parameters found by offline optimisation
-(``letspi fit sf``), goals from a goal predictor, neighbours by a prediction mode."""
+"""``sf``: the social force model with fixed fitted parameters (``letspi fit sf``), predicted goals and neighbours."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""``sf-check``: the decision step's presets, checks and shield without a model (an ablation of LetsPi).
-
-The same presets, checks and shield as ``letspi-fast``, choosing by ``rule_choice`` where the risk gate
-consults (everywhere without a gate): how much of LetsPi's gain the physics gives alone. Batched.
-"""
+"""``sf-check``: ``letspi-fast``'s presets, checks, gate and shield, choosing by ``rule_choice`` without a model
+(an ablation: how much of LetsPi's gain the physics gives alone)."""
 
 from __future__ import annotations
 
@@ -39,8 +36,6 @@ OUTPUTS: tuple[Metric, ...] = (*DECISION_OUTPUTS, *SHIELD_OUTPUTS)
 
 
 class SfCheckConfig(SocialForcePlannerFields):
-    """``sf-check``: the presets, their checks, the rule and the shield; no model."""
-
     kind: Literal["sf-check"] = "sf-check"
     decision: DecisionConfig
     shield: bool = True
@@ -52,8 +47,6 @@ class SfCheckConfig(SocialForcePlannerFields):
 
 @dataclass
 class DecisionPlanner(PredictingPlanner):
-    """``sf-check``: batched over scenarios, no model call."""
-
     params: SocialForceParams
     decider: Decider
     shield_params: SocialForceParams | None = None

@@ -1,10 +1,8 @@
 """``sf-opt``: per-scenario search over social-force parameters and goal adjustments ("is the LLM needed?").
 
-Every scenario tries the same grid (repulsion multipliers x longitudinal x lane goal factors around the
-fitted parameters) against the predicted neighbours and keeps the cheapest candidate safe by the reflection
-thresholds (cost: distance from the unadjusted plan), else the best ``fallback_scores``. The search is staged
-cheapest first (``SEARCH_STAGES``), so most scenarios stop after the neutral candidate, with plans identical
-to checking every candidate; info ``n_candidates_tried`` says how far each search went.
+Every scenario tries the same grid (repulsion multipliers x longitudinal x lane goal factors around the fitted
+parameters) cheapest first against the predicted neighbours and keeps the cheapest candidate safe by the
+reflection thresholds (cost: distance from the unadjusted plan), else the best ``fallback_scores``.
 """
 
 from __future__ import annotations

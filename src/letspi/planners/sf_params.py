@@ -1,6 +1,4 @@
-"""Fitted social-force parameters on disk (a ``FittedFile`` with field ``params``); the package ships the fit
-of ``letspi fit sf`` on generated traffic, ``--sf-params FILE`` chooses another.
-"""
+"""Fitted social-force parameters on disk (a ``FittedFile`` with field ``params``; ``--sf-params FILE``)."""
 
 from __future__ import annotations
 
