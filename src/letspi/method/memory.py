@@ -126,10 +126,10 @@ def _decode_iterations(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 @dataclass(frozen=True)
 class Experience:
-    """One stored experience: the scenario (content digest) and vehicle, the 6 finite matching ``features``
-    (``FEATURE_NAMES`` order), the final proposal and its prompt/reply, ``SafetyReport.metrics`` of the first
-    and final iteration, every iteration's record. ``validated``: safe and from the model; ``fallback``: never
-    validated. ``id`` / ``created_at``: set by the bank (ignored by equality)."""
+    """One stored experience: scenario (content digest) and vehicle, the 6 finite matching ``features``
+    (``FEATURE_NAMES`` order), the final proposal, ``SafetyReport.metrics`` of the first and final iteration,
+    every iteration's record; ``validated`` (safe, from the model) excludes ``fallback``; ``id``, ``created_at``:
+    set by the bank (ignored by equality). ``ValueError`` for non-finite features."""
 
     scenario_id: str
     scenario_digest: str
@@ -176,27 +176,15 @@ class Experience:
         final = result.final.proposal
         features = scenario_features(scenario)[0]
         return cls(
-            scenario_id=result.scenario_id,
-            scenario_digest=scenario_digest,
-            recording_key=str(scenario.recording_key[0]),
-            recording_id=int(scenario.recording_id[0]),
-            ego_id=int(scenario.ego_id[0]),
-            frame0=int(scenario.frame0[0]),
-            config_key=config_key,
+            scenario_id=result.scenario_id, scenario_digest=scenario_digest, config_key=config_key,
+            recording_key=str(scenario.recording_key[0]), recording_id=int(scenario.recording_id[0]),
+            ego_id=int(scenario.ego_id[0]), frame0=int(scenario.frame0[0]),
             features=tuple(float(f) for f in np.asarray(features, dtype=np.float64).reshape(-1)),
-            params=final.params,
-            lon_factor=float(final.lon_factor),
-            lane_factor=float(final.lane_factor),
-            metrics_before=dict(result.metrics_before),
-            metrics_after=dict(result.metrics_after),
-            iterations=[rec.to_dict() for rec in result.iterations],
-            model=model,
-            prompt=final.prompt,
-            reply=final.reply,
-            rationale=final.rationale,
-            validated=result.validated and not final.fallback,
-            fallback=final.fallback,
-        )
+            params=final.params, lon_factor=float(final.lon_factor), lane_factor=float(final.lane_factor),
+            metrics_before=dict(result.metrics_before), metrics_after=dict(result.metrics_after),
+            iterations=[rec.to_dict() for rec in result.iterations], model=model, prompt=final.prompt,
+            reply=final.reply, rationale=final.rationale, validated=result.validated and not final.fallback,
+            fallback=final.fallback)
 
 
 @dataclass(frozen=True)
@@ -225,29 +213,15 @@ def _row_values(exp: Experience, created_at: str) -> tuple[Any, ...]:
 def _from_row(row: Sequence[Any]) -> Experience:
     r = dict(zip(_SELECT_COLS, row, strict=True))
     return Experience(
-        scenario_id=r["scenario_id"],
-        scenario_digest=r["scenario_digest"],
-        recording_key=r["recording_key"],
-        recording_id=int(r["recording_id"]),
-        ego_id=int(r["ego_id"]),
-        frame0=int(r["frame0"]),
-        config_key=r["config_key"],
-        features=tuple(float(r[c]) for c in _FEATURE_COLS),
-        params=SocialForceParams(**{p: float(r[p]) for p in _PARAM_COLS}),
-        lon_factor=float(r["lon_factor"]),
-        lane_factor=float(r["lane_factor"]),
-        metrics_before=decode_metrics(json.loads(r["metrics_before"])),
+        scenario_id=r["scenario_id"], scenario_digest=r["scenario_digest"], recording_key=r["recording_key"],
+        recording_id=int(r["recording_id"]), ego_id=int(r["ego_id"]), frame0=int(r["frame0"]),
+        config_key=r["config_key"], features=tuple(float(r[c]) for c in _FEATURE_COLS),
+        params=SocialForceParams(**{p: float(r[p]) for p in _PARAM_COLS}), lon_factor=float(r["lon_factor"]),
+        lane_factor=float(r["lane_factor"]), metrics_before=decode_metrics(json.loads(r["metrics_before"])),
         metrics_after=decode_metrics(json.loads(r["metrics_after"])),
-        iterations=_decode_iterations(json.loads(r["iterations"])),
-        model=r["model"],
-        prompt=r["prompt"],
-        reply=r["reply"],
-        rationale=r["rationale"],
-        validated=bool(r["validated"]),
-        fallback=bool(r["fallback"]),
-        id=int(r["id"]),
-        created_at=r["created_at"],
-    )
+        iterations=_decode_iterations(json.loads(r["iterations"])), model=r["model"], prompt=r["prompt"],
+        reply=r["reply"], rationale=r["rationale"], validated=bool(r["validated"]), fallback=bool(r["fallback"]),
+        id=int(r["id"]), created_at=r["created_at"])
 
 
 def _now() -> str:

@@ -369,14 +369,10 @@ def safety_report(batch: ScenarioBatch, plan_xy_m: np.ndarray, plan_vxy_mps: np.
     for i in range(len(batch)):
         violations = _violations_of(columns, i, th)
         reports.append(SafetyReport(
-            scenario_id=str(batch.scenario_id[i]),
-            violations=tuple(violations),
+            scenario_id=str(batch.scenario_id[i]), violations=tuple(violations), thresholds=th, n_steps=inp.n_steps,
             metrics={**_metrics_row(check, i, pet_s, safe=not violations), "max_decel_mps2": float(max_decel[i])},
-            thresholds=th,
-            n_steps=inp.n_steps,
             pre_contact_metrics=_metrics_row(pre, i, pre_pet_s, safe=False) if contact[i] else None,
-            first_contact_time_s=float((c_step[i] + 1) * DT_S) if contact[i] else None,
-        ))
+            first_contact_time_s=float((c_step[i] + 1) * DT_S) if contact[i] else None))
     return reports
 
 
@@ -474,20 +470,11 @@ def _violations_of(columns: dict[str, dict[str, np.ndarray]], i: int, th: Reflec
             continue
         step_i = int(col["step"][i])
         violations.append(Violation(
-            metric=metric,
-            value=float(col["value"][i]),
-            threshold=float(thresholds_of[metric]),
-            unit=CHECK_KINDS[metric].unit,
-            step=step_i,
-            time_s=(step_i + 1) * DT_S,
-            nbr_slot=int(col["nbr"][i]),
-            vehicle_id=int(col["vehicle_id"][i]),
-            nbr_lane_id=int(col["nbr_lane"][i]),
-            ego_lane_id=int(col["ego_lane"][i]),
-            relative=str(col["relative"][i]),  # type: ignore[arg-type]
-            dx_m=float(col["dx"][i]),
-            dy_m=float(col["dy"][i]),
-        ))
+            metric=metric, value=float(col["value"][i]), threshold=float(thresholds_of[metric]),
+            unit=CHECK_KINDS[metric].unit, step=step_i, time_s=(step_i + 1) * DT_S, nbr_slot=int(col["nbr"][i]),
+            vehicle_id=int(col["vehicle_id"][i]), nbr_lane_id=int(col["nbr_lane"][i]),
+            ego_lane_id=int(col["ego_lane"][i]), relative=str(col["relative"][i]),  # type: ignore[arg-type]
+            dx_m=float(col["dx"][i]), dy_m=float(col["dy"][i])))
     return violations
 
 
