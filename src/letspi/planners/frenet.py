@@ -599,10 +599,9 @@ class _PairChecks:
 
 def _cautious_prediction(batch: ScenarioBatch, pred: NeighbourPrediction, fol: FrenetFollowing,
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Neighbour x and vx (B, F, N) of the cautious prediction: the IDM prediction or the extrapolation of the
-    t = 0 state, whichever is further back (IDM lets a braking leader re-accelerate towards its history's top
-    speed). The extrapolation keeps a deceleration over ``leader_braking_min_mps2`` (mean over the last
-    ``leader_braking_window_s``) until the stop or for ``leader_braking_max_s``, then the speed."""
+    """Neighbour x and vx (B, F, N): the IDM prediction or, where further back, the t = 0 state extrapolated with a
+    deceleration over ``leader_braking_min_mps2`` (mean over the last ``leader_braking_window_s``) kept until the
+    stop or for ``leader_braking_max_s``, then the speed."""
     k = max(1, round(fol.leader_braking_window_s / DT_S))
     v_now = batch.nbr_vxy_mps[:, :, T0_INDEX, 0].astype(np.float64)
     v_then = batch.nbr_vxy_mps[:, :, T0_INDEX - k, 0].astype(np.float64)
@@ -770,15 +769,9 @@ def plan_from_lattice(lattice: Lattice, weights: FrenetWeights) -> PlanBatch:
     i, j, cost, n_valid = lattice.choose(weights)
     xy, vxy = lattice.plans(i, j)
     rows = np.arange(len(lattice))
-    info = {
-        "target_lane": lattice.lat.lane[j].astype(np.int64),
-        "lateral_offset_m": lattice.lat.offset_m[j],
-        "lateral_horizon_s": lattice.lat.horizon_s[j],
-        "lon_mode": lattice.lon.mode[i].astype(np.int64),
-        "target_speed_mps": lattice.lon.target_speed_mps[rows, i],
-        "lon_horizon_s": lattice.lon.horizon_s[rows, i],
-        "cost": cost,
-        "n_safe": n_valid.astype(np.int64),
-        "found_safe": n_valid > 0,
-    }
+    lat, lon = lattice.lat, lattice.lon
+    info = {"target_lane": lat.lane[j].astype(np.int64), "lateral_offset_m": lat.offset_m[j],
+            "lateral_horizon_s": lat.horizon_s[j], "lon_mode": lon.mode[i].astype(np.int64),
+            "target_speed_mps": lon.target_speed_mps[rows, i], "lon_horizon_s": lon.horizon_s[rows, i],
+            "cost": cost, "n_safe": n_valid.astype(np.int64), "found_safe": n_valid > 0}
     return PlanBatch(xy_m=xy, vxy_mps=vxy, goals_xy_m=lattice.goals_xy_m.copy(), info=info)

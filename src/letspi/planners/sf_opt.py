@@ -171,8 +171,6 @@ def staged_search(space: SearchSpace, batch: ScenarioBatch, context: PlanningCon
         best_score[dst] = np.where(has_safe[local], np.inf, top[local])
         found[pending[has_safe]] = True
         pending = pending[~has_safe]
-    info = {
-        "k_scale": grid[chosen, 0], "lon_factor": grid[chosen, 1], "lane_factor": grid[chosen, 2],
-        "found_safe": found, "n_candidates_tried": tried,
-    }
+    info = {"k_scale": grid[chosen, 0], "lon_factor": grid[chosen, 1], "lane_factor": grid[chosen, 2],
+            "found_safe": found, "n_candidates_tried": tried}
     return PlanBatch(xy_m=xy, vxy_mps=vxy, goals_xy_m=goals, info=info)
