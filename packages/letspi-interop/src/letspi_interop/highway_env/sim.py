@@ -17,16 +17,16 @@ from dataclasses import dataclass
 from typing import Any, Final, Literal
 
 import gymnasium
+import highway_env  # noqa: F401  (registers the environments)
 import numpy as np
 from gymnasium.envs.registration import load_env_creator
-
-import highway_env  # noqa: F401  (registers the environments)
 from highway_env import utils
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.road.lane import StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
+
 from letspi_interop.highway_env.scene import EpisodeTracks, RoadLayout
 
 #: environments letspi drives: straight roads along x (HighD's geometry)
