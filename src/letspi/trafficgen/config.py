@@ -1,9 +1,7 @@
-"""Typed configuration of generated traffic: drivers, scripted events, road layout; presets.
+"""Typed configuration of generated traffic (drivers, scripted events, road layout) and its presets.
 
-A ``TrafficConfig`` is everything that shapes the traffic besides seed, duration, lanes and flow; the presets
-``calm``, ``highd`` (default), ``stress`` and ``realistic`` are instances. ``with_overrides`` changes any field by
-dotted key (``letspi data generate --set events.hard_brake_per_min=2``). Ranges are ``(low, high)`` tuples of
-uniform draws; construction validates and names the offending field.
+``with_overrides`` sets any field by dotted key (``--set events.hard_brake_per_min=2``). Ranges are ``(low, high)``
+tuples of uniform draws; construction validates and names the offending field.
 """
 
 from __future__ import annotations
@@ -82,10 +80,8 @@ class DriverConfig:
 
 @dataclass(frozen=True)
 class EventConfig:
-    """Scripted events injected through libsumo; rates are per simulated minute on the whole window (both directions).
-
-    An event starts on a vehicle in the upstream part of the recorded window, so that it and its consequences are
-    recorded. Ranges are drawn per event.
+    """Scripted events injected through libsumo; rates are per simulated minute on the whole window (both directions),
+    ranges drawn per event.
 
     Attributes:
         hard_brake_*: rate; deceleration [m/s²], duration [s] and hold of the lower speed [s]; the minimum speed the
@@ -171,11 +167,8 @@ class LayoutConfig:
 
 @dataclass(frozen=True)
 class TrafficConfig:
-    """Everything that shapes the generated traffic besides seed, duration, lanes and flow.
-
-    ``name``: the preset it derives from (informative); ``truck_share``: of the demand; ``max_attempts``: simulations
-    tried (the seed, then derived sub-seeds) until one has no contact.
-    """
+    """Everything that shapes the generated traffic besides seed, duration, lanes and flow; ``name``: its preset
+    (informative); ``max_attempts``: simulations tried (the seed, then derived sub-seeds) until one has no contact."""
 
     name: str = "highd"
     drivers: DriverConfig = field(default_factory=DriverConfig)
@@ -207,8 +200,7 @@ STRESS = TrafficConfig(
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
                        cut_in_ttc_s=(0.4, 3.0)),
 )
-#: Calibrated against highD's published marginals (docs/data.md, "The realistic preset"): LC2013's eagerness
-#: to overtake and to keep right scaled down, no impatient drivers, few events, trucks 17 %, cars' headway 1.1 s.
+#: calibrated against highD's published marginals (docs/data.md, "The realistic preset")
 REALISTIC = TrafficConfig(
     name="realistic",
     drivers=DriverConfig(car_headway_s=(1.1, 0.3), impatient_share=0.0, lc_speed_gain_scale=0.008,
@@ -251,11 +243,8 @@ def _parse_value(text: str, current: object, key: str) -> object:
 
 
 def with_overrides(config: TrafficConfig, overrides: Mapping[str, str]) -> TrafficConfig:
-    """``config`` with dotted-key overrides applied (``{"events.cut_in_per_min": "3"}``).
-
-    ValueError for an unknown key (listing the valid ones) or a value of the wrong type or out of range (naming the
-    key).
-    """
+    """``config`` with dotted-key overrides (``{"events.cut_in_per_min": "3"}``); ValueError naming an unknown key
+    (listing the valid ones) or a value of the wrong type or out of range."""
     out = config
     for key, text in overrides.items():
         path = key.strip().split(".")

@@ -1,10 +1,8 @@
-"""SUMO FCD -> HighD ``states``/``vehicles`` frames (image axes, top-left box corner).
+"""SUMO FCD (front-bumper centre, y up) -> HighD ``states``/``vehicles`` frames (image axes, top-left box corner).
 
-SUMO's FCD ``x, y`` is the front-bumper centre, y up; image x = SUMO x - window start, image y = ``image_y_ref_m``
-- SUMO y. The box centre lies half a length behind the front along the heading of the smoothed front trajectory;
-velocities and accelerations are central differences of the written centres (consistent with the positions).
-SUMO's constant-speed lateral lane-change ramps are re-timed with a quintic smootherstep between the same
-start/end instants and lanes (zero lateral speed and acceleration at both ends).
+The box centre lies half a length behind the front along the smoothed heading; velocities and accelerations are
+central differences of the written centres. SUMO's linear lateral lane-change ramps become quintic smootherstep
+ones between the same instants (zero lateral speed and acceleration at both ends).
 """
 
 from __future__ import annotations
@@ -95,10 +93,8 @@ def _box_centres(fx: np.ndarray, fy: np.ndarray, t: np.ndarray, first: np.ndarra
 
 
 def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNetwork) -> ImageTracks:
-    """Convert SUMO FCD (``read_fcd``: front centre, y up) to HighD image-axis boxes with derivatives.
-
-    ``specs`` give each vehicle's dimensions, class (vans become "Car") and direction.
-    """
+    """SUMO FCD (``read_fcd``) as HighD image-axis boxes with derivatives; ``specs``: each vehicle's dimensions,
+    class (vans become "Car") and direction."""
     spec_table = pd.DataFrame({
         "sumo_id": [s.vid for s in specs],
         "length": [s.length_m for s in specs],
@@ -118,8 +114,7 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
     last = np.r_[vehicle[1:] != vehicle[:-1], True]
     east = df["east"].to_numpy(bool)
     length = df["length"].to_numpy(np.float64)
-    # Lanes a vehicle can rest on (main and auxiliary), so that merges from an acceleration
-    # lane are smoothed like any lane change.
+    # main and auxiliary lanes: merges from an acceleration lane are smoothed like any lane change
     centres = np.where(east[:, None], network.smoothing_centres(True)[None, :],
                        network.smoothing_centres(False)[None, :])
 

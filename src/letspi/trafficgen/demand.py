@@ -1,9 +1,5 @@
-"""Traffic demand: per-vehicle SUMO types (car / van / truck) and seeded arrivals per lane and direction.
-
-Every vehicle gets its own ``vType`` (dimensions and driver parameters vary as in real data); one numpy generator
-seeded by the caller is the only randomness (SUMO runs with sigma = 0). Car following is EIDM with its
-driver-error processes off, lane changing LC2013 with per-driver eagerness, cooperativeness and assertiveness.
-Vans are simulated as vans but labelled "Car", as HighD labels them.
+"""Traffic demand: one SUMO ``vType`` per vehicle (car / van / truck; EIDM without driver error, LC2013) and seeded
+arrivals per lane and direction; the caller's numpy generator is the only randomness (SUMO runs with sigma = 0).
 """
 
 from __future__ import annotations
@@ -102,11 +98,7 @@ def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, lo: float,
 
 
 def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig) -> dict[str, float | bool]:
-    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters of one vehicle of a class.
-
-    Heterogeneous on purpose, as HighD shows: desired headways from 0.6 s to 2.1 s, a wide spread of desired speeds,
-    lane-change styles from cooperative to assertive.
-    """
+    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters of one vehicle of a class."""
     if kind == "truck":
         params = _truck_params(rng)
     elif kind == "van":
@@ -214,10 +206,8 @@ def sample_demand(
     end_s: float,
     config: DemandConfig | None = None,
 ) -> list[VehicleSpec]:
-    """All vehicles of all ``entries`` (route, direction, lanes, flow share), departing before ``end_s`` [s].
-
-    ``flow_veh_per_h`` is per direction; ``rng`` is the only randomness. Returns specs ordered by (depart_s, vid).
-    """
+    """All vehicles of all ``entries`` departing before ``end_s`` [s], ordered by (depart_s, vid);
+    ``flow_veh_per_h`` is per direction."""
     cfg = config or DemandConfig()
     specs: list[VehicleSpec] = []
     counter = 0

@@ -1,15 +1,9 @@
-"""Scripted critical events and lane-change perception, injected through libsumo while stepping.
-
-Kinds (knobs in ``EventConfig``): ``hard_brake`` (a leader with a close follower brakes hard, ``slowDown`` under
-speed mode 27, holds, then drives on); ``cut_in`` (a car changes into a gap before a faster follower,
-``changeLane`` under lane-change mode 256); ``truck_pullout`` (a truck leaves the right lane the same way).
-Lane-change perception holds the closing follower of *every* lane change into the window until the changer's
-centre crosses into its lane, plus its reaction time (``reactions``).
+"""Scripted critical events (``hard_brake``, ``cut_in``, ``truck_pullout``; knobs in ``EventConfig``) and lane-change
+perception (the closing follower of every lane change into the window is held, ``reactions``), through libsumo.
 
 Timing: ``on_step(t)`` gets SUMO's current time t, that of the next step (the vehicles are in the state of step
 t - 0.04 s); commands act in step t, which is recorded as the event time. Events start only on lane-centred,
-steady vehicles in no other event, in the upstream part of the window; candidates are drawn in id order with
-the injector's own seeded generator.
+steady vehicles in no other event, in the upstream part of the window, drawn with the injector's own generator.
 """
 
 from __future__ import annotations
@@ -114,10 +108,8 @@ class _Pending:
 
 @dataclass
 class EventInjector:
-    """Schedules and runs the scripted events and lane-change perception of one simulation.
-
-    After every ``simulationStep`` whose end time ``t`` is >= ``next_wakeup()``, call ``on_step(t)``.
-    """
+    """The scripted events and lane-change perception of one simulation: after every ``simulationStep`` whose end
+    time ``t`` is >= ``next_wakeup()``, call ``on_step(t)``."""
 
     sim: Any  # the libsumo module
     config: EventConfig
@@ -130,8 +122,7 @@ class EventInjector:
     records: list[EventRecord] = field(default_factory=list)
     perceived_lane_changes: int = 0
     _due: dict[str, float] = field(default_factory=dict)
-    # When the pending event of a kind was meant to start: the next one is drawn from there, so
-    # waiting for a suitable vehicle does not lower the configured rate.
+    # when each kind's pending event was meant to start: the next is drawn from there, keeping the rate
     _intended: dict[str, float] = field(default_factory=dict)
     _pending: list[_Pending] = field(default_factory=list)
     _busy_until: dict[str, float] = field(default_factory=dict)

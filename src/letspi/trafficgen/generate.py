@@ -1,13 +1,8 @@
-"""Generate HighD-format recordings of a two-direction highway with SUMO.
+"""Generate HighD-format recordings of a two-direction highway with SUMO: ``network`` -> ``demand`` -> ``simulate``
+with ``events`` -> ``convert`` -> ``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording``.
 
-Pipeline: ``network`` -> ``demand`` -> ``simulate`` with ``events`` -> ``convert`` (image axes, 420 m window) ->
-``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording`` and ``NN_events.csv``. Recording
-starts after ``warmup_s``, and every vehicle drives ``approach_m`` before the window, so it arrives settled.
-Equal seeds give identical files (seeded demand and events, SUMO with sigma = 0 and one thread).
-
-No contact, ever: a run with a SUMO collision (physical contact only) or any overlapping boxes in the written
-window is re-simulated with a sub-seed (``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; when all
-have contact, generation fails naming the seed and the contacts.
+No contact, ever: a run with a SUMO collision or overlapping boxes in the window is re-simulated with a sub-seed
+(``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; then generation fails naming the seed and contacts.
 """
 
 from __future__ import annotations
@@ -145,10 +140,8 @@ def simulate_recordings(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns); see ``generate_highd``.
-
-    ``ssm_file``: every vehicle carries SUMO's SSM device writing there (the accepted attempt's output remains).
-    """
+    """Simulate and cut recordings in memory (no derived columns; see ``generate_highd``); ``ssm_file``: SUMO's SSM
+    device output of the accepted attempt."""
     _check_request(minutes, lanes_per_direction, recording_minutes)
     cfg = traffic or traffic_preset("highd")
     geo = geometry or HighwayGeometry()

@@ -1,10 +1,8 @@
-"""Two-direction highway built with SUMO's ``netconvert`` from plain XML, in three layouts.
+"""Two-direction highway built with SUMO's ``netconvert`` from plain XML, in the three layouts of ``LayoutConfig``.
 
 SUMO coordinates, y **up**: eastbound lanes (edges "E…", HighD direction 2) below y = 0, westbound ("W…",
-direction 1) above the median; both drive ``approach_m`` before the recorded window in the middle. ``on_ramp``
-adds a ramp joining an acceleration lane, ``lane_drop`` an extra right lane upstream; both end ``aux_lane_m`` past
-the window entry. Only the **main carriageway** (the n lanes through the whole window) is recorded; lane
-positions are read back from the ``.net.xml`` (netconvert may shift coordinates).
+direction 1) above the median. Only the main carriageway is recorded; lane positions are read back from the
+``.net.xml`` (netconvert may shift coordinates).
 """
 
 from __future__ import annotations
@@ -19,8 +17,6 @@ import numpy as np
 from letspi.trafficgen.binaries import sumo_binary
 from letspi.trafficgen.config import LayoutConfig
 
-EASTBOUND_EDGE = "E"  # HighD drivingDirection 2 (towards +x, lower lanes): first edge of the route
-WESTBOUND_EDGE = "W"  # HighD drivingDirection 1 (towards -x, upper lanes)
 ACCEL_LANE_M = 250.0  # total length of the acceleration lane (on_ramp)
 _RAMP_M = 250.0  # ramp length before the acceleration lane
 _RAMP_OFFSET_M = 30.0  # lateral distance of the ramp start from the road edge
@@ -221,9 +217,7 @@ def _netconvert(directory: Path, geometry: HighwayGeometry, plan: _Plan) -> Path
 
 
 def build_network(directory: Path, geometry: HighwayGeometry, layout: LayoutConfig | None = None) -> HighwayNetwork:
-    """Write the plain XML of ``geometry`` and ``layout`` (default straight) into ``directory``, run netconvert and read
-    the lanes back: the network with its SUMO -> HighD image transform.
-    """
+    """Build the network of ``geometry`` and ``layout`` (default straight) in ``directory`` and read it back."""
     lay = layout or LayoutConfig()
     plan = _plan(geometry, lay)
     net_file = _netconvert(directory, geometry, plan)

@@ -1,9 +1,5 @@
-"""Run SUMO through libsumo (in-process) and read its floating-car data (FCD).
-
-SUMO writes the trajectories (FCD CSV, parsed with pyarrow); Python only steps, many steps per call between the
-hook's wake-ups, so that ``events`` can inject scripted events. One simulation per process at a time;
-``run_sumo`` always closes it.
-"""
+"""Run SUMO through libsumo (in-process; one simulation per process at a time) and read its floating-car data
+(FCD CSV, written by SUMO, parsed with pyarrow)."""
 
 from __future__ import annotations
 
@@ -161,8 +157,7 @@ def _sumo_command(
 
 
 def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable[[float], None]) -> None:
-    """Run the started simulation to ``end_s``: in chunks of up to ``_PROGRESS_CHUNK_S``, stopping
-    at each of the hook's wake-up times to call its ``on_step``; report progress after each chunk."""
+    """Step the started simulation to ``end_s`` in chunks, calling the hook's ``on_step`` at each of its wake-ups."""
     t = 0.0
     while t < end_s - 1e-9:
         wake = hook.next_wakeup() if hook is not None else math.inf

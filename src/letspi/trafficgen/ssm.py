@@ -1,11 +1,5 @@
-"""Independent check of the recordings' TTC against SUMO's own SSM device (``ssm_check``).
-
-SUMO's device computes, every step and for every lead/follow encounter, TTC = gap along the lanes (front to
-rear bumper) / speed difference. The recordings' TTC is HighD's: nearest vehicle ahead in the same laneId, gap
-between the written boxes, speeds from central differences. Compared: per (follower, leader, frame) where both
-exist, and per vehicle ``minTTC`` with SUMO's minimum over its recorded frames. Expected differences: SUMO puts a
-lane changer on both lanes, tracks every vehicle ahead within 100 m (HighD the nearest), writes only TTC < 5 s.
-"""
+"""Independent check of the recordings' TTC against SUMO's own SSM device (``ssm_check``): per (follower, leader,
+frame) where both exist, and per vehicle ``minTTC`` against SUMO's minimum over its recorded frames."""
 
 from __future__ import annotations
 
@@ -142,10 +136,8 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
 
 def ssm_check(*, minutes: float, seed: int, traffic: TrafficConfig, lanes_per_direction: int = 3,
               keep_dir: Path | None = None, progress: Callable[[float], None] | None = None) -> SsmComparison:
-    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs (``compare_ttc``).
-
-    ``keep_dir``: if given, the SSM XML and the HighD files are written there for inspection.
-    """
+    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs (``compare_ttc``);
+    ``keep_dir``: where to keep the SSM XML and the HighD files."""
 
     work = Path(tempfile.mkdtemp(prefix="letspi_ssm_"))
     try:
