@@ -1,7 +1,5 @@
-"""Scene -> fixed-size inputs of the learned models, from frames t <= 0 only, in the ego frame at t = 0.
-
-Fixed scales (not data statistics) keep every input of order 1, so the features fit any data set.
-"""
+"""Scene -> fixed-size inputs of the learned models, from frames t <= 0 only, in the ego frame at t = 0; fixed
+scales (not data statistics) keep every input of order 1 on any data set."""
 
 from __future__ import annotations
 
