@@ -144,8 +144,8 @@ def _renumbered(rec: Recording, recording_id: int) -> Recording:
 def _load_seed_dirs(
     dirs: list[Path],
 ) -> tuple[list[Recording], dict[int, pd.DataFrame | None], list[dict[str, object]]]:
-    """Recordings of all seed directories with distinct ids (seed k: k * 100 + NN), their events and
-    generation records (with the ids they were given)."""
+    """Recordings of all seed directories with distinct ids (seed k: k * 100 + NN), their events and generation
+    records."""
     recs: list[Recording] = []
     events: dict[int, pd.DataFrame | None] = {}
     generation: list[dict[str, object]] = []
