@@ -1,11 +1,9 @@
 """``write_report``: a self-contained HTML report of an evaluation directory (images inline as base64 PNG).
 
-Sections, each skipped without its input: metrics, distributions, the worst scenarios drawn from their stored plans
-(never re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
-"points": [{"memory_size": .., "metrics": {..}}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name",
-"fast", "physics", "metrics": {..}}, ..]}`` (``metrics.json`` keys); a file that cannot be read yields a warning in
-its section.
-"""
+Sections, each skipped without its input: metrics, distributions, the worst scenarios (stored plans, never
+re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
+"points": [{"memory_size", "metrics"}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name", "fast",
+"physics", "metrics"}, ..]}`` (``metrics.json`` keys); an unreadable file yields a warning in its section."""
 
 from __future__ import annotations
 
@@ -81,10 +79,6 @@ def figure_to_data_uri(fig: Figure, dpi: int = 110) -> str:
 def _fmt(value: object, digits: int = 2) -> str:
     if value is None:
         return "n/a"
-    if isinstance(value, bool):
-        return str(value)
-    if isinstance(value, int):
-        return str(value)
     if isinstance(value, float):
         return "n/a" if math.isnan(value) else f"{value:.{digits}f}"
     return str(value)
@@ -304,7 +298,6 @@ def llm_combinations_figure(data: Mapping[str, Any]) -> Figure:
 
 
 def _ablation(path: Path, kind: str) -> dict[str, Any] | None:
-    """Section data of one ablation file; None when the file is absent."""
     if not path.exists():
         return None
     anchor = "ablation-" + slug(path.stem)
