@@ -2,8 +2,7 @@
 
 ``resolve_config``, ``build_planner_of`` and ``CheckedPlanner.plan`` turn an exception raised in a plug-in's
 ``resolve``, ``build`` or ``plan`` into a ``PlannerError`` naming the planner, where its kind comes from and the file
-and line, and check what they return (types, shapes). Built-in kinds are called as they are.
-"""
+and line, and check what they return (types, shapes). Built-in kinds are called as they are."""
 
 from __future__ import annotations
 

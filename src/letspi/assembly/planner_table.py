@@ -4,8 +4,7 @@ union (``PlannerTable.parse_config``) and every planner listing derive from it. 
 
 The table is a value, not a registry: ``planner_table()`` adds to ``BUILT_IN`` the installed kinds of the
 ``letspi.planners`` entry-point group (``installed_kinds``; broken ones are reported by ``letspi planners``) and
-those loaded by import path (``load_kind``, remembered for the process); docs/your-planner.md.
-"""
+those loaded by import path (``load_kind``, remembered for the process); docs/your-planner.md."""
 
 from __future__ import annotations
 
@@ -527,7 +526,6 @@ def add_planner_paths(paths: Iterable[str | Path]) -> None:
 
 
 def _in_working_directory(module_name: str) -> bool:
-    """Whether the working directory holds ``module_name``'s top-level package or module file."""
     top = Path(module_name.partition(".")[0])
     return (top.with_suffix(".py")).is_file() or (top.is_dir() and any(top.iterdir()))
 

@@ -2,8 +2,7 @@
 
 From the scene encoder's tokens: a relaxation time per scenario in ``TAU_RANGE_S`` (B,) [s] and a repulsion weight
 per neighbour slot in (``WEIGHT_MIN``, ``WEIGHT_MAX``) (B, N), 0 for absent neighbours; neighbour j pushes with
-``w_j * k_class * exp(-d_j / r_col)`` (``sf``'s ``k_class``), so w >= 1 is never less cautious than ``sf``.
-"""
+``w_j * k_class * exp(-d_j / r_col)`` (``sf``'s ``k_class``), so w >= 1 is never less cautious than ``sf``."""
 
 from __future__ import annotations
 

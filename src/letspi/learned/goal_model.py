@@ -2,8 +2,7 @@
 
 K goals at the horizon from the ego token, as offsets from the kinematic anchor ``a``: ``g_k = a + (10 m * o_kx,
 2 m * o_ky)``; sorted best first, kept on the road (y between the outermost lane centres) and never behind the
-ego; probabilities are the softmax of the logits.
-"""
+ego; probabilities are the softmax of the logits."""
 
 from __future__ import annotations
 

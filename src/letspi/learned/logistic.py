@@ -1,8 +1,7 @@
 """Logistic regression (binary and multinomial) with NumPy inference: the risk gate and headroom choosers.
 
 ``LogisticModel``: standardised inputs (stored training mean and std), then ``softmax(x W + b)`` over K classes
-(binary: ``score`` is P(class 1)). Fitting is ``letspi.learned.logistic_fit`` (planning never loads SciPy).
-"""
+(binary: ``score`` is P(class 1)). Fitting is ``letspi.learned.logistic_fit`` (planning never loads SciPy)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Typed configuration of generated traffic (drivers, scripted events, road layout) and its presets.
 
 ``with_overrides`` sets any field by dotted key (``--set events.hard_brake_per_min=2``). Ranges are ``(low, high)``
-tuples of uniform draws; construction validates and names the offending field.
-"""
+tuples of uniform draws; construction validates and names the offending field."""
 
 from __future__ import annotations
 
@@ -95,8 +94,7 @@ class EventConfig:
             built up at this jerk [m/s³], until it no longer closes in; then SUMO takes over.
         release_decel_mps2, release_gap_m: a held follower is released at once when avoiding contact would need more
             than this constant deceleration [m/s²] (leaving SUMO's 9 m/s² emergency deceleration a margin), or when
-            its gap drops below this [m].
-    """
+            its gap drops below this [m]."""
 
     hard_brake_per_min: float = 3.0
     hard_brake_decel_mps2: tuple[float, float] = (4.0, 8.0)
@@ -149,8 +147,7 @@ class LayoutConfig:
     ``kind``: ``straight``; ``on_ramp`` (a one-lane ramp feeds a 250 m acceleration lane right of the carriageway);
     ``lane_drop`` (one more lane upstream, the right one ends). ``aux_lane_m``: where that lane ends, from the window
     entry [m]. ``ramp_share``: share of each direction's flow entering from the ramp. ``lc_strategic``: every
-    driver's LC2013 ``lcStrategic`` on those layouts (SUMO's 1 makes drivers leave an ending lane far upstream).
-    """
+    driver's LC2013 ``lcStrategic`` on those layouts (SUMO's 1 makes drivers leave an ending lane far upstream)."""
 
     kind: Layout = "straight"
     aux_lane_m: float = 300.0
@@ -221,7 +218,6 @@ def traffic_preset(name: str) -> TrafficConfig:
 
 
 def _parse_value(text: str, current: object, key: str) -> object:
-    """Parse ``text`` into the type of the field's current value."""
     try:
         if isinstance(current, bool):
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):

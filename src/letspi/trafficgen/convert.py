@@ -2,8 +2,7 @@
 
 The box centre lies half a length behind the front along the smoothed heading; velocities and accelerations are
 central differences of the written centres. SUMO's linear lateral lane-change ramps become quintic smootherstep
-ones between the same instants (zero lateral speed and acceleration at both ends).
-"""
+ones between the same instants (zero lateral speed and acceleration at both ends)."""
 
 from __future__ import annotations
 
@@ -27,8 +26,7 @@ class ImageTracks:
     """All vehicles over the whole simulation in HighD image axes, before window clipping.
 
     ``data``: ``step`` (time / 0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²],
-    ``drivingDirection``, ``class``; sorted by (sumo_id, step).
-    """
+    ``drivingDirection``, ``class``; sorted by (sumo_id, step)."""
 
     data: pd.DataFrame
 
@@ -44,8 +42,7 @@ def smooth_lane_changes(t: np.ndarray, y: np.ndarray, vehicle: np.ndarray,
 
     ``t`` (N,) [s] sorted within each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of
     one vehicle contiguous; ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed
-    (N,) y; ramps touching a vehicle's first or last row (no anchor at rest) stay unchanged.
-    """
+    (N,) y; ramps touching a vehicle's first or last row (no anchor at rest) stay unchanged."""
     out = y.copy()
     moving = np.min(np.abs(y[:, None] - centres), axis=1) > _REST_TOL_M
     if not moving.any():

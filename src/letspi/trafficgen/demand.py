@@ -1,6 +1,5 @@
 """Traffic demand: one SUMO ``vType`` per vehicle (car / van / truck; EIDM without driver error, LC2013) and seeded
-arrivals per lane and direction; the caller's numpy generator is the only randomness (SUMO runs with sigma = 0).
-"""
+arrivals per lane and direction; the caller's numpy generator is the only randomness (SUMO runs with sigma = 0)."""
 
 from __future__ import annotations
 
@@ -28,8 +27,7 @@ jams form."""
 @dataclass(frozen=True)
 class DemandConfig:
     """Demand: ``truck_share`` and ``van_share`` of all vehicles; ``min_headway_s`` [s] between insertions on one lane
-    plus an exponential rest (shifted-exponential free-flow arrivals); ``drivers``: per-driver behaviour.
-    """
+    plus an exponential rest (shifted-exponential free-flow arrivals); ``drivers``: per-driver behaviour."""
 
     truck_share: float = 0.15
     van_share: float = 0.08
@@ -45,8 +43,7 @@ class VehicleSpec:
     ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0 as ``accel_mps2``,
     ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``, ``lcCooperative``,
     ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead`` (``lc_lookahead_s``, 0 = SUMO's
-    default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``.
-    """
+    default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``."""
 
     vid: str
     kind: Kind

@@ -3,8 +3,7 @@ perception (the closing follower of every lane change into the window is held, `
 
 Timing: ``on_step(t)`` gets SUMO's current time t, that of the next step (the vehicles are in the state of step
 t - 0.04 s); commands act in step t, which is recorded as the event time. Events start only on lane-centred,
-steady vehicles in no other event, in the upstream part of the window, drawn with the injector's own generator.
-"""
+steady vehicles in no other event, in the upstream part of the window, drawn with the injector's own generator."""
 
 from __future__ import annotations
 
@@ -61,8 +60,7 @@ class EventRecord:
     ``time_s``: first time it acts [s]; ``kind`` (``failed``: a lane change SUMO did not carry out, never written);
     ``actor``, ``other``: SUMO ids; ``lane``, ``target_lane``: main-lane indices (0 = rightmost); ``target_speed_mps``
     and ``decel_mps2`` are NaN for lane changes; ``reaction_s`` is 0 when followers are not held; ``held_s``: how long
-    the follower kept its speed; ``other_decel_mps2``: NaN when SUMO's car following takes over at once.
-    """
+    the follower kept its speed; ``other_decel_mps2``: NaN when SUMO's car following takes over at once."""
 
     time_s: float
     kind: str
@@ -218,7 +216,6 @@ class EventInjector:
             self._verify_lane_change(p)
 
     def _verify_lane_change(self, p: _Pending) -> None:
-        """Mark the record of a forced lane change that SUMO did not carry out as failed."""
         k = int(p.value)
         rec = self.records[k]
         _, y = self.sim.vehicle.getPosition(p.vehicle)
@@ -281,8 +278,7 @@ class EventInjector:
     @staticmethod
     def _lane_neighbours(snap: _Snapshot, i: int, lane: int) -> tuple[int, int, bool]:
         """In ``lane`` of vehicle i's carriageway: (row entirely behind i, row entirely ahead, someone overlapping i
-        along the road); rows are -1 when there is none.
-        """
+        along the road); rows are -1 when there is none."""
         same = (snap.east == snap.east[i]) & (snap.lane == lane) & (np.arange(len(snap.ids)) != i)
         rows = np.flatnonzero(same)
         if len(rows) == 0:

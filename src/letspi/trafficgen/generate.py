@@ -2,8 +2,7 @@
 with ``events`` -> ``convert`` -> ``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording``.
 
 No contact, ever: a run with a SUMO collision or overlapping boxes in the window is re-simulated with a sub-seed
-(``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; then generation fails naming the seed and contacts.
-"""
+(``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; then generation fails naming the seed and contacts."""
 
 from __future__ import annotations
 
@@ -62,9 +61,7 @@ class SimulatedRecordings:
     ``chunks``: one ``(states, vehicles)`` per recording (``clip_to_window``); ``first_steps``: the simulation step of
     each recording's frame 1; ``events``: per recording, in HighD frames but with SUMO ids and lane indices;
     ``collisions``: SUMO's in the accepted run (always empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the
-    accepted one (0 = the seed); ``rejected``: why each earlier one was. The network's ``net_file`` is deleted after the
-    run.
-    """
+    accepted one (0 = the seed); ``rejected``: why each earlier one was; ``network.net_file`` is deleted."""
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
     first_steps: list[int] = field(default_factory=list)
@@ -200,7 +197,6 @@ def _timeline(minutes: float, warmup_s: float, recording_minutes: float | None) 
 
 def _accept(result: SimulatedRecordings, attempt: int, sim: SimulationResult,
             chunks: list[tuple[pd.DataFrame, pd.DataFrame]], starts: list[int], lengths: list[int]) -> None:
-    """Keep a contact-free attempt's recordings and events in ``result``."""
     result.chunks = chunks
     result.first_steps = list(starts)
     result.events = [_event_table(sim.events, s, n) for s, n in zip(starts, lengths, strict=True)]
@@ -261,8 +257,7 @@ class GenerationReport:
     """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took.
 
     Wall and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
-    ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception.
-    """
+    ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception."""
 
     paths: list[Path]
     simulated_minutes: float
@@ -327,8 +322,7 @@ def generate_highd(
     (vehicles crossing a split are cut); ``criticality`` names a preset, ignored when ``traffic`` is given. Writes
     ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png`` and
     ``NN_generation.json`` (NN = 01, 02, ...): a 420 m window in which a vehicle is recorded while its whole box is
-    inside and its centre on the main carriageway; no speed limit (speedLimit -1).
-    """
+    inside and its centre on the main carriageway; no speed limit (speedLimit -1)."""
     started = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -2,8 +2,7 @@
 
 SUMO coordinates, y **up**: eastbound lanes (edges "E…", HighD direction 2) below y = 0, westbound ("W…",
 direction 1) above the median. Only the main carriageway is recorded; lane positions are read back from the
-``.net.xml`` (netconvert may shift coordinates).
-"""
+``.net.xml`` (netconvert may shift coordinates)."""
 
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ class HighwayGeometry:
 
     ``lanes_per_direction`` (2 or 3); ``median_m``: between the inner road edges; ``approach_m``: driven before the
     window per direction; ``window_m``: HighD's is about 420 m; ``lane_speed_mps``: high, so vehicles keep their own
-    desired speed; ``image_top_m``: image y of the upper road edge.
-    """
+    desired speed; ``image_top_m``: image y of the upper road edge."""
 
     lanes_per_direction: int = 3
     lane_width_m: float = 3.75
@@ -48,8 +46,7 @@ class HighwayGeometry:
 @dataclass(frozen=True)
 class Entry:
     """Where traffic is inserted: ``route`` id, ``east`` (HighD direction 2), ``n_lanes`` (index 0 = rightmost),
-    ``flow_share`` of the direction's flow, ``ramp``.
-    """
+    ``flow_share`` of the direction's flow, ``ramp``."""
 
     route: str
     east: bool
@@ -65,8 +62,7 @@ class HighwayNetwork:
     Image x = SUMO x - ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main
     lane centres (index 0 = rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``);
     ``upper/lower_markings_y_m``: image y of the main carriageways' markings, ascending, road edges included;
-    ``routes``: route id -> edges; ``entries``: where traffic is inserted.
-    """
+    ``routes``: route id -> edges; ``entries``: where traffic is inserted."""
 
     net_file: Path
     geometry: HighwayGeometry

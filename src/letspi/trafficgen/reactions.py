@@ -1,8 +1,7 @@
 """Driver reaction for SUMO followers (``Reactions``, through libsumo): **hold** the speed (speed mode 30, no own
 lane changes) until perception + reaction, optionally **brake** on a jerk-limited ramp until no longer closing in,
 then **release** to SUMO; at once when avoiding contact would need more than ``release_decel_mps2``
-(``required_decel``) or the gap falls below ``release_gap_m``.
-"""
+(``required_decel``) or the gap falls below ``release_gap_m``."""
 
 from __future__ import annotations
 

@@ -40,8 +40,7 @@ class SimulationResult:
 
     ``fcd``: ``time`` [s], ``id``, ``x``, ``y`` (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s],
     ``acceleration`` [m/s²], sorted by (id, time); ``collisions``: physical contact only; ``wall_time_s``,
-    ``cpu_time_s``: of the stepping [s]; ``events``, ``hook_stats``: the hook's ``records`` and ``stats()``.
-    """
+    ``cpu_time_s``: of the stepping [s]; ``events``, ``hook_stats``: the hook's ``records`` and ``stats()``."""
 
     fcd: pd.DataFrame
     collisions: list[Collision]
@@ -101,8 +100,7 @@ def run_sumo(
     lane changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
     ``on_step(t)`` runs whenever SUMO's time t has reached ``next_wakeup()`` (timing as in ``events``). ``ssm_file``:
     every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or
-    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done.
-    """
+    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done."""
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
     collision_file = work_dir / "collisions.xml"
@@ -176,8 +174,7 @@ def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable
 
 def read_fcd(path: Path, *, x_range_m: tuple[float, float] | None = None) -> pd.DataFrame:
     """A SUMO FCD CSV (';'-separated) as ``time, id, x, y, speed, acceleration`` sorted by (id, time), read in a stream;
-    ``x_range_m`` keeps only rows with SUMO x in ``[lo, hi]`` [m].
-    """
+    ``x_range_m`` keeps only rows with SUMO x in ``[lo, hi]`` [m]."""
     reader = pacsv.open_csv(
         path,
         read_options=pacsv.ReadOptions(block_size=16 << 20),

@@ -25,8 +25,7 @@ SSM_TTC_THRESHOLD_S = 5.0  # the device's TTC threshold set in simulate.run_sumo
 
 def read_ssm_ttc(path: Path) -> pd.DataFrame:
     """Per-step TTC of all lead/follow encounters of an SSM output file: ``time_s``, ``follower``, ``leader`` (SUMO
-    ids), ``ttc_s``; one row per step with a defined TTC, pairs seen by both devices once.
-    """
+    ids), ``ttc_s``; one row per step with a defined TTC, pairs seen by both devices once."""
     rows: list[pd.DataFrame] = []
     for _, elem in ET.iterparse(path, events=("end",)):
         if elem.tag != "conflict":
@@ -56,8 +55,7 @@ class SsmComparison:
     ``frames_both``: (follower, frame) pairs both have for the same leader, ``frame_*``: median and p95 |difference|
     [s], share within 5 %. ``frames_only_*``: pairs only one has; of SUMO's, ``_other_lane`` (a lane changer),
     ``_above_threshold`` (the recording's TTC is >= 5 s) and ``_not_preceding`` (HighD's leader is another).
-    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both.
-    """
+    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both."""
 
     recorded_minutes: float
     vehicles: int
