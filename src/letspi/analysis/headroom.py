@@ -69,8 +69,7 @@ def best_constant(o: OptionOutcomes) -> int:
 
 
 def rule_over(o: OptionOutcomes, presets: Sequence[int]) -> np.ndarray:
-    """(B,) the no-model rule (``letspi.method.decide.rule_choice``) over ``presets`` (option indices):
-    needs plan-time checks."""
+    """(B,) the no-model rule (``letspi.method.decide.rule_choice``) over ``presets`` (option indices; needs checks)."""
     cols = np.asarray(presets, dtype=np.int64)
     if cols[0] != 0:
         raise ValueError("the presets must start with the defaults (option 0)")
@@ -201,8 +200,7 @@ def _pct_interval(flags: np.ndarray) -> list[float]:
 def headroom(o: OptionOutcomes, table: OptionTable, presets: Sequence[int], features: np.ndarray,
              groups: np.ndarray, *, folds: int = 5, seed: int = 0, gate_scores: np.ndarray | None = None,
              ) -> HeadroomResult:
-    """Every chooser's rates on the same windows, with Wilson intervals and paired McNemar counts against
-    the defaults (at-fault contacts)."""
+    """Every chooser's rates on the same windows, Wilson intervals, at-fault McNemar counts against the defaults."""
     rows_idx = np.arange(len(o))
     base_fault = o.at_fault[:, 0]
     rows = []

@@ -92,16 +92,12 @@ PredictionInputs = tuple[GoalsConfig | None, NeighbourPredictionMode]
 
 @dataclass(frozen=True)
 class PlannerKind(Generic[C]):
-    """One planner kind.
-
-    name: the ``--planner`` name (the configuration's ``kind``). description: one line for listings.
-    config_class: its configuration (several kinds may share one, told apart by ``kind``).
-    resolve: options -> configuration. build: (builder, configuration, label) -> (planner, model
-    load time [s]). options: the ``PlannerOption``s ``resolve`` reads. future: whether it reads the
-    recorded future; for ``ORACLE_INPUTS``, ``inputs`` says which goal source and neighbour
-    prediction a configuration uses. dual_rate: the closed loop runs it dual-rate (the planner is a
-    ``DualRatePlanner``). demo: the tables of ``letspi demo`` showing it. outputs: the per-scenario
-    info it reports, declared (``letspi.planners.outputs.output``); anything else is refused."""
+    """One planner kind: ``name`` (the ``--planner`` name, the configuration's ``kind``), a one-line ``description``,
+    ``config_class`` (kinds may share one), ``resolve`` (options -> configuration), ``build`` ((builder,
+    configuration, label) -> (planner, model load time [s])), the ``options`` ``resolve`` reads; ``future``: whether
+    it reads the recorded future (for ``ORACLE_INPUTS``, ``inputs`` gives a configuration's goal source and neighbour
+    prediction); ``dual_rate``: a ``DualRatePlanner``; ``demo``: its ``letspi demo`` tables; ``outputs``: the
+    per-scenario info it declares (``letspi.planners.outputs.output``; anything else is refused)."""
 
     name: str
     description: str

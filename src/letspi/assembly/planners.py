@@ -52,8 +52,7 @@ class BuiltPlanner:
 
     @property
     def kind_arg(self) -> str:
-        """The ``--planner`` kind that builds it again in a new process: its kind's name, or the import
-        path it was loaded from (``pkg.mod:NAME``)."""
+        """The ``--planner`` kind that builds it again in a new process (a name, or ``pkg.mod:NAME``)."""
         return loaded_from(self.config.kind) or self.config.kind
 
     def relabel(self, label: str) -> str:
@@ -133,8 +132,7 @@ def planner_kinds(args: Sequence[str], table: PlannerTable | None = None) -> lis
 
 def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
                    env: Mapping[str, str] | None = None, table: PlannerTable | None = None) -> list[BuiltPlanner]:
-    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (a kind by name or by import path,
-    ``planner_kinds``; models are loaded once)."""
+    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (``planner_kinds``); models load once."""
     labels = planner_kinds(args, table)
     table = table or planner_table()
     table.check(options)

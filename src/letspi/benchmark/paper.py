@@ -86,9 +86,9 @@ PAPER_VI: Final[tuple[tuple[Any, ...], ...]] = (
 
 @dataclass(frozen=True)
 class PaperSettings:
-    """What a paper run pins; per suite: ``eval_windows`` evaluated, ``memory_windows``
-    collected on, ``memory_phase_windows`` of the evaluated ones also planned by ``letspi-memory``;
-    ``memory_share``: share of each suite's ego vehicles whose windows are held for collection."""
+    """What a paper run pins; per suite: ``eval_windows`` evaluated, ``memory_windows`` collected on,
+    ``memory_phase_windows`` of the evaluated ones also planned by ``letspi-memory``; ``memory_share``: share of
+    each suite's ego vehicles whose windows are held for collection."""
 
     suites: tuple[str, ...] = DEFAULT_SUITES
     eval_windows: int = 800
@@ -143,8 +143,7 @@ def split_suite(batch: ScenarioBatch, settings: PaperSettings) -> tuple[np.ndarr
 
 def paper_data(settings: PaperSettings, out: Path, *, workers: int = 2,
                log: Callable[[str], None] = print) -> PaperData:
-    """The suites' data (made or reused from the cache), split and pooled, written to ``OUT/data`` (a file
-    already there must hold the same windows)."""
+    """The suites' data (cached), split and pooled into ``OUT/data`` (a file there must hold the same windows)."""
     parts: dict[str, list[ScenarioBatch]] = {"eval": [], "memory": [], "memory-phase": []}
     configs: list[MetricsConfig] = []
     ids = []
@@ -191,9 +190,9 @@ def _check_settings(out: Path, record: dict[str, Any]) -> None:
 def run_paper(settings: PaperSettings, out: Path, options: PlannerOptions, *, tables: Sequence[str] = TABLES,
               workers: int = 2, progress_factory: ProgressFactory | None = None,
               log: Callable[[str], None] = print, data: PaperData | None = None) -> PaperRun:
-    """Run the tables ``tables`` and write the report; every stage resumes where a
-    previous run stopped. ``options``: the planners' options (``--memory`` defaults to OUT/memory.sqlite;
-    the prompt style to ``settings.prompt_style``); ``data``: the pooled windows (default: ``paper_data``)."""
+    """Run the tables ``tables`` (each stage resumes) and write the report. ``options``: the planners' options
+    (``--memory`` defaults to OUT/memory.sqlite, the prompt style to ``settings.prompt_style``); ``data``: the pooled
+    windows (default: ``paper_data``)."""
     unknown = [t for t in tables if t not in TABLES]
     if unknown:
         raise ValueError(f"unknown table {', '.join(unknown)}; available: {', '.join(TABLES)}")

@@ -142,12 +142,11 @@ class EventConfig:
 
 @dataclass(frozen=True)
 class LayoutConfig:
-    """Road layout; only the main carriageway is recorded (HighD has no ramps).
-
-    ``kind``: ``straight``; ``on_ramp`` (a one-lane ramp feeds a 250 m acceleration lane right of the carriageway);
-    ``lane_drop`` (one more lane upstream, the right one ends). ``aux_lane_m``: where that lane ends, from the window
-    entry [m]. ``ramp_share``: share of each direction's flow entering from the ramp. ``lc_strategic``: every
-    driver's LC2013 ``lcStrategic`` on those layouts (SUMO's 1 makes drivers leave an ending lane far upstream)."""
+    """Road layout; only the main carriageway is recorded (HighD has no ramps). ``kind``: ``straight``; ``on_ramp`` (a
+    one-lane ramp feeds a 250 m acceleration lane right of the carriageway); ``lane_drop`` (one more lane upstream, the
+    right one ends). ``aux_lane_m``: where that lane ends, from the window entry [m]. ``ramp_share``: share of each
+    direction's flow entering from the ramp. ``lc_strategic``: every driver's LC2013 ``lcStrategic`` on those layouts
+    (SUMO's 1 makes drivers leave an ending lane far upstream)."""
 
     kind: Layout = "straight"
     aux_lane_m: float = 300.0

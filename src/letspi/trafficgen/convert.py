@@ -23,10 +23,9 @@ _REST_TOL_M = 1e-3  # a vehicle within 1 mm of a lane centre is not changing lan
 
 @dataclass(frozen=True)
 class ImageTracks:
-    """All vehicles over the whole simulation in HighD image axes, before window clipping.
-
-    ``data``: ``step`` (time / 0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²],
-    ``drivingDirection``, ``class``; sorted by (sumo_id, step)."""
+    """All vehicles over the whole simulation in HighD image axes, before window clipping. ``data``: ``step`` (time /
+    0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²], ``drivingDirection``, ``class``; sorted by
+    (sumo_id, step)."""
 
     data: pd.DataFrame
 
@@ -38,11 +37,10 @@ def _smootherstep(f: np.ndarray) -> np.ndarray:
 
 def smooth_lane_changes(t: np.ndarray, y: np.ndarray, vehicle: np.ndarray,
                         centres: np.ndarray) -> np.ndarray:
-    """Replace SUMO's linear lateral ramps by quintic ones between the same anchor samples.
-
-    ``t`` (N,) [s] sorted within each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of
-    one vehicle contiguous; ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed
-    (N,) y; ramps touching a vehicle's first or last row (no anchor at rest) stay unchanged."""
+    """Replace SUMO's linear lateral ramps by quintic ones between the same anchor samples. ``t`` (N,) [s] sorted within
+    each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of one vehicle contiguous;
+    ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed (N,) y; ramps touching a
+    vehicle's first or last row (no anchor at rest) stay unchanged."""
     out = y.copy()
     moving = np.min(np.abs(y[:, None] - centres), axis=1) > _REST_TOL_M
     if not moving.any():
@@ -147,13 +145,11 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
 def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int, window_m: float,
                    upper_y_m: tuple[float, float] | None = None,
                    lower_y_m: tuple[float, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Cut one recording out of the image tracks.
-
-    A vehicle is recorded in the steps ``[first_step, first_step + n_steps)`` where its whole box is in ``[0,
-    window_m]`` along x and (when the bands are given) its centre on its main carriageway; only its first contiguous run
-    is kept, single frames are dropped. Frames and ids start at 1, ids ordered by first frame, direction, x. Returns
-    ``states`` (``STATE_COLUMNS``, sorted by (id, frame)) and ``vehicles`` (``id, class, drivingDirection, sumo_id``).
-    """
+    """Cut one recording out of the image tracks. A vehicle is recorded in the steps ``[first_step, first_step +
+    n_steps)`` where its whole box is in ``[0, window_m]`` along x and (when the bands are given) its centre on its main
+    carriageway; only its first contiguous run is kept, single frames are dropped. Frames and ids start at 1, ids
+    ordered by first frame, direction, x. Returns ``states`` (``STATE_COLUMNS``, sorted by (id, frame)) and ``vehicles``
+    (``id, class, drivingDirection, sumo_id``)."""
     d = tracks.data
     inside = ((d["step"] >= first_step) & (d["step"] < first_step + n_steps)
               & (d["x"] >= 0.0) & (d["x"] + d["width"] <= window_m))

@@ -37,13 +37,11 @@ class DemandConfig:
 
 @dataclass(frozen=True)
 class VehicleSpec:
-    """One vehicle to insert (all units SI).
-
-    SUMO ``vid``, ``kind``, ``route``; ``east`` (HighD direction 2); insertion ``lane`` (0 = rightmost) and
-    ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0 as ``accel_mps2``,
-    ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``, ``lcCooperative``,
-    ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead`` (``lc_lookahead_s``, 0 = SUMO's
-    default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``."""
+    """One vehicle to insert (all units SI). SUMO ``vid``, ``kind``, ``route``; ``east`` (HighD direction 2); insertion
+    ``lane`` (0 = rightmost) and ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0
+    as ``accel_mps2``, ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``,
+    ``lcCooperative``, ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead``
+    (``lc_lookahead_s``, 0 = SUMO's default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``."""
 
     vid: str
     kind: Kind

@@ -56,7 +56,6 @@ class Window:
 @dataclass(frozen=True)
 class EventRecord:
     """One injected event in simulation terms (converted to HighD ids and frames when written, as ``NN_events.csv``).
-
     ``time_s``: first time it acts [s]; ``kind`` (``failed``: a lane change SUMO did not carry out, never written);
     ``actor``, ``other``: SUMO ids; ``lane``, ``target_lane``: main-lane indices (0 = rightmost); ``target_speed_mps``
     and ``decel_mps2`` are NaN for lane changes; ``reaction_s`` is 0 when followers are not held; ``held_s``: how long

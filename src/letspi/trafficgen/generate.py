@@ -56,12 +56,11 @@ def derived_seed(seed: int, attempt: int) -> int:
 
 @dataclass
 class SimulatedRecordings:
-    """Everything a generation run produced in memory, before writing.
-
-    ``chunks``: one ``(states, vehicles)`` per recording (``clip_to_window``); ``first_steps``: the simulation step of
-    each recording's frame 1; ``events``: per recording, in HighD frames but with SUMO ids and lane indices;
-    ``collisions``: SUMO's in the accepted run (always empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the
-    accepted one (0 = the seed); ``rejected``: why each earlier one was; ``network.net_file`` is deleted."""
+    """Everything a generation run produced in memory, before writing. ``chunks``: one ``(states, vehicles)`` per
+    recording (``clip_to_window``); ``first_steps``: the simulation step of each recording's frame 1; ``events``: per
+    recording, in HighD frames but with SUMO ids and lane indices; ``collisions``: SUMO's in the accepted run (always
+    empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the accepted one (0 = the seed); ``rejected``: why each
+    earlier one was; ``network.net_file`` is deleted."""
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
     first_steps: list[int] = field(default_factory=list)
@@ -254,9 +253,8 @@ def _highd_events(table: pd.DataFrame, vehicles: pd.DataFrame, states: pd.DataFr
 
 @dataclass(frozen=True)
 class GenerationReport:
-    """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took.
-
-    Wall and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
+    """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took. Wall
+    and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
     ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception."""
 
     paths: list[Path]
@@ -315,14 +313,13 @@ def generate_highd(
     traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> GenerationReport:
-    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir`` (created if missing).
+    """Simulate a two-direction highway and write HighD-format recordings (``NN_tracks.csv``, ``NN_tracksMeta.csv``,
+    ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png``, ``NN_generation.json``) into ``out_dir``.
 
     ``minutes`` are recorded after a 90 s warm-up; equal seeds give identical files; ``flow_veh_per_h`` per
-    direction defaults to about 733 per lane; ``recording_minutes`` splits the run into consecutive recordings
-    (vehicles crossing a split are cut); ``criticality`` names a preset, ignored when ``traffic`` is given. Writes
-    ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png`` and
-    ``NN_generation.json`` (NN = 01, 02, ...): a 420 m window in which a vehicle is recorded while its whole box is
-    inside and its centre on the main carriageway; no speed limit (speedLimit -1)."""
+    direction defaults to about 733 per lane; ``recording_minutes`` splits the run (vehicles crossing a split are
+    cut); ``criticality`` names a preset, ignored when ``traffic`` is given. A vehicle is recorded while its whole
+    box is inside the 420 m window and its centre on the main carriageway; no speed limit (speedLimit -1)."""
     started = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

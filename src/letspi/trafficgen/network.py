@@ -24,11 +24,10 @@ _RAMP_SPEED_MPS = 27.8  # 100 km/h on the ramp
 
 @dataclass(frozen=True)
 class HighwayGeometry:
-    """Design parameters of the generated highway [m, m/s].
-
-    ``lanes_per_direction`` (2 or 3); ``median_m``: between the inner road edges; ``approach_m``: driven before the
-    window per direction; ``window_m``: HighD's is about 420 m; ``lane_speed_mps``: high, so vehicles keep their own
-    desired speed; ``image_top_m``: image y of the upper road edge."""
+    """Design parameters of the generated highway [m, m/s]. ``lanes_per_direction`` (2 or 3); ``median_m``: between the
+    inner road edges; ``approach_m``: driven before the window per direction; ``window_m``: HighD's is about 420 m;
+    ``lane_speed_mps``: high, so vehicles keep their own desired speed; ``image_top_m``: image y of the upper road
+    edge."""
 
     lanes_per_direction: int = 3
     lane_width_m: float = 3.75
@@ -57,12 +56,11 @@ class Entry:
 
 @dataclass(frozen=True)
 class HighwayNetwork:
-    """The generated network as read back from the ``.net.xml`` (in a temporary directory).
-
-    Image x = SUMO x - ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main
-    lane centres (index 0 = rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``);
-    ``upper/lower_markings_y_m``: image y of the main carriageways' markings, ascending, road edges included;
-    ``routes``: route id -> edges; ``entries``: where traffic is inserted."""
+    """The generated network as read back from the ``.net.xml`` (in a temporary directory). Image x = SUMO x -
+    ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main lane centres (index 0 =
+    rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``); ``upper/lower_markings_y_m``: image y of
+    the main carriageways' markings, ascending, road edges included; ``routes``: route id -> edges; ``entries``: where
+    traffic is inserted."""
 
     net_file: Path
     geometry: HighwayGeometry

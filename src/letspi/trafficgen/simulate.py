@@ -36,11 +36,10 @@ class Collision:
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """FCD of all vehicles on the whole road plus simulator diagnostics.
-
-    ``fcd``: ``time`` [s], ``id``, ``x``, ``y`` (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s],
-    ``acceleration`` [m/s²], sorted by (id, time); ``collisions``: physical contact only; ``wall_time_s``,
-    ``cpu_time_s``: of the stepping [s]; ``events``, ``hook_stats``: the hook's ``records`` and ``stats()``."""
+    """FCD of all vehicles on the whole road plus simulator diagnostics. ``fcd``: ``time`` [s], ``id``, ``x``, ``y``
+    (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s], ``acceleration`` [m/s²], sorted by (id, time);
+    ``collisions``: physical contact only; ``wall_time_s``, ``cpu_time_s``: of the stepping [s]; ``events``,
+    ``hook_stats``: the hook's ``records`` and ``stats()``."""
 
     fcd: pd.DataFrame
     collisions: list[Collision]
@@ -95,12 +94,11 @@ def run_sumo(
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
     """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD (rows with SUMO x in ``x_range_m``).
-
-    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes
-    lane changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
+    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes lane
+    changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
     ``on_step(t)`` runs whenever SUMO's time t has reached ``next_wakeup()`` (timing as in ``events``). ``ssm_file``:
-    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or
-    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done."""
+    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or PET
+    < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done."""
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
     collision_file = work_dir / "collisions.xml"

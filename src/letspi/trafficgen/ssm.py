@@ -51,7 +51,6 @@ def read_ssm_ttc(path: Path) -> pd.DataFrame:
 @dataclass(frozen=True)
 class SsmComparison:
     """Agreement of a recording's TTC with SUMO's SSM device, for TTCs below the device threshold (5 s).
-
     ``frames_both``: (follower, frame) pairs both have for the same leader, ``frame_*``: median and p95 |difference|
     [s], share within 5 %. ``frames_only_*``: pairs only one has; of SUMO's, ``_other_lane`` (a lane changer),
     ``_above_threshold`` (the recording's TTC is >= 5 s) and ``_not_preceding`` (HighD's leader is another).

@@ -215,13 +215,11 @@ def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame],
                 if CL_PLAN_XY in stored.columns:  # closed loop: its t = 0 plan in open loop above the run
                     record = {**{str(k): v for k, v in rec.items()}, "scenario_id": sid}
                     fig = closed_loop_report_figure(sub, record, name, _run_mode(eval_dir))
-                    item.image = figure_to_data_uri(fig, dpi=90)
-                    sec.scenarios.append(item)
-                    continue
-                plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
-                                 vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
-                                 goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))
-                fig = plot_scenario(sub, 0, {name: plan}, title=f"{name}: scenario {sid}", width_in=13.0)
+                else:
+                    plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
+                                     vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
+                                     goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))
+                    fig = plot_scenario(sub, 0, {name: plan}, title=f"{name}: scenario {sid}", width_in=13.0)
                 item.image = figure_to_data_uri(fig, dpi=90)
             sec.scenarios.append(item)
         sections.append(sec)
