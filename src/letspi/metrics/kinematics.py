@@ -1,8 +1,7 @@
 """Kinematic quality of a planned trajectory: ADE/FDE, accelerations, jerk, lane changes, off-road.
 
-Accelerations and jerk are finite differences at dt over the t = 0 state and the F planned states (the t = 0
-velocity and acceleration come from the data), so a plan that starts with a jump is charged for it. x is
-longitudinal and y lateral (the markings are lines y = const); norms are reported too.
+Accelerations and jerk are finite differences at dt over the recorded t = 0 state and the F planned states, so a
+plan that starts with a jump is charged for it. x is longitudinal, y lateral (markings are lines y = const).
 """
 
 from __future__ import annotations
@@ -63,8 +62,7 @@ def lane_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
 
 def count_lane_changes(y0_m: np.ndarray, plan_y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     """Number of lane changes (B,) of the planned centre from the lane at t = 0: every step whose lane index differs
-    from the previous one counts (a change and back is 2; no hysteresis).
-    """
+    from the previous one counts (a change and back is 2)."""
     lanes = lane_index(np.concatenate([y0_m[:, None], plan_y_m], axis=1), marking_y_m)
     return (np.diff(lanes, axis=1) != 0).sum(axis=1)
 

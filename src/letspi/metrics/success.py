@@ -72,8 +72,7 @@ def success(
     marking_y_m: np.ndarray,
 ) -> SuccessResult:
     """Evaluate the success criteria (module docstring): ``plan_xy_m``, ``plan_vxy_mps`` (B, F, 2); peaks and flags
-    (B,); ``goals_xy_m`` (B, 2) or None; ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M).
-    """
+    (B,); ``goals_xy_m`` (B, 2) or None; ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M)."""
     b = plan_xy_m.shape[0]
     finite = np.isfinite(plan_xy_m).all(axis=(1, 2)) & np.isfinite(plan_vxy_mps).all(axis=(1, 2))
     # NaN peaks compare False, so a non-finite plan is never feasible

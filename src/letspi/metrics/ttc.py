@@ -57,12 +57,12 @@ def _path_vehicle(inp: MetricInputs, *, ahead: bool) -> PrecedingVehicle:
 
 
 def preceding_vehicle(inp: MetricInputs) -> PrecedingVehicle:
-    """Find the preceding vehicle of the (planned) ego at every step (definition: module doc)."""
+    """The preceding vehicle of the (planned) ego at every step (module doc)."""
     return _path_vehicle(inp, ahead=True)
 
 
 def following_vehicle(inp: MetricInputs) -> PrecedingVehicle:
-    """Find the following vehicle in the (planned) ego's path at every step (module doc)."""
+    """The following vehicle in the (planned) ego's path at every step (module doc)."""
     return _path_vehicle(inp, ahead=False)
 
 
