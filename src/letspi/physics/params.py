@@ -62,11 +62,9 @@ FloatOrArray: TypeAlias = Any
 
 @dataclass(frozen=True, eq=False)
 class SocialForceParams:
-    """Social force parameters of one scenario or of a batch (units in the module docstring).
-
-    Every field holds float64 of one shape: ``()`` for one set (an ``np.float64``) or ``(B,)``. ``broadcast``,
-    ``stack`` and ``from_matrix`` build batches, ``row`` takes one set out; equality compares values.
-    """
+    """Social force parameters of one scenario or of a batch (units in the module docstring). Every field holds float64
+    of one shape: ``()`` for one set (an ``np.float64``) or ``(B,)``. ``broadcast``, ``stack`` and ``from_matrix`` build
+    batches, ``row`` takes one set out; equality compares values."""
 
     tau_s: FloatOrArray = 1.0
     k_np: FloatOrArray = 25.0
