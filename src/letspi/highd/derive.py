@@ -75,11 +75,9 @@ def _check_inputs(states: pd.DataFrame, vehicles: pd.DataFrame) -> None:
 def _neighbour_ids(
     group: np.ndarray, s_centre: np.ndarray, ids: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest neighbours ahead/behind along ``s`` within a group.
-
-    ``group`` (N,) int64 key (frame, direction, lane), ``s_centre`` (N,) [m], ``ids`` (N,). Returns the preceding and
-    following ids (0 = none) and row indices (-1 = none), (N,) each.
-    """
+    """Nearest neighbours ahead/behind along ``s`` within a group. ``group`` (N,) int64 key (frame, direction, lane),
+    ``s_centre`` (N,) [m], ``ids`` (N,). Returns the preceding and following ids (0 = none) and row indices (-1 = none),
+    (N,) each."""
     n = len(ids)
     order = np.lexsort((s_centre, group))
     same_next = group[order[1:]] == group[order[:-1]]

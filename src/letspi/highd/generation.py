@@ -30,8 +30,7 @@ def write_generation(record: dict[str, Any], directory: Path, recording_id: int)
 
 def read_generation(directory: Path, recording_id: int) -> dict[str, Any] | None:
     """``NN_generation.json`` of a recording, or None when there is none; ValueError naming the file when it is not
-    a JSON object with an integer ``seed``.
-    """
+    a JSON object with an integer ``seed``."""
     path = Path(directory) / generation_file(recording_id)
     if not path.exists():
         return None
