@@ -44,8 +44,7 @@ _CLASS_CODES = {"Car": VEHICLE_CLASS_CAR, "Truck": VEHICLE_CLASS_TRUCK}
 @dataclass(frozen=True)
 class WindowIndex:
     """Which windows exist, before any are extracted; arrays (W,). ``start_frame`` is the HighD frame of the window's
-    first frame; t = 0 is ``start_frame + T0_INDEX``.
-    """
+    first frame; t = 0 is ``start_frame + T0_INDEX``."""
 
     recording_id: np.ndarray
     ego_id: np.ndarray
@@ -96,8 +95,7 @@ def critical_windows(
     """(W,) bool: whether each window's recorded *future* holds a conflict of its ego (for selecting scenarios only):
     a frame with HighD's ``ttc`` (> 0) below ``CRITICAL_TTC_S`` or DRAC = closing / (2 TTC) above
     ``CRITICAL_DRAC_MPS2``, or a scripted event (``events``: recording id -> ``NN_events.csv``) with the ego as
-    ``id`` or ``other_id`` starting at most ``EVENT_LEAD_FRAMES`` before t = 0.
-    """
+    ``id`` or ``other_id`` starting at most ``EVENT_LEAD_FRAMES`` before t = 0."""
     out = np.zeros(len(windows), dtype=bool)
     for rec in recordings:
         sel = np.flatnonzero(windows.recording_id == rec.recording_id)
@@ -137,8 +135,7 @@ def sample_windows(
     critical_share: float = 0.0,
 ) -> WindowIndex:
     """Up to ``max_n`` windows drawn without replacement by ``seed``: uniform (the paper), or with ``critical`` (W,) and
-    ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start).
-    """
+    ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start)."""
     if not 0.0 <= critical_share <= 1.0:
         raise ValueError(f"critical_share must be in [0, 1], got {critical_share}")
     n = len(windows)

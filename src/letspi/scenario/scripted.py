@@ -39,8 +39,7 @@ def recording_events(directory: Path) -> dict[str, pd.DataFrame]:
 
 def scripted_neighbours(batch: ScenarioBatch, events: Mapping[str, pd.DataFrame]) -> np.ndarray:
     """(B, N) bool: neighbour slots whose vehicle acts in an event under way in the window's future; ``events``:
-    ``recording_key`` -> events table (``recording_events``).
-    """
+    ``recording_key`` -> events table (``recording_events``)."""
     out = np.zeros(batch.nbr_id.shape, dtype=bool)
     keys = np.asarray(batch.recording_key).astype(str)
     for key in np.unique(keys):
