@@ -222,10 +222,8 @@ def compute_metrics(
     config: MetricsConfig | None = None,
 ) -> ScenarioMetrics:
     """All per-scenario metrics of planned ego futures (B, F, 2) centres [m] and velocities [m/s], ego frame.
-
     ``goals_xy_m``: (B, 2) the planner's own goal for ``success_self``, or None (that criterion holds); ``success`` is
-    judged against the human either way. Computed in chunks of ``config.chunk_size`` scenarios.
-    """
+    judged against the human either way. Computed in chunks of ``config.chunk_size`` scenarios."""
     cfg = config if config is not None else MetricsConfig()
     xy = np.asarray(ego_future_xy_m, dtype=np.float64)
     vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)

@@ -25,8 +25,7 @@ class MetricsConfig(BaseModel):
     ``sr_*`` against the human endpoint, ``goal_tol_*`` against the planner's goal); at fault
     (``fault_reaction_time_s``, ``fault_comfort_decel_mps2``); ``dt_s``. Reflection (paper §III; independent of the
     evaluation): ``reflection_ttc_s``, ``reflection_min_dist_m``, ``reflection_pet_s`` (None: unused).
-    ``chunk_size``: scenarios per vectorised chunk ((B, N, F) float64 temporaries of chunk_size rows).
-    """
+    ``chunk_size``: scenarios per vectorised chunk ((B, N, F) float64 temporaries of chunk_size rows)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

@@ -55,8 +55,7 @@ def finite_difference_kinematics(
 
 def lane_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     """Lane index of lateral positions ``y_m`` (B, F): markings (B, M, ascending, NaN padded) strictly below, minus 1;
-    0 = rightmost lane, -1 right of the road or NaN, M - 1 left of it.
-    """
+    0 = rightmost lane, -1 right of the road or NaN, M - 1 left of it."""
     return (marking_y_m[:, None, :] < y_m[..., None]).sum(axis=-1) - 1
 
 
@@ -84,8 +83,7 @@ def off_road(
     tol_m: float = 0.0,
 ) -> np.ndarray:
     """(B,) bool: at some step the ego box (centres ``plan_y_m`` (B, F), ``ego_width_m`` (B,)) extends more than
-    ``tol_m`` beyond a road edge; NaN positions are not flagged here.
-    """
+    ``tol_m`` beyond a road edge; NaN positions are not flagged here."""
     right, left = road_edges(marking_y_m, marking_is_edge)
     hw = 0.5 * ego_width_m[:, None]
     beyond = (plan_y_m - hw < right[:, None] - tol_m) | (plan_y_m + hw > left[:, None] + tol_m)

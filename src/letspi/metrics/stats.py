@@ -67,8 +67,7 @@ def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
 
 def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any]) -> float:
     """How much grouping windows by vehicle inflates the variance of their share, >= 1 (Korn & Graubard 1998):
-    G / (G - 1) · Σ_g (y_g - p m_g)² / n² over p (1 - p) / n; 1 when not estimable (p 0 or 1, < 2 groups).
-    """
+    G / (G - 1) · Σ_g (y_g - p m_g)² / n² over p (1 - p) / n; 1 when not estimable (p 0 or 1, < 2 groups)."""
     y = np.asarray(flags, dtype=np.float64)
     inverse, n_groups = group_index(groups)
     if len(inverse) != len(y):
@@ -86,8 +85,7 @@ def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Seque
 def vehicle_wilson_interval(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any],
                             level: float = LEVEL) -> Interval:
     """Wilson interval of the share of ``flags`` (n,) at the effective sample size n / ``design_effect`` of their
-    ``groups`` (n,); ``wilson_interval`` with one window per vehicle, (NaN, NaN) when n is 0.
-    """
+    ``groups`` (n,); ``wilson_interval`` with one window per vehicle, (NaN, NaN) when n is 0."""
     y = np.asarray(flags, dtype=bool)
     if not len(y):
         return NAN_INTERVAL
@@ -182,8 +180,7 @@ def _json_float(x: float) -> float | None:
 @dataclass(frozen=True)
 class PairedRate:
     """Paired comparison of a rate of A and B on the same windows: ``n_only_a`` windows where only A's flag is set;
-    ``diff`` A minus B in percentage points, ``diff_ci95`` its vehicle-bootstrap interval.
-    """
+    ``diff`` A minus B in percentage points, ``diff_ci95`` its vehicle-bootstrap interval."""
 
     n_pairs: int
     n_only_a: int

@@ -43,8 +43,7 @@ def reference_reached(
     config: MetricsConfig,
 ) -> np.ndarray:
     """(B,) bool: the plan ends in the human's final lane with the human's progress (module docstring).
-    ``plan_end_xy_m``, ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M). NaN plans give False.
-    """
+    ``plan_end_xy_m``, ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M). NaN plans give False."""
     plan_lane = lane_index(plan_end_xy_m[:, 1:2], marking_y_m)[:, 0]
     human_lane = lane_index(human_end_xy_m[:, 1:2], marking_y_m)[:, 0]
     lat_ok = (plan_lane == human_lane) & np.isfinite(plan_end_xy_m[:, 1])
