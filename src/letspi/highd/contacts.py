@@ -1,7 +1,5 @@
-"""Physical contact in a HighD recording: pairs of boxes that overlap in the same frame.
-
-Boxes are in contact when both their x and y intervals overlap with positive length (touching is not contact).
-"""
+"""Physical contact in a HighD recording: pairs of boxes whose x and y intervals both overlap with positive length
+in the same frame (touching is not contact)."""
 
 from __future__ import annotations
 

@@ -156,8 +156,8 @@ def build_recording(states: pd.DataFrame, vehicles: pd.DataFrame, *, recording_i
 
 
 def _tracks(st: pd.DataFrame, veh: pd.DataFrame, markings: np.ndarray) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
-    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle
-    exists and where TTC is defined (for the per-vehicle minima)."""
+    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle exists and where
+    TTC is defined."""
     ids = st["id"].to_numpy(dtype=np.int64)
     frames = st["frame"].to_numpy(dtype=np.int64)
     x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))

@@ -1,8 +1,7 @@
 """``NN_generation.json``: how a generated recording was made (a letspi extension; real HighD has none).
 
 letspi's SUMO generator writes one per recording (seed, minutes, lanes, flow, the traffic configuration, the
-accepted attempt, letspi version). Scenario extraction copies it into the scenario file's provenance
-(``generation``), which is how commands that must not train on benchmark traffic recognise it.
+accepted attempt, letspi version); scenario extraction copies it into the scenario file's provenance.
 """
 
 from __future__ import annotations

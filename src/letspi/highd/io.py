@@ -264,9 +264,8 @@ def _scalar(value: object, col: str) -> object:
 
 
 def read_recording(directory: Path, recording_id: int) -> Recording:
-    """Read and validate recording ``recording_id`` of ``directory``. Tracks are sorted by (id, frame); columns are
-    int64, float64 or str. Raises ``HighDFormatError`` naming the file and, where it applies, the column and the 1-based
-    CSV line (header = line 1)."""
+    """Read and validate recording ``recording_id`` of ``directory``, tracks sorted by (id, frame); columns are int64,
+    float64 or str. Raises ``HighDFormatError`` (module doc)."""
     directory = Path(directory)
     rm_path = directory / recording_meta_file(recording_id)
     tm_path = directory / tracks_meta_file(recording_id)
@@ -426,9 +425,8 @@ def write_recording(rec: Recording, directory: Path) -> list[Path]:
 
 def write_highway_image(directory: Path, recording_id: int, upper_markings_y_m: Sequence[float],
                         lower_markings_y_m: Sequence[float], length_m: float) -> Path:
-    """Draw the road of a recording as its ``NN_highway.png`` (where real HighD has its aerial view). Grey carriageways,
-    white markings, image axes as the tracks at ``HIGHWAY_IMAGE_M_PER_PX``, so tools that draw over HighD's image
-    (``lxd-io`` needs the file to list a recording) work on generated recordings."""
+    """Draw the road of a recording as its ``NN_highway.png`` (real HighD's aerial view; ``lxd-io`` needs it) at
+    ``HIGHWAY_IMAGE_M_PER_PX``, in the tracks' image axes: grey carriageways, white markings."""
     upper, lower = np.sort(np.asarray(upper_markings_y_m)), np.sort(np.asarray(lower_markings_y_m))
     height_px = int(np.ceil((lower[-1] + upper[0]) / HIGHWAY_IMAGE_M_PER_PX))
     width_px = int(np.ceil(length_m / HIGHWAY_IMAGE_M_PER_PX))

@@ -1,11 +1,9 @@
 """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), batched.
 
 ``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``, gap s
-bumper to bumper, dv = v - v_leader; Treiber's values (cars T 1.5 s, s0 2 m, a 1.0, b 2.0 m/s², delta 4; trucks
-T 2.0 s, a 0.7 m/s²). Safeguards: s floored at s0 / 2, a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s;
-semi-implicit Euler. The desired speed is the highest speed of the visible history (``desired_speed_from_history``).
-``rollout_idm_ego`` drives the ego longitudinally behind its in-lane leader (centre offset < half a lane, or
-boxes overlapping laterally) among the predicted neighbours, keeping its lateral position.
+bumper to bumper, dv = v - v_leader; Treiber's values (``CAR_IDM``, ``TRUCK_IDM``). Safeguards: s floored at s0 / 2,
+a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s; semi-implicit Euler. ``rollout_idm_ego``'s in-lane leader:
+centre offset < half a lane, or boxes overlapping laterally.
 """
 
 from __future__ import annotations

@@ -40,9 +40,8 @@ LATERAL_RANGE_LANES = 1.5
 AX_MIN_MPS2 = -9.0
 AX_MAX_MPS2 = 4.0
 AY_MAX_MPS2 = 3.0
-# Stand-in coordinate for absent things (invalid neighbour samples, padding markings, missing
-# edges): every force from it underflows to exactly 0.0 for any r_col in PARAM_RANGES, so the hot
-# loop needs no validity masks.
+# Stand-in coordinate for absent things (invalid neighbour samples, padding markings, missing edges): every force
+# from it underflows to exactly 0.0 for any r_col in PARAM_RANGES, so the hot loop needs no validity masks.
 FAR_M = 1.0e12
 
 

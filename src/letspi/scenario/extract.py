@@ -182,8 +182,7 @@ class _RecordingArrays:
 
 
 def recording_key(rec: Recording) -> str:
-    """A short content hash of a recording (its meta and every vehicle's meta row): the same
-    recording gives the same key wherever it is read from, another recording another key."""
+    """A short content hash of a recording (its meta and every vehicle's meta row), wherever it is read from."""
     return recording_key_of(rec.meta, rec.tracks_meta)
 
 
@@ -240,9 +239,8 @@ class _WindowView:
 
 def _neighbours_and_context(arr: _RecordingArrays, view: _WindowView, is_ego: np.ndarray, ego_rows: np.ndarray,
                             direction: int) -> tuple[np.ndarray, np.ndarray]:
-    """Vehicle ids of the window's neighbours (same direction, present at t = 0 and within the radius
-    then; no later frame counts), nearest first, and of its context vehicles (the others present in
-    the future that come within ``CONTEXT_RADIUS_M`` of the ego's track), closest approach first."""
+    """Vehicle ids of the window's neighbours, nearest first, and of its context vehicles, closest approach first
+    (module doc)."""
     fr, vid = view.fr, view.vid
     ego_x_at, ego_y_at = view.ex[ego_rows], view.ey[ego_rows]
     dist = np.hypot(view.ex - ego_x_at[fr], view.ey - ego_y_at[fr])
@@ -394,8 +392,7 @@ def extract_scenarios(
     stride_frames: int = DEFAULT_STRIDE_FRAMES, critical_share: float = 0.0,
     events: Mapping[int, pd.DataFrame | None] | None = None, progress: Callable[[int], None] | None = None,
 ) -> ScenarioBatch:
-    """All windows of the recordings, or ``max_scenarios`` of them sampled reproducibly by ``seed``
-    (uniformly, or with ``critical_share`` of them from windows with a conflict: ``sample_windows``)."""
+    """All windows of the recordings, or ``max_scenarios`` of them sampled by ``seed`` (``sample_windows``)."""
     every = enumerate_windows(recordings, stride_frames)
     critical = critical_windows(recordings, every, events) if critical_share > 0 else None
     windows = sample_windows(every, max_scenarios, seed, critical, critical_share)

@@ -1,8 +1,7 @@
 """Questions about scenarios that planners, metrics and prompts ask (vectorised over the batch).
 
-Relations use the ego-frame lanes (index between markings, 0 = rightmost, from the centre y):
-``preceding``/``following``: same lane, nearest ahead/behind by centre x; ``left``/``right``: the adjacent lane,
-nearest by |Δx| (ahead, alongside or behind).
+Relations use the ego-frame lanes (index between markings, 0 = rightmost, from the centre y): ``preceding`` /
+``following``: same lane, nearest ahead/behind by centre x; ``left``/``right``: the adjacent lane, nearest by |Δx|.
 """
 
 from __future__ import annotations

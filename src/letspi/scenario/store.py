@@ -32,8 +32,7 @@ _DAMAGE: Final = (pa.ArrowException, OSError, ValueError, KeyError, TypeError, I
 
 
 class ScenarioFileError(ValueError):
-    """A scenario file that cannot be read. ``path`` is the file, ``reason`` what is wrong;
-    the message is ``"<path>: <reason>"``."""
+    """A scenario file that cannot be read: ``path``, ``reason``; the message is ``"<path>: <reason>"``."""
 
     def __init__(self, path: Path | str, reason: str) -> None:
         self.path = Path(path)
