@@ -186,7 +186,7 @@ def compute_outcomes(
     config: MetricsConfig | None = None,
 ) -> PlanOutcomes:
     """``PlanOutcomes`` of planned ego futures (B, F, 2) against the batch's ground truth: the subset of
-    ``compute_metrics`` (and only the computations it needs: about half the cost), chunked alike."""
+    ``compute_metrics``, computing only what it needs, chunked alike."""
     cfg = config if config is not None else MetricsConfig()
     xy = np.asarray(ego_future_xy_m, dtype=np.float64)
     vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)
