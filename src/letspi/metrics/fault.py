@@ -27,8 +27,7 @@ NONE, FRONT, SIDE, REAR = range(4)
 class FaultResult:
     """Per pair (B, N): ``pair_kind`` (int8 code into ``KINDS``), ``pair_at_fault``, ``pair_contact_step`` (-1 none).
     Per scenario (B,): ``collision_kind`` of the first collision ("none" without), ``collision_at_fault`` (any pair),
-    ``collision_fault_step`` / ``collision_fault_nbr`` of the first at-fault contact (-1 none).
-    """
+    ``collision_fault_step`` / ``collision_fault_nbr`` of the first at-fault contact (-1 none)."""
 
     pair_kind: np.ndarray
     pair_at_fault: np.ndarray
@@ -40,14 +39,8 @@ class FaultResult:
 
 
 def _unjustified_braking(
-    inp: MetricInputs,
-    b_idx: np.ndarray,
-    contact_step: np.ndarray,
-    ego_acc_lon_mps2: np.ndarray,
-    drac_mps2: np.ndarray,
-    preceding_nbr: np.ndarray,
-    comfort_decel_mps2: float,
-    dt_s: float,
+    inp: MetricInputs, b_idx: np.ndarray, contact_step: np.ndarray, ego_acc_lon_mps2: np.ndarray, drac_mps2: np.ndarray,
+    preceding_nbr: np.ndarray, comfort_decel_mps2: float, dt_s: float,
 ) -> np.ndarray:
     """(Q,) bool: the ego of scenario b_idx[q] braked harder than allowed at some step <= contact_step[q]."""
     f = ego_acc_lon_mps2.shape[1]
@@ -91,23 +84,13 @@ def _classify_pairs(inp: MetricInputs, overlap: np.ndarray, bi: np.ndarray, ni: 
 
 
 def at_fault_collisions(
-    inp: MetricInputs,
-    overlap: np.ndarray,
-    first_step: np.ndarray,
-    first_nbr: np.ndarray,
-    ego_acc_lon_mps2: np.ndarray,
-    drac_mps2: np.ndarray,
-    preceding_nbr: np.ndarray,
-    *,
-    reaction_time_s: float = 1.0,
-    comfort_decel_mps2: float = 3.0,
+    inp: MetricInputs, overlap: np.ndarray, first_step: np.ndarray, first_nbr: np.ndarray, ego_acc_lon_mps2: np.ndarray,
+    drac_mps2: np.ndarray, preceding_nbr: np.ndarray, *, reaction_time_s: float = 1.0, comfort_decel_mps2: float = 3.0,
     dt_s: float = 0.04,
 ) -> FaultResult:
-    """Classify every colliding pair and flag the ego's fault (rules: module docstring).
-
-    ``overlap`` (B, N, F) box overlap; ``first_step``, ``first_nbr`` (B,) the first collision; ``ego_acc_lon_mps2``
-    (B, F) planned longitudinal acceleration; ``drac_mps2``, ``preceding_nbr`` (B, F) from ``drac`` and ``ttc``.
-    """
+    """Classify every colliding pair and flag the ego's fault (module doc): ``overlap`` (B, N, F) box overlap;
+    ``first_step``, ``first_nbr`` (B,) the first collision; ``ego_acc_lon_mps2`` (B, F) planned longitudinal
+    acceleration; ``drac_mps2``, ``preceding_nbr`` (B, F) from ``drac`` and ``ttc``."""
     b, n, _ = overlap.shape
     pair_kind = np.zeros((b, n), dtype=np.int8)
     pair_fault = np.zeros((b, n), dtype=bool)
@@ -132,11 +115,8 @@ def at_fault_collisions(
     k = order.argmin(axis=1) if n else np.zeros(b, dtype=np.int64)
     any_fault: np.ndarray = np.asarray(pair_fault.any(axis=1))
     return FaultResult(
-        pair_kind=pair_kind,
-        pair_at_fault=pair_fault,
-        pair_contact_step=pair_step,
-        collision_kind=np.asarray(KINDS, dtype=object)[first_kind],
-        collision_at_fault=any_fault,
+        pair_kind=pair_kind, pair_at_fault=pair_fault, pair_contact_step=pair_step,
+        collision_kind=np.asarray(KINDS, dtype=object)[first_kind], collision_at_fault=any_fault,
         collision_fault_step=np.where(any_fault, pair_step[rows_b, k] if n else -1, -1),
         collision_fault_nbr=np.where(any_fault, k, -1),
     )

@@ -46,8 +46,7 @@ HOW_DOC: MappingProxyType[str, str] = MappingProxyType({
 @dataclass(frozen=True)
 class Agg:
     """One ``metrics.json`` key computed from one per-scenario column; ``threshold``: the cap or threshold of ``how``
-    (a ``MetricsConfig`` field name or a number; for ``pct_equal`` the value compared with).
-    """
+    (a ``MetricsConfig`` field name or a number; for ``pct_equal`` the value compared with)."""
 
     key: str
     how: AggHow
@@ -229,12 +228,7 @@ def computed_metrics() -> tuple[Metric, ...]:
 
 def aggregate_keys() -> tuple[str, ...]:
     """Every key of ``aggregate_metrics``' result, in order."""
-    return (
-        "n",
-        *(a.key for m in METRICS for a in m.aggregates),
-        "metrics_config_key",
-        *MetricsConfig.AGGREGATE_FIELDS,
-    )
+    return ("n", *(a.key for m in METRICS for a in m.aggregates), "metrics_config_key", *MetricsConfig.AGGREGATE_FIELDS)
 
 
 def reference_markdown() -> str:

@@ -1,11 +1,9 @@
 """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), batched.
 
 ``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``, gap s
-bumper to bumper, dv = v - v_leader; Treiber's values (cars T 1.5 s, s0 2 m, a 1.0, b 2.0 m/s², delta 4; trucks
-T 2.0 s, a 0.7 m/s²). Safeguards: s floored at s0 / 2, a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s;
-semi-implicit Euler. The desired speed is the highest speed of the visible history (``desired_speed_from_history``).
-``rollout_idm_ego`` drives the ego longitudinally behind its in-lane leader (centre offset < half a lane, or
-boxes overlapping laterally) among the predicted neighbours, keeping its lateral position.
+bumper to bumper, dv = v - v_leader; Treiber's values (``CAR_IDM``, ``TRUCK_IDM``). Safeguards: s floored at s0 / 2,
+a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s; semi-implicit Euler. ``rollout_idm_ego``'s in-lane leader:
+centre offset < half a lane, or boxes overlapping laterally.
 """
 
 from __future__ import annotations
@@ -28,8 +26,7 @@ GAP_FLOOR_FRACTION = 0.5
 @dataclass(frozen=True)
 class IdmParams:
     """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s²], comfortable deceleration b
-    [m/s²], exponent delta; each a float or an array broadcastable to the vehicles (``for_classes``).
-    """
+    [m/s²], exponent delta; each a float or an array broadcastable to the vehicles (``for_classes``)."""
 
     time_headway_s: FloatOrArray = 1.5
     min_gap_m: FloatOrArray = 2.0
@@ -54,8 +51,7 @@ TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
 
 class IdmKernel:
     """The IDM acceleration with per-vehicle constants prepared once, for rollouts (same arithmetic as
-    ``idm_acceleration``); ``desired_speed_mps`` and ``params`` broadcast to the vehicle shape.
-    """
+    ``idm_acceleration``); ``desired_speed_mps`` and ``params`` broadcast to the vehicle shape."""
 
     def __init__(self, desired_speed_mps: np.ndarray, params: IdmParams = CAR_IDM) -> None:
         self.v0 = np.maximum(np.asarray(desired_speed_mps, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
@@ -81,22 +77,17 @@ class IdmKernel:
 
 
 def idm_acceleration(
-    speed_mps: np.ndarray,
-    desired_speed_mps: np.ndarray,
-    gap_m: np.ndarray,
-    leader_speed_mps: np.ndarray,
+    speed_mps: np.ndarray, desired_speed_mps: np.ndarray, gap_m: np.ndarray, leader_speed_mps: np.ndarray,
     params: IdmParams = CAR_IDM,
 ) -> np.ndarray:
     """IDM acceleration [m/s²] with the module's safeguards; inputs broadcast together. ``gap_m``: bumper-to-bumper
-    gap, ``inf`` without a leader (``leader_speed_mps`` is then ignored and may be NaN).
-    """
+    gap, ``inf`` without a leader (``leader_speed_mps`` is then ignored and may be NaN)."""
     return IdmKernel(desired_speed_mps, params)(speed_mps, gap_m, leader_speed_mps)
 
 
 def desired_speed_from_history(speed_mps: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     """Highest finite speed over the history frames (last axis) of ``speed_mps`` (..., H), where ``valid``; (...,),
-    floored at 1 m/s.
-    """
+    floored at 1 m/s."""
     v = np.asarray(speed_mps, dtype=np.float64)
     ok = np.isfinite(v) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(v))
     best = np.where(ok, v, -np.inf).max(axis=-1)
@@ -111,29 +102,21 @@ def step_speed(speed_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> np
 def _neighbours_from_t0(batch: ScenarioBatch, neighbours: NeighbourPrediction
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Neighbour positions (B, N, F+1, 2), x velocities and validity (B, N, F+1): index k is t = k dt, observed at 0."""
-    nxy = np.concatenate(
-        [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
-    )
+    nxy = np.concatenate([batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2)
     nvx = np.concatenate(
-        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]],
-        axis=2,
+        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]], axis=2,
     )
     nvalid = np.concatenate([batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid], axis=2)
     return nxy, nvx, nvalid & np.isfinite(nxy).all(axis=-1) & np.isfinite(nvx)
 
 
 def rollout_idm_ego(
-    batch: ScenarioBatch,
-    neighbours: NeighbourPrediction,
-    *,
-    desired_speed_mps: np.ndarray | None = None,
-    params: IdmParams | None = None,
-    dt_s: float = DT_S,
+    batch: ScenarioBatch, neighbours: NeighbourPrediction, *, desired_speed_mps: np.ndarray | None = None,
+    params: IdmParams | None = None, dt_s: float = DT_S,
 ) -> RolloutResult:
     """Planner-level IDM: the ego follows its in-lane leader among the predicted ``neighbours`` (B, N, F, ...) and
     keeps its lateral position (zero lateral velocity and acceleration). Defaults: ``desired_speed_mps`` from the
-    ego's history, ``params`` by ``batch.ego_class``.
-    """
+    ego's history, ``params`` by ``batch.ego_class``."""
     n = len(batch)
     f = int(neighbours.xy_m.shape[2])
     hist = batch.history_slice
@@ -171,8 +154,6 @@ def rollout_idm_ego(
         vs[:, k] = v
     zeros = np.zeros((n, f))
     return RolloutResult(
-        xy_m=np.stack([xs, np.broadcast_to(y[:, None], (n, f))], axis=-1),
-        vxy_mps=np.stack([vs, zeros], axis=-1),
-        axy_mps2=np.stack([accs, zeros], axis=-1),
-        dt_s=dt_s,
+        xy_m=np.stack([xs, np.broadcast_to(y[:, None], (n, f))], axis=-1), vxy_mps=np.stack([vs, zeros], axis=-1),
+        axy_mps2=np.stack([accs, zeros], axis=-1), dt_s=dt_s,
     )
