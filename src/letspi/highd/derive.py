@@ -92,8 +92,14 @@ def _neighbour_ids(
 
 
 def _asof(
-    query_key: np.ndarray, query_s: np.ndarray, target_key: np.ndarray, target_s: np.ndarray,
-    target_values: dict[str, np.ndarray], *, direction: str, allow_exact_matches: bool,
+    query_key: np.ndarray,
+    query_s: np.ndarray,
+    target_key: np.ndarray,
+    target_s: np.ndarray,
+    target_values: dict[str, np.ndarray],
+    *,
+    direction: str,
+    allow_exact_matches: bool,
 ) -> dict[str, np.ndarray]:
     """Per query (Q,), the target (T,) values asof-matched on ``s`` in the same key: (Q,) float64, NaN if none."""
     left = pd.DataFrame({"key": query_key, "s": query_s, "q": np.arange(len(query_key))})

@@ -14,7 +14,12 @@ class HighDFormatError(ValueError):
     ``01_tracks.csv: column 'xVelocity', line 17: not a number ('abc')``, with the parts that are known."""
 
     def __init__(
-        self, path: Path | str, reason: str, *, column: str | None = None, line: int | None = None,
+        self,
+        path: Path | str,
+        reason: str,
+        *,
+        column: str | None = None,
+        line: int | None = None,
         row: int | None = None,
     ) -> None:
         self.path = Path(path)

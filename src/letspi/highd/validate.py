@@ -206,8 +206,13 @@ def _check_neighbours(tracks: pd.DataFrame, meta_ids: np.ndarray, path: Path, me
 
 
 def validate_tracks(
-    tracks: pd.DataFrame, tm: pd.DataFrame, markings: tuple[np.ndarray, np.ndarray], path: Path, meta_path: Path,
-    line_of: LineOf, meta_line_of: LineOf,
+    tracks: pd.DataFrame,
+    tm: pd.DataFrame,
+    markings: tuple[np.ndarray, np.ndarray],
+    path: Path,
+    meta_path: Path,
+    line_of: LineOf,
+    meta_line_of: LineOf,
 ) -> None:
     """Check tracks (already sorted by (id, frame)) against tracksMeta and the road."""
     ids = tracks["id"].to_numpy()

@@ -148,7 +148,8 @@ def config_in_effect(df: pd.DataFrame, config: MetricsConfig | None) -> MetricsC
 
 
 def aggregate_metrics(
-    metrics: ScenarioMetrics | pd.DataFrame, inference_time_s: np.ndarray | Sequence[float] | float | None = None,
+    metrics: ScenarioMetrics | pd.DataFrame,
+    inference_time_s: np.ndarray | Sequence[float] | float | None = None,
     config: MetricsConfig | None = None,
 ) -> dict[str, AggValue]:
     """Aggregate per-scenario metrics (``compute_metrics``' result or its frame; extra columns ignored,

@@ -67,6 +67,11 @@ def collisions(
     c, c_step, c_nbr = _first_event(overlap)
     n, n_step, n_nbr = _first_event(near_collision(inp, threshold_m, mode) | overlap)
     return CollisionResult(
-        collision=c, collision_step=c_step, collision_nbr=c_nbr, collision_2m=n, collision_2m_step=n_step,
-        collision_2m_nbr=n_nbr, overlap=overlap,
+        collision=c,
+        collision_step=c_step,
+        collision_nbr=c_nbr,
+        collision_2m=n,
+        collision_2m_step=n_step,
+        collision_2m_nbr=n_nbr,
+        overlap=overlap,
     )

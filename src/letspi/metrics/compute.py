@@ -129,8 +129,10 @@ def _core(batch: ScenarioBatch, inp: MetricInputs, goals_xy_m: np.ndarray | None
     coll = collisions(inp, threshold_m=config.collision_2m_m, mode=config.collision_2m_mode)
     truth_xy = batch.ego_xy_m[:, batch.future_slice].astype(np.float64)
     kin = finite_difference_kinematics(
-        inp.ego_vxy_mps, batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64),
-        batch.ego_axy_mps2[:, T0_INDEX].astype(np.float64), dt_s=config.dt_s,
+        inp.ego_vxy_mps,
+        batch.ego_vxy_mps[:, T0_INDEX].astype(np.float64),
+        batch.ego_axy_mps2[:, T0_INDEX].astype(np.float64),
+        dt_s=config.dt_s,
     )
     marks = batch.marking_y_m.astype(np.float64)
     offr = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, marks, batch.marking_is_edge, config.off_road_tol_m)
@@ -140,7 +142,10 @@ def _core(batch: ScenarioBatch, inp: MetricInputs, goals_xy_m: np.ndarray | None
 
 
 def _compute_chunk(
-    batch: ScenarioBatch, inp: MetricInputs, goals_xy_m: np.ndarray | None, config: MetricsConfig,
+    batch: ScenarioBatch,
+    inp: MetricInputs,
+    goals_xy_m: np.ndarray | None,
+    config: MetricsConfig,
 ) -> ScenarioMetrics:
     core = _core(batch, inp, goals_xy_m, config)
     ade, fde = ade_fde(inp.ego_xy_m, core.truth_xy)
@@ -157,8 +162,11 @@ def _compute_chunk(
         "fault": core.fault,
         "kin": core.kin,
         "route": _Route(
-            ade_m=ade, fde_m=fde, n_lane_changes=count_lane_changes(y0, inp.ego_xy_m[..., 1], marks),
-            off_road=core.offr, low_ttc=core.ttc.min_ttc_s < config.low_ttc_s,
+            ade_m=ade,
+            fde_m=fde,
+            n_lane_changes=count_lane_changes(y0, inp.ego_xy_m[..., 1], marks),
+            off_road=core.offr,
+            low_ttc=core.ttc.min_ttc_s < config.low_ttc_s,
         ),
         "ok": core.ok,
     }
@@ -182,7 +190,9 @@ class PlanOutcomes:
 
 
 def compute_outcomes(
-    batch: ScenarioBatch, ego_future_xy_m: np.ndarray, ego_future_vxy_mps: np.ndarray,
+    batch: ScenarioBatch,
+    ego_future_xy_m: np.ndarray,
+    ego_future_vxy_mps: np.ndarray,
     config: MetricsConfig | None = None,
 ) -> PlanOutcomes:
     """``PlanOutcomes`` of planned ego futures (B, F, 2) against the batch's ground truth: the subset of
@@ -205,8 +215,11 @@ def compute_outcomes(
 
 
 def compute_metrics(
-    batch: ScenarioBatch, ego_future_xy_m: np.ndarray, ego_future_vxy_mps: np.ndarray,
-    goals_xy_m: np.ndarray | None = None, config: MetricsConfig | None = None,
+    batch: ScenarioBatch,
+    ego_future_xy_m: np.ndarray,
+    ego_future_vxy_mps: np.ndarray,
+    goals_xy_m: np.ndarray | None = None,
+    config: MetricsConfig | None = None,
 ) -> ScenarioMetrics:
     """All per-scenario metrics of planned ego futures (B, F, 2) centres [m] and velocities [m/s], ego frame.
     ``goals_xy_m``: (B, 2) the planner's own goal for ``success_self``, or None (that criterion holds); ``success`` is

@@ -47,6 +47,12 @@ def distances(inp: MetricInputs) -> DistanceResult:
     c_val, c_step, c_nbr = min_over_nbr_time(centre)
     g_val, g_step, g_nbr = min_over_nbr_time(gap)
     return DistanceResult(
-        centre_dist_m=centre, box_gap_m=gap, min_centre_dist_m=c_val, min_centre_dist_step=c_step,
-        min_centre_dist_nbr=c_nbr, min_box_gap_m=g_val, min_gap_step=g_step, min_gap_nbr=g_nbr,
+        centre_dist_m=centre,
+        box_gap_m=gap,
+        min_centre_dist_m=c_val,
+        min_centre_dist_step=c_step,
+        min_centre_dist_nbr=c_nbr,
+        min_box_gap_m=g_val,
+        min_gap_step=g_step,
+        min_gap_nbr=g_nbr,
     )

@@ -39,8 +39,14 @@ class FaultResult:
 
 
 def _unjustified_braking(
-    inp: MetricInputs, b_idx: np.ndarray, contact_step: np.ndarray, ego_acc_lon_mps2: np.ndarray, drac_mps2: np.ndarray,
-    preceding_nbr: np.ndarray, comfort_decel_mps2: float, dt_s: float,
+    inp: MetricInputs,
+    b_idx: np.ndarray,
+    contact_step: np.ndarray,
+    ego_acc_lon_mps2: np.ndarray,
+    drac_mps2: np.ndarray,
+    preceding_nbr: np.ndarray,
+    comfort_decel_mps2: float,
+    dt_s: float,
 ) -> np.ndarray:
     """(Q,) bool: the ego of scenario b_idx[q] braked harder than allowed at some step <= contact_step[q]."""
     f = ego_acc_lon_mps2.shape[1]
@@ -84,8 +90,16 @@ def _classify_pairs(inp: MetricInputs, overlap: np.ndarray, bi: np.ndarray, ni: 
 
 
 def at_fault_collisions(
-    inp: MetricInputs, overlap: np.ndarray, first_step: np.ndarray, first_nbr: np.ndarray, ego_acc_lon_mps2: np.ndarray,
-    drac_mps2: np.ndarray, preceding_nbr: np.ndarray, *, reaction_time_s: float = 1.0, comfort_decel_mps2: float = 3.0,
+    inp: MetricInputs,
+    overlap: np.ndarray,
+    first_step: np.ndarray,
+    first_nbr: np.ndarray,
+    ego_acc_lon_mps2: np.ndarray,
+    drac_mps2: np.ndarray,
+    preceding_nbr: np.ndarray,
+    *,
+    reaction_time_s: float = 1.0,
+    comfort_decel_mps2: float = 3.0,
     dt_s: float = 0.04,
 ) -> FaultResult:
     """Classify every colliding pair and flag the ego's fault (module doc): ``overlap`` (B, N, F) box overlap;
@@ -115,8 +129,11 @@ def at_fault_collisions(
     k = order.argmin(axis=1) if n else np.zeros(b, dtype=np.int64)
     any_fault: np.ndarray = np.asarray(pair_fault.any(axis=1))
     return FaultResult(
-        pair_kind=pair_kind, pair_at_fault=pair_fault, pair_contact_step=pair_step,
-        collision_kind=np.asarray(KINDS, dtype=object)[first_kind], collision_at_fault=any_fault,
+        pair_kind=pair_kind,
+        pair_at_fault=pair_fault,
+        pair_contact_step=pair_step,
+        collision_kind=np.asarray(KINDS, dtype=object)[first_kind],
+        collision_at_fault=any_fault,
         collision_fault_step=np.where(any_fault, pair_step[rows_b, k] if n else -1, -1),
         collision_fault_nbr=np.where(any_fault, k, -1),
     )

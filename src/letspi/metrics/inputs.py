@@ -46,24 +46,36 @@ class MetricInputs:
                 f"ego future must be (B, F, 2) = {(len(batch), nbr_xy.shape[2], 2)}, got {xy.shape} / {vxy.shape}"
             )
         return cls(
-            ego_xy_m=xy, ego_vxy_mps=vxy, ego_length_m=batch.ego_length_m.astype(np.float64),
-            ego_width_m=batch.ego_width_m.astype(np.float64), nbr_xy_m=nbr_xy,
+            ego_xy_m=xy,
+            ego_vxy_mps=vxy,
+            ego_length_m=batch.ego_length_m.astype(np.float64),
+            ego_width_m=batch.ego_width_m.astype(np.float64),
+            nbr_xy_m=nbr_xy,
             nbr_vxy_mps=batch.nbr_vxy_mps[:, :, fs].astype(np.float64),
             nbr_valid=batch.nbr_valid[:, :, fs] & np.isfinite(nbr_xy).all(axis=-1),
-            nbr_length_m=batch.nbr_length_m.astype(np.float64), nbr_width_m=batch.nbr_width_m.astype(np.float64),
+            nbr_length_m=batch.nbr_length_m.astype(np.float64),
+            nbr_width_m=batch.nbr_width_m.astype(np.float64),
         ).with_neighbours(batch.ctx_xy_m, batch.ctx_vxy_mps, batch.ctx_valid, batch.ctx_length_m,
                           batch.ctx_width_m)
 
     def with_neighbours(
-        self, xy_m: np.ndarray, vxy_mps: np.ndarray, valid: np.ndarray, length_m: np.ndarray, width_m: np.ndarray,
+        self,
+        xy_m: np.ndarray,
+        vxy_mps: np.ndarray,
+        valid: np.ndarray,
+        length_m: np.ndarray,
+        width_m: np.ndarray,
     ) -> MetricInputs:
         """These inputs with K more slots N..N+K-1 (vehicles the plan is checked against): ``xy_m``, ``vxy_mps``
         (B, K, F, 2), ``valid`` (B, K, F), ``length_m``, ``width_m`` (B, K)."""
         xy = np.asarray(xy_m, dtype=np.float64)
         ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
         return MetricInputs(
-            ego_xy_m=self.ego_xy_m, ego_vxy_mps=self.ego_vxy_mps, ego_length_m=self.ego_length_m,
-            ego_width_m=self.ego_width_m, nbr_xy_m=np.concatenate([self.nbr_xy_m, xy], axis=1),
+            ego_xy_m=self.ego_xy_m,
+            ego_vxy_mps=self.ego_vxy_mps,
+            ego_length_m=self.ego_length_m,
+            ego_width_m=self.ego_width_m,
+            nbr_xy_m=np.concatenate([self.nbr_xy_m, xy], axis=1),
             nbr_vxy_mps=np.concatenate([self.nbr_vxy_mps, np.asarray(vxy_mps, dtype=np.float64)], axis=1),
             nbr_valid=np.concatenate([self.nbr_valid, ok], axis=1),
             nbr_length_m=np.concatenate([self.nbr_length_m, np.asarray(length_m, dtype=np.float64)], axis=1),

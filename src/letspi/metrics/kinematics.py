@@ -44,8 +44,11 @@ def finite_difference_kinematics(
     acc = np.diff(v, axis=1) / dt_s
     jerk = np.diff(np.concatenate([a0_mps2[:, None], acc], axis=1), axis=1) / dt_s
     return KinematicsResult(
-        acc_mps2=acc, jerk_mps3=jerk, peak_abs_acc_lon_mps2=_nan_peak(acc[..., 0]),
-        peak_abs_acc_lat_mps2=_nan_peak(acc[..., 1]), peak_abs_acc_mps2=_nan_peak(np.hypot(acc[..., 0], acc[..., 1])),
+        acc_mps2=acc,
+        jerk_mps3=jerk,
+        peak_abs_acc_lon_mps2=_nan_peak(acc[..., 0]),
+        peak_abs_acc_lat_mps2=_nan_peak(acc[..., 1]),
+        peak_abs_acc_mps2=_nan_peak(np.hypot(acc[..., 0], acc[..., 1])),
         peak_abs_jerk_mps3=_nan_peak(np.hypot(jerk[..., 0], jerk[..., 1])),
     )
 
@@ -73,7 +76,10 @@ def road_edges(marking_y_m: np.ndarray, marking_is_edge: np.ndarray) -> tuple[np
 
 
 def off_road(
-    plan_y_m: np.ndarray, ego_width_m: np.ndarray, marking_y_m: np.ndarray, marking_is_edge: np.ndarray,
+    plan_y_m: np.ndarray,
+    ego_width_m: np.ndarray,
+    marking_y_m: np.ndarray,
+    marking_is_edge: np.ndarray,
     tol_m: float = 0.0,
 ) -> np.ndarray:
     """(B,) bool: at some step the ego box (centres ``plan_y_m`` (B, F), ``ego_width_m`` (B,)) extends more than

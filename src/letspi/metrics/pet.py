@@ -97,14 +97,26 @@ def pet_grid(inp: MetricInputs, cell_m: float = 0.5, dt_s: float = DT_S) -> PETR
     min_pet = pet_s[np.arange(b), k] if n else np.full(b, np.inf)
     has = np.isfinite(min_pet)
     return PETResult(
-        pet_s=pet_s, pet_step=pet_step, ego_first=ego_first, min_pet_s=min_pet,
-        min_pet_step=np.where(has, pet_step[np.arange(b), k] if n else -1, -1), min_pet_nbr=np.where(has, k, -1),
+        pet_s=pet_s,
+        pet_step=pet_step,
+        ego_first=ego_first,
+        min_pet_s=min_pet,
+        min_pet_step=np.where(has, pet_step[np.arange(b), k] if n else -1, -1),
+        min_pet_nbr=np.where(has, k, -1),
     )
 
 
 def _pair_min_frame_distance(
-    ex0: np.ndarray, ex1: np.ndarray, ey0: np.ndarray, ey1: np.ndarray, nx0: np.ndarray, nx1: np.ndarray,
-    ny0: np.ndarray, ny1: np.ndarray, row0: np.ndarray, row1: np.ndarray,
+    ex0: np.ndarray,
+    ex1: np.ndarray,
+    ey0: np.ndarray,
+    ey1: np.ndarray,
+    nx0: np.ndarray,
+    nx1: np.ndarray,
+    ny0: np.ndarray,
+    ny1: np.ndarray,
+    row0: np.ndarray,
+    row1: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """min |f1 - f2| over frames where the ego's (f1) and the neighbour's (f2) cell rectangles intersect, from (P, F)
     cell ranges per pair and the ego's row span (P,); (distance, f1, f2) (P,), distance >= _NO_FRAME when never."""

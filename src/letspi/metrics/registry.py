@@ -228,7 +228,12 @@ def computed_metrics() -> tuple[Metric, ...]:
 
 def aggregate_keys() -> tuple[str, ...]:
     """Every key of ``aggregate_metrics``' result, in order."""
-    return ("n", *(a.key for m in METRICS for a in m.aggregates), "metrics_config_key", *MetricsConfig.AGGREGATE_FIELDS)
+    return (
+        "n",
+        *(a.key for m in METRICS for a in m.aggregates),
+        "metrics_config_key",
+        *MetricsConfig.AGGREGATE_FIELDS,
+    )
 
 
 def reference_markdown() -> str:

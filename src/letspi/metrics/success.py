@@ -36,7 +36,10 @@ class SuccessResult:
 
 
 def reference_reached(
-    plan_end_xy_m: np.ndarray, human_end_xy_m: np.ndarray, start_x_m: np.ndarray, marking_y_m: np.ndarray,
+    plan_end_xy_m: np.ndarray,
+    human_end_xy_m: np.ndarray,
+    start_x_m: np.ndarray,
+    marking_y_m: np.ndarray,
     config: MetricsConfig,
 ) -> np.ndarray:
     """(B,) bool: the plan ends in the human's final lane with the human's progress (module docstring).
@@ -53,9 +56,18 @@ def reference_reached(
 
 
 def success(
-    plan_xy_m: np.ndarray, plan_vxy_mps: np.ndarray, peak_abs_acc_lon_mps2: np.ndarray,
-    peak_abs_acc_lat_mps2: np.ndarray, off_road: np.ndarray, collision: np.ndarray, collision_2m: np.ndarray,
-    goals_xy_m: np.ndarray | None, config: MetricsConfig, *, human_end_xy_m: np.ndarray, start_x_m: np.ndarray,
+    plan_xy_m: np.ndarray,
+    plan_vxy_mps: np.ndarray,
+    peak_abs_acc_lon_mps2: np.ndarray,
+    peak_abs_acc_lat_mps2: np.ndarray,
+    off_road: np.ndarray,
+    collision: np.ndarray,
+    collision_2m: np.ndarray,
+    goals_xy_m: np.ndarray | None,
+    config: MetricsConfig,
+    *,
+    human_end_xy_m: np.ndarray,
+    start_x_m: np.ndarray,
     marking_y_m: np.ndarray,
 ) -> SuccessResult:
     """Evaluate the success criteria (module docstring): ``plan_xy_m``, ``plan_vxy_mps`` (B, F, 2); peaks and flags
@@ -78,6 +90,12 @@ def success(
     on_road = ~off_road
     common = finite & feasible & on_road & no_coll
     return SuccessResult(
-        finite=finite, feasible=feasible, on_road=on_road, reference_reached=ref, goal_reached=goal,
-        no_collision=no_coll, success=common & ref, success_self=common & goal,
+        finite=finite,
+        feasible=feasible,
+        on_road=on_road,
+        reference_reached=ref,
+        goal_reached=goal,
+        no_collision=no_coll,
+        success=common & ref,
+        success_self=common & goal,
     )

@@ -132,8 +132,13 @@ NEUTRAL_LANE_FACTOR = 0.0
 
 
 def adjust_goals(
-    goals_xy_m: np.ndarray, ego_xy0_m: np.ndarray, lon_factor: np.ndarray | float, lane_factor: np.ndarray | float,
-    marking_y_m: np.ndarray, *, default_lane_width_m: float = DEFAULT_LANE_WIDTH_M,
+    goals_xy_m: np.ndarray,
+    ego_xy0_m: np.ndarray,
+    lon_factor: np.ndarray | float,
+    lane_factor: np.ndarray | float,
+    marking_y_m: np.ndarray,
+    *,
+    default_lane_width_m: float = DEFAULT_LANE_WIDTH_M,
 ) -> np.ndarray:
     """Apply the paper's goal adjustment factors; (B, 2) goals in the ego frame [m]. ``lon_factor`` (B,) in [0, 1]
     scales the goal distance ``g_x - x0`` by ``1.2 - 0.5 f``. ``lane_factor`` (B,) in [-1, 1] moves the goal's y towards

@@ -77,7 +77,10 @@ class IdmKernel:
 
 
 def idm_acceleration(
-    speed_mps: np.ndarray, desired_speed_mps: np.ndarray, gap_m: np.ndarray, leader_speed_mps: np.ndarray,
+    speed_mps: np.ndarray,
+    desired_speed_mps: np.ndarray,
+    gap_m: np.ndarray,
+    leader_speed_mps: np.ndarray,
     params: IdmParams = CAR_IDM,
 ) -> np.ndarray:
     """IDM acceleration [m/s²] with the module's safeguards; inputs broadcast together. ``gap_m``: bumper-to-bumper
@@ -102,17 +105,24 @@ def step_speed(speed_mps: np.ndarray, accel_mps2: np.ndarray, dt_s: float) -> np
 def _neighbours_from_t0(batch: ScenarioBatch, neighbours: NeighbourPrediction
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Neighbour positions (B, N, F+1, 2), x velocities and validity (B, N, F+1): index k is t = k dt, observed at 0."""
-    nxy = np.concatenate([batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2)
+    nxy = np.concatenate(
+        [batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1].astype(np.float64), neighbours.xy_m], axis=2
+    )
     nvx = np.concatenate(
-        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]], axis=2,
+        [batch.nbr_vxy_mps[:, :, T0_INDEX : T0_INDEX + 1, 0].astype(np.float64), neighbours.vxy_mps[..., 0]],
+        axis=2,
     )
     nvalid = np.concatenate([batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid], axis=2)
     return nxy, nvx, nvalid & np.isfinite(nxy).all(axis=-1) & np.isfinite(nvx)
 
 
 def rollout_idm_ego(
-    batch: ScenarioBatch, neighbours: NeighbourPrediction, *, desired_speed_mps: np.ndarray | None = None,
-    params: IdmParams | None = None, dt_s: float = DT_S,
+    batch: ScenarioBatch,
+    neighbours: NeighbourPrediction,
+    *,
+    desired_speed_mps: np.ndarray | None = None,
+    params: IdmParams | None = None,
+    dt_s: float = DT_S,
 ) -> RolloutResult:
     """Planner-level IDM: the ego follows its in-lane leader among the predicted ``neighbours`` (B, N, F, ...) and
     keeps its lateral position (zero lateral velocity and acceleration). Defaults: ``desired_speed_mps`` from the
@@ -154,6 +164,8 @@ def rollout_idm_ego(
         vs[:, k] = v
     zeros = np.zeros((n, f))
     return RolloutResult(
-        xy_m=np.stack([xs, np.broadcast_to(y[:, None], (n, f))], axis=-1), vxy_mps=np.stack([vs, zeros], axis=-1),
-        axy_mps2=np.stack([accs, zeros], axis=-1), dt_s=dt_s,
+        xy_m=np.stack([xs, np.broadcast_to(y[:, None], (n, f))], axis=-1),
+        vxy_mps=np.stack([vs, zeros], axis=-1),
+        axy_mps2=np.stack([accs, zeros], axis=-1),
+        dt_s=dt_s,
     )

@@ -108,9 +108,18 @@ class SocialForceScene(Batched):
 
     @classmethod
     def from_arrays(
-        cls, *, ego_xy0_m: np.ndarray, ego_vxy0_mps: np.ndarray, ego_length_m: np.ndarray, ego_width_m: np.ndarray,
-        nbr_xy_m: np.ndarray | Sequence[np.ndarray], nbr_valid: np.ndarray | Sequence[np.ndarray],
-        nbr_length_m: np.ndarray, nbr_width_m: np.ndarray, marking_y_m: np.ndarray, marking_is_edge: np.ndarray,
+        cls,
+        *,
+        ego_xy0_m: np.ndarray,
+        ego_vxy0_mps: np.ndarray,
+        ego_length_m: np.ndarray,
+        ego_width_m: np.ndarray,
+        nbr_xy_m: np.ndarray | Sequence[np.ndarray],
+        nbr_valid: np.ndarray | Sequence[np.ndarray],
+        nbr_length_m: np.ndarray,
+        nbr_width_m: np.ndarray,
+        marking_y_m: np.ndarray,
+        marking_is_edge: np.ndarray,
     ) -> SocialForceScene:
         """Build a scene from batch-first arrays. ``nbr_xy_m`` (B, N, F + 1, 2), index 0 = t = 0, or time chunks (B, N,
         F_i, 2) that concatenate to it (saves a copy); ``nbr_valid`` (B, N, F + 1) likewise; sizes (B,) / (B, N);
@@ -131,27 +140,42 @@ class SocialForceScene(Batched):
             return np.where(np.isfinite(v) & (v > 0), v, 0.0)
 
         return cls(
-            ego_xy0_m=ego_xy, ego_vxy0_mps=ego_v, ego_length_m=size(ego_length_m).reshape(b),
-            ego_width_m=size(ego_width_m).reshape(b), nbr_x_m=nx, nbr_y_m=ny, nbr_valid=valid_t,
+            ego_xy0_m=ego_xy,
+            ego_vxy0_mps=ego_v,
+            ego_length_m=size(ego_length_m).reshape(b),
+            ego_width_m=size(ego_width_m).reshape(b),
+            nbr_x_m=nx,
+            nbr_y_m=ny,
+            nbr_valid=valid_t,
             nbr_length_m=np.ascontiguousarray(size(nbr_length_m).reshape(b, -1).T),
             nbr_width_m=np.ascontiguousarray(size(nbr_width_m).reshape(b, -1).T),
-            line_y_m=np.ascontiguousarray(line_y.T), line_known=np.ascontiguousarray(line_known.T),
-            right_edge_y_m=right_edge, left_edge_y_m=left_edge, lane_width_m=lane_width_m(my),
+            line_y_m=np.ascontiguousarray(line_y.T),
+            line_known=np.ascontiguousarray(line_known.T),
+            right_edge_y_m=right_edge,
+            left_edge_y_m=left_edge,
+            lane_width_m=lane_width_m(my),
         )
 
     @classmethod
     def from_batch(cls, batch: ScenarioBatch, neighbours: NeighbourPrediction) -> SocialForceScene:
         """Ego state, sizes and markings from ``batch``; neighbours observed at t = 0 then predicted."""
         return cls.from_arrays(
-            ego_xy0_m=batch.ego_xy0_m, ego_vxy0_mps=batch.ego_vxy0_mps, ego_length_m=batch.ego_length_m,
-            ego_width_m=batch.ego_width_m, nbr_xy_m=[batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1], neighbours.xy_m],
+            ego_xy0_m=batch.ego_xy0_m,
+            ego_vxy0_mps=batch.ego_vxy0_mps,
+            ego_length_m=batch.ego_length_m,
+            ego_width_m=batch.ego_width_m,
+            nbr_xy_m=[batch.nbr_xy_m[:, :, T0_INDEX : T0_INDEX + 1], neighbours.xy_m],
             nbr_valid=[batch.nbr_valid[:, :, T0_INDEX : T0_INDEX + 1], neighbours.valid],
-            nbr_length_m=batch.nbr_length_m, nbr_width_m=batch.nbr_width_m, marking_y_m=batch.marking_y_m,
+            nbr_length_m=batch.nbr_length_m,
+            nbr_width_m=batch.nbr_width_m,
+            marking_y_m=batch.marking_y_m,
             marking_is_edge=batch.marking_is_edge,
         )
 
 
-def _step_major(xy_parts: list[np.ndarray], valid_parts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _step_major(
+    xy_parts: list[np.ndarray], valid_parts: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Time chunks (B, N, F_i, 2) / (B, N, F_i) -> x, y (F + 1, N, B) float64 and valid; invalid or non-finite samples
     get x = ``FAR_M``, y = 0."""
     b, n = xy_parts[0].shape[:2]
@@ -317,8 +341,15 @@ def _goals(goals_xy_m: np.ndarray, n: int) -> np.ndarray:
 
 
 def social_force_terms(
-    scene: SocialForceScene, params: SocialForceParams, goals_xy_m: np.ndarray, ego_xy_m: np.ndarray,
-    ego_vxy_mps: np.ndarray, step: int = 0, *, dt_s: float = DT_S, max_speed_mps: float | np.ndarray | None = None,
+    scene: SocialForceScene,
+    params: SocialForceParams,
+    goals_xy_m: np.ndarray,
+    ego_xy_m: np.ndarray,
+    ego_vxy_mps: np.ndarray,
+    step: int = 0,
+    *,
+    dt_s: float = DT_S,
+    max_speed_mps: float | np.ndarray | None = None,
 ) -> ForceTerms:
     """The force components on the ego in state ``ego_xy_m``, ``ego_vxy_mps`` (B, 2) at step ``step`` (t = step dt),
     with the neighbours and remaining time of that step, for inspection."""
@@ -333,15 +364,23 @@ def social_force_terms(
     line, edge = kernel.lane_force(ey)
     zero = np.zeros(n)
     return ForceTerms(
-        goal=np.stack([gx, gy], axis=1), preceding=np.stack([pre, zero], axis=1),
-        following=np.stack([fol, zero], axis=1), lateral=np.stack([zero, lat], axis=1),
-        lane_line=np.stack([zero, line], axis=1), boundary=np.stack([zero, edge], axis=1),
+        goal=np.stack([gx, gy], axis=1),
+        preceding=np.stack([pre, zero], axis=1),
+        following=np.stack([fol, zero], axis=1),
+        lateral=np.stack([zero, lat], axis=1),
+        lane_line=np.stack([zero, line], axis=1),
+        boundary=np.stack([zero, edge], axis=1),
     )
 
 
 def rollout_social_force_scene(
-    scene: SocialForceScene, params: SocialForceParams, goals_xy_m: np.ndarray, *, dt_s: float = DT_S,
-    max_speed_mps: float | np.ndarray | None = None, nbr_weights: np.ndarray | None = None,
+    scene: SocialForceScene,
+    params: SocialForceParams,
+    goals_xy_m: np.ndarray,
+    *,
+    dt_s: float = DT_S,
+    max_speed_mps: float | np.ndarray | None = None,
+    nbr_weights: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll the ego out for ``scene.n_steps`` steps of ``dt_s``. ``params``: one set or a batch (B,); ``goals_xy_m`` (B,
     2) [m]; ``max_speed_mps``: cap on v0, scalar or (B,) (default ``default_max_speed_mps``); ``nbr_weights`` (B, N):
@@ -383,13 +422,19 @@ def rollout_social_force_scene(
         step[3] = vy
     res = out.transpose(2, 0, 1)  # (B, F, 6)
     return RolloutResult(
-        xy_m=np.ascontiguousarray(res[..., 0:2]), vxy_mps=np.ascontiguousarray(res[..., 2:4]),
-        axy_mps2=np.ascontiguousarray(res[..., 4:6]), dt_s=dt_s,
+        xy_m=np.ascontiguousarray(res[..., 0:2]),
+        vxy_mps=np.ascontiguousarray(res[..., 2:4]),
+        axy_mps2=np.ascontiguousarray(res[..., 4:6]),
+        dt_s=dt_s,
     )
 
 
 def rollout_social_force(
-    batch: ScenarioBatch, params: SocialForceParams, goals_xy_m: np.ndarray, neighbours: NeighbourPrediction, *,
+    batch: ScenarioBatch,
+    params: SocialForceParams,
+    goals_xy_m: np.ndarray,
+    neighbours: NeighbourPrediction,
+    *,
     max_speed_mps: float | np.ndarray | None = None,
 ) -> RolloutResult:
     """Plan the ego of every scenario in ``batch`` towards ``goals_xy_m`` (B, 2) [m], given the neighbours' prediction

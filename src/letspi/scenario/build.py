@@ -112,7 +112,9 @@ def _lane_id_of(y_m: np.ndarray, marking_y_m: np.ndarray, lane_ids: np.ndarray) 
 
 
 def _neighbour_arrays(
-    neighbours: list[VehicleSpec] | tuple[VehicleSpec, ...], lane_width_m: float, marking_y_m: np.ndarray,
+    neighbours: list[VehicleSpec] | tuple[VehicleSpec, ...],
+    lane_width_m: float,
+    marking_y_m: np.ndarray,
     lane_ids: np.ndarray,
 ) -> dict[str, np.ndarray]:
     """The ``nbr_*`` fields of one scenario (``MAX_NEIGHBOURS`` slots, the first ``len(neighbours)``

@@ -57,7 +57,9 @@ class WindowIndex:
         return WindowIndex(self.recording_id[indices], self.ego_id[indices], self.start_frame[indices])
 
 
-def enumerate_windows(recordings: Sequence[Recording], stride_frames: int = DEFAULT_STRIDE_FRAMES) -> WindowIndex:
+def enumerate_windows(
+    recordings: Sequence[Recording], stride_frames: int = DEFAULT_STRIDE_FRAMES
+) -> WindowIndex:
     """All (recording, ego, start frame) windows of ``N_TOTAL`` frames with the given stride."""
     if stride_frames < 1:
         raise ValueError(f"stride_frames must be >= 1, got {stride_frames}")
@@ -86,7 +88,9 @@ EVENT_LEAD_FRAMES = 50
 
 
 def critical_windows(
-    recordings: Sequence[Recording], windows: WindowIndex, events: Mapping[int, pd.DataFrame | None] | None = None,
+    recordings: Sequence[Recording],
+    windows: WindowIndex,
+    events: Mapping[int, pd.DataFrame | None] | None = None,
 ) -> np.ndarray:
     """(W,) bool: whether each window's recorded *future* holds a conflict of its ego (for selecting scenarios only):
     a frame with HighD's ``ttc`` (> 0) below ``CRITICAL_TTC_S`` or DRAC = closing / (2 TTC) above
@@ -124,7 +128,11 @@ def critical_windows(
 
 
 def sample_windows(
-    windows: WindowIndex, max_n: int | None, seed: int, critical: np.ndarray | None = None, critical_share: float = 0.0,
+    windows: WindowIndex,
+    max_n: int | None,
+    seed: int,
+    critical: np.ndarray | None = None,
+    critical_share: float = 0.0,
 ) -> WindowIndex:
     """Up to ``max_n`` windows drawn without replacement by ``seed``: uniform (the paper), or with ``critical`` (W,) and
     ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start)."""
@@ -291,7 +299,10 @@ def _store_track(out: dict[str, np.ndarray], prefix: str, w: int, j: int, vehicl
 
 
 def extract_windows(
-    rec: Recording, ego_ids: np.ndarray, start_frames: np.ndarray, progress: Callable[[int], None] | None = None,
+    rec: Recording,
+    ego_ids: np.ndarray,
+    start_frames: np.ndarray,
+    progress: Callable[[int], None] | None = None,
 ) -> ScenarioBatch:
     """Extract the given windows (shape (W,) each) of one recording into a ScenarioBatch."""
     arr = _RecordingArrays(rec)
@@ -388,9 +399,14 @@ def _empty_tracks(prefix: str, n_win: int, slots: int, steps: int) -> dict[str, 
 
 
 def extract_scenarios(
-    recordings: Sequence[Recording], *, max_scenarios: int | None = None, seed: int = 0,
-    stride_frames: int = DEFAULT_STRIDE_FRAMES, critical_share: float = 0.0,
-    events: Mapping[int, pd.DataFrame | None] | None = None, progress: Callable[[int], None] | None = None,
+    recordings: Sequence[Recording],
+    *,
+    max_scenarios: int | None = None,
+    seed: int = 0,
+    stride_frames: int = DEFAULT_STRIDE_FRAMES,
+    critical_share: float = 0.0,
+    events: Mapping[int, pd.DataFrame | None] | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> ScenarioBatch:
     """All windows of the recordings, or ``max_scenarios`` of them sampled by ``seed`` (``sample_windows``)."""
     every = enumerate_windows(recordings, stride_frames)

@@ -51,5 +51,6 @@ def scenario_features(batch: ScenarioBatch) -> np.ndarray:
     changed = np.any(hist_lanes != hist_lanes[:, :1], axis=1)
     lane_change = changed | (np.abs(np.nan_to_num(ego_v[:, 1])) > LANE_CHANGE_LAT_SPEED_MPS)
     return np.stack(
-        [n_vis.astype(np.float64), ego_speed, lane_change.astype(np.float64), min_dist, mean_dist, mean_speed], axis=1,
+        [n_vis.astype(np.float64), ego_speed, lane_change.astype(np.float64), min_dist, mean_dist, mean_speed],
+        axis=1,
     )
