@@ -40,7 +40,6 @@ from letspi.execution.interrupt import alive, descendants
 from letspi.method.memory import MemoryBank
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch
-from letspi_train.finetune.labels import PARTS_DIR
 
 STOP_LINE = re.compile(r"^interrupted: (\d+) of (\d+) stored; rerun the same command to resume$")
 MODES = ("open-loop", "closed-loop", "closed-loop-workers", "closed-loop-ray", "collect", "train-llm-data",
@@ -157,6 +156,8 @@ def _bank_rows(bank: Path) -> dict[str, Any]:
 
 def _label_rows(out: Path) -> dict[str, Any]:
     """Labelled scenarios (one ``propose`` row each) in the parts written so far."""
+    from letspi_train.finetune.labels import PARTS_DIR  # the companion the timed command needs anyway
+
     parts = sorted((out / PARTS_DIR).glob("part-*.parquet"))
     if not parts:
         return {"rows": 0, "duplicates": 0}

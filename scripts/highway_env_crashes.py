@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from letspi.evaluation.highway_env.store import labels, load_episode, load_episodes
+from letspi_interop.highway_env.store import labels, load_episode, load_episodes
 
 LOOK_BACK_S = 2.0
 SPAWN_S = 1.0

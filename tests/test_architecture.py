@@ -20,13 +20,15 @@ import letspi
 HEAVY_OPTIONAL = ("torch", "transformers", "peft", "gguf", "llama_cpp", "libsumo", "traci", "sumolib", "ray",
                   "commonroad", "commonroad_dc", "sklearn", "highway_env", "gymnasium")
 #: letspi packages whose modules import a heavy optional dependency (torch, commonroad, highway-env) at module level
-HEAVY_PACKAGES = ("letspi_train.learned", "letspi_train.finetune", "letspi.interop.commonroad",
-                  "letspi.interop.highway_env.sim")
+HEAVY_PACKAGES = ("letspi_train.learned", "letspi_train.finetune", "letspi_interop.commonroad",
+                  "letspi_interop.highway_env.sim")
 SRC = Path(letspi.__file__).parent
-#: the companion distribution's package (packages/letspi-train), held to the same rules
-TRAIN_SRC = Path(__file__).resolve().parents[1] / "packages" / "letspi-train" / "src" / "letspi_train"
+PACKAGES_DIR = Path(__file__).resolve().parents[1] / "packages"
+#: the companion distributions' packages (packages/), held to the same rules
+COMPANION_SRCS = (PACKAGES_DIR / "letspi-train" / "src" / "letspi_train",
+                  PACKAGES_DIR / "letspi-interop" / "src" / "letspi_interop")
 #: the entry points, whose functions may import letspi modules (module docstring)
-ENTRY_POINTS = (SRC / "cli", SRC / "api.py", TRAIN_SRC / "cli")
+ENTRY_POINTS = (SRC / "cli", SRC / "api.py", *(root / "cli" for root in COMPANION_SRCS))
 
 
 def _is_entry_point(path: Path) -> bool:
@@ -35,7 +37,7 @@ def _is_entry_point(path: Path) -> bool:
 
 def _function_level_imports() -> list[str]:
     found = []
-    for path in sorted([*SRC.rglob("*.py"), *TRAIN_SRC.rglob("*.py")]):
+    for path in sorted(p for root in (SRC, *COMPANION_SRCS) for p in root.rglob("*.py")):
         tree = ast.parse(path.read_text(encoding="utf-8"))
         entry = _is_entry_point(path)
         for func in ast.walk(tree):
@@ -50,7 +52,7 @@ def _function_level_imports() -> list[str]:
                     continue
                 for name in names:
                     heavy = name.split(".")[0] in HEAVY_OPTIONAL or name.startswith(HEAVY_PACKAGES)
-                    if not heavy and not (entry and name.startswith(("letspi.", "letspi_train."))):
+                    if not heavy and not (entry and name.startswith(("letspi.", "letspi_train.", "letspi_interop."))):
                         found.append(f"{path}:{node.lineno} imports {name} in {func.name}()")
     return found
 
@@ -80,7 +82,7 @@ def long_functions(root: Path = SRC) -> list[tuple[int, str]]:
 
 
 def test_few_functions_are_long() -> None:
-    found = sorted([*long_functions(), *long_functions(TRAIN_SRC)], reverse=True)
+    found = sorted([f for root in (SRC, *COMPANION_SRCS) for f in long_functions(root)], reverse=True)
     assert len(found) <= MAX_LONG_FUNCTIONS, (
         f"{len(found)} functions over {LONG_FUNCTION_LINES} lines (at most {MAX_LONG_FUNCTIONS}); give the new ones "
         "named steps:\n" + "\n".join(f"{n} {where}" for n, where in found))

@@ -36,10 +36,11 @@ from letspi.planners.sf_params import load_sf_params
 from letspi.safety.adverse import AdverseSettings
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
-from letspi_train.finetune.decide_data import OUTCOME_TREES, Weights, fit_teacher
 
 NAMES = ("default", "ease", "slow", "brake")
 ADVERSE = ("leader-brakes", "cut-in")
+
+TRAIN_MISSING = "letspi-train is not installed (pip install -e packages/letspi-train)"
 
 
 def _checks(predicted_safe: list[list[int]], adverse_failed: list[list[list[int]]],
@@ -157,7 +158,10 @@ def _teacher_data(seed: int = 0) -> tuple[np.ndarray, OptionOutcomes]:
 
 def test_the_teacher_s_numpy_trees_equal_scikit_learn_on_its_training_inputs(tmp_path: Path) -> None:
     pytest.importorskip("sklearn")
+    pytest.importorskip("letspi_train", reason=TRAIN_MISSING)
     from sklearn.ensemble import HistGradientBoostingClassifier
+
+    from letspi_train.finetune.decide_data import OUTCOME_TREES, Weights, fit_teacher
 
     x, o = _teacher_data()
     teacher = fit_teacher(x, o, NAMES, ADVERSE, Weights())
@@ -210,6 +214,7 @@ def test_the_shipped_teacher_reads_the_shipped_presets_and_futures_and_decides_o
 @pytest.mark.slow
 def test_train_decide_keeps_given_presets_and_gate_and_writes_their_teacher(tmp_path: Path) -> None:
     pytest.importorskip("sklearn")
+    pytest.importorskip("letspi_train", reason=TRAIN_MISSING)
     from importlib import resources
 
     from letspi.scenario.store import save_scenarios

@@ -73,7 +73,8 @@ def test_every_command_loads_and_the_help_lists_each_once() -> None:
         command = load_command(name)
         assert command.name == name and hasattr(command, "commands") == (entry.attribute == "app")
         assert entry.summary in result.output and not entry.summary.endswith(".")
-    assert "commonroad" in load_command("export").commands  # a group of one sub-command stays a group
+    if "export" in COMMANDS:  # letspi-interop installed
+        assert "commonroad" in load_command("export").commands  # a group of one sub-command stays a group
 
 
 def test_a_mistyped_command_gets_a_suggestion() -> None:

@@ -14,8 +14,9 @@ from letspi.planners.frenet import FrenetPlanner
 from letspi.scenario.build import LANE_WIDTH_M, VehicleSpec, straight_road_scenario
 from letspi.scenario.types import concat_batches
 
-pytest.importorskip("commonroad", reason="the commonroad extra is not installed (pip install 'letspi[commonroad]')")
-from letspi.interop import commonroad as cr
+pytest.importorskip("commonroad", reason="the commonroad extra of letspi-interop is not installed")
+pytest.importorskip("letspi_interop", reason="letspi-interop is not installed (pip install -e packages/letspi-interop)")
+from letspi_interop import commonroad as cr
 
 
 def _scenes():

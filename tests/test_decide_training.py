@@ -12,6 +12,8 @@ from letspi.analysis.options import OptionOutcomes
 from letspi.learned.trees import TreeEnsemble
 from letspi.method.decide import DEFAULT_NAME, OptionTable
 from letspi.physics.params import SocialForceParams
+
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.decide_data import (
     ChoiceLabel,
     choice_labels,

@@ -1,4 +1,4 @@
-"""``letspi export commonroad`` from the command line, with and without the optional extra."""
+"""``letspi export commonroad`` from the command line, with and without letspi-interop and its extra."""
 
 from __future__ import annotations
 
@@ -20,13 +20,17 @@ def _file(tmp_path):
     return save_scenarios(batch, tmp_path / "s.arrow")
 
 
-def test_export_commonroad_writes_files_or_names_the_missing_extra(tmp_path):
+def test_export_commonroad_writes_files_or_names_what_is_missing(tmp_path):
     path = _file(tmp_path)
     out = tmp_path / "cr"
     result = runner.invoke(app, ["export", "commonroad", "--scenarios", str(path), "--out", str(out), "--limit", "2"])
-    if importlib.util.find_spec("commonroad") is None:
+    if importlib.util.find_spec("letspi_interop") is None:  # the companion distribution
         assert result.exit_code == 2
-        assert "pip install 'letspi[commonroad]'" in " ".join(result.output.split())
+        assert "pip install -e packages/letspi-interop" in " ".join(result.output.split())
+        assert not out.exists()
+    elif importlib.util.find_spec("commonroad") is None:  # its extra
+        assert result.exit_code == 2
+        assert 'pip install -e "packages/letspi-interop[commonroad]"' in " ".join(result.output.split())
         assert not out.exists()
     else:
         assert result.exit_code == 0, result.output
@@ -36,8 +40,8 @@ def test_export_commonroad_writes_files_or_names_the_missing_extra(tmp_path):
 def test_export_commonroad_refuses_bad_options(tmp_path):
     path = _file(tmp_path)
     args = ["export", "commonroad", "--scenarios", str(path), "--out", str(tmp_path / "cr")]
-    if importlib.util.find_spec("commonroad") is None:
-        return  # the missing extra is reported first (previous test)
+    if importlib.util.find_spec("commonroad") is None or importlib.util.find_spec("letspi_interop") is None:
+        return  # what is missing is reported first (previous test)
     bad_index = runner.invoke(app, [*args, "--index", "7"])
     assert bad_index.exit_code == 2 and "--index 7 outside 0..2" in bad_index.output
     bad_orientation = runner.invoke(app, [*args, "--orientation", "sideways"])

@@ -24,6 +24,8 @@ from letspi.llm.schema import DEFAULT_REPLY, NUMERIC_FIELDS, WIRE_KEYS
 from letspi.llm.types import ModelNotFoundError
 from letspi.planners.options import PlannerOptions
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
+
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.export import (
     AdapterExportError,
     adapter_tensors,

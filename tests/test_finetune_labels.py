@@ -20,6 +20,8 @@ from letspi.safety.plan_check import check_recorded
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.labels import (
     LABEL_COLUMNS,
     PROPOSAL_COLUMNS,

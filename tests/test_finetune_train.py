@@ -20,6 +20,8 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import dataset_digest, scenario_digests
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
+
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.data import LABELS_FORMAT, build_examples, split_examples
 from letspi_train.finetune.export import read_adapter_gguf
 

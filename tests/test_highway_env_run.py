@@ -12,18 +12,22 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-pytest.importorskip("highway_env", reason='the highway extra is not installed (pip install "letspi[highway]")')
+pytest.importorskip("highway_env", reason="the highway extra of letspi-interop is not installed")
 
 from letspi.assembly.planners import build_planners
-from letspi.benchmark import highway_env as he_suites
-from letspi.benchmark.suites import DILU_SEEDS, HIGHWAY_ENV_SUITES, HighwayEnvSuite, get_any_suite
+from letspi.benchmark.suites import get_any_suite
 from letspi.cli.app import app
-from letspi.evaluation.highway_env.run import build_drivers, run_episodes
-from letspi.evaluation.highway_env.settings import EnvSettings
-from letspi.evaluation.highway_env.store import HighwayEnvDirError, load_episodes
 from letspi.method.memory import MemoryBank
 from letspi.metrics.episode import EPISODE_COLUMNS
 from letspi.planners.options import PlannerOptions
+
+pytest.importorskip("letspi_interop", reason="letspi-interop is not installed (pip install -e packages/letspi-interop)")
+from letspi_interop.highway_env import suite as he_suites
+from letspi_interop.highway_env.run import build_drivers, run_episodes
+from letspi_interop.highway_env.settings import EnvSettings
+from letspi_interop.highway_env.store import HighwayEnvDirError, load_episodes
+from letspi_interop.highway_env.suite import DILU_SEEDS, HighwayEnvSuite
+from letspi_interop.highway_env.suite import SUITES as HIGHWAY_ENV_SUITES
 
 #: a cheap scene: 2 lanes, 12 vehicles, 3 s episodes
 SMALL = EnvSettings("highway-v0", (("lanes_count", 2), ("vehicles_count", 12), ("ego_spacing", 2)), duration_s=3.0)
@@ -106,7 +110,8 @@ def test_suites_are_pinned_and_refuse_other_versions(monkeypatch) -> None:
         get_any_suite("highway-env-dilu@v1-00000000")
     he_suites.check_versions(dilu)
     monkeypatch.setattr(he_suites, "installed_versions", lambda: {"highway-env": "1.8.2", "gymnasium": "1.4.0"})
-    with pytest.raises(ValueError, match=r'highway-env 1\.8\.2 \(the suite pins 1\.12\.1\); pip install "letspi'):
+    pins = r'highway-env 1\.8\.2 \(the suite pins 1\.12\.1\); pip install -e "packages/letspi-interop\[highway\]"'
+    with pytest.raises(ValueError, match=pins):
         he_suites.check_versions(dilu)
 
 

@@ -9,7 +9,10 @@ import pytest
 
 from letspi.constants import DT_S, MAX_NEIGHBOURS, N_HISTORY, T0_INDEX
 from letspi.highd.io import read_recording, write_recording
-from letspi.interop.highway_env.scene import (
+from letspi.scenario.extract import extract_windows
+
+pytest.importorskip("letspi_interop", reason="letspi-interop is not installed (pip install -e packages/letspi-interop)")
+from letspi_interop.highway_env.scene import (
     EpisodeTracks,
     RoadLayout,
     ScenarioLabel,
@@ -18,7 +21,6 @@ from letspi.interop.highway_env.scene import (
     resample,
     scenario_view,
 )
-from letspi.scenario.extract import extract_windows
 
 HZ = 15.0
 ROAD = RoadLayout(np.array([-2.0, 2.0, 6.0, 10.0, 14.0]), 30.0)  # highway-v0's 4 lanes: centres y = 0, 4, 8, 12

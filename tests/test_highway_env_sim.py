@@ -9,11 +9,12 @@ import importlib.util
 import numpy as np
 import pytest
 
-pytest.importorskip("highway_env", reason='the highway extra is not installed (pip install "letspi[highway]")')
+pytest.importorskip("highway_env", reason="the highway extra of letspi-interop is not installed")
 from highway_env.vehicle.behavior import IDMVehicle
 
-import letspi.interop.highway_env as bridge
-from letspi.interop.highway_env import sim
+pytest.importorskip("letspi_interop", reason="letspi-interop is not installed (pip install -e packages/letspi-interop)")
+import letspi_interop.highway_env as bridge
+from letspi_interop.highway_env import sim
 
 HZ = 15
 EMPTY = {"lanes_count": 4, "vehicles_count": 0, "initial_lane_id": 1, "simulation_frequency": HZ,
@@ -159,7 +160,7 @@ def test_bad_environments_and_keys_fail_in_one_line(monkeypatch) -> None:
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "highway_env" else real(name))
     with pytest.raises(bridge.HighwayEnvMissingError) as err:
         bridge.require()
-    assert str(err.value) == 'highway_env not installed: pip install "letspi[highway]"'
+    assert str(err.value) == 'highway_env not installed: pip install -e "packages/letspi-interop[highway]"'
 
 
 def test_road_layout_and_recorder_of_merge_v0() -> None:

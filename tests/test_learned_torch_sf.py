@@ -13,6 +13,7 @@ from letspi.physics.params import PARAM_NAMES, PARAM_RANGES, SocialForceParams
 from letspi.physics.social_force import SocialForceScene, rollout_social_force
 
 torch = pytest.importorskip("torch")
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.learned.torch_sf import TorchScene, rollout_torch  # noqa: E402
 
 

@@ -13,6 +13,7 @@ from letspi.physics.goals import KinematicGoalPredictor
 from letspi.physics.params import SocialForceParams
 
 pytest.importorskip("torch")
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.learned.gnp_train import GnpTrainConfig, train_gnp_model
 from letspi_train.learned.goal_train import GoalTrainConfig, train_goal_model
 

@@ -18,6 +18,7 @@ from letspi.scenario.split import split_by_key
 from letspi.scenario.types import concat_batches
 
 torch = pytest.importorskip("torch")
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.mlp_train import MlpTrainConfig, train_mlp  # noqa: E402
 
 K_NP = OUTPUT_FIELDS.index("k_np")

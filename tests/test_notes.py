@@ -21,19 +21,22 @@ import pytest
 import typer
 from test_docs import check_command, extract_commands
 
-from letspi.cli.app import app
+from letspi.benchmark.suites import SUITES_GROUP
+from letspi.cli.app import COMMANDS_GROUP, app
+from letspi.cli.viz import REPORTS_GROUP
 from letspi.llm.spec import ENTRY_POINT_GROUP as LLM_BACKENDS_GROUP
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "letspi"
 #: the package root of each top-level name a text may cite (letspi and its companion distributions)
-PACKAGES = {"letspi": PACKAGE, "letspi_train": ROOT / "packages" / "letspi-train" / "src" / "letspi_train"}
+PACKAGES = {"letspi": PACKAGE, "letspi_train": ROOT / "packages" / "letspi-train" / "src" / "letspi_train",
+            "letspi_interop": ROOT / "packages" / "letspi-interop" / "src" / "letspi_interop"}
 TEXT_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "notes").glob("*.md"))]
 #: Files the docs name as examples of what a reader would add (recipes), not as existing code.
 EXAMPLE_FILES = frozenset({"src/letspi/planners/brake.py", "src/letspi/llm/backends/mybackend.py",
                            "my_planners/cv_gap.py"})  # the reader's own planner (docs/your-planner.md)
 PY_PATH = re.compile(r"(?<![\w/.-])((?:[\w.*-]+/)*[\w-]+\.py)\b")
-DOTTED = re.compile(r"(?<![\w.])letspi(?:_train)?(?:\.[A-Za-z_]\w*)+")
+DOTTED = re.compile(r"(?<![\w.])letspi(?:_train|_interop)?(?:\.[A-Za-z_]\w*)+")
 OUTSIDE = re.compile(r"(?<![\w.~-])/(?:work|tmp|root|home)/[\w.-]*")
 
 
@@ -55,7 +58,7 @@ def missing_dotted(text: str) -> list[str]:
     """The ``letspi.x.y`` names of ``text`` that name no module (nor an attribute right after one)."""
     bad = []
     for name in DOTTED.findall(text):
-        if name == LLM_BACKENDS_GROUP:  # an entry-point group, not a module
+        if name in (LLM_BACKENDS_GROUP, COMMANDS_GROUP, SUITES_GROUP, REPORTS_GROUP):  # entry-point groups
             continue
         parts = name.split(".")
         root = PACKAGES[parts[0]]

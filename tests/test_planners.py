@@ -15,7 +15,6 @@ from letspi.planners.sf_params import load_sf_params, save_sf_params
 from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.split import split_by_vehicle, subsample
 from letspi.scenario.types import concat_batches
-from letspi_train.fitting.sf import fit_sf_params
 
 BASELINE_PLANNERS = ("human", "cv", "idm", "sf", "sf-opt", "gnp")
 
@@ -109,6 +108,9 @@ def test_subsample_keeps_few_indices_and_draws_an_ascending_subset_of_many():
 
 
 def test_fit_is_deterministic_and_not_worse_than_its_start():
+    pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
+    from letspi_train.fitting.sf import fit_sf_params
+
     batch = concat_batches([_closing_on_slower_leader()] * 3 + [straight_road_scenario()] * 3)
     batch.ego_id[:] = np.arange(6)
     a = fit_sf_params(batch, seed=1, max_evaluations=25)

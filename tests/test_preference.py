@@ -17,6 +17,8 @@ from letspi.scenario.build import VehicleSpec, straight_road_scenario
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import concat_batches
+
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.data import ChatExample
 from letspi_train.finetune.decide_data import CHOICE_FORMAT, ChoiceLabel, label_frame
 from letspi_train.finetune.preference import dpo_loss, hindsight_utility, ranked_pairs

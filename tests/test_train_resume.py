@@ -10,6 +10,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.learned.loop import (  # noqa: E402
     CHECKPOINT_FILE,
     CheckpointMismatchError,

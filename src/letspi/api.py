@@ -55,8 +55,7 @@ SUMMARY_KEYS: tuple[str, ...] = tuple(key for _, key in TABLE_COLUMNS)
 
 def load_scenarios(path: str | Path, *, limit: int | None = None,
                    rows: Sequence[int] | np.ndarray | None = None) -> ScenarioBatch:
-    """Scenarios of a file made by ``letspi data scenarios`` (checked against its digests): all of them,
-    the first ``limit``, or the ``rows`` given (0-based)."""
+    """Scenarios of a ``letspi data scenarios`` file (digests checked): all, the first ``limit``, or ``rows``."""
     if limit is not None and rows is not None:
         raise ValueError("give limit or rows, not both")
     if limit is not None:
@@ -67,11 +66,10 @@ def load_scenarios(path: str | Path, *, limit: int | None = None,
 
 
 def planners(*specs: str, planner_path: PathsLike = None, **options: Any) -> list[BuiltPlanner]:
-    """Build planners from ``KIND``, ``LABEL=KIND`` or ``package.module:NAME`` specs (``letspi planners`` lists
-    the kinds; a module is imported from the working directory, ``planner_path`` or the Python path) with
-    planner options by the words of their flags (``neighbours="idm"`` for ``--neighbours``,
-    ``sf_params=...``, ``goals="kinematic"``; the option names, ``neighbour_mode=``, work too;
-    ``letspi planners --json`` lists them). Models load once, here."""
+    """Build planners from ``KIND``, ``LABEL=KIND`` or ``package.module:NAME`` specs (``letspi planners`` lists the
+    kinds; a module is imported from the working directory, ``planner_path`` or the Python path) with planner options by
+    the words of their flags (``neighbours="idm"`` for ``--neighbours``, ``sf_params=...``, ``goals="kinematic"``; the
+    option names, ``neighbour_mode=``, work too; ``letspi planners --json`` lists them). Models load once, here."""
     if not specs:
         raise ValueError("name at least one planner, e.g. planners('sf')")
     add_planner_paths(_paths(planner_path))
@@ -90,9 +88,8 @@ def _paths(paths: PathsLike) -> list[str | Path]:
 
 
 def as_built(items: PlannerLike | Iterable[PlannerLike], **options: Any) -> list[BuiltPlanner]:
-    """Planners as the harness runs them, from what a user passes (``PlannerLike``, one or several, in
-    order): specs are built together by ``planners`` with ``options``; built planners are kept; planner
-    objects are keyed by what can be read from them (``letspi.assembly.planners.built_from_object``)."""
+    """Planners as the harness runs them, from ``PlannerLike`` items in order: specs built together by ``planners``
+    with ``options``, built planners kept, planner objects through ``letspi.assembly.planners.built_from_object``."""
     listed: list[Any] = [items] if isinstance(items, str | BuiltPlanner) or _is_planner(items) else list(
         items)  # type: ignore[arg-type]
     specs = [item for item in listed if isinstance(item, str)]
@@ -124,9 +121,8 @@ def _is_planner(obj: object) -> bool:
 
 
 def plan(planner: PlannerLike, batch: ScenarioBatch) -> PlanBatch:
-    """The plans of one planner for ``batch``, given the view the harness gives it: the history only,
-    unless its kind reads the recorded future (an oracle; a planner object whose ``reads_future`` is true).
-    Untimed and unscored: ``evaluate`` for that."""
+    """The plans (untimed, unscored) of one planner for ``batch``, given the history only unless its kind reads the
+    recorded future (an oracle; a planner object whose ``reads_future`` is true)."""
     (built,) = as_built(planner)
     return built.planner.plan(batch if built.reads_future else batch.history())
 
@@ -134,16 +130,11 @@ def plan(planner: PlannerLike, batch: ScenarioBatch) -> PlanBatch:
 def evaluate(planners: PlannerLike | Iterable[PlannerLike], scenarios: ScenarioBatch | str | Path, out: str | Path,
              *, limit: int | None = None, reference: str | None = None, metrics_config: MetricsConfig | None = None,
              closed_loop: ClosedLoopConfig | None = None, **options: Any) -> Results:
-    """Evaluate ``planners`` (``PlannerLike``: names such as ``"sf"`` or ``"mypkg.mod:KIND"``, built with
-    the planner ``options`` as ``planners`` does; planners of ``planners(...)``; planner objects) on
-    ``scenarios`` (a batch, or a scenario file with an optional ``limit``) into
-    the results directory ``out``, as ``letspi evaluate`` does: per-window metrics and plans stored,
-    keyed by dataset, metrics configuration and planner configuration; an interrupted or repeated call
-    resumes; planners of earlier calls are kept. ``reference``: the planner the others are compared with
-    (default ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g.
-    ``ClosedLoopConfig(mode="closed-loop-log", replan_s=0.2)`` (the log replay; the other modes run
-    SUMO; ``closed-loop-hybrid`` here
-    without scripted neighbours). Returns the directory's ``Results``."""
+    """Evaluate ``planners`` (names are built with ``options`` as ``planners`` does) on ``scenarios`` (a batch, or a
+    scenario file with an optional ``limit``) into the results directory ``out``, as ``letspi evaluate`` does: keyed,
+    resumable, planners of earlier calls kept. ``reference``: the planner the others are compared with (default
+    ``sf`` when present). Open loop unless ``closed_loop`` is given, e.g. ``ClosedLoopConfig(mode="closed-loop-log",
+    replan_s=0.2)`` (``closed-loop-hybrid`` here without scripted neighbours). Returns the directory's ``Results``."""
     built = as_built(planners, **options)
     if closed_loop is not None and closed_loop.workers and any(b.config.kind == "object" for b in built):
         raise ValueError("planner objects run in this process: closed loop with workers=0, or give the planner a "
@@ -171,8 +162,7 @@ def open_results(directory: str | Path) -> Results:
 
 @dataclass(frozen=True)
 class Results:
-    """One results directory: its ``metrics.json`` and its per-window rows, as Python values and DataFrames
-    (``table()``: metrics.md's text; ``report()`` writes the HTML report)."""
+    """One results directory: its ``metrics.json`` and its per-window rows, as Python values and DataFrames."""
 
     directory: Path
     raw: dict[str, Any]

@@ -1,8 +1,5 @@
-"""Dataclasses of arrays that share a leading batch axis (scenarios, windows, memories).
-
-``Batched``: ``len(x)`` is the first field's first axis. ``Rows``: every field has the batch axis first, and
-``x.take(rows)`` keeps those rows (index array, mask or slice). Other layouts take ``Batched`` with their own ``take``.
-"""
+"""Dataclasses of arrays that share a leading batch axis (scenarios, windows, memories): ``Batched`` gives
+``len(x)``, ``Rows`` also ``x.take(rows)`` (index array, mask or slice) when every field has the batch axis first."""
 
 from __future__ import annotations
 

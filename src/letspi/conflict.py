@@ -1,7 +1,6 @@
 """Surrogate safety measures of a car-following pair from bumper gap s [m] and closing speed dv [m/s], element-wise.
 
-The one place the formulas are written: TTC [s] = s / dv and DRAC [m/s²] = dv² / (2 s) while closing in (s > 0,
-dv > 0; NaN dv is not closing). Callers (``letspi.metrics``, ``letspi.highd``) pass what to report elsewhere.
+TTC [s] = s / dv and DRAC [m/s²] = dv² / (2 s) while closing in (s > 0, dv > 0; NaN dv is not closing).
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Crash-safe file writes and one writer per output.
 
-Writes go to a temporary file beside the target, fsynced and renamed over it, then the directory is fsynced:
-a reader sees the old or the new file, and a completed write survives a crash. ``writer_lock`` lets one process
-at a time write a results directory or a memory bank. ``provenance_*`` record paths in manifests without the
-writing machine's directories.
+Writes go to a temporary file beside the target, fsynced and renamed over it, then the directory is fsynced: a
+reader sees the old or the new file. ``provenance_*`` record paths in manifests without the machine's directories.
 """
 
 from __future__ import annotations
@@ -99,8 +97,7 @@ _ABSOLUTE_WORD = re.compile(r"(?<![^\s=])/[^\s'\"]+")
 
 def provenance_record(value: Any) -> Any:
     """``value`` (dicts, lists, strings, paths, numbers) with every absolute path in it through ``provenance_path``: a
-    ``Path``, a string that is one, or a word of a text that is one (such as a command line).
-    """
+    ``Path``, a string that is one, or a word of a text that is one (such as a command line)."""
     if isinstance(value, dict):
         return {k: provenance_record(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -119,8 +116,7 @@ def resume_directory(out: Path, settings: Mapping[str, Any], *, what: str, inste
                      parts_dir: str = "parts") -> tuple[Path, bool]:
     """Prepare the output ``out`` of a resumable run that stores its work in ``out/parts_dir`` (both created, a killed
     writer's temporaries removed; ``settings.json`` pins what a rerun must match). Returns (the parts directory,
-    True on a fresh start); a rerun with other settings gets a ``ValueError`` naming the changed keys, untouched.
-    """
+    True on a fresh start); a rerun with other settings gets a ``ValueError`` naming the changed keys, untouched."""
     out = Path(out)
     parts = out / parts_dir
     parts.mkdir(parents=True, exist_ok=True)
@@ -189,8 +185,7 @@ def writer_lock(output: Path, command: str = "", *, directory: bool = True) -> I
     """Hold the exclusive writer lock (an ``flock``, released by the kernel when its holder dies) of ``output``, a
     results directory (created if missing) or a file such as a memory bank (``directory=False``). Another process
     gets ``OutputLockedError`` at once, naming the holder's pid; on release the lock file goes, and so does a
-    directory this call created if nothing was written into it.
-    """
+    directory this call created if nothing was written into it."""
     output = Path(output)
     created = directory and not output.exists()
     if directory:

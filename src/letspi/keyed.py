@@ -1,10 +1,7 @@
 """Frozen configurations and their content keys: everything that changes an answer is a field.
 
-A planner, a memory-collection run and an evaluation are built from a ``Config`` and identified by its
-``key()``: the first 16 hex digits of the SHA-256 of its canonical JSON (sorted keys, cosmetic fields
-left out). Equal keys give the same answers. Cosmetic fields (a path whose content is fingerprinted
-elsewhere, a timeout, the cache switch) are recorded for the reader but cannot change an answer.
-``diff`` names the fields in which two identities differ, for refusal messages.
+``Config.key()``: the first 16 hex digits of the SHA-256 of its canonical JSON (sorted keys); cosmetic fields (a
+path whose content is fingerprinted elsewhere, a timeout, the cache switch) are recorded but not hashed.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """Everything a planner or an LLM backend from outside letspi needs, in one import (docs/your-planner.md).
 
-A planner is a ``PlannerKind`` with its ``Config`` (a ``version`` field; every field in its key),
-``PlannerOption``s prefixed with the kind's name, ``resolve``, ``build`` and declared ``outputs`` (``output``).
-It joins through the ``ENTRY_POINT_GROUP`` entry-point group or ``--planner package.module:KIND``. An LLM
-backend is a ``BackendKind`` named in the ``LLM_BACKENDS_GROUP`` group under its prefix
-(docs/architecture.md#add-an-llm-backend).
+A planner is a ``PlannerKind`` joining through the ``ENTRY_POINT_GROUP`` entry-point group or ``--planner
+package.module:KIND``; an LLM backend a ``BackendKind`` in the ``LLM_BACKENDS_GROUP`` group under its prefix.
 """
 
 from letspi.assembly.build import Builder

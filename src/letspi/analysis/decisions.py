@@ -1,7 +1,5 @@
 """What deciding planners decided, and what it bought (``letspi analyze decisions``): every planner of one or more
-results directories paired with a reference (default ``sf``) on shared windows, pooled: rates and progress with
-paired differences (grouped by ego vehicle), decision shares, defaults kept where the reference was safe and changed
-where it collided, the share consulted, the median live planning time."""
+results directories paired with a reference (default ``sf``) on shared windows, pooled."""
 
 from __future__ import annotations
 

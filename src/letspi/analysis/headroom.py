@@ -1,12 +1,9 @@
 """How much could any choice of the LLM's eight numbers gain on a set of windows? (``letspi analyze headroom``)
 
 Each row is a chooser picking one option (``letspi.analysis.options``) per window, all scored on the same windows
-against the recorded future: ``defaults`` (``sf``); ``best constant`` (the fewest at-fault collisions over the file;
-ties: successes, progress); the hindsight oracles over all options and over the presets (the bound of any chooser);
-the no-model ``rule`` (the defaults unless their plan fails a check, else the preset passing most); a ``history
-chooser (CV)`` (logistic regression from the risk features, grouped by ego vehicle). The risk AUCs: how well history
-and the checks predict the defaults' at-fault collisions.
-"""
+against the recorded future: ``defaults`` (``sf``), ``best constant``, the hindsight oracles (the bound of any
+chooser), the no-model ``rule`` and a ``history chooser (CV)``; the risk AUCs say how well history and the checks
+predict the defaults' at-fault collisions."""
 
 from __future__ import annotations
 
@@ -22,8 +19,7 @@ from letspi.method.decide import DEFAULT_NAME, OptionTable, rule_choice
 from letspi.metrics.stats import paired_rate, wilson_interval
 from letspi.scenario.risk_features import RISK_FEATURE_NAMES
 
-#: weights of ``hindsight_utility``: an at-fault contact outweighs everything, then any contact,
-#: then success; progress [m] breaks ties
+#: weights of ``hindsight_utility``: at-fault contact, then any contact, then success; progress [m] breaks ties
 W_AT_FAULT, W_COLLISION, W_SUCCESS, W_PROGRESS_PER_M = 4.0, 2.0, 1.0, 1e-3
 
 
@@ -73,8 +69,7 @@ def best_constant(o: OptionOutcomes) -> int:
 
 
 def rule_over(o: OptionOutcomes, presets: Sequence[int]) -> np.ndarray:
-    """(B,) the no-model rule (``letspi.method.decide.rule_choice``) over ``presets`` (option indices):
-    needs plan-time checks."""
+    """(B,) the no-model rule (``letspi.method.decide.rule_choice``) over ``presets`` (option indices; needs checks)."""
     cols = np.asarray(presets, dtype=np.int64)
     if cols[0] != 0:
         raise ValueError("the presets must start with the defaults (option 0)")
@@ -205,8 +200,7 @@ def _pct_interval(flags: np.ndarray) -> list[float]:
 def headroom(o: OptionOutcomes, table: OptionTable, presets: Sequence[int], features: np.ndarray,
              groups: np.ndarray, *, folds: int = 5, seed: int = 0, gate_scores: np.ndarray | None = None,
              ) -> HeadroomResult:
-    """Every chooser's rates on the same windows, with Wilson intervals and paired McNemar counts against
-    the defaults (at-fault contacts)."""
+    """Every chooser's rates on the same windows, Wilson intervals, at-fault McNemar counts against the defaults."""
     rows_idx = np.arange(len(o))
     base_fault = o.at_fault[:, 0]
     rows = []

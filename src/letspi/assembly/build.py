@@ -64,8 +64,8 @@ class Builder:
         return self._default_cache
 
     def advisor_with_load_time(self, llm: LlmConfig, fallback: SfParamsConfig) -> tuple[ParamAdvisor, float]:
-        """The advisor for ``llm`` whose fallback reply is ``fallback``'s parameters, and how long its
-        model took to load (the first time; 0 afterwards)."""
+        """The advisor for ``llm`` (fallback reply: ``fallback``'s parameters) and its model's load time [s] (0 after
+        the first)."""
         # the cache switch is left out of the key (it cannot change an answer) but not out of this one:
         # a configuration that asks for no cache must not get an advisor built with one
         key = (llm.key(), fallback.key(), llm.cache)

@@ -1,12 +1,8 @@
 """Calls into planner kinds from outside letspi, checked, so that their errors blame the right code.
 
-A kind that is not built in (installed, or loaded by import path) runs code letspi did not write: its
-``resolve``, its ``build`` and its planner's ``plan``. ``resolve_config`` and ``build_planner_of`` call
-them so that an exception raised there becomes a ``PlannerError`` naming the planner, where its kind
-comes from, and the file and line of the plug-in's code it was raised in; what they return is checked
-(types, the plan's shapes) with a message that says what to fix. ``CheckedPlanner`` does the same for
-``plan``. Built-in kinds are called as they are: their errors are letspi's.
-"""
+``resolve_config``, ``build_planner_of`` and ``CheckedPlanner.plan`` turn an exception raised in a plug-in's
+``resolve``, ``build`` or ``plan`` into a ``PlannerError`` naming the planner, where its kind comes from and the file
+and line, and check what they return (types, shapes). Built-in kinds are called as they are."""
 
 from __future__ import annotations
 
@@ -96,8 +92,7 @@ def defined_at(obj: Any) -> str:
 
 
 class _Caller:
-    """How the errors of one kind's planner (labelled ``label``) are named (``origin``: where the kind
-    comes from, default ``kind_origin``)."""
+    """How the errors of one kind's planner are named (``origin`` default: ``kind_origin``)."""
 
     def __init__(self, kind: PlannerKind[Any], label: str, origin: str | None = None) -> None:
         self.kind, self.label = kind, label
@@ -120,8 +115,7 @@ class _Caller:
 
 
 def resolve_config(kind: PlannerKind[Any], resolver: Resolver, label: str | None = None) -> PlannerConfig:
-    """``kind.resolve(resolver)``; for a kind from outside letspi, checked (module docstring). A
-    ``ValueError`` raised there is the kind's own check of its options: it is shown as it is."""
+    """``kind.resolve(resolver)``, checked for a kind from outside letspi (its ``ValueError``s pass as they are)."""
     if is_built_in(kind):
         config: PlannerConfig = kind.resolve(resolver)
         return config
@@ -143,8 +137,7 @@ def resolve_config(kind: PlannerKind[Any], resolver: Resolver, label: str | None
 
 def build_planner_of(kind: PlannerKind[Any], builder: Builder, config: PlannerConfig, label: str, *,
                      origin: str | None = None) -> tuple[Planner, float]:
-    """``kind.build(builder, config, label)``; for a kind from outside letspi, checked and its planner
-    wrapped in a ``CheckedPlanner`` (module docstring; ``origin`` as for ``_Caller``)."""
+    """``kind.build(builder, config, label)``; for an outside kind, checked, its planner a ``CheckedPlanner``."""
     if is_built_in(kind):
         return kind.build(builder, config, label)
     caller = _Caller(kind, label, origin)
@@ -192,8 +185,7 @@ def check_planner(caller: _Caller, planner: object, at: str) -> None:
 
 
 class CheckedPlanner:
-    """A planner of a kind from outside letspi: ``plan`` is checked (module docstring); every other
-    attribute is the planner's own."""
+    """A planner of a kind from outside letspi: ``plan`` is checked; every other attribute is the planner's own."""
 
     def __init__(self, planner: Any, caller: _Caller) -> None:
         self._planner = planner

@@ -1,17 +1,10 @@
-"""The one table of planner kinds: each kind is one ``PlannerKind`` entry; everything else derives from it.
+"""The one table of planner kinds: each kind is one ``PlannerKind`` entry; the CLI's planner flags, the configuration
+union (``PlannerTable.parse_config``) and every planner listing derive from it. Adding a planner: one module in
+``letspi/planners/`` plus one entry in ``BUILT_IN_KINDS``.
 
-An entry gives a kind's configuration class and ``PlannerOption``s (declared beside the planner), how
-options resolve into the configuration (``Resolver``) and how it is built (``Builder``), and what the
-planner can do (reads the recorded future, runs dual-rate). The CLI's planner flags, the configuration
-union (``PlannerTable.parse_config``) and every planner listing derive from it. Adding a planner: one
-module in ``letspi/planners/`` plus one entry in ``BUILT_IN_KINDS``.
-
-The table is a value, not a registry. ``planner_table()`` adds to the built-in kinds those installed
-packages name in the ``letspi.planners`` entry-point group (``installed_kinds``; one that fails to load or
-clashes is left out and reported by ``letspi planners``) and those named by import path (``--planner
-mypkg.mod:NAME``: ``load_kind``, remembered for the process). An outside kind's ``Config`` has a
-``version`` field (docs/your-planner.md). Commands that pick planners themselves use ``BUILT_IN``.
-"""
+The table is a value, not a registry: ``planner_table()`` adds to ``BUILT_IN`` the installed kinds of the
+``letspi.planners`` entry-point group (``installed_kinds``; broken ones are reported by ``letspi planners``) and
+those loaded by import path (``load_kind``, remembered for the process); docs/your-planner.md."""
 
 from __future__ import annotations
 
@@ -99,16 +92,12 @@ PredictionInputs = tuple[GoalsConfig | None, NeighbourPredictionMode]
 
 @dataclass(frozen=True)
 class PlannerKind(Generic[C]):
-    """One planner kind.
-
-    name: the ``--planner`` name (the configuration's ``kind``). description: one line for listings.
-    config_class: its configuration (several kinds may share one, told apart by ``kind``).
-    resolve: options -> configuration. build: (builder, configuration, label) -> (planner, model
-    load time [s]). options: the ``PlannerOption``s ``resolve`` reads. future: whether it reads the
-    recorded future; for ``ORACLE_INPUTS``, ``inputs`` says which goal source and neighbour
-    prediction a configuration uses. dual_rate: the closed loop runs it dual-rate (the planner is a
-    ``DualRatePlanner``). demo: the tables of ``letspi demo`` showing it. outputs: the per-scenario
-    info it reports, declared (``letspi.planners.outputs.output``); anything else is refused."""
+    """One planner kind: ``name`` (the ``--planner`` name, the configuration's ``kind``), a one-line ``description``,
+    ``config_class`` (kinds may share one), ``resolve`` (options -> configuration), ``build`` ((builder,
+    configuration, label) -> (planner, model load time [s])), the ``options`` ``resolve`` reads; ``future``: whether
+    it reads the recorded future (for ``ORACLE_INPUTS``, ``inputs`` gives a configuration's goal source and neighbour
+    prediction); ``dual_rate``: a ``DualRatePlanner``; ``demo``: its ``letspi demo`` tables; ``outputs``: the
+    per-scenario info it declares (``letspi.planners.outputs.output``; anything else is refused)."""
 
     name: str
     description: str
@@ -120,8 +109,7 @@ class PlannerKind(Generic[C]):
     inputs: Callable[[C], PredictionInputs] | None = None
     dual_rate: bool = False
     demo: frozenset[DemoTable] = frozenset()
-    #: the per-scenario values its plans report (``letspi.planners.outputs``); None: undeclared (a planner object
-    #: given as it is: its info is stored, nothing aggregated)
+    #: None: undeclared (a planner object given as it is: its info is stored, nothing aggregated)
     outputs: tuple[Metric, ...] | None = ()
 
     def __post_init__(self) -> None:
@@ -195,8 +183,7 @@ class PlannerTable:
         return kind
 
     def reads_future(self, config: PlannerConfig) -> bool:
-        """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner):
-        ``human`` replays it; oracle goals or oracle neighbour prediction leak it."""
+        """Whether a planner built from ``config`` reads the recorded future (an oracle, not a planner)."""
         return self.kind_of(config).reads_future(config)
 
     def options(self, names: Iterable[str] | None = None) -> tuple[PlannerOption[Any], ...]:
@@ -233,8 +220,7 @@ class PlannerTable:
 
 
 def unknown_planner(name: str, names: Sequence[str]) -> str:
-    """The error for a ``--planner`` kind that is not in the table: the closest names, every name, and
-    how a kind of one's own is named."""
+    """The error for a ``--planner`` kind not in the table: the closest names, every name, how to name one's own."""
     return (f"unknown planner {name!r}{did_you_mean(name, names)} (available: {', '.join(names)}; a kind of your own: "
             f"--planner package.module:NAME, see {PLUGIN_DOC})")
 
@@ -285,8 +271,7 @@ def _resolve_chooser(r: Resolver) -> ChooserConfig | None:
 
 
 def _shield_presets(r: Resolver, decision: DecisionConfig | None) -> bool | None:
-    """``--shield-presets``: None (the shield checks every plan, the key of before the setting) where it is
-    given, where there is no shield or no decision step; False (the step's presets are left as they are) else."""
+    """None (the shield checks every plan) with ``--shield-presets``, no shield or no decision step; else False."""
     if decision is None or not r.options.get(SHIELD) or r.options.get(SHIELD_PRESETS):
         return None
     return False
@@ -478,8 +463,8 @@ def _checked(obj: object, where: str, table: PlannerTable) -> PlannerKind[Any]:
 
 @dataclass(frozen=True)
 class InstalledKinds:
-    """What the ``ENTRY_POINT_GROUP`` of installed packages offers: the kinds that can join the table,
-    where each comes from (kind name -> "package VERSION"), and one line per entry point left out."""
+    """The kinds installed packages offer, where each comes from (name -> "package VERSION"), and one line per entry
+    point left out."""
 
     kinds: tuple[PlannerKind[Any], ...]
     origins: dict[str, str]
@@ -527,8 +512,7 @@ def is_import_path(kind: str) -> bool:
 
 
 def add_planner_paths(paths: Iterable[str | Path]) -> None:
-    """Put the directories ``paths`` first on the Python path, to import kinds by import path from
-    (``--planner-path DIR``)."""
+    """Put the directories ``paths`` first on the Python path (``--planner-path DIR``)."""
     for path in reversed([Path(p) for p in paths]):
         if not path.is_dir():
             raise PlannerKindError(f"--planner-path {path}: no such directory")
@@ -538,15 +522,13 @@ def add_planner_paths(paths: Iterable[str | Path]) -> None:
 
 
 def _in_working_directory(module_name: str) -> bool:
-    """Whether the working directory holds ``module_name``'s top-level package or module file."""
     top = Path(module_name.partition(".")[0])
     return (top.with_suffix(".py")).is_file() or (top.is_dir() and any(top.iterdir()))
 
 
 def _import_module(module_name: str, where: str) -> object:
-    """``module_name`` imported as ``python -m`` would: the working directory is searched too (first,
-    when the module is not found elsewhere). ``PlannerKindError`` naming both fixes when it is not found,
-    or the file and line where importing it failed."""
+    """``module_name`` imported as ``python -m`` would (the working directory searched too); ``PlannerKindError``
+    naming the fixes when it is not found, or the file and line where importing it failed."""
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
@@ -581,9 +563,8 @@ def _import_module(module_name: str, where: str) -> object:
 
 
 def load_kind(target: str) -> PlannerKind[Any]:
-    """The ``PlannerKind`` at ``target`` (``package.module:NAME``), checked (``PlannerKindError`` saying why
-    not); it joins ``planner_table()`` for the rest of the process. The module is searched on the Python
-    path and in the working directory (``_import_module``)."""
+    """The ``PlannerKind`` at ``target`` (``package.module:NAME``), checked (``PlannerKindError`` saying why not); it
+    joins ``planner_table()`` for the rest of the process."""
     if target in _BY_PATH:
         return _BY_PATH[target]
     module_name, _, attribute = target.partition(":")
@@ -612,8 +593,7 @@ def loaded_from(name: str) -> str | None:
 
 
 def planner_table(extra: Sequence[PlannerKind[Any]] = ()) -> PlannerTable:
-    """The table of every kind a command offers: the built-in ones, the installed ones, those loaded by
-    import path, and ``extra``."""
+    """Every kind a command offers: built-in, installed, loaded by import path, and ``extra``."""
     kinds: dict[str, PlannerKind[Any]] = {}
     for kind in (*installed_kinds().kinds, *_BY_PATH.values(), *extra):
         kinds.setdefault(kind.name, kind)

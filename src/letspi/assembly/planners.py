@@ -52,13 +52,11 @@ class BuiltPlanner:
 
     @property
     def kind_arg(self) -> str:
-        """The ``--planner`` kind that builds it again in a new process: its kind's name, or the import
-        path it was loaded from (``pkg.mod:NAME``)."""
+        """The ``--planner`` kind that builds it again in a new process (a name, or ``pkg.mod:NAME``)."""
         return loaded_from(self.config.kind) or self.config.kind
 
     def relabel(self, label: str) -> str:
-        """How to give this configuration the label ``label``: ``--planner LABEL=KIND`` (a planner object:
-        its name)."""
+        """How to give this configuration the label ``label`` (``--planner LABEL=KIND``; an object: its name)."""
         if isinstance(self.config, ObjectConfig):
             return f"name it {label!r}: {self.config.planner_class.rpartition('.')[2]}(..., name={label!r})"
         return f"--planner {label}={self.kind_arg}"
@@ -134,8 +132,7 @@ def planner_kinds(args: Sequence[str], table: PlannerTable | None = None) -> lis
 
 def build_planners(args: Sequence[str], options: PlannerOptions, *, builder: Builder | None = None,
                    env: Mapping[str, str] | None = None, table: PlannerTable | None = None) -> list[BuiltPlanner]:
-    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (a kind by name or by import path,
-    ``planner_kinds``; models are loaded once)."""
+    """Resolve and build planners given as ``KIND`` or ``LABEL=KIND`` (``planner_kinds``); models load once."""
     labels = planner_kinds(args, table)
     table = table or planner_table()
     table.check(options)
@@ -155,10 +152,9 @@ _NOT_SETTINGS = frozenset({"name", "batch_size", "reads_future", "version"})
 
 
 class ObjectConfig(Config):
-    """The configuration of a planner object given as it is (``letspi.api.evaluate([MyPlanner()], ...)``):
-    its class, its ``version`` attribute if it has one, and its settings (its public attributes: numbers
-    and text as they are, arrays by content digest, anything else by its type only). A ``PlannerKind``
-    keys its results fully; an object is keyed by what can be read from it."""
+    """The key of a planner object given as it is (``letspi.api.evaluate([MyPlanner()], ...)``): its class, its
+    ``version`` attribute if any, and its public attributes (numbers and text as they are, arrays by content
+    digest, anything else by its type only)."""
 
     kind: Literal["object"] = "object"
     planner_class: str
@@ -194,10 +190,8 @@ def object_config(planner: object) -> ObjectConfig:
 
 
 def built_from_object(planner: Any, name: str | None = None) -> BuiltPlanner:
-    """A planner object (``plan(batch)``, ``name``, ``batch_size``) as the harness runs it: keyed by
-    ``object_config``, checked as a kind from outside letspi is (``letspi.assembly.checked``), reading the
-    recorded future when its ``reads_future`` says so. It runs in this process (not in worker processes:
-    those build planners from their kind)."""
+    """A planner object (``plan(batch)``, ``name``, ``batch_size``) as the harness runs it, in this process: keyed
+    by ``object_config``, checked (``letspi.assembly.checked``), an oracle when its ``reads_future`` says so."""
     label = name or getattr(planner, "name", None) or type(planner).__name__
     reads = bool(getattr(planner, "reads_future", False))
 

@@ -131,8 +131,7 @@ def goals_config(source: str, weights: Path | None = None, env: Mapping[str, str
 
 
 class Resolver:
-    """Turns ``PlannerOptions`` into the building blocks of configurations; ``env`` defaults to ``os.environ``.
-    Fingerprints are computed once per resolver."""
+    """``PlannerOptions`` -> configuration parts, fingerprinted once per resolver; ``env`` default ``os.environ``."""
 
     def __init__(self, options: PlannerOptions | None = None, env: Mapping[str, str] | None = None) -> None:
         self.options = options or DEFAULT_OPTIONS

@@ -45,8 +45,7 @@ def cache_root() -> Path:
 
 @dataclass(frozen=True)
 class SuiteData:
-    """The scenarios of a suite and how long they took (0 when cached); ``file_digests``: real HighD only, the
-    digests of the files read."""
+    """A suite's scenarios and their time [s] (0 when cached); ``file_digests``: of the real HighD files read."""
 
     scenarios_file: Path
     generation_s: float
@@ -144,8 +143,7 @@ def _renumbered(rec: Recording, recording_id: int) -> Recording:
 def _load_seed_dirs(
     dirs: list[Path],
 ) -> tuple[list[Recording], dict[int, pd.DataFrame | None], list[dict[str, object]]]:
-    """Recordings of all seed directories with distinct ids (seed k: k * 100 + NN), their events and
-    generation records (with the ids they were given)."""
+    """All seed directories' recordings (ids k * 100 + NN for seed k), their events and generation records."""
     recs: list[Recording] = []
     events: dict[int, pd.DataFrame | None] = {}
     generation: list[dict[str, object]] = []

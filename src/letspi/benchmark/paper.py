@@ -1,14 +1,9 @@
-"""The paper's Tables III-VI on the pinned suites, one resumable run (``letspi benchmark paper``).
+"""The paper's Tables III-VI on the pinned suites, one resumable run (``letspi benchmark paper``; the layout of
+``OUT`` is in docs/reproduction.md).
 
-Data: each suite's cached windows are split by ego vehicle (seeded) into a memory share, on whose windows
-the memory phase collects, and the rest, from which the evaluated windows are drawn and pooled over the
-suites (retrieval never sees an evaluated vehicle; intervals group windows by ego vehicle). Every table is
-an ordinary evaluation directory (``letspi.evaluation.harness``) or an ablation preset
-(``letspi.evaluation.ablations``), so resumable and keyed by the planners' configurations and the data
-digest. ``OUT`` holds ``settings.json`` (a rerun with other settings is refused), ``data/``,
-``memory.sqlite``, ``table-iii*/``, ``ablations/*/``, ``paper.md``/``paper.json`` and ``timing.json``:
-docs/reproduction.md describes each.
-"""
+Each suite's windows are split by ego vehicle (seeded) into a memory share, on which the memory phase collects,
+and the rest, from which the evaluated windows are drawn and pooled. Every table is an ordinary evaluation
+directory or an ablation preset (``letspi.evaluation.ablations``), so resumable and keyed as those are."""
 
 from __future__ import annotations
 
@@ -91,9 +86,9 @@ PAPER_VI: Final[tuple[tuple[Any, ...], ...]] = (
 
 @dataclass(frozen=True)
 class PaperSettings:
-    """What a paper run pins (module docstring); per suite: ``eval_windows`` evaluated, ``memory_windows``
-    collected on, ``memory_phase_windows`` of the evaluated ones also planned by ``letspi-memory``;
-    ``memory_share``: share of each suite's ego vehicles whose windows are held for collection."""
+    """What a paper run pins; per suite: ``eval_windows`` evaluated, ``memory_windows`` collected on,
+    ``memory_phase_windows`` of the evaluated ones also planned by ``letspi-memory``; ``memory_share``: share of
+    each suite's ego vehicles whose windows are held for collection."""
 
     suites: tuple[str, ...] = DEFAULT_SUITES
     eval_windows: int = 800
@@ -148,8 +143,7 @@ def split_suite(batch: ScenarioBatch, settings: PaperSettings) -> tuple[np.ndarr
 
 def paper_data(settings: PaperSettings, out: Path, *, workers: int = 2,
                log: Callable[[str], None] = print) -> PaperData:
-    """The suites' data (made or reused from the cache), split and pooled, written to ``OUT/data`` (a file
-    already there must hold the same windows)."""
+    """The suites' data (cached), split and pooled into ``OUT/data`` (a file there must hold the same windows)."""
     parts: dict[str, list[ScenarioBatch]] = {"eval": [], "memory": [], "memory-phase": []}
     configs: list[MetricsConfig] = []
     ids = []
@@ -196,9 +190,9 @@ def _check_settings(out: Path, record: dict[str, Any]) -> None:
 def run_paper(settings: PaperSettings, out: Path, options: PlannerOptions, *, tables: Sequence[str] = TABLES,
               workers: int = 2, progress_factory: ProgressFactory | None = None,
               log: Callable[[str], None] = print, data: PaperData | None = None) -> PaperRun:
-    """Run the tables ``tables`` (module docstring) and write the report; every stage resumes where a
-    previous run stopped. ``options``: the planners' options (``--memory`` defaults to OUT/memory.sqlite;
-    the prompt style to ``settings.prompt_style``); ``data``: the pooled windows (default: ``paper_data``)."""
+    """Run the tables ``tables`` (each stage resumes) and write the report. ``options``: the planners' options
+    (``--memory`` defaults to OUT/memory.sqlite, the prompt style to ``settings.prompt_style``); ``data``: the pooled
+    windows (default: ``paper_data``)."""
     unknown = [t for t in tables if t not in TABLES]
     if unknown:
         raise ValueError(f"unknown table {', '.join(unknown)}; available: {', '.join(TABLES)}")
@@ -279,8 +273,7 @@ def combinations(settings: PaperSettings, options: PlannerOptions) -> list[tuple
 
 def _base_collection(options: PlannerOptions, data: PaperData, out: Path, builder: Builder,
                      stage: Callable[[str, Callable[[], object]], None]) -> str:
-    """Collect Base's memories (the full memory phase, resumable) as the components preset does; returns their
-    collection key."""
+    """Collect Base's memories (the full memory phase, resumable) as the components preset does; their key."""
     keys: list[str] = []
     stage("collect_base", lambda: keys.append(collect_memories(options, data.memory, builder, None,
                                                                out / "ablations")))
@@ -297,9 +290,8 @@ def _write_timing(out: Path, timing: Mapping[str, float], tables: Sequence[str])
 
 # the report ------------------------------------------------------------------------------------------
 def _llm_figures(directory: Path, name: str) -> dict[str, float | None]:
-    """The model's share and cost in one row's results: ``consulted_pct`` (windows it was asked on) and
-    ``call_s`` (median seconds of one call over the windows that made calls, as each call cost when it was
-    first made: the response cache does not hide it)."""
+    """The model's share and cost in one row's results: ``consulted_pct`` (windows it was asked on) and ``call_s``
+    (median seconds of one call over the windows that made calls, as first made: the cache does not hide it)."""
     frame = load_planner_results(directory, name)
     calls_column, latency_column = column(LLM_CALLS), column(LLM_ORIGINAL_LATENCY)
     if frame.empty or calls_column not in frame:

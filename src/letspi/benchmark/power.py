@@ -26,8 +26,7 @@ def mcnemar_power(n: int, p_only_a: float, p_only_b: float, alpha: float = 0.05)
 
 
 def alternative(discordance: float, difference: float = 0.01) -> tuple[float, float]:
-    """(p_only_a, p_only_b) of a rate difference ``difference`` at discordance ``discordance`` (at least
-    the difference itself: then B never fails alone)."""
+    """(p_only_a, p_only_b) of a rate ``difference`` at ``discordance`` (>= the difference: B never fails alone)."""
     psi = max(discordance, difference)
     return (psi + difference) / 2, (psi - difference) / 2
 

@@ -74,8 +74,7 @@ class _PlannerClock:
 
 
 def selected_modes(suite: Suite, slugs: Sequence[str] | None) -> tuple[Mode, ...]:
-    """The suite's modes named by ``slugs`` (all when None or empty), in the suite's order; an unknown slug
-    is refused with the suite's slugs."""
+    """The suite's modes named by ``slugs`` (all when None or empty), in suite order; ValueError for an unknown slug."""
     if not slugs:
         return tuple(suite.modes)
     known = [m.slug for m in suite.modes]
@@ -97,9 +96,8 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
               reports: bool = True, progress_factory: ProgressFactory | None = None,
               log: Callable[[str], None] = print, modes: Sequence[str] | None = None,
               limit: int | None = None) -> SuiteRun:
-    """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode (or in the modes
-    whose slugs ``modes`` names: the leaderboard then holds those), write the leaderboard. ``limit``: only
-    the first N windows of each mode (a quick try; the leaderboard records it)."""
+    """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode (or those ``modes``
+    names), write the leaderboard; ``limit``: only the first N windows of each mode (recorded as a quick try)."""
     if limit is not None and limit < 1:
         raise ValueError(f"--limit must be at least 1, got {limit}")
     out = Path(out)

@@ -1,20 +1,23 @@
 """The benchmark suites: one table (``SUITES``), one entry per suite pinning everything that makes a result
 (docs/benchmark.md). The id ``NAME@vVERSION-DIGEST8`` hashes ``Suite.definition`` (``tests/test_benchmark.py`` pins
-every id). Suites in highway-env (``HighwayEnvSuite``, ``HIGHWAY_ENV_SUITES``, run by
-``letspi.benchmark.highway_env``) pin the environment, its configuration, the seeds, the timing and highway-env's
-and gymnasium's versions (their digests pinned in ``tests/test_highway_env_run.py``)."""
+every id). Suites of other simulators join through the ``letspi.suites`` entry-point group (``ExternalSuite``;
+letspi-interop adds highway-env's)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cache
+from importlib.metadata import entry_points
+from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from letspi.constants import DEFAULT_STRIDE_FRAMES
 from letspi.metrics.config import MetricsConfig
+from letspi.planners.options import PlannerOptions
 from letspi.scenario.provenance import SUITE_SEEDS
 from letspi.suggest import unknown
 from letspi.trafficgen.config import LAYOUTS, TrafficConfig, traffic_preset, with_overrides
@@ -246,110 +249,59 @@ def get_suite(name: str) -> Suite:
     return suite
 
 
-# ------------------------------------------------------------------------------------------------
-# Suites in highway-env
-# ------------------------------------------------------------------------------------------------
+# Suites of other simulators (companion distributions)
 
-#: the versions the highway-env suites pin (the extra ``highway``)
-HIGHWAY_ENV_VERSIONS: Final = (("gymnasium", "1.4.0"), ("highway-env", "1.12.1"))
-#: DiLu's evaluation seeds (DiLu, ICLR 2024, its released configuration)
-DILU_SEEDS: Final = (5838, 2421, 7294, 9650, 4176, 6382, 8765, 1348, 4213, 2572)
-#: DiLu's highway-v0 setting (the issue's reading of DiLu's configuration): 50 vehicles, ego spacing 4, 30 s
-_DILU_CONFIG: Final = (("duration", 30), ("ego_spacing", 4), ("simulation_frequency", 15), ("vehicles_count", 50))
+#: the entry-point group through which other distributions add suites: each entry point names a
+#: ``Mapping[str, ExternalSuite]`` (e.g. ``letspi_interop.highway_env.suite:SUITES``)
+SUITES_GROUP: Final = "letspi.suites"
 
 
-def _seeds(n: int, first: int) -> tuple[int, ...]:
-    """DiLu's ten seeds, then ``first``, ``first + 1``, ... up to ``n`` seeds."""
-    return DILU_SEEDS + tuple(range(first, first + n - len(DILU_SEEDS)))
-
-
-@dataclass(frozen=True)
-class HighwayEnvSuite:
-    """One suite in highway-env: episodes of ``env_id`` with ``config`` (over highway-env's defaults), one per
-    seed, at most ``duration_s`` long; planners replan every ``replan_s`` (highway-env's policy period), LLM
-    planners ask their model every ``llm_period_s`` with a fixed answer latency ``llm_latency_s``.
-    ``published``: what the literature reports on it (docs/highway-env.md); ``sizing``: the power argument."""
+class ExternalSuite(Protocol):
+    """A suite another simulator runs: what ``letspi benchmark list``, ``show`` and ``run`` ask of it."""
 
     name: str
-    version: int
-    description: str
-    env_id: str
-    config: tuple[tuple[str, Any], ...]
-    seeds: tuple[int, ...]
-    published: str
-    sizing: str
-    duration_s: float = 30.0
-    replan_s: float = 0.2
-    llm_period_s: float = 2.5
-    llm_latency_s: float = 1.5
-    versions: tuple[tuple[str, str], ...] = HIGHWAY_ENV_VERSIONS
-    metrics: MetricsConfig = field(default_factory=MetricsConfig)
-
-    def __post_init__(self) -> None:
-        if len(set(self.seeds)) != len(self.seeds) or not self.seeds:
-            raise ValueError(f"{self.name}: seeds must be distinct, got {self.seeds}")
-
-    def definition(self) -> dict[str, Any]:
-        """Everything that makes a result of this suite (what the digest is computed over)."""
-        return {"name": self.name, "version": self.version, "simulator": "highway-env", "env_id": self.env_id,
-                "config": dict(self.config), "seeds": list(self.seeds), "duration_s": self.duration_s,
-                "replan_s": self.replan_s, "llm_period_s": self.llm_period_s, "llm_latency_s": self.llm_latency_s,
-                "versions": dict(self.versions), "metrics": self.metrics.recorded(), "reference": REFERENCE_PLANNER}
 
     @property
-    def digest(self) -> str:
-        return definition_digest(self.definition())
+    def suite_id(self) -> str: ...
 
-    @property
-    def suite_id(self) -> str:
-        return f"{self.name}@v{self.version}-{self.digest}"
+    def definition(self) -> dict[str, Any]: ...
 
+    def list_lines(self) -> list[str]:
+        """Its entry in ``letspi benchmark list`` (the id first)."""
+        ...
 
-_HE_SIZING = ("{n} episodes: a success rate near 70 % is known to about ±9 points (95 % Wilson interval); two "
-              "planners that disagree on 30 % of the episodes and differ by 15 (20) points are told apart by exact "
-              "McNemar (alpha 0.05) with power {p15} ({p20}) (letspi benchmark power --discordance-pct 30 "
-              "--difference-pts 15)")
+    def show_lines(self) -> list[str]:
+        """What ``letspi benchmark show`` prints."""
+        ...
 
-def _dilu_five_lanes(density: float, first_seed: int, published: str) -> HighwayEnvSuite:
-    """One of DiLu's generalisation settings: highway-v0 with 5 lanes at ``density``, 50 episodes."""
-    return HighwayEnvSuite(
-        name=f"highway-env-dilu-5lane-{density:g}", version=1,
-        description=f"DiLu's generalisation: highway-v0 with 5 lanes at density {density:g} (else as "
-                    "highway-env-dilu); DiLu's 10 seeds and 40 more",
-        env_id="highway-v0", config=(("lanes_count", 5), ("vehicles_density", density), *_DILU_CONFIG),
-        seeds=_seeds(50, first_seed), published=published, sizing=_HE_SIZING.format(n=50, p15="0.41", p20="0.70"))
+    def run(self, planners: Sequence[str] | None, out: Path, *, options: PlannerOptions, workers: int,
+            reports: bool, progress: Callable[[str, int], Callable[[int], None]],
+            log: Callable[[str], None]) -> str:
+        """Every planner (None: the suite's defaults) into ``out`` (resumable); returns the table to print."""
+        ...
 
 
-#: the table of highway-env suites (one entry per suite)
-HIGHWAY_ENV_SUITES: Final[Mapping[str, HighwayEnvSuite]] = MappingProxyType({s.name: s for s in (
-    HighwayEnvSuite(
-        name="highway-env-dilu", version=1,
-        description="highway-v0 as DiLu evaluates it: 4 lanes, density 2, 50 vehicles, ego spacing 4, 30 s, 15 Hz "
-                    "simulation; replanning every 0.2 s; DiLu's 10 seeds and 90 more",
-        env_id="highway-v0", config=(("lanes_count", 4), ("vehicles_density", 2), *_DILU_CONFIG),
-        seeds=_seeds(100, 20001),
-        published="DiLu (40 memories) 70 % success, GRAD (an RL baseline) 69 % (as DiLu, ICLR 2024, reports them)",
-        sizing=_HE_SIZING.format(n=100, p15="0.75", p20="0.96")),
-    _dilu_five_lanes(2.5, 20101, "DiLu 65 % success, GRAD 47 %"),
-    _dilu_five_lanes(3, 20201, "DiLu 35 % success, GRAD 10 %"),
-    HighwayEnvSuite(
-        name="highway-env-merge", version=1,
-        description="merge-v0 (highway-env's defaults: 2 lanes and an on-ramp, 4 other vehicles), 15 Hz "
-                    "simulation; an episode ends once the ramp is passed, at the latest after 30 s; 50 seeds",
-        env_id="merge-v0", config=(("simulation_frequency", 15),), seeds=tuple(range(20301, 20351)),
-        published="no LLM-driving paper reports merge-v0 with these settings",
-        sizing=_HE_SIZING.format(n=50, p15="0.41", p20="0.70")),
-)})
+@cache
+def external_suites() -> Mapping[str, ExternalSuite]:
+    """The suites of installed companion distributions, by name."""
+    found: dict[str, ExternalSuite] = {}
+    for ep in sorted(entry_points(group=SUITES_GROUP), key=lambda e: e.name):
+        for name, suite in ep.load().items():
+            if name in SUITES or name in found:
+                raise ValueError(f"entry point {ep.value} ({SUITES_GROUP}) redefines the suite {name!r}")
+            found[name] = suite
+    return MappingProxyType(found)
 
 
-def get_any_suite(name: str) -> Suite | HighwayEnvSuite:
-    """The suite called ``name`` in either table (its bare name, or its full id, whose digest must match)."""
+def get_any_suite(name: str) -> Suite | ExternalSuite:
+    """The suite called ``name``, letspi's or a companion's (its bare name, or its full id, whose digest must
+    match)."""
     bare = name.split("@", 1)[0]
-    suite = HIGHWAY_ENV_SUITES.get(bare)
+    suite = external_suites().get(bare)
     if suite is None:
         if bare not in SUITES:
             raise ValueError(f"unknown benchmark suite {name!r}; available: "
-                             f"{', '.join([*SUITES, *HIGHWAY_ENV_SUITES])}")
+                             f"{', '.join([*SUITES, *external_suites()])}")
         return get_suite(name)
     if "@" in name and name != suite.suite_id:
         raise ValueError(f"{name} is not this letspi's {bare}: its definition is {suite.suite_id} "

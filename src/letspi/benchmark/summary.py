@@ -68,8 +68,7 @@ def cell(mode: Mapping[str, Any], planner: str) -> str:
 
 
 def dominated_by(mode: Mapping[str, Any], planner: str) -> list[str]:
-    """The planners whose CR-at-fault interval lies wholly below ``planner``'s and whose SR interval lies
-    wholly above it in this mode."""
+    """The planners whose CR-at-fault interval is wholly below ``planner``'s and SR interval wholly above, here."""
     rows = mode["planners"]
     me = rows.get(planner)
     if me is None:
@@ -82,8 +81,7 @@ def dominated_by(mode: Mapping[str, Any], planner: str) -> list[str]:
 
 def summary_markdown(boards: Sequence[Mapping[str, Any]], planners: Sequence[str] | None = None,
                      modes: Sequence[str] | None = None) -> str:
-    """The headline table (planners x suite modes; only the mode slugs ``modes`` when given) and a line per
-    dominated planner."""
+    """The headline table (planners x suite modes, or only ``modes``) and a line per dominated planner."""
     cols = [c for c in columns(boards) if not modes or c[1] in modes]
     if not cols:
         raise ValueError(f"no leaderboard has a mode {', '.join(modes or [])}")

@@ -3,7 +3,7 @@
 ``COMMANDS`` names every command, the module and attribute that define it and its one-line summary:
 ``letspi --help`` prints the summaries without importing a command module, and ``letspi CMD ...`` imports
 only CMD's module. Other distributions add commands through the ``letspi.commands`` entry-point group
-(``letspi-train`` adds ``train`` and ``fit``). Planner kinds named by import path are loaded before a
+(``letspi-train`` adds ``train`` and ``fit``, ``letspi-interop`` ``highway-env`` and ``export``). Planner kinds named by import path are loaded before a
 command's options are parsed (``letspi.cli.startup``).
 """
 
@@ -44,16 +44,14 @@ COMMANDS: dict[str, CommandEntry] = {
     "analyze": CommandEntry("letspi.cli.analyze", "app", "Analyse what the data allows a planner to gain"),
     "benchmark": CommandEntry("letspi.cli.benchmark", "app",
                               "Versioned benchmark suites: list, show, run, summary, power"),
-    "export": CommandEntry("letspi.cli.export", "app", "Export scenarios and plans to other tools' formats"),
     "llm": CommandEntry("letspi.cli.llm", "app", "LLM backends: check a spec, list embedded models, benchmark"),
-    "highway-env": CommandEntry("letspi.cli.highway_env", "app",
-                                "Run planners in highway-env episodes and export them as HighD"),
 }
 #: the entry-point group through which other distributions add commands: each entry point names a
 #: ``dict[str, CommandEntry]`` (e.g. ``letspi_train.commands:COMMANDS``)
 COMMANDS_GROUP = "letspi.commands"
 #: commands of letspi's companion distributions (packages/ in the repository), named when they are missing
-COMPANIONS = {"train": "letspi-train", "fit": "letspi-train"}
+COMPANIONS = {"train": "letspi-train", "fit": "letspi-train", "highway-env": "letspi-interop",
+              "export": "letspi-interop"}
 
 
 def _add_plugin_commands() -> None:

@@ -11,12 +11,11 @@ from typing import Annotated
 import typer
 
 from letspi.assembly.planner_table import planner_table
-from letspi.benchmark.highway_env import default_highway_env_planners, run_highway_env_suite
 from letspi.benchmark.leaderboard import to_markdown
 from letspi.benchmark.paper import DEFAULT_SUITES, FAST_MODELS, MEMORY_MODELS, TABLES, PaperSettings, run_paper
 from letspi.benchmark.power import alternative, mcnemar_power, windows_needed
 from letspi.benchmark.run import default_planners, run_suite
-from letspi.benchmark.suites import HIGHWAY_ENV_SUITES, SUITES, GeneratedTraffic, get_any_suite, get_suite
+from letspi.benchmark.suites import SUITES, ExternalSuite, GeneratedTraffic, external_suites, get_any_suite, get_suite
 from letspi.benchmark.summary import load_boards, summary_markdown
 from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.cli.evaluate import progress_factory
@@ -35,9 +34,8 @@ def list_suites() -> None:
         modes = ", ".join(m.slug + (f" ({m.n_windows:,d})" if m.n_windows else "") for m in suite.modes)
         typer.echo(f"{suite.suite_id:34s} {suite.extraction.n_windows:>6,d} windows  {modes}")
         typer.echo(f"    {suite.description}; {suite.scripted}")
-    for he in HIGHWAY_ENV_SUITES.values():
-        typer.echo(f"{he.suite_id:34s} {len(he.seeds):>6,d} episodes highway-env {he.env_id}")
-        typer.echo(f"    {he.description}; published: {he.published}")
+    for other in external_suites().values():
+        typer.echo("\n".join(other.list_lines()))
 
 
 @app.command("show")
@@ -48,19 +46,10 @@ def show(
     """Show everything a suite pins. Traffic (resolved configuration), extraction, modes, metrics, digest."""
     with user_errors():
         found = get_any_suite(suite)
-    if found.name in HIGHWAY_ENV_SUITES:
-        he = HIGHWAY_ENV_SUITES[found.name]
-        if as_json:
-            typer.echo(json.dumps({"id": he.suite_id, **he.definition()}, indent=2, sort_keys=True))
-            return
-        typer.echo(f"{he.suite_id}: {he.description}")
-        typer.echo(f"environment: {he.env_id} {json.dumps(dict(he.config), sort_keys=True)}; {he.duration_s:g} s "
-                   f"episodes; replanning every {he.replan_s:g} s; LLM planners ask their model every "
-                   f"{he.llm_period_s:g} s, answers in force after {he.llm_latency_s:g} s")
-        typer.echo(f"versions: {', '.join(f'{k} {v}' for k, v in he.versions)}")
-        typer.echo(f"seeds ({len(he.seeds)}): {', '.join(map(str, he.seeds))}")
-        typer.echo(f"published: {he.published}")
-        typer.echo(f"size: {he.sizing}")
+    if found.name in external_suites():
+        other = external_suites()[found.name]
+        typer.echo(json.dumps({"id": other.suite_id, **other.definition()}, indent=2, sort_keys=True) if as_json
+                   else "\n".join(other.show_lines()))
         return
     s = get_suite(suite)
     if as_json:
@@ -118,8 +107,8 @@ def run(
     in its modes and writes leaderboard.json / .md / .html with 95 % intervals and paired deltas against sf."""
     with user_errors():
         found = get_any_suite(suite)
-    if found.name in HIGHWAY_ENV_SUITES:
-        _run_highway_env(suite, options, planner, out, workers, reports)
+    if found.name in external_suites():
+        _run_external(external_suites()[found.name], options, planner, out, workers, reports)
         return
     with user_errors(resumes=True):  # the data is cached, each mode's evaluation resumes
         s = get_suite(suite)
@@ -139,22 +128,19 @@ def run(
                   f"results in {target}/ (leaderboard.json, leaderboard.md, leaderboard.html, timing.json)")
 
 
-def _run_highway_env(suite: str, options: PlannerOptions, planner: list[str] | None, out: Path | None, workers: int,
-                     reports: bool) -> None:
-    """``run`` of a highway-env suite: its episodes for every planner (resumable), metrics.md, report.html."""
+def _run_external(s: ExternalSuite, options: PlannerOptions, planner: list[str] | None, out: Path | None,
+                  workers: int, reports: bool) -> None:
+    """``run`` of a companion's suite (highway-env's): its own runner, resumable."""
     with user_errors(resumes=True):
-        s = HIGHWAY_ENV_SUITES[get_any_suite(suite).name]
         target = out or Path("benchmark") / s.suite_id
         with writer_lock(target, command_line()), progress_bar() as bar:
             def factory(name: str, total: int) -> Callable[[int], None]:
                 task = bar.add_task(name, total=total)
                 return lambda k: bar.advance(task, k)
 
-            run_highway_env_suite(s, planner or default_highway_env_planners(default_planners()), target,
-                                  options=options, workers=workers, reports=reports, progress=factory,
-                                  log=bar.console.print)
-    typer.echo((target / "metrics.md").read_text())
-    console.print(f"results in {target}/ (metrics.json, metrics.md, report.html, timing.json)")
+            table = s.run(planner, target, options=options, workers=workers, reports=reports, progress=factory,
+                          log=bar.console.print)
+    typer.echo(table)
 
 
 @app.command("summary")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Annotated
 
@@ -18,7 +19,6 @@ from letspi.scenario.store import load_scenarios
 from letspi.simulation.config import ClosedLoopConfig, EvaluationMode
 from letspi.viz.compare import write_comparison
 from letspi.viz.figure import plot_scenario
-from letspi.viz.highway_env import is_highway_env_dir, write_episode_report
 from letspi.viz.llm_panel import load_iterations, panel_record
 from letspi.viz.outcomes import simulate_panel
 from letspi.viz.report import write_report
@@ -81,11 +81,21 @@ def report(
     scenarios with diagrams of the stored plans, ablation plots when DIR/ablations/ has them), or of a highway-env
     directory (its table and one episode of each planner drawn with the plans it followed)."""
     with user_errors():
-        if is_highway_env_dir(directory):
-            path = write_episode_report(directory, out)
-        else:
-            path = write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
+        path = _companion_report(directory, out) or write_report(directory, out, n_worst=worst, with_diagrams=diagrams)
     typer.echo(str(path))
+
+
+#: the entry-point group through which other distributions write reports of their own results directories: each
+#: entry point names a function ``(directory, out) -> Path | None`` (None: not its kind of directory)
+REPORTS_GROUP = "letspi.reports"
+
+
+def _companion_report(directory: Path, out: Path | None) -> Path | None:
+    for ep in sorted(entry_points(group=REPORTS_GROUP), key=lambda e: e.name):
+        written: Path | None = ep.load()(directory, out)
+        if written is not None:
+            return written
+    return None
 
 
 def compare(

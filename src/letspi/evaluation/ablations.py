@@ -55,10 +55,9 @@ def run_ablation(
     config: MetricsConfig | None = None,
     reference: str | None = None,
 ) -> dict[str, dict[str, AggValue]]:
-    """Run one ablation preset; returns ``{row name: aggregated metrics}``. ``concurrency``: scenarios in
-    flight for the LLM planners and the collection (None: each backend's default). ``config``: the metrics
-    configuration (default ``MetricsConfig()``); ``reference``: the row metrics.json pairs every other
-    with (default: the evaluation's, ``sf`` or the first row)."""
+    """Run one ablation preset; returns ``{row name: aggregated metrics}``. ``concurrency``: scenarios in flight
+    (None: each backend's default); ``config``: metrics configuration; ``reference``: the row metrics.json pairs
+    every other with (default: ``sf`` or the first row)."""
     if kind not in ABLATION_KINDS:
         raise ValueError(unknown("ablation", kind, ABLATION_KINDS))
     builder = builder or Builder(cache="default" if options.get(LLM_CACHE) else None)

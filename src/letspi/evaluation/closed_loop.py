@@ -80,9 +80,8 @@ def planner_evaluation(config: ClosedLoopConfig, built: BuiltPlanner) -> dict[st
 
 @dataclass(frozen=True)
 class ScriptedNeighbours:
-    """The scripted neighbours of an evaluated batch (``closed-loop-hybrid``): ``mask`` (B, N) bool, the slots that
-    keep their recorded behaviour; ``source``, the HighD directory read (or None); ``matched``, scenarios whose
-    recording has an events file there."""
+    """Scripted neighbours of a batch (hybrid): ``mask`` (B, N) bool, slots that keep their log; ``source``, the
+    HighD directory read (or None); ``matched``, scenarios whose recording has an events file there."""
 
     mask: np.ndarray
     source: Path | None
@@ -114,9 +113,8 @@ def events_directory(scenarios_file: Path | None) -> Path | None:
 
 
 def scripted_for(batch: ScenarioBatch, events_dir: Path | None, *, required: bool = True) -> ScriptedNeighbours:
-    """Scripted neighbours of ``batch`` from the ``NN_events.csv`` of ``events_dir`` (None: none).
-    Raises ``ClosedLoopSetupError`` when ``required`` and no events file matches any of the batch's
-    recordings (events of another dataset would silently script nothing); else that means none."""
+    """Scripted neighbours of ``batch`` from the ``NN_events.csv`` of ``events_dir`` (None: none). Raises
+    ``ClosedLoopSetupError`` when ``required`` and no events file matches the batch's recordings (else: none)."""
     none = ScriptedNeighbours(np.zeros(batch.nbr_id.shape, dtype=bool), None, 0)
     if events_dir is None:
         return none
@@ -150,16 +148,10 @@ def check_setup(settings: ClosedLoopConfig) -> None:
                                        "with X forwarding (ssh -X)")
 
 
-# ------------------------------------------------------------------------------------------------
-# Rows of a part
-# ------------------------------------------------------------------------------------------------
-
-
 def part_frame(chunk: ClosedLoopChunk, metrics: ScenarioMetrics, digests: np.ndarray,
                vehicles: np.ndarray) -> pd.DataFrame:
-    """The harness's row layout (id, digest, row, ego vehicle, metrics, ``inference_s``, info) plus the
-    closed-loop columns of ``chunk_frame`` (SUMO collision, replans, simulation time). ``digests``,
-    ``vehicles``: (B,) of the evaluated batch."""
+    """The harness's row layout (id, digest, row, vehicle, metrics, ``inference_s``, info) plus ``chunk_frame``'s
+    closed-loop columns. ``digests``, ``vehicles``: (B,) of the evaluated batch."""
     idx = np.asarray(chunk.indices, dtype=np.int64)
     frame = chunk_frame(chunk, metrics)
     frame.insert(1, "scenario_digest", [str(d) for d in digests[idx]])
@@ -222,14 +214,8 @@ def closed_loop_rows(out_dir: Path, planner_name: str) -> dict[str, ClosedLoopRo
     return {str(rec["scenario_digest"]): closed_loop_row(rec) for rec in frame.to_dict("records")}
 
 
-# ------------------------------------------------------------------------------------------------
-# Running
-# ------------------------------------------------------------------------------------------------
-
-
 def planner_spec(built: BuiltPlanner, settings: ClosedLoopConfig) -> PlannerSpecLike:
-    """In this process the planner the CLI built (its model is loaded once); in workers or on Ray its
-    configuration, from which every worker builds its own."""
+    """The built planner in this process (its model loaded once); its configuration for workers or Ray."""
     if settings.uses_processes():
         return PlannerSpec.of_built(built)
     return built
@@ -237,8 +223,7 @@ def planner_spec(built: BuiltPlanner, settings: ClosedLoopConfig) -> PlannerSpec
 
 @dataclass
 class ClosedLoopRunner:
-    """``harness.PlannerRunner`` of the closed-loop modes. ``scripted_nbr``:
-    (B, N) bool over the evaluated batch, the neighbours that keep their log in ``closed-loop-hybrid``."""
+    """``harness.PlannerRunner`` of the closed-loop modes. ``scripted_nbr``: (B, N) bool, hybrid's log-keepers."""
 
     settings: ClosedLoopConfig
     scripted_nbr: np.ndarray | None = None

@@ -98,9 +98,8 @@ def plan_concurrently(
     runner: RunnerConfig,
     progress: Callable[[int, RunStatus | None], None] | None = None,
 ) -> RunStats:
-    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score and write them
-    per part in scenario order, in this thread. Raises what ``run_ordered`` raises, after writing every row it
-    accepted. ``reads_future``: the planner sees the recorded future."""
+    """Propose for ``todo`` (indices into ``batch``) ``runner.concurrency`` at a time; simulate, score and write per
+    part in scenario order, here. Raises what ``run_ordered`` raises, after writing every row it accepted."""
     seen_all = batch if reads_future else batch.history()
     contexts: BlockCache[PlanningContext] = BlockCache(CONTEXT_BLOCK, len(batch),
                                                        lambda rows: planner.context(seen_all.take(rows)))

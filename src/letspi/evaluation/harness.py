@@ -1,13 +1,9 @@
-"""Run planners over scenarios, time and score them, store their rows, and resume interrupted runs.
+"""Run planners over scenarios (open loop here; closed loop through a ``runner``), score and store their rows.
 
-``evaluate`` runs each planner (open loop here; the closed-loop modes through a ``runner``) into an
-evaluation directory (``letspi.evaluation.results``) and writes its summary
-(``letspi.evaluation.summary``). Planners that do not read the future get the history-only view of
-each batch; metrics use the full batch. Planners that call a model per scenario and are thread-safe
-keep ``concurrency`` scenarios in flight; one thread scores and writes their rows in scenario order,
-so concurrency never changes stored results. A planner's info must be declared by its kind
-(``PlannerKind.outputs``). ``inference_s`` is the wall time of ``plan`` per scenario.
-"""
+Planners that do not read the future see each batch's history only; metrics use the full batch. Per-scenario
+planners keep ``concurrency`` scenarios in flight, written in scenario order (concurrency never changes results).
+A planner's info must be declared by its kind (``PlannerKind.outputs``). ``inference_s``: wall time of ``plan``
+per scenario [s]."""
 
 from __future__ import annotations
 
@@ -106,11 +102,8 @@ def run_planner(
     concurrency: int | None = None,
     before_write: Callable[[], None] | None = None,
 ) -> tuple[pd.DataFrame, RunStats | None]:
-    """Plan and score every scenario of ``batch`` not yet stored for ``built``; return all its rows and,
-    for per-scenario planners, the run's ``RunStats`` (``concurrency``: None = the backend's default).
-
-    The planner's directory and ``config.json`` appear with its first part (``before_write()`` runs
-    before each part is written): a planner that fails before storing anything leaves nothing."""
+    """Plan and score every scenario of ``batch`` not yet stored for ``built`` (``PartWriter``); return all its
+    rows and, for per-scenario planners, the run's ``RunStats`` (``concurrency``: None = the backend's default)."""
     writer = PartWriter(out_dir, built, before_write=before_write)
     todo = writer.todo(digests, progress)
     try:
@@ -164,8 +157,7 @@ def _scenarios_by_digest(scenarios_file: str) -> tuple[ScenarioBatch, dict[str, 
 
 def _planner_parts(spec: PlannerSpec, scenarios_file: str, digests: list[str], out_dir: str,
                    config: MetricsConfig) -> None:
-    """A worker process's share of ``evaluate(..., workers=N)``: one planner's parts for the scenarios
-    ``digests`` (read from ``scenarios_file``, in that order: the rows of this process's batch)."""
+    """A worker's share of ``evaluate(..., workers=N)``: one planner's parts for ``digests`` (in that order)."""
     built = assemble_planner(spec.config, spec.name, table=spec.table())
     full, row_of = _scenarios_by_digest(scenarios_file)
     missing = [d for d in digests if d not in row_of]
@@ -178,8 +170,7 @@ def _planner_parts(spec: PlannerSpec, scenarios_file: str, digests: list[str], o
 
 def store_in_workers(planners: Sequence[BuiltPlanner], scenarios_file: str, digests: np.ndarray, out_dir: Path,
                      config: MetricsConfig, workers: int) -> None:
-    """Store the parts of batch ``planners`` in ``workers`` spawned processes, one planner per task: each
-    plans the batches it would plan in this process (identical rows) and the planners share the cores."""
+    """Store the parts of batch ``planners`` in ``workers`` spawned processes, one planner per task (same rows)."""
     specs = [PlannerSpec.of_built(b) for b in planners]
     with WorkerPool(min(workers, len(specs))) as pool:
         futures = [pool.submit(_planner_parts, s, scenarios_file, [str(d) for d in digests], str(out_dir), config)

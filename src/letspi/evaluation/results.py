@@ -1,17 +1,8 @@
-"""An evaluation directory: its layout, the keys that guard it, and the part files that hold its rows.
+"""An evaluation directory (layout in docs/evaluation.md): the keys that guard it and the part files holding its rows.
 
-Layout::
-
-    DIR/run.json                            identity of the results: dataset digest, metrics configuration,
-                                            mode (and its settings), letspi version
-    DIR/per_scenario/<label>/config.json    the planner's full configuration and its key
-    DIR/per_scenario/<label>/part-*.parquet per-scenario metrics, timing, planner outputs and the plan
-    DIR/metrics.json, DIR/metrics.md        the summary (``letspi.evaluation.summary``)
-
-A directory holds one dataset under one metrics configuration and mode, and one configuration per
-planner label; anything else is refused naming what differs. Rows are keyed by scenario digest, so a
-rerun resumes. Files are written atomically; a planner that stored nothing leaves nothing.
-"""
+A directory holds one dataset under one metrics configuration and mode, and one configuration per planner label;
+anything else is refused naming what differs. Rows are keyed by scenario digest, so a rerun resumes. Files are
+written atomically; a planner that stored nothing leaves nothing."""
 
 from __future__ import annotations
 
@@ -42,19 +33,13 @@ from letspi.simulation.config import EvaluationMode
 ProgressCallback = Callable[[int, RunStatus | None], None]
 
 RUN_FORMAT: Final = 2
-
-
 PLAN_COLUMNS: Final = ("plan_xy_m", "plan_vxy_mps", "plan_goal_xy_m")
-
-
-#: prefix of the large per-scenario array columns of closed-loop parts (replan plans, simulated
-#: neighbours); read only with ``with_plans``
+#: prefix of the large closed-loop array columns (replan plans, simulated neighbours); read only ``with_plans``
 TRAJECTORY_PREFIX: Final = "cl_"
 
 
 class EvaluationDirError(ValueError):
-    """The output directory holds results of another dataset, metrics configuration, mode or planner
-    configuration (the message names what differs)."""
+    """The directory holds results of another dataset, metrics configuration, mode or planner configuration."""
 
 
 def letspi_version() -> str:
@@ -71,12 +56,8 @@ def planner_dir_name(name: str) -> str:
 
 def run_record(batch: ScenarioBatch, digests: np.ndarray, scenarios_file: str, config: MetricsConfig,
                mode: EvaluationMode, mode_settings: dict[str, Any] | None = None) -> dict[str, Any]:
-    """What ``run.json`` holds: the identity of the results (``identity``) and descriptive fields.
-
-    ``mode_settings``: what else of the mode changes answers (closed loop: the simulation; with SUMO-driven
-    neighbours the driver model; in ``closed-loop-hybrid`` the hand-over rule and scripted neighbours);
-    absent in open loop, so open-loop keys are unchanged.
-    """
+    """What ``run.json`` holds: ``identity`` (keyed) and descriptive fields. ``mode_settings``: what else of the
+    mode changes answers (closed loop only; absent in open loop, so open-loop keys are unchanged)."""
     identity: dict[str, Any] = {
         "format": RUN_FORMAT,
         "mode": EvaluationMode(mode).value,
@@ -117,9 +98,8 @@ def check_run_file(out_dir: Path, record: dict[str, Any]) -> bool:
 
 
 def planner_record(built: BuiltPlanner, evaluation: dict[str, Any] | None = None) -> dict[str, Any]:
-    """What ``per_scenario/<label>/config.json`` holds. ``evaluation``: how the planner was run when
-    that changes its answers (closed loop: mode and replanning period); it joins the identity and
-    the key, so an open-loop key stays the planner configuration's own."""
+    """What ``per_scenario/<label>/config.json`` holds. ``evaluation``: how the planner was run when that changes
+    its answers (closed loop: mode, replanning period); it joins the identity and key (absent in open loop)."""
     identity = built.config.identity()
     key = built.key
     if evaluation:
@@ -186,10 +166,9 @@ def _parts(planner_dir: Path) -> list[Path]:
 
 
 class PartWriter:
-    """Writes one planner's part files. Its directory and ``config.json`` appear with the first part
-    (``before_write()`` runs before each part, e.g. to write ``run.json``); ``abandon()`` after a
-    failure removes a ``config.json`` no part followed and empty directories, so a planner that
-    stored nothing leaves nothing. One writer thread per planner: no locking."""
+    """Writes one planner's part files (one writer thread: no locking). Its directory and ``config.json`` appear
+    with the first part, after ``before_write()`` (e.g. writing ``run.json``); ``abandon()`` after a failure
+    removes a ``config.json`` no part followed and empty directories."""
 
     def __init__(self, out_dir: Path, built: BuiltPlanner, evaluation: dict[str, Any] | None = None,
                  before_write: Callable[[], None] | None = None) -> None:
@@ -245,11 +224,8 @@ def stored_rows(out_dir: Path, planner_names: Sequence[str]) -> int:
 
 def load_planner_results(out_dir: Path, planner_name: str, *, with_plans: bool = False,
                          digests: np.ndarray | None = None) -> pd.DataFrame:
-    """All stored rows of one planner, in dataset order (``row``), one per scenario digest; with
-    ``digests``, only the rows of those scenarios.
-
-    ``with_plans`` keeps the plan columns (``plan_xy_m`` etc. as flat float32 arrays per row).
-    """
+    """All stored rows of one planner (only those of ``digests`` if given), one per digest, in dataset order
+    (``row``). ``with_plans`` keeps the plan columns (``plan_xy_m`` etc. as flat float32 arrays per row)."""
     parts = _parts(Path(out_dir) / "per_scenario" / planner_dir_name(planner_name))
     if not parts:
         return pd.DataFrame()

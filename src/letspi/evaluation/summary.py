@@ -1,9 +1,7 @@
-"""What metrics.json and metrics.md say about stored rows: timing, planner outputs' aggregates, intervals,
-paired comparisons and the Markdown tables.
+"""metrics.json and metrics.md from stored rows: timing, planner outputs' aggregates, intervals, paired comparisons.
 
-Inference time averages only rows whose model calls really ran (the ``llm_cached`` output False); cached
-rows are counted apart, model loading is ``model_load_s``. Every declared planner output with aggregates
-(``letspi.planners.outputs``) adds its keys; its rates carry intervals and paired tests like the metrics.
+Inference time averages only rows whose model calls really ran (``llm_cached`` False; cached rows counted apart,
+loading is ``model_load_s``). Declared planner outputs add their keys; their rates carry intervals and paired tests.
 """
 
 from __future__ import annotations
@@ -54,8 +52,7 @@ def cached(frame: pd.DataFrame) -> np.ndarray:
 
 
 def live_inference_s(frame: pd.DataFrame) -> np.ndarray:
-    """Per-scenario planning times [s] of the rows whose model calls really ran (all rows of planners
-    without a model)."""
+    """Per-scenario planning times [s] of the rows whose model calls really ran (all rows without a model)."""
     t = np.asarray(frame["inference_s"], dtype=np.float64) if len(frame) else np.zeros(0)
     return t[~cached(frame)]
 
@@ -100,10 +97,9 @@ def output_rates(outputs: Mapping[str, Metric]) -> list[tuple[str, str]]:
 
 def planner_statistics(frame: pd.DataFrame, config: MetricsConfig | None = None,
                        outputs: Mapping[str, Metric] | None = None) -> dict[str, Statistic]:
-    """The per-scenario values behind every rate and mean of one planner's aggregate (its interval and
-    paired comparisons use them): the metric keys and the rates of ``TIMING_RATES``. ``inference_s``
-    averages the rows that really ran the model, as ``timing_summary``, and only when most rows were
-    timed one by one: a batch planner's rows share their batch's mean time, whose spread says nothing."""
+    """The per-scenario values behind one planner's rates and means (for intervals and paired tests): metric keys
+    and output rates. ``inference_s``: live rows only, and only when most rows were timed one by one (a batch
+    planner's rows share one mean time, whose spread says nothing)."""
     if "inference_s" in frame:
         timed = np.where(cached(frame), np.nan, np.asarray(frame["inference_s"], dtype=np.float64))
         live = timed[np.isfinite(timed)]

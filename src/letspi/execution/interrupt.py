@@ -70,8 +70,7 @@ def stop_line(stored: int | None = None, total: int | None = None, *, resumes: b
 
 @dataclass
 class Tally:
-    """What a running command keeps if stopped: its ``total`` units of work and how to count those stored (read from
-    disk when the stop comes). ``resumes`` as in ``stop_line``."""
+    """What a running command keeps if stopped: ``total`` units and ``count()`` of those stored (read at the stop)."""
 
     resumes: bool = False
     total: int | None = None
@@ -98,8 +97,7 @@ def mark_reported() -> None:
 
 
 def on_stop(cleanup: Callable[[], object]) -> Callable[[], None]:
-    """Run ``cleanup`` when a stop signal ends the command (``stop_children``), e.g. shutting down a
-    local Ray instance; returns a function that unregisters it."""
+    """Run ``cleanup`` when a stop signal ends the command (e.g. a local Ray's shutdown); returns its unregister."""
     key = id(cleanup)
     _state.cleanups[key] = cleanup
 
@@ -109,14 +107,8 @@ def on_stop(cleanup: Callable[[], object]) -> Callable[[], None]:
     return unregister
 
 
-# ------------------------------------------------------------------------------------------------
-# Child processes
-# ------------------------------------------------------------------------------------------------
-
-
 def start_worker(process: BaseProcess) -> None:
-    """Start a worker process that the terminal's Ctrl-C does not reach: SIGINT is blocked while it
-    starts, so the child inherits the mask until it ignores SIGINT (``enter_worker``, its first call)."""
+    """Start a worker process that the terminal's Ctrl-C does not reach (SIGINT blocked until ``enter_worker``)."""
     if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
         process.start()
         return
@@ -142,15 +134,14 @@ def enter_worker() -> None:
 
 
 def _exit_on_sigterm(signum: int, frame: FrameType | None) -> None:
-    # once: a second SIGTERM (a process pool terminates all its workers when one exits) must not
-    # interrupt the cleanup the first one started; the parent's SIGKILL remains the backstop
+    # once: a second SIGTERM (a pool terminates all workers when one exits) must not interrupt the cleanup
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise SystemExit(128 + signum)
 
 
 def run_worker(body: Callable[[], object]) -> None:
-    """The whole life of a worker process: ``enter_worker``, then ``body()``; on SIGTERM the ``finally``
-    blocks run and the process ends at once (``os._exit``: a spawned interpreter's teardown is slow)."""
+    """A worker process's life: ``enter_worker``, ``body()``; on SIGTERM its ``finally`` blocks run, then ``os._exit``
+    (a spawned interpreter's teardown is slow)."""
     enter_worker()
     try:
         body()
@@ -159,8 +150,7 @@ def run_worker(body: Callable[[], object]) -> None:
 
 
 def _in_worker(fn: Callable[..., T], *args: Any) -> T:
-    """A pool item (``WorkerPool``): stopped by SIGTERM, its ``finally`` blocks run, then the worker
-    ends at once (the pool would otherwise carry on with its next item)."""
+    """A ``WorkerPool`` item: on SIGTERM its ``finally`` blocks run, then the worker ends (not the next item)."""
     try:
         return fn(*args)
     except SystemExit as stop:
@@ -173,8 +163,8 @@ def _exit_now(stop: SystemExit) -> NoReturn:
 
 
 class WorkerPool:
-    """A pool of spawned worker processes (one libsumo each) that ignore Ctrl-C. Leaving the ``with``
-    block by an exception cancels the queued items and terminates the workers; a normal exit waits."""
+    """Spawned workers that ignore Ctrl-C; leaving the ``with`` block by an exception cancels queued items and
+    terminates them, a normal exit waits."""
 
     def __init__(self, max_workers: int) -> None:
         self._pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=multiprocessing.get_context("spawn"),
@@ -219,8 +209,7 @@ def _proc_stat(pid: int) -> tuple[int, str] | None:
 
 
 def descendants(pid: int | None = None) -> list[int]:
-    """Every descendant process of ``pid`` (default: this process), parents before their children;
-    read from /proc (Linux), else only this process's multiprocessing children."""
+    """Descendants of ``pid`` (default: this process), parents first, from /proc (else multiprocessing's children)."""
     root = os.getpid() if pid is None else pid
     try:
         names = os.listdir("/proc")
@@ -328,23 +317,20 @@ def _flush() -> None:
 
 
 def finish() -> NoReturn:
-    """Leave after a stop signal: end the child processes, print the stop line if the command printed none, and exit
-    at once with ``exit_code()``."""
+    """After a stop signal: end the children, print the stop line unless printed, exit at once with ``exit_code()``."""
     stop_children()
     if not _state.reported:
         sys.stderr.write(stop_line(resumes=None) + "\n")
         _state.reported = True
     _flush()
-    # not SystemExit: the interpreter would wait for worker threads still in an LLM request (their
-    # replies would be dropped anyway), and its teardown takes seconds with Ray loaded; what needs
-    # closing was closed on the way here
+    # not SystemExit: it would wait for worker threads still in an LLM request, and teardown is slow with Ray
     os._exit(exit_code())
 
 
 @contextmanager
 def handling() -> Iterator[None]:
-    """Stop signals for the block (main thread; the ``letspi`` command runs inside it): the first becomes
-    ``KeyboardInterrupt`` and leaving the block then ``finish``es; the second ends the process at once."""
+    """Stop signals for the block (main thread, the ``letspi`` command): the first becomes ``KeyboardInterrupt``
+    and leaving the block then ``finish``es; the second ends the process at once."""
     previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     _state.active, _state.signum, _state.count, _state.reported = True, None, 0, False
     if QUIET_TRACKER not in sys.warnoptions:  # passed on to the tracker when it starts (with the first worker)

@@ -76,8 +76,7 @@ class RunStatus:
 
 @dataclass(frozen=True)
 class RunStats:
-    """The outcome of one run: counts, wall time, per-scenario task times (written scenarios) and the
-    advisor's request counters (None without an advisor)."""
+    """One run's counts, wall time, task times of written scenarios and the advisor's counters (None without)."""
 
     total: int
     written: int
@@ -123,8 +122,7 @@ class RunStats:
 
     @property
     def physics_cpu_ms_per_scenario(self) -> float | None:
-        """CPU time of the batched physics (goals, neighbour prediction, rollout, shield, metrics) per
-        written scenario [ms], when the run pooled its physics (``letspi.evaluation.concurrent``)."""
+        """CPU time of the batched physics and metrics per written scenario [ms] (None if not pooled)."""
         if self.physics_cpu_s is None or not self.written:
             return None
         return 1000.0 * self.physics_cpu_s / self.written
@@ -161,8 +159,8 @@ def _fmt(x: float | None) -> str:
 
 
 class ScenariosFailedError(LLMTransportError):
-    """A run finished but some scenarios got no answer (``RequestFailedError``) and were not stored;
-    rerunning the same command retries exactly those. ``stats``: the run's ``RunStats``."""
+    """Some scenarios got no answer (``RequestFailedError``) and were not stored (a rerun retries exactly those);
+    ``stats``: the run's ``RunStats``."""
 
     def __init__(self, message: str, *, stats: RunStats) -> None:
         super().__init__(message)
@@ -312,9 +310,8 @@ def run_ordered(
 
 
 class BlockCache(Generic[T]):
-    """Values computed once per fixed block of positions (0..size-1, size..2 size-1, ...), by whichever thread asks
-    first (the others wait), so a value never depends on the concurrency or on what a run already stored.
-    ``compute(positions)`` gets a slice."""
+    """``compute(slice)`` once per fixed block of positions, by the first thread to ask (the others wait), so a value
+    depends neither on the concurrency nor on what a run already stored."""
 
     def __init__(self, size: int, n: int, compute: Callable[[slice], T]) -> None:
         if size < 1:

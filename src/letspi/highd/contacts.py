@@ -1,7 +1,5 @@
-"""Physical contact in a HighD recording: pairs of boxes that overlap in the same frame.
-
-Boxes are in contact when both their x and y intervals overlap with positive length (touching is not contact).
-"""
+"""Physical contact in a HighD recording: pairs of boxes whose x and y intervals both overlap with positive length
+in the same frame (touching is not contact)."""
 
 from __future__ import annotations
 
@@ -18,8 +16,7 @@ def overlapping_boxes(tracks: pd.DataFrame) -> pd.DataFrame:
 
     ``tracks``: HighD tracks (at least ``frame, id, x, y, width, height``). Returns one row per pair and frame:
     ``frame``, ``id_a`` < ``id_b``, ``overlap_x_m``, ``overlap_y_m`` [m], sorted by (frame, id_a, id_b); empty
-    (with these columns) when no boxes overlap.
-    """
+    (with these columns) when no boxes overlap."""
     if len(tracks) == 0:
         return pd.DataFrame(columns=_OVERLAP_COLUMNS)
     frame = tracks["frame"].to_numpy(np.int64)

@@ -41,8 +41,7 @@ DRAC_THRESHOLD_MPS2 = 3.0  # SUMO's SSM default conflict threshold
 class MeasureSummary:
     """Distribution of one per-vehicle minimum: ``n_defined`` vehicles with a value (not -1); ``share_below``
     threshold text (``"3"``) -> share of all vehicles with ``0 <= value < threshold``; ``p5`` and ``median``
-    over the defined values (NaN if none).
-    """
+    over the defined values (NaN if none)."""
 
     n_defined: int
     share_below: dict[str, float]
@@ -53,13 +52,11 @@ class MeasureSummary:
 @dataclass(frozen=True)
 class CriticalityProfile:
     """Summary of one or more recordings (definitions in the module docstring); shares are of all vehicles.
-
     ``drac_above_3_share``: max DRAC > 3 m/s². ``flow_veh_per_h_by_lane``: laneId -> vehicles per hour.
-    ``contact_pairs``: distinct pairs whose boxes overlap at least once; ``contact_frames``: (pair, frame)
-    overlaps. ``events_by_kind``: scripted events per kind (empty without events files).
-    ``event_vehicle_share``: vehicles that act in or react to an event (``id``/``other_id``);
-    ``low_ttc_event_share``: of the vehicles with 0 <= minTTC < 3 s, the share that are event vehicles (NaN if none).
-    """
+    ``contact_pairs``: distinct pairs whose boxes overlap at least once; ``contact_frames``: (pair, frame) overlaps.
+    ``events_by_kind``: scripted events per kind (empty without events files). ``event_vehicle_share``: vehicles that
+    act in or react to an event (``id``/``other_id``); ``low_ttc_event_share``: of the vehicles with 0 <= minTTC < 3 s,
+    the share that are event vehicles (NaN if none)."""
 
     n_recordings: int
     recorded_minutes: float
@@ -87,8 +84,7 @@ class CriticalityProfile:
 
 def vehicle_criticality(rec: Recording) -> pd.DataFrame:
     """Per-vehicle criticality of one recording: tracksMeta's ``id, class, drivingDirection, minTTC, minTHW,
-    minDHW, numLaneChanges`` and ``maxDRAC`` [m/s²] (0 when never closing in).
-    """
+    minDHW, numLaneChanges`` and ``maxDRAC`` [m/s²] (0 when never closing in)."""
     tr = rec.tracks
     vx = tr["xVelocity"].to_numpy(np.float64)
     prec_vx = tr["precedingXVelocity"].to_numpy(np.float64)
@@ -127,10 +123,8 @@ def _summary(values: np.ndarray, thresholds: Sequence[float], n_all: int) -> Mea
 
 def criticality_profile(recordings: Sequence[Recording],
                         events: Sequence[pd.DataFrame | None] | None = None) -> CriticalityProfile:
-    """Profile of recordings taken together (vehicles pooled, flows over the summed durations).
-
-    ``events``: each recording's ``NN_events.csv`` table (None where absent), same order. ValueError without recordings.
-    """
+    """Profile of recordings taken together (vehicles pooled, flows over the summed durations). ``events``: each
+    recording's ``NN_events.csv`` table (None where absent), same order. ValueError without recordings."""
     if not recordings:
         raise ValueError("no recordings to profile")
     per_vehicle = pd.concat([vehicle_criticality(r) for r in recordings], ignore_index=True)

@@ -75,11 +75,9 @@ def _check_inputs(states: pd.DataFrame, vehicles: pd.DataFrame) -> None:
 def _neighbour_ids(
     group: np.ndarray, s_centre: np.ndarray, ids: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest neighbours ahead/behind along ``s`` within a group.
-
-    ``group`` (N,) int64 key (frame, direction, lane), ``s_centre`` (N,) [m], ``ids`` (N,). Returns the preceding and
-    following ids (0 = none) and row indices (-1 = none), (N,) each.
-    """
+    """Nearest neighbours ahead/behind along ``s`` within a group. ``group`` (N,) int64 key (frame, direction, lane),
+    ``s_centre`` (N,) [m], ``ids`` (N,). Returns the preceding and following ids (0 = none) and row indices (-1 = none),
+    (N,) each."""
     n = len(ids)
     order = np.lexsort((s_centre, group))
     same_next = group[order[1:]] == group[order[:-1]]
@@ -164,8 +162,8 @@ def build_recording(states: pd.DataFrame, vehicles: pd.DataFrame, *, recording_i
 
 
 def _tracks(st: pd.DataFrame, veh: pd.DataFrame, markings: np.ndarray) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
-    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle
-    exists and where TTC is defined (for the per-vehicle minima)."""
+    """The tracks table of states sorted by (id, frame), and the (N,) masks where a preceding vehicle exists and where
+    TTC is defined."""
     ids = st["id"].to_numpy(dtype=np.int64)
     frames = st["frame"].to_numpy(dtype=np.int64)
     x, y, length, width_m = (st[c].to_numpy(dtype=np.float64) for c in ("x", "y", "width", "height"))

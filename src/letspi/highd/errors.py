@@ -11,8 +11,7 @@ class HighDFormatError(ValueError):
     ``path``: the offending file (in memory: the file the data would be written to); ``column``: the HighD column,
     if any; ``line``: 1-based CSV line, header = line 1 (in memory: the line the row would occupy, tracks sorted by
     (id, frame)), None when not tied to a line; ``reason``: the bare problem. The message reads e.g.
-    ``01_tracks.csv: column 'xVelocity', line 17: not a number ('abc')``, with the parts that are known.
-    """
+    ``01_tracks.csv: column 'xVelocity', line 17: not a number ('abc')``, with the parts that are known."""
 
     def __init__(
         self,

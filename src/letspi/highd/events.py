@@ -47,10 +47,8 @@ def write_events(events: pd.DataFrame, directory: Path, recording_id: int) -> Pa
 
 
 def read_events(directory: Path, recording_id: int) -> pd.DataFrame | None:
-    """``NN_events.csv`` of a recording, or None when there is none (e.g. real HighD data).
-
-    ValueError naming the file, column and line: a missing column, a non-integer in an integer column, an unknown kind.
-    """
+    """``NN_events.csv`` of a recording, or None when there is none (e.g. real HighD data). ValueError naming the file,
+    column and line: a missing column, a non-integer in an integer column, an unknown kind."""
     path = Path(directory) / events_file(recording_id)
     if not path.exists():
         return None

@@ -1,8 +1,7 @@
 """``NN_generation.json``: how a generated recording was made (a letspi extension; real HighD has none).
 
 letspi's SUMO generator writes one per recording (seed, minutes, lanes, flow, the traffic configuration, the
-accepted attempt, letspi version). Scenario extraction copies it into the scenario file's provenance
-(``generation``), which is how commands that must not train on benchmark traffic recognise it.
+accepted attempt, letspi version); scenario extraction copies it into the scenario file's provenance.
 """
 
 from __future__ import annotations
@@ -30,8 +29,7 @@ def write_generation(record: dict[str, Any], directory: Path, recording_id: int)
 
 def read_generation(directory: Path, recording_id: int) -> dict[str, Any] | None:
     """``NN_generation.json`` of a recording, or None when there is none; ValueError naming the file when it is not
-    a JSON object with an integer ``seed``.
-    """
+    a JSON object with an integer ``seed``."""
     path = Path(directory) / generation_file(recording_id)
     if not path.exists():
         return None

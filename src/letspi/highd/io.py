@@ -60,15 +60,11 @@ __all__ = [
     "write_recording",
 ]
 
-#: Floats are written as real HighD files print them: fixed-point with 2 decimals (``51.20``,
-#: ``0.00``, ``-1.00``) in every file and column, so readers that infer column types from the first
-#: rows (``lxd-io``, polars) see floats. A write→read round trip is exact to 0.005: 5 mm for
-#: positions, 0.005 m/s for velocities (a velocity differenced over one 0.04 s frame carries up to
-#: 0.25 m/s² of quantisation noise, as real HighD does).
+#: Floats are written as real HighD prints them, fixed-point with 2 decimals (``51.20``, ``-1.00``), so readers that
+#: infer column types (``lxd-io``, polars) see floats; a write→read round trip is exact to 0.005.
 FLOAT_DECIMALS = 2
 
 _FILE_RE = re.compile(r"^(\d+)_(?:tracks|tracksMeta|recordingMeta)\.csv$")
-_INT_RE = r"\s*[+-]?\d+\s*"
 
 
 @dataclass(frozen=True)
@@ -91,16 +87,9 @@ _TRACKS = _TableSpec(TRACKS_COLUMNS, TRACKS_INT_COLUMNS, frozenset())
 _TRACKS_META = _TableSpec(TRACKS_META_COLUMNS, TRACKS_META_INT_COLUMNS, TRACKS_META_STR_COLUMNS)
 _RECORDING_META = _TableSpec(RECORDING_META_COLUMNS, RECORDING_META_INT_COLUMNS, RECORDING_META_STR_COLUMNS)
 
-_LineOf = LineOf
-
 
 def _in_memory_line(row: int) -> int:
     return row + 2
-
-
-# --------------------------------------------------------------------------------------------
-# listing
-# --------------------------------------------------------------------------------------------
 
 
 def list_recording_ids(directory: Path) -> list[int]:
@@ -110,11 +99,6 @@ def list_recording_ids(directory: Path) -> list[int]:
         raise FileNotFoundError(f"not a directory: {directory}")
     ids = {int(m.group(1)) for p in directory.iterdir() if (m := _FILE_RE.match(p.name)) and p.is_file()}
     return sorted(ids)
-
-
-# --------------------------------------------------------------------------------------------
-# low-level CSV parsing
-# --------------------------------------------------------------------------------------------
 
 
 def _read_header(path: Path) -> list[str]:
@@ -213,10 +197,8 @@ def _locate_parse_error(path: Path, header: list[str], spec: _TableSpec, cause: 
     raise HighDFormatError(path, reason, column=col, line=line)
 
 
-def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, _LineOf]:
-    """One HighD CSV with exactly ``spec.columns`` in official order, and a lazy map data row -> CSV line (the map
-    reads the file only when called, i.e. on the error path).
-    """
+def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, LineOf]:
+    """One HighD CSV with exactly ``spec.columns`` in official order, and a lazy map data row -> CSV line."""
     header = _read_header(path)
     for col in spec.columns:
         if col not in header:
@@ -256,11 +238,6 @@ def _read_table(path: Path, spec: _TableSpec) -> tuple[pd.DataFrame, _LineOf]:
     return frame, line_of
 
 
-# --------------------------------------------------------------------------------------------
-# ordering (semantic validation lives in letspi.highd.validate)
-# --------------------------------------------------------------------------------------------
-
-
 def _sort_tracks(tracks: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray | None]:
     """Sort by (id, frame), stably. Returns the frame and the original positions (None if already sorted)."""
     ids = tracks["id"].to_numpy()
@@ -272,15 +249,10 @@ def _sort_tracks(tracks: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray | None]
     return tracks.iloc[order].reset_index(drop=True), order
 
 
-def _composed(line_of: _LineOf, order: np.ndarray | None) -> _LineOf:
+def _composed(line_of: LineOf, order: np.ndarray | None) -> LineOf:
     if order is None:
         return line_of
     return lambda k: line_of(int(order[k]))
-
-
-# --------------------------------------------------------------------------------------------
-# reading
-# --------------------------------------------------------------------------------------------
 
 
 def _scalar(value: object, col: str) -> object:
@@ -292,11 +264,8 @@ def _scalar(value: object, col: str) -> object:
 
 
 def read_recording(directory: Path, recording_id: int) -> Recording:
-    """Read and validate recording ``recording_id`` of ``directory``.
-
-    Tracks are sorted by (id, frame); columns are int64, float64 or str. Raises ``HighDFormatError`` naming the file
-    and, where it applies, the column and the 1-based CSV line (header = line 1).
-    """
+    """Read and validate recording ``recording_id`` of ``directory``, tracks sorted by (id, frame); columns are int64,
+    float64 or str. Raises ``HighDFormatError`` (module doc)."""
     directory = Path(directory)
     rm_path = directory / recording_meta_file(recording_id)
     tm_path = directory / tracks_meta_file(recording_id)
@@ -313,7 +282,7 @@ def read_recording(directory: Path, recording_id: int) -> Recording:
     return Recording(recording_id=recording_id, meta=meta, tracks_meta=tm, tracks=tracks)
 
 
-def _read_metas(directory: Path, recording_id: int) -> tuple[pd.DataFrame, _LineOf, pd.DataFrame, _LineOf]:
+def _read_metas(directory: Path, recording_id: int) -> tuple[pd.DataFrame, LineOf, pd.DataFrame, LineOf]:
     """The validated recording meta and tracks meta tables of a recording, with their line maps."""
     rm_path = directory / recording_meta_file(recording_id)
     tm_path = directory / tracks_meta_file(recording_id)
@@ -325,9 +294,8 @@ def _read_metas(directory: Path, recording_id: int) -> tuple[pd.DataFrame, _Line
 
 
 def read_recording_meta(directory: Path, recording_id: int) -> tuple[dict[str, object], pd.DataFrame]:
-    """``(meta, tracks_meta)`` of a recording without its tracks (two small files; validated as in
-    :func:`read_recording`, except the checks that need the tracks): what a recording's identity
-    (``letspi.scenario.extract.recording_key_of``) is computed from."""
+    """``(meta, tracks_meta)`` of a recording without its tracks (validated as in ``read_recording``, except the
+    checks that need the tracks): what ``letspi.scenario.extract.recording_key_of`` is computed from."""
     rm, _, tm, _ = _read_metas(Path(directory), recording_id)
     return {col: _scalar(rm[col].iloc[0], col) for col in RECORDING_META_COLUMNS}, tm
 
@@ -336,11 +304,6 @@ def read_recordings(directory: Path, ids: Sequence[int] | None = None) -> list[R
     """Read all recordings in ``directory`` (``ids=None``) or the chosen ``ids``, in the given order."""
     chosen = list_recording_ids(directory) if ids is None else list(ids)
     return [read_recording(directory, rid) for rid in chosen]
-
-
-# --------------------------------------------------------------------------------------------
-# in-memory validation and writing
-# --------------------------------------------------------------------------------------------
 
 
 def _coerce_table(frame: pd.DataFrame, spec: _TableSpec, path: Path) -> pd.DataFrame:
@@ -404,15 +367,12 @@ def _prepare(rec: Recording, directory: Path) -> tuple[list[Path], list[pd.DataF
 
 def validate_recording(rec: Recording) -> None:
     """Validate an in-memory recording as reading would; the ``HighDFormatError`` names the bare file name the data
-    would go to and the line the row would occupy (tracks sorted by (id, frame)).
-    """
+    would go to and the line the row would occupy (tracks sorted by (id, frame))."""
     _prepare(rec, Path())
 
 
 def _fixed_point(values: np.ndarray) -> pa.Array:
-    """``values`` (N,) float64 as text with ``FLOAT_DECIMALS`` decimals, vectorised in Arrow through integer hundredths;
-    values rounding to zero print without a sign (never ``-0.00``).
-    """
+    """``values`` (N,) float64 as text with ``FLOAT_DECIMALS`` decimals (never ``-0.00``), via integer hundredths."""
     scale = 10**FLOAT_DECIMALS
     units = np.round(values * scale).astype(np.int64)
     magnitude = np.abs(units)
@@ -438,12 +398,10 @@ def _default_file_mode() -> int:
 
 
 def write_recording(rec: Recording, directory: Path) -> list[Path]:
-    """Validate ``rec`` and write its three CSVs into ``directory`` (created if needed).
-
-    All three go to hidden temporary files first and are renamed only once all were written; on failure nothing
-    existing changes. Returns ``[NN_recordingMeta.csv, NN_tracksMeta.csv, NN_tracks.csv]``. Raises
-    ``HighDFormatError`` (nothing written) when ``rec`` is not valid HighD.
-    """
+    """Validate ``rec`` and write its three CSVs into ``directory`` (created if needed). All three go to hidden
+    temporary files first and are renamed only once all were written; on failure nothing existing changes. Returns
+    ``[NN_recordingMeta.csv, NN_tracksMeta.csv, NN_tracks.csv]``. Raises ``HighDFormatError`` (nothing written) when
+    ``rec`` is not valid HighD."""
     directory = Path(directory)
     paths, frames = _prepare(rec, directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -467,11 +425,8 @@ def write_recording(rec: Recording, directory: Path) -> list[Path]:
 
 def write_highway_image(directory: Path, recording_id: int, upper_markings_y_m: Sequence[float],
                         lower_markings_y_m: Sequence[float], length_m: float) -> Path:
-    """Draw the road of a recording as its ``NN_highway.png`` (where real HighD has its aerial view).
-
-    Grey carriageways, white markings, image axes as the tracks at ``HIGHWAY_IMAGE_M_PER_PX``, so tools that draw
-    over HighD's image (``lxd-io`` needs the file to list a recording) work on generated recordings.
-    """
+    """Draw the road of a recording as its ``NN_highway.png`` (real HighD's aerial view; ``lxd-io`` needs it) at
+    ``HIGHWAY_IMAGE_M_PER_PX``, in the tracks' image axes: grey carriageways, white markings."""
     upper, lower = np.sort(np.asarray(upper_markings_y_m)), np.sort(np.asarray(lower_markings_y_m))
     height_px = int(np.ceil((lower[-1] + upper[0]) / HIGHWAY_IMAGE_M_PER_PX))
     width_px = int(np.ceil(length_m / HIGHWAY_IMAGE_M_PER_PX))

@@ -10,11 +10,9 @@ import pandas as pd
 
 @dataclass(frozen=True)
 class Recording:
-    """One HighD recording, HighD column names throughout.
-
-    ``meta``: the one row of ``NN_recordingMeta.csv`` (lane markings kept as ';'-separated strings);
-    ``tracks_meta``: one row per vehicle; ``tracks``: one row per vehicle per frame, sorted by (id, frame).
-    """
+    """One HighD recording, HighD column names throughout. ``meta``: the one row of ``NN_recordingMeta.csv`` (lane
+    markings kept as ';'-separated strings); ``tracks_meta``: one row per vehicle; ``tracks``: one row per vehicle per
+    frame, sorted by (id, frame)."""
 
     recording_id: int
     meta: dict[str, object]

@@ -1,7 +1,5 @@
-"""Learned components with NumPy inference: the multi-goal predictor, GNP and the risk gate's models.
-
-Training lives in the companion distribution letspi-train (``letspi_train.learned``; needs torch).
-"""
+"""Learned components with NumPy inference: the multi-goal predictor, GNP and the risk gate's models (trained by the
+companion distribution letspi-train, ``letspi_train.learned``)."""
 
 from letspi.learned.features import SceneFeatures, scene_features
 from letspi.learned.gnp_model import GnpModel, rollout_weighted

@@ -1,7 +1,5 @@
-"""Scene -> fixed-size inputs of the learned models, from frames t <= 0 only, in the ego frame at t = 0.
-
-Fixed scales (not data statistics) keep every input of order 1, so the features fit any data set.
-"""
+"""Scene -> fixed-size inputs of the learned models, from frames t <= 0 only, in the ego frame at t = 0; fixed
+scales (not data statistics) keep every input of order 1 on any data set."""
 
 from __future__ import annotations
 
@@ -42,8 +40,7 @@ class SceneFeatures(Rows):
     * ``lane`` (B, 2 * MAX_MARKINGS + 6): per marking (ascending y) (y - ego y) / 5 m, then its kind (+1 edge,
       -1 line, 0 padding); lane width / 4 m, lanes left and right of the ego / 3, speed limit / 40 m/s, the
       anchor's (x - vx0 * 5 s) / 10 m and y / 5 m.
-    * ``anchor_xy`` (B, 2) [m]: the ``KinematicGoalPredictor`` goal; the goal network predicts offsets from it.
-    """
+    * ``anchor_xy`` (B, 2) [m]: the ``KinematicGoalPredictor`` goal; the goal network predicts offsets from it."""
 
     agent_hist: np.ndarray
     agent_static: np.ndarray

@@ -1,11 +1,8 @@
-"""GNP (Goal-based Neural Physics) baseline: a network sets social-force parameters per scene.
+"""GNP (Goal-based Neural Physics) baseline: NumPy inference of ``letspi_train.learned.modules.GnpNet``.
 
-``GnpModel`` (NumPy inference of ``letspi_train.learned.modules.GnpNet``) reads the scene encoder's tokens
-into a relaxation time per scenario in ``TAU_RANGE_S`` (B,) [s] and a repulsion weight per neighbour slot
-in (``WEIGHT_MIN``, ``WEIGHT_MAX``) (B, N), 0 for absent neighbours. Neighbour j pushes with
-``w_j * k_class * exp(-d_j / r_col)`` (``k_class`` of the shipped ``sf`` fit), so w = 1 is the ``sf``
-planner and the floor at 1 makes GNP never less cautious than ``sf`` per neighbour.
-"""
+From the scene encoder's tokens: a relaxation time per scenario in ``TAU_RANGE_S`` (B,) [s] and a repulsion weight
+per neighbour slot in (``WEIGHT_MIN``, ``WEIGHT_MAX``) (B, N), 0 for absent neighbours; neighbour j pushes with
+``w_j * k_class * exp(-d_j / r_col)`` (``sf``'s ``k_class``), so w >= 1 is never less cautious than ``sf``."""
 
 from __future__ import annotations
 

@@ -1,10 +1,8 @@
 """The learned multi-goal predictor (NumPy inference of the transformer trained by ``letspi train goals``).
 
-The scene encoder's ego token is read into K goals at the horizon and their logits. Goals are offsets from
-the kinematic anchor ``a``: ``g_k = a + (10 m * o_kx, 2 m * o_ky)``, so the network learns corrections to a
-sensible default. Post-processing: goals sorted best first, kept on the road (y between the outermost lane
-centres) and never behind the ego; probabilities are the softmax of the logits.
-"""
+K goals at the horizon from the ego token, as offsets from the kinematic anchor ``a``: ``g_k = a + (10 m * o_kx,
+2 m * o_ky)``; sorted best first, kept on the road (y between the outermost lane centres) and never behind the
+ego; probabilities are the softmax of the logits."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""NumPy inference (float64) of the scene encoder shared by the goal predictor and GNP.
-
-Mirrors ``letspi_train.learned.modules.SceneEncoder`` 1:1 (parameter names are its ``state_dict`` keys):
-agent and lane tokens from two-layer MLPs plus a learned ``slot_embed``, (B, A + 1, d); ``n_layers``
-pre-LayerNorm transformer blocks, absent neighbours masked as attention keys; a final LayerNorm ``ln_f``.
-"""
+"""NumPy inference (float64) of the scene encoder shared by the goal predictor and GNP: mirrors
+``letspi_train.learned.modules.SceneEncoder`` 1:1 (parameter names are its ``state_dict`` keys); tokens
+(B, A + 1, d), absent neighbours masked as attention keys."""
 
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """Logistic regression (binary and multinomial) with NumPy inference: the risk gate and headroom choosers.
 
-A ``LogisticModel`` standardises its inputs (stored training mean and std), then ``softmax(x W + b)`` over
-K classes (binary: ``score`` is P(class 1)). ``to_json`` / ``from_json`` round-trip it with its feature
-names and provenance. Fitting (SciPy) is ``letspi.learned.logistic_fit``: planning never loads SciPy.
-"""
+``LogisticModel``: standardised inputs (stored training mean and std), then ``softmax(x W + b)`` over K classes
+(binary: ``score`` is P(class 1)). Fitting is ``letspi.learned.logistic_fit`` (planning never loads SciPy)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Fitting the logistic models of ``letspi.learned.logistic`` (SciPy's L-BFGS), and the ROC AUC they are
-judged by.
-
-``fit_logistic`` minimises the (sample-weighted) cross-entropy plus an L2 penalty ``l2 * |W|^2 / 2``;
-deterministic for given data.
-"""
+"""Fitting the logistic models of ``letspi.learned.logistic`` (SciPy's L-BFGS; deterministic), and the ROC AUC
+they are judged by."""
 
 from __future__ import annotations
 
@@ -26,11 +22,8 @@ def fit_logistic(
     sample_weight: np.ndarray | None = None,
     provenance: dict[str, Any] | None = None,
 ) -> LogisticModel:
-    """Fit on inputs (B, D) and class indices y (B,) in ``range(len(classes))``.
-
-    ``l2`` is per unit of total sample weight (the penalty does not grow weaker with more data).
-    A constant feature gets std 1 (it then carries no weight).
-    """
+    """Fit on inputs (B, D) and class indices y (B,) in ``range(len(classes))``, minimising the sample-weighted
+    cross-entropy plus ``l2 * |W|^2 / 2`` per unit of total sample weight; a constant feature gets std 1."""
     xs = np.asarray(x, dtype=np.float64)
     yi = np.asarray(y, dtype=np.int64)
     b, d = xs.shape

@@ -1,8 +1,5 @@
 """Gradient-boosted decision trees with NumPy inference (the risk gate; trained by
-``letspi_train.finetune.gate_train``).
-
-``TreeEnsemble.score``: ``sigmoid(baseline + sum of leaf values)``, every tree walked for a batch at once.
-"""
+``letspi_train.finetune.gate_train``): ``sigmoid(baseline + sum of leaf values)``, all trees walked at once."""
 
 from __future__ import annotations
 

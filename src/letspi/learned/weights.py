@@ -1,7 +1,5 @@
-"""Weight files of the learned models: a directory of ``weights.npz`` (float32 arrays by the torch ``state_dict``
-names of ``letspi_train.learned.modules``) and ``manifest.json`` (kind, format version, config, data,
-validation metrics, training command).
-"""
+"""Weight files of the learned models: a directory of ``weights.npz`` (float32 arrays by ``state_dict`` names) and
+``manifest.json`` (kind, format version, config, data, validation metrics, training command)."""
 
 from __future__ import annotations
 

@@ -51,12 +51,8 @@ def backend_identity(backend: Any) -> str:
     return str((backend.cache_identity if isinstance(backend, KeyedBackend) else None) or backend.spec)
 
 
-def cache_key(
-    model_spec: str,
-    messages: Sequence[Message],
-    settings: DecodingSettings,
-    schema: dict[str, Any] | None,
-) -> str:
+def cache_key(model_spec: str, messages: Sequence[Message], settings: DecodingSettings,
+              schema: dict[str, Any] | None) -> str:
     """Stable hash of everything that determines a reply."""
     payload = {
         "v": CACHE_FORMAT_VERSION,
@@ -129,18 +125,9 @@ class ResponseCache:
         return CachedEntry(text=row[0], prompt_tokens=row[1], completion_tokens=row[2], latency_s=row[3])
 
     def put(self, key: str, model_spec: str, entry: CachedEntry) -> None:
-        self._execute(
-            "INSERT OR REPLACE INTO responses VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (
-                key,
-                model_spec,
-                entry.text,
-                entry.prompt_tokens,
-                entry.completion_tokens,
-                entry.latency_s,
-                time.time(),
-            ),
-        )
+        self._execute("INSERT OR REPLACE INTO responses VALUES (?, ?, ?, ?, ?, ?, ?)",
+                      (key, model_spec, entry.text, entry.prompt_tokens, entry.completion_tokens, entry.latency_s,
+                       time.time()))
 
     def __len__(self) -> int:
         return int(self._execute("SELECT COUNT(*) FROM responses").fetchone()[0])

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, TypeVar
+from typing import Any, Final, Literal, TypeVar
 
 from letspi.llm.cache import CachedEntry, ResponseCache, backend_identity, cache_key
 from letspi.llm.choice import CHOICE_KEY, choice_json_schema, parse_choice
@@ -182,16 +182,12 @@ T = TypeVar("T")
 CacheArg = ResponseCache | None | Literal["default"]
 
 
+_ERROR_KINDS: Final = ((RequestRejectedError, "rejected"), (BackendUnavailableError, "unavailable"),
+                       (LLMTimeoutError, "timeout"), (ServerBusyError, "busy"))
+
+
 def _transport_kind(exc: LLMTransportError) -> str:
-    if isinstance(exc, RequestRejectedError):
-        return "rejected"
-    if isinstance(exc, BackendUnavailableError):
-        return "unavailable"
-    if isinstance(exc, LLMTimeoutError):
-        return "timeout"
-    if isinstance(exc, ServerBusyError):
-        return "busy"
-    return "transport"
+    return next((kind for cls, kind in _ERROR_KINDS if isinstance(exc, cls)), "transport")
 
 
 class ParamAdvisor:
@@ -199,19 +195,10 @@ class ParamAdvisor:
     ``use_schema=False`` sends no JSON schema. ``sleep`` waits out backoff (default ``breaker.wait``, which a
     stopping run interrupts); ``rng`` draws the jitter; ``breaker`` and ``stats`` are run-wide."""
 
-    def __init__(
-        self,
-        backend: LLMBackend | str,
-        *,
-        cache: CacheArg = "default",
-        retry: RetryPolicy | None = None,
-        settings: DecodingSettings | None = None,
-        use_schema: bool = True,
-        fallback_reply: PlannerReply = DEFAULT_REPLY,
-        sleep: Callable[[float], None] | None = None,
-        rng: random.Random | None = None,
-        breaker: CircuitBreaker | None = None,
-    ) -> None:
+    def __init__(self, backend: LLMBackend | str, *, cache: CacheArg = "default", retry: RetryPolicy | None = None,
+                 settings: DecodingSettings | None = None, use_schema: bool = True,
+                 fallback_reply: PlannerReply = DEFAULT_REPLY, sleep: Callable[[float], None] | None = None,
+                 rng: random.Random | None = None, breaker: CircuitBreaker | None = None) -> None:
         self.backend: LLMBackend = make_backend(backend) if isinstance(backend, str) else backend
         self.cache: ResponseCache | None = ResponseCache() if cache == "default" else cache
         self.retry = retry or RetryPolicy()
@@ -230,27 +217,17 @@ class ParamAdvisor:
         if self.cache is not None:
             identity, origin = backend_identity(self.backend), installed_origin(self.backend.spec)
             key = cache_key(identity if origin is None else f"{identity} [{origin}]", messages, self.settings, schema)
-        if self.cache is not None:
             t0 = time.perf_counter()
             hit = self.cache.get(key)
             if hit is not None:
-                return LLMResponse(
-                    text=hit.text,
-                    parsed=try_parse_json(hit.text),
-                    prompt_tokens=hit.prompt_tokens,
-                    completion_tokens=hit.completion_tokens,
-                    latency_s=time.perf_counter() - t0,
-                    model_spec=self.backend.spec,
-                    cached=True,
-                    extra={"original_latency_s": hit.latency_s},
-                )
+                return LLMResponse(text=hit.text, parsed=try_parse_json(hit.text), prompt_tokens=hit.prompt_tokens,
+                                   completion_tokens=hit.completion_tokens, latency_s=time.perf_counter() - t0,
+                                   model_spec=self.backend.spec, cached=True,
+                                   extra={"original_latency_s": hit.latency_s})
         resp = self.backend.complete(messages, schema=schema, settings=self.settings, timeout_s=self.retry.timeout_s)
         if self.cache is not None:
-            self.cache.put(
-                key,
-                self.backend.spec,
-                CachedEntry(resp.text, resp.prompt_tokens, resp.completion_tokens, resp.latency_s),
-            )
+            self.cache.put(key, self.backend.spec,
+                           CachedEntry(resp.text, resp.prompt_tokens, resp.completion_tokens, resp.latency_s))
         return resp
 
     def advise(self, messages: Sequence[Message], *, variant: Variant = "physics") -> Advice:

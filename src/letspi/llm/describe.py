@@ -354,31 +354,15 @@ def _neighbour(batch: ScenarioBatch, index: int, j: int, road: _Road, ego: _Ego,
     return NeighbourInfo(
         vehicle_id=int(batch.nbr_id[index][j]),
         vehicle_class=VEHICLE_CLASS_NAMES.get(int(batch.nbr_class[index][j]), "vehicle").lower(),
-        relation=_relation(k - ego.lane_index, dx, half),
-        lane=road.lanes[k].lane_id,
-        x=dx,
-        y=dy,
-        vx=vx,
-        vy=vy,
-        length=length,
-        width=width,
-        gap_m=gap,
-        ttc_s=ttc,
-        history=_track(road, nxy, history_frames, valid),
-        rel_vx=vx - ego.vx,
-        rel_vy=vy - ego.vy,
+        relation=_relation(k - ego.lane_index, dx, half), lane=road.lanes[k].lane_id,
+        x=dx, y=dy, vx=vx, vy=vy, length=length, width=width, gap_m=gap, ttc_s=ttc,
+        history=_track(road, nxy, history_frames, valid), rel_vx=vx - ego.vx, rel_vy=vy - ego.vy,
     )
 
 
-def describe_scenario(
-    batch: ScenarioBatch,
-    goal_xy: tuple[float, float] | np.ndarray,
-    *,
-    index: int = 0,
-    history_step_s: float = 0.5,
-    neighbour_history_step_s: float = 1.0,
-    horizon_s: float = 5.0,
-) -> ScenarioDescription:
+def describe_scenario(batch: ScenarioBatch, goal_xy: tuple[float, float] | np.ndarray, *, index: int = 0,
+                      history_step_s: float = 0.5, neighbour_history_step_s: float = 1.0,
+                      horizon_s: float = 5.0) -> ScenarioDescription:
     """The description of scenario ``index`` at t = 0 with the predicted ``goal_xy`` (ego frame); frames up to t = 0."""
     road = _road(batch, index)
     t0 = T0_INDEX
@@ -402,14 +386,9 @@ def describe_scenario(
         ego_length=ego.length,
         ego_width=float(batch.ego_width_m[index]),
         ego_history=_track(road, ego_xy, _sample_indices(history_step_s), np.ones(len(ego_xy), dtype=bool)),
-        ego_x=ego.x,
-        ego_y=ego.y,
-        ego_vx=ego.vx,
-        ego_vy=ego.vy,
+        ego_x=ego.x, ego_y=ego.y, ego_vx=ego.vx, ego_vy=ego.vy,
         ego_ax=float(ego_a[t0, 0]) if np.isfinite(ego_a[t0, 0]) else 0.0,
         neighbours=tuple(nbrs),
-        goal_x=gx,
-        goal_y=gy,
-        goal_lane=road.lane_id(gy),
+        goal_x=gx, goal_y=gy, goal_lane=road.lane_id(gy),
         horizon_s=horizon_s,
     )

@@ -1,10 +1,9 @@
 """The prompt fingerprint: SHA-256 of the prompt templates and of the prompts as rendered for fixed scenes.
 
-It enters the key of every configuration that asks a model, so whatever changes the text a model reads
-changes the key, and nothing else (a comment, a refactor) does. ``FINGERPRINT_SCENES`` are synthetic
-scenes rendered through the real code by every style in ``PROMPT_STYLES`` and every template branch; a
-style without a renderer in ``STYLE_SAMPLES`` makes the fingerprint raise. Text written by higher layers
-comes in as ``extra_texts`` (``letspi.method.prompt_samples``).
+It enters the key of every configuration that asks a model (docs/llm.md). ``FINGERPRINT_SCENES`` are rendered
+through the real code by every style in ``PROMPT_STYLES`` and every template branch; a style without a
+renderer in ``STYLE_SAMPLES`` makes the fingerprint raise. Text written by higher layers comes in as
+``extra_texts`` (``letspi.method.prompt_samples``).
 """
 
 from __future__ import annotations

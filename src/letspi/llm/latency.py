@@ -45,9 +45,8 @@ def _messages(desc: ScenarioDescription, variant: Variant) -> list[Message]:
     return render_physics_prompt(desc) if variant == "physics" else render_fast_prompt(desc)
 
 
-def _latency(
-    model: str, variant: Variant, descs: dict[str, ScenarioDescription], repeats: int, settings: DecodingSettings
-) -> dict[str, Any]:
+def _latency(model: str, variant: Variant, descs: dict[str, ScenarioDescription], repeats: int,
+             settings: DecodingSettings) -> dict[str, Any]:
     backend = LlamaCppBackend(model)
     llm = backend.loaded().llm  # the instance complete() uses
     a, b = descs["far_leader"], descs["close_leader"]
@@ -56,24 +55,16 @@ def _latency(
     tokens: tuple[int, int] = (0, 0)
     for _ in range(repeats):
         llm.reset()  # forget the KV cache: the whole prompt is evaluated
-        r = backend.complete(_messages(b, variant), schema=_schema(variant), settings=settings, timeout_s=600)
+        r = backend.complete(_messages(b, variant), schema=reply_json_schema(variant), settings=settings, timeout_s=600)
         cold.append(r.latency_s)
         tokens = (r.prompt_tokens, r.completion_tokens)
-        backend.complete(_messages(a, variant), schema=_schema(variant), settings=settings, timeout_s=600)
-        r = backend.complete(_messages(b, variant), schema=_schema(variant), settings=settings, timeout_s=600)
+        backend.complete(_messages(a, variant), schema=reply_json_schema(variant), settings=settings, timeout_s=600)
+        r = backend.complete(_messages(b, variant), schema=reply_json_schema(variant), settings=settings, timeout_s=600)
         warm.append(r.latency_s)  # shares the static system prompt with the previous call
     med_cold, med_warm = statistics.median(cold), statistics.median(warm)
-    return {
-        "prompt_tokens": tokens[0],
-        "output_tokens": tokens[1],
-        "cold_s": round(med_cold, 2),
-        "warm_prefix_s": round(med_warm, 2),
-        "warm_prefix_speedup": round(med_cold / med_warm, 2) if med_warm > 0 else None,
-    }
-
-
-def _schema(variant: Variant) -> dict[str, Any]:
-    return reply_json_schema(variant)
+    return {"prompt_tokens": tokens[0], "output_tokens": tokens[1], "cold_s": round(med_cold, 2),
+            "warm_prefix_s": round(med_warm, 2),
+            "warm_prefix_speedup": round(med_cold / med_warm, 2) if med_warm > 0 else None}
 
 
 def _cache_hit(model: str, desc: ScenarioDescription, settings: DecodingSettings) -> dict[str, Any]:
@@ -88,12 +79,8 @@ def _cache_hit(model: str, desc: ScenarioDescription, settings: DecodingSettings
         hit_advice = adv.advise(msgs, variant="fast")
         hit = time.perf_counter() - t0
         cache.close()
-    return {
-        "miss_s": round(miss, 3),
-        "hit_s": round(hit, 4),
-        "speedup": round(miss / hit) if hit > 0 else None,
-        "hit_flag": hit_advice.cached,
-    }
+    return {"miss_s": round(miss, 3), "hit_s": round(hit, 4), "speedup": round(miss / hit) if hit > 0 else None,
+            "hit_flag": hit_advice.cached}
 
 
 def _behaviour(model: str, descs: dict[str, ScenarioDescription], settings: DecodingSettings) -> dict[str, Any]:
@@ -155,21 +142,12 @@ def _fewshot(model: str, descs: dict[str, ScenarioDescription], settings: Decodi
             "prompt_tokens": a.prompt_tokens,
         }
     seen = [n for n in descs if n in FEWSHOT_ANSWERS]
-    return {
-        "replies": rows,
-        "matching_copies": sum(rows[n]["copied_matching"] for n in seen),
-        "of_seen": len(seen),
-        "exact_copies_total": sum(r["copied"] is not None for r in rows.values()),
-    }
+    return {"replies": rows, "matching_copies": sum(rows[n]["copied_matching"] for n in seen), "of_seen": len(seen),
+            "exact_copies_total": sum(r["copied"] is not None for r in rows.values())}
 
 
-def bench_models(
-    models: Sequence[str] = ("smollm2-135m", "gemma3-270m"),
-    *,
-    repeats: int = 2,
-    behaviour: bool = True,
-    max_tokens: int = 200,
-) -> dict[str, Any]:
+def bench_models(models: Sequence[str] = ("smollm2-135m", "gemma3-270m"), *, repeats: int = 2, behaviour: bool = True,
+                 max_tokens: int = 200) -> dict[str, Any]:
     """Run the benchmark (see module docstring); returns a JSON-ready dict keyed by model."""
     settings = DecodingSettings(max_tokens=max_tokens)
     descs = bench_scenarios()

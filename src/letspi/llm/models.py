@@ -39,8 +39,7 @@ class EmbeddedModel:
     locate: Callable[[], Path]
     #: a LoRA adapter applied on top (``locate_adapter``); only the fine-tuned model has one
     fine_tuned: bool = False
-    #: the llama.cpp self-check's tolerance: max relative logit difference between batched and
-    #: token-by-token prompt evaluation (``letspi.llm.backends.llamacpp.self_check``)
+    #: the self-check's max relative logit difference, batched vs token by token (``llamacpp.self_check``)
     batch_tolerance: float = 0.02
 
 
@@ -172,8 +171,7 @@ EMBEDDED_MODELS: Final[dict[str, EmbeddedModel]] = {
     ),
 }
 
-#: Environment variable naming the fine-tuned model's adapter (file or directory); read by the
-#: assembly's resolver (it enters the configuration key through the adapter's SHA-256).
+#: Environment variable naming the fine-tuned model's adapter (file or directory); its SHA-256 enters the key.
 ADAPTER_ENV: Final = "LETSPI_LLM_ADAPTER"
 ADAPTER_FILE: Final = "adapter.gguf"
 
@@ -224,8 +222,7 @@ def locate_adapter(name: str, env: Mapping[str, str] | None = None) -> Path | No
 
 #: Tolerance of the self-check for GGUF files that are not embedded models (quantization types vary).
 DEFAULT_FILE_BATCH_TOLERANCE: Final = 0.15
-#: Added to the tolerance when a LoRA adapter is applied (llama.cpp multiplies the adapter's float
-#: matrices by different kernels batched and token by token). Argmax must still agree.
+#: Added to the tolerance with a LoRA adapter (notes/rationale-llm-method-planners.md); argmax must still agree.
 LORA_BATCH_TOLERANCE: Final = 0.03
 
 

@@ -10,7 +10,6 @@
   the last occurrence of a field wins, a direct field over a nested one. Values: numbers or numeric
   strings, finite. A missing numeric field is ``missing_keys``, never filled with a default (it would look
   like the model's choice). Out-of-range values are clamped to ``FIELD_RANGES`` (``ParsedReply.clamped``).
-``parse_reply`` returns a ``ParsedReply`` or raises ``ReplyParseError``, nothing else.
 """
 
 from __future__ import annotations

@@ -23,32 +23,21 @@ LLM_PARAM_RANGES: Final[dict[str, tuple[float, float]]] = {
     name: PARAM_RANGES[name] for name in ("tau_s", "k_np", "k_nf", "k_nl", "k_boundary", "k_cline")
 }
 #: Goal-adjustment factor ranges (paper §III-E).
-GOAL_FACTOR_RANGES: Final[dict[str, tuple[float, float]]] = {
-    "lon_factor": (0.0, 1.0),
-    "lane_factor": (-1.0, 1.0),
-}
+GOAL_FACTOR_RANGES: Final[dict[str, tuple[float, float]]] = {"lon_factor": (0.0, 1.0), "lane_factor": (-1.0, 1.0)}
 #: Every numeric field of a reply with its range, in wire order.
 FIELD_RANGES: Final[dict[str, tuple[float, float]]] = {**LLM_PARAM_RANGES, **GOAL_FACTOR_RANGES}
 NUMERIC_FIELDS: Final[tuple[str, ...]] = tuple(FIELD_RANGES)
 
 #: Canonical field name -> short JSON key used on the wire.
 WIRE_KEYS: Final[dict[str, str]] = {
-    "rationale": "why",
-    "tau_s": "tau",
-    "k_np": "k_np",
-    "k_nf": "k_nf",
-    "k_nl": "k_nl",
-    "k_boundary": "k_bd",
-    "k_cline": "k_cl",
-    "lon_factor": "lon",
-    "lane_factor": "lane",
+    "rationale": "why", "tau_s": "tau", "k_np": "k_np", "k_nf": "k_nf", "k_nl": "k_nl", "k_boundary": "k_bd",
+    "k_cline": "k_cl", "lon_factor": "lon", "lane_factor": "lane",
 }
 
 #: Longest rationale the schema allows (characters); about 60 tokens.
 RATIONALE_MAX_CHARS: Final = 240
 
-#: Unit of every numeric field: the physics module's ``PARAM_UNITS`` (one source: the prompts and
-#: ``FIELD_DOCS`` take units from here), ``-`` for the dimensionless goal factors.
+#: Unit of every numeric field (from ``PARAM_UNITS``; ``-`` for the dimensionless goal factors).
 FIELD_UNITS: Final[dict[str, str]] = {
     **{name: PARAM_UNITS[name] for name in LLM_PARAM_RANGES},
     **{name: "-" for name in GOAL_FACTOR_RANGES},
@@ -89,12 +78,10 @@ class PlannerReply(BaseModel):
     k_nl: float = _param_field("k_nl", "k_nl")
     k_boundary: float = _param_field("k_boundary", "k_bd")
     k_cline: float = _param_field("k_cline", "k_cl")
-    lon_factor: float = Field(
-        validation_alias=AliasChoices("lon_factor", "lon"), serialization_alias="lon", ge=0.0, le=1.0
-    )
-    lane_factor: float = Field(
-        validation_alias=AliasChoices("lane_factor", "lane"), serialization_alias="lane", ge=-1.0, le=1.0
-    )
+    lon_factor: float = Field(validation_alias=AliasChoices("lon_factor", "lon"), serialization_alias="lon", ge=0.0,
+                              le=1.0)
+    lane_factor: float = Field(validation_alias=AliasChoices("lane_factor", "lane"), serialization_alias="lane",
+                               ge=-1.0, le=1.0)
     rationale: str = Field(default="", validation_alias=AliasChoices("rationale", "why"), serialization_alias="why")
 
     def params(self) -> dict[str, float]:
@@ -119,15 +106,8 @@ class PlannerReply(BaseModel):
 #: (``letspi.physics.params``), neutral goal. letspi's planners pass the fitted ``sf`` parameters instead
 #: (``fallback_reply_from_params``), so a failed call plans like the ``sf`` baseline.
 DEFAULT_REPLY: Final = PlannerReply(
-    tau_s=1.0,
-    k_np=25.0,
-    k_nf=5.0,
-    k_nl=0.5,
-    k_boundary=1.0,
-    k_cline=0.5,
-    lon_factor=NEUTRAL_LON_FACTOR,
-    lane_factor=0.0,
-    rationale="default parameters (fallback)",
+    tau_s=1.0, k_np=25.0, k_nf=5.0, k_nl=0.5, k_boundary=1.0, k_cline=0.5, lon_factor=NEUTRAL_LON_FACTOR,
+    lane_factor=0.0, rationale="default parameters (fallback)",
 )
 
 
@@ -141,17 +121,11 @@ def reply_json_schema(variant: Variant = "physics") -> dict[str, Any]:
         props[WIRE_KEYS["rationale"]] = {"type": "string", "maxLength": RATIONALE_MAX_CHARS}
     for name, (lo, hi) in FIELD_RANGES.items():
         props[WIRE_KEYS[name]] = {"type": "number", "minimum": lo, "maximum": hi}
-    return {
-        "type": "object",
-        "properties": props,
-        "required": list(props),
-        "additionalProperties": False,
-    }
+    return {"type": "object", "properties": props, "required": list(props), "additionalProperties": False}
 
 
-def fallback_reply_from_params(
-    params: SocialForceParams, rationale: str = "fallback: fitted sf parameters"
-) -> PlannerReply:
+def fallback_reply_from_params(params: SocialForceParams,
+                               rationale: str = "fallback: fitted sf parameters") -> PlannerReply:
     """A neutral-goal reply carrying ``params`` (letspi's fallback when the LLM gives no valid answer)."""
     values = {k: v for k, v in params.as_dict().items() if k in LLM_PARAM_RANGES}
     return PlannerReply(**values, lon_factor=NEUTRAL_LON_FACTOR, lane_factor=0.0, rationale=rationale)

@@ -1,9 +1,8 @@
 """Core types of the LLM layer: messages, decoding settings, responses, errors, the backend protocol.
 
-Errors: ``LLMConfigError`` (the setup is wrong: raised at once, never retried, so a typo cannot turn a
-run into fallbacks); ``LLMTransportError`` (one call failed: retried with backoff); ``ReplyParseError``
-(the model answered invalidly: retried with a corrective message, then the fallback). Each subclass
-says what the advisor (``letspi.llm.client``) does with it.
+Errors: ``LLMConfigError`` (setup wrong: raised at once, never retried, so a typo cannot turn a run into
+fallbacks); ``LLMTransportError`` (one call failed: retried with backoff); ``ReplyParseError`` (invalid
+answer: retried with a corrective message, then the fallback).
 """
 
 from __future__ import annotations
@@ -65,14 +64,8 @@ class LLMBackend(Protocol):
         """The canonical spec string (``llamacpp:gemma3-270m``, ``ollama:llama3.1:8b``, ...)."""
         ...
 
-    def complete(
-        self,
-        messages: Sequence[Message],
-        *,
-        schema: dict[str, Any] | None,
-        settings: DecodingSettings,
-        timeout_s: float,
-    ) -> LLMResponse:
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None, settings: DecodingSettings,
+                 timeout_s: float) -> LLMResponse:
         """Send ``messages``; constrain the reply to ``schema`` (a JSON schema) when not None."""
         ...
 
@@ -140,9 +133,8 @@ class LLMTransportError(LLMError):
         return (_rebuild_transport_error, (type(self), str(self), self.status, self.retry_after_s))
 
 
-def _rebuild_transport_error(
-    cls: type[LLMTransportError], message: str, status: int | None, retry_after_s: float | None
-) -> LLMTransportError:
+def _rebuild_transport_error(cls: type[LLMTransportError], message: str, status: int | None,
+                             retry_after_s: float | None) -> LLMTransportError:
     return cls(message, status=status, retry_after_s=retry_after_s)
 
 

@@ -1,11 +1,9 @@
 """Aggregation of per-scenario metrics into the paper's Table III (``metrics.json``), and its markdown tables.
 
 Every key comes from ``letspi.metrics.registry.METRICS`` (reference below); values are float, int, str or None
-(no finite value; NaN and inf are never emitted). Thresholds (``MetricsConfig.AGGREGATE_FIELDS``) apply here to
-the raw values with the config in effect: the one passed, else the one recorded in the frame, never a silent
-default. A config differing from the recorded one in a per-scenario field is refused, as is a frame mixing such
-configs; the result records ``metrics_config_key`` and the thresholds applied.
-
+(no finite value; never NaN or inf). Thresholds (``MetricsConfig.AGGREGATE_FIELDS``) apply here, with the config
+passed, else the one recorded in the frame (never a silent default); a config differing from the recorded one in a
+per-scenario field is refused, as is a frame mixing such configs. The result records ``metrics_config_key``.
 """
 
 from __future__ import annotations
@@ -63,9 +61,8 @@ def _pct(flags: np.ndarray) -> float | None:
 
 
 def scenario_values(agg: Agg, values: np.ndarray, config: MetricsConfig) -> np.ndarray:
-    """The (n,) per-scenario values behind a rate or mean key: bool for a rate (the key is their share), float64 for a
-    mean (the key is the mean of the finite entries). The one definition of what such a key averages.
-    """
+    """The (n,) per-scenario values a rate key (bool; the key is their share) or mean key (float64; the key is the
+    mean of the finite entries) averages."""
     t = agg.threshold_value(config)
     if agg.how == "pct_equal":
         return np.asarray(values.astype(str) == str(t))
@@ -106,9 +103,8 @@ def apply_agg(agg: Agg, values: np.ndarray, config: MetricsConfig) -> AggValue:
 
 
 def recorded_config(frame: pd.DataFrame) -> MetricsConfig | None:
-    """The ``MetricsConfig`` recorded in a per-scenario frame (None without one); ValueError when rows differ in a
-    per-scenario field (rows differing only in aggregate or reflection thresholds give the first row's config).
-    """
+    """The ``MetricsConfig`` recorded in a per-scenario frame (None without one; else the first row's); ValueError
+    when rows differ in a per-scenario field."""
     column = CONFIG_COLUMNS[1]
     if column not in frame or not len(frame):
         return None
@@ -156,12 +152,9 @@ def aggregate_metrics(
     inference_time_s: np.ndarray | Sequence[float] | float | None = None,
     config: MetricsConfig | None = None,
 ) -> dict[str, AggValue]:
-    """Aggregate per-scenario metrics into the keys of the module docstring.
-
-    ``metrics``: ``compute_metrics``' result or its frame (extra columns ignored; ``scenario_digest`` must not
-    repeat). ``inference_time_s``: planning times [s] (their finite mean is reported) or one number; None: the
-    frame's ``inference_s`` column if present. ``config``: None = the config recorded with the metrics.
-    """
+    """Aggregate per-scenario metrics (``compute_metrics``' result or its frame; extra columns ignored,
+    ``scenario_digest`` must not repeat) into the keys of the module docstring. ``inference_time_s``: planning times
+    [s] or one number, None = the frame's ``inference_s``; ``config`` None = the one recorded with the metrics."""
     if isinstance(metrics, ScenarioMetrics):
         df = metrics.to_frame()
         config = config if config is not None else metrics.config
@@ -211,8 +204,7 @@ IntervalsByPlanner = Mapping[str, Mapping[str, StoredInterval]]
 
 
 def format_with_interval(value: AggValue, interval: StoredInterval, digits: int = 2) -> str:
-    """``3.67 (2.06–6.45)``, ``-1.62 (-2.91 to -0.16)``: a value and its 95 % interval (the value alone
-    without one)."""
+    """``3.67 (2.06–6.45)``, ``-1.62 (-2.91 to -0.16)``: a value and its 95 % interval (if any)."""
     text = _fmt(value, digits)
     if interval is None or value is None or isinstance(value, str) or len(interval) != 2:
         return text
@@ -288,10 +280,8 @@ def _num(agg: Mapping[str, AggValue], key: str, default: float) -> str:
 def render_markdown_table(results: Mapping[str, Mapping[str, AggValue]], digits: int = 2,
                           intervals: IntervalsByPlanner | None = None,
                           paired: Mapping[str, object] | None = None) -> str:
-    """Paper-style markdown tables from ``{planner: aggregate_metrics(...)}``: the headline (paper columns and CR at
-    fault), a safety detail table, and notes on how each column is computed with the thresholds applied and how
-    many scenarios had a finite TTC / PET.
-    """
+    """Markdown tables of ``{planner: aggregate_metrics(...)}``: the headline, the safety detail and notes on each
+    column (thresholds applied, how many scenarios had a finite TTC / PET)."""
     first: Mapping[str, AggValue] = next(iter(results.values()), {})
     default = MetricsConfig()
     cap = _num(first, "ttc_cap_s", default.ttc_cap_s)

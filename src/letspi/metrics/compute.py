@@ -1,8 +1,5 @@
-"""``compute_metrics``: every per-scenario metric of a batch of planned ego trajectories.
-
-Returns a ``ScenarioMetrics``, one (B,) array per registry column, computed by the modules ``ttc``, ``ttc2d``,
-``pet``, ``drac``, ``distance``, ``collision``, ``fault``, ``kinematics`` and ``success`` against the batch's
-ground truth (neighbours' and ego's recorded futures). +inf (no conflict) is kept; ``aggregate`` handles it.
+"""``compute_metrics``: every per-scenario metric (one (B,) array per registry column) of planned ego trajectories
+against the batch's ground truth (the neighbours' and ego's recorded futures); +inf (no conflict) is kept.
 """
 
 from __future__ import annotations
@@ -50,11 +47,8 @@ class _Route:
 
 @dataclass(frozen=True, eq=False)
 class ScenarioMetrics:
-    """Per-scenario metrics of B scenarios and the ``config`` they were computed with.
-
-    ``columns``: one (B,) array per computed registry metric, in registry order and dtype, read as attributes
-    (``m.min_ttc_s``) or items; rows in batch order (the caller holds ``batch.scenario_id``).
-    """
+    """Per-scenario metrics of B scenarios and the ``config`` they were computed with: ``columns``, one (B,) array per
+    computed registry metric in registry order and dtype, read as attributes (``m.min_ttc_s``) or items."""
 
     columns: Mapping[str, np.ndarray]
     config: MetricsConfig
@@ -77,9 +71,7 @@ class ScenarioMetrics:
         return len(next(iter(self.columns.values()))) if self.columns else 0
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per scenario in batch order: every metric column, then ``metrics_config_key`` and ``metrics_config``
-        (canonical JSON), so a stored frame says how it was computed; no scenario ids.
-        """
+        """One row per scenario in batch order: every metric, ``metrics_config_key`` and ``metrics_config`` (JSON)."""
         b = len(self)
         frame = pd.DataFrame(dict(self.columns))
         key, text = CONFIG_COLUMNS
@@ -104,7 +96,6 @@ _NUMPY_DTYPES: Mapping[str, Any] = {"float64": np.float64, "int64": np.int64, "b
 
 def _fault(inp: MetricInputs, coll: CollisionResult, kin: KinematicsResult, dr: DRACResult, ttc: TTCResult,
            config: MetricsConfig) -> FaultResult:
-    """Who caused each collision (``letspi.metrics.fault``)."""
     return at_fault_collisions(inp, coll.overlap, coll.collision_step, coll.collision_nbr, kin.acc_mps2[..., 0],
                                dr.drac_mps2, ttc.preceding.nbr, reaction_time_s=config.fault_reaction_time_s,
                                comfort_decel_mps2=config.fault_comfort_decel_mps2, dt_s=config.dt_s)
@@ -112,7 +103,6 @@ def _fault(inp: MetricInputs, coll: CollisionResult, kin: KinematicsResult, dr: 
 
 def _success(batch: ScenarioBatch, inp: MetricInputs, kin: KinematicsResult, offr: np.ndarray, coll: CollisionResult,
              truth_xy: np.ndarray, goals_xy_m: np.ndarray | None, config: MetricsConfig) -> SuccessResult:
-    """Whether each plan succeeds (``letspi.metrics.success``)."""
     return success(inp.ego_xy_m, inp.ego_vxy_mps, kin.peak_abs_acc_lon_mps2, kin.peak_abs_acc_lat_mps2, offr,
                    coll.collision, coll.collision_2m, goals_xy_m, config, human_end_xy_m=truth_xy[:, -1],
                    start_x_m=batch.ego_xy_m[:, T0_INDEX, 0].astype(np.float64),
@@ -189,9 +179,8 @@ def _compute_chunk(
 
 @dataclass(frozen=True)
 class PlanOutcomes:
-    """(B,) each: the ``compute_metrics`` outcomes a search over candidate plans needs (``collision``,
-    ``collision_at_fault``, ``success``, ``min_ttc_s``, same values) and ``progress_m``, the plan's final x [m].
-    """
+    """(B,) each: ``compute_metrics``' ``collision``, ``collision_at_fault``, ``success``, ``min_ttc_s``, and
+    ``progress_m``, the plan's final x [m]."""
 
     collision: np.ndarray
     collision_at_fault: np.ndarray
@@ -207,7 +196,7 @@ def compute_outcomes(
     config: MetricsConfig | None = None,
 ) -> PlanOutcomes:
     """``PlanOutcomes`` of planned ego futures (B, F, 2) against the batch's ground truth: the subset of
-    ``compute_metrics`` (and only the computations it needs: about half the cost), chunked alike."""
+    ``compute_metrics``, computing only what it needs, chunked alike."""
     cfg = config if config is not None else MetricsConfig()
     xy = np.asarray(ego_future_xy_m, dtype=np.float64)
     vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)
@@ -232,13 +221,9 @@ def compute_metrics(
     goals_xy_m: np.ndarray | None = None,
     config: MetricsConfig | None = None,
 ) -> ScenarioMetrics:
-    """All per-scenario metrics of planned ego futures against the batch's ground truth.
-
-    ``ego_future_xy_m``, ``ego_future_vxy_mps``: (B, F, 2) planned centres [m] and velocities [m/s], ego frame, F = 125.
+    """All per-scenario metrics of planned ego futures (B, F, 2) centres [m] and velocities [m/s], ego frame.
     ``goals_xy_m``: (B, 2) the planner's own goal for ``success_self``, or None (that criterion holds); ``success`` is
-    judged against the human either way. ``config`` None = ``MetricsConfig()``. Chunks of ``config.chunk_size``
-    scenarios bound memory.
-    """
+    judged against the human either way. Computed in chunks of ``config.chunk_size`` scenarios."""
     cfg = config if config is not None else MetricsConfig()
     xy = np.asarray(ego_future_xy_m, dtype=np.float64)
     vxy = np.asarray(ego_future_vxy_mps, dtype=np.float64)

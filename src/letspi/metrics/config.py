@@ -1,9 +1,4 @@
-"""Thresholds and tolerances of every metric in one frozen pydantic model (``MetricsConfig``).
-
-Field groups: per-scenario fields decide values ``compute_metrics`` stores; ``AGGREGATE_FIELDS`` are applied by
-``aggregate_metrics`` to raw values (a run can be re-aggregated with others); ``REFLECTION_FIELDS`` change no
-metric; ``chunk_size`` changes memory use only. ``key()`` hashes every field but ``chunk_size``.
-"""
+"""Thresholds and tolerances of every metric in one frozen pydantic model (``MetricsConfig``)."""
 
 from __future__ import annotations
 
@@ -19,7 +14,8 @@ Collision2mMode = Literal["longitudinal_gap", "centre_distance", "box_gap"]
 
 
 class MetricsConfig(BaseModel):
-    """Settings of ``compute_metrics`` and ``aggregate_metrics``; SI units.
+    """Settings of ``compute_metrics`` and ``aggregate_metrics``; SI units. ``key()`` hashes every field but
+    ``chunk_size``; per-scenario fields decide stored values, ``AGGREGATE_FIELDS`` apply at aggregation.
 
     Aggregate (paper Table III): ``low_ttc_s`` (LT: minimum 1-D TTC below it), ``ttc_cap_s`` (the table's TTC
     averages min(TTC, cap)), ``pet_cap_s`` (``pet_capped_s``; default 5 s, the horizon), ``drac_high_mps2``
@@ -29,8 +25,7 @@ class MetricsConfig(BaseModel):
     ``sr_*`` against the human endpoint, ``goal_tol_*`` against the planner's goal); at fault
     (``fault_reaction_time_s``, ``fault_comfort_decel_mps2``); ``dt_s``. Reflection (paper §III; independent of the
     evaluation): ``reflection_ttc_s``, ``reflection_min_dist_m``, ``reflection_pet_s`` (None: unused).
-    ``chunk_size``: scenarios per vectorised chunk ((B, N, F) float64 temporaries of chunk_size rows).
-    """
+    ``chunk_size``: scenarios per vectorised chunk ((B, N, F) float64 temporaries of chunk_size rows)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

@@ -1,11 +1,9 @@
 """Per-episode metrics of a closed-loop episode in a reactive simulator (highway-env): one registry, one computation.
 
 An episode is one ego among V - 1 other vehicles, states at T simulation frames (``t_s``), until the first
-collision, leaving the road, or its end. ``EPISODE_METRICS`` declares every value once (name with unit, dtype,
-meaning, how it aggregates), as ``letspi.metrics.registry`` does for scenarios; results' columns,
-``metrics.json``, intervals, paired tests and docs derive from it; ``episode_metrics`` computes them. The
-definitions (success, at fault, TTC, hard brakes, jerk, latency) are the declarations' meanings, rendered in
-docs/metrics-reference.md; why they are defined so: notes/rationale-runtime-evaluation.md, "episode metrics".
+collision, leaving the road, or its end. ``EPISODE_METRICS`` declares every value once, as
+``letspi.metrics.registry`` does for scenarios (rationale: notes/rationale-runtime-evaluation.md, "episode metrics");
+``episode_metrics`` computes them.
 """
 
 from __future__ import annotations
@@ -66,12 +64,10 @@ def settings_record() -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class EpisodeInputs:
-    """One episode's recorded states (highway-env's frame: x along the road, y to the right of travel).
-
-    t_s: (T,) ascending. xy_m, vxy_mps: (V, T, 2) box centres and velocities; length_m, width_m: (V,).
-    ego: the ego's row. crashed: (V, T) bool (the simulator's flag, set at contact). ego_on_road: (T,) bool.
-    ego_lane: (T,) int, the lane of the ego's centre (-1 off the road). latency_s: (R,) wall time of each replan.
-    """
+    """One episode's recorded states (highway-env's frame: x along the road, y to the right of travel): t_s (T,)
+    ascending; xy_m, vxy_mps (V, T, 2) box centres and velocities; length_m, width_m (V,); ego: the ego's row;
+    crashed (V, T) bool (the simulator's flag, set at contact); ego_on_road (T,) bool; ego_lane (T,) int, the lane of
+    the ego's centre (-1 off the road); latency_s (R,) wall time of each replan."""
 
     t_s: np.ndarray
     xy_m: np.ndarray
@@ -111,7 +107,7 @@ def metric_inputs(ep: EpisodeInputs, end: int) -> MetricInputs:
 
 
 def _at_fault(ep: EpisodeInputs, inp: MetricInputs, crash: int, dt_s: float, config: MetricsConfig) -> bool:
-    """Whether the ego caused the collision of frame ``crash`` (module doc); ``inp`` covers frames 0..crash."""
+    """Whether the ego caused the collision of frame ``crash``; ``inp`` covers frames 0..crash."""
     others = np.flatnonzero(np.arange(len(ep.length_m)) != ep.ego)
     new = ep.crashed[others, crash] & ~(ep.crashed[others, crash - 1] if crash > 0 else False)
     candidates = np.flatnonzero(new) if new.any() else np.flatnonzero(ep.crashed[others, crash])

@@ -27,8 +27,7 @@ NONE, FRONT, SIDE, REAR = range(4)
 class FaultResult:
     """Per pair (B, N): ``pair_kind`` (int8 code into ``KINDS``), ``pair_at_fault``, ``pair_contact_step`` (-1 none).
     Per scenario (B,): ``collision_kind`` of the first collision ("none" without), ``collision_at_fault`` (any pair),
-    ``collision_fault_step`` / ``collision_fault_nbr`` of the first at-fault contact (-1 none).
-    """
+    ``collision_fault_step`` / ``collision_fault_nbr`` of the first at-fault contact (-1 none)."""
 
     pair_kind: np.ndarray
     pair_at_fault: np.ndarray
@@ -103,11 +102,9 @@ def at_fault_collisions(
     comfort_decel_mps2: float = 3.0,
     dt_s: float = 0.04,
 ) -> FaultResult:
-    """Classify every colliding pair and flag the ego's fault (rules: module docstring).
-
-    ``overlap`` (B, N, F) box overlap; ``first_step``, ``first_nbr`` (B,) the first collision; ``ego_acc_lon_mps2``
-    (B, F) planned longitudinal acceleration; ``drac_mps2``, ``preceding_nbr`` (B, F) from ``drac`` and ``ttc``.
-    """
+    """Classify every colliding pair and flag the ego's fault (module doc): ``overlap`` (B, N, F) box overlap;
+    ``first_step``, ``first_nbr`` (B,) the first collision; ``ego_acc_lon_mps2`` (B, F) planned longitudinal
+    acceleration; ``drac_mps2``, ``preceding_nbr`` (B, F) from ``drac`` and ``ttc``."""
     b, n, _ = overlap.shape
     pair_kind = np.zeros((b, n), dtype=np.int8)
     pair_fault = np.zeros((b, n), dtype=bool)

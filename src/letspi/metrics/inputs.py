@@ -17,12 +17,9 @@ from letspi.scenario.types import ScenarioBatch
 
 @dataclass(frozen=True)
 class MetricInputs:
-    """What every metric needs, as float64 arrays.
-
-    ``ego_xy_m``, ``ego_vxy_mps`` (B, F, 2) planned centres and velocities; ``ego_length_m``, ``ego_width_m`` (B,);
-    ``nbr_xy_m``, ``nbr_vxy_mps`` (B, N, F, 2) ground-truth futures (NaN where invalid), ``nbr_valid`` (B, N, F),
-    ``nbr_length_m``, ``nbr_width_m`` (B, N). N is free (``with_neighbours``).
-    """
+    """What every metric needs, float64: ``ego_xy_m``, ``ego_vxy_mps`` (B, F, 2) planned centres and velocities;
+    ``ego_length_m``, ``ego_width_m`` (B,); ``nbr_xy_m``, ``nbr_vxy_mps`` (B, N, F, 2) ground-truth futures (NaN where
+    invalid), ``nbr_valid`` (B, N, F), ``nbr_length_m``, ``nbr_width_m`` (B, N)."""
 
     ego_xy_m: np.ndarray
     ego_vxy_mps: np.ndarray
@@ -69,9 +66,8 @@ class MetricInputs:
         length_m: np.ndarray,
         width_m: np.ndarray,
     ) -> MetricInputs:
-        """These inputs with K more slots appended (slots N..N+K-1): ``xy_m``, ``vxy_mps`` (B, K, F, 2), ``valid`` (B,
-        K, F), ``length_m``, ``width_m`` (B, K); for vehicles the planner does not see but the plan is checked against.
-        """
+        """These inputs with K more slots N..N+K-1 (vehicles the plan is checked against): ``xy_m``, ``vxy_mps``
+        (B, K, F, 2), ``valid`` (B, K, F), ``length_m``, ``width_m`` (B, K)."""
         xy = np.asarray(xy_m, dtype=np.float64)
         ok = np.asarray(valid, dtype=bool) & np.isfinite(xy).all(axis=-1)
         return MetricInputs(
@@ -132,8 +128,7 @@ class MetricInputs:
 
 def min_over_nbr_time(values: np.ndarray, *, maximise: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-scenario min (or max) of a (B, N, F) array, NaN ignored, with its step and nbr (B,) each (-1 when all are
-    +inf for a min, -inf for a max); ties go to the earliest step, then the lowest slot.
-    """
+    +inf for a min, -inf for a max); ties go to the earliest step, then the lowest slot."""
     b, n, f = values.shape
     fill = -np.inf if maximise else np.inf
     # (B, F, N) order so that argmin's first hit is the earliest step

@@ -1,8 +1,7 @@
 """Kinematic quality of a planned trajectory: ADE/FDE, accelerations, jerk, lane changes, off-road.
 
-Accelerations and jerk are finite differences at dt over the t = 0 state and the F planned states (the t = 0
-velocity and acceleration come from the data), so a plan that starts with a jump is charged for it. x is
-longitudinal and y lateral (the markings are lines y = const); norms are reported too.
+Accelerations and jerk are finite differences at dt over the recorded t = 0 state and the F planned states, so a
+plan that starts with a jump is charged for it. x is longitudinal, y lateral (markings are lines y = const).
 """
 
 from __future__ import annotations
@@ -56,15 +55,13 @@ def finite_difference_kinematics(
 
 def lane_index(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     """Lane index of lateral positions ``y_m`` (B, F): markings (B, M, ascending, NaN padded) strictly below, minus 1;
-    0 = rightmost lane, -1 right of the road or NaN, M - 1 left of it.
-    """
+    0 = rightmost lane, -1 right of the road or NaN, M - 1 left of it."""
     return (marking_y_m[:, None, :] < y_m[..., None]).sum(axis=-1) - 1
 
 
 def count_lane_changes(y0_m: np.ndarray, plan_y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     """Number of lane changes (B,) of the planned centre from the lane at t = 0: every step whose lane index differs
-    from the previous one counts (a change and back is 2; no hysteresis).
-    """
+    from the previous one counts (a change and back is 2)."""
     lanes = lane_index(np.concatenate([y0_m[:, None], plan_y_m], axis=1), marking_y_m)
     return (np.diff(lanes, axis=1) != 0).sum(axis=1)
 
@@ -86,8 +83,7 @@ def off_road(
     tol_m: float = 0.0,
 ) -> np.ndarray:
     """(B,) bool: at some step the ego box (centres ``plan_y_m`` (B, F), ``ego_width_m`` (B,)) extends more than
-    ``tol_m`` beyond a road edge; NaN positions are not flagged here.
-    """
+    ``tol_m`` beyond a road edge; NaN positions are not flagged here."""
     right, left = road_edges(marking_y_m, marking_is_edge)
     hw = 0.5 * ego_width_m[:, None]
     beyond = (plan_y_m - hw < right[:, None] - tol_m) | (plan_y_m + hw > left[:, None] + tol_m)

@@ -3,11 +3,8 @@
 Cells of ``cell_m`` in the ego frame; a box occupies a cell when it strictly covers the cell's **centre**. For a
 cell both vehicles occupy within the F future steps, PET = t_enter(second) - t_exit(first), 0 when the
 occupancies overlap in time; a pair's PET is the minimum over shared cells, a scenario's over neighbours, +inf
-when no cell is shared. Every valid neighbour counts, in either order (same-lane following gives the bumper
-time gap plus up to a frame and a cell); history is not used. ``cell_m`` must not exceed the smallest vehicle
-dimension. Computed as dt · min |f1 - f2| over frame pairs whose boxes share a cell (the same when each
-occupancy is one run of frames), with a ``searchsorted`` over frames (exact for non-decreasing neighbour x) and
-a loop over the ego's cell rows.
+when no cell is shared. Every valid neighbour counts, in either order; history is not used. ``cell_m`` must not
+exceed the smallest vehicle dimension. Computed as dt · min |f1 - f2| over frame pairs whose boxes share a cell.
 """
 
 from __future__ import annotations
@@ -27,8 +24,7 @@ _NO_FRAME = 1 << 20  # sentinel frame index / frame distance
 @dataclass(frozen=True)
 class PETResult:
     """Per pair (B, N): ``pet_s`` (+inf undefined), ``pet_step`` (the second vehicle enters the conflict cell, -1
-    undefined), ``ego_first``. Per scenario (B,): ``min_pet_s``, ``min_pet_step``, ``min_pet_nbr`` (-1 undefined).
-    """
+    undefined), ``ego_first``. Per scenario (B,): ``min_pet_s``, ``min_pet_step``, ``min_pet_nbr`` (-1 undefined)."""
 
     pet_s: np.ndarray
     pet_step: np.ndarray
@@ -39,9 +35,8 @@ class PETResult:
 
 
 def _cell_range(lo_m: np.ndarray, hi_m: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """First and last cell (int64) whose centre (i + 1/2) c lies strictly inside (lo, hi); non-finite input or no
-    centre covered gives the empty range (+_NONE, -_NONE), so "ranges intersect" tests stay correct.
-    """
+    """First and last cell (int64) whose centre (i + 1/2) c lies strictly inside (lo, hi); the empty range
+    (+_NONE, -_NONE) for non-finite input or no centre covered."""
     with np.errstate(invalid="ignore"):
         i0 = np.floor(lo_m / cell_m - 0.5) + 1.0
         i1 = np.ceil(hi_m / cell_m - 0.5) - 1.0
@@ -124,8 +119,7 @@ def _pair_min_frame_distance(
     row1: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """min |f1 - f2| over frames where the ego's (f1) and the neighbour's (f2) cell rectangles intersect, from (P, F)
-    cell ranges per pair and the ego's row span (P,); (distance, f1, f2) (P,), distance >= _NO_FRAME when never.
-    """
+    cell ranges per pair and the ego's row span (P,); (distance, f1, f2) (P,), distance >= _NO_FRAME when never."""
     p, f = ex0.shape
     frames = np.broadcast_to(np.arange(f, dtype=np.int64), (p, f))
     # Neighbour frames whose columns meet the ego's columns at f1: lo = first f2 with

@@ -46,8 +46,7 @@ HOW_DOC: MappingProxyType[str, str] = MappingProxyType({
 @dataclass(frozen=True)
 class Agg:
     """One ``metrics.json`` key computed from one per-scenario column; ``threshold``: the cap or threshold of ``how``
-    (a ``MetricsConfig`` field name or a number; for ``pct_equal`` the value compared with).
-    """
+    (a ``MetricsConfig`` field name or a number; for ``pct_equal`` the value compared with)."""
 
     key: str
     how: AggHow

@@ -1,12 +1,9 @@
 """Uncertainty of evaluation figures: Wilson intervals, exact McNemar tests, vehicle (cluster) bootstrap.
 
-Windows of one ego vehicle overlap and share its traffic, so they are not independent: rates get Wilson
-intervals (closed form, as scipy's ``binomtest(...).proportion_ci(method="wilson")``) at the effective sample
-size n / ``design_effect`` (Korn & Graubard 1998), means a percentile bootstrap over whole groups
-(``letspi.scenario.split.vehicle_keys``), non-finite values left out of the mean but their groups still
-resampled. Paired comparisons on the same windows: ``paired_rate`` (exact McNemar) and ``paired_mean``.
-Resamples come from ``numpy.random.default_rng(seed)`` over the sorted groups and interval ends are rounded to
-``SIGNIFICANT_DIGITS``, so results are byte-identical across runs and BLAS builds.
+Windows of one ego vehicle overlap, so they are not independent: rates get Wilson intervals at the effective
+sample size n / ``design_effect`` (Korn & Graubard 1998), means a percentile bootstrap over whole groups
+(``letspi.scenario.split.vehicle_keys``). Resamples come from ``numpy.random.default_rng(seed)`` over the sorted
+groups and interval ends are rounded to ``SIGNIFICANT_DIGITS``: byte-identical across runs and BLAS builds.
 """
 
 from __future__ import annotations
@@ -44,8 +41,7 @@ def _check_level(level: float) -> None:
 
 
 def wilson_interval(k: int, n: int, level: float = LEVEL) -> Interval:
-    """Wilson score interval (no continuity correction) of a proportion with ``k`` successes in ``n``
-    trials, as fractions in [0, 1]; (NaN, NaN) when ``n`` is 0."""
+    """Wilson score interval (no continuity correction) of ``k`` successes in ``n`` trials, in [0, 1]; NaN if n = 0."""
     _check_level(level)
     k, n = int(k), int(n)
     if n < 0 or not 0 <= k <= max(n, 0):
@@ -56,8 +52,7 @@ def wilson_interval(k: int, n: int, level: float = LEVEL) -> Interval:
 
 
 def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
-    """Wilson score interval of a proportion ``p_hat`` observed in ``n`` (possibly effective, non-integer)
-    trials, in closed form."""
+    """Wilson score interval of a proportion ``p_hat`` in ``n`` (possibly effective, non-integer) trials."""
     _check_level(level)
     if n <= 0:
         return NAN_INTERVAL
@@ -72,8 +67,7 @@ def wilson_ends(p_hat: float, n: float, level: float = LEVEL) -> Interval:
 
 def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any]) -> float:
     """How much grouping windows by vehicle inflates the variance of their share, >= 1 (Korn & Graubard 1998):
-    G / (G - 1) · Σ_g (y_g - p m_g)² / n² over p (1 - p) / n; 1 when not estimable (p 0 or 1, < 2 groups).
-    """
+    G / (G - 1) · Σ_g (y_g - p m_g)² / n² over p (1 - p) / n; 1 when not estimable (p 0 or 1, < 2 groups)."""
     y = np.asarray(flags, dtype=np.float64)
     inverse, n_groups = group_index(groups)
     if len(inverse) != len(y):
@@ -91,8 +85,7 @@ def design_effect(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Seque
 def vehicle_wilson_interval(flags: np.ndarray | Sequence[bool], groups: np.ndarray | Sequence[Any],
                             level: float = LEVEL) -> Interval:
     """Wilson interval of the share of ``flags`` (n,) at the effective sample size n / ``design_effect`` of their
-    ``groups`` (n,); ``wilson_interval`` with one window per vehicle, (NaN, NaN) when n is 0.
-    """
+    ``groups`` (n,); ``wilson_interval`` with one window per vehicle, (NaN, NaN) when n is 0."""
     y = np.asarray(flags, dtype=bool)
     if not len(y):
         return NAN_INTERVAL
@@ -100,8 +93,7 @@ def vehicle_wilson_interval(flags: np.ndarray | Sequence[bool], groups: np.ndarr
 
 
 def mcnemar_exact(n_only_a: int, n_only_b: int) -> float:
-    """Two-sided exact McNemar p of paired binary outcomes: the binomial test of the discordant pairs,
-    ``n_only_a`` of ``n_only_a + n_only_b`` against 1/2 (1.0 when there are none)."""
+    """Two-sided exact McNemar p: the binomial test of ``n_only_a`` of ``n_only_a + n_only_b`` against 1/2."""
     b, c = int(n_only_a), int(n_only_b)
     if b < 0 or c < 0:
         raise ValueError(f"discordant counts must be >= 0, got {b}, {c}")
@@ -111,18 +103,12 @@ def mcnemar_exact(n_only_a: int, n_only_b: int) -> float:
 
 
 def binomial_half_cdf(m: int, n: int) -> float:
-    """P(X <= m) for X ~ Binomial(n, 1/2), exactly: the sum of C(n, i) over i <= m in integers, divided
-    by 2^n once (correctly rounded)."""
+    """P(X <= m) for X ~ Binomial(n, 1/2), summed in integers and divided by 2^n once (correctly rounded)."""
     term = total = 1
     for i in range(m):
         term = term * (n - i) // (i + 1)
         total += term
     return total / 2**n
-
-
-# ------------------------------------------------------------------------------------------------
-# Vehicle (cluster) bootstrap
-# ------------------------------------------------------------------------------------------------
 
 
 def group_index(groups: np.ndarray | Sequence[Any]) -> tuple[np.ndarray, int]:
@@ -137,8 +123,8 @@ RESAMPLE_CHUNK: Final = 250
 
 
 def resample_counts(n_groups: int, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> Iterator[np.ndarray]:
-    """Chunks (r, G) float64 of, per resample, how often each of ``n_groups`` groups is drawn in
-    ``n_groups`` draws with replacement; ``n_resamples`` rows in all, from one seeded stream."""
+    """Chunks (r, G) float64: per resample, how often each of G groups is drawn in G draws with replacement;
+    ``n_resamples`` rows in all, from one seeded stream."""
     if n_resamples < 1:
         raise ValueError(f"n_resamples must be >= 1, got {n_resamples}")
     rng = np.random.default_rng(seed)
@@ -151,11 +137,8 @@ def resample_counts(n_groups: int, n_resamples: int = N_RESAMPLES, seed: int = S
 
 def bootstrap_mean_intervals(values: np.ndarray, groups: np.ndarray | Sequence[Any], level: float = LEVEL,
                              n_resamples: int = N_RESAMPLES, seed: int = SEED) -> np.ndarray:
-    """Vehicle-bootstrap percentile intervals of the finite means of K columns at once (shared resamples).
-
-    ``values`` (n, K) or (n,), non-finite entries left out; ``groups`` (n,), compared as strings. Returns (K, 2),
-    NaN for a column with fewer than 2 groups holding a finite value.
-    """
+    """Vehicle-bootstrap percentile intervals (K, 2) of the finite means of ``values`` (n, K) or (n,) (shared
+    resamples; ``groups`` (n,) compared as strings); NaN for a column with < 2 groups holding a finite value."""
     _check_level(level)
     v = np.asarray(values, dtype=np.float64)
     v2 = v.reshape(len(v), -1)
@@ -182,18 +165,12 @@ def bootstrap_mean_intervals(values: np.ndarray, groups: np.ndarray | Sequence[A
 
 def bootstrap_mean_interval(values: np.ndarray | Sequence[float], groups: np.ndarray | Sequence[Any],
                             level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> Interval:
-    """Vehicle-bootstrap percentile interval of the mean of the finite ``values`` (n,), resampling
-    whole ``groups`` (n,); (NaN, NaN) with fewer than 2 groups holding a finite value."""
+    """``bootstrap_mean_intervals`` of one column ``values`` (n,)."""
     v = np.asarray(values, dtype=np.float64)
     if v.ndim != 1:
         raise ValueError(f"values must be 1-D, got shape {v.shape}")
     low, high = bootstrap_mean_intervals(v[:, None], groups, level, n_resamples, seed)[0]
     return float(low), float(high)
-
-
-# ------------------------------------------------------------------------------------------------
-# Paired comparisons
-# ------------------------------------------------------------------------------------------------
 
 
 def _json_float(x: float) -> float | None:
@@ -203,8 +180,7 @@ def _json_float(x: float) -> float | None:
 @dataclass(frozen=True)
 class PairedRate:
     """Paired comparison of a rate of A and B on the same windows: ``n_only_a`` windows where only A's flag is set;
-    ``diff`` A minus B in percentage points, ``diff_ci95`` its vehicle-bootstrap interval.
-    """
+    ``diff`` A minus B in percentage points, ``diff_ci95`` its vehicle-bootstrap interval."""
 
     n_pairs: int
     n_only_a: int
@@ -223,8 +199,8 @@ class PairedRate:
 
 @dataclass(frozen=True)
 class PairedMean:
-    """Paired comparison of a mean of A and B on the same windows: over the pairs where both are
-    finite, the mean of A - B and its vehicle-bootstrap interval."""
+    """Paired comparison of a mean of A and B: over the windows where both are finite, the mean of A - B and its
+    vehicle-bootstrap interval."""
 
     n_pairs: int
     diff: float
@@ -262,8 +238,8 @@ def _mean_columns(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[floa
 def paired_comparisons(pairs: Sequence[tuple[str, np.ndarray | Sequence[Any], np.ndarray | Sequence[Any]]],
                        groups: np.ndarray | Sequence[Any], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
                        seed: int = SEED) -> list[PairedRate | PairedMean]:
-    """``paired_rate`` / ``paired_mean`` of many metrics of the same windows at once, their differences
-    sharing one set of vehicle resamples. pairs: ("rate" or "mean", A (n,), B (n,)) each."""
+    """``paired_rate`` / ``paired_mean`` of many ("rate" or "mean", A (n,), B (n,)) pairs of the same windows at
+    once, sharing one set of vehicle resamples."""
     g = np.asarray(groups)
     columns = [(kind, *(_rate_columns(a, b) if kind == "rate" else _mean_columns(a, b))) for kind, a, b in pairs]
     for _, a, _, _ in columns:
@@ -295,9 +271,8 @@ def paired_comparisons(pairs: Sequence[tuple[str, np.ndarray | Sequence[Any], np
 def paired_rate(fail_a: np.ndarray | Sequence[bool], fail_b: np.ndarray | Sequence[bool],
                 groups: np.ndarray | Sequence[Any], level: float = LEVEL, n_resamples: int = N_RESAMPLES,
                 seed: int = SEED) -> PairedRate:
-    """Paired comparison of two (n,) boolean outcomes on the same windows (row i of both is one
-    window; ``groups`` (n,) its vehicle): discordant counts, exact McNemar p, difference of the rates
-    in percentage points (A - B) with its vehicle-bootstrap interval."""
+    """Paired comparison of two (n,) boolean outcomes of the same windows (``groups`` (n,): their vehicles):
+    discordant counts, exact McNemar p, A - B in percentage points with its vehicle-bootstrap interval."""
     result = paired_comparisons([("rate", fail_a, fail_b)], groups, level, n_resamples, seed)[0]
     assert isinstance(result, PairedRate)
     return result
@@ -305,9 +280,8 @@ def paired_rate(fail_a: np.ndarray | Sequence[bool], fail_b: np.ndarray | Sequen
 
 def paired_mean(a: np.ndarray | Sequence[float], b: np.ndarray | Sequence[float], groups: np.ndarray | Sequence[Any],
                 level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> PairedMean:
-    """Paired comparison of two (n,) per-window values: mean of A - B over the pairs where both are
-    finite, and its vehicle-bootstrap interval (pairs with a non-finite side are left out; their
-    vehicles are still resampled)."""
+    """Paired comparison of two (n,) per-window values: mean of A - B over the pairs where both are finite (the
+    others' vehicles are still resampled), and its vehicle-bootstrap interval."""
     result = paired_comparisons([("mean", a, b)], groups, level, n_resamples, seed)[0]
     assert isinstance(result, PairedMean)
     return result

@@ -43,8 +43,7 @@ def reference_reached(
     config: MetricsConfig,
 ) -> np.ndarray:
     """(B,) bool: the plan ends in the human's final lane with the human's progress (module docstring).
-    ``plan_end_xy_m``, ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M). NaN plans give False.
-    """
+    ``plan_end_xy_m``, ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M). NaN plans give False."""
     plan_lane = lane_index(plan_end_xy_m[:, 1:2], marking_y_m)[:, 0]
     human_lane = lane_index(human_end_xy_m[:, 1:2], marking_y_m)[:, 0]
     lat_ok = (plan_lane == human_lane) & np.isfinite(plan_end_xy_m[:, 1])
@@ -72,8 +71,7 @@ def success(
     marking_y_m: np.ndarray,
 ) -> SuccessResult:
     """Evaluate the success criteria (module docstring): ``plan_xy_m``, ``plan_vxy_mps`` (B, F, 2); peaks and flags
-    (B,); ``goals_xy_m`` (B, 2) or None; ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M).
-    """
+    (B,); ``goals_xy_m`` (B, 2) or None; ``human_end_xy_m`` (B, 2); ``start_x_m`` (B,); ``marking_y_m`` (B, M)."""
     b = plan_xy_m.shape[0]
     finite = np.isfinite(plan_xy_m).all(axis=(1, 2)) & np.isfinite(plan_vxy_mps).all(axis=(1, 2))
     # NaN peaks compare False, so a non-finite plan is never feasible

@@ -19,8 +19,7 @@ from letspi.metrics.inputs import MetricInputs, min_over_time
 @dataclass(frozen=True)
 class PrecedingVehicle:
     """The preceding (or, for the rear TTC, following) vehicle per step, (B, F) each: ``nbr`` slot (-1 none),
-    ``gap_m`` bumper gap (+inf none), ``closing_mps`` how fast the gap shrinks (NaN none).
-    """
+    ``gap_m`` bumper gap (+inf none), ``closing_mps`` how fast the gap shrinks (NaN none)."""
 
     nbr: np.ndarray
     gap_m: np.ndarray
@@ -30,8 +29,7 @@ class PrecedingVehicle:
 @dataclass(frozen=True)
 class TTCResult:
     """``ttc_s`` (B, F); ``min_ttc_s`` (B,) with ``min_ttc_step`` / ``min_ttc_nbr`` (-1 if inf); ``preceding`` the
-    vehicle it is taken with (the follower for ``rear_ttc_1d``).
-    """
+    vehicle it is taken with (the follower for ``rear_ttc_1d``)."""
 
     ttc_s: np.ndarray
     preceding: PrecedingVehicle
@@ -57,12 +55,12 @@ def _path_vehicle(inp: MetricInputs, *, ahead: bool) -> PrecedingVehicle:
 
 
 def preceding_vehicle(inp: MetricInputs) -> PrecedingVehicle:
-    """Find the preceding vehicle of the (planned) ego at every step (definition: module doc)."""
+    """The preceding vehicle of the (planned) ego at every step (module doc)."""
     return _path_vehicle(inp, ahead=True)
 
 
 def following_vehicle(inp: MetricInputs) -> PrecedingVehicle:
-    """Find the following vehicle in the (planned) ego's path at every step (module doc)."""
+    """The following vehicle in the (planned) ego's path at every step (module doc)."""
     return _path_vehicle(inp, ahead=False)
 
 

@@ -40,8 +40,7 @@ JsonInterval = list[float] | None
 
 @dataclass(frozen=True)
 class Statistic:
-    """The per-scenario values behind one key: (n,) bool for a rate (its share in percent is the
-    key's value), float64 for a mean (the mean of the finite entries)."""
+    """The per-scenario values behind one key: (n,) bool for a rate, float64 for a mean (of the finite entries)."""
 
     key: str
     kind: StatKind
@@ -100,7 +99,7 @@ def _buckets(groups: Mapping[str, np.ndarray]) -> list[list[str]]:
 def intervals_of(subjects: Mapping[str, tuple[Mapping[str, Statistic], np.ndarray]], level: float = LEVEL,
                  n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, dict[str, JsonInterval]]:
     """``intervals`` of several planners, {name: (statistics, groups)} -> {name: {key: interval}}; planners
-    holding the same windows share one bootstrap call (the same intervals, computed once)."""
+    holding the same windows share one bootstrap call."""
     out: dict[str, dict[str, JsonInterval]] = {name: {} for name in subjects}
     for bucket in _buckets({name: g for name, (_, g) in subjects.items()}):
         means = [(name, st) for name in bucket for st in subjects[name][0].values() if st.kind == "mean"]
@@ -120,9 +119,8 @@ def intervals_of(subjects: Mapping[str, tuple[Mapping[str, Statistic], np.ndarra
 
 def intervals(statistics: Mapping[str, Statistic], groups: np.ndarray, level: float = LEVEL,
               n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, JsonInterval]:
-    """Key -> [low, high] (percent for rates, the key's unit for means), None when not estimable
-    (no scenario; a mean with fewer than 2 vehicles holding a finite value). ``groups``: (n,) vehicle
-    of each row. The means share one set of resamples."""
+    """Key -> [low, high] (percent for rates, the key's unit for means), None when not estimable (no scenario; a
+    mean with fewer than 2 vehicles holding a finite value). ``groups``: (n,) vehicle of each row."""
     return intervals_of({"": (statistics, groups)}, level, n_resamples, seed)[""]
 
 
@@ -146,9 +144,8 @@ def paired_of(subjects: Mapping[str, PairSubject], level: float = LEVEL, n_resam
 
 def paired(planner: Mapping[str, Statistic], reference: Mapping[str, Statistic], groups: np.ndarray,
            level: float = LEVEL, n_resamples: int = N_RESAMPLES, seed: int = SEED) -> dict[str, dict[str, Any]]:
-    """Key -> the paired record of the planner against the reference (``PairedRate`` / ``PairedMean``
-    ``.record()``), for the keys both have; row i of every statistic is the same window. All keys
-    share one set of vehicle resamples."""
+    """Key -> the paired record (``PairedRate`` / ``PairedMean`` ``.record()``) of the planner against the
+    reference, for the keys both have; row i of every statistic is the same window."""
     return paired_of({"": (planner, reference, groups)}, level, n_resamples, seed)[""]
 
 

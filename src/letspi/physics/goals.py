@@ -67,13 +67,11 @@ def _poly_fit_weights(n_frames: int, degree: int, dt_s: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class KinematicGoalPredictor:
-    """Constant-acceleration extrapolation with a lane-change intention (K = 1).
-
-    A quadratic least-squares fit of x over the last ``fit_window_s`` gives speed and acceleration at t = 0 (the
-    latter clipped to ``accel_clip_mps2``; the vehicle stops rather than reverses). A linear fit of y gives the
-    lateral speed; the position ``lateral_lookahead_s`` ahead picks the target lane (at most one lane away), whose
-    centre is the goal's y. Goals stay on the road and never behind the ego.
-    """
+    """Constant-acceleration extrapolation with a lane-change intention (K = 1). A quadratic least-squares fit of x over
+    the last ``fit_window_s`` gives speed and acceleration at t = 0 (the latter clipped to ``accel_clip_mps2``; the
+    vehicle stops rather than reverses). A linear fit of y gives the lateral speed; the position ``lateral_lookahead_s``
+    ahead picks the target lane (at most one lane away), whose centre is the goal's y. Goals stay on the road and never
+    behind the ego."""
 
     fit_window_s: float = 1.0
     horizon_s: float = HORIZON_S
@@ -142,14 +140,12 @@ def adjust_goals(
     *,
     default_lane_width_m: float = DEFAULT_LANE_WIDTH_M,
 ) -> np.ndarray:
-    """Apply the paper's goal adjustment factors; (B, 2) goals in the ego frame [m].
-
-    ``lon_factor`` (B,) in [0, 1] scales the goal distance ``g_x - x0`` by ``1.2 - 0.5 f``. ``lane_factor`` (B,) in
-    [-1, 1] moves the goal's y towards the centre of the lane left (-1) or right (+1) of the goal's lane,
-    proportionally; where that lane does not exist, at most to the goal's own lane centre. Results stay between the
-    outermost lane centres. Out-of-range factors are clamped; NaN means no adjustment. Without markings, lane
-    shifts use ``default_lane_width_m`` and nothing is clamped.
-    """
+    """Apply the paper's goal adjustment factors; (B, 2) goals in the ego frame [m]. ``lon_factor`` (B,) in [0, 1]
+    scales the goal distance ``g_x - x0`` by ``1.2 - 0.5 f``. ``lane_factor`` (B,) in [-1, 1] moves the goal's y towards
+    the centre of the lane left (-1) or right (+1) of the goal's lane, proportionally; where that lane does not exist,
+    at most to the goal's own lane centre. Results stay between the outermost lane centres. Out-of-range factors are
+    clamped; NaN means no adjustment. Without markings, lane shifts use ``default_lane_width_m`` and nothing is
+    clamped."""
     g = np.asarray(goals_xy_m, dtype=np.float64).reshape(-1, 2)
     b = g.shape[0]
     x0 = np.asarray(ego_xy0_m, dtype=np.float64).reshape(b, 2)[:, 0]

@@ -1,11 +1,9 @@
 """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), batched.
 
 ``a = a_max [1 - (v / v0)^delta - (s* / s)^2]``, ``s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b)))``, gap s
-bumper to bumper, dv = v - v_leader; Treiber's values (cars T 1.5 s, s0 2 m, a 1.0, b 2.0 m/s², delta 4; trucks
-T 2.0 s, a 0.7 m/s²). Safeguards: s floored at s0 / 2, a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s;
-semi-implicit Euler. The desired speed is the highest speed of the visible history (``desired_speed_from_history``).
-``rollout_idm_ego`` drives the ego longitudinally behind its in-lane leader (centre offset < half a lane, or
-boxes overlapping laterally) among the predicted neighbours, keeping its lateral position.
+bumper to bumper, dv = v - v_leader; Treiber's values (``CAR_IDM``, ``TRUCK_IDM``). Safeguards: s floored at s0 / 2,
+a clipped to [-9, a_max] m/s², v >= 0, v0 >= 1 m/s; semi-implicit Euler. ``rollout_idm_ego``'s in-lane leader:
+centre offset < half a lane, or boxes overlapping laterally.
 """
 
 from __future__ import annotations
@@ -28,8 +26,7 @@ GAP_FLOOR_FRACTION = 0.5
 @dataclass(frozen=True)
 class IdmParams:
     """IDM parameters: time headway T [s], jam gap s0 [m], max acceleration a [m/s²], comfortable deceleration b
-    [m/s²], exponent delta; each a float or an array broadcastable to the vehicles (``for_classes``).
-    """
+    [m/s²], exponent delta; each a float or an array broadcastable to the vehicles (``for_classes``)."""
 
     time_headway_s: FloatOrArray = 1.5
     min_gap_m: FloatOrArray = 2.0
@@ -54,8 +51,7 @@ TRUCK_IDM = IdmParams(time_headway_s=2.0, max_accel_mps2=0.7)
 
 class IdmKernel:
     """The IDM acceleration with per-vehicle constants prepared once, for rollouts (same arithmetic as
-    ``idm_acceleration``); ``desired_speed_mps`` and ``params`` broadcast to the vehicle shape.
-    """
+    ``idm_acceleration``); ``desired_speed_mps`` and ``params`` broadcast to the vehicle shape."""
 
     def __init__(self, desired_speed_mps: np.ndarray, params: IdmParams = CAR_IDM) -> None:
         self.v0 = np.maximum(np.asarray(desired_speed_mps, dtype=np.float64), MIN_DESIRED_SPEED_MPS)
@@ -88,15 +84,13 @@ def idm_acceleration(
     params: IdmParams = CAR_IDM,
 ) -> np.ndarray:
     """IDM acceleration [m/s²] with the module's safeguards; inputs broadcast together. ``gap_m``: bumper-to-bumper
-    gap, ``inf`` without a leader (``leader_speed_mps`` is then ignored and may be NaN).
-    """
+    gap, ``inf`` without a leader (``leader_speed_mps`` is then ignored and may be NaN)."""
     return IdmKernel(desired_speed_mps, params)(speed_mps, gap_m, leader_speed_mps)
 
 
 def desired_speed_from_history(speed_mps: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     """Highest finite speed over the history frames (last axis) of ``speed_mps`` (..., H), where ``valid``; (...,),
-    floored at 1 m/s.
-    """
+    floored at 1 m/s."""
     v = np.asarray(speed_mps, dtype=np.float64)
     ok = np.isfinite(v) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(v))
     best = np.where(ok, v, -np.inf).max(axis=-1)
@@ -132,8 +126,7 @@ def rollout_idm_ego(
 ) -> RolloutResult:
     """Planner-level IDM: the ego follows its in-lane leader among the predicted ``neighbours`` (B, N, F, ...) and
     keeps its lateral position (zero lateral velocity and acceleration). Defaults: ``desired_speed_mps`` from the
-    ego's history, ``params`` by ``batch.ego_class``.
-    """
+    ego's history, ``params`` by ``batch.ego_class``."""
     n = len(batch)
     f = int(neighbours.xy_m.shape[2])
     hist = batch.history_slice

@@ -29,8 +29,7 @@ def lane_width_m(marking_y_m: np.ndarray, default_m: float = DEFAULT_LANE_WIDTH_
 
 def lane_index_of(y_m: np.ndarray, marking_y_m: np.ndarray) -> np.ndarray:
     """Index of the lane containing ``y_m`` (B,), clipped into the road's lanes (beyond an edge: the nearest lane);
-    -1 without lanes.
-    """
+    -1 without lanes."""
     my = np.asarray(marking_y_m, dtype=np.float64)
     y = np.asarray(y_m, dtype=np.float64)
     n_markings = np.isfinite(my).sum(axis=1)

@@ -51,8 +51,7 @@ def predict_constant_velocity(batch: ScenarioBatch, n_steps: int = N_FUTURE, dt_
 
 def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
     """Leader of each neighbour at t = 0, (B, N): a neighbour slot, N for the ego, -1 for none (nearest ahead by
-    centre x in the same HighD lane, visible vehicles only).
-    """
+    centre x in the same HighD lane, visible vehicles only)."""
     xy0, _, ok = _t0_state(batch)
     b, n = ok.shape
     lane = np.where(ok, batch.nbr_lane_id[:, :, T0_INDEX], -1).astype(np.int16)
@@ -78,8 +77,7 @@ def idm_leaders(batch: ScenarioBatch) -> np.ndarray:
 class IdmStart:
     """The t = 0 state of the IDM prediction, (B, N) each: x, v (>= 0), y, visibility ``ok``, ``has_leader``, the
     leader's slot in [neighbours, ego], desired speeds, car/truck parameters, half length sums with the leader;
-    and the ego's x and speed (B,), which it keeps.
-    """
+    and the ego's x and speed (B,), which it keeps."""
 
     x: np.ndarray
     v: np.ndarray

@@ -2,10 +2,9 @@
 
 ``tau_s`` [s]: relaxation time of the goal attraction; ``k_np``, ``k_nf``, ``k_nl`` [m/s²]: repulsion from a
 preceding, following and adjacent-lane vehicle at zero gap; ``k_boundary`` [m³/s²]: road-edge potential
-``k 0.5 / d²``; ``k_cline`` [m²/s²]: lane-line potential ``k exp(-d² / (2 sigma²))`` (peak force 0.50 k m/s² at
-sigma 1.22 m); ``r_col_m`` [m]: decay length of the neighbour repulsion ``k exp(-d / r_col)``. ``PARAM_RANGES``
-are hard limits (LLM output is clamped to them); ``TYPICAL_RANGES`` are plausible starting ranges, guidance for
-prompts and the bounds of the ``sf`` fit, not limits.
+``k 0.5 / d²``; ``k_cline`` [m²/s²]: lane-line potential ``k exp(-d² / (2 sigma²))``; ``r_col_m`` [m]: decay length
+of the neighbour repulsion ``k exp(-d / r_col)``. ``PARAM_RANGES`` are hard limits (LLM output is clamped to
+them); ``TYPICAL_RANGES`` guide prompts and bound the ``sf`` fit, not limits.
 """
 
 from __future__ import annotations
@@ -21,15 +20,8 @@ PARAM_NAMES: Final = ("tau_s", "k_np", "k_nf", "k_nl", "k_boundary", "k_cline", 
 
 PARAM_INDEX: Final = {name: i for i, name in enumerate(PARAM_NAMES)}
 
-PARAM_UNITS: Final = {
-    "tau_s": "s",
-    "k_np": "m/s^2",
-    "k_nf": "m/s^2",
-    "k_nl": "m/s^2",
-    "k_boundary": "m^3/s^2",
-    "k_cline": "m^2/s^2",
-    "r_col_m": "m",
-}
+PARAM_UNITS: Final = {"tau_s": "s", "k_np": "m/s^2", "k_nf": "m/s^2", "k_nl": "m/s^2", "k_boundary": "m^3/s^2",
+                      "k_cline": "m^2/s^2", "r_col_m": "m"}
 
 PARAM_RANGES: Final = {
     # tau below ~0.3 s makes the goal term a bang-bang controller at 25 Hz; above 3 s it barely steers.
@@ -55,18 +47,15 @@ TYPICAL_RANGES: Final = {
 }
 
 
-#: float (one parameter set) or a (B,) float64 array (a batch); ``Any`` for the type checker because
-#: arithmetic on either works the same and callers index batches explicitly.
+#: float (one parameter set) or a (B,) float64 array (a batch); ``Any``: arithmetic on either works the same
 FloatOrArray: TypeAlias = Any
 
 
 @dataclass(frozen=True, eq=False)
 class SocialForceParams:
-    """Social force parameters of one scenario or of a batch (units in the module docstring).
-
-    Every field holds float64 of one shape: ``()`` for one set (an ``np.float64``) or ``(B,)``. ``broadcast``,
-    ``stack`` and ``from_matrix`` build batches, ``row`` takes one set out; equality compares values.
-    """
+    """Social force parameters of one scenario or of a batch (units in the module docstring). Every field holds float64
+    of one shape: ``()`` for one set (an ``np.float64``) or ``(B,)``. ``broadcast``, ``stack`` and ``from_matrix`` build
+    batches, ``row`` takes one set out; equality compares values."""
 
     tau_s: FloatOrArray = 1.0
     k_np: FloatOrArray = 25.0

@@ -40,9 +40,8 @@ LATERAL_RANGE_LANES = 1.5
 AX_MIN_MPS2 = -9.0
 AX_MAX_MPS2 = 4.0
 AY_MAX_MPS2 = 3.0
-# Stand-in coordinate for absent things (invalid neighbour samples, padding markings, missing
-# edges): every force from it underflows to exactly 0.0 for any r_col in PARAM_RANGES, so the hot
-# loop needs no validity masks.
+# Stand-in coordinate for absent things (invalid neighbour samples, padding markings, missing edges): every force
+# from it underflows to exactly 0.0 for any r_col in PARAM_RANGES, so the hot loop needs no validity masks.
 FAR_M = 1.0e12
 
 
@@ -50,8 +49,7 @@ def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.nd
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Markings (B, M) -> crossable lines compacted to the front, (B, L) y [m] (``FAR_M`` when unknown) with known
     flags, and the right and left road edges (B,) [m] (``-FAR_M`` / ``FAR_M`` when absent); a single edge is the right
-    one when it lies below the ego.
-    """
+    one when it lies below the ego."""
     known = np.isfinite(my)
     is_edge = np.asarray(marking_is_edge, dtype=bool).reshape(my.shape[0], -1) & known
     is_line = known & ~is_edge
@@ -71,12 +69,10 @@ def _lines_and_edges(my: np.ndarray, marking_is_edge: np.ndarray, ego_y_m: np.nd
 @dataclass(frozen=True)
 class SocialForceScene(Batched):
     """Everything a rollout needs besides parameters and goals: float64, sanitised, step-major and batch-last.
-
     ``ego_xy0_m``, ``ego_vxy0_mps`` (B, 2) (non-finite -> 0); ``ego_length_m``, ``ego_width_m``, ``lane_width_m`` (B,);
     ``nbr_x_m``, ``nbr_y_m``, ``nbr_valid`` (F + 1, N, B), index 0 = t = 0, ``FAR_M`` where invalid; ``nbr_length_m``,
     ``nbr_width_m`` (N, B), 0 for empty slots; ``line_y_m``, ``line_known`` (L, B); ``right_edge_y_m``,
-    ``left_edge_y_m`` (B,), ``-FAR_M`` / ``+FAR_M`` when absent.
-    """
+    ``left_edge_y_m`` (B,), ``-FAR_M`` / ``+FAR_M`` when absent."""
 
     ego_xy0_m: np.ndarray
     ego_vxy0_mps: np.ndarray
@@ -103,8 +99,7 @@ class SocialForceScene(Batched):
 
     def take(self, indices: np.ndarray | slice) -> SocialForceScene:
         """A sub-scene of the selected scenarios, C-contiguous as ``from_arrays`` lays it out (NumPy may round
-        differently on strided arrays, and a sub-scene must roll out exactly as a scene built from it).
-        """
+        differently on strided arrays, and a sub-scene must roll out exactly as a scene built from it)."""
         out = {}
         for name, value in vars(self).items():
             batch_last = name.startswith("nbr_") or name.startswith("line_")
@@ -126,12 +121,10 @@ class SocialForceScene(Batched):
         marking_y_m: np.ndarray,
         marking_is_edge: np.ndarray,
     ) -> SocialForceScene:
-        """Build a scene from batch-first arrays.
-
-        ``nbr_xy_m`` (B, N, F + 1, 2), index 0 = t = 0, or time chunks (B, N, F_i, 2) that concatenate to it (saves a
-        copy); ``nbr_valid`` (B, N, F + 1) likewise; sizes (B,) / (B, N); ``marking_y_m`` (B, M) ascending, NaN padded.
-        Non-finite neighbour samples become invalid, non-finite sizes and ego states 0.
-        """
+        """Build a scene from batch-first arrays. ``nbr_xy_m`` (B, N, F + 1, 2), index 0 = t = 0, or time chunks (B, N,
+        F_i, 2) that concatenate to it (saves a copy); ``nbr_valid`` (B, N, F + 1) likewise; sizes (B,) / (B, N);
+        ``marking_y_m`` (B, M) ascending, NaN padded. Non-finite neighbour samples become invalid, non-finite sizes and
+        ego states 0."""
         ego_xy = np.nan_to_num(np.asarray(ego_xy0_m, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
         ego_v = np.nan_to_num(np.asarray(ego_vxy0_mps, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
         b = ego_xy.shape[0]
@@ -184,8 +177,7 @@ def _step_major(
     xy_parts: list[np.ndarray], valid_parts: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Time chunks (B, N, F_i, 2) / (B, N, F_i) -> x, y (F + 1, N, B) float64 and valid; invalid or non-finite samples
-    get x = ``FAR_M``, y = 0.
-    """
+    get x = ``FAR_M``, y = 0."""
     b, n = xy_parts[0].shape[:2]
     total = sum(int(p.shape[2]) for p in xy_parts)
     nx = np.empty((total, n, b))
@@ -209,8 +201,7 @@ def _step_major(
 @dataclass(frozen=True)
 class ForceTerms:
     """Force components at one instant, each (B, 2) [m/s²]; ``total`` their sum, ``clamped`` the acceleration applied
-    (the no-reverse floor acts on the velocity and is not included).
-    """
+    (the no-reverse floor acts on the velocity and is not included)."""
 
     goal: np.ndarray
     preceding: np.ndarray
@@ -247,8 +238,7 @@ def _edge_push(side_m: np.ndarray, cutoff_m: np.ndarray, shift: np.ndarray) -> n
 
 class _Kernel:
     """Per-scenario constants of the force model and the forces at one instant: ego arrays (B,), neighbours (N, B),
-    lane lines (L, B).
-    """
+    lane lines (L, B)."""
 
     def __init__(self, scene: SocialForceScene, params: SocialForceParams, goals_xy_m: np.ndarray,
                  max_speed_mps: np.ndarray, dt_s: float, nbr_weights: np.ndarray | None = None) -> None:
@@ -362,8 +352,7 @@ def social_force_terms(
     max_speed_mps: float | np.ndarray | None = None,
 ) -> ForceTerms:
     """The force components on the ego in state ``ego_xy_m``, ``ego_vxy_mps`` (B, 2) at step ``step`` (t = step dt),
-    with the neighbours and remaining time of that step, for inspection.
-    """
+    with the neighbours and remaining time of that step, for inspection."""
     n = len(scene)
     goals = _goals(goals_xy_m, n)
     kernel = _Kernel(scene, as_params_batch(params, n), goals, _max_speed(max_speed_mps, scene, goals, dt_s), dt_s)
@@ -393,11 +382,9 @@ def rollout_social_force_scene(
     max_speed_mps: float | np.ndarray | None = None,
     nbr_weights: np.ndarray | None = None,
 ) -> RolloutResult:
-    """Roll the ego out for ``scene.n_steps`` steps of ``dt_s``.
-
-    ``params``: one set or a batch (B,); ``goals_xy_m`` (B, 2) [m]; ``max_speed_mps``: cap on v0, scalar or (B,)
-    (default ``default_max_speed_mps``); ``nbr_weights`` (B, N): multipliers of each neighbour's repulsion (GNP).
-    """
+    """Roll the ego out for ``scene.n_steps`` steps of ``dt_s``. ``params``: one set or a batch (B,); ``goals_xy_m`` (B,
+    2) [m]; ``max_speed_mps``: cap on v0, scalar or (B,) (default ``default_max_speed_mps``); ``nbr_weights`` (B, N):
+    multipliers of each neighbour's repulsion (GNP)."""
     n = len(scene)
     f = scene.n_steps
     goals = _goals(goals_xy_m, n)
@@ -451,7 +438,6 @@ def rollout_social_force(
     max_speed_mps: float | np.ndarray | None = None,
 ) -> RolloutResult:
     """Plan the ego of every scenario in ``batch`` towards ``goals_xy_m`` (B, 2) [m], given the neighbours' prediction
-    (B, N, F, ...) whose horizon F sets the plan's (usually 125).
-    """
+    (B, N, F, ...) whose horizon F sets the plan's (usually 125)."""
     scene = SocialForceScene.from_batch(batch, neighbours)
     return rollout_social_force_scene(scene, params, goals_xy_m, max_speed_mps=max_speed_mps)

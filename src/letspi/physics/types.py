@@ -17,8 +17,7 @@ from letspi.constants import DT_S
 class RolloutResult:
     """A planned ego trajectory per scenario (ego frame, float64): ``xy_m``, ``vxy_mps`` (B, F, 2) at t = (k + 1) dt;
     ``axy_mps2`` (B, F, 2) the acceleration applied during step k after all clamps, so that
-    ``vxy[k] = vxy[k - 1] + dt axy[k]`` exactly.
-    """
+    ``vxy[k] = vxy[k - 1] + dt axy[k]`` exactly."""
 
     xy_m: np.ndarray
     vxy_mps: np.ndarray
@@ -35,8 +34,7 @@ class RolloutResult:
 
 class NeighbourPrediction(NamedTuple):
     """Predicted neighbour trajectories (ego frame, float64): ``xy_m``, ``vxy_mps`` (B, N, F, 2) at t = (k + 1) dt, 0
-    where invalid; ``valid`` (B, N, F) bool (the slot is occupied and predictable).
-    """
+    where invalid; ``valid`` (B, N, F) bool (the slot is occupied and predictable)."""
 
     xy_m: np.ndarray
     vxy_mps: np.ndarray

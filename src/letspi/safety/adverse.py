@@ -1,16 +1,12 @@
 """Adverse futures: plausible events the (calm) neighbour prediction does not foresee, from the history only.
 
-``leader-brakes``: the nearest vehicle ahead within ``brake_range_m`` (bumper gap) in the ego's lane and in each
-adjacent lane brakes at ``brake_decel_mps2`` for ``brake_duration_s`` from t = 0, then keeps its speed.
-``cut-in``: an adjacent-lane vehicle whose mean lateral speed over the last ``lateral_window_s`` points towards
-the ego lane (>= ``cut_in_min_lateral_mps``) moves to the ego lane's centre at the larger of that speed and
-``cut_in_lateral_mps``, longitudinally as predicted. ``follower-keeps``: the vehicles behind the ego within
-``follower_range_m`` (its lane and the adjacent ones) keep their t = 0 speed instead of reacting. A future
-without an actor in a scene equals the base prediction there (``AdverseFutures.applies``). ``check_futures``
-runs the reflection's checks (``plan_check``) against the base and every adverse future;
-``FutureChecks.failed`` applies the laxer adverse thresholds: an adverse event may make a plan uncomfortable,
-not make it collide.
-"""
+``leader-brakes``: the nearest vehicle ahead within ``brake_range_m`` (bumper gap) in the ego's and each adjacent
+lane brakes at ``brake_decel_mps2`` for ``brake_duration_s`` from t = 0, then keeps its speed. ``cut-in``: an
+adjacent-lane vehicle whose mean lateral speed over the last ``lateral_window_s`` points to the ego lane (>=
+``cut_in_min_lateral_mps``) moves to its centre at the larger of that speed and ``cut_in_lateral_mps`` (x as
+predicted). ``follower-keeps``: vehicles behind within ``follower_range_m`` (ego and adjacent lanes) keep their
+t = 0 speed. A future without an actor equals the base (``AdverseFutures.applies``). ``FutureChecks.failed``
+applies laxer thresholds: an adverse event may make a plan uncomfortable, not make it collide."""
 
 from __future__ import annotations
 
@@ -65,8 +61,7 @@ class AdverseSettings(BaseModel):
 @dataclass(frozen=True)
 class AdverseFutures:
     """Adverse variants of a prediction: ``names`` (A,) in ``AdverseSettings.futures`` order; ``xy_m``, ``vxy_mps``
-    (A, B, N, F, 2) and ``valid`` (A, B, N, F); ``applies`` (A, B): the future differs from the base there.
-    """
+    (A, B, N, F, 2) and ``valid`` (A, B, N, F); ``applies`` (A, B): the future differs from the base there."""
 
     names: tuple[str, ...]
     xy_m: np.ndarray
@@ -98,8 +93,7 @@ def _recent_lateral_mps(batch: ScenarioBatch, window_s: float) -> np.ndarray:
 class _Scene:
     """What the futures are derived from: the base prediction (B, N, F, ...) and t = 0 states (B, N): ``x0``, ``y0``,
     ``vx0`` relative to the ego [m, m/s]; lane indices; ``near_lane`` (visible, in the ego's or an adjacent lane);
-    ``bumper_gap`` [m]; ``ego_centre`` (B, 1) the ego lane's centre y [m]; ``t`` (F,) the future instants [s].
-    """
+    ``bumper_gap`` [m]; ``ego_centre`` (B, 1) the ego lane's centre y [m]; ``t`` (F,) the future instants [s]."""
 
     xy: np.ndarray
     vxy: np.ndarray
@@ -199,21 +193,18 @@ def adverse_futures(batch: ScenarioBatch, base: NeighbourPrediction,
     sc = _scene(batch, base)
     variants = [_VARIANTS[name](sc, batch, s) for name in s.futures]
     mask = valid[None, ..., None]
-    return AdverseFutures(
-        names=tuple(str(x) for x in s.futures),
-        xy_m=np.where(mask, np.stack([v[0] for v in variants]), 0.0),
-        vxy_mps=np.where(mask, np.stack([v[1] for v in variants]), 0.0),
-        valid=np.repeat(valid[None], len(s.futures), axis=0),
-        applies=np.stack([v[2] for v in variants]).reshape(len(s.futures), len(batch)),
-    )
+    return AdverseFutures(names=tuple(str(x) for x in s.futures),
+                          xy_m=np.where(mask, np.stack([v[0] for v in variants]), 0.0),
+                          vxy_mps=np.where(mask, np.stack([v[1] for v in variants]), 0.0),
+                          valid=np.repeat(valid[None], len(s.futures), axis=0),
+                          applies=np.stack([v[2] for v in variants]).reshape(len(s.futures), len(batch)))
 
 
 @dataclass(frozen=True)
 class FutureChecks:
     """Plans checked against the base prediction (column 0, ``PREDICTED``) and each adverse future: ``names`` (1 + A,);
     (B, 1 + A) ``collision``, ``min_ttc_s``, ``min_rear_ttc_s``, ``min_path_gap_m``, ``contact_time_s`` (NaN without),
-    ``applies`` (column 0 always True); ``off_road`` (B,), the same in every future.
-    """
+    ``applies`` (column 0 always True); ``off_road`` (B,), the same in every future."""
 
     names: tuple[str, ...]
     off_road: np.ndarray
@@ -225,8 +216,8 @@ class FutureChecks:
     applies: np.ndarray
 
     def failed(self, settings: AdverseSettings) -> np.ndarray:
-        """(B, A) bool: the plan fails adverse future a (contact, TTC or in-path gap below the adverse
-        thresholds), only where the future applies."""
+        """(B, A) bool: the plan fails future a (contact, TTC or in-path gap below the adverse thresholds), where
+        it applies."""
         if self.collision.shape[1] == 1:
             return np.zeros((self.collision.shape[0], 0), dtype=bool)
         ttc = np.minimum(self.min_ttc_s[:, 1:], self.min_rear_ttc_s[:, 1:])

@@ -1,6 +1,5 @@
 """Safety of candidate plans against *predicted* neighbours (what a planner may know at t = 0), for ``sf-opt`` and
-LetsPi's reflection; the evaluation scores the chosen plan against the ground-truth futures instead.
-"""
+LetsPi's reflection; the evaluation scores the chosen plan against the ground-truth futures instead."""
 
 from __future__ import annotations
 
@@ -21,8 +20,7 @@ from letspi.scenario.types import ScenarioBatch
 class SafetyCheck:
     """(B,) each; steps and slots -1 for none. ``min_ttc_s`` / ``min_rear_ttc_s``: 1-D TTC with the vehicle ahead /
     behind in the ego's path (+inf if none closes in); ``min_path_gap_m``: smallest bumper gap to a vehicle in the
-    ego's path (lateral box overlap), ahead or behind: a "distance < 2 m" that ignores adjacent-lane passes.
-    """
+    ego's path (lateral box overlap), ahead or behind: a "distance < 2 m" that ignores adjacent-lane passes."""
 
     min_ttc_s: np.ndarray
     min_ttc_step: np.ndarray
@@ -39,13 +37,8 @@ class SafetyCheck:
 
     def safe(self, ttc_threshold_s: float, gap_threshold_m: float) -> np.ndarray:
         """(B,) bool: no contact, on the road, front and rear TTC and in-path gap above thresholds."""
-        return (
-            ~self.collision
-            & ~self.off_road
-            & (self.min_ttc_s >= ttc_threshold_s)
-            & (self.min_rear_ttc_s >= ttc_threshold_s)
-            & (self.min_path_gap_m >= gap_threshold_m)
-        )
+        return (~self.collision & ~self.off_road & (self.min_ttc_s >= ttc_threshold_s)
+                & (self.min_rear_ttc_s >= ttc_threshold_s) & (self.min_path_gap_m >= gap_threshold_m))
 
 
 def predicted_inputs(
@@ -53,8 +46,7 @@ def predicted_inputs(
     rows: np.ndarray | None = None,
 ) -> MetricInputs:
     """Metric inputs pairing plans (P, F, 2) with predicted neighbour futures (B, N, F, 2); ``rows`` (P,): the scenario
-    of each plan (candidates of one scenario share its neighbours), None: one plan per scenario.
-    """
+    of each plan (candidates of one scenario share its neighbours), None: one plan per scenario."""
     def per_plan(a: np.ndarray) -> np.ndarray:
         return a if rows is None else a[rows]
 
@@ -107,16 +99,7 @@ def _checks(inp: MetricInputs, marking_y_m: np.ndarray, marking_is_edge: np.ndar
     contact = np.asarray(boxes_overlap(inp).any(axis=(1, 2)), dtype=bool)
     leaves_road = off_road(inp.ego_xy_m[..., 1], inp.ego_width_m, marking_y_m, marking_is_edge)
     return SafetyCheck(
-        min_ttc_s=ttc.min_ttc_s,
-        min_ttc_step=ttc.min_ttc_step,
-        min_ttc_nbr=ttc.min_ttc_nbr,
-        min_rear_ttc_s=rear.min_ttc_s,
-        min_rear_ttc_step=rear.min_ttc_step,
-        min_rear_ttc_nbr=rear.min_ttc_nbr,
-        min_box_gap_m=gap_m,
-        min_gap_step=gap_step,
-        min_gap_nbr=gap_nbr,
-        min_path_gap_m=min_path_gap_m(inp),
-        collision=contact,
-        off_road=leaves_road,
-    )
+        min_ttc_s=ttc.min_ttc_s, min_ttc_step=ttc.min_ttc_step, min_ttc_nbr=ttc.min_ttc_nbr,
+        min_rear_ttc_s=rear.min_ttc_s, min_rear_ttc_step=rear.min_ttc_step, min_rear_ttc_nbr=rear.min_ttc_nbr,
+        min_box_gap_m=gap_m, min_gap_step=gap_step, min_gap_nbr=gap_nbr, min_path_gap_m=min_path_gap_m(inp),
+        collision=contact, off_road=leaves_road)

@@ -17,8 +17,7 @@ LANE_WIDTH_M = 3.75
 @dataclass(frozen=True)
 class VehicleSpec:
     """A neighbour on the straight road: ``x0_m`` its centre's x at t = 0 in the ego frame; ``lane_offset`` lanes to
-    the left of the ego's (+1 left, -1 right); ``y_offset_m`` a shift within the lane.
-    """
+    the left of the ego's (+1 left, -1 right); ``y_offset_m`` a shift within the lane."""
 
     x0_m: float
     speed_mps: float
@@ -59,11 +58,9 @@ def straight_road_scenario(
     ego_width_m: float = 1.8,
     scenario_id: str = "synthetic",
 ) -> ScenarioBatch:
-    """A batch of one driving-direction-2 scenario on ``n_lanes`` lanes; ``ego_lane_index`` 0 = rightmost lane.
-
-    The ego drives at its lane's centre; lane ids are HighD's for an ``n_lanes`` + ``n_lanes`` road. ``context``
-    vehicles are scored but never shown to a planner (future frames only, ids from 100).
-    """
+    """A batch of one driving-direction-2 scenario on ``n_lanes`` lanes; ``ego_lane_index`` 0 = rightmost lane. The ego
+    drives at its lane's centre; lane ids are HighD's for an ``n_lanes`` + ``n_lanes`` road. ``context`` vehicles are
+    scored but never shown to a planner (future frames only, ids from 100)."""
     if not 0 <= ego_lane_index < n_lanes:
         raise ValueError(f"ego_lane_index {ego_lane_index} outside 0..{n_lanes - 1}")
     if len(neighbours) > MAX_NEIGHBOURS:

@@ -44,8 +44,7 @@ _CLASS_CODES = {"Car": VEHICLE_CLASS_CAR, "Truck": VEHICLE_CLASS_TRUCK}
 @dataclass(frozen=True)
 class WindowIndex:
     """Which windows exist, before any are extracted; arrays (W,). ``start_frame`` is the HighD frame of the window's
-    first frame; t = 0 is ``start_frame + T0_INDEX``.
-    """
+    first frame; t = 0 is ``start_frame + T0_INDEX``."""
 
     recording_id: np.ndarray
     ego_id: np.ndarray
@@ -96,8 +95,7 @@ def critical_windows(
     """(W,) bool: whether each window's recorded *future* holds a conflict of its ego (for selecting scenarios only):
     a frame with HighD's ``ttc`` (> 0) below ``CRITICAL_TTC_S`` or DRAC = closing / (2 TTC) above
     ``CRITICAL_DRAC_MPS2``, or a scripted event (``events``: recording id -> ``NN_events.csv``) with the ego as
-    ``id`` or ``other_id`` starting at most ``EVENT_LEAD_FRAMES`` before t = 0.
-    """
+    ``id`` or ``other_id`` starting at most ``EVENT_LEAD_FRAMES`` before t = 0."""
     out = np.zeros(len(windows), dtype=bool)
     for rec in recordings:
         sel = np.flatnonzero(windows.recording_id == rec.recording_id)
@@ -137,8 +135,7 @@ def sample_windows(
     critical_share: float = 0.0,
 ) -> WindowIndex:
     """Up to ``max_n`` windows drawn without replacement by ``seed``: uniform (the paper), or with ``critical`` (W,) and
-    ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start).
-    """
+    ``critical_share`` F, round(F · max_n) of them critical; sorted by (recording, ego, start)."""
     if not 0.0 <= critical_share <= 1.0:
         raise ValueError(f"critical_share must be in [0, 1], got {critical_share}")
     n = len(windows)
@@ -193,8 +190,7 @@ class _RecordingArrays:
 
 
 def recording_key(rec: Recording) -> str:
-    """A short content hash of a recording (its meta and every vehicle's meta row): the same
-    recording gives the same key wherever it is read from, another recording another key."""
+    """A short content hash of a recording (its meta and every vehicle's meta row), wherever it is read from."""
     return recording_key_of(rec.meta, rec.tracks_meta)
 
 
@@ -251,9 +247,8 @@ class _WindowView:
 
 def _neighbours_and_context(arr: _RecordingArrays, view: _WindowView, is_ego: np.ndarray, ego_rows: np.ndarray,
                             direction: int) -> tuple[np.ndarray, np.ndarray]:
-    """Vehicle ids of the window's neighbours (same direction, present at t = 0 and within the radius
-    then; no later frame counts), nearest first, and of its context vehicles (the others present in
-    the future that come within ``CONTEXT_RADIUS_M`` of the ego's track), closest approach first."""
+    """Vehicle ids of the window's neighbours, nearest first, and of its context vehicles, closest approach first
+    (module doc)."""
     fr, vid = view.fr, view.vid
     ego_x_at, ego_y_at = view.ex[ego_rows], view.ey[ego_rows]
     dist = np.hypot(view.ex - ego_x_at[fr], view.ey - ego_y_at[fr])
@@ -413,8 +408,7 @@ def extract_scenarios(
     events: Mapping[int, pd.DataFrame | None] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> ScenarioBatch:
-    """All windows of the recordings, or ``max_scenarios`` of them sampled reproducibly by ``seed``
-    (uniformly, or with ``critical_share`` of them from windows with a conflict: ``sample_windows``)."""
+    """All windows of the recordings, or ``max_scenarios`` of them sampled by ``seed`` (``sample_windows``)."""
     every = enumerate_windows(recordings, stride_frames)
     critical = critical_windows(recordings, every, events) if critical_share > 0 else None
     windows = sample_windows(every, max_scenarios, seed, critical, critical_share)

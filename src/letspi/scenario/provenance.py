@@ -1,8 +1,7 @@
 """Where a scenario file's traffic came from, and the generator seeds the benchmark suites reserve.
 
 A scenario file's provenance records the ``NN_generation.json`` (with the generator seed) of every generated
-recording it was cut from. Seeds in ``SUITE_SEEDS`` make the suites' traffic; the commands that fit or label
-on scenarios refuse files made from them, so no published model has seen a suite's traffic.
+recording it was cut from; the commands that fit or label on scenarios refuse files made from ``SUITE_SEEDS``.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """Questions about scenarios that planners, metrics and prompts ask (vectorised over the batch).
 
-Relations use the ego-frame lanes (index between markings, 0 = rightmost, from the centre y):
-``preceding``/``following``: same lane, nearest ahead/behind by centre x; ``left``/``right``: the adjacent lane,
-nearest by |Δx| (ahead, alongside or behind).
+Relations use the ego-frame lanes (index between markings, 0 = rightmost, from the centre y): ``preceding`` /
+``following``: same lane, nearest ahead/behind by centre x; ``left``/``right``: the adjacent lane, nearest by |Δx|.
 """
 
 from __future__ import annotations
@@ -20,8 +19,7 @@ OFF_ROAD = -1
 
 def lane_index_of(marking_y_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
     """Lane index (0 = rightmost) of lateral positions ``y_m`` (B, ...), ``OFF_ROAD`` (-1) outside the road edges;
-    ``marking_y_m`` (B, M) ascending, NaN padded at the end. Returns ints shaped like ``y_m``.
-    """
+    ``marking_y_m`` (B, M) ascending, NaN padded at the end. Returns ints shaped like ``y_m``."""
     marking = np.asarray(marking_y_m, dtype=np.float64)
     y = np.asarray(y_m, dtype=np.float64)
     b = marking.shape[0]

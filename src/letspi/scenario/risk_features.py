@@ -82,8 +82,7 @@ def _observed(batch: ScenarioBatch, n_recent: int) -> _Observed:
 
 
 def _in_lane_features(o: _Observed) -> list[np.ndarray]:
-    """Leader (gap, closing, acceleration, headway, inverse TTC), second ahead (gap, closing,
-    acceleration), follower (gap, closing)."""
+    """Leader (gap, closing, acceleration, headway, inverse TTC), 2nd ahead (gap, closing, acceleration), follower."""
     rows = np.arange(len(o.x))
     lead, has_lead = _nearest(o.same & (o.x > 0), o.x)
     lead_gap = np.where(has_lead, o.gap[rows, lead], FAR_M)

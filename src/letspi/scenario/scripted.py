@@ -1,10 +1,9 @@
 """Which neighbours of a scenario act in a scripted event (``NN_events.csv``, ``letspi.highd.events``).
 
-In ``closed-loop-hybrid`` the actors of those events keep their recorded behaviour, so the event happens in every
-run. A neighbour slot is *scripted* when its vehicle is the actor (``id``) of an event under way in the window's
-future: starting no later than its last frame and ending (``duration_s`` + ``EVENT_TAIL_S`` after its start, for
-what follows the scripted part) no earlier than t = 0. The vehicle acted on (``other_id``) is not scripted: in
-the simulation it should answer what the ego does. Events match by ``recording_key``, as recording ids repeat.
+In ``closed-loop-hybrid`` the actors of those events keep their recorded behaviour. A neighbour slot is *scripted*
+when its vehicle is the actor (``id``, not ``other_id``) of an event under way in the window's future: starting no
+later than its last frame and ending (``duration_s`` + ``EVENT_TAIL_S`` after its start) no earlier than t = 0.
+Events match by ``recording_key``, as recording ids repeat.
 """
 
 from __future__ import annotations
@@ -39,8 +38,7 @@ def recording_events(directory: Path) -> dict[str, pd.DataFrame]:
 
 def scripted_neighbours(batch: ScenarioBatch, events: Mapping[str, pd.DataFrame]) -> np.ndarray:
     """(B, N) bool: neighbour slots whose vehicle acts in an event under way in the window's future; ``events``:
-    ``recording_key`` -> events table (``recording_events``).
-    """
+    ``recording_key`` -> events table (``recording_events``)."""
     out = np.zeros(batch.nbr_id.shape, dtype=bool)
     keys = np.asarray(batch.recording_key).astype(str)
     for key in np.unique(keys):

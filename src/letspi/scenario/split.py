@@ -1,8 +1,5 @@
-"""Train/test splits that keep one ego vehicle's windows on one side.
-
-A vehicle's windows overlap (stride 20 of 200 frames), so splitting them would leak evaluation futures into
-training: every split is by ego vehicle (recording, ego id) or by recording.
-"""
+"""Train/test splits by ego vehicle (recording, ego id) or by recording: a vehicle's windows overlap, so splitting
+them would leak evaluation futures into training."""
 
 from __future__ import annotations
 

@@ -32,8 +32,7 @@ _DAMAGE: Final = (pa.ArrowException, OSError, ValueError, KeyError, TypeError, I
 
 
 class ScenarioFileError(ValueError):
-    """A scenario file that cannot be read. ``path`` is the file, ``reason`` what is wrong;
-    the message is ``"<path>: <reason>"``."""
+    """A scenario file that cannot be read: ``path``, ``reason``; the message is ``"<path>: <reason>"``."""
 
     def __init__(self, path: Path | str, reason: str) -> None:
         self.path = Path(path)
@@ -51,8 +50,7 @@ def _corrupted(path: Path, detail: object) -> ScenarioFileError:
 
 def _column_crc(column: pa.Array | pa.ChunkedArray) -> int:
     """CRC-32 of a column's row count, null count and values (lists flattened, strings NUL-joined); the same for
-    Arrow and Parquet (which reads fixed-size lists back as plain lists).
-    """
+    Arrow and Parquet (which reads fixed-size lists back as plain lists)."""
     arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
     crc = zlib.crc32(f"{len(arr)}|{arr.null_count}".encode())
     if pa.types.is_fixed_size_list(arr.type) or pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type):

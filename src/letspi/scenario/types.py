@@ -48,8 +48,7 @@ class ScenarioBatch:
     laneId between markings k and k + 1 (0: padding). Context vehicles (scored, never shown to a planner; C slots padded
     to the widest; F = ``N_FUTURE`` frames, frame f at t = (f + 1) dt; C = 0 in a history-only view): ``ctx_id`` int32,
     ``ctx_class`` int8, ``ctx_length_m``, ``ctx_width_m`` float32 (B, C); ``ctx_xy_m``, ``ctx_vxy_mps`` (B, C, F, 2)
-    float32, NaN where absent; ``ctx_valid`` (B, C, F) bool.
-    """
+    float32, NaN where absent; ``ctx_valid`` (B, C, F) bool."""
 
     scenario_id: np.ndarray
     recording_id: np.ndarray
@@ -141,8 +140,7 @@ class ScenarioBatch:
 
     def history(self) -> ScenarioBatch:
         """What a planner may see: every per-frame array cut at t = 0 and no context vehicles. The future is absent, not
-        blanked, so code that reads it by mistake fails loudly.
-        """
+        blanked, so code that reads it by mistake fails loudly."""
         if not self.has_future:
             return self
         cut = {name: (getattr(self, name)[:, :N_HISTORY] if name.startswith("ego_")

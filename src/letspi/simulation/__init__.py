@@ -16,22 +16,8 @@ from letspi.simulation.spec import PlannerSpec, build_planner
 from letspi.simulation.store import ClosedLoopStore, ClosedLoopStoreError, run_closed_loop_to_dir
 
 __all__ = [
-    "CLOSED_LOOP_MODES",
-    "ClosedLoopChunk",
-    "ClosedLoopConfig",
-    "ClosedLoopStore",
-    "ClosedLoopStoreError",
-    "ClosedLoopWorkerError",
-    "DriverModelConfig",
-    "EvaluationMode",
-    "HandoverConfig",
-    "PeriodicReplanner",
-    "PlannerSpec",
-    "Replan",
-    "Replanner",
-    "build_planner",
-    "chunk_metrics",
-    "run_closed_loop",
-    "run_closed_loop_to_dir",
+    "CLOSED_LOOP_MODES", "ClosedLoopChunk", "ClosedLoopConfig", "ClosedLoopStore", "ClosedLoopStoreError",
+    "ClosedLoopWorkerError", "DriverModelConfig", "EvaluationMode", "HandoverConfig", "PeriodicReplanner",
+    "PlannerSpec", "Replan", "Replanner", "build_planner", "chunk_metrics", "run_closed_loop", "run_closed_loop_to_dir",
     "scored_batch",
-]
+]  # fmt: skip

@@ -1,8 +1,5 @@
-"""Settings of the closed-loop engine (typed, frozen; SI units in the names).
-
-``EvaluationMode`` names the four modes (docs/evaluation.md); ``open-loop`` is the harness's, and
-``ClosedLoopConfig``, the one closed-loop settings type (validated once, read by the engine alone), refuses it.
-"""
+"""Settings of the closed-loop engine (typed, frozen, validated once; SI units in the names). ``EvaluationMode``
+names the four modes (docs/evaluation.md); ``ClosedLoopConfig`` refuses ``open-loop``, the harness's."""
 
 from __future__ import annotations
 
@@ -64,10 +61,8 @@ class DriverModelConfig:
     def __post_init__(self) -> None:
         lo, hi = self.headway_bounds_s
         if not 0 < lo <= self.default_headway_s <= hi:
-            raise ValueError(
-                f"need 0 < headway_bounds_s[0] <= default_headway_s <= headway_bounds_s[1], "
-                f"got {self.headway_bounds_s}, {self.default_headway_s}"
-            )
+            raise ValueError(f"need 0 < headway_bounds_s[0] <= default_headway_s <= headway_bounds_s[1], "
+                             f"got {self.headway_bounds_s}, {self.default_headway_s}")
         if lo < DT_S:
             raise ValueError(f"headways below the step length ({DT_S} s) make SUMO brake unrealistically")
         if not 0.0 <= self.headway_quantile <= 1.0:
@@ -97,8 +92,7 @@ class HandoverConfig:
             raise ValueError(f"handover behind_m must be >= 0, got {self.behind_m}")
 
 
-#: scenarios per chunk: SUMO (one road each in one network; and LLM planners anywhere) and the log replay,
-#: whose planners are batched NumPy, faster per scenario in larger batches (``python -m benchmarks.speed closed-loop``)
+#: scenarios per chunk: SUMO (and LLM planners anywhere) and the log replay (batched NumPy: larger batches are faster)
 DEFAULT_CHUNK_SUMO: Final = 32
 DEFAULT_CHUNK_REPLAY: Final = 256
 
@@ -161,9 +155,8 @@ class ClosedLoopConfig:
         if self.chunk_size is not None and self.chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {self.chunk_size}")
         if self.lateral_resolution_m <= 0:
-            raise ValueError(
-                "lateral_resolution_m must be > 0 (the sublane model is required for SUMO's lateral collision check)"
-            )
+            raise ValueError("lateral_resolution_m must be > 0 (the sublane model is required for SUMO's lateral "
+                             "collision check)")
         if self.road_behind_m < 300 or self.road_ahead_m < 500:
             raise ValueError("the road must reach at least 300 m behind and 500 m ahead of the ego")
         if self.sumo_backend not in ("libsumo", "traci"):
@@ -191,8 +184,7 @@ class ClosedLoopConfig:
         return self if own == self.replan_s else replace(self, replan_s=own)
 
     def scenarios_per_chunk(self, dual_rate: bool = False) -> int:
-        """``chunk_size``, or ``DEFAULT_CHUNK_REPLAY`` for the replay (batched NumPy planners run faster in
-        larger batches), ``DEFAULT_CHUNK_SUMO`` with SUMO or a dual-rate LLM planner (``dual_rate``)."""
+        """``chunk_size``, else ``DEFAULT_CHUNK_SUMO`` with SUMO or a dual-rate LLM planner, else the replay's."""
         if self.chunk_size is not None:
             return self.chunk_size
         return DEFAULT_CHUNK_SUMO if self.uses_sumo or dual_rate else DEFAULT_CHUNK_REPLAY
@@ -211,9 +203,8 @@ class ClosedLoopConfig:
 def validate_replan_s(replan_s: float) -> float:
     """``replan_s`` if it is a usable replanning period [s], else ``ValueError``."""
     if not DT_S <= float(replan_s) <= N_FUTURE * DT_S:
-        raise ValueError(
-            f"replan_s must be between one frame ({DT_S} s) and the horizon ({N_FUTURE * DT_S:g} s), got {replan_s}"
-        )
+        raise ValueError(f"replan_s must be between one frame ({DT_S} s) and the horizon ({N_FUTURE * DT_S:g} s), "
+                         f"got {replan_s}")
     return float(replan_s)
 
 

@@ -11,14 +11,8 @@ from letspi.simulation.config import DriverModelConfig
 MIN_SPEED_FOR_HEADWAY_MPS = 1.0
 
 
-def estimate_driver_params(
-    xy_m: np.ndarray,
-    vx_mps: np.ndarray,
-    valid: np.ndarray,
-    length_m: np.ndarray,
-    width_m: np.ndarray,
-    config: DriverModelConfig,
-) -> tuple[np.ndarray, np.ndarray]:
+def estimate_driver_params(xy_m: np.ndarray, vx_mps: np.ndarray, valid: np.ndarray, length_m: np.ndarray,
+                           width_m: np.ndarray, config: DriverModelConfig) -> tuple[np.ndarray, np.ndarray]:
     """Desired speed [m/s] and time headway [s], two (K, V) float64 arrays, of every vehicle of K scenarios. xy_m:
     (K, V, H, 2) box centres over H history frames (NaN where absent); vx_mps: (K, V, H); valid: (K, V, H); length_m,
     width_m: (K, V). Every vehicle, the ego included, may be a leader."""
@@ -43,9 +37,8 @@ def estimate_driver_params(
     nearest = gap.min(axis=2)  # (K, V, H): bumper gap to the nearest in-path leader
     speed = np.where(np.isfinite(vx), vx, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        time_gap = np.where(
-            (speed > MIN_SPEED_FOR_HEADWAY_MPS) & np.isfinite(nearest) & (nearest > 0), nearest / speed, np.nan
-        )
+        time_gap = np.where((speed > MIN_SPEED_FOR_HEADWAY_MPS) & np.isfinite(nearest) & (nearest > 0),
+                            nearest / speed, np.nan)
     time_gap = np.where(time_gap < config.max_leader_gap_s, time_gap, np.nan)
     has = np.asarray(np.isfinite(time_gap).any(axis=-1))
     # rows without any observed gap get a constant (no all-NaN slice); they take the default below

@@ -17,16 +17,14 @@ from letspi.simulation.replan import FuturePolicy, PeriodicReplanner
 from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule, ReleasingPlanner
 
 RELEASED = "released_n"
-#: per-scenario columns the dual-rate replanner adds (each replan's value; the harness stores the first
-#: replan's and the mean over replans)
+#: per-scenario columns the dual-rate replanner adds (stored at t = 0 and as the mean over replans)
 OUTPUTS: tuple[Metric, ...] = (
     Metric(RELEASED, "n", "float64", "1 when a held preset gave way to the defaults at the replan (release); "
            "its mean over the replans is the share of the scenario's replans that released one", None),)
 
 
 class DualRateReplanner(PeriodicReplanner):
-    """LLM at the schedule's instants, physics every ``replan_every`` frames. ``concurrency``: LLM calls in
-    flight at once; ``close()`` drops calls still outstanding."""
+    """LLM at the schedule's instants (``concurrency`` in flight), physics every ``replan_every`` frames."""
 
     def __init__(self, planner: DualRatePlanner, batch: ScenarioBatch, replan_every: int, future: FuturePolicy,
                  config: DualRateConfig, *, concurrency: int = 1,
@@ -36,8 +34,7 @@ class DualRateReplanner(PeriodicReplanner):
         self.schedule = DualRateSchedule(planner, len(batch), config, concurrency, clock)
 
     def _plan(self, frame: int, view: ScenarioBatch) -> tuple[PlanBatch, dict[str, np.ndarray]]:
-        """Context, the proposals in force (the schedule makes the LLM calls due) and the physics; the
-        schedule's info and ``planner_cpu_ms`` (context and physics; the LLM calls are not in it)."""
+        """The physics on the proposals in force; the schedule's info and ``planner_cpu_ms`` (without LLM calls)."""
         k = len(self.batch)
         cpu0 = time.thread_time()
         context = self.planner.context(view)

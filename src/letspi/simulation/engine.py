@@ -2,9 +2,7 @@
 
 Every 0.04 s frame ``simulate_group`` runs ``_Lockstep``'s five steps: who drives, bookkeeping (log-driven vehicles
 are inserted one frame early: SUMO checks no collisions in an insertion step), the simulation step (``moveToXY``
-keepRoute 2: exact positions), the contact check and replanning. Vehicles are axis-aligned boxes as in the metrics;
-collisions are contact only, reported every frame an overlap lasts.
-"""
+keepRoute 2: exact positions), the contact check (boxes as in the metrics, contact only) and replanning."""
 
 from __future__ import annotations
 
@@ -56,7 +54,6 @@ class _Group:
         self.nbr_slot = np.tile(np.arange(-1, n), k)
         self.is_ego = self.nbr_slot < 0
         self.ego_rows = np.flatnonzero(self.is_ego)
-        self.nbr_rows = np.flatnonzero(~self.is_ego)
         self.length = np.concatenate([batch.ego_length_m[:, None], batch.nbr_length_m], axis=1).reshape(v).astype(float)
         self.width = np.concatenate([batch.ego_width_m[:, None], batch.nbr_width_m], axis=1).reshape(v).astype(float)
         ego_xy = batch.ego_xy_m.astype(np.float64)[:, None]
@@ -159,27 +156,23 @@ class _Lockstep:
         return _Drive(log=log, want_log=want_log, preroll=preroll, plan=g.is_ego & (f > T0_INDEX))
 
     def hand_over(self, f: int) -> None:
-        """Hand to SUMO's driver models the neighbours, recorded at frame f - 1 and still replayed,
-        that the mode releases: all of them (reactive; a late entrant one frame after it appears) or
-        those within the ego's reach, scripted actors excepted (hybrid)."""
+        """Hand replayed neighbours recorded at f - 1 to SUMO's drivers: all (reactive; a late entrant one frame
+        after it appears) or those within the ego's reach, scripted actors excepted (hybrid)."""
         g = self.g
         rows = np.flatnonzero(~g.is_ego & g.present & ~g.released & g.rec_valid[:, f - 1])
         if self.mode is EvaluationMode.HYBRID:
             rows = rows[~self.scripted[rows]]
         if self.mode is EvaluationMode.HYBRID and rows.size:
             ego = g.ego_rows[g.scn[rows]]
-            reach = within_reach(
-                g.rec_xy[ego, f - 1], g.length[ego], g.width[ego], g.rec_xy[rows, f - 1][:, None],
-                g.length[rows][:, None],
-                self.batch.marking_y_m[g.scn[rows]], self.config.handover,
-            )[:, 0]  # fmt: skip
+            marks = self.batch.marking_y_m[g.scn[rows]]
+            reach = within_reach(g.rec_xy[ego, f - 1], g.length[ego], g.width[ego], g.rec_xy[rows, f - 1][:, None],
+                                 g.length[rows][:, None], marks, self.config.handover)[:, 0]
             rows = rows[reach]
         if rows.size:
             self._release(rows, f)
 
     def _release(self, rows: np.ndarray, f: int) -> None:
-        """Driver parameters from the history up to frame f - 1, then SUMO takes ``rows`` over from
-        where they are, at the speed they had (position and speed stay continuous)."""
+        """Driver parameters from the history up to f - 1; SUMO takes ``rows`` over where and as fast as they were."""
         g = self.g
         scenarios = np.unique(g.scn[rows])
         hist = slice(0, f)
@@ -206,8 +199,8 @@ class _Lockstep:
         g.log_capped[rows] = capped
 
     def _cap_to_log(self, f: int) -> None:
-        """Log-capped vehicles: command their recorded speed of frame f (SUMO's safe speed may lower
-        it); once their log has ended, SUMO's driver model alone (speed mode back to all checks)."""
+        """Log-capped vehicles get their recorded speed of frame f (SUMO's safe speed may lower it); after their
+        log ends, SUMO's driver model alone."""
         g = self.g
         rows = np.flatnonzero(g.log_capped & g.present)
         if rows.size == 0:
@@ -383,29 +376,16 @@ def _chunk(sim: _Lockstep, plans: PlanLog, planner: Planner, replan_every: int, 
     fut = slice(T0_INDEX + 1, N_TOTAL)
     released_at = g.released_at.reshape(g.k, g.per)[:, 1:]
     return ClosedLoopChunk(
-        indices=np.arange(g.k),
-        scenario_id=np.asarray(sim.batch.scenario_id),
-        planner=str(planner.name),
-        mode=str(sim.mode.value),
-        replan_s=replan_every * DT_S,
-        ego_xy_m=states.ego_xy_m[:, fut].copy(),
-        ego_vxy_mps=states.ego_vxy_mps[:, fut].copy(),
-        nbr_xy_m=states.nbr_xy_m[:, :, fut].copy(),
-        nbr_vxy_mps=states.nbr_vxy_mps[:, :, fut].copy(),
-        nbr_valid=states.nbr_valid[:, :, fut].copy(),
-        nbr_lane_id=states.nbr_lane_id[:, :, fut].astype(np.int8),
+        indices=np.arange(g.k), scenario_id=np.asarray(sim.batch.scenario_id), planner=str(planner.name),
+        mode=str(sim.mode.value), replan_s=replan_every * DT_S,
+        ego_xy_m=states.ego_xy_m[:, fut].copy(), ego_vxy_mps=states.ego_vxy_mps[:, fut].copy(),
+        nbr_xy_m=states.nbr_xy_m[:, :, fut].copy(), nbr_vxy_mps=states.nbr_vxy_mps[:, :, fut].copy(),
+        nbr_valid=states.nbr_valid[:, :, fut].copy(), nbr_lane_id=states.nbr_lane_id[:, :, fut].astype(np.int8),
         nbr_handover_step=np.where(released_at >= 0, released_at - T0_INDEX - 1, -1),
-        replan_step=np.asarray(plans.frames, dtype=np.int64) - T0_INDEX,
-        plan_xy_m=plans.xy,
-        plan_goal_xy_m=plans.goals,
-        plan_nonfinite=sim.nonfinite,
-        sumo_contact=sim.contact,
-        sumo_nbr_collisions=sim.nbr_collisions,
-        plan_s=np.full(g.k, plans.plan_s / g.k),
-        sim_s=np.full(g.k, (wall_s - plans.plan_s) / g.k),
-        cpu_s=np.full(g.k, cpu_s / g.k),
-        plan_info=plans.info,
-    )
+        replan_step=np.asarray(plans.frames, dtype=np.int64) - T0_INDEX, plan_xy_m=plans.xy, plan_goal_xy_m=plans.goals,
+        plan_nonfinite=sim.nonfinite, sumo_contact=sim.contact, sumo_nbr_collisions=sim.nbr_collisions,
+        plan_s=np.full(g.k, plans.plan_s / g.k), sim_s=np.full(g.k, (wall_s - plans.plan_s) / g.k),
+        cpu_s=np.full(g.k, cpu_s / g.k), plan_info=plans.info)
 
 
 def _front_and_angle(

@@ -13,15 +13,8 @@ from letspi.scenario.queries import OFF_ROAD, lane_index_of
 from letspi.simulation.config import ClosedLoopConfig, HandoverConfig
 
 
-def within_reach(
-    ego_xy_m: np.ndarray,
-    ego_length_m: np.ndarray,
-    ego_width_m: np.ndarray,
-    nbr_xy_m: np.ndarray,
-    nbr_length_m: np.ndarray,
-    marking_y_m: np.ndarray,
-    config: HandoverConfig,
-) -> np.ndarray:
+def within_reach(ego_xy_m: np.ndarray, ego_length_m: np.ndarray, ego_width_m: np.ndarray, nbr_xy_m: np.ndarray,
+                 nbr_length_m: np.ndarray, marking_y_m: np.ndarray, config: HandoverConfig) -> np.ndarray:
     """(K, N) bool: neighbours behind the ego in a lane its box covers, or ``config.lanes`` lanes beside those.
     ego_xy_m: (K, 2) centres; ego_length_m, ego_width_m: (K,); nbr_xy_m: (K, N, 2) (NaN = absent: never within
     reach); nbr_length_m: (K, N); marking_y_m: (K, M) ascending, NaN padded. The ego covers the lanes its box
@@ -46,8 +39,7 @@ def within_reach(
 
 
 def scripted_summary(scripted_nbr: np.ndarray | None) -> dict[str, Any]:
-    """What of a run's scripted-neighbour mask (B, N) changes answers, for keys: the number of
-    scripted slots and a digest of the mask ("none" without a scripted slot)."""
+    """What of a scripted-neighbour mask (B, N) enters keys: scripted slots ``n`` and a ``digest`` ("none": none)."""
     if scripted_nbr is None or not np.any(scripted_nbr):
         return {"n": 0, "digest": "none"}
     mask = np.ascontiguousarray(np.asarray(scripted_nbr, dtype=bool))
@@ -56,6 +48,5 @@ def scripted_summary(scripted_nbr: np.ndarray | None) -> dict[str, Any]:
 
 
 def hybrid_settings(config: ClosedLoopConfig, scripted_nbr: np.ndarray | None) -> dict[str, Any]:
-    """The settings of ``closed-loop-hybrid`` that change answers (beside the driver model): the
-    hand-over rule and the scripted neighbours."""
+    """What of ``closed-loop-hybrid`` changes answers besides the driver model: hand-over rule, scripted neighbours."""
     return {"handover": asdict(config.handover), "scripted": scripted_summary(scripted_nbr)}

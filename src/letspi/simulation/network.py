@@ -119,35 +119,18 @@ def build_slot_network(directory: Path, widths: LayoutKey, n_slots: int, config:
     nodes, edges, routes = _write_inputs(directory, stem, widths, n_slots, config)
     tmp = directory / f"{stem}.{os.getpid()}.tmp.net.xml"
     cmd = [
-        sumo_binary("netconvert"),
-        "--node-files",
-        str(nodes),
-        "--edge-files",
-        str(edges),
-        "--output-file",
-        str(tmp),
-        "--offset.disable-normalization",
-        "true",
-        "--no-turnarounds",
-        "true",
-        "--no-warnings",
-        "true",
-        "--precision",
-        "6",
-    ]
+        sumo_binary("netconvert"), "--node-files", str(nodes), "--edge-files", str(edges), "--output-file", str(tmp),
+        "--offset.disable-normalization", "true", "--no-turnarounds", "true", "--no-warnings", "true",
+        "--precision", "6",
+    ]  # fmt: skip
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"netconvert failed ({proc.returncode}): {proc.stderr.strip()}")
     os.replace(tmp, net_file)
     _check_lanes(net_file, widths, n_slots, config.slot_spacing_m)
-    return SlotNetwork(
-        net_file=net_file,
-        route_file=routes,
-        widths_m=widths,
-        n_slots=n_slots,
-        x_origin_m=config.road_behind_m,
-        left_edge_y_m=np.arange(n_slots, dtype=np.float64) * config.slot_spacing_m,
-    )
+    return SlotNetwork(net_file=net_file, route_file=routes, widths_m=widths, n_slots=n_slots,
+                       x_origin_m=config.road_behind_m,
+                       left_edge_y_m=np.arange(n_slots, dtype=np.float64) * config.slot_spacing_m)
 
 
 class NetworkCache:

@@ -66,8 +66,8 @@ def follow_plans(
 
 
 def inside_simulated_area(xy: np.ndarray, road_y: np.ndarray, config: ClosedLoopConfig) -> np.ndarray:
-    """(K, S) whether planned positions (K, S, 2) lie in the simulated area: on the road's length and
-    within ``OFF_ROAD_MARGIN_M`` of its edges (further out SUMO cannot place a vehicle sensibly)."""
+    """(K, S) whether planned positions (K, S, 2) lie on the road's length and within ``OFF_ROAD_MARGIN_M`` of its
+    edges (further out SUMO cannot place a vehicle sensibly)."""
     x_ok = (xy[..., 0] > -config.road_behind_m + 50.0) & (xy[..., 0] < config.road_ahead_m - 50.0)
     y_ok = (xy[..., 1] > road_y[:, :1] - OFF_ROAD_MARGIN_M) & (xy[..., 1] < road_y[:, 1:] + OFF_ROAD_MARGIN_M)
     return np.asarray(x_ok & y_ok)

@@ -30,8 +30,7 @@ class ClosedLoopWorkerError(RuntimeError):
 
 
 def _worker_main(conn: Connection, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
-    """Entry point of a worker process: build once, then simulate chunks until told to stop. Ctrl-C
-    is the parent's; its SIGTERM closes SUMO and the temporary files, then ends the process at once."""
+    """A worker process: build once, simulate chunks until told to stop; SIGTERM closes SUMO, then exits at once."""
     run_worker(lambda: _serve(conn, planner_spec, config))
 
 
@@ -67,13 +66,8 @@ class _Slot:
     ready: bool = False
 
 
-def run_in_processes(
-    planner_spec: PlannerSpecLike,
-    tasks: list[ChunkTask],
-    config: ClosedLoopConfig,
-    workers: int,
-    max_restarts: int = 2,
-) -> Iterator[ClosedLoopChunk]:
+def run_in_processes(planner_spec: PlannerSpecLike, tasks: list[ChunkTask], config: ClosedLoopConfig, workers: int,
+                     max_restarts: int = 2) -> Iterator[ClosedLoopChunk]:
     """Simulate ``tasks`` on ``workers`` processes; yield chunks as they complete."""
     ctx = mp.get_context("spawn")
     pending: deque[ChunkTask] = deque(tasks)
@@ -82,9 +76,8 @@ def run_in_processes(
 
     def start() -> _Slot:
         parent, child = ctx.Pipe(duplex=True)
-        proc = ctx.Process(
-            target=_worker_main, args=(child, planner_spec, config), daemon=True, name="letspi-simulation-worker"
-        )
+        proc = ctx.Process(target=_worker_main, args=(child, planner_spec, config), daemon=True,
+                           name="letspi-simulation-worker")
         start_worker(proc)  # the terminal's Ctrl-C is the parent's to handle, not the worker's
         child.close()
         return _Slot(proc, parent)
@@ -105,10 +98,8 @@ def run_in_processes(
             pending.appendleft(slot.task)
         slot.conn.close()
         if restarts > max_restarts:
-            raise ClosedLoopWorkerError(
-                f"a closed-loop worker died (exit code {code}) and the restart budget "
-                f"({max_restarts}) is used up; rerun to resume"
-            )
+            raise ClosedLoopWorkerError(f"a closed-loop worker died (exit code {code}) and the restart budget "
+                                        f"({max_restarts}) is used up; rerun to resume")
         return start()
 
     remaining = len(tasks)
@@ -132,10 +123,8 @@ def run_in_processes(
                     slots[i].ready = True
                 elif kind == "done":
                     if slot.task is None or slot.task.task_id != ident:
-                        raise ClosedLoopWorkerError(
-                            f"worker returned chunk {ident}, expected "
-                            f"{None if slot.task is None else slot.task.task_id}"
-                        )
+                        raise ClosedLoopWorkerError(f"worker returned chunk {ident}, expected "
+                                                    f"{None if slot.task is None else slot.task.task_id}")
                     slot.task = None
                     remaining -= 1
                     yield payload
@@ -152,8 +141,8 @@ def run_in_processes(
 
 
 def _shut_down(slots: list[_Slot], finished: bool) -> None:
-    """A finished run tells its idle workers to exit and waits for them; a run that ends early
-    (Ctrl-C, an error, a consumer that stopped) terminates them at once, then kills any left."""
+    """A finished run asks its idle workers to exit and waits; one ended early (Ctrl-C, an error, a consumer that
+    stopped) terminates them at once, then kills any left."""
     if finished:
         for slot in slots:
             with contextlib.suppress(Exception):

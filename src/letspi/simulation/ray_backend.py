@@ -39,8 +39,7 @@ class RayChunkWorker:
 
 
 def ensure_ray(address: str, num_cpus: int) -> ModuleType:
-    """Ray, initialised: an existing instance as is; "local" starts one with ``num_cpus``. Ctrl-C shuts down what
-    this call started (``on_stop``)."""
+    """Ray, initialised: an existing instance as is; "local" starts one with ``num_cpus`` (shut down on Ctrl-C)."""
     ray = import_ray()
     if not ray.is_initialized():
         on_stop(ray.shutdown)  # before init: Ctrl-C during the start also ends what it started
@@ -51,14 +50,8 @@ def ensure_ray(address: str, num_cpus: int) -> ModuleType:
     return ray
 
 
-def run_on_ray(
-    planner_spec: PlannerSpecLike,
-    tasks: list[ChunkTask],
-    config: ClosedLoopConfig,
-    n_actors: int,
-    address: str,
-    max_restarts: int = 2,
-) -> Iterator[ClosedLoopChunk]:
+def run_on_ray(planner_spec: PlannerSpecLike, tasks: list[ChunkTask], config: ClosedLoopConfig, n_actors: int,
+               address: str, max_restarts: int = 2) -> Iterator[ClosedLoopChunk]:
     """Simulate ``tasks`` on ``n_actors`` Ray actors; yield chunks as they complete."""
     ray = ensure_ray(address, n_actors)
     actor_cls = ray.remote(num_cpus=1, max_restarts=max_restarts, max_task_retries=max_restarts)(RayChunkWorker)

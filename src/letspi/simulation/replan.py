@@ -103,16 +103,7 @@ def _shifted_fields(
     shift = frame - T0_INDEX
     hist = slice(0, T0_INDEX + 1)
     src_hist = slice(shift, frame + 1)
-    own = {
-        "ego_xy_m": sim.ego_xy_m,
-        "ego_vxy_mps": sim.ego_vxy_mps,
-        "ego_axy_mps2": sim.ego_axy_mps2,
-        "ego_lane_id": sim.ego_lane_id,
-        "nbr_xy_m": sim.nbr_xy_m,
-        "nbr_vxy_mps": sim.nbr_vxy_mps,
-        "nbr_valid": sim.nbr_valid,
-        "nbr_lane_id": sim.nbr_lane_id,
-    }
+    own = {f.name: getattr(sim, f.name) for f in fields(SimulatedStates)}
     out: dict[str, np.ndarray] = {}
     for f in fields(ScenarioBatch):
         arr = np.asarray(getattr(source, f.name))
@@ -138,8 +129,7 @@ def _shifted_fields(
 
 
 def _recentre(out: dict[str, np.ndarray], source: ScenarioBatch, centre: np.ndarray, shift: int) -> None:
-    """Move the view's positions with the ego (``centre`` (K, 2)), its markings with the ego's y,
-    and its first frame by ``shift`` (in place)."""
+    """Move the view's positions by the ego's ``centre`` (K, 2), its markings by its y, ``frame0`` by ``shift``."""
     for name, arr in out.items():
         if name.endswith("_xy_m"):
             shape = (len(centre),) + (1,) * (arr.ndim - 2) + (2,)
@@ -148,21 +138,12 @@ def _recentre(out: dict[str, np.ndarray], source: ScenarioBatch, centre: np.ndar
     out["frame0"] = (np.asarray(source.frame0) + shift).astype(source.frame0.dtype)
 
 
-# ------------------------------------------------------------------------------------------------
-# The replanning step
-# ------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Replan:
-    """Plans made at one frame for D of the K scenarios of a lockstep group.
-
-    Attributes:
-        rows: (D,) int positions (0..K-1) of the scenarios that got a plan.
-        xy_m, vxy_mps: (D, F, 2) plans in the *source* ego frame; point i is at frame + 1 + i.
-        goals_xy_m: (D, 2) their goals (source ego frame), NaN if none.
-        follow_until: (D,) int, the last frame each plan is followed (at most ``frame + F``, ``N_TOTAL - 1``).
-        info: per-scenario numbers of the planner (name -> (D,)); plan_s: planning wall time [s]."""
+    """Plans made at one frame for D of the K scenarios of a lockstep group: ``rows`` (D,) their positions 0..K-1;
+    ``xy_m``, ``vxy_mps`` (D, F, 2) in the *source* ego frame, point i at frame + 1 + i; ``goals_xy_m`` (D, 2), NaN
+    if none; ``follow_until`` (D,) the last frame each is followed (<= ``frame + F``, ``N_TOTAL - 1``); ``info``
+    name -> (D,); ``plan_s`` planning wall time [s]."""
 
     rows: np.ndarray
     xy_m: np.ndarray
@@ -228,8 +209,7 @@ class PeriodicReplanner:
         return self._frames
 
     def plans(self, frame: int, states: SimulatedStates) -> Replan | None:
-        """At a frame due: the planner's view from the simulated history, its plans (``_plan``), and the
-        ``Replan`` that brings them back to the simulation frame."""
+        """At a frame due: the planner's view of the simulated history, its plans, back in the simulation frame."""
         if frame not in self._due:
             return None
         t0 = time.perf_counter()
@@ -247,8 +227,8 @@ class PeriodicReplanner:
 
     def _replan(self, plan: PlanBatch, centre: np.ndarray, frame: int, extra_info: dict[str, np.ndarray],
                 plan_s: float) -> Replan:
-        """The ``Replan`` of a chunk's plans made in the ego-centred view: positions back to the
-        simulation frame, followed until the next replan; only 1-D numeric info kept (plan's + ``extra_info``)."""
+        """Plans made in the ego-centred view back in the simulation frame, followed until the next replan; only
+        1-D numeric info kept (the plan's and ``extra_info``)."""
         k = len(self.batch)
         if plan.xy_m.shape != (k, N_FUTURE, 2):
             raise ValueError(f"planner {self.planner.name!r} returned plans of shape {plan.xy_m.shape}, "

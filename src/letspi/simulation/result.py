@@ -76,11 +76,7 @@ class ClosedLoopChunk:
 
     def take(self, rows: np.ndarray) -> ClosedLoopChunk:
         """A subset of the scenarios (rows of this chunk)."""
-        per_row: dict[str, Any] = {
-            f.name: getattr(self, f.name)[rows]
-            for f in fields(self)
-            if f.name not in _PER_RUN
-        }
+        per_row: dict[str, Any] = {f.name: getattr(self, f.name)[rows] for f in fields(self) if f.name not in _PER_RUN}
         return replace(self, **per_row, plan_info={k: v[rows] for k, v in self.plan_info.items()})
 
     @staticmethod
@@ -89,16 +85,10 @@ class ClosedLoopChunk:
         if not parts:
             raise ValueError("nothing to concatenate")
         first = parts[0]
-        per_row: dict[str, Any] = {
-            f.name: np.concatenate([getattr(p, f.name) for p in parts])
-            for f in fields(first)
-            if f.name not in _PER_RUN
-        }
-        info = {
-            k: np.concatenate([p.plan_info[k] for p in parts])
-            for k in first.plan_info
-            if all(k in p.plan_info for p in parts)
-        }
+        per_row: dict[str, Any] = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
+                                   for f in fields(first) if f.name not in _PER_RUN}
+        info = {k: np.concatenate([p.plan_info[k] for p in parts])
+                for k in first.plan_info if all(k in p.plan_info for p in parts)}
         return replace(first, **per_row, plan_info=info)
 
 
@@ -107,15 +97,10 @@ def scored_batch(batch: ScenarioBatch, chunk: ClosedLoopChunk) -> ScenarioBatch:
     future is kept, so ADE/FDE stay distances to the log."""
     sub = batch.take(np.asarray(chunk.indices))
     fut = slice(T0_INDEX + 1, T0_INDEX + 1 + chunk.ego_xy_m.shape[1])
-    nbr_xy = sub.nbr_xy_m.copy()
-    nbr_v = sub.nbr_vxy_mps.copy()
-    nbr_valid = sub.nbr_valid.copy()
-    nbr_lane = sub.nbr_lane_id.copy()
-    nbr_xy[:, :, fut] = chunk.nbr_xy_m
-    nbr_v[:, :, fut] = chunk.nbr_vxy_mps
-    nbr_valid[:, :, fut] = chunk.nbr_valid
-    nbr_lane[:, :, fut] = chunk.nbr_lane_id
-    return replace(sub, nbr_xy_m=nbr_xy, nbr_vxy_mps=nbr_v, nbr_valid=nbr_valid, nbr_lane_id=nbr_lane)
+    nbr = {name: getattr(sub, name).copy() for name in ("nbr_xy_m", "nbr_vxy_mps", "nbr_valid", "nbr_lane_id")}
+    for name, arr in nbr.items():
+        arr[:, :, fut] = getattr(chunk, name)
+    return replace(sub, **nbr)
 
 
 def chunk_metrics(batch: ScenarioBatch, chunk: ClosedLoopChunk, config: MetricsConfig | None = None) -> ScenarioMetrics:

@@ -15,15 +15,9 @@ from letspi.simulation.spec import PlannerSpecLike, runs_dual_rate, spec_name
 from letspi.simulation.worker import ChunkWorker, make_tasks
 
 
-def run_closed_loop(
-    planner_spec: PlannerSpecLike,
-    batch: ScenarioBatch,
-    config: ClosedLoopConfig | None = None,
-    *,
-    indices: Sequence[int] | np.ndarray | None = None,
-    max_worker_restarts: int = 2,
-    scripted_nbr: np.ndarray | None = None,
-) -> Generator[ClosedLoopChunk, None, None]:
+def run_closed_loop(planner_spec: PlannerSpecLike, batch: ScenarioBatch, config: ClosedLoopConfig | None = None, *,
+                    indices: Sequence[int] | np.ndarray | None = None, max_worker_restarts: int = 2,
+                    scripted_nbr: np.ndarray | None = None) -> Generator[ClosedLoopChunk, None, None]:
     """Simulate ``batch`` (or its rows ``indices``) closed loop; yield ``ClosedLoopChunk``s in completion order,
     chunks of one lane layout. Close the generator to stop workers at once (``contextlib.closing``). planner_spec: a
     ``PlannerSpec`` (built in each worker) or a ``BuiltPlanner`` (used as is). config: default

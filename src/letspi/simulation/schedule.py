@@ -52,8 +52,7 @@ class DualRateConfig:
 
     @property
     def period_frames(self) -> float:
-        """LLM period in frames (not rounded: calls are made at the first replan at or after each
-        multiple of it, so a 2.5 s period asks at t = 0 and at the first replan from 2.5 s on)."""
+        """LLM period in frames, not rounded (a call at the first replan at or after each multiple of it)."""
         return self.llm_period_s / DT_S
 
     @property
@@ -62,8 +61,8 @@ class DualRateConfig:
         return math.ceil((self.llm_latency_s or 0.0) / DT_S - 1e-9)
 
     def identity(self, releasing: bool = True) -> dict[str, Any]:
-        """What joins a planner's key in closed loop: the period and the fixed latency or ``measured``; the
-        release mode only for a planner that holds presets (``releasing``), the one it changes."""
+        """What joins a planner's key in closed loop: period, fixed latency or ``measured``, and the release mode
+        for a planner that holds presets (``releasing``)."""
         latency: float | str = "measured" if self.llm_latency_s is None else round(float(self.llm_latency_s), 6)
         out: dict[str, Any] = {"llm_period_s": round(float(self.llm_period_s), 6), "llm_latency_s": latency}
         if releasing and self.release != "off":  # absent when off: the keys made before release existed
@@ -73,8 +72,7 @@ class DualRateConfig:
 
 @runtime_checkable
 class DualRatePlanner(ProposingPlanner, Protocol):
-    """A ``ProposingPlanner`` that can say what is in force before its first answer. Which planners the
-    closed loop runs dual-rate is their kind's ``dual_rate`` in the planner table."""
+    """A ``ProposingPlanner`` that says what is in force before its first answer (run so: kind's ``dual_rate``)."""
 
     def default_proposals(self, batch: ScenarioBatch) -> Proposals: ...
 
@@ -132,7 +130,6 @@ class DualRateSchedule:
         if self.concurrency < 1:
             raise ValueError(f"concurrency must be >= 1, got {self.concurrency}")
 
-    # -- public ------------------------------------------------------------------------------------
     def step(self, step: int, view: ScenarioBatch, context: PlanningContext) -> tuple[Proposals, dict[str, np.ndarray]]:
         if len(view) != self.k:
             raise ValueError(f"DualRateSchedule of {self.k} scenarios got a view of {len(view)}")
@@ -157,8 +154,8 @@ class DualRateSchedule:
         return Proposals.concat(rows), info
 
     def finish(self, info: dict[str, np.ndarray]) -> None:
-        """At the last replan: count the calls whose answers came too late to take effect (those that
-        finished with their own counts, those still running as one call each). Nothing waits."""
+        """At the last replan, count the calls answered too late to take effect (finished: their own counts;
+        running: one call each). Nothing waits."""
         for call in self._calls:
             if call.future is None:
                 continue  # fixed latency: counted when the call was made
@@ -174,7 +171,6 @@ class DualRateSchedule:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
-    # -- calls -------------------------------------------------------------------------------------
     def _propose_one(self, view: ScenarioBatch, context: PlanningContext, row: int) -> Proposals:
         return self.planner.propose(view.take([row]), context.take([row]))
 

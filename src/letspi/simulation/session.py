@@ -43,34 +43,13 @@ def import_traci() -> ModuleType:
 def sumo_arguments(net: SlotNetwork, config: ClosedLoopConfig) -> list[str]:
     """Command-line options of every closed-loop simulation (without the binary)."""
     return [
-        "--net-file",
-        str(net.net_file),
-        "--route-files",
-        str(net.route_file),
-        "--begin",
-        "0",
-        "--step-length",
-        f"{DT_S}",
-        "--lateral-resolution",
-        f"{config.lateral_resolution_m}",
+        "--net-file", str(net.net_file), "--route-files", str(net.route_file), "--begin", "0",
+        "--step-length", f"{DT_S}", "--lateral-resolution", f"{config.lateral_resolution_m}",
         # physical contact only (mingap factor 0); keep colliding vehicles so both sides are scored
-        "--collision.mingap-factor",
-        "0",
-        "--collision.action",
-        "warn",
-        "--collision.check-junctions",
-        "false",
-        "--time-to-teleport",
-        "-1",
-        "--seed",
-        "0",
-        "--no-step-log",
-        "true",
-        "--no-warnings",
-        "true",
-        "--duration-log.disable",
-        "true",
-    ]
+        "--collision.mingap-factor", "0", "--collision.action", "warn", "--collision.check-junctions", "false",
+        "--time-to-teleport", "-1", "--seed", "0", "--no-step-log", "true", "--no-warnings", "true",
+        "--duration-log.disable", "true",
+    ]  # fmt: skip
 
 
 class SumoSession:
@@ -100,10 +79,8 @@ class SumoSession:
         else:
             libsumo = import_libsumo()
             if libsumo.simulation.isLoaded():
-                raise SumoSessionError(
-                    "libsumo already runs a simulation in this process (one per process): "
-                    "close the other session, or run closed loop in worker processes"
-                )
+                raise SumoSessionError("libsumo already runs a simulation in this process (one per process): "
+                                       "close the other session, or run closed loop in worker processes")
             libsumo.start([sumo_binary("sumo"), *args])
             self.api = libsumo
         self._started = True

@@ -66,8 +66,7 @@ def spec_name(spec: PlannerSpecLike) -> str:
 
 
 def reads_recorded_future(spec: PlannerSpecLike) -> bool:
-    """Whether the planner reads the recorded future (from the table): it then sees the log's future
-    (shifted to each replanning instant) instead of NaN."""
+    """Whether the planner sees the log's future (shifted to each replan) instead of NaN (from the table)."""
     return spec.reads_future if isinstance(spec, BuiltPlanner) else spec.table().reads_future(spec.config)
 
 

@@ -38,8 +38,7 @@ def _named(name: str, unit: str, dtype: str, doc: str, *aggregates: Agg) -> Metr
     return Metric(name, unit, dtype, doc, AS_NAMED, tuple(aggregates))  # type: ignore[arg-type]
 
 
-#: per-replan values the closed loop adds to every planner's outputs (``letspi.simulation.replan``,
-#: ``letspi.simulation.schedule``); stored like outputs, at t = 0 and as the mean over the replans
+#: per-replan values the closed loop adds to every planner's outputs (stored at t = 0 and as the mean over replans)
 REPLAN_OUTPUTS: tuple[Metric, ...] = (
     output("planner_cpu_ms", "ms", "float64", "CPU time of the replan per scenario (model calls included)"),
     output("llm_in_force", "bool", "float64", "dual rate: 1 once a model answer is in force"),
@@ -114,10 +113,8 @@ class ClosedLoopStore:
         if run_file.exists():
             old = json.loads(run_file.read_text())
             if old != record:
-                raise ClosedLoopStoreError(
-                    f"{self.directory} holds another closed-loop run ({old}); this one is {record}: "
-                    "use another directory or delete it"
-                )
+                raise ClosedLoopStoreError(f"{self.directory} holds another closed-loop run ({old}); this one is "
+                                           f"{record}: use another directory or delete it")
         else:
             tmp = run_file.with_name("run.json.tmp")
             tmp.write_text(json.dumps(record, indent=2))
@@ -131,13 +128,8 @@ class ClosedLoopStore:
     ) -> ClosedLoopStore:
         """``mode_settings``: what else of the mode changes answers (``closed-loop-hybrid``: hand-over
         rule and scripted neighbours); absent from the record when None."""
-        record: dict[str, object] = {
-            "planner": planner,
-            "mode": mode,
-            "replan_s": round(float(replan_s), 6),
-            "n_scenarios": len(batch),
-            "fingerprint": scenario_fingerprint(batch.scenario_id),
-        }
+        record: dict[str, object] = {"planner": planner, "mode": mode, "replan_s": round(float(replan_s), 6),
+                                     "n_scenarios": len(batch), "fingerprint": scenario_fingerprint(batch.scenario_id)}
         if mode_settings:
             record["mode_settings"] = mode_settings
         return cls(directory, record)
@@ -187,15 +179,8 @@ class ClosedLoopStore:
                 arrays = {name: z[name] for name in _TRAJ_FIELDS if name in z.files}
                 if "nbr_handover_step" not in arrays:  # written before hand-overs were recorded
                     arrays["nbr_handover_step"] = np.full(arrays["nbr_valid"].shape[:2], -1, dtype=np.int64)
-                chunks.append(
-                    ClosedLoopChunk(
-                        planner=str(self.record["planner"]),
-                        mode=str(self.record["mode"]),
-                        replan_s=float(str(self.record["replan_s"])),
-                        plan_info=info,
-                        **arrays,
-                    )
-                )
+                chunks.append(ClosedLoopChunk(planner=str(self.record["planner"]), mode=str(self.record["mode"]),
+                                              replan_s=float(str(self.record["replan_s"])), plan_info=info, **arrays))
         if not chunks:
             raise FileNotFoundError(f"{self.directory} holds no closed-loop chunks yet")
         return ClosedLoopChunk.concat(chunks)

@@ -25,8 +25,7 @@ from letspi.simulation.spec import PlannerSpecLike, build_planner, reads_recorde
 
 @dataclass(frozen=True)
 class ChunkTask:
-    """One unit of work: scenarios ``indices`` of the run's batch, already taken (``batch``), and their
-    scripted neighbour slots (``scripted_nbr`` (K, N) bool, None = none)."""
+    """One unit of work: scenarios ``indices`` of the run's batch, taken (``batch``); ``scripted_nbr`` (K, N) bool."""
 
     task_id: int
     indices: np.ndarray
@@ -53,16 +52,14 @@ def plan_chunks(
 
 
 def llm_concurrency(planner: Planner) -> int:
-    """LLM calls a dual-rate planner keeps in flight at once: its backend's default
-    (``letspi.llm.spec.default_concurrency``: 1 for the embedded model), 1 without an LLM."""
+    """LLM calls a dual-rate planner keeps in flight: its backend's ``default_concurrency``, 1 without an LLM."""
     advisor = planner.advisor if isinstance(planner, ModelPlanner) else None
     return default_concurrency(advisor.backend.spec) if isinstance(advisor, ParamAdvisor) else 1
 
 
 def replanner_for(planner: Planner, batch: ScenarioBatch, config: ClosedLoopConfig, future: FuturePolicy,
                   dual_rate: bool = False) -> Replanner:
-    """The replanning step of a lockstep group: dual rate for the LLM planners (``dual_rate``, from the
-    planner table; timing in ``config.dual_rate``), else the whole planner every ``replan_s``."""
+    """The replanning step of a lockstep group: dual rate (``config.dual_rate``) if ``dual_rate``, else periodic."""
     if dual_rate:
         if not isinstance(planner, DualRatePlanner):
             raise TypeError(f"planner {planner.name!r} runs dual-rate but is no DualRatePlanner (its table entry "
@@ -104,8 +101,7 @@ def simulate_chunk(
 
 
 class ChunkWorker:
-    """A planner and a SUMO session, built once, simulating chunk after chunk (one per process); the
-    session starts SUMO at its first chunk, so the replay never starts it."""
+    """A planner and a SUMO session (started at its first SUMO chunk), built once per process, chunk after chunk."""
 
     def __init__(self, planner_spec: PlannerSpecLike, config: ClosedLoopConfig) -> None:
         self.config = config
@@ -125,8 +121,7 @@ def make_tasks(
     batch: ScenarioBatch, config: ClosedLoopConfig, indices: Sequence[int] | np.ndarray | None = None,
     scripted_nbr: np.ndarray | None = None, dual_rate: bool = False,
 ) -> list[ChunkTask]:
-    """The run's chunks (``config.scenarios_per_chunk(dual_rate)`` scenarios at most: ``dual_rate`` for an LLM
-    planner); ``scripted_nbr`` (B, N) bool rows follow their scenarios."""
+    """The run's chunks (``config.scenarios_per_chunk(dual_rate)`` scenarios at most); ``scripted_nbr`` (B, N)."""
     if scripted_nbr is not None and np.shape(scripted_nbr) != (len(batch), batch.n_neighbours):
         raise ValueError(f"scripted_nbr must be (B, N) = {(len(batch), batch.n_neighbours)}, "
                          f"got {np.shape(scripted_nbr)}")

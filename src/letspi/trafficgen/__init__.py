@@ -1,3 +1,2 @@
-"""HighD-format recordings of a two-direction highway simulated with SUMO; entry point
-``letspi.trafficgen.generate.generate_highd``. Nothing is imported here: a module that needs only the SUMO
-binaries (``letspi.trafficgen.binaries``) does not load the generator."""
+"""HighD-format recordings of a two-direction highway simulated with SUMO (``generate.generate_highd``); nothing
+is imported here, so ``letspi.trafficgen.binaries`` loads alone."""

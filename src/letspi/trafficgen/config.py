@@ -1,10 +1,7 @@
-"""Typed configuration of generated traffic: drivers, scripted events, road layout; presets.
+"""Typed configuration of generated traffic (drivers, scripted events, road layout) and its presets.
 
-A ``TrafficConfig`` is everything that shapes the traffic besides seed, duration, lanes and flow; the presets
-``calm``, ``highd`` (default), ``stress`` and ``realistic`` are instances. ``with_overrides`` changes any field by
-dotted key (``letspi data generate --set events.hard_brake_per_min=2``). Ranges are ``(low, high)`` tuples of
-uniform draws; construction validates and names the offending field.
-"""
+``with_overrides`` sets any field by dotted key (``--set events.hard_brake_per_min=2``). Ranges are ``(low, high)``
+tuples of uniform draws; construction validates and names the offending field."""
 
 from __future__ import annotations
 
@@ -82,10 +79,8 @@ class DriverConfig:
 
 @dataclass(frozen=True)
 class EventConfig:
-    """Scripted events injected through libsumo; rates are per simulated minute on the whole window (both directions).
-
-    An event starts on a vehicle in the upstream part of the recorded window, so that it and its consequences are
-    recorded. Ranges are drawn per event.
+    """Scripted events injected through libsumo; rates are per simulated minute on the whole window (both directions),
+    ranges drawn per event.
 
     Attributes:
         hard_brake_*: rate; deceleration [m/s²], duration [s] and hold of the lower speed [s]; the minimum speed the
@@ -99,8 +94,7 @@ class EventConfig:
             built up at this jerk [m/s³], until it no longer closes in; then SUMO takes over.
         release_decel_mps2, release_gap_m: a held follower is released at once when avoiding contact would need more
             than this constant deceleration [m/s²] (leaving SUMO's 9 m/s² emergency deceleration a margin), or when
-            its gap drops below this [m].
-    """
+            its gap drops below this [m]."""
 
     hard_brake_per_min: float = 3.0
     hard_brake_decel_mps2: tuple[float, float] = (4.0, 8.0)
@@ -148,13 +142,11 @@ class EventConfig:
 
 @dataclass(frozen=True)
 class LayoutConfig:
-    """Road layout; only the main carriageway is recorded (HighD has no ramps).
-
-    ``kind``: ``straight``; ``on_ramp`` (a one-lane ramp feeds a 250 m acceleration lane right of the carriageway);
-    ``lane_drop`` (one more lane upstream, the right one ends). ``aux_lane_m``: where that lane ends, from the window
-    entry [m]. ``ramp_share``: share of each direction's flow entering from the ramp. ``lc_strategic``: every
-    driver's LC2013 ``lcStrategic`` on those layouts (SUMO's 1 makes drivers leave an ending lane far upstream).
-    """
+    """Road layout; only the main carriageway is recorded (HighD has no ramps). ``kind``: ``straight``; ``on_ramp`` (a
+    one-lane ramp feeds a 250 m acceleration lane right of the carriageway); ``lane_drop`` (one more lane upstream, the
+    right one ends). ``aux_lane_m``: where that lane ends, from the window entry [m]. ``ramp_share``: share of each
+    direction's flow entering from the ramp. ``lc_strategic``: every driver's LC2013 ``lcStrategic`` on those layouts
+    (SUMO's 1 makes drivers leave an ending lane far upstream)."""
 
     kind: Layout = "straight"
     aux_lane_m: float = 300.0
@@ -171,11 +163,8 @@ class LayoutConfig:
 
 @dataclass(frozen=True)
 class TrafficConfig:
-    """Everything that shapes the generated traffic besides seed, duration, lanes and flow.
-
-    ``name``: the preset it derives from (informative); ``truck_share``: of the demand; ``max_attempts``: simulations
-    tried (the seed, then derived sub-seeds) until one has no contact.
-    """
+    """Everything that shapes the generated traffic besides seed, duration, lanes and flow; ``name``: its preset
+    (informative); ``max_attempts``: simulations tried (the seed, then derived sub-seeds) until one has no contact."""
 
     name: str = "highd"
     drivers: DriverConfig = field(default_factory=DriverConfig)
@@ -207,8 +196,7 @@ STRESS = TrafficConfig(
                        hard_brake_decel_mps2=(5.0, 8.0), hard_brake_max_headway_s=1.2,
                        cut_in_ttc_s=(0.4, 3.0)),
 )
-#: Calibrated against highD's published marginals (docs/data.md, "The realistic preset"): LC2013's eagerness
-#: to overtake and to keep right scaled down, no impatient drivers, few events, trucks 17 %, cars' headway 1.1 s.
+#: calibrated against highD's published marginals (docs/data.md, "The realistic preset")
 REALISTIC = TrafficConfig(
     name="realistic",
     drivers=DriverConfig(car_headway_s=(1.1, 0.3), impatient_share=0.0, lc_speed_gain_scale=0.008,
@@ -229,7 +217,6 @@ def traffic_preset(name: str) -> TrafficConfig:
 
 
 def _parse_value(text: str, current: object, key: str) -> object:
-    """Parse ``text`` into the type of the field's current value."""
     try:
         if isinstance(current, bool):
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
@@ -251,11 +238,8 @@ def _parse_value(text: str, current: object, key: str) -> object:
 
 
 def with_overrides(config: TrafficConfig, overrides: Mapping[str, str]) -> TrafficConfig:
-    """``config`` with dotted-key overrides applied (``{"events.cut_in_per_min": "3"}``).
-
-    ValueError for an unknown key (listing the valid ones) or a value of the wrong type or out of range (naming the
-    key).
-    """
+    """``config`` with dotted-key overrides (``{"events.cut_in_per_min": "3"}``); ValueError naming an unknown key
+    (listing the valid ones) or a value of the wrong type or out of range."""
     out = config
     for key, text in overrides.items():
         path = key.strip().split(".")

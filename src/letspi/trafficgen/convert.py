@@ -1,11 +1,8 @@
-"""SUMO FCD -> HighD ``states``/``vehicles`` frames (image axes, top-left box corner).
+"""SUMO FCD (front-bumper centre, y up) -> HighD ``states``/``vehicles`` frames (image axes, top-left box corner).
 
-SUMO's FCD ``x, y`` is the front-bumper centre, y up; image x = SUMO x - window start, image y = ``image_y_ref_m``
-- SUMO y. The box centre lies half a length behind the front along the heading of the smoothed front trajectory;
-velocities and accelerations are central differences of the written centres (consistent with the positions).
-SUMO's constant-speed lateral lane-change ramps are re-timed with a quintic smootherstep between the same
-start/end instants and lanes (zero lateral speed and acceleration at both ends).
-"""
+The box centre lies half a length behind the front along the smoothed heading; velocities and accelerations are
+central differences of the written centres. SUMO's linear lateral lane-change ramps become quintic smootherstep
+ones between the same instants (zero lateral speed and acceleration at both ends)."""
 
 from __future__ import annotations
 
@@ -26,11 +23,9 @@ _REST_TOL_M = 1e-3  # a vehicle within 1 mm of a lane centre is not changing lan
 
 @dataclass(frozen=True)
 class ImageTracks:
-    """All vehicles over the whole simulation in HighD image axes, before window clipping.
-
-    ``data``: ``step`` (time / 0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²],
-    ``drivingDirection``, ``class``; sorted by (sumo_id, step).
-    """
+    """All vehicles over the whole simulation in HighD image axes, before window clipping. ``data``: ``step`` (time /
+    0.04 s), ``sumo_id``, the HighD box [m] and motion columns [m/s, m/s²], ``drivingDirection``, ``class``; sorted by
+    (sumo_id, step)."""
 
     data: pd.DataFrame
 
@@ -42,12 +37,10 @@ def _smootherstep(f: np.ndarray) -> np.ndarray:
 
 def smooth_lane_changes(t: np.ndarray, y: np.ndarray, vehicle: np.ndarray,
                         centres: np.ndarray) -> np.ndarray:
-    """Replace SUMO's linear lateral ramps by quintic ones between the same anchor samples.
-
-    ``t`` (N,) [s] sorted within each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of
-    one vehicle contiguous; ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed
-    (N,) y; ramps touching a vehicle's first or last row (no anchor at rest) stay unchanged.
-    """
+    """Replace SUMO's linear lateral ramps by quintic ones between the same anchor samples. ``t`` (N,) [s] sorted within
+    each vehicle; ``y`` (N,) SUMO y of the front [m]; ``vehicle`` (N,) int code, rows of one vehicle contiguous;
+    ``centres`` (N, n_lanes) lane-centre y [m] of the row's carriageway. Returns the smoothed (N,) y; ramps touching a
+    vehicle's first or last row (no anchor at rest) stay unchanged."""
     out = y.copy()
     moving = np.min(np.abs(y[:, None] - centres), axis=1) > _REST_TOL_M
     if not moving.any():
@@ -95,10 +88,8 @@ def _box_centres(fx: np.ndarray, fy: np.ndarray, t: np.ndarray, first: np.ndarra
 
 
 def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNetwork) -> ImageTracks:
-    """Convert SUMO FCD (``read_fcd``: front centre, y up) to HighD image-axis boxes with derivatives.
-
-    ``specs`` give each vehicle's dimensions, class (vans become "Car") and direction.
-    """
+    """SUMO FCD (``read_fcd``) as HighD image-axis boxes with derivatives; ``specs``: each vehicle's dimensions,
+    class (vans become "Car") and direction."""
     spec_table = pd.DataFrame({
         "sumo_id": [s.vid for s in specs],
         "length": [s.length_m for s in specs],
@@ -118,8 +109,7 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
     last = np.r_[vehicle[1:] != vehicle[:-1], True]
     east = df["east"].to_numpy(bool)
     length = df["length"].to_numpy(np.float64)
-    # Lanes a vehicle can rest on (main and auxiliary), so that merges from an acceleration
-    # lane are smoothed like any lane change.
+    # main and auxiliary lanes: merges from an acceleration lane are smoothed like any lane change
     centres = np.where(east[:, None], network.smoothing_centres(True)[None, :],
                        network.smoothing_centres(False)[None, :])
 
@@ -155,13 +145,11 @@ def fcd_to_image(fcd: pd.DataFrame, specs: list[VehicleSpec], network: HighwayNe
 def clip_to_window(tracks: ImageTracks, *, first_step: int, n_steps: int, window_m: float,
                    upper_y_m: tuple[float, float] | None = None,
                    lower_y_m: tuple[float, float] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Cut one recording out of the image tracks.
-
-    A vehicle is recorded in the steps ``[first_step, first_step + n_steps)`` where its whole box is in ``[0,
-    window_m]`` along x and (when the bands are given) its centre on its main carriageway; only its first contiguous run
-    is kept, single frames are dropped. Frames and ids start at 1, ids ordered by first frame, direction, x. Returns
-    ``states`` (``STATE_COLUMNS``, sorted by (id, frame)) and ``vehicles`` (``id, class, drivingDirection, sumo_id``).
-    """
+    """Cut one recording out of the image tracks. A vehicle is recorded in the steps ``[first_step, first_step +
+    n_steps)`` where its whole box is in ``[0, window_m]`` along x and (when the bands are given) its centre on its main
+    carriageway; only its first contiguous run is kept, single frames are dropped. Frames and ids start at 1, ids
+    ordered by first frame, direction, x. Returns ``states`` (``STATE_COLUMNS``, sorted by (id, frame)) and ``vehicles``
+    (``id, class, drivingDirection, sumo_id``)."""
     d = tracks.data
     inside = ((d["step"] >= first_step) & (d["step"] < first_step + n_steps)
               & (d["x"] >= 0.0) & (d["x"] + d["width"] <= window_m))

@@ -1,10 +1,5 @@
-"""Traffic demand: per-vehicle SUMO types (car / van / truck) and seeded arrivals per lane and direction.
-
-Every vehicle gets its own ``vType`` (dimensions and driver parameters vary as in real data); one numpy generator
-seeded by the caller is the only randomness (SUMO runs with sigma = 0). Car following is EIDM with its
-driver-error processes off, lane changing LC2013 with per-driver eagerness, cooperativeness and assertiveness.
-Vans are simulated as vans but labelled "Car", as HighD labels them.
-"""
+"""Traffic demand: one SUMO ``vType`` per vehicle (car / van / truck; EIDM without driver error, LC2013) and seeded
+arrivals per lane and direction; the caller's numpy generator is the only randomness (SUMO runs with sigma = 0)."""
 
 from __future__ import annotations
 
@@ -32,8 +27,7 @@ jams form."""
 @dataclass(frozen=True)
 class DemandConfig:
     """Demand: ``truck_share`` and ``van_share`` of all vehicles; ``min_headway_s`` [s] between insertions on one lane
-    plus an exponential rest (shifted-exponential free-flow arrivals); ``drivers``: per-driver behaviour.
-    """
+    plus an exponential rest (shifted-exponential free-flow arrivals); ``drivers``: per-driver behaviour."""
 
     truck_share: float = 0.15
     van_share: float = 0.08
@@ -43,14 +37,11 @@ class DemandConfig:
 
 @dataclass(frozen=True)
 class VehicleSpec:
-    """One vehicle to insert (all units SI).
-
-    SUMO ``vid``, ``kind``, ``route``; ``east`` (HighD direction 2); insertion ``lane`` (0 = rightmost) and
-    ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0 as ``accel_mps2``,
-    ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``, ``lcCooperative``,
-    ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead`` (``lc_lookahead_s``, 0 = SUMO's
-    default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``.
-    """
+    """One vehicle to insert (all units SI). SUMO ``vid``, ``kind``, ``route``; ``east`` (HighD direction 2); insertion
+    ``lane`` (0 = rightmost) and ``depart_s``; ``desired_speed_mps`` = desiredMaxSpeed · speedFactor; (E)IDM a, b, T, s0
+    as ``accel_mps2``, ``decel_mps2``, ``headway_s``, ``min_gap_m``; LC2013 ``lcSpeedGain``, ``lcKeepRight``,
+    ``lcCooperative``, ``lcAssertive`` (required gaps are divided by it) and ``lcSpeedGainLookahead``
+    (``lc_lookahead_s``, 0 = SUMO's default); EIDM ``treaction`` (``reaction_time_s``) and ``epsilonacc``."""
 
     vid: str
     kind: Kind
@@ -102,11 +93,7 @@ def _clipped_normal(rng: np.random.Generator, mean: float, sd: float, lo: float,
 
 
 def _sample_vehicle(rng: np.random.Generator, kind: Kind, drivers: DriverConfig) -> dict[str, float | bool]:
-    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters of one vehicle of a class.
-
-    Heterogeneous on purpose, as HighD shows: desired headways from 0.6 s to 2.1 s, a wide spread of desired speeds,
-    lane-change styles from cooperative to assertive.
-    """
+    """Dimensions [m], desired speed [m/s], EIDM and LC2013 parameters of one vehicle of a class."""
     if kind == "truck":
         params = _truck_params(rng)
     elif kind == "van":
@@ -214,10 +201,8 @@ def sample_demand(
     end_s: float,
     config: DemandConfig | None = None,
 ) -> list[VehicleSpec]:
-    """All vehicles of all ``entries`` (route, direction, lanes, flow share), departing before ``end_s`` [s].
-
-    ``flow_veh_per_h`` is per direction; ``rng`` is the only randomness. Returns specs ordered by (depart_s, vid).
-    """
+    """All vehicles of all ``entries`` departing before ``end_s`` [s], ordered by (depart_s, vid);
+    ``flow_veh_per_h`` is per direction."""
     cfg = config or DemandConfig()
     specs: list[VehicleSpec] = []
     counter = 0

@@ -1,16 +1,9 @@
-"""Scripted critical events and lane-change perception, injected through libsumo while stepping.
-
-Kinds (knobs in ``EventConfig``): ``hard_brake`` (a leader with a close follower brakes hard, ``slowDown`` under
-speed mode 27, holds, then drives on); ``cut_in`` (a car changes into a gap before a faster follower,
-``changeLane`` under lane-change mode 256); ``truck_pullout`` (a truck leaves the right lane the same way).
-Lane-change perception holds the closing follower of *every* lane change into the window until the changer's
-centre crosses into its lane, plus its reaction time (``reactions``).
+"""Scripted critical events (``hard_brake``, ``cut_in``, ``truck_pullout``; knobs in ``EventConfig``) and lane-change
+perception (the closing follower of every lane change into the window is held, ``reactions``), through libsumo.
 
 Timing: ``on_step(t)`` gets SUMO's current time t, that of the next step (the vehicles are in the state of step
 t - 0.04 s); commands act in step t, which is recorded as the event time. Events start only on lane-centred,
-steady vehicles in no other event, in the upstream part of the window; candidates are drawn in id order with
-the injector's own seeded generator.
-"""
+steady vehicles in no other event, in the upstream part of the window, drawn with the injector's own generator."""
 
 from __future__ import annotations
 
@@ -63,12 +56,10 @@ class Window:
 @dataclass(frozen=True)
 class EventRecord:
     """One injected event in simulation terms (converted to HighD ids and frames when written, as ``NN_events.csv``).
-
     ``time_s``: first time it acts [s]; ``kind`` (``failed``: a lane change SUMO did not carry out, never written);
     ``actor``, ``other``: SUMO ids; ``lane``, ``target_lane``: main-lane indices (0 = rightmost); ``target_speed_mps``
     and ``decel_mps2`` are NaN for lane changes; ``reaction_s`` is 0 when followers are not held; ``held_s``: how long
-    the follower kept its speed; ``other_decel_mps2``: NaN when SUMO's car following takes over at once.
-    """
+    the follower kept its speed; ``other_decel_mps2``: NaN when SUMO's car following takes over at once."""
 
     time_s: float
     kind: str
@@ -114,10 +105,8 @@ class _Pending:
 
 @dataclass
 class EventInjector:
-    """Schedules and runs the scripted events and lane-change perception of one simulation.
-
-    After every ``simulationStep`` whose end time ``t`` is >= ``next_wakeup()``, call ``on_step(t)``.
-    """
+    """The scripted events and lane-change perception of one simulation: after every ``simulationStep`` whose end
+    time ``t`` is >= ``next_wakeup()``, call ``on_step(t)``."""
 
     sim: Any  # the libsumo module
     config: EventConfig
@@ -130,8 +119,7 @@ class EventInjector:
     records: list[EventRecord] = field(default_factory=list)
     perceived_lane_changes: int = 0
     _due: dict[str, float] = field(default_factory=dict)
-    # When the pending event of a kind was meant to start: the next one is drawn from there, so
-    # waiting for a suitable vehicle does not lower the configured rate.
+    # when each kind's pending event was meant to start: the next is drawn from there, keeping the rate
     _intended: dict[str, float] = field(default_factory=dict)
     _pending: list[_Pending] = field(default_factory=list)
     _busy_until: dict[str, float] = field(default_factory=dict)
@@ -227,7 +215,6 @@ class EventInjector:
             self._verify_lane_change(p)
 
     def _verify_lane_change(self, p: _Pending) -> None:
-        """Mark the record of a forced lane change that SUMO did not carry out as failed."""
         k = int(p.value)
         rec = self.records[k]
         _, y = self.sim.vehicle.getPosition(p.vehicle)
@@ -290,8 +277,7 @@ class EventInjector:
     @staticmethod
     def _lane_neighbours(snap: _Snapshot, i: int, lane: int) -> tuple[int, int, bool]:
         """In ``lane`` of vehicle i's carriageway: (row entirely behind i, row entirely ahead, someone overlapping i
-        along the road); rows are -1 when there is none.
-        """
+        along the road); rows are -1 when there is none."""
         same = (snap.east == snap.east[i]) & (snap.lane == lane) & (np.arange(len(snap.ids)) != i)
         rows = np.flatnonzero(same)
         if len(rows) == 0:

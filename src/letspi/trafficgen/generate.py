@@ -1,14 +1,8 @@
-"""Generate HighD-format recordings of a two-direction highway with SUMO.
+"""Generate HighD-format recordings of a two-direction highway with SUMO: ``network`` -> ``demand`` -> ``simulate``
+with ``events`` -> ``convert`` -> ``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording``.
 
-Pipeline: ``network`` -> ``demand`` -> ``simulate`` with ``events`` -> ``convert`` (image axes, 420 m window) ->
-``letspi.highd.derive.build_recording`` -> ``letspi.highd.io.write_recording`` and ``NN_events.csv``. Recording
-starts after ``warmup_s``, and every vehicle drives ``approach_m`` before the window, so it arrives settled.
-Equal seeds give identical files (seeded demand and events, SUMO with sigma = 0 and one thread).
-
-No contact, ever: a run with a SUMO collision (physical contact only) or any overlapping boxes in the written
-window is re-simulated with a sub-seed (``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; when all
-have contact, generation fails naming the seed and the contacts.
-"""
+No contact, ever: a run with a SUMO collision or overlapping boxes in the window is re-simulated with a sub-seed
+(``derived_seed``), up to ``TrafficConfig.max_attempts`` runs; then generation fails naming the seed and contacts."""
 
 from __future__ import annotations
 
@@ -62,14 +56,11 @@ def derived_seed(seed: int, attempt: int) -> int:
 
 @dataclass
 class SimulatedRecordings:
-    """Everything a generation run produced in memory, before writing.
-
-    ``chunks``: one ``(states, vehicles)`` per recording (``clip_to_window``); ``first_steps``: the simulation step of
-    each recording's frame 1; ``events``: per recording, in HighD frames but with SUMO ids and lane indices;
-    ``collisions``: SUMO's in the accepted run (always empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the
-    accepted one (0 = the seed); ``rejected``: why each earlier one was. The network's ``net_file`` is deleted after the
-    run.
-    """
+    """Everything a generation run produced in memory, before writing. ``chunks``: one ``(states, vehicles)`` per
+    recording (``clip_to_window``); ``first_steps``: the simulation step of each recording's frame 1; ``events``: per
+    recording, in HighD frames but with SUMO ids and lane indices; ``collisions``: SUMO's in the accepted run (always
+    empty); ``sim_*_time_s``: all attempts [s]; ``attempt``: the accepted one (0 = the seed); ``rejected``: why each
+    earlier one was; ``network.net_file`` is deleted."""
     network: HighwayNetwork
     chunks: list[tuple[pd.DataFrame, pd.DataFrame]] = field(default_factory=list)
     first_steps: list[int] = field(default_factory=list)
@@ -145,10 +136,8 @@ def simulate_recordings(
     ssm_file: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulatedRecordings:
-    """Simulate and cut recordings in memory (no derived columns); see ``generate_highd``.
-
-    ``ssm_file``: every vehicle carries SUMO's SSM device writing there (the accepted attempt's output remains).
-    """
+    """Simulate and cut recordings in memory (no derived columns; see ``generate_highd``); ``ssm_file``: SUMO's SSM
+    device output of the accepted attempt."""
     _check_request(minutes, lanes_per_direction, recording_minutes)
     cfg = traffic or traffic_preset("highd")
     geo = geometry or HighwayGeometry()
@@ -207,7 +196,6 @@ def _timeline(minutes: float, warmup_s: float, recording_minutes: float | None) 
 
 def _accept(result: SimulatedRecordings, attempt: int, sim: SimulationResult,
             chunks: list[tuple[pd.DataFrame, pd.DataFrame]], starts: list[int], lengths: list[int]) -> None:
-    """Keep a contact-free attempt's recordings and events in ``result``."""
     result.chunks = chunks
     result.first_steps = list(starts)
     result.events = [_event_table(sim.events, s, n) for s, n in zip(starts, lengths, strict=True)]
@@ -265,11 +253,9 @@ def _highd_events(table: pd.DataFrame, vehicles: pd.DataFrame, states: pd.DataFr
 
 @dataclass(frozen=True)
 class GenerationReport:
-    """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took.
-
-    Wall and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
-    ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception.
-    """
+    """What ``generate_highd`` wrote (``paths``: the ``NN_recordingMeta.csv`` files in order) and how long it took. Wall
+    and SUMO times [s] cover all attempts; ``attempt`` (accepted) and ``rejected`` as in ``SimulatedRecordings``;
+    ``failed_events``: forced lane changes SUMO refused; ``perceived_lane_changes``: followers held by perception."""
 
     paths: list[Path]
     simulated_minutes: float
@@ -327,15 +313,13 @@ def generate_highd(
     traffic: TrafficConfig | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> GenerationReport:
-    """Simulate a two-direction highway and write HighD-format recordings into ``out_dir`` (created if missing).
+    """Simulate a two-direction highway and write HighD-format recordings (``NN_tracks.csv``, ``NN_tracksMeta.csv``,
+    ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png``, ``NN_generation.json``) into ``out_dir``.
 
     ``minutes`` are recorded after a 90 s warm-up; equal seeds give identical files; ``flow_veh_per_h`` per
-    direction defaults to about 733 per lane; ``recording_minutes`` splits the run into consecutive recordings
-    (vehicles crossing a split are cut); ``criticality`` names a preset, ignored when ``traffic`` is given. Writes
-    ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv``, ``NN_events.csv``, ``NN_highway.png`` and
-    ``NN_generation.json`` (NN = 01, 02, ...): a 420 m window in which a vehicle is recorded while its whole box is
-    inside and its centre on the main carriageway; no speed limit (speedLimit -1).
-    """
+    direction defaults to about 733 per lane; ``recording_minutes`` splits the run (vehicles crossing a split are
+    cut); ``criticality`` names a preset, ignored when ``traffic`` is given. A vehicle is recorded while its whole
+    box is inside the 420 m window and its centre on the main carriageway; no speed limit (speedLimit -1)."""
     started = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

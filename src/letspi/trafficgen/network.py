@@ -1,11 +1,8 @@
-"""Two-direction highway built with SUMO's ``netconvert`` from plain XML, in three layouts.
+"""Two-direction highway built with SUMO's ``netconvert`` from plain XML, in the three layouts of ``LayoutConfig``.
 
 SUMO coordinates, y **up**: eastbound lanes (edges "E…", HighD direction 2) below y = 0, westbound ("W…",
-direction 1) above the median; both drive ``approach_m`` before the recorded window in the middle. ``on_ramp``
-adds a ramp joining an acceleration lane, ``lane_drop`` an extra right lane upstream; both end ``aux_lane_m`` past
-the window entry. Only the **main carriageway** (the n lanes through the whole window) is recorded; lane
-positions are read back from the ``.net.xml`` (netconvert may shift coordinates).
-"""
+direction 1) above the median. Only the main carriageway is recorded; lane positions are read back from the
+``.net.xml`` (netconvert may shift coordinates)."""
 
 from __future__ import annotations
 
@@ -19,8 +16,6 @@ import numpy as np
 from letspi.trafficgen.binaries import sumo_binary
 from letspi.trafficgen.config import LayoutConfig
 
-EASTBOUND_EDGE = "E"  # HighD drivingDirection 2 (towards +x, lower lanes): first edge of the route
-WESTBOUND_EDGE = "W"  # HighD drivingDirection 1 (towards -x, upper lanes)
 ACCEL_LANE_M = 250.0  # total length of the acceleration lane (on_ramp)
 _RAMP_M = 250.0  # ramp length before the acceleration lane
 _RAMP_OFFSET_M = 30.0  # lateral distance of the ramp start from the road edge
@@ -29,12 +24,10 @@ _RAMP_SPEED_MPS = 27.8  # 100 km/h on the ramp
 
 @dataclass(frozen=True)
 class HighwayGeometry:
-    """Design parameters of the generated highway [m, m/s].
-
-    ``lanes_per_direction`` (2 or 3); ``median_m``: between the inner road edges; ``approach_m``: driven before the
-    window per direction; ``window_m``: HighD's is about 420 m; ``lane_speed_mps``: high, so vehicles keep their own
-    desired speed; ``image_top_m``: image y of the upper road edge.
-    """
+    """Design parameters of the generated highway [m, m/s]. ``lanes_per_direction`` (2 or 3); ``median_m``: between the
+    inner road edges; ``approach_m``: driven before the window per direction; ``window_m``: HighD's is about 420 m;
+    ``lane_speed_mps``: high, so vehicles keep their own desired speed; ``image_top_m``: image y of the upper road
+    edge."""
 
     lanes_per_direction: int = 3
     lane_width_m: float = 3.75
@@ -52,8 +45,7 @@ class HighwayGeometry:
 @dataclass(frozen=True)
 class Entry:
     """Where traffic is inserted: ``route`` id, ``east`` (HighD direction 2), ``n_lanes`` (index 0 = rightmost),
-    ``flow_share`` of the direction's flow, ``ramp``.
-    """
+    ``flow_share`` of the direction's flow, ``ramp``."""
 
     route: str
     east: bool
@@ -64,13 +56,11 @@ class Entry:
 
 @dataclass(frozen=True)
 class HighwayNetwork:
-    """The generated network as read back from the ``.net.xml`` (in a temporary directory).
-
-    Image x = SUMO x - ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main
-    lane centres (index 0 = rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``);
-    ``upper/lower_markings_y_m``: image y of the main carriageways' markings, ascending, road edges included;
-    ``routes``: route id -> edges; ``entries``: where traffic is inserted.
-    """
+    """The generated network as read back from the ``.net.xml`` (in a temporary directory). Image x = SUMO x -
+    ``window_x0_m``; image y = ``image_y_ref_m`` - SUMO y. ``*_centres_y_m``: SUMO y of the main lane centres (index 0 =
+    rightmost); ``*_aux_y_m``: of the auxiliary lane (NaN for ``straight``); ``upper/lower_markings_y_m``: image y of
+    the main carriageways' markings, ascending, road edges included; ``routes``: route id -> edges; ``entries``: where
+    traffic is inserted."""
 
     net_file: Path
     geometry: HighwayGeometry
@@ -221,9 +211,7 @@ def _netconvert(directory: Path, geometry: HighwayGeometry, plan: _Plan) -> Path
 
 
 def build_network(directory: Path, geometry: HighwayGeometry, layout: LayoutConfig | None = None) -> HighwayNetwork:
-    """Write the plain XML of ``geometry`` and ``layout`` (default straight) into ``directory``, run netconvert and read
-    the lanes back: the network with its SUMO -> HighD image transform.
-    """
+    """Build the network of ``geometry`` and ``layout`` (default straight) in ``directory`` and read it back."""
     lay = layout or LayoutConfig()
     plan = _plan(geometry, lay)
     net_file = _netconvert(directory, geometry, plan)

@@ -1,12 +1,7 @@
-"""Driver reaction for SUMO followers: keep speed until perception + reaction, then brake, then release.
-
-SUMO's EIDM reacts within one step and sees a lane changer from the first moment of its change; human drivers
-see a braking leader at once but act after their reaction time, and see a changer when its centre crosses into
-their lane. ``Reactions`` imposes that through libsumo: **hold** the speed (speed mode 30, no own lane changes),
-optionally **brake** on a jerk-limited ramp until no longer closing in, then **release** to SUMO. A follower is
-released at once when avoiding contact would need more than ``release_decel_mps2`` (``required_decel``) or its
-gap falls below ``release_gap_m``.
-"""
+"""Driver reaction for SUMO followers (``Reactions``, through libsumo): **hold** the speed (speed mode 30, no own
+lane changes) until perception + reaction, optionally **brake** on a jerk-limited ramp until no longer closing in,
+then **release** to SUMO; at once when avoiding contact would need more than ``release_decel_mps2``
+(``required_decel``) or the gap falls below ``release_gap_m``."""
 
 from __future__ import annotations
 
@@ -29,12 +24,9 @@ _T_GRID = np.arange(1, 301) * STEP_S  # 12 s horizon, (T,)
 
 def required_decel(gap_m: float, v_f_mps: float, v_l_mps: float, d_l_mps2: float, v_l_end_mps: float,
                    margin_m: float = 1.0) -> float:
-    """Smallest constant deceleration [m/s²] that keeps a follower ``margin_m`` behind its leader.
-
-    The leader brakes at ``d_l_mps2`` from ``v_l_mps`` to ``v_l_end_mps`` and keeps that speed; the follower brakes from
-    ``v_f_mps`` to the leader's final speed. On a grid (0.25 m/s² steps up to 12, 12 s at 0.04 s): 0 when no braking
-    is needed, 12.25 when 12 is not enough.
-    """
+    """Smallest constant deceleration [m/s²] (0.25 steps; 0: none needed, 12.25: 12 is not enough) keeping a follower
+    braking from ``v_f_mps`` to the leader's final speed ``margin_m`` behind a leader braking at ``d_l_mps2`` from
+    ``v_l_mps`` to ``v_l_end_mps`` (12 s horizon)."""
     t = _T_GRID
     if d_l_mps2 > 0.0:
         t_b = max(0.0, (v_l_mps - v_l_end_mps) / d_l_mps2)
@@ -54,11 +46,9 @@ def required_decel(gap_m: float, v_f_mps: float, v_l_mps: float, d_l_mps2: float
 
 @dataclass
 class Hold:
-    """One follower under imposed reaction.
-
-    Held from ``start_s`` until ``react_at_s`` (perception + reaction), then braking at ``brake_decel_mps2`` when > 0,
-    else released; ``leader_*``: a scripted braking leader's plan; ``on_release`` gets the time it kept its speed [s].
-    """
+    """One follower held from ``start_s`` until ``react_at_s`` (perception + reaction), then braking at
+    ``brake_decel_mps2`` when > 0, else released; ``leader_*``: a scripted braking leader's plan; ``on_release`` gets
+    the time it kept its speed [s]."""
 
     follower: str
     leader: str

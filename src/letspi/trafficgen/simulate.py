@@ -1,9 +1,5 @@
-"""Run SUMO through libsumo (in-process) and read its floating-car data (FCD).
-
-SUMO writes the trajectories (FCD CSV, parsed with pyarrow); Python only steps, many steps per call between the
-hook's wake-ups, so that ``events`` can inject scripted events. One simulation per process at a time;
-``run_sumo`` always closes it.
-"""
+"""Run SUMO through libsumo (in-process; one simulation per process at a time) and read its floating-car data
+(FCD CSV, written by SUMO, parsed with pyarrow)."""
 
 from __future__ import annotations
 
@@ -40,12 +36,10 @@ class Collision:
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """FCD of all vehicles on the whole road plus simulator diagnostics.
-
-    ``fcd``: ``time`` [s], ``id``, ``x``, ``y`` (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s],
-    ``acceleration`` [m/s²], sorted by (id, time); ``collisions``: physical contact only; ``wall_time_s``,
-    ``cpu_time_s``: of the stepping [s]; ``events``, ``hook_stats``: the hook's ``records`` and ``stats()``.
-    """
+    """FCD of all vehicles on the whole road plus simulator diagnostics. ``fcd``: ``time`` [s], ``id``, ``x``, ``y``
+    (front-bumper centre, SUMO axes, y up) [m], ``speed`` [m/s], ``acceleration`` [m/s²], sorted by (id, time);
+    ``collisions``: physical contact only; ``wall_time_s``, ``cpu_time_s``: of the stepping [s]; ``events``,
+    ``hook_stats``: the hook's ``records`` and ``stats()``."""
 
     fcd: pd.DataFrame
     collisions: list[Collision]
@@ -100,13 +94,11 @@ def run_sumo(
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
     """Simulate ``[0, end_s)`` at 0.04 s steps with libsumo and return the FCD (rows with SUMO x in ``x_range_m``).
-
-    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes
-    lane changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
+    ``work_dir``: the caller's directory for the FCD, collision and log files. ``lane_change_duration_s`` > 0 makes lane
+    changes continuous. ``make_hook`` gets the libsumo module once loaded and returns a ``StepHook`` whose
     ``on_step(t)`` runs whenever SUMO's time t has reached ``next_wakeup()`` (timing as in ``events``). ``ssm_file``:
-    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or
-    PET < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done.
-    """
+    every vehicle carries SUMO's SSM device writing TTC, DRAC and PET time lines there (TTC < 5 s, DRAC > 3 m/s² or PET
+    < 2 s, within 100 m). ``progress`` gets the fraction of simulated time done."""
     sim = import_libsumo()
     fcd_file = work_dir / "fcd.csv"
     collision_file = work_dir / "collisions.xml"
@@ -161,8 +153,7 @@ def _sumo_command(
 
 
 def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable[[float], None]) -> None:
-    """Run the started simulation to ``end_s``: in chunks of up to ``_PROGRESS_CHUNK_S``, stopping
-    at each of the hook's wake-up times to call its ``on_step``; report progress after each chunk."""
+    """Step the started simulation to ``end_s`` in chunks, calling the hook's ``on_step`` at each of its wake-ups."""
     t = 0.0
     while t < end_s - 1e-9:
         wake = hook.next_wakeup() if hook is not None else math.inf
@@ -181,8 +172,7 @@ def _step_to_end(sim: Any, end_s: float, hook: StepHook | None, report: Callable
 
 def read_fcd(path: Path, *, x_range_m: tuple[float, float] | None = None) -> pd.DataFrame:
     """A SUMO FCD CSV (';'-separated) as ``time, id, x, y, speed, acceleration`` sorted by (id, time), read in a stream;
-    ``x_range_m`` keeps only rows with SUMO x in ``[lo, hi]`` [m].
-    """
+    ``x_range_m`` keeps only rows with SUMO x in ``[lo, hi]`` [m]."""
     reader = pacsv.open_csv(
         path,
         read_options=pacsv.ReadOptions(block_size=16 << 20),

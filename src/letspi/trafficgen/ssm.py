@@ -1,11 +1,5 @@
-"""Independent check of the recordings' TTC against SUMO's own SSM device (``ssm_check``).
-
-SUMO's device computes, every step and for every lead/follow encounter, TTC = gap along the lanes (front to
-rear bumper) / speed difference. The recordings' TTC is HighD's: nearest vehicle ahead in the same laneId, gap
-between the written boxes, speeds from central differences. Compared: per (follower, leader, frame) where both
-exist, and per vehicle ``minTTC`` with SUMO's minimum over its recorded frames. Expected differences: SUMO puts a
-lane changer on both lanes, tracks every vehicle ahead within 100 m (HighD the nearest), writes only TTC < 5 s.
-"""
+"""Independent check of the recordings' TTC against SUMO's own SSM device (``ssm_check``): per (follower, leader,
+frame) where both exist, and per vehicle ``minTTC`` against SUMO's minimum over its recorded frames."""
 
 from __future__ import annotations
 
@@ -31,8 +25,7 @@ SSM_TTC_THRESHOLD_S = 5.0  # the device's TTC threshold set in simulate.run_sumo
 
 def read_ssm_ttc(path: Path) -> pd.DataFrame:
     """Per-step TTC of all lead/follow encounters of an SSM output file: ``time_s``, ``follower``, ``leader`` (SUMO
-    ids), ``ttc_s``; one row per step with a defined TTC, pairs seen by both devices once.
-    """
+    ids), ``ttc_s``; one row per step with a defined TTC, pairs seen by both devices once."""
     rows: list[pd.DataFrame] = []
     for _, elem in ET.iterparse(path, events=("end",)):
         if elem.tag != "conflict":
@@ -58,12 +51,10 @@ def read_ssm_ttc(path: Path) -> pd.DataFrame:
 @dataclass(frozen=True)
 class SsmComparison:
     """Agreement of a recording's TTC with SUMO's SSM device, for TTCs below the device threshold (5 s).
-
     ``frames_both``: (follower, frame) pairs both have for the same leader, ``frame_*``: median and p95 |difference|
     [s], share within 5 %. ``frames_only_*``: pairs only one has; of SUMO's, ``_other_lane`` (a lane changer),
     ``_above_threshold`` (the recording's TTC is >= 5 s) and ``_not_preceding`` (HighD's leader is another).
-    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both.
-    """
+    ``vehicles_below_3s_*``: minimum under 3 s in the recording, SUMO, both; ``vehicle_median_abs_diff_s`` over both."""
 
     recorded_minutes: float
     vehicles: int
@@ -142,10 +133,8 @@ def compare_ttc(tracks: pd.DataFrame, tracks_meta: pd.DataFrame, id_of: dict[str
 
 def ssm_check(*, minutes: float, seed: int, traffic: TrafficConfig, lanes_per_direction: int = 3,
               keep_dir: Path | None = None, progress: Callable[[float], None] | None = None) -> SsmComparison:
-    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs (``compare_ttc``).
-
-    ``keep_dir``: if given, the SSM XML and the HighD files are written there for inspection.
-    """
+    """Simulate one recording with SUMO's SSM device on every vehicle and compare TTCs (``compare_ttc``);
+    ``keep_dir``: where to keep the SSM XML and the HighD files."""
 
     work = Path(tempfile.mkdtemp(prefix="letspi_ssm_"))
     try:

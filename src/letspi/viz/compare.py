@@ -1,11 +1,6 @@
-"""Two results directories side by side, paired on the windows both hold (``letspi compare``; docs/evaluation.md).
-
-Each planner of B is paired with the same label of A, or with ``reference`` of A (then the modes must agree).
-Per pair and metric: both values with intervals, the paired difference B − A, for rates the discordant windows
-and the exact McNemar p; directions (↑/↓), significant differences marked better or worse for B, each pair's
-configuration differences, its windows (shared, only in A, only in B), the planners left out; self-comparisons
-last. Outputs ``compare.md``, ``compare.json`` and ``compare.html`` (windows whose collision outcome differs drawn
-as panels, A's planner above, B's below)."""
+"""Two results directories side by side, paired on the windows both hold (``letspi compare``; docs/evaluation.md):
+``compare.md``, ``compare.json`` and ``compare.html`` (windows whose collision outcome differs drawn as panels, A's
+planner above, B's below)."""
 
 from __future__ import annotations
 
@@ -42,9 +37,7 @@ class ComparisonError(ValueError):
     """Two directories that cannot be compared (the message says why, in one line)."""
 
 
-# ------------------------------------------------------------------------------------------------
-# Two results directories
-# ------------------------------------------------------------------------------------------------
+# -------------------------------------------------------------------------------- two results directories
 
 
 def _run(directory: Path) -> dict[str, Any]:
@@ -222,7 +215,7 @@ def direction(key: str) -> int:
 
 
 def verdict(key: str, rec: dict[str, Any]) -> str:
-    """"better" / "worse" for B when the difference is significant (module doc), else ""."""
+    """"better" / "worse" for B when the difference is significant (``SIGNIFICANCE_P``), else ""."""
     d = rec.get("diff")
     if not isinstance(d, int | float) or d == 0 or direction(key) == 0:
         return ""
@@ -237,7 +230,6 @@ def verdict(key: str, rec: dict[str, Any]) -> str:
 
 
 def _config_record(directory: Path, name: str) -> dict[str, Any]:
-    """``per_scenario/<name>/config.json`` of a results directory ({} when absent)."""
     path = directory / "per_scenario" / planner_dir_name(name) / "config.json"
     record: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
     return record

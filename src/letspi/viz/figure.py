@@ -63,16 +63,11 @@ def plot_scenario(
     title: str | None = None,
     width_in: float = DEFAULT_WIDTH_IN,
 ) -> Figure:
-    """Draw scenario ``index`` of ``batch`` with its plans (and reflection iterations); returns the figure.
-
-    Args:
-        plans: planner name -> ``PlanBatch`` of that scenario alone (B = 1) or of the whole ``batch``; drawn
-            in order with ``style.PLAN_COLOURS``.
-        iterations: reflection iterations of an LLM planner (one text row each).
-        out_png: if given, the figure is saved there (PNG, parent directories created).
-        goal_xy_m: the unadjusted goal (2,); default: ``KinematicGoalPredictor``'s goal.
-        title: default names the scenario and its recording; width_in: figure width [in].
-    Axes are labelled ``trajectory``, ``time_space``, ``gap``, ``safety_report:<k>``, ``response:<k>``."""
+    """Draw scenario ``index`` of ``batch`` with ``plans`` (name -> ``PlanBatch`` of that scenario alone or of the
+    whole batch, in ``style.PLAN_COLOURS`` order) and an LLM planner's reflection ``iterations`` (a text row each).
+    ``out_png``: also saved there; ``goal_xy_m`` (2,): the unadjusted goal (default ``KinematicGoalPredictor``'s);
+    ``title`` default: the scenario and its recording; ``width_in`` [in]. Axes are labelled ``trajectory``,
+    ``time_space``, ``gap``, ``safety_report:<k>``, ``response:<k>``."""
     if not 0 <= index < len(batch):
         raise IndexError(f"scenario index {index} outside 0..{len(batch) - 1}")
     scenario = batch.take([index])

@@ -136,8 +136,7 @@ def describe_adjustment(lon_factor: float, lane_factor: float) -> str:
 
 
 def wrap_text(text: str, width_chars: int, max_lines: int = MAX_LINES) -> str:
-    """Wrap every paragraph/line of ``text`` to ``width_chars``, keeping bullets' hanging indent,
-    and cut after ``max_lines`` lines with a note of how many were left out."""
+    """``text`` wrapped to ``width_chars`` (bullets keep a hanging indent), cut after ``max_lines`` with a note."""
     lines: list[str] = []
     for raw in text.strip().splitlines() or [""]:
         stripped = raw.lstrip()
@@ -200,8 +199,7 @@ def _text_panel(ax: Axes, title: str, text: str, edge: str, gid: str) -> Text:
 
 def draw_iteration(ax_report: Axes, ax_response: Axes, record: IterationRecord, width_chars: int,
                    n_iterations: int | None = None) -> tuple[Text, Text]:
-    """Draw one iteration's safety report (left axes) and LLM response (right axes); text gids
-    ``safety_report:<iteration>`` and ``rationale:<iteration>``."""
+    """One iteration's safety report (left) and LLM response (right); gids ``safety_report:<i>``, ``rationale:<i>``."""
     left, right = panel_texts(record, width_chars)
     of = f" of {n_iterations - 1}" if n_iterations and n_iterations > 1 else ""
     label = "initial plan" if record.iteration == 0 else f"refinement {record.iteration}{of}"

@@ -63,8 +63,7 @@ def stored_outcome(label: str, scenario: ScenarioBatch, rec: Mapping[str, Any]) 
 
 def first_plan_outcome(scenario: ScenarioBatch, rec: Mapping[str, Any], config: MetricsConfig | None = None,
                        label: str = "open loop: the plan made at t = 0, recorded neighbours") -> LoopOutcome:
-    """The t = 0 plan of a closed-loop row against the log, scored here (collision and gaps are
-    exact; velocities are the plan's finite differences)."""
+    """The t = 0 plan of a closed-loop row scored here against the log (velocities: the plan's finite differences)."""
     cl = closed_loop_row(rec)
     xy = cl.plans_xy_m[0]
     vxy = np.diff(np.concatenate([np.zeros((1, 2)), xy]), axis=0) / DT_S  # ego frame: the ego is at 0 at t = 0

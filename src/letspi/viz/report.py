@@ -1,11 +1,9 @@
 """``write_report``: a self-contained HTML report of an evaluation directory (images inline as base64 PNG).
 
-Sections, each skipped without its input: metrics, distributions, the worst scenarios drawn from their stored plans
-(never re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
-"points": [{"memory_size": .., "metrics": {..}}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name",
-"fast", "physics", "metrics": {..}}, ..]}`` (``metrics.json`` keys); a file that cannot be read yields a warning in
-its section.
-"""
+Sections, each skipped without its input: metrics, distributions, the worst scenarios (stored plans, never
+re-planned), decisions, and ablations from ``DIR/ablations/``: ``memory_size.json`` ``{"total": N (optional),
+"points": [{"memory_size", "metrics"}, ..]}`` and ``llm_combinations.json`` ``{"combinations": [{"name", "fast",
+"physics", "metrics"}, ..]}`` (``metrics.json`` keys); an unreadable file yields a warning in its section."""
 
 from __future__ import annotations
 
@@ -81,10 +79,6 @@ def figure_to_data_uri(fig: Figure, dpi: int = 110) -> str:
 def _fmt(value: object, digits: int = 2) -> str:
     if value is None:
         return "n/a"
-    if isinstance(value, bool):
-        return str(value)
-    if isinstance(value, int):
-        return str(value)
     if isinstance(value, float):
         return "n/a" if math.isnan(value) else f"{value:.{digits}f}"
     return str(value)
@@ -221,13 +215,11 @@ def worst_sections(eval_dir: Path, frames: Mapping[str, pd.DataFrame],
                 if CL_PLAN_XY in stored.columns:  # closed loop: its t = 0 plan in open loop above the run
                     record = {**{str(k): v for k, v in rec.items()}, "scenario_id": sid}
                     fig = closed_loop_report_figure(sub, record, name, _run_mode(eval_dir))
-                    item.image = figure_to_data_uri(fig, dpi=90)
-                    sec.scenarios.append(item)
-                    continue
-                plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
-                                 vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
-                                 goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))
-                fig = plot_scenario(sub, 0, {name: plan}, title=f"{name}: scenario {sid}", width_in=13.0)
+                else:
+                    plan = PlanBatch(xy_m=np.asarray(rec["plan_xy_m"], np.float64).reshape(1, N_FUTURE, 2),
+                                     vxy_mps=np.asarray(rec["plan_vxy_mps"], np.float64).reshape(1, N_FUTURE, 2),
+                                     goals_xy_m=np.asarray(rec["plan_goal_xy_m"], np.float64).reshape(1, 2))
+                    fig = plot_scenario(sub, 0, {name: plan}, title=f"{name}: scenario {sid}", width_in=13.0)
                 item.image = figure_to_data_uri(fig, dpi=90)
             sec.scenarios.append(item)
         sections.append(sec)
@@ -304,7 +296,6 @@ def llm_combinations_figure(data: Mapping[str, Any]) -> Figure:
 
 
 def _ablation(path: Path, kind: str) -> dict[str, Any] | None:
-    """Section data of one ablation file; None when the file is absent."""
     if not path.exists():
         return None
     anchor = "ablation-" + slug(path.stem)

@@ -118,8 +118,7 @@ def draw_trajectory(
 
 
 def _draw_neighbours(ax: Axes, scenario: ScenarioBatch, label_x_range_m: tuple[float, float]) -> None:
-    """Neighbours: past solid, future dashed, box at t = 0, and an id label when its box lies in
-    ``label_x_range_m`` (the diagram's x range)."""
+    """Neighbours: past solid, future dashed, box at t = 0, an id label when the box is in ``label_x_range_m``."""
     xlo, xhi = label_x_range_m
     groups = neighbour_groups(scenario)
     for j, group in enumerate(groups):
@@ -169,8 +168,7 @@ def _draw_ego(ax: Axes, scenario: ScenarioBatch) -> dict[str, Line2D]:
 
 def _draw_plans_and_goals(ax: Axes, tracks: Sequence[PlanTrack], colours: Sequence[str],
                           goal_xy_m: np.ndarray | None) -> dict[str, Line2D]:
-    """The plans (lines by gid ``plan:<name>``), the predicted goal, and each plan goal that differs
-    from it by more than ``ADJUSTED_GOAL_TOL_M`` with an arrow from it."""
+    """The plans (gid ``plan:<name>``), the predicted goal, and plan goals off it by > ``ADJUSTED_GOAL_TOL_M``."""
     out: dict[str, Line2D] = {}
     for track, colour in zip(tracks, colours, strict=True):
         out[style.gid_plan(track.name)] = ax.plot(

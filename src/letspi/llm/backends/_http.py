@@ -14,8 +14,7 @@ import httpx
 from letspi.llm.types import BackendUnavailableError, LLMTimeoutError, LLMTransportError, ServerBusyError
 
 _SECONDS_RE = re.compile(r"\s*\d+(?:\.\d+)?\s*")
-#: Connections kept open per client. A run keeps up to ``--concurrency`` requests in flight; keeping
-#: that many connections alive avoids a new TCP connection (and server thread) per request.
+#: Connections kept alive per client: up to ``--concurrency`` requests in flight, none opening a new connection.
 KEEPALIVE_CONNECTIONS = 256
 
 
@@ -71,8 +70,6 @@ def parse_retry_after(value: str | None, *, now: float | None = None) -> float |
     try:
         when = parsedate_to_datetime(value.strip())
     except (TypeError, ValueError, IndexError, OverflowError):
-        return None
-    if when is None:  # pragma: no cover - older Pythons returned None for junk
         return None
     if when.tzinfo is None:  # RFC 9110 dates are GMT
         when = when.replace(tzinfo=UTC)

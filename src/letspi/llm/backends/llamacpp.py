@@ -2,13 +2,10 @@
 
 * One ``Llama`` per (model file, LoRA adapter, context size, runtime) per process, shared by every backend
   object: llama.cpp keeps the KV cache, so calls sharing a prompt prefix only evaluate the changed tail.
-* Decoding: greedy, seeded, constrained by the JSON schema. Generation is streamed and abandoned at the
+* Decoding: greedy, seeded, constrained by the JSON schema; generation is streamed and abandoned at the
   deadline (``LLMTimeoutError``); prompt evaluation itself cannot be interrupted.
-* Flash attention is on (``LETSPI_LLAMA_FLASH_ATTN=0`` turns it off) and a self-check at load compares
-  batched with token-by-token logits (``self_check``): without flash attention the two paths can disagree
-  enough to flip an answer (docs/llm.md).
-* Threads are chosen per call from the CPUs free right now (``choose_threads``): two threads on a busy
-  2-core machine wait on each other at every barrier.
+* Flash attention (``LETSPI_LLAMA_FLASH_ATTN=0``: off), the self-check at load (``self_check``) and the
+  threads chosen per call (``choose_threads``) are explained in docs/llm.md.
 """
 
 from __future__ import annotations
@@ -50,9 +47,7 @@ CHECK_TEXT: Final = (
 )
 
 
-# --------------------------------------------------------------------------------------------------
-# runtime settings
-# --------------------------------------------------------------------------------------------------
+# --- runtime settings --------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -115,9 +110,7 @@ def choose_threads(max_threads: int, *, cpus: int | None = None, runnable: int |
     return int(max(1, min(max_threads, cpus, cpus - others)))
 
 
-# --------------------------------------------------------------------------------------------------
-# self-check
-# --------------------------------------------------------------------------------------------------
+# --- self-check --------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -181,9 +174,7 @@ def self_check(llm: Any, tolerance: float, text: str = CHECK_TEXT) -> SelfCheckR
                            time.perf_counter() - t0)
 
 
-# --------------------------------------------------------------------------------------------------
-# loading
-# --------------------------------------------------------------------------------------------------
+# --- loading -----------------------------------------------------------------------------------
 
 
 @dataclass
@@ -248,27 +239,22 @@ def shared_llama(model_path: Path, *, n_ctx: int = 4096, n_threads: int = DEFAUL
         tol = batch_tolerance(model_path, lora_path) if tolerance is None else tolerance
         llm, check = _load_checked(model_path, n_ctx=n_ctx, n_threads=n_threads, seed=seed, lora_path=lora_path,
                                    runtime=runtime, tolerance=tol)
-        # free the model before interpreter teardown: llama_cpp's __del__ fails noisily once its
-        # module globals are gone
+        # close before interpreter teardown: llama_cpp's __del__ fails noisily once its globals are gone
         atexit.register(llm.close)
         entry = LoadedLlama(llm, threading.Lock(), check, n_threads, time.perf_counter() - t0)
         _INSTANCES[key] = entry
         return entry
 
 
-# --------------------------------------------------------------------------------------------------
-# the backend
-# --------------------------------------------------------------------------------------------------
+# --- the backend -------------------------------------------------------------------------------
 
 
 class LlamaCppBackend:
     """``llamacpp:NAME`` (a packaged model) or ``llamacpp:/path/model.gguf``. ``lora_path``: a LoRA adapter
     GGUF (default: the fine-tuned model's own, ``locate_adapter``). ``n_threads``: the most a call uses."""
 
-    def __init__(
-        self, model: str, *, n_ctx: int = 4096, n_threads: int = DEFAULT_MAX_THREADS,
-        lora_path: Path | str | None = None, runtime: LlamaRuntime | None = None,
-    ) -> None:
+    def __init__(self, model: str, *, n_ctx: int = 4096, n_threads: int = DEFAULT_MAX_THREADS,
+                 lora_path: Path | str | None = None, runtime: LlamaRuntime | None = None) -> None:
         self.model = model
         self.n_ctx = n_ctx
         self.n_threads = n_threads
@@ -295,19 +281,11 @@ class LlamaCppBackend:
         """Load (and self-check) the model now (otherwise the first call does): callers time loading apart."""
         self.loaded()
 
-    def complete(
-        self,
-        messages: Sequence[Message],
-        *,
-        schema: dict[str, Any] | None,
-        settings: DecodingSettings,
-        timeout_s: float,
-    ) -> LLMResponse:
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None, settings: DecodingSettings,
+                 timeout_s: float) -> LLMResponse:
         model = self.loaded(settings.seed)
         llm = model.llm
-        response_format: dict[str, Any] | None = None
-        if schema is not None:
-            response_format = {"type": "json_object", "schema": schema}
+        response_format = {"type": "json_object", "schema": schema} if schema is not None else None
         with model.lock:  # one generation at a time per model: the KV cache is shared state
             model.set_threads_for_call()
             t0 = time.perf_counter()
@@ -315,13 +293,8 @@ class LlamaCppBackend:
             parts: list[str] = []
             try:
                 stream = llm.create_chat_completion(
-                    messages=[dict(m) for m in messages],
-                    temperature=settings.temperature,
-                    seed=settings.seed,
-                    max_tokens=settings.max_tokens,
-                    response_format=response_format,
-                    stream=True,
-                )
+                    messages=[dict(m) for m in messages], temperature=settings.temperature, seed=settings.seed,
+                    max_tokens=settings.max_tokens, response_format=response_format, stream=True)
                 for chunk in stream:
                     delta = chunk["choices"][0].get("delta", {})
                     text = delta.get("content")
@@ -330,8 +303,7 @@ class LlamaCppBackend:
                     if time.perf_counter() > deadline:
                         stream.close()
                         raise LLMTimeoutError(
-                            f"{self.spec}: no complete reply within {timeout_s:.1f} s ({len(parts)} tokens)"
-                        )
+                            f"{self.spec}: no complete reply within {timeout_s:.1f} s ({len(parts)} tokens)")
             except LLMTimeoutError:
                 raise
             except ValueError as exc:  # the prompt does not fit the context: this request only
@@ -342,11 +314,5 @@ class LlamaCppBackend:
             completion_tokens = len(parts)  # streaming yields one chunk per generated token
             prompt_tokens = max(int(llm.n_tokens) - completion_tokens, 0)
         text = "".join(parts)
-        return LLMResponse(
-            text=text,
-            parsed=try_parse_json(text),
-            prompt_tokens=prompt_tokens,
-            completion_tokens=completion_tokens,
-            latency_s=latency,
-            model_spec=self.spec,
-        )
+        return LLMResponse(text=text, parsed=try_parse_json(text), prompt_tokens=prompt_tokens,
+                           completion_tokens=completion_tokens, latency_s=latency, model_spec=self.spec)

@@ -1,8 +1,7 @@
 """The one way into llama.cpp: every model letspi runs is opened by ``open_llama``.
 
-* AMX workaround: where the build has AMX kernels, models load with ``use_extra_bufts = False`` (VMs that
-  advertise AMX without enabling it fault on the repacked weights); ``LETSPI_LLAMA_EXTRA_BUFTS=1``/``0``
-  forces it.
+* AMX workaround (docs/llm.md): where the build has AMX kernels, models load with ``use_extra_bufts = False``;
+  ``LETSPI_LLAMA_EXTRA_BUFTS=1``/``0`` forces it.
 * Probe: the first load of each (build, CPU flags, format, settings) runs in a child process
   (``python -m letspi.llm.backends.llamacpp_open probe MODEL.gguf``), so a fault cannot kill the caller: a
   quantized file falls back to its F16 copy, anything else raises ``LlamaFaultError``. Verdicts are cached
@@ -117,32 +116,26 @@ def _construct(model_path: Path, **kwargs: Any) -> Any:
         return llama_mod.Llama(model_path=str(model_path), verbose=False, **kwargs)
 
 
-# --------------------------------------------------------------------------------------------------
-# what identifies a probe
-# --------------------------------------------------------------------------------------------------
+# --- what identifies a probe -------------------------------------------------------------------
+
+
+def _cpuinfo(key: str) -> str | None:
+    """The value of the first ``/proc/cpuinfo`` line starting with ``key`` (None where there is none)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            return next((line.split(":", 1)[1] for line in fh if line.startswith(key)), None)
+    except OSError:
+        return None
 
 
 def cpu_flags() -> frozenset[str]:
     """The CPU's feature flags (``/proc/cpuinfo``; empty where it cannot be read)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith("flags"):
-                    return frozenset(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    return frozenset()
+    return frozenset((_cpuinfo("flags") or "").split())
 
 
 def cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "this CPU"
+    name = _cpuinfo("model name")
+    return "this CPU" if name is None else name.strip()
 
 
 def build_identity() -> str:
@@ -165,9 +158,7 @@ def probe_key(fmt: str, flash_attn: bool, n_threads: int) -> dict[str, Any]:
             "extra_bufts": os.environ.get(EXTRA_BUFTS_ENV, "auto")}
 
 
-# --------------------------------------------------------------------------------------------------
-# the probe
-# --------------------------------------------------------------------------------------------------
+# --- the probe ---------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -332,9 +323,7 @@ def open_vocab(model_path: Path) -> Any:
     return _construct(Path(model_path), vocab_only=True)
 
 
-# --------------------------------------------------------------------------------------------------
-# the child process
-# --------------------------------------------------------------------------------------------------
+# --- the child process -------------------------------------------------------------------------
 
 
 def _probe_child(model_path: Path, flash_attn: bool, n_threads: int) -> None:

@@ -50,35 +50,18 @@ class OllamaBackend:
     def spec(self) -> str:
         return f"ollama:{self.model}"
 
-    def complete(
-        self,
-        messages: Sequence[Message],
-        *,
-        schema: dict[str, Any] | None,
-        settings: DecodingSettings,
-        timeout_s: float,
-    ) -> LLMResponse:
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None, settings: DecodingSettings,
+                 timeout_s: float) -> LLMResponse:
         payload: dict[str, Any] = {
-            "model": self.model,
-            "messages": [dict(m) for m in messages],
-            "stream": False,
-            "options": {
-                "temperature": settings.temperature,
-                "seed": settings.seed,
-                "num_predict": settings.max_tokens,
-            },
+            "model": self.model, "messages": [dict(m) for m in messages], "stream": False,
+            "options": {"temperature": settings.temperature, "seed": settings.seed, "num_predict": settings.max_tokens},
         }
         if schema is not None:
             payload["format"] = schema
         url = f"{self.base_url}/api/chat"
         t0 = time.perf_counter()
-        resp = post_json(
-            self._client,
-            url,
-            payload,
-            timeout_s=timeout_s,
-            unreachable_hint="Is Ollama running? Start it with `ollama serve` (or set OLLAMA_HOST).",
-        )
+        resp = post_json(self._client, url, payload, timeout_s=timeout_s,
+                         unreachable_hint="Is Ollama running? Start it with `ollama serve` (or set OLLAMA_HOST).")
         latency = time.perf_counter() - t0
         if resp.status_code == 404:
             msg = error_text(resp)
@@ -101,11 +84,7 @@ class OllamaBackend:
         if not isinstance(text, str):
             raise LLMTransportError(f"{url}: message.content is not a string")
         return LLMResponse(
-            text=text,
-            parsed=try_parse_json(text),
-            prompt_tokens=int(body.get("prompt_eval_count") or 0),
-            completion_tokens=int(body.get("eval_count") or 0),
-            latency_s=latency,
-            model_spec=self.spec,
+            text=text, parsed=try_parse_json(text), prompt_tokens=int(body.get("prompt_eval_count") or 0),
+            completion_tokens=int(body.get("eval_count") or 0), latency_s=latency, model_spec=self.spec,
             extra={"total_duration_ns": body.get("total_duration"), "done_reason": body.get("done_reason")},
         )

@@ -1,11 +1,10 @@
 """OpenAI-compatible chat backend (``openai:MODEL@http://host:port/v1``): vLLM, llama.cpp servers, LM Studio, OpenAI.
 
 Base URL: the spec, else ``$OPENAI_BASE_URL``, else OpenAI's; key: ``api_key``, else ``$OPENAI_API_KEY``
-(no header when neither is set). Servers disagree on ``response_format``; ``format_mode="auto"`` tries
-``FORMAT_MODES`` in order and moves on: for good when the server rejects a format by name (400/422, or 500
-with a validation error); for one request when a reply holds no JSON; for good after
-``DEMOTE_AFTER_NO_JSON`` consecutive requests where only a simpler mode gave JSON. So one bad reply never
-changes later requests. The mode used is in ``LLMResponse.extra["format_mode"]``.
+(no header when neither is set). ``format_mode="auto"`` tries ``FORMAT_MODES`` in order, moving on for good
+when the server rejects a format by name (400/422, or 500 with a validation error), for one request when a
+reply holds no JSON, and for good after ``DEMOTE_AFTER_NO_JSON`` consecutive requests where only a simpler
+mode gave JSON. The mode used is in ``LLMResponse.extra["format_mode"]``.
 """
 
 from __future__ import annotations
@@ -33,8 +32,7 @@ from letspi.llm.types import (
 DEFAULT_OPENAI_BASE_URL: Final = "https://api.openai.com/v1"
 FORMAT_MODES: Final = ("json_schema", "json_object_schema", "json_object")
 _FORMAT_WORDS: Final = ("response_format", "json_schema", "schema", "json_object")
-#: Consecutive requests answered without JSON in the established mode (and with JSON in a
-#: simpler one) after which auto mode switches to the simpler mode for good.
+#: Consecutive requests without JSON in the established mode (with JSON in a simpler one) that demote it for good.
 DEMOTE_AFTER_NO_JSON: Final = 3
 
 
@@ -49,15 +47,8 @@ def _response_format(mode: str, schema: dict[str, Any]) -> dict[str, Any]:
 class OpenAICompatBackend:
     """Chat with any server that speaks OpenAI's ``/chat/completions``."""
 
-    def __init__(
-        self,
-        model: str,
-        *,
-        base_url: str | None = None,
-        api_key: str | None = None,
-        client: httpx.Client | None = None,
-        format_mode: str = "auto",
-    ) -> None:
+    def __init__(self, model: str, *, base_url: str | None = None, api_key: str | None = None,
+                 client: httpx.Client | None = None, format_mode: str = "auto") -> None:
         if format_mode != "auto" and format_mode not in FORMAT_MODES:
             raise LLMConfigError(f"format_mode must be 'auto' or one of {FORMAT_MODES}, got {format_mode!r}")
         if not model:
@@ -81,14 +72,8 @@ class OpenAICompatBackend:
         """The established structured-output mode."""
         return FORMAT_MODES[self._mode_index]
 
-    def complete(
-        self,
-        messages: Sequence[Message],
-        *,
-        schema: dict[str, Any] | None,
-        settings: DecodingSettings,
-        timeout_s: float,
-    ) -> LLMResponse:
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None, settings: DecodingSettings,
+                 timeout_s: float) -> LLMResponse:
         url = f"{self.base_url}/chat/completions"
         headers = {"Authorization": f"Bearer {self._api_key}"} if self._api_key else None
         t0 = time.perf_counter()
@@ -97,14 +82,9 @@ class OpenAICompatBackend:
         mode = established
         skipped_no_json = False  # this request moved past a mode whose reply had no JSON
         while True:
-            resp = post_json(
-                self._client,
-                url,
-                self._payload(messages, settings, schema, mode),
-                timeout_s=timeout_s,
-                headers=headers,
-                unreachable_hint="Is the OpenAI-compatible server running at that address?",
-            )
+            resp = post_json(self._client, url, self._payload(messages, settings, schema, mode), timeout_s=timeout_s,
+                             headers=headers,
+                             unreachable_hint="Is the OpenAI-compatible server running at that address?")
             can_downgrade = self._auto and schema is not None and mode < len(FORMAT_MODES) - 1
             if can_downgrade and resp.status_code in (400, 422, 500):
                 msg = error_text(resp).lower()
@@ -128,12 +108,8 @@ class OpenAICompatBackend:
                  mode: int) -> dict[str, Any]:
         """The chat-completions request body, with the structured-output request of format ``mode``."""
         payload: dict[str, Any] = {
-            "model": self.model,
-            "messages": [dict(m) for m in messages],
-            "temperature": settings.temperature,
-            "seed": settings.seed,
-            "max_tokens": settings.max_tokens,
-            "stream": False,
+            "model": self.model, "messages": [dict(m) for m in messages], "temperature": settings.temperature,
+            "seed": settings.seed, "max_tokens": settings.max_tokens, "stream": False,
         }
         if schema is not None:
             payload["response_format"] = _response_format(FORMAT_MODES[mode], schema)
@@ -149,15 +125,9 @@ class OpenAICompatBackend:
         if not isinstance(text, str):
             raise LLMTransportError(f"{url}: choices[0].message.content is not a string")
         usage = body.get("usage") or {}
-        return LLMResponse(
-            text=text,
-            parsed=try_parse_json(text),
-            prompt_tokens=int(usage.get("prompt_tokens") or 0),
-            completion_tokens=int(usage.get("completion_tokens") or 0),
-            latency_s=latency,
-            model_spec=self.spec,
-            extra={"format_mode": format_mode},
-        )
+        return LLMResponse(text=text, parsed=try_parse_json(text), prompt_tokens=int(usage.get("prompt_tokens") or 0),
+                           completion_tokens=int(usage.get("completion_tokens") or 0), latency_s=latency,
+                           model_spec=self.spec, extra={"format_mode": format_mode})
 
     def _count_no_json(self, established: int, used: int, skipped: bool, final_has_no_json: bool) -> None:
         """Track consecutive no-JSON replies in the established mode; demote after enough of them."""
@@ -192,6 +162,5 @@ class OpenAICompatBackend:
                 raise ModelNotFoundError(f"{url}: model {self.model!r} not found ({msg})")
             raise LLMConfigError(f"{url}: HTTP 404 ({msg}); does the base URL end in /v1?")
         raise_for_server_error(resp, url)  # 429 and 5xx, with the server's Retry-After
-        # Other 4xx (e.g. prompt longer than the context) concern this request, not the setup and not
-        # the transport: the request falls back (retrying it would be refused again).
+        # other 4xx (e.g. a prompt over the context) concern this request: it falls back (a retry is refused too)
         raise RequestRejectedError(f"{url}: request rejected (HTTP {code}): {msg}", status=code)

@@ -37,13 +37,8 @@ def default_reply_text() -> str:
 class ScriptedBackend:
     """Replays a script of replies and errors."""
 
-    def __init__(
-        self,
-        steps: Iterable[str | LLMError | ScriptedStep] = (),
-        *,
-        default: str | None = None,
-        name: str = "test",
-    ) -> None:
+    def __init__(self, steps: Iterable[str | LLMError | ScriptedStep] = (), *, default: str | None = None,
+                 name: str = "test") -> None:
         self._steps = [s if isinstance(s, ScriptedStep) else self._to_step(s) for s in steps]
         self._default = default
         self.name = name
@@ -62,14 +57,8 @@ class ScriptedBackend:
     def remaining(self) -> int:
         return len(self._steps)
 
-    def complete(
-        self,
-        messages: Sequence[Message],
-        *,
-        schema: dict[str, Any] | None,
-        settings: DecodingSettings,
-        timeout_s: float,
-    ) -> LLMResponse:
+    def complete(self, messages: Sequence[Message], *, schema: dict[str, Any] | None, settings: DecodingSettings,
+                 timeout_s: float) -> LLMResponse:
         self.calls.append(list(messages))
         self.schemas.append(schema)
         if self._steps:
@@ -82,11 +71,5 @@ class ScriptedBackend:
             raise LLMTimeoutError(f"{self.spec}: scripted latency {step.latency_s} s > timeout {timeout_s} s")
         if step.error is not None:
             raise step.error
-        return LLMResponse(
-            text=step.text,
-            parsed=try_parse_json(step.text),
-            prompt_tokens=step.prompt_tokens,
-            completion_tokens=step.completion_tokens,
-            latency_s=step.latency_s,
-            model_spec=self.spec,
-        )
+        return LLMResponse(text=step.text, parsed=try_parse_json(step.text), prompt_tokens=step.prompt_tokens,
+                           completion_tokens=step.completion_tokens, latency_s=step.latency_s, model_spec=self.spec)

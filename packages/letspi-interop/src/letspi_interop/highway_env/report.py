@@ -21,12 +21,12 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from letspi.constants import DT_S
-from letspi.evaluation.highway_env.settings import RUN_MODE
-from letspi.evaluation.highway_env.store import PAIRED, SEED_COLUMN, TABLE, labels, load_episode, load_episodes
 from letspi.fsutil import atomic_write_text
-from letspi.interop.highway_env.scene import EpisodeTracks, RoadLayout
 from letspi.metrics.aggregate import format_with_interval, paired_rows
 from letspi.viz.report import figure_to_data_uri
+from letspi_interop.highway_env.scene import EpisodeTracks, RoadLayout
+from letspi_interop.highway_env.settings import RUN_MODE
+from letspi_interop.highway_env.store import PAIRED, SEED_COLUMN, TABLE, labels, load_episode, load_episodes
 
 
 def episode_figure(tracks: EpisodeTracks, road: RoadLayout, plan_t_s: np.ndarray, plans_xy_m: np.ndarray, *,
@@ -74,6 +74,11 @@ def is_highway_env_dir(directory: Path | str) -> bool:
     """Whether ``directory`` holds highway-env episodes (its ``run.json`` says so)."""
     run = Path(directory) / "run.json"
     return run.is_file() and json.loads(run.read_text()).get("identity", {}).get("mode") == RUN_MODE
+
+
+def report_if_highway_env(directory: Path, out: Path | None) -> Path | None:
+    """The ``letspi.reports`` entry point: ``report.html`` of a highway-env directory, else None."""
+    return write_episode_report(directory, out) if is_highway_env_dir(directory) else None
 
 
 def _shown_seed(frame: Any) -> int:

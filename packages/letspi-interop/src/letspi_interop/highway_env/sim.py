@@ -27,7 +27,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-from letspi.interop.highway_env.scene import EpisodeTracks, RoadLayout
+from letspi_interop.highway_env.scene import EpisodeTracks, RoadLayout
 
 #: environments letspi drives: straight roads along x (HighD's geometry)
 ENV_IDS: Final = ("highway-v0", "highway-fast-v0", "merge-v0")

@@ -1,6 +1,6 @@
 """letspi on highway-env (Farama-Foundation/HighwayEnv): the bridge between its simulation and letspi's scenarios.
 
-Needs the optional extra ``highway`` (``pip install "letspi[highway]"``: highway-env, gymnasium, pygame-ce).
+Needs the extra ``highway`` (``pip install -e "packages/letspi-interop[highway]"``: highway-env, gymnasium, pygame-ce).
 
 * ``scene`` (NumPy only, no highway-env import): the road of an episode (``RoadLayout``), every vehicle's
   recorded states (``EpisodeTracks``), the adapter from them to a letspi scenario (``scenario_view``) and the
@@ -19,7 +19,7 @@ import importlib.util
 from typing import Final
 
 #: what to install when highway-env or gymnasium is missing
-INSTALL_HINT: Final = 'pip install "letspi[highway]"'
+INSTALL_HINT: Final = 'pip install -e "packages/letspi-interop[highway]"'
 
 
 class HighwayEnvMissingError(ValueError):

@@ -15,7 +15,7 @@ from letspi.scenario.store import count_scenarios, load_scenarios
 app = typer.Typer(help="Export scenarios and plans to other tools' formats.", no_args_is_help=True,
                   rich_markup_mode=None)
 
-EXTRA_HINT = "pip install 'letspi[commonroad]'"
+EXTRA_HINT = 'pip install -e "packages/letspi-interop[commonroad]"'
 
 
 @app.command("commonroad")
@@ -36,7 +36,7 @@ def commonroad_cmd(
     a planner's plans as CommonRoad solutions (needs the `commonroad` extra)."""
     with user_errors():
         try:
-            import letspi.interop.commonroad as cr
+            import letspi_interop.commonroad as cr
         except ImportError as exc:
             raise ValueError(f"letspi export commonroad needs the optional extra commonroad-io: {EXTRA_HINT} "
                              f"({exc})") from None

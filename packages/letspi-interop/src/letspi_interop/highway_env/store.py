@@ -26,11 +26,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from letspi.evaluation.highway_env.episode import TIMING_KEYS, EpisodeResult
-from letspi.evaluation.highway_env.settings import RUN_MODE, EnvSettings, installed_versions
 from letspi.evaluation.results import letspi_version, planner_dir_name
 from letspi.fsutil import atomic_write, atomic_write_text, remove_stale_temporaries
-from letspi.interop.highway_env.scene import EpisodeTracks, RoadLayout
 from letspi.keyed import diff, key_of
 from letspi.metrics.aggregate import AggValue, finite_mean, format_with_interval, paired_rows, scenario_values
 from letspi.metrics.config import MetricsConfig
@@ -38,6 +35,9 @@ from letspi.metrics.episode import EPISODE_METRICS, settings_record
 from letspi.metrics.registry import MEAN_HOWS, RATE_HOWS
 from letspi.metrics.uncertainty import Statistic, StatKind, intervals_of, paired_of, statistics_record
 from letspi.planners.outputs import column
+from letspi_interop.highway_env.episode import TIMING_KEYS, EpisodeResult
+from letspi_interop.highway_env.scene import EpisodeTracks, RoadLayout
+from letspi_interop.highway_env.settings import RUN_MODE, EnvSettings, installed_versions
 
 RUN_FORMAT: Final = 1
 EPISODES: Final = "episodes"

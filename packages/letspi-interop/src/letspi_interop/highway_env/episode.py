@@ -1,7 +1,7 @@
 """One episode: highway-env seeded, the ego swapped in, letspi's planner replanning on the recorded scene.
 
 Per replan (every ``EnvSettings.replan_s``): the recorded frames become the planner's view
-(``letspi.interop.highway_env.scene.scenario_view``: a history-only scenario of one), the planner plans, and the
+(``letspi_interop.highway_env.scene.scenario_view``: a history-only scenario of one), the planner plans, and the
 ego (``TrackingEgo``) follows the plan, in highway-env's coordinates, over the next simulation frames
 (``sim.advance``), each recorded. LLM planners (their kind's ``dual_rate``) run dual-rate as in the closed loop
 (``letspi.simulation.schedule.DualRateSchedule``): the model at t = 0 and every ``llm_period_s`` about the scene
@@ -22,15 +22,15 @@ from typing import Any
 import numpy as np
 
 from letspi.constants import DT_S, N_FUTURE
-from letspi.evaluation.highway_env.settings import EnvSettings
-from letspi.interop.highway_env import require
-from letspi.interop.highway_env.scene import EpisodeTracks, RoadLayout, ScenarioLabel, plan_to_world, scenario_view
 from letspi.metrics.config import MetricsConfig
 from letspi.metrics.episode import EpisodeInputs, episode_metrics
 from letspi.planners.base import PlanBatch, Planner
 from letspi.scenario.types import ScenarioBatch
 from letspi.simulation.replan import plan_in_batches
 from letspi.simulation.schedule import DualRateConfig, DualRatePlanner, DualRateSchedule
+from letspi_interop.highway_env import require
+from letspi_interop.highway_env.scene import EpisodeTracks, RoadLayout, ScenarioLabel, plan_to_world, scenario_view
+from letspi_interop.highway_env.settings import EnvSettings
 
 #: ``EpisodeResult.timing`` keys [s] (``replans_n``: a count)
 TIMING_KEYS = ("highway_env_s", "adapter_s", "plan_s", "control_s", "record_s", "wall_s", "replans_n")
@@ -96,7 +96,7 @@ def run_episode(settings: EnvSettings, seed: int, *, planner: EpisodePlanner | N
     """One episode of ``settings`` seeded ``seed``: driven by ``planner`` (through ``TrackingEgo``) or, without
     one, by highway-env's ego ``ego_kind`` (``"idm"``, ``"lane-keeper"``)."""
     require()
-    import letspi.interop.highway_env.sim as hesim  # highway-env at module level: only where an episode runs
+    import letspi_interop.highway_env.sim as hesim  # highway-env at module level: only where an episode runs
 
     started = time.perf_counter()
     env = hesim.make_env(settings.env_id, settings.env_config())
@@ -146,7 +146,7 @@ def _replan(planner: EpisodePlanner, tracks: EpisodeTracks, road: RoadLayout, la
             last: bool, out: tuple[dict[str, float], list[float], list[np.ndarray], list[dict[str, np.ndarray]],
                                    list[float]]) -> None:
     """One replan: the view, the plan, the ego told to follow it; timing and the plan appended to ``out``."""
-    import letspi.interop.highway_env.sim as hesim
+    import letspi_interop.highway_env.sim as hesim
 
     timing, plan_t, plans, infos, latency = out
     t0 = time.perf_counter()

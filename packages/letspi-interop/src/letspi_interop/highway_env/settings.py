@@ -12,7 +12,7 @@ from typing import Any, Final
 from letspi.keyed import key_of
 from letspi.simulation.schedule import DualRateConfig
 
-#: highway-env's own vehicles as egos: label -> ego kind (``letspi.interop.highway_env.sim.EGO_KINDS``)
+#: highway-env's own vehicles as egos: label -> ego kind (``letspi_interop.highway_env.sim.EGO_KINDS``)
 NATIVE_EGOS: Final = {"he-idm": "idm", "he-lane-keeper": "lane-keeper"}
 NATIVE_DOCS: Final = {"he-idm": "highway-env's IDMVehicle as the ego (IDM + MOBIL), its desired speed the road's limit",
                       "he-lane-keeper": "highway-env's ControlledVehicle with no action: keeps its lane and its "
@@ -41,7 +41,7 @@ def _jsonable(value: Any) -> Any:
 class EnvSettings:
     """One environment and how its episodes run.
 
-    env_id: a ``letspi.interop.highway_env.sim.ENV_IDS`` id; config: its configuration keys over the defaults
+    env_id: a ``letspi_interop.highway_env.sim.ENV_IDS`` id; config: its configuration keys over the defaults
     (JSON values; ``policy_frequency`` is set from ``replan_s``); duration_s: the episode ends at the latest
     then (an environment may end it earlier: a crash, merge-v0's ramp passed); replan_s: letspi's planners
     replan (and highway-env's policy steps) every this many seconds, a whole number of simulation frames;

@@ -17,15 +17,15 @@ from pathlib import Path
 from typing import Any
 
 from letspi.assembly.planners import BuiltPlanner, build_planners, parse_planner_arg
-from letspi.evaluation.highway_env.episode import EpisodePlanner, EpisodeResult, run_episode
-from letspi.evaluation.highway_env.settings import NATIVE_EGOS, RUN_MODE, EnvSettings, NativeEgo
-from letspi.evaluation.highway_env.store import EpisodeWriter, open_run, summarise
 from letspi.evaluation.results import planner_record
 from letspi.execution.interrupt import WorkerPool
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.base import Planner
 from letspi.planners.options import DEFAULT_OPTIONS, PlannerOptions
 from letspi.simulation.spec import PlannerSpec, build_planner
+from letspi_interop.highway_env.episode import EpisodePlanner, EpisodeResult, run_episode
+from letspi_interop.highway_env.settings import NATIVE_EGOS, RUN_MODE, EnvSettings, NativeEgo
+from letspi_interop.highway_env.store import EpisodeWriter, open_run, summarise
 
 Driver = BuiltPlanner | NativeEgo
 #: (label, episodes in all) -> a callback told how many more are done

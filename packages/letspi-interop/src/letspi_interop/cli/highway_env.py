@@ -13,15 +13,15 @@ import typer
 from letspi.assembly.planner_table import planner_table
 from letspi.cli.common import command_line, console, progress_bar, user_errors
 from letspi.cli.options import planner_options
-from letspi.evaluation.highway_env.run import build_drivers, run_episodes
-from letspi.evaluation.highway_env.settings import NATIVE_DOCS, EnvSettings
-from letspi.evaluation.highway_env.store import labels, load_episode, load_episodes
 from letspi.fsutil import writer_lock
 from letspi.highd.io import write_recording
-from letspi.interop.highway_env import require
-from letspi.interop.highway_env.scene import episode_recording
 from letspi.planners.options import PlannerOptions
 from letspi.simulation.schedule import DualRateConfig
+from letspi_interop.highway_env import require
+from letspi_interop.highway_env.run import build_drivers, run_episodes
+from letspi_interop.highway_env.scene import episode_recording
+from letspi_interop.highway_env.settings import NATIVE_DOCS, EnvSettings
+from letspi_interop.highway_env.store import labels, load_episode, load_episodes
 
 app = typer.Typer(help="letspi on highway-env: episodes with any planner; episodes as HighD recordings.",
                   no_args_is_help=True, rich_markup_mode=None)

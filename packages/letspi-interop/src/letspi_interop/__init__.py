@@ -1,0 +1,1 @@
+"""letspi-interop: letspi with highway-env (episodes, suites, reports) and CommonRoad (export)."""

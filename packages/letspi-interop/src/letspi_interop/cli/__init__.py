@@ -1,0 +1,1 @@
+"""The commands letspi-interop adds to ``letspi`` (through ``letspi_interop.commands``)."""

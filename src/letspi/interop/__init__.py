@@ -1,1 +1,0 @@
-"""Exchange with other tools' formats (optional extras, imported only where used): ``commonroad``."""
