@@ -334,6 +334,7 @@ def _file_from_seeds(tmp_path: Path, *seeds: int) -> Path:
 @pytest.mark.parametrize("command", [["fit", "sf", "--evaluations", "1"], ["fit", "frenet", "--rounds", "0"],
                                      ["train", "llm-data", "--n-random", "1", "--n-rounds", "0"]])
 def test_fitting_and_labelling_refuse_suite_traffic(tmp_path: Path, command: list[str]) -> None:
+    pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
     path = _file_from_seeds(tmp_path, 7, 1003)
     out = tmp_path / "out"
     result = runner.invoke(app, [*command, "--scenarios", str(path), "--out", str(out)])

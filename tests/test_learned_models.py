@@ -34,6 +34,7 @@ SHIPPED = (shipped_weights_dir("goal") / "weights.npz").is_file()
 
 def _torch_models(seed: int = 0):  # type: ignore[no-untyped-def]
     torch = pytest.importorskip("torch")
+    pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
     from letspi_train.learned.modules import GnpNet, GoalNet
 
     torch.manual_seed(seed)

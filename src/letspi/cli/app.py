@@ -3,8 +3,8 @@
 ``COMMANDS`` names every command, the module and attribute that define it and its one-line summary:
 ``letspi --help`` prints the summaries without importing a command module, and ``letspi CMD ...`` imports
 only CMD's module. Other distributions add commands through the ``letspi.commands`` entry-point group
-(``letspi-train`` adds ``train`` and ``fit``, ``letspi-interop`` ``highway-env`` and ``export``). Planner kinds named by import path are loaded before a
-command's options are parsed (``letspi.cli.startup``).
+(``letspi-train`` adds ``train`` and ``fit``, ``letspi-interop`` ``highway-env`` and ``export``). Planner kinds
+named by import path are loaded before a command's options are parsed (``letspi.cli.startup``).
 """
 
 from __future__ import annotations
