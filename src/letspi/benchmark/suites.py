@@ -133,8 +133,26 @@ CLOSED_LOOP_DUAL_RATE: Final = Mode("closed-loop-log", replan_s=0.2, llm_period_
                                     n_windows=2000)
 
 
+class Pinned:
+    """The id of a suite from its ``definition()``: ``NAME@vVERSION-DIGEST8`` (letspi's suites and companions')."""
+
+    name: str
+    version: int
+
+    def definition(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    @property
+    def digest(self) -> str:
+        return definition_digest(self.definition())
+
+    @property
+    def suite_id(self) -> str:
+        return f"{self.name}@v{self.version}-{self.digest}"
+
+
 @dataclass(frozen=True)
-class Suite:
+class Suite(Pinned):
     """One benchmark suite. ``scripted``: what the reader must know about the events
     in the traffic (scripted or not, and how many), shown by ``list``/``show`` and in the leaderboard."""
 
@@ -153,14 +171,6 @@ class Suite:
         return {"name": self.name, "version": self.version, "data": self.data.definition(),
                 "extraction": self.extraction.definition(), "modes": [m.definition() for m in self.modes],
                 "metrics": self.metrics.recorded(), "reference": REFERENCE_PLANNER}
-
-    @property
-    def digest(self) -> str:
-        return definition_digest(self.definition())
-
-    @property
-    def suite_id(self) -> str:
-        return f"{self.name}@v{self.version}-{self.digest}"
 
     @property
     def generated(self) -> bool:

@@ -18,7 +18,7 @@ from types import MappingProxyType
 from typing import Any, Final
 
 from letspi.benchmark.run import default_planners
-from letspi.benchmark.suites import REFERENCE_PLANNER, definition_digest
+from letspi.benchmark.suites import REFERENCE_PLANNER, Pinned
 from letspi.fsutil import atomic_write_text
 from letspi.metrics.config import MetricsConfig
 from letspi.planners.options import PlannerOptions
@@ -42,7 +42,7 @@ def _seeds(n: int, first: int) -> tuple[int, ...]:
 
 
 @dataclass(frozen=True)
-class HighwayEnvSuite:
+class HighwayEnvSuite(Pinned):
     """One suite in highway-env: episodes of ``env_id`` with ``config`` (over highway-env's defaults), one per
     seed, at most ``duration_s`` long; planners replan every ``replan_s`` (highway-env's policy period), LLM
     planners ask their model every ``llm_period_s`` with a fixed answer latency ``llm_latency_s``.
@@ -73,14 +73,6 @@ class HighwayEnvSuite:
                 "config": dict(self.config), "seeds": list(self.seeds), "duration_s": self.duration_s,
                 "replan_s": self.replan_s, "llm_period_s": self.llm_period_s, "llm_latency_s": self.llm_latency_s,
                 "versions": dict(self.versions), "metrics": self.metrics.recorded(), "reference": REFERENCE_PLANNER}
-
-    @property
-    def digest(self) -> str:
-        return definition_digest(self.definition())
-
-    @property
-    def suite_id(self) -> str:
-        return f"{self.name}@v{self.version}-{self.digest}"
 
     def list_lines(self) -> list[str]:
         return [f"{self.suite_id:34s} {len(self.seeds):>6,d} episodes highway-env {self.env_id}",
