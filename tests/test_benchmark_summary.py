@@ -92,3 +92,21 @@ def test_run_refuses_an_unknown_mode_before_any_work(tmp_path: Path) -> None:
     assert ("has no mode closed-loop; did you mean closed-loop-log-0.2s or open-loop? (its modes: open-loop, "
             "closed-loop-log-0.2s)") in " ".join(result.output.split())
     assert not (tmp_path / "out").exists()
+
+
+def test_run_passes_release_to_the_closed_loop_modes_and_refuses_it_in_open_loop_only(tmp_path: Path) -> None:
+    from letspi.benchmark.run import closed_loop_settings, selected_modes
+    from letspi.benchmark.suites import get_suite
+
+    suite = get_suite("stress-closed-loop")
+    (closed,) = selected_modes(suite, ["closed-loop-log-0.2s"])
+    assert closed_loop_settings(closed, 2).dual_rate.release == "checks"
+    assert closed_loop_settings(closed, 2, "prediction").dual_rate.identity()["release"] == "prediction"
+    with pytest.raises(ValueError, match="--release must be one of checks, prediction, off"):
+        closed_loop_settings(closed, 2, "never")
+    result = CliRunner().invoke(app, ["benchmark", "run", "stress-closed-loop", "--mode", "open-loop", "--release",
+                                      "off", "--planner", "sf", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert "--release off applies to the closed-loop modes only; the modes run here: open-loop" in " ".join(
+        result.output.split())
+    assert not (tmp_path / "out").exists()

@@ -85,23 +85,28 @@ def selected_modes(suite: Suite, slugs: Sequence[str] | None) -> tuple[Mode, ...
     return tuple(m for m in suite.modes if m.slug in slugs)
 
 
-def closed_loop_settings(mode: Mode, workers: int) -> ClosedLoopConfig:
+def closed_loop_settings(mode: Mode, workers: int, release: str = "checks") -> ClosedLoopConfig:
+    """The suite mode's closed loop; ``release``: when a held preset gives way to the defaults (``RELEASE_MODES``)."""
     assert mode.replan_s is not None and mode.llm_period_s is not None
     return ClosedLoopConfig(mode=mode.mode, replan_s=mode.replan_s, workers=workers,  # type: ignore[arg-type]
-                            dual_rate=DualRateConfig(mode.llm_period_s, mode.llm_latency_s))
+                            dual_rate=DualRateConfig(mode.llm_period_s, mode.llm_latency_s, release=release))
 
 
 def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: PlannerOptions | None = None,
               highd_dir: Path | None = None, allow_other_files: bool = False, workers: int = 2,
               reports: bool = True, progress_factory: ProgressFactory | None = None,
               log: Callable[[str], None] = print, modes: Sequence[str] | None = None,
-              limit: int | None = None) -> SuiteRun:
+              limit: int | None = None, release: str = "checks") -> SuiteRun:
     """Make the data, evaluate ``planner_args`` (``KIND`` or ``LABEL=KIND``) in every mode (or those ``modes``
-    names), write the leaderboard; ``limit``: only the first N windows of each mode (recorded as a quick try)."""
+    names), write the leaderboard; ``limit``: only the first N windows of each mode (recorded as a quick try);
+    ``release``: the closed-loop modes' release of held presets (``RELEASE_MODES``)."""
     if limit is not None and limit < 1:
         raise ValueError(f"--limit must be at least 1, got {limit}")
     out = Path(out)
     run_modes = selected_modes(suite, modes)
+    if release != "checks" and all(m.mode == "open-loop" for m in run_modes):
+        raise ValueError(f"--release {release} applies to the closed-loop modes only; the modes run here: "
+                         + ", ".join(m.slug for m in run_modes))
     labels = [label for label, _ in planner_kinds(planner_args)]
     timing: dict[str, float] = {}
     started = time.perf_counter()
@@ -133,7 +138,7 @@ def run_suite(suite: Suite, planner_args: Sequence[str], out: Path, *, options: 
                 scenarios_file=str(data.scenarios_file), metrics=suite.metrics, progress_factory=clock,
                 workers=workers))
         else:
-            evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers),
+            evaluate_closed_loop(planners, batch, eval_dir, closed_loop_settings(mode, workers, release),
                                  scenarios_file=str(data.scenarios_file), config=suite.metrics, progress_factory=clock)
         clock.stop()
         timing[f"{mode.slug}_s"] = time.perf_counter() - t0

@@ -22,6 +22,7 @@ from letspi.cli.evaluate import progress_factory
 from letspi.cli.options import planner_options
 from letspi.fsutil import writer_lock
 from letspi.planners.options import PlannerOptions
+from letspi.simulation.settings import RELEASE
 
 app = typer.Typer(help="Versioned benchmark suites: list, show, run; power of a paired comparison.",
                   no_args_is_help=True, rich_markup_mode=None)
@@ -102,6 +103,7 @@ def run(
     limit: Annotated[int | None, typer.Option(
         min=1, help="A quick try: only the first N windows of each mode, in a directory of its own (default: "
                     "benchmark/SUITE-ID-first-N); its leaderboard says it is not the suite's result.")] = None,
+    release: Annotated[str, typer.Option(help=RELEASE.help)] = RELEASE.default,
 ) -> None:
     """Run a suite and write its leaderboard. Generates the suite's data (cached), evaluates the planners
     in its modes and writes leaderboard.json / .md / .html with 95 % intervals and paired deltas against sf."""
@@ -118,7 +120,7 @@ def run(
             result = run_suite(s, planners, target, options=options, highd_dir=highd,
                                allow_other_files=allow_other_files, workers=workers, reports=reports,
                                progress_factory=progress_factory(bar), log=bar.console.print,
-                               modes=mode, limit=limit)
+                               modes=mode, limit=limit, release=release)
     typer.echo(to_markdown(result.board))
     t = result.timing
     for slug, seconds in result.planner_s.items():
