@@ -82,7 +82,7 @@ def test_a_constant_chooser_picks_its_preset_where_the_gate_fires_unless_the_ver
         tmp_path: Path) -> None:
     MemoryBank.open(tmp_path / "m.sqlite").close()
     options = PlannerOptions(goals="kinematic", memory=tmp_path / "m.sqlite", gate=False, chooser="constant-ease",
-                             fast_llm="llamacpp:no-such-model")  # never loaded: the chooser needs no model
+                             fast_llm="llamacpp:no-such-model", verify=True)  # never loaded: needs no model
     config = resolve_planner("letspi-fast", options)
     assert config.llm is None and config.chooser is not None  # type: ignore[attr-defined]
     planner = build_planner(config, "ease", builder=Builder(cache=None)).planner
@@ -100,6 +100,10 @@ def test_a_constant_chooser_picks_its_preset_where_the_gate_fires_unless_the_ver
     assert plans.info["decision"].tolist() == expected.tolist()
     assert kept.any() and (~kept).any()  # both cases occur on these scenes
     assert all("chose ease" in r for r in plans.info["reason"])
+    # by default (no verification) the answer stands everywhere the gate fires
+    unverified = build_planner(resolve_planner("letspi-fast", options.replace(verify=False)), "ease",
+                               builder=Builder(cache=None)).planner
+    assert unverified.plan(batch).info["decision"].tolist() == ["ease"] * len(batch)
 
 
 def test_the_chooser_enters_the_key_and_the_model_s_key_stays(tmp_path: Path) -> None:

@@ -52,11 +52,12 @@ VARIANT = {"neighbour_mode": "constant_velocity", "top_k": 5, "shield": False, "
 #: and again when issue 28's choice model shipped (its manifest's prompt style choice turns the decision step on),
 #: and again when the embedded base ran from its F16 copy (another file) and the fast phase verified its choice.
 #: letspi-fast and sf-check moved once more (issue 36) when the shield stopped replacing the presets the decision
-#: step planned (``shield_presets`` False in their key; ``--shield-presets`` gives the old key).
+#: step planned (``shield_presets`` False in their key; ``--shield-presets`` gives the old key), and letspi-fast and
+#: letspi-fs again when the verification of the model's choice went off by default (``--verify`` gives the old key).
 PINNED_KEYS = {
     "human": "70ac28e00fca6bcb", "cv": "7e67bce47ff4cc19", "idm": "6be513ccf5f29f87", "sf": "450d00b28c1d1035",
     "sf-opt": "9ca84b4faa1546e9", "gnp": "3ed102fddba73923", "mlp": "ecfea6602f3bd4b0", "llm": "534f43ea8a81abfb",
-    "letspi-memory": "2c0af099e7a4eb86", "letspi-fast": "654284dc2c1d38c4", "letspi-fs": "709a0d6688cf5124",
+    "letspi-memory": "2c0af099e7a4eb86", "letspi-fast": "b7eccc117e628800", "letspi-fs": "d81fa564a9f6caa5",
     # frenet moved on the frenet2 branch on purpose: new settings (braking candidates, following terms, the
     # cautious check, the start-deceleration limit) and weights (k_headway, k_rss) are in its key
     "frenet": "fe73b79fa4e18c4a",
@@ -84,8 +85,11 @@ def test_configuration_keys_did_not_move(pinned_options: PlannerOptions) -> None
     assert _keys(variant) == PINNED_VARIANT_KEYS
     assert {"default": Resolver(pinned_options, env={}).memory_phase().key(),
             "variant": Resolver(variant, env={}).memory_phase().key()} == PINNED_COLLECTION_KEYS
+    verified = pinned_options.replace(verify=True)  # the keys while the verification was on by default
+    assert {k: resolve_planner(k, verified, env={}).key() for k in ("letspi-fast", "letspi-fs")} == {
+        "letspi-fast": "654284dc2c1d38c4", "letspi-fs": "709a0d6688cf5124"}
     # the shield on the planned presets too: the keys (and results) of before issue 36
-    old_shield = pinned_options.replace(shield_presets=True)
+    old_shield = verified.replace(shield_presets=True)
     assert {k: resolve_planner(k, old_shield, env={}).key() for k in ("letspi-fast", "sf-check")} == {
         "letspi-fast": "5918ff434343a9fe", "sf-check": "4dba20068bdd2d5d"}
 

@@ -12,7 +12,8 @@ risk model: their values, and the threshold recommended with the model) and the 
 constants in the identity before it is hashed. Behaviour that changes on purpose moves keys here:
 issue 28's verification of the fast phase's choice (``verify``) moved letspi-fast's and letspi-fs's; issue
 36's shield that leaves the decision step's presets alone (``shield_presets``) moved sf-check's and the deciding
-letspi-fast's (``--shield-presets`` gives their keys of before).
+letspi-fast's (``--shield-presets`` gives their keys of before); issue 36's verification off by default moved them
+again (``--verify`` gives the keys of before).
 """
 
 from __future__ import annotations
@@ -137,8 +138,8 @@ VARIANTS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
 #: the LLM kinds on the embedded default model (its weights, adapter and llama.cpp runtime fingerprinted);
 #: moved on purpose by issue 28's shipped adapter (prompt style choice) and the fast phase's verification;
 #: recomputed with the weights' digests replaced (``DATA_FIELDS``)
-EMBEDDED_KEYS = {"llm": "72995e49342617ce", "letspi-memory": "28b4e739ba99a9a9", "letspi-fast": "a76f30d4471a335e",
-                 "letspi-fs": "e98ee5aed5036e1e"}
+EMBEDDED_KEYS = {"llm": "72995e49342617ce", "letspi-memory": "28b4e739ba99a9a9", "letspi-fast": "c2fae81372712064",
+                 "letspi-fs": "6fb882405039e018"}
 COLLECTION_KEYS = {"scripted": "216bc7d8c4de867c", "embedded": "9a40f3e2d34c4be2"}
 
 
@@ -172,6 +173,10 @@ def test_each_option_moves_exactly_the_keys_it_moved_before(files: dict[str, Pat
 def test_the_embedded_model_and_the_collection_keep_their_keys(files: dict[str, Path]) -> None:
     embedded = PlannerOptions(memory=files["memory"])
     assert {kind: _key(embedded, kind) for kind in EMBEDDED_KEYS} == EMBEDDED_KEYS
+    # --verify: the keys the fast phase had while verification was on by default
+    verified = PlannerOptions(memory=files["memory"], verify=True)
+    assert {kind: _key(verified, kind) for kind in ("letspi-fast", "letspi-fs")} == {
+        "letspi-fast": "a76f30d4471a335e", "letspi-fs": "e98ee5aed5036e1e"}
     # --no-verify --shield-presets: the model's choice stands and the shield checks every plan, under the key
     # the fast phase had before verification
     unverified = PlannerOptions(memory=files["memory"], verify=False, shield_presets=True)
