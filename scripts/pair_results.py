@@ -1,11 +1,12 @@
 """Paired comparisons and leaderboards from stored per-scenario results, without planning anything.
 
 Usage:
-    python scripts/pair_results.py ROOT REFERENCE PLANNER [PLANNER ...] [--mode MODE]
+    python scripts/pair_results.py ROOT REFERENCE PLANNER [PLANNER ...] [--mode MODE] [--suite NAME ...]
     python scripts/pair_results.py ROOT --leaderboards OUT PLANNER [PLANNER ...] [--mode MODE]
 
 ROOT holds one `letspi benchmark run --out ROOT/SUITE` directory per suite (ROOT/SUITE/MODE/per_scenario/LABEL);
-MODE defaults to open-loop. Windows are paired by scenario digest over every suite present, pooled.
+MODE defaults to open-loop. Windows are paired by scenario digest over every suite present (or those --suite
+names), pooled.
 
 The first form prints, per planner against REFERENCE: CR at fault and SR (%), the windows only one of the two is at
 fault in and the exact McNemar p, and the same for successes. The second writes OUT/SUITE/leaderboard.json for the
@@ -71,11 +72,13 @@ def main() -> None:
     parser.add_argument("labels", nargs="+", help="REFERENCE PLANNER..., or with --leaderboards PLANNER...")
     parser.add_argument("--mode", default="open-loop")
     parser.add_argument("--leaderboards", type=Path, default=None, metavar="OUT")
+    parser.add_argument("--suite", action="append", default=None, help="Only this suite (repeatable)")
     args = parser.parse_args()
     if args.leaderboards is not None:
         leaderboards(args.root, args.mode, args.leaderboards, args.labels)
         return
-    dirs = [args.root / s / args.mode for s in SUITES if (args.root / s / args.mode).is_dir()]
+    suites = [s for s in SUITES if args.suite is None or s in args.suite]
+    dirs = [args.root / s / args.mode for s in suites if (args.root / s / args.mode).is_dir()]
     if not dirs or len(args.labels) < 2:
         parser.error(f"needs ROOT/SUITE/{args.mode} directories and REFERENCE PLANNER...")
     reference, *planners = args.labels
