@@ -42,6 +42,11 @@ for stage in "$@"; do
       done
       letspi benchmark run highway-env-dilu-5lane-3 --planner check-mobil-idm=sf-check --goals mobil --idm-fallback \
         "${LLM[@]}" --workers 2 --out "$R/dense3" ;;
+    verify-off)  # letspi-fast since issue 36 (the model's answer stands), beside the rows above (made with --verify)
+      for suite in highway-env-dilu-5lane-3:dense3 highway-env-dilu-5lane-2.5:dense25 highway-env-merge:merge \
+          highway-env-dilu:dilu; do
+        letspi benchmark run "${suite%%:*}" --planner fast-nv=letspi-fast "${LLM[@]}" --workers 2 --out "$R/${suite##*:}"
+      done ;;
     kcline)  # a probe: sf with mobil goals and the shipped fit's lane-line well k_cline lowered by hand
       for kc in 0.1 0.25; do
         python -c "import json, sys; from importlib.resources import files
