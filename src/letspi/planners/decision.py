@@ -48,7 +48,8 @@ RISK_MODEL = file_option("risk_model_file", "Decision step: the gate's risk mode
                          flag="--risk-model", panel=DECISION_PANEL)
 VERIFY = PlannerOption("verify", bool, False, "Decision step of letspi-fast: a model's choice that fails more checks "
                        "than another preset is replaced by the rule's choice (default off: the model's answer stands; "
-                       "on, it keeps the safety and costs 1.9 points of success: docs/decisions.md)",
+                       "on the held-out critical suites the replacement bought no safety and cost 1.9 points of "
+                       "success: docs/decisions.md)",
                        panel=DECISION_PANEL)
 KEEP_LANE = PlannerOption("keep_lane", bool, False, "Decision step: the rule, the verification and the shield take "
                           "a preset that changes lane only where every preset keeping the lane fails more checks",
