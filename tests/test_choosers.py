@@ -101,8 +101,9 @@ def test_a_constant_chooser_picks_its_preset_where_the_gate_fires_unless_the_ver
     assert kept.any() and (~kept).any()  # both cases occur on these scenes
     assert all("chose ease" in r for r in plans.info["reason"])
     # by default (no verification) the answer stands everywhere the gate fires
-    unverified = build_planner(resolve_planner("letspi-fast", options.replace(verify=False)), "ease",
-                               builder=Builder(cache=None)).planner
+    default = PlannerOptions(goals="kinematic", memory=tmp_path / "m.sqlite", gate=False, chooser="constant-ease",
+                             fast_llm="llamacpp:no-such-model")
+    unverified = build_planner(resolve_planner("letspi-fast", default), "ease", builder=Builder(cache=None)).planner
     assert unverified.plan(batch).info["decision"].tolist() == ["ease"] * len(batch)
 
 
