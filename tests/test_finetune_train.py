@@ -4,6 +4,7 @@ loads in llama.cpp and makes the trained reply more likely there (slow: loads th
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.data import LABELS_FORMAT, build_examples, split_examples
 from letspi_train.finetune.export import read_adapter_gguf
+from letspi_train.finetune.train import LoraTrainConfig, check_init
 
 #: a label far from what the base model answers, so a few steps visibly move the model towards it
 TARGET = {"tau_s": 0.5, "k_np": 55.0, "k_nf": 1.0, "k_nl": 4.5, "k_boundary": 4.0, "k_cline": 2.5,
@@ -84,6 +86,31 @@ def test_examples_are_compact_prompts_with_the_label_as_reply(tmp_path: Path) ->
         build_examples(labels, KinematicGoalPredictor(), scenarios=other)
 
 
+def _finished_run(tmp_path: Path, base_sha256: str, **hyper: object) -> Path:
+    """A run directory as `train llm` leaves it (manifest and peft/), with these hyperparameters."""
+    run = tmp_path / "run"
+    (run / "peft").mkdir(parents=True)
+    config = {**asdict(LoraTrainConfig()), **hyper}
+    (run / "manifest.json").write_text(json.dumps({"base_model": {"sha256": base_sha256}, "hyperparameters": config,
+                                                   "adapter": {"sha256": "ab" * 32}}))
+    return run
+
+
+def test_a_continued_run_must_keep_the_lora_shape_and_the_split(tmp_path: Path) -> None:
+    run = _finished_run(tmp_path, "b" * 64, rank=16, alpha=32, layers=8)
+    same = LoraTrainConfig(rank=16, alpha=32, layers=8, lr=1e-4, balance=0.75, epochs=0.5)
+    assert check_init(run, same, "b" * 64)["adapter"]["sha256"] == "ab" * 32  # lr, balance, epochs may change
+    for change, flag in (({"rank": 8}, "--rank"), ({"layers": 4}, "--layers"), ({"seed": 1}, "--seed"),
+                         ({"val_fraction": 0.2}, "--val-fraction")):
+        other = LoraTrainConfig(**{"rank": 16, "alpha": 32, "layers": 8, **change})  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match=flag):
+            check_init(run, other, "b" * 64)
+    with pytest.raises(ValueError, match="another base model"):
+        check_init(run, same, "c" * 64)
+    with pytest.raises(ValueError, match="no finished"):
+        check_init(tmp_path / "elsewhere", same, "b" * 64)
+
+
 @pytest.mark.slow
 def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_towards_the_label(tmp_path: Path) -> None:
     pytest.importorskip("torch")
@@ -139,3 +166,15 @@ def test_a_few_steps_export_an_adapter_that_llama_cpp_loads_and_that_moves_it_to
             - rows.max(axis=1, keepdims=True)
         log_likelihood[name] = float(log_probs[np.arange(len(reply_ids)), reply_ids].sum())
     assert log_likelihood["tuned"] > log_likelihood["base"] + 1.0, log_likelihood
+
+    # a continued run starts from the trained adapter: its first loss is the first run's last, not its first
+    more = tmp_path / "w2"
+    res = CliRunner().invoke(app, ["train", "llm", "--data", str(labels), "--out", str(more), "--max-steps", "2",
+                                   "--batch-size", "2", "--rank", "4", "--lr", "1e-3", "--val-fraction", "0",
+                                   "--verify", "0", "--seed", "1", "--layers", "4", "--init", str(out)])
+    assert res.exit_code == 0, res.output
+    continued = json.loads((more / "manifest.json").read_text())
+    assert continued["init"]["adapter_sha256"] == manifest["adapter"]["sha256"]
+    assert continued["fingerprint"]["init_adapter_sha256"] == manifest["adapter"]["sha256"]
+    assert continued["training"]["first_loss"] < 0.5 * manifest["training"]["first_loss"], (
+        continued["training"], manifest["training"])

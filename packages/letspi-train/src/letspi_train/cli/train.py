@@ -257,6 +257,9 @@ def train_llm(
         help="Seconds of training between resumable checkpoints.")] = 300.0,
     balance: Annotated[float, typer.Option(help="Repeat each training example (n of the commonest reply / n of its "
                                            "reply) ** BALANCE times, at most 8 (0: as labelled).")] = 0.0,
+    init: Annotated[Path | None, typer.Option(
+        help="Continue from this run's adapter (`letspi train llm --out`); same rank, alpha, layers, seed and "
+             "split.")] = None,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M with LoRA. Trains on physics-verified labels (LoRA on the packaged
     GGUF) and exports a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
@@ -280,7 +283,8 @@ def train_llm(
                     tally.track(total, lambda: checkpoint_step(out))
 
             manifest = train_lora(examples, cfg, packaged_smollm2_path(), out, data_info=info,
-                                  progress=progress, verify=verify, command=command_line())
+                                  progress=progress, verify=verify, command=command_line(),
+                                  init_dir=init)
     t = manifest["training"]
     check = manifest.get("export_check") or {}
     console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "

@@ -275,11 +275,13 @@ def train_lora(
     progress: Callable[[int, int, float], None] | None = None,
     verify: int = 3,
     command: str = "",
+    init_dir: Path | None = None,
 ) -> dict[str, Any]:
     """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
     Resumable from ``checkpoint.pt`` (written every ``checkpoint_every_s``); a finished run with this
     fingerprint returns its manifest at once. ``progress(step, total_steps, loss)`` after every step;
-    ``verify``: validation (else training) prompts compared by ``verify_export``."""
+    ``verify``: validation (else training) prompts compared by ``verify_export``; ``init_dir``: continue from
+    that run's adapter (``check_init`` says what must match)."""
     import torch
     from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
@@ -294,6 +296,9 @@ def train_lora(
     train, val, val_eval = _split(examples, config)
     base_sha = file_sha256(Path(base_gguf))
     fingerprint = run_fingerprint(config, base_sha, train)
+    init_manifest = check_init(Path(init_dir), config, base_sha) if init_dir is not None else None
+    if init_manifest is not None:
+        fingerprint["init_adapter_sha256"] = init_manifest["adapter"]["sha256"]
     done = _finished_manifest(out_dir, fingerprint)
     if done is not None:
         return done
@@ -303,7 +308,12 @@ def train_lora(
     enc_val = [encode_example(tokenizer, e) for e in val_eval]
     load_s = time.perf_counter() - t_start
 
-    model = lora_model(base, config)
+    if init_dir is None:
+        model = lora_model(base, config)
+    else:
+        from peft import PeftModel
+
+        model = PeftModel.from_pretrained(base, str(Path(init_dir) / PEFT_DIR), is_trainable=True)
     n_trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
     precision = choose_precision(config, model, _collate(enc_train[: config.batch_size], pad_id))
     val_before = _mean_loss(model, enc_val, pad_id, config.batch_size)
@@ -339,9 +349,33 @@ def train_lora(
         "export_check": check,
         "versions": _versions(),
     }
+    if init_manifest is not None:
+        manifest["init"] = {"adapter_sha256": init_manifest["adapter"]["sha256"],
+                            "command": init_manifest.get("training", {}).get("command")}
     atomic_write_text(out_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=float) + "\n")
     (out_dir / CHECKPOINT_FILE).unlink(missing_ok=True)  # the adapter and manifest now say it all
     return manifest
+
+
+#: what a continued run must share with the run it starts from (the LoRA shape, and the split, so that its
+#: validation examples stay unseen)
+INIT_MUST_MATCH = ("rank", "alpha", "dropout", "layers", "seed", "val_fraction")
+
+
+def check_init(init_dir: Path, config: LoraTrainConfig, base_sha256: str) -> dict[str, Any]:
+    """The manifest of the run in ``init_dir``, after checking that ``config`` may continue it."""
+    path = init_dir / MANIFEST_FILE
+    if not path.is_file() or not (init_dir / PEFT_DIR).is_dir():
+        raise ValueError(f"--init {init_dir}: no finished `letspi train llm` run there ({MANIFEST_FILE}, {PEFT_DIR}/)")
+    manifest = json.loads(path.read_text())
+    if manifest.get("base_model", {}).get("sha256") != base_sha256:
+        raise ValueError(f"--init {init_dir}: trained on another base model")
+    hyper = manifest.get("hyperparameters", {})
+    for name in INIT_MUST_MATCH:
+        if hyper.get(name) != getattr(config, name):
+            raise ValueError(f"--init {init_dir}: its --{name.replace('_', '-')} is {hyper.get(name)!r}, "
+                             f"this run's {getattr(config, name)!r}; a continued run must keep it")
+    return dict(manifest)
 
 
 def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[list[ChatExample],
