@@ -25,7 +25,7 @@ from letspi.scenario.types import ScenarioBatch, concat_batches
 pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.data import LABELS_FORMAT, build_examples, split_examples
 from letspi_train.finetune.export import read_adapter_gguf
-from letspi_train.finetune.train import LoraTrainConfig, check_init
+from letspi_train.finetune.train import LoraTrainConfig, bf16_loss_agrees, check_init
 
 #: a label far from what the base model answers, so a few steps visibly move the model towards it
 TARGET = {"tau_s": 0.5, "k_np": 55.0, "k_nf": 1.0, "k_nl": 4.5, "k_boundary": 4.0, "k_cline": 2.5,
@@ -109,6 +109,13 @@ def test_a_continued_run_must_keep_the_lora_shape_and_the_split(tmp_path: Path) 
         check_init(run, same, "c" * 64)
     with pytest.raises(ValueError, match="no finished"):
         check_init(tmp_path / "elsewhere", same, "b" * 64)
+
+
+def test_bf16_is_taken_when_its_first_loss_agrees_relatively_or_in_absolute_nats() -> None:
+    assert bf16_loss_agrees(2.3435, 2.3524)  # a fresh run: 0.4 % apart
+    assert bf16_loss_agrees(0.004753, 0.004914)  # a continued run near zero loss: 3.4 % but 0.0002 nats apart
+    assert not bf16_loss_agrees(2.0, 2.1)  # 5 %, 0.1 nats
+    assert not bf16_loss_agrees(0.05, 0.07)  # 40 %, 0.02 nats
 
 
 @pytest.mark.slow
