@@ -23,9 +23,9 @@ from letspi.scenario.store import save_scenarios
 from letspi.scenario.types import ScenarioBatch, concat_batches
 
 pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
-from letspi_train.finetune.data import LABELS_FORMAT, build_examples, split_examples
+from letspi_train.finetune.data import LABELS_FORMAT, ChatExample, build_examples, split_examples
 from letspi_train.finetune.export import read_adapter_gguf
-from letspi_train.finetune.train import LoraTrainConfig, bf16_loss_agrees, check_init
+from letspi_train.finetune.train import LoraTrainConfig, bf16_loss_agrees, check_init, training_split
 
 #: a label far from what the base model answers, so a few steps visibly move the model towards it
 TARGET = {"tau_s": 0.5, "k_np": 55.0, "k_nf": 1.0, "k_nl": 4.5, "k_boundary": 4.0, "k_cline": 2.5,
@@ -109,6 +109,21 @@ def test_a_continued_run_must_keep_the_lora_shape_and_the_split(tmp_path: Path) 
         check_init(run, same, "c" * 64)
     with pytest.raises(ValueError, match="no finished"):
         check_init(tmp_path / "elsewhere", same, "b" * 64)
+
+
+def test_train_only_examples_join_the_training_side_and_leave_the_split_alone() -> None:
+    def example(vehicle: str, reply: str = "default") -> ChatExample:
+        return ChatExample((), reply, "propose", f"d-{vehicle}", vehicle)
+
+    data = [example(f"rec/{i}") for i in range(20)]
+    config = LoraTrainConfig(val_fraction=0.2, max_val=48)
+    train, val, _ = training_split(data, config)
+    more = [example("other/1", "brake"), example("other/2", "brake")]
+    train2, val2, _ = training_split(data, config, more)
+    assert val2 == val and len(val) == 4  # the split is that of the --data examples alone
+    assert train2 == train + more
+    with pytest.raises(ValueError, match="also on the validation side"):
+        training_split(data, config, [example(val[0].vehicle_key)])
 
 
 def test_bf16_is_taken_when_its_first_loss_agrees_relatively_or_in_absolute_nats() -> None:

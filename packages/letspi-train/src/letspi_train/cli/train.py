@@ -260,6 +260,9 @@ def train_llm(
     init: Annotated[Path | None, typer.Option(
         help="Continue from this run's adapter (`letspi train llm --out`); same rank, alpha, layers, seed and "
              "split.")] = None,
+    train_only: Annotated[list[Path] | None, typer.Option(
+        "--train-only", help="Labels directory whose examples only train: the split is that of --data alone "
+                             "(repeat for several).")] = None,
 ) -> None:
     """Fine-tune the embedded SmolLM2-135M with LoRA. Trains on physics-verified labels (LoRA on the packaged
     GGUF) and exports a llama.cpp adapter; use it with --llm llamacpp:smollm2-135m-letspi and
@@ -274,6 +277,10 @@ def train_llm(
                               layers=layers, max_val=max_val, precision=precision,  # type: ignore[arg-type]
                               checkpoint_every_s=checkpoint_every_s, balance=balance)
         examples, info = _llm_examples(data, scenarios, max_scenarios)
+        extra: list[Any] = []
+        if train_only:
+            extra, extra_info = _llm_examples(list(train_only), None, None)
+            info = {**info, "train_only": extra_info}
         with progress_bar() as bar:
             task = bar.add_task("fine-tuning", total=None)
 
@@ -284,7 +291,7 @@ def train_llm(
 
             manifest = train_lora(examples, cfg, packaged_smollm2_path(), out, data_info=info,
                                   progress=progress, verify=verify, command=command_line(),
-                                  init_dir=init)
+                                  init_dir=init, train_only=extra)
     t = manifest["training"]
     check = manifest.get("export_check") or {}
     console.print(f"adapter -> {out / 'adapter.gguf'} ({manifest['adapter']['bytes'] / 1e6:.1f} MB, "

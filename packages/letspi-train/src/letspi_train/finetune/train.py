@@ -285,12 +285,14 @@ def train_lora(
     verify: int = 3,
     command: str = "",
     init_dir: Path | None = None,
+    train_only: Sequence[ChatExample] = (),
 ) -> dict[str, Any]:
     """Fine-tune, export ``adapter.gguf`` and write ``manifest.json`` into ``out_dir``; returns the manifest.
     Resumable from ``checkpoint.pt`` (written every ``checkpoint_every_s``); a finished run with this
     fingerprint returns its manifest at once. ``progress(step, total_steps, loss)`` after every step;
     ``verify``: validation (else training) prompts compared by ``verify_export``; ``init_dir``: continue from
-    that run's adapter (``check_init`` says what must match)."""
+    that run's adapter (``check_init`` says what must match); ``train_only``: examples added to the training side
+    after the split of ``examples`` (so the validation split stays that of ``examples`` alone)."""
     import torch
     from peft import get_peft_model_state_dict, set_peft_model_state_dict
 
@@ -302,7 +304,7 @@ def train_lora(
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
 
-    train, val, val_eval = _split(examples, config)
+    train, val, val_eval = training_split(examples, config, train_only)
     base_sha = file_sha256(Path(base_gguf))
     fingerprint = run_fingerprint(config, base_sha, train)
     init_manifest = check_init(Path(init_dir), config, base_sha) if init_dir is not None else None
@@ -351,7 +353,7 @@ def train_lora(
         "adapter": {**adapter_record, "trainable_parameters": int(n_trainable)},
         "prompt_style": (data_info or {}).get("prompt_style", "compact"),
         "hyperparameters": asdict(config),
-        "data": {**(data_info or {}), **_data_record(config, train, val, val_eval, enc_train)},
+        "data": {**(data_info or {}), **_data_record(config, train, val, val_eval, enc_train, len(train_only))},
         "training": {**_training_record(config, history, steps_per_epoch, len(enc_train)),
                      "val_loss_before": val_before, "val_loss_after": val_after, **precision,
                      "load_s": load_s, "elapsed_s_this_process": time.perf_counter() - t_start, "command": command},
@@ -387,10 +389,17 @@ def check_init(init_dir: Path, config: LoraTrainConfig, base_sha256: str) -> dic
     return dict(manifest)
 
 
-def _split(examples: Sequence[ChatExample], config: LoraTrainConfig) -> tuple[list[ChatExample],
-                                                                             list[ChatExample], list[ChatExample]]:
-    """(train, validation, the ``max_val`` validation examples scored before and after training)."""
+def training_split(examples: Sequence[ChatExample], config: LoraTrainConfig, train_only: Sequence[ChatExample] = (),
+                   ) -> tuple[list[ChatExample], list[ChatExample], list[ChatExample]]:
+    """(train, validation, the ``max_val`` validation examples scored before and after training); ``train_only``
+    joins the training side, and may not share an ego vehicle with the validation side."""
     train, val = split_examples(examples, config.val_fraction, config.seed)
+    val_vehicles = {e.vehicle_key for e in val if e.vehicle_key}
+    shared = sorted({e.vehicle_key for e in train_only if e.vehicle_key in val_vehicles})
+    if shared:
+        raise ValueError(f"--train-only: {len(shared)} ego vehicles are also on the validation side "
+                         f"(e.g. {shared[0]}); pass those labels with --data")
+    train = train + list(train_only)
     if not train:
         raise ValueError("no training examples (all in the validation split?)")
     train = rebalance(train, config.balance)  # the validation split keeps the labels' shares
@@ -455,9 +464,10 @@ def _batch_loss(model: Any, encoded: Sequence[tuple[list[int], list[int]]], pad_
 
 
 def _data_record(config: LoraTrainConfig, train: Sequence[ChatExample], val: Sequence[ChatExample],
-                 val_eval: Sequence[ChatExample], enc_train: Sequence[tuple[list[int], list[int]]]) -> dict[str, Any]:
+                 val_eval: Sequence[ChatExample], enc_train: Sequence[tuple[list[int], list[int]]],
+                 n_train_only: int = 0) -> dict[str, Any]:
     """The manifest's data section: split, sizes, kinds and token counts."""
-    return {"n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval),
+    return {"n_train": len(train), "n_val": len(val), "n_val_evaluated": len(val_eval), "n_train_only": n_train_only,
             "split": f"by ego vehicle, {100 * config.val_fraction:.0f} % validation, seed {config.seed}",
             "train_vehicles": len({e.vehicle_key for e in train}),
             "val_vehicles": len({e.vehicle_key for e in val}),
