@@ -7,7 +7,8 @@ Each RESULTS_DIR is a closed-loop results directory (``letspi evaluate --mode cl
 human endpoint and the lane markings come from there). Windows are paired by scenario digest. Prints JSON:
 the windows only the reference succeeds in ("lost") and only the planner ("gained"); why each lost one
 failed: a contact, the simulated ego ends in another lane than the human ("lane"), short of or beyond the
-human's progress ("short", "long"), else infeasible or off the road ("other"); and what the planner had in
+human's progress ("short", "long"), a peak acceleration over the limits ("infeasible"), else off the road or
+not finite ("other"), and the same for the reference in the gained ones; and what the planner had in
 force over the window's replans (from ``info_lon_factor_mean_over_replans`` / ``info_lane_factor_...``):
 a right-lane preset at some replan ("lane change"), a goal nearer than the defaults' ("cautious"), or the
 defaults throughout ("defaults").
@@ -30,6 +31,7 @@ from letspi.metrics.kinematics import lane_index
 from letspi.physics.goals import NEUTRAL_LON_FACTOR
 from letspi.scenario.identity import scenario_digests
 from letspi.scenario.store import load_scenarios
+from letspi.scenario.types import ScenarioBatch
 
 LON, LANE = "info_lon_factor_mean_over_replans", "info_lane_factor_mean_over_replans"
 
@@ -48,10 +50,28 @@ def _in_force(frame: pd.DataFrame) -> np.ndarray:
                                                                   "defaults"))
 
 
+def _why(frame: pd.DataFrame, batch: ScenarioBatch, config: MetricsConfig) -> np.ndarray:
+    """(n,) str: the first criterion of success each row's plan fails (module docstring), "" where it succeeds."""
+    human_end = batch.ego_xy_m[:, -1]
+    start_x = batch.ego_xy_m[:, T0_INDEX, 0]
+    markings = batch.marking_y_m
+    end = _ends(frame["plan_xy_m"])
+    same_lane = (lane_index(end[:, 1:2], markings)[:, 0] == lane_index(human_end[:, 1:2], markings)[:, 0]) | (
+        np.abs(end[:, 1] - human_end[:, 1]) <= config.sr_lat_tol_m)
+    progress, human = end[:, 0] - start_x, human_end[:, 0] - start_x
+    tol = np.maximum(config.sr_progress_tol_m, config.sr_progress_tol_rel * np.abs(human))
+    feasible = frame["feasible"].to_numpy(bool) if "feasible" in frame else np.ones(len(frame), bool)
+    why = np.select([frame["success"].to_numpy(bool), frame["collision"].to_numpy(bool), ~same_lane,
+                     progress < human - tol, progress > human + tol, ~feasible],
+                    ["", "collision", "lane", "short", "long", "infeasible"], "other")
+    return why
+
+
 def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
     config = MetricsConfig()
     out: dict[str, object] = {}
     lost_why: Counter[str] = Counter()
+    gained_ref_why: Counter[str] = Counter()
     lost_force: Counter[str] = Counter()
     gained_force: Counter[str] = Counter()
     cross: Counter[str] = Counter()
@@ -65,21 +85,12 @@ def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
         row_of = {str(x): i for i, x in enumerate(scenario_digests(scenarios))}
         rows = np.array([row_of[str(x)] for x in a["scenario_digest"]])
         batch = scenarios.take(rows)
-        human_end = batch.ego_xy_m[:, -1]
-        start_x = batch.ego_xy_m[:, T0_INDEX, 0]
-        markings = batch.marking_y_m
-        end = _ends(a["plan_xy_m"])
-        same_lane = (lane_index(end[:, 1:2], markings)[:, 0] == lane_index(human_end[:, 1:2], markings)[:, 0]) | (
-            np.abs(end[:, 1] - human_end[:, 1]) <= config.sr_lat_tol_m)
-        progress, human = end[:, 0] - start_x, human_end[:, 0] - start_x
-        tol = np.maximum(config.sr_progress_tol_m, config.sr_progress_tol_rel * np.abs(human))
         sa, sb = a["success"].to_numpy(bool), b["success"].to_numpy(bool)
         force = _in_force(a)
-        why = np.where(a["collision"].to_numpy(bool), "collision",
-                       np.where(~same_lane, "lane", np.where(progress < human - tol, "short",
-                                                             np.where(progress > human + tol, "long", "other"))))
+        why = _why(a, batch, config)
         lost_mask, gained_mask = sb & ~sa, sa & ~sb
         lost_why.update(why[lost_mask].tolist())
+        gained_ref_why.update(_why(b, batch, config)[gained_mask].tolist())
         lost_force.update(force[lost_mask].tolist())
         gained_force.update(force[gained_mask].tolist())
         cross.update(f"{f}: {w}" for f, w in zip(force[lost_mask], why[lost_mask], strict=True))
@@ -94,6 +105,7 @@ def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
         lost += int(lost_mask.sum())
         gained += int(gained_mask.sum())
     out.update({"windows": n, "lost": lost, "gained": gained, "lost_why": dict(lost_why),
+                "gained_reference_why": dict(gained_ref_why),
                 "lost_in_force": dict(lost_force), "gained_in_force": dict(gained_force),
                 "lost_in_force_why": dict(cross), "in_force_windows": dict(force_all),
                 "sr_by_in_force": {f: {"windows": w, "sr_pct": round(100 * s / w, 1),
