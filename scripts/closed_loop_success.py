@@ -8,7 +8,8 @@ human endpoint and the lane markings come from there). Windows are paired by sce
 the windows only the reference succeeds in ("lost") and only the planner ("gained"); why each lost one
 failed: a contact, the simulated ego ends in another lane than the human ("lane"), short of or beyond the
 human's progress ("short", "long"), a peak acceleration over the limits ("infeasible"), else off the road or
-not finite ("other"), and the same for the reference in the gained ones; and what the planner had in
+not finite ("other"), and the same for the reference in the gained ones, with the peak |a_lon| range of the
+infeasible plans; and what the planner had in
 force over the window's replans (from ``info_lon_factor_mean_over_replans`` / ``info_lane_factor_...``):
 a right-lane preset at some replan ("lane change"), a goal nearer than the defaults' ("cautious"), or the
 defaults throughout ("defaults").
@@ -67,11 +68,18 @@ def _why(frame: pd.DataFrame, batch: ScenarioBatch, config: MetricsConfig) -> np
     return why
 
 
+def _span(values: list[float]) -> list[float] | None:
+    """[min, max] rounded to 0.01, or None without values."""
+    return [round(min(values), 2), round(max(values), 2)] if values else None
+
+
 def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
     config = MetricsConfig()
     out: dict[str, object] = {}
     lost_why: Counter[str] = Counter()
     gained_ref_why: Counter[str] = Counter()
+    lost_peaks: list[float] = []  # peak |a_lon| (m/s^2) of the infeasible plans among the lost / gained windows
+    gained_peaks: list[float] = []
     lost_force: Counter[str] = Counter()
     gained_force: Counter[str] = Counter()
     cross: Counter[str] = Counter()
@@ -90,7 +98,12 @@ def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
         why = _why(a, batch, config)
         lost_mask, gained_mask = sb & ~sa, sa & ~sb
         lost_why.update(why[lost_mask].tolist())
-        gained_ref_why.update(_why(b, batch, config)[gained_mask].tolist())
+        ref_why = _why(b, batch, config)
+        gained_ref_why.update(ref_why[gained_mask].tolist())
+        for frame, m, peaks in ((a, lost_mask & (why == "infeasible"), lost_peaks),
+                                (b, gained_mask & (ref_why == "infeasible"), gained_peaks)):
+            if "peak_abs_acc_lon_mps2" in frame:
+                peaks.extend(frame["peak_abs_acc_lon_mps2"].to_numpy(np.float64)[m].tolist())
         lost_force.update(force[lost_mask].tolist())
         gained_force.update(force[gained_mask].tolist())
         cross.update(f"{f}: {w}" for f, w in zip(force[lost_mask], why[lost_mask], strict=True))
@@ -106,6 +119,8 @@ def main(planner: str, reference: str, dirs: list[Path]) -> dict[str, object]:
         gained += int(gained_mask.sum())
     out.update({"windows": n, "lost": lost, "gained": gained, "lost_why": dict(lost_why),
                 "gained_reference_why": dict(gained_ref_why),
+                "infeasible_peak_acc_lon_mps2": {"lost": _span(lost_peaks), "gained_reference": _span(gained_peaks),
+                                                 "limit": config.max_abs_acc_lon_mps2},
                 "lost_in_force": dict(lost_force), "gained_in_force": dict(gained_force),
                 "lost_in_force_why": dict(cross), "in_force_windows": dict(force_all),
                 "sr_by_in_force": {f: {"windows": w, "sr_pct": round(100 * s / w, 1),
