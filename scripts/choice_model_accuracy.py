@@ -8,6 +8,13 @@ ego vehicle, 10 %, seed 0). Each distinct prompt is asked once through the defau
 (`llamacpp:smollm2-135m-letspi`; set LETSPI_LLM_ADAPTER to try another adapter), uncached. Prints the
 accuracy overall and per label (all examples, and first proposals only), the answers' shares in first
 proposals, the confusion (kind, label -> answer) and the median latency per call as JSON.
+
+It also scores each answer by the window's hindsight (the labels' ``hindsight_json``: per preset the at-fault
+contact, contact and success of its plan against the recorded future): per label, how many answers had the
+label's outcome (``same_outcome``), a better one (``better``) or a worse one (``worse``), and how often the
+label itself was the best preset in hindsight (``label_best``; ``letspi_train.finetune.preference``'s utility,
+an outcome worth 1 or more, progress breaking ties). A wrong answer with the label's outcome costs nothing
+in that window; one with a worse outcome does.
 """
 
 from __future__ import annotations
@@ -19,11 +26,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from letspi.assembly.build import Builder
 from letspi.assembly.resolve import goals_config
 from letspi.llm.client import ParamAdvisor
 from letspi.method.decide import load_presets
-from letspi_train.finetune.data import build_examples_many, split_examples
+from letspi_train.finetune.data import build_examples_many, read_choice_labels, split_examples
+from letspi_train.finetune.decide_data import HINDSIGHT_COLUMN
+from letspi_train.finetune.preference import hindsight_utility, hindsight_verdict
 
 
 def main(dirs: list[Path]) -> dict[str, object]:
@@ -33,7 +44,9 @@ def main(dirs: list[Path]) -> dict[str, object]:
     names = list(load_presets()[0].names)
     options: dict[str, Any] = {n: n for n in names}  # only the chosen name is read
     advisor = ParamAdvisor("llamacpp:smollm2-135m-letspi", cache=None)
+    hindsight, weights = hindsight_of_windows(dirs)
     confusion: collections.Counter[tuple[str, str, str]] = collections.Counter()
+    versus: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
     latencies: list[float] = []
     seen: set[tuple[str, str]] = set()
     for example in val:
@@ -44,13 +57,42 @@ def main(dirs: list[Path]) -> dict[str, object]:
         started = time.perf_counter()
         advice = advisor.choose(list(example.messages), options)
         latencies.append(time.perf_counter() - started)
-        confusion[(example.kind, json.loads(example.reply)["option"], str(advice.choice))] += 1
+        label = json.loads(example.reply)["option"]
+        confusion[(example.kind, label, str(advice.choice))] += 1
+        versus[label].update(compare_in_hindsight(hindsight[example.scenario_digest], names, weights, label,
+                                                  str(advice.choice)))
     n = sum(confusion.values())
     return {"n": n, "accuracy": sum(v for k, v in confusion.items() if k[1] == k[2]) / max(n, 1),
             "median_latency_s": sorted(latencies)[len(latencies) // 2] if latencies else None,
             "per_label": per_label(confusion), "per_label_propose": per_label(confusion, "propose"),
             "answers_propose": answer_shares(confusion, "propose"),
+            "hindsight": {label: dict(sorted(c.items())) for label, c in sorted(versus.items())},
             "confusion": {f"{kind} {label} -> {answer}": v for (kind, label, answer), v in sorted(confusion.items())}}
+
+
+def hindsight_of_windows(dirs: list[Path]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Per window (scenario digest) its presets' (K, 4) hindsight ``[at_fault, contact, success, progress_m]``,
+    and the labels' utility weights; ``ValueError`` naming the directory whose labels lack the column."""
+    out: dict[str, np.ndarray] = {}
+    weights: dict[str, float] = {}
+    for d in dirs:
+        df, manifest = read_choice_labels(d)
+        if HINDSIGHT_COLUMN not in df.columns:
+            raise ValueError(f"{d}: the labels have no {HINDSIGHT_COLUMN} column (rebuild them with `letspi train "
+                             "decide`)")
+        weights = dict(manifest["weights"])
+        for digest, text in zip(df["scenario_digest"], df[HINDSIGHT_COLUMN], strict=True):
+            out[str(digest)] = np.asarray(json.loads(text), dtype=np.float64)
+    return out, weights
+
+
+def compare_in_hindsight(h: np.ndarray, names: list[str], weights: dict[str, float], label: str,
+                         answer: str) -> list[str]:
+    """The answer against the label in one window's hindsight ``h`` (K, 4) (``hindsight_verdict``), and
+    ``label_best`` when no preset beats the label's utility by an outcome (1 or more)."""
+    i, j = names.index(label), names.index(answer)
+    u = hindsight_utility(h, weights)
+    return [hindsight_verdict(h, weights, i, j), *(["label_best"] if u.max() - u[i] < 1.0 else [])]
 
 
 def per_label(confusion: collections.Counter[tuple[str, str, str]], kind: str | None = None) -> dict[str, object]:

@@ -21,7 +21,7 @@ from letspi.scenario.types import concat_batches
 pytest.importorskip("letspi_train", reason="letspi-train is not installed (pip install -e packages/letspi-train)")
 from letspi_train.finetune.data import ChatExample
 from letspi_train.finetune.decide_data import CHOICE_FORMAT, ChoiceLabel, label_frame
-from letspi_train.finetune.preference import dpo_loss, hindsight_utility, ranked_pairs
+from letspi_train.finetune.preference import dpo_loss, hindsight_utility, hindsight_verdict, ranked_pairs
 from letspi_train.finetune.train import rebalance
 
 W = {"at_fault": 8.0, "contact": 2.0, "progress_per_m": 0.01}
@@ -38,6 +38,17 @@ def test_the_best_preset_in_hindsight_is_preferred_to_each_one_whose_outcome_is_
     assert ranked_pairs(NAMES, h, W, margin=2.0) == [("ease", "default")]
     calm = np.array([[0, 0, 1, 120.0], [0, 0, 1, 110.0], [0, 0, 1, 100.0], [0, 0, 1, 80.0]])
     assert ranked_pairs(NAMES, calm, W, margin=1.0) == []  # progress alone makes no pair
+
+
+def test_an_answer_is_judged_against_its_label_by_outcome_not_progress() -> None:
+    h = np.array([[1, 1, 1, 120.0], [0, 0, 1, 110.0], [0, 0, 0, 100.0], [0, 0, 0, 80.0]])
+    assert hindsight_verdict(h, W, label=2, answer=3) == "same_outcome"  # 20 m less progress: the same outcome
+    assert hindsight_verdict(h, W, label=2, answer=1) == "better"  # succeeds where the label misses the endpoint
+    assert hindsight_verdict(h, W, label=1, answer=0) == "worse"  # at fault where the label is safe
+    # a contact that is not at fault and a success (-2 + 1) is worse than neither (0)
+    mixed = np.array([[0, 1, 1, 150.0], [0, 0, 0, float("nan")]])
+    assert hindsight_verdict(mixed, W, label=1, answer=0) == "worse"
+    assert hindsight_verdict(mixed, W, label=0, answer=1) == "better"
 
 
 def test_the_dpo_loss_is_the_log_sigmoid_of_the_scaled_margin_over_the_reference() -> None:

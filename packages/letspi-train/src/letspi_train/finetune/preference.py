@@ -69,6 +69,17 @@ def hindsight_utility(hindsight: np.ndarray, weights: dict[str, float]) -> np.nd
     return out
 
 
+def hindsight_verdict(hindsight: np.ndarray, weights: dict[str, float], label: int, answer: int) -> str:
+    """How preset ``answer`` fared against preset ``label`` in one window's (K, 4) ``hindsight``:
+    ``same_outcome`` (the same at-fault contact, contact and success), else ``better`` or ``worse`` by the
+    utility of those outcomes (progress left out: it only breaks ties between equal outcomes)."""
+    h = np.asarray(hindsight, dtype=np.float64)
+    if np.array_equal(h[label, :3] != 0, h[answer, :3] != 0):
+        return "same_outcome"
+    outcome = hindsight_utility(h, weights) - weights["progress_per_m"] * np.nan_to_num(h[:, 3])
+    return "better" if outcome[answer] > outcome[label] else "worse"
+
+
 def ranked_pairs(names: Sequence[str], hindsight: np.ndarray, weights: dict[str, float],
                  margin: float) -> list[tuple[str, str]]:
     """(preferred, rejected) preset names of one window: the best in hindsight (the first on a tie) against
