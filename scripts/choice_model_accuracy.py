@@ -11,7 +11,7 @@ proposals, the confusion (kind, label -> answer) and the median latency per call
 
 It also scores each answer by the window's hindsight (the labels' ``hindsight_json``: per preset the at-fault
 contact, contact and success of its plan against the recorded future): per label, how many answers had the
-label's outcome (``same_outcome``), a better one (``better``) or a worse one (``worse``), and how often the
+label's outcome (``same_outcome``; per kind and label), a better one (``better``) or a worse one (``worse``), and how often the
 label itself was the best preset in hindsight (``label_best``; ``letspi_train.finetune.preference``'s utility,
 an outcome worth 1 or more, progress breaking ties). A wrong answer with the label's outcome costs nothing
 in that window; one with a worse outcome does.
@@ -46,7 +46,7 @@ def main(dirs: list[Path]) -> dict[str, object]:
     advisor = ParamAdvisor("llamacpp:smollm2-135m-letspi", cache=None)
     hindsight, weights = hindsight_of_windows(dirs)
     confusion: collections.Counter[tuple[str, str, str]] = collections.Counter()
-    versus: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    versus: dict[tuple[str, str], collections.Counter[str]] = collections.defaultdict(collections.Counter)
     latencies: list[float] = []
     seen: set[tuple[str, str]] = set()
     for example in val:
@@ -59,14 +59,14 @@ def main(dirs: list[Path]) -> dict[str, object]:
         latencies.append(time.perf_counter() - started)
         label = json.loads(example.reply)["option"]
         confusion[(example.kind, label, str(advice.choice))] += 1
-        versus[label].update(compare_in_hindsight(hindsight[example.scenario_digest], names, weights, label,
+        versus[(example.kind, label)].update(compare_in_hindsight(hindsight[example.scenario_digest], names, weights, label,
                                                   str(advice.choice)))
     n = sum(confusion.values())
     return {"n": n, "accuracy": sum(v for k, v in confusion.items() if k[1] == k[2]) / max(n, 1),
             "median_latency_s": sorted(latencies)[len(latencies) // 2] if latencies else None,
             "per_label": per_label(confusion), "per_label_propose": per_label(confusion, "propose"),
             "answers_propose": answer_shares(confusion, "propose"),
-            "hindsight": {label: dict(sorted(c.items())) for label, c in sorted(versus.items())},
+            "hindsight": {f"{kind} {label}": dict(sorted(c.items())) for (kind, label), c in sorted(versus.items())},
             "confusion": {f"{kind} {label} -> {answer}": v for (kind, label, answer), v in sorted(confusion.items())}}
 
 
