@@ -10,8 +10,8 @@ accuracy overall and per label (all examples, and first proposals only), the ans
 proposals, the confusion (kind, label -> answer) and the median latency per call as JSON.
 
 It also scores each answer by the window's hindsight (the labels' ``hindsight_json``: per preset the at-fault
-contact, contact and success of its plan against the recorded future): per label, how many answers had the
-label's outcome (``same_outcome``; per kind and label), a better one (``better``) or a worse one (``worse``), and how often the
+contact, contact and success of its plan against the recorded future): per kind and label, how many answers had
+the label's outcome (``same_outcome``), a better one (``better``) or a worse one (``worse``), and how often the
 label itself was the best preset in hindsight (``label_best``; ``letspi_train.finetune.preference``'s utility,
 an outcome worth 1 or more, progress breaking ties). A wrong answer with the label's outcome costs nothing
 in that window; one with a worse outcome does.
@@ -59,8 +59,8 @@ def main(dirs: list[Path]) -> dict[str, object]:
         latencies.append(time.perf_counter() - started)
         label = json.loads(example.reply)["option"]
         confusion[(example.kind, label, str(advice.choice))] += 1
-        versus[(example.kind, label)].update(compare_in_hindsight(hindsight[example.scenario_digest], names, weights, label,
-                                                  str(advice.choice)))
+        verdicts = compare_in_hindsight(hindsight[example.scenario_digest], names, weights, label, str(advice.choice))
+        versus[(example.kind, label)].update(verdicts)
     n = sum(confusion.values())
     return {"n": n, "accuracy": sum(v for k, v in confusion.items() if k[1] == k[2]) / max(n, 1),
             "median_latency_s": sorted(latencies)[len(latencies) // 2] if latencies else None,
