@@ -44,7 +44,7 @@ def main(dirs: list[Path]) -> dict[str, object]:
     names = list(load_presets()[0].names)
     options: dict[str, Any] = {n: n for n in names}  # only the chosen name is read
     advisor = ParamAdvisor("llamacpp:smollm2-135m-letspi", cache=None)
-    hindsight, weights = hindsight_of_windows(dirs)
+    hindsight, weights = hindsight_of_windows(dirs, names)
     confusion: collections.Counter[tuple[str, str, str]] = collections.Counter()
     versus: dict[tuple[str, str], collections.Counter[str]] = collections.defaultdict(collections.Counter)
     latencies: list[float] = []
@@ -70,9 +70,10 @@ def main(dirs: list[Path]) -> dict[str, object]:
             "confusion": {f"{kind} {label} -> {answer}": v for (kind, label, answer), v in sorted(confusion.items())}}
 
 
-def hindsight_of_windows(dirs: list[Path]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+def hindsight_of_windows(dirs: list[Path], names: list[str]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Per window (scenario digest) its presets' (K, 4) hindsight ``[at_fault, contact, success, progress_m]``,
-    and the labels' utility weights; ``ValueError`` naming the directory whose labels lack the column."""
+    rows in the order of ``names``, and the labels' utility weights; ``ValueError`` naming the directory whose
+    labels lack the column or were made for other presets."""
     out: dict[str, np.ndarray] = {}
     weights: dict[str, float] = {}
     for d in dirs:
@@ -80,6 +81,8 @@ def hindsight_of_windows(dirs: list[Path]) -> tuple[dict[str, np.ndarray], dict[
         if HINDSIGHT_COLUMN not in df.columns:
             raise ValueError(f"{d}: the labels have no {HINDSIGHT_COLUMN} column (rebuild them with `letspi train "
                              "decide`)")
+        if list(manifest["presets"]) != names:
+            raise ValueError(f"{d}: labels for the presets {manifest['presets']}, not the shipped {names}")
         weights = dict(manifest["weights"])
         for digest, text in zip(df["scenario_digest"], df[HINDSIGHT_COLUMN], strict=True):
             out[str(digest)] = np.asarray(json.loads(text), dtype=np.float64)
